@@ -1,0 +1,41 @@
+# One venv, installed from pyproject.toml's pins. `make run` and `make test` are the README's two commands.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/spine migrate
+	$(BIN)/spine serve --host 127.0.0.1 --port 8000
+
+lint: $(STAMP)
+	$(BIN)/ruff check spine_engine services migrations tests
+	$(BIN)/mypy
+
+test: $(STAMP) lint
+	$(BIN)/python -m pytest -ra
+
+bench-paper: $(STAMP)
+	$(BIN)/spine bench paper
+
+bench-verse: $(STAMP)
+	$(BIN)/spine bench verse
+
+bench-perf: $(STAMP)
+	$(BIN)/spine bench perf
+
+openapi: $(STAMP)
+	$(BIN)/spine openapi > openapi.yaml
+
+clean:
+	rm -rf $(VENV) .spine .pytest_cache .mypy_cache .ruff_cache
