@@ -91,12 +91,6 @@ class _View(_Strict):
             seen.add(lm.level)
         return sorted(value, key=lambda lm: LEVEL_INDEX[lm.level])
 
-    @model_validator(mode="after")
-    def _px_needs_spacing(self) -> _View:
-        if self.units == "px" and self.pixel_spacing is None:
-            raise ValueError("pixel_spacing is required when units is 'px'")
-        return self
-
 
 class PAView(_View):
     """The postero-anterior radiograph and its landmarks."""
@@ -161,26 +155,17 @@ class Options(_Strict):
 
 
 class JobPayload(_Strict):
-    """The body a client posts to create a job, and the argument of ``spine_engine.register``."""
+    """The body a client posts to create a job, and the argument of ``spine_engine.register``.
+
+    Checks that span several fields (px units need pixel_spacing; without a projection a view
+    needs its T1 and L5 landmarks) live in ``spine_engine.validation.validate_payload``, so that
+    their errors name the field.
+    """
 
     pa: PAView
     lateral: LateralView | None = None
     boundary: Boundary
     options: Options = Field(default_factory=Options)
-
-    @model_validator(mode="after")
-    def _projection_estimable(self) -> JobPayload:
-        for name, view in (("pa", self.pa), ("lateral", self.lateral)):
-            if view is None or view.projection is not None:
-                continue
-            levels = {lm.level for lm in view.landmarks}
-            missing = [lv for lv in ("T1", "L5") if lv not in levels]
-            if missing:
-                raise ValueError(
-                    f"{name}.landmarks lacks the boundary vertebrae {missing}: without "
-                    f"{name}.projection they are needed to estimate the scale and translation"
-                )
-        return self
 
 
 # ---------------------------------------------------------------- result
