@@ -1,0 +1,1 @@
+"""Experiment and benchmark commands of the engine (``spine bench ...``)."""

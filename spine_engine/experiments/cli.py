@@ -1,0 +1,23 @@
+"""``spine bench ...``: the experiment and benchmark commands of the engine."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+COMMANDS = {
+    "paper": ("spine_engine.experiments.paper", "the paper's experiments on 30 synthetic spines"),
+    "verse": ("spine_engine.experiments.verse", "3D error on real spines from CT (VerSe)"),
+    "perf": ("spine_engine.experiments.perf", "time single 17-landmark fits"),
+    "calibrate": ("spine_engine.experiments.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench", description=__doc__)
+    described = "; ".join(f"{name}: {what}" for name, (_, what) in COMMANDS.items())
+    parser.add_argument("command", choices=sorted(COMMANDS), help=described)
+    parser.add_argument("args", nargs=argparse.REMAINDER)
+    ns = parser.parse_args(argv)
+    module = importlib.import_module(COMMANDS[ns.command][0])
+    return int(module.main(ns.args))

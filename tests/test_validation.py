@@ -1,0 +1,141 @@
+"""Every kind of bad input gets a typed InvalidInput that names the field and the reason."""
+
+import json
+from typing import Any
+
+import pytest
+
+from spine_engine.errors import InvalidInput
+from spine_engine.validation import validate_payload
+
+IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
+
+
+def good() -> dict[str, Any]:
+    # a JSON round trip, so that no two fields share a list (deepcopy would keep the aliasing)
+    return json.loads(json.dumps({
+        "pa": {
+            "landmarks": [
+                {"level": "T1", "point": [100.0, 50.0]},
+                {"level": "T8", "point": [104.0, 250.0]},
+                {"level": "L5", "point": [101.0, 500.0]},
+            ]
+        },
+        "boundary": {
+            "T1": {"position": [0.0, 0.0, 0.0], "directors": IDENTITY_LPS},
+            "L5": {"position": [0.0, 10.0, -420.0], "directors": IDENTITY_LPS},
+        },
+    }))
+
+
+def errors_of(payload: Any) -> list[tuple[str, str, str]]:
+    with pytest.raises(InvalidInput) as info:
+        validate_payload(payload)
+    return [(e.path, e.type, e.msg) for e in info.value.errors]
+
+
+def test_good_payload_is_accepted_and_sorted_by_level() -> None:
+    p = good()
+    p["pa"]["landmarks"].reverse()
+    model = validate_payload(p)
+    assert [lm.level for lm in model.pa.landmarks] == ["T1", "T8", "L5"]
+    assert model.pa.patient_orientation == ("L", "F")
+    assert model.options.profile == "default"
+
+
+def test_unknown_level() -> None:
+    p = good()
+    p["pa"]["landmarks"][1]["level"] = "T13"
+    [(path, kind, _)] = errors_of(p)
+    assert (path, kind) == ("pa.landmarks[1].level", "literal_error")
+
+
+def test_repeated_level() -> None:
+    p = good()
+    p["pa"]["landmarks"][1]["level"] = "T1"
+    [(path, _, msg)] = errors_of(p)
+    assert path == "pa.landmarks" and "T1 is given more than once" in msg
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_numbers(bad: float) -> None:
+    p = good()
+    p["pa"]["landmarks"][2]["point"][1] = bad
+    p["boundary"]["T1"]["position"][0] = bad
+    paths = {path for path, kind, _ in errors_of(p)}
+    assert paths == {"pa.landmarks[2].point[1]", "boundary.T1.position[0]"}
+
+
+def test_directors_not_orthonormal() -> None:
+    p = good()
+    p["boundary"]["T1"]["directors"] = [[1.0, 0.01, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+    [(path, _, msg)] = errors_of(p)
+    assert path == "boundary.T1.directors" and "not orthonormal" in msg
+
+
+def test_directors_within_tolerance_are_accepted() -> None:
+    p = good()
+    p["boundary"]["T1"]["directors"] = [[1.0, 0.0004, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+    validate_payload(p)
+
+
+def test_directors_left_handed() -> None:
+    p = good()
+    p["boundary"]["L5"]["directors"] = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]
+    [(path, _, msg)] = errors_of(p)
+    assert path == "boundary.L5.directors" and "right-handed" in msg
+
+
+def test_boundary_landmark_missing_without_projection() -> None:
+    p = good()
+    del p["pa"]["landmarks"][2]
+    [(path, kind, msg)] = errors_of(p)
+    assert (path, kind) == ("pa.landmarks", "boundary_landmarks_missing") and "L5" in msg
+
+
+def test_boundary_landmarks_not_needed_with_projection() -> None:
+    p = good()
+    p["pa"]["landmarks"] = p["pa"]["landmarks"][1:2]
+    p["pa"]["projection"] = {"scale": 1.1, "translation": [100.0, 50.0]}
+    validate_payload(p)
+
+
+def test_no_landmarks_at_all() -> None:
+    p = good()
+    p["pa"]["landmarks"] = []
+    paths = {path for path, _, _ in errors_of(p)}
+    assert "pa.landmarks" in paths
+
+
+def test_px_without_pixel_spacing() -> None:
+    p = good()
+    p["pa"]["units"] = "px"
+    [(path, kind, _)] = errors_of(p)
+    assert (path, kind) == ("pa.pixel_spacing", "missing")
+
+
+def test_missing_boundary_and_unknown_field() -> None:
+    p = good()
+    del p["boundary"]["L5"]
+    p["surprise"] = 1
+    paths = {path for path, _, _ in errors_of(p)}
+    assert paths == {"boundary.L5", "surprise"}
+
+
+def test_bad_orientation() -> None:
+    p = good()
+    p["pa"]["patient_orientation"] = ["L", "R"]
+    [(path, _, msg)] = errors_of(p)
+    assert path == "pa.patient_orientation" and "not orthogonal" in msg
+
+
+def test_not_an_object() -> None:
+    assert errors_of([1, 2])[0][1] == "type_error"
+
+
+def test_every_error_is_reported_at_once() -> None:
+    p = good()
+    p["pa"]["landmarks"][0]["level"] = "X"
+    p["boundary"]["T1"]["directors"][0] = [2.0, 0.0, 0.0]
+    p["options"] = {"profile": 3}
+    assert len(errors_of(p)) == 3
