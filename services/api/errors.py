@@ -1,0 +1,78 @@
+"""HTTP error handling: every error leaves the API as an RFC 9457 problem+json response."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from sqlalchemy.exc import InterfaceError, OperationalError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from spine_engine.errors import FieldError
+
+log = logging.getLogger(__name__)
+
+
+class ProblemError(Exception):
+    """Raise to answer with this problem dict."""
+
+    def __init__(self, body: dict[str, Any], headers: dict[str, str] | None = None):
+        self.body = body
+        self.headers = headers
+        super().__init__(body.get("detail", ""))
+
+
+def problem_response(body: dict[str, Any], headers: dict[str, str] | None = None) -> JSONResponse:
+    return JSONResponse(body, status_code=int(body["status"]), media_type=PROBLEM_MEDIA_TYPE, headers=headers)
+
+
+async def _problem_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ProblemError)
+    body = dict(exc.body)
+    body.setdefault("instance", request.url.path)
+    return problem_response(body, exc.headers)
+
+
+async def _request_validation(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors = [
+        FieldError(tuple(p for p in e.get("loc", ()) if isinstance(p, (str, int))), str(e.get("msg", "")),
+                   str(e.get("type", "")))
+        for e in exc.errors()
+    ]  # fmt: skip
+    return problem_response(validation_problem(errors, instance=request.url.path))
+
+
+async def _http_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    kind = {404: "not-found", 405: "method-not-allowed", 413: "payload-too-large", 415: "unsupported-media-type"}
+    body = problem(kind.get(exc.status_code, "http-error"), str(exc.detail), status=exc.status_code,
+                   instance=request.url.path)  # fmt: skip
+    return problem_response(body, dict(exc.headers) if exc.headers else None)
+
+
+async def _database_down(request: Request, exc: Exception) -> JSONResponse:
+    log.warning("database unreachable: %s", exc)
+    body = problem("service-unavailable", "the job database is unreachable; retry later",
+                   instance=request.url.path)  # fmt: skip
+    return problem_response(body, {"Retry-After": "5"})
+
+
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("unhandled error on %s %s", request.method, request.url.path)
+    body = problem("internal-error", "an unexpected error occurred; it has been logged",
+                   instance=request.url.path)  # fmt: skip
+    return problem_response(body)
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(ProblemError, _problem_error)
+    app.add_exception_handler(RequestValidationError, _request_validation)
+    app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.add_exception_handler(OperationalError, _database_down)
+    app.add_exception_handler(InterfaceError, _database_down)
+    app.add_exception_handler(Exception, _unexpected)

@@ -1,0 +1,190 @@
+"""/v1/jobs: create (one or a batch), read, list and cancel jobs."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import UTC, datetime
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query
+from fastapi.responses import JSONResponse
+
+from services.api.deps import BatchBody, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
+from services.api.errors import ProblemError
+from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem, job_json
+from services.db import jobs as jobs_repo
+from services.jobqueue import enqueue
+from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from spine_engine.errors import FieldError, InvalidInput
+from spine_engine.validation import validate_payload
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+PAYLOAD_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/json": {"schema": {"$ref": "#/components/schemas/JobPayload"}}},
+    }
+}
+BATCH_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/json": {"schema": {"$ref": "#/components/schemas/BatchRequest"}}},
+    }
+}
+
+
+def _problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
+
+
+def _location(job_id: uuid.UUID | str) -> str:
+    return f"/v1/jobs/{job_id}"
+
+
+@router.post(
+    "",
+    status_code=202,
+    response_model=Job,
+    summary="Submit a registration job",
+    description="Validates the payload fully, stores a queued job and enqueues it. "
+    "With an Idempotency-Key, the same key and body return the same job; another body is a 409.",
+    openapi_extra=PAYLOAD_BODY,
+    responses=_problems(400, 409, 413, 415, 422, 503),
+)
+def submit_job(
+    body: JobBody,
+    session: SessionDep,
+    queue: QueueDep,
+    owner: OwnerDep,
+    idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+) -> JSONResponse:
+    try:
+        validate_payload(body)
+    except InvalidInput as exc:
+        raise ProblemError(validation_problem(exc.errors)) from None
+    try:
+        job, created = jobs_repo.create_job(session, body, owner=owner, idempotency_key=idempotency_key)
+    except jobs_repo.IdempotencyConflict as exc:
+        raise ProblemError(
+            problem(
+                "idempotency-conflict",
+                f"the Idempotency-Key {idempotency_key!r} was used for job {exc.job_id} with another body",
+                job=_location(exc.job_id),
+            )
+        ) from None
+    if created:
+        enqueue(queue, [job.id])
+    headers = {"Location": _location(job.id)}
+    if not created:
+        headers["Idempotent-Replayed"] = "true"
+    return JSONResponse(job_json(job), status_code=202, headers=headers)
+
+
+@router.post(
+    "/batch",
+    response_model=BatchResponse,
+    summary="Submit up to 1,000 jobs at once",
+    description="Each payload is validated on its own; the answer has one entry per payload, "
+    "in order: the created job (status 202) or the problem with it.",
+    openapi_extra=BATCH_BODY,
+    responses=_problems(400, 413, 415, 422),
+)
+def submit_batch(
+    body: BatchBody, session: SessionDep, queue: QueueDep, owner: OwnerDep, settings: SettingsDep
+) -> JSONResponse:
+    if not isinstance(body, dict) or not isinstance(body.get("jobs"), list):
+        raise ProblemError(
+            validation_problem([FieldError(("jobs",), "the body must be an object with a list 'jobs'", "list_type")])
+        )
+    payloads: list[Any] = body["jobs"]
+    if len(payloads) > settings.batch_max_jobs:
+        raise ProblemError(
+            problem(
+                "payload-too-large",
+                f"{len(payloads)} payloads in one batch; at most {settings.batch_max_jobs}",
+                limit=settings.batch_max_jobs,
+            )
+        )
+    entries: list[dict[str, Any] | None] = [None] * len(payloads)
+    valid: list[tuple[int, dict[str, Any]]] = []
+    for i, payload in enumerate(payloads):
+        try:
+            validate_payload(payload)
+            valid.append((i, payload))
+        except InvalidInput as exc:
+            errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
+            p = validation_problem(errors, instance="/v1/jobs/batch")
+            entries[i] = {"index": i, "status": p["status"], "problem": p}
+    jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner) if valid else []
+    enqueue(queue, [job.id for job in jobs])
+    for (i, _), job in zip(valid, jobs, strict=True):
+        entries[i] = {"index": i, "status": 202, "job": job_json(job)}
+    return JSONResponse({"accepted": len(jobs), "rejected": len(payloads) - len(jobs), "results": entries})
+
+
+@router.get(
+    "",
+    response_model=JobPage,
+    summary="List jobs, newest first",
+    description="Filter by status (repeatable) and creation time; page with the returned cursor.",
+    responses=_problems(422),
+)
+def list_jobs(
+    session: SessionDep,
+    owner: OwnerDep,
+    status: Annotated[list[JobStatusName] | None, Query(description="Keep jobs in these states.")] = None,
+    created_after: Annotated[datetime | None, Query(description="Created at or after (ISO 8601).")] = None,
+    created_before: Annotated[datetime | None, Query(description="Created before (ISO 8601).")] = None,
+    cursor: Annotated[str | None, Query(description="next_cursor of the previous page.")] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+) -> JSONResponse:
+    def utc(value: datetime | None) -> datetime | None:
+        return value.replace(tzinfo=UTC) if value is not None and value.tzinfo is None else value
+
+    try:
+        jobs, next_cursor = jobs_repo.list_jobs(
+            session,
+            statuses=status or [],
+            created_after=utc(created_after),
+            created_before=utc(created_before),
+            cursor=cursor,
+            limit=limit,
+            owner=owner,
+        )
+    except jobs_repo.BadCursor as exc:
+        raise ProblemError(validation_problem([FieldError(("query", "cursor"), str(exc), "cursor")])) from None
+    return JSONResponse({"jobs": [job_json(j) for j in jobs], "next_cursor": next_cursor})
+
+
+def _not_found(job_id: uuid.UUID) -> ProblemError:
+    return ProblemError(problem("not-found", f"there is no job {job_id}"))
+
+
+@router.get("/{job_id}", response_model=Job, summary="Read a job", responses=_problems(404, 422))
+def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
+    try:
+        job = jobs_repo.get_job(session, job_id, owner=owner)
+    except jobs_repo.JobNotFound:
+        raise _not_found(job_id) from None
+    return JSONResponse(job_json(job, with_payload=True))
+
+
+@router.post(
+    "/{job_id}/cancel",
+    response_model=Job,
+    summary="Cancel a queued or running job",
+    description="The job ends cancelled and is never run again; cancelling a cancelled job is a no-op. "
+    "A job that already succeeded or failed is a 409.",
+    responses=_problems(404, 409, 422),
+)
+def cancel_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
+    try:
+        job = jobs_repo.cancel_job(session, job_id, owner=owner)
+    except jobs_repo.JobNotFound:
+        raise _not_found(job_id) from None
+    except jobs_repo.JobFinished as exc:
+        raise ProblemError(
+            problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
+        ) from None
+    return JSONResponse(job_json(job))

@@ -1,0 +1,104 @@
+"""Response and request models of the HTTP API (the job payload itself is spine_engine's)."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.db.models import Job as JobRow
+from spine_engine.models import RegistrationResult
+
+JobStatusName = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class FieldProblem(BaseModel):
+    path: str = Field(description="JSON path of the offending field, e.g. pa.landmarks[3].level.")
+    loc: list[str | int] = Field(description="The same path as a list of keys and indexes.")
+    msg: str
+    type: str = Field(description="Machine-readable kind of the field error.")
+
+
+class Problem(BaseModel):
+    """RFC 9457 problem details (application/problem+json)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: str = Field(description="Stable URI of the kind of problem.")
+    title: str
+    status: int
+    detail: str
+    instance: str | None = None
+    errors: list[FieldProblem] | None = Field(
+        None, description="Validation problems: every offending field with its JSON path."
+    )
+
+
+class Job(BaseModel):
+    """A job and, once finished, its result or error."""
+
+    id: uuid.UUID
+    status: JobStatusName
+    owner: str | None = Field(description="Owner of the job (API key's owner); null until keys exist.")
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    attempts: int = Field(description="Runs started so far (a worker lost mid-fit counts one).")
+    engine_version: str | None
+    result: RegistrationResult | None = Field(description="The reconstruction, when succeeded.")
+    error: Problem | None = Field(description="Why the job failed, when failed.")
+    payload: dict[str, Any] | None = Field(None, description="The payload as posted; only in GET /v1/jobs/{id}.")
+
+
+class JobPage(BaseModel):
+    jobs: list[Job]
+    next_cursor: str | None = Field(description="Pass as ?cursor= for the next (older) page; null at the end.")
+
+
+class BatchRequest(BaseModel):
+    jobs: list[dict[str, Any]] = Field(
+        description="Up to SPINE_BATCH_MAX_JOBS (1000) job payloads, each validated on its own."
+    )
+
+
+class BatchEntry(BaseModel):
+    index: int = Field(description="Position of the payload in the request.")
+    status: int = Field(description="202 when a job was created, else the problem's status.")
+    job: Job | None = None
+    problem: Problem | None = None
+
+
+class BatchResponse(BaseModel):
+    accepted: int
+    rejected: int
+    results: list[BatchEntry]
+
+
+class Health(BaseModel):
+    status: str
+    checks: dict[str, str] = Field(default_factory=dict)
+
+
+def _ts(value: datetime | None) -> str | None:
+    return value.isoformat() if value is not None else None
+
+
+def job_json(job: JobRow, *, with_payload: bool = False) -> dict[str, Any]:
+    """A job as the JSON of the ``Job`` model, built directly (the hot path skips re-validation)."""
+    body: dict[str, Any] = {
+        "id": str(job.id),
+        "status": job.status,
+        "owner": job.owner,
+        "created_at": _ts(job.created_at),
+        "started_at": _ts(job.started_at),
+        "finished_at": _ts(job.finished_at),
+        "attempts": job.attempts,
+        "engine_version": job.engine_version,
+        "result": job.result,
+        "error": job.error,
+    }
+    if with_payload:
+        body["payload"] = job.payload
+    return body

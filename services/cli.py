@@ -1,0 +1,174 @@
+"""The ``spine`` command: serve, worker, migrate, openapi, loadtest, bench.
+
+``spine serve`` runs the API with uvicorn and, on the embedded default, a Celery worker as its
+child process (Ctrl-C stops both). ``spine bench ...`` hands its arguments to the engine's
+experiments (``spine_engine.experiments.cli``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Sequence
+
+log = logging.getLogger("services.cli")
+
+
+def _settings():  # type: ignore[no-untyped-def]
+    from services.settings import get_settings
+
+    return get_settings()
+
+
+def cmd_migrate(_: argparse.Namespace) -> int:
+    from services.db.migrate import upgrade
+
+    upgrade(_settings())
+    return 0
+
+
+def cmd_openapi(_: argparse.Namespace) -> int:
+    sys.stdout.write(openapi_yaml())
+    return 0
+
+
+def openapi_yaml() -> str:
+    """The app's OpenAPI schema as YAML, exactly as ``openapi.yaml`` holds it."""
+    import yaml
+
+    from services.api.app import create_app
+    from services.settings import Settings
+
+    schema = create_app(Settings()).openapi()
+    return yaml.safe_dump(schema, sort_keys=False, allow_unicode=True, width=100)
+
+
+def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list[str]:
+    argv = ["worker", "--loglevel", loglevel, "-Q", queue, "-n", f"spine-{os.getpid()}@%h", "--without-gossip",
+            "--without-mingle"]  # fmt: skip
+    if concurrency > 0:
+        argv += ["--concurrency", str(concurrency)]
+    if beat:
+        argv += ["-B", "--schedule", os.devnull]
+    return argv
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    settings = _settings()
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    from services.worker.celery_app import app
+
+    concurrency = args.concurrency if args.concurrency is not None else settings.worker_concurrency
+    app.worker_main(worker_argv(concurrency, not args.no_beat, args.loglevel or settings.log_level,
+                                settings.queue_name))  # fmt: skip
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    settings = _settings()
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    if settings.embedded:
+        from services.db.migrate import upgrade
+
+        upgrade(settings)
+    child: subprocess.Popen[bytes] | None = None
+    if settings.starts_worker and not args.no_worker:
+        child = subprocess.Popen([sys.executable, "-m", "services.cli", "worker"])
+        log.info("started worker process %d", child.pid)
+    try:
+        uvicorn.run(
+            "services.api.app:create_app",
+            factory=True,
+            host=args.host,
+            port=args.port,
+            workers=args.workers,
+            log_level=settings.log_level.lower(),
+            access_log=args.access_log,
+        )
+    finally:
+        if child is not None:
+            _stop(child)
+    return 0
+
+
+def _stop(child: subprocess.Popen[bytes], grace: float = 30.0) -> None:
+    if child.poll() is None:
+        child.send_signal(signal.SIGTERM)
+        try:
+            child.wait(grace)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+    log.info("worker process %d stopped (exit %s)", child.pid, child.returncode)
+
+
+def cmd_loadtest(args: argparse.Namespace) -> int:
+    from services.loadbench import main as loadbench_main
+
+    return loadbench_main(args.rest)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from spine_engine.experiments.cli import main as bench_main
+
+    return int(bench_main(args.rest))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="spine", description=__doc__.splitlines()[0] if __doc__ else None)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    serve = sub.add_parser("serve", help="run the API (and, on the embedded default, a worker)")
+    serve.add_argument("--host", default="127.0.0.1")
+    serve.add_argument("--port", type=int, default=8000)
+    serve.add_argument("--workers", type=int, default=1, help="uvicorn worker processes of the API")
+    serve.add_argument("--no-worker", action="store_true", help="do not start a Celery worker child")
+    serve.add_argument("--access-log", action="store_true", help="log every request")
+    serve.set_defaults(func=cmd_serve)
+
+    worker = sub.add_parser("worker", help="run a Celery worker with the reconciler (beat) embedded")
+    worker.add_argument("--concurrency", type=int, default=None, help="processes (default SPINE_WORKER_CONCURRENCY)")
+    worker.add_argument("--no-beat", action="store_true", help="do not run the reconciler in this worker")
+    worker.add_argument("--loglevel", default=None)
+    worker.set_defaults(func=cmd_worker)
+
+    migrate = sub.add_parser("migrate", help="apply the database migrations")
+    migrate.set_defaults(func=cmd_migrate)
+
+    openapi = sub.add_parser("openapi", help="print the API's OpenAPI schema as YAML")
+    openapi.set_defaults(func=cmd_openapi)
+
+    loadtest = sub.add_parser("loadtest", help="load benchmark of a running service (python -m services.loadbench)",
+                              add_help=False)  # fmt: skip
+    loadtest.add_argument("rest", nargs=argparse.REMAINDER)
+    loadtest.set_defaults(func=cmd_loadtest)
+
+    bench = sub.add_parser("bench", help="engine experiments (spine_engine.experiments)", add_help=False)
+    bench.add_argument("rest", nargs=argparse.REMAINDER)
+    bench.set_defaults(func=cmd_bench)
+    return parser
+
+
+PASSTHROUGH = {"bench": cmd_bench, "loadtest": cmd_loadtest}
+"""Subcommands whose arguments belong to another parser: handed over untouched."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PASSTHROUGH:
+        return PASSTHROUGH[argv[0]](argparse.Namespace(rest=argv[1:]))
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

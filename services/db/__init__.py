@@ -1,0 +1,1 @@
+"""Storage of jobs: SQLAlchemy models, engine and the job repository."""

@@ -1,0 +1,75 @@
+"""Database engines and sessions, one engine per URL and process (safe across fork)."""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.orm import Session, sessionmaker
+
+from services.settings import Settings
+
+_LOCK = threading.Lock()
+_ENGINES: dict[tuple[str, int], tuple[Engine, sessionmaker[Session]]] = {}
+
+
+def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+    cursor = dbapi_connection.cursor()
+    cursor.execute("PRAGMA journal_mode=WAL")
+    cursor.execute("PRAGMA synchronous=NORMAL")
+    cursor.execute("PRAGMA busy_timeout=30000")
+    cursor.execute("PRAGMA foreign_keys=ON")
+    cursor.close()
+
+
+def create_db_engine(url: str, pool_size: int = 10) -> Engine:
+    """An engine for ``url``: WAL and a busy timeout on SQLite, a sized pool on PostgreSQL."""
+    if url.startswith("sqlite"):
+        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        event.listen(engine, "connect", _sqlite_pragmas)
+        return engine
+    return create_engine(url, pool_size=pool_size, max_overflow=pool_size, pool_pre_ping=True)
+
+
+def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
+    key = (settings.sqlalchemy_url, os.getpid())
+    with _LOCK:
+        if key not in _ENGINES:
+            settings.ensure_data_dir()
+            engine = create_db_engine(settings.sqlalchemy_url, settings.db_pool_size)
+            _ENGINES[key] = (engine, sessionmaker(engine, expire_on_commit=False))
+        return _ENGINES[key]
+
+
+def get_engine(settings: Settings) -> Engine:
+    return _entry(settings)[0]
+
+
+def session_factory(settings: Settings) -> sessionmaker[Session]:
+    return _entry(settings)[1]
+
+
+@contextmanager
+def session_scope(settings: Settings) -> Iterator[Session]:
+    """A session that commits on success and rolls back on error."""
+    session = session_factory(settings)()
+    try:
+        yield session
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    finally:
+        session.close()
+
+
+def dispose_engines() -> None:
+    """Forget every engine of this process (e.g. in a worker child right after fork)."""
+    with _LOCK:
+        for key, (engine, _) in list(_ENGINES.items()):
+            engine.dispose(close=key[1] == os.getpid())
+            del _ENGINES[key]

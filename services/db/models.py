@@ -1,0 +1,158 @@
+"""SQLAlchemy 2 models of the job store. The Alembic migrations in ``migrations/`` create them.
+
+``jobs`` is the source of truth for job state. A succeeded job's clinical measures go to
+``job_measures`` (one row per job) and its per-vertebra strains to ``vertebra_strains``, so
+that they can be queried with SQL; the full result stays as JSON on the job.
+"""
+
+from __future__ import annotations
+
+import enum
+import uuid
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    CheckConstraint,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Uuid,
+    func,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.engine import Dialect
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
+
+NAMING_CONVENTION = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+JSONDocument = JSON().with_variant(JSONB(), "postgresql")
+
+
+class JobStatus(enum.StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+FINAL_STATUSES = frozenset({JobStatus.succeeded, JobStatus.failed, JobStatus.cancelled})
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """A timezone-aware UTC timestamp on every backend (SQLite stores it naive, in UTC)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError("naive datetime given to a UTC column")
+        value = value.astimezone(UTC)
+        return value.replace(tzinfo=None) if dialect.name == "sqlite" else value
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+
+
+class Job(Base):
+    __tablename__ = "jobs"
+
+    id: Mapped[uuid.UUID] = mapped_column(Uuid, primary_key=True, default=uuid.uuid4)
+    owner: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    status: Mapped[str] = mapped_column(String(16), nullable=False, default=JobStatus.queued.value)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=utcnow)
+    enqueued_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    attempts: Mapped[int] = mapped_column(Integer, nullable=False, default=0)
+    payload: Mapped[dict[str, Any]] = mapped_column(JSONDocument, nullable=False)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, nullable=True)
+    error: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, nullable=True)
+    engine_version: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    idempotency_key: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    request_hash: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+    __table_args__ = (
+        CheckConstraint("status IN ('queued', 'running', 'succeeded', 'failed', 'cancelled')", name="status"),
+        Index("ix_jobs_created_at_id", "created_at", "id"),
+        Index("ix_jobs_status_created_at_id", "status", "created_at", "id"),
+        Index("ix_jobs_owner_created_at_id", "owner", "created_at", "id"),
+        Index("ix_jobs_finished_at", "finished_at"),
+        Index(
+            "uq_jobs_owner_idempotency_key",
+            func.coalesce(owner, ""),  # type: ignore[arg-type]
+            idempotency_key,  # type: ignore[arg-type]
+            unique=True,
+        ),
+    )
+
+
+class JobMeasures(Base):
+    """The clinical measures of a succeeded job, one row per job, for SQL queries."""
+
+    __tablename__ = "job_measures"
+
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    major_cobb_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    major_curve_upper: Mapped[str | None] = mapped_column(String(3), nullable=True)
+    major_curve_lower: Mapped[str | None] = mapped_column(String(3), nullable=True)
+    major_curve_apex: Mapped[str | None] = mapped_column(String(3), nullable=True)
+    major_convexity: Mapped[str | None] = mapped_column(String(5), nullable=True)
+    major_apex_axial_rotation_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    major_plane_of_max_curvature_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    curve_count: Mapped[int] = mapped_column(Integer, nullable=False)
+    thoracic_kyphosis_t4_t12_deg: Mapped[float] = mapped_column(Float, nullable=False)
+    thoracic_kyphosis_t5_t12_deg: Mapped[float] = mapped_column(Float, nullable=False)
+    lumbar_lordosis_l1_l5_deg: Mapped[float] = mapped_column(Float, nullable=False)
+    mean_registration_error_mm: Mapped[float] = mapped_column(Float, nullable=False)
+    converged: Mapped[bool] = mapped_column(Boolean, nullable=False)
+
+    __table_args__ = (Index("ix_job_measures_major_cobb_deg", "major_cobb_deg"),)
+
+
+class VertebraStrain(Base):
+    """Pose angles and Cosserat strains of one vertebra of a succeeded job (u rad/mm, v 1)."""
+
+    __tablename__ = "vertebra_strains"
+
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    level: Mapped[str] = mapped_column(String(3), primary_key=True)
+    u1: Mapped[float | None] = mapped_column(Float, nullable=True)
+    u2: Mapped[float | None] = mapped_column(Float, nullable=True)
+    u3: Mapped[float | None] = mapped_column(Float, nullable=True)
+    v1: Mapped[float | None] = mapped_column(Float, nullable=True)
+    v2: Mapped[float | None] = mapped_column(Float, nullable=True)
+    v3: Mapped[float | None] = mapped_column(Float, nullable=True)
+    pa_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    lateral_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    twist_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    axial_rotation_deg: Mapped[float] = mapped_column(Float, nullable=False)
+
+    __table_args__ = (Index("ix_vertebra_strains_level_twist_deg", "level", "twist_deg"),)

@@ -1,0 +1,79 @@
+"""RFC 9457 problem details: the catalogue of problem kinds and a builder of problem dicts.
+
+Every error the API answers and every error stored on a failed job is such a dict, with a
+stable ``type`` URI per kind (``PROBLEM_BASE`` + kind). Validation problems carry ``errors``:
+one entry per offending field with its JSON path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from spine_engine.errors import FieldError
+
+PROBLEM_BASE = "https://spine.example/problems/"
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+
+# kind -> (title, default HTTP status)
+KINDS: dict[str, tuple[str, int]] = {
+    "validation-error": ("The request does not satisfy the job payload contract", 422),
+    "malformed-json": ("The request body is not valid JSON", 400),
+    "unsupported-media-type": ("The request body must be application/json", 415),
+    "payload-too-large": ("The request body is too large", 413),
+    "not-found": ("No such resource", 404),
+    "method-not-allowed": ("Method not allowed", 405),
+    "idempotency-conflict": ("The Idempotency-Key was used with another body", 409),
+    "job-not-cancellable": ("The job has already finished", 409),
+    "service-unavailable": ("A dependency of the service is unreachable", 503),
+    "internal-error": ("Internal error", 500),
+    "http-error": ("HTTP error", 400),
+    # Stored on failed jobs by the worker.
+    "fit-failed": ("The registration ran but did not produce a reconstruction", 422),
+    "fit-timeout": ("The registration exceeded its time limit", 504),
+    "worker-lost": ("The job's worker stopped too many times while running it", 500),
+    "engine-error": ("The engine raised an unexpected error", 500),
+}
+
+
+def problem_type(kind: str) -> str:
+    return PROBLEM_BASE + kind
+
+
+def problem(
+    kind: str,
+    detail: str,
+    *,
+    status: int | None = None,
+    instance: str | None = None,
+    **extensions: Any,
+) -> dict[str, Any]:
+    """A problem dict of ``kind`` (a key of ``KINDS``) with extension members."""
+    title, default_status = KINDS[kind]
+    body: dict[str, Any] = {
+        "type": problem_type(kind),
+        "title": title,
+        "status": status or default_status,
+        "detail": detail,
+    }
+    if instance is not None:
+        body["instance"] = instance
+    body.update(extensions)
+    return body
+
+
+def field_errors(errors: Iterable[FieldError]) -> list[dict[str, Any]]:
+    """The ``errors`` member of a validation problem: JSON path, location, message and type."""
+    return [{"path": e.path, "loc": list(e.loc), "msg": e.msg, "type": e.type} for e in errors]
+
+
+def validation_problem(
+    errors: list[FieldError], *, kind: str = "validation-error", instance: str | None = None
+) -> dict[str, Any]:
+    n = len(errors)
+    detail = f"{n} field{'s' if n != 1 else ''} failed validation: " + "; ".join(
+        f"{e.path or '(body)'}: {e.msg}" for e in errors[:5]
+    )
+    if n > 5:
+        detail += f"; and {n - 5} more"
+    return problem(kind, detail, instance=instance, errors=field_errors(errors))

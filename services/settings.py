@@ -1,0 +1,97 @@
+"""The one settings object of the service, read from environment variables (pydantic-settings).
+
+With no variables set, the service runs on its embedded default: a SQLite database and a
+SQLite-backed Celery broker (kombu's SQLAlchemy transport) under ``SPINE_DATA_DIR``. Setting
+``DATABASE_URL`` (PostgreSQL) and ``CELERY_BROKER_URL`` (Redis) runs the same code distributed.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import AliasChoices, Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every setting of the API and the worker. Names are the environment variables (README)."""
+
+    model_config = SettingsConfigDict(env_prefix="SPINE_", extra="ignore", frozen=True)
+
+    data_dir: Path = Field(
+        Path(".spine"),
+        description="Folder of the embedded default's files (SQLite database and broker).",
+    )
+    database_url: str | None = Field(
+        None,
+        validation_alias=AliasChoices("DATABASE_URL", "SPINE_DATABASE_URL"),
+        description="SQLAlchemy URL of the job database, e.g. postgresql+psycopg://user@host/db. "
+        "Default: sqlite:///$SPINE_DATA_DIR/spine.db.",
+    )
+    broker_url: str | None = Field(
+        None,
+        validation_alias=AliasChoices("CELERY_BROKER_URL", "SPINE_BROKER_URL"),
+        description="Celery broker URL, e.g. redis://host:6379/0. "
+        "Default: sqla+sqlite:///$SPINE_DATA_DIR/broker.db (no server needed).",
+    )
+    queue_name: str = Field("spine.jobs", description="Name of the broker queue that carries job ids.")
+    db_pool_size: int = Field(10, ge=1, description="Connections kept per process (PostgreSQL).")
+    fit_time_limit_s: float = Field(
+        120.0, gt=0, description="Time limit of one fit; past it the job fails with fit-timeout."
+    )
+    queued_timeout_s: float = Field(
+        300.0, gt=0, description="A job queued this long since it was last enqueued is enqueued again."
+    )
+    max_attempts: int = Field(
+        3, ge=1, description="Runs a job may start; a job stranded in running after that many fails."
+    )
+    reconcile_interval_s: float = Field(30.0, gt=0, description="Period of the reconciler task.")
+    worker_concurrency: int = Field(0, ge=0, description="Worker processes per `spine worker`; 0 means one per core.")
+    serve_worker: bool | None = Field(
+        None,
+        description="Whether `spine serve` starts a worker as its child process. Unset: yes on the "
+        "embedded default (no DATABASE_URL), no when distributed.",
+    )
+    max_body_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted request body (413 above).")
+    max_batch_body_bytes: int = Field(
+        16 * 1_048_576, ge=1024, description="Largest accepted body of POST /v1/jobs/batch (413 above)."
+    )
+    batch_max_jobs: int = Field(1000, ge=1, description="Most payloads in one POST /v1/jobs/batch.")
+    metrics_window_s: float = Field(
+        300.0, gt=0, description="Window of finished jobs over which /metrics reports duration quantiles."
+    )
+    log_level: str = Field("INFO", description="Log level of API and worker.")
+
+    @property
+    def embedded(self) -> bool:
+        """True when the database is the embedded SQLite default (no DATABASE_URL set)."""
+        return self.database_url is None
+
+    @property
+    def sqlalchemy_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{self.data_dir.resolve() / 'spine.db'}"
+
+    @property
+    def celery_broker_url(self) -> str:
+        if self.broker_url:
+            return self.broker_url
+        return f"sqla+sqlite:///{self.data_dir.resolve() / 'broker.db'}"
+
+    @property
+    def starts_worker(self) -> bool:
+        """Whether `spine serve` starts a worker child process."""
+        return self.embedded if self.serve_worker is None else self.serve_worker
+
+    def ensure_data_dir(self) -> None:
+        """Create SPINE_DATA_DIR when the embedded database or broker lives there."""
+        if self.database_url is None or self.broker_url is None:
+            self.data_dir.mkdir(parents=True, exist_ok=True)
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The process-wide settings, read once from the environment."""
+    return Settings()

@@ -1,0 +1,29 @@
+"""The worker's Celery app (``celery -A services.worker.celery_app``), built from the settings.
+
+It registers the job task and the reconciler, which Celery beat (embedded in the worker with
+``-B``) runs every ``SPINE_RECONCILE_INTERVAL_S``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from celery.signals import worker_process_init
+
+from services.db.engine import dispose_engines
+from services.jobqueue import RECONCILE, make_celery
+from services.settings import get_settings
+from services.worker import tasks
+
+settings = get_settings()
+app = make_celery(settings)
+tasks.register_tasks(app, settings)
+app.conf.beat_schedule = {
+    "reconcile": {"task": RECONCILE, "schedule": settings.reconcile_interval_s},
+}
+
+
+@worker_process_init.connect
+def _fresh_connections(**_: Any) -> None:
+    # A forked pool process must not share its parent's database connections.
+    dispose_engines()
