@@ -76,10 +76,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if settings.embedded:
         from services.db.migrate import upgrade
 
-        upgrade(settings)
+        upgrade(settings, quiet=True)
+    # uvicorn re-raises the signal that stopped it: make SIGTERM an exception, so that the
+    # worker child is stopped below instead of being orphaned.
+    signal.signal(signal.SIGTERM, _raise_exit)
     child: subprocess.Popen[bytes] | None = None
     if settings.starts_worker and not args.no_worker:
-        child = subprocess.Popen([sys.executable, "-m", "services.cli", "worker"])
+        # Its own session: a Ctrl-C or a group signal reaches `serve` only, which then stops the
+        # worker with one SIGTERM (a pool child killed by a stray group signal hangs Celery's
+        # shutdown). On Linux the worker is also told to stop if `serve` dies without cleaning up.
+        child = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "worker"], start_new_session=True, preexec_fn=_die_with_parent
+        )
         log.info("started worker process %d", child.pid)
     try:
         uvicorn.run(
@@ -95,6 +103,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if child is not None:
             _stop(child)
     return 0
+
+
+def _die_with_parent() -> None:
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+
+
+def _raise_exit(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
 
 
 def _stop(child: subprocess.Popen[bytes], grace: float = 30.0) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from alembic import command
@@ -10,19 +11,24 @@ from alembic.config import Config
 import migrations
 from services.settings import Settings
 
-ALEMBIC_INI = Path(migrations.__file__).parent / "alembic.ini"
+ALEMBIC_INI = Path(next(iter(migrations.__path__))) / "alembic.ini"
 
 
-def alembic_config(settings: Settings) -> Config:
+def alembic_config(settings: Settings, quiet: bool = False) -> Config:
     settings.ensure_data_dir()
     config = Config(str(ALEMBIC_INI))
+    if quiet:
+        config.attributes["configure_logging"] = False
     config.set_main_option("script_location", str(ALEMBIC_INI.parent))
     config.set_main_option("sqlalchemy.url", settings.sqlalchemy_url.replace("%", "%%"))
     return config
 
 
-def upgrade(settings: Settings, revision: str = "head") -> None:
-    command.upgrade(alembic_config(settings), revision)
+def upgrade(settings: Settings, revision: str = "head", *, quiet: bool = False) -> None:
+    """Migrate to ``revision``; ``quiet`` leaves the caller's logging alone."""
+    if quiet:
+        logging.getLogger("alembic").setLevel(logging.WARNING)
+    command.upgrade(alembic_config(settings, quiet), revision)
 
 
 def downgrade(settings: Settings, revision: str) -> None:
