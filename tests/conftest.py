@@ -1,0 +1,295 @@
+"""Shared fixtures of the service tests: payloads, real databases, brokers and worker processes.
+
+Integration fixtures use the real PostgreSQL and Redis on 127.0.0.1 (override with
+SPINE_TEST_POSTGRES / SPINE_TEST_REDIS) and skip, saying why, when they are unreachable. Each
+test session gets its own PostgreSQL database and queue name, dropped at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from services.api.app import create_app
+from services.db.migrate import upgrade
+from services.settings import Settings
+
+PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
+REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
+LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
+          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
+IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
+FINAL = {"succeeded", "failed", "cancelled"}
+
+
+def spine_payload(curve_mm: float = 15.0, length_mm: float = 420.0) -> dict[str, Any]:
+    """A plausible PA payload: 17 endplate midpoints on a C-curve, T1 and L5 given (LPS, mm)."""
+    landmarks = []
+    for i, level in enumerate(LEVELS):
+        t = i / (len(LEVELS) - 1)
+        x = curve_mm * math.sin(math.pi * t)
+        z = -length_mm * t
+        landmarks.append({"level": level, "point": [round(100.0 + x, 3), round(50.0 - z, 3)]})
+    payload = {
+        "pa": {"landmarks": landmarks},
+        "boundary": {
+            "T1": {"position": [0.0, 0.0, 0.0], "directors": IDENTITY_LPS},
+            "L5": {"position": [0.0, 0.0, -length_mm], "directors": IDENTITY_LPS},
+        },
+    }
+    copy: dict[str, Any] = json.loads(json.dumps(payload))  # no shared lists
+    return copy
+
+
+@pytest.fixture
+def payload() -> dict[str, Any]:
+    return spine_payload()
+
+
+# ------------------------------------------------------------------ real back ends
+
+
+@contextmanager
+def _postgres_database(purpose: str) -> Iterator[str]:
+    """Create a uniquely named PostgreSQL database; yield its SQLAlchemy URL; drop it after."""
+    import psycopg
+
+    try:
+        admin = psycopg.connect(PG_ADMIN_URL, connect_timeout=3, autocommit=True)
+    except Exception as exc:
+        pytest.skip(f"PostgreSQL unreachable at {PG_ADMIN_URL}: {exc}")
+    name = f"spine_test_{purpose}_{uuid.uuid4().hex[:10]}"
+    admin.execute(f'CREATE DATABASE "{name}"')
+    base = PG_ADMIN_URL.rsplit("/", 1)[0].replace("postgresql://", "postgresql+psycopg://", 1)
+    try:
+        yield f"{base}/{name}"
+    finally:
+        from services.db.engine import dispose_engines
+
+        dispose_engines()
+        admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        admin.close()
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    """A fresh PostgreSQL database for the distributed service of this test session."""
+    with _postgres_database("service") as url:
+        yield url
+
+
+@pytest.fixture(scope="session")
+def postgres_store_url() -> Iterator[str]:
+    """Another fresh PostgreSQL database, with no worker on it, for tests of the job store."""
+    with _postgres_database("store") as url:
+        yield url
+
+
+@pytest.fixture(scope="session")
+def redis_url() -> str:
+    import redis
+
+    try:
+        redis.Redis.from_url(REDIS_URL, socket_connect_timeout=3).ping()
+    except Exception as exc:
+        pytest.skip(f"Redis unreachable at {REDIS_URL}: {exc}")
+    return REDIS_URL
+
+
+# ------------------------------------------------------------------ a running service
+
+
+class Service:
+    """The API in process (TestClient) and a real `spine worker` subprocess on one back end."""
+
+    def __init__(self, name: str, env: dict[str, str], data_dir: Path):
+        self.name = name
+        self.env = env
+        self.data_dir = data_dir
+        self.settings = Settings(**_settings_kwargs(env))
+        upgrade(self.settings, quiet=True)
+        self.client = TestClient(create_app(self.settings))
+        self.worker: subprocess.Popen[bytes] | None = None
+        self.log_path = data_dir / "worker.log"
+
+    # -- worker process
+    def start_worker(self, timeout: float = 60.0) -> None:
+        assert self.worker is None
+        offset = self.log_path.stat().st_size if self.log_path.exists() else 0
+        log = self.log_path.open("ab")
+        self.worker = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "worker"],
+            env={**os.environ, **self.env},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            text = self.log_path.read_bytes()[offset:].decode(errors="replace")
+            if " ready." in text:
+                return
+            if self.worker.poll() is not None:
+                break
+            time.sleep(0.1)
+        self.stop_worker()
+        raise RuntimeError(f"the {self.name} worker did not start:\n{self.worker_log()[-4000:]}")
+
+    def stop_worker(self) -> None:
+        if self.worker is None:
+            return
+        proc, self.worker = self.worker, None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+    def worker_log(self) -> str:
+        return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+
+    # -- API helpers
+    def submit(self, payload: Any, **headers: str) -> dict[str, Any]:
+        response = self.client.post("/v1/jobs", json=payload, headers=headers)
+        assert response.status_code == 202, response.text
+        body: dict[str, Any] = response.json()
+        return body
+
+    def job(self, job_id: str) -> dict[str, Any]:
+        response = self.client.get(f"/v1/jobs/{job_id}")
+        assert response.status_code == 200, response.text
+        body: dict[str, Any] = response.json()
+        return body
+
+    def wait(self, job_id: str, timeout: float = 60.0, statuses: set[str] = FINAL) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while True:
+            job = self.job(job_id)
+            if job["status"] in statuses:
+                return job
+            if time.monotonic() > deadline:
+                raise AssertionError(
+                    f"job {job_id} still {job['status']} after {timeout} s; worker log:\n{self.worker_log()[-3000:]}"
+                )
+            time.sleep(0.1)
+
+    def wait_all(self, job_ids: list[str], timeout: float = 90.0) -> list[dict[str, Any]]:
+        deadline = time.monotonic() + timeout
+        return [self.wait(j, max(1.0, deadline - time.monotonic())) for j in job_ids]
+
+
+def _settings_kwargs(env: dict[str, str]) -> dict[str, Any]:
+    """Settings(**kwargs) equal to what the worker reads from ``env``."""
+    kwargs: dict[str, Any] = {}
+    for key, value in env.items():
+        if key in ("DATABASE_URL", "CELERY_BROKER_URL"):
+            kwargs[key] = value
+        elif key.startswith("SPINE_"):
+            kwargs[key.removeprefix("SPINE_").lower()] = value
+    return kwargs
+
+
+def service_env(data_dir: Path, **extra: str) -> dict[str, str]:
+    return {
+        "SPINE_DATA_DIR": str(data_dir),
+        "SPINE_QUEUE_NAME": f"spine-test-{uuid.uuid4().hex[:8]}",
+        "SPINE_RECONCILE_INTERVAL_S": "1",
+        "SPINE_WORKER_CONCURRENCY": "2",
+        "SPINE_MAX_ATTEMPTS": "2",
+        "SPINE_LOG_LEVEL": "INFO",
+        **extra,
+    }
+
+
+@pytest.fixture(scope="session")
+def embedded_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """The embedded default: SQLite, kombu's SQLAlchemy broker on SQLite, a worker subprocess."""
+    data_dir = tmp_path_factory.mktemp("embedded")
+    service = Service("embedded", service_env(data_dir), data_dir)
+    service.start_worker()
+    try:
+        yield service
+    finally:
+        service.stop_worker()
+
+
+@pytest.fixture(scope="session")
+def distributed_service(
+    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
+) -> Iterator[Service]:
+    """Distributed mode: PostgreSQL, Redis broker, a worker subprocess."""
+    data_dir = tmp_path_factory.mktemp("distributed")
+    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url)
+    service = Service("distributed", env, data_dir)
+    service.start_worker()
+    try:
+        yield service
+    finally:
+        service.stop_worker()
+        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
+
+
+def _purge_queue(url: str, queue: str) -> None:
+    import redis
+
+    client = redis.Redis.from_url(url)
+    client.delete(queue, *client.keys(f"{queue}*"))
+
+
+@pytest.fixture(params=["embedded", "distributed"])
+def service(request: pytest.FixtureRequest) -> Service:
+    """Each end-to-end test runs on both modes."""
+    svc: Service = request.getfixturevalue(f"{request.param}_service")
+    return svc
+
+
+@pytest.fixture
+def api(tmp_path: Path) -> Iterator[TestClient]:
+    """The API alone on a fresh embedded database (no worker): jobs stay queued."""
+    settings = Settings(data_dir=tmp_path)
+    upgrade(settings, quiet=True)
+    with TestClient(create_app(settings)) as client:
+        yield client
+
+
+@pytest.fixture
+def db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
+    """Settings of a migrated database, SQLite or PostgreSQL (parametrize indirectly)."""
+    kind = getattr(request, "param", "sqlite")
+    if kind == "postgresql":
+        url: str = request.getfixturevalue("postgres_store_url")
+        settings = Settings(DATABASE_URL=url, data_dir=tmp_path)
+    else:
+        settings = Settings(data_dir=tmp_path)
+    upgrade(settings, quiet=True)
+    return settings
+
+
+def problem_of(response: Any) -> dict[str, Any]:
+    assert response.headers["content-type"].startswith("application/problem+json"), response.text
+    body: dict[str, Any] = response.json()
+    assert {"type", "title", "status", "detail"} <= body.keys()
+    assert body["status"] == response.status_code
+    return body
+
+
+def dumps(payload: Any) -> bytes:
+    return json.dumps(payload).encode()
+
+
+Wait = Callable[..., dict[str, Any]]

@@ -1,0 +1,228 @@
+"""The job store's state changes on real SQLite and PostgreSQL: one outcome per job, whatever races.
+
+These call the repository functions the API and the worker use, on migrated databases.
+"""
+
+from __future__ import annotations
+
+import uuid
+from datetime import timedelta
+from typing import Any
+
+import pytest
+from sqlalchemy import inspect, select, update
+
+from services.db import jobs as repo
+from services.db.engine import get_engine, session_scope
+from services.db.migrate import downgrade, upgrade
+from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
+from services.settings import Settings
+from tests.conftest import LEVELS, spine_payload
+
+BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
+LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
+
+
+def result_like(major_cobb: float = 23.5) -> dict[str, Any]:
+    """A result shaped like RegistrationResult (engine output), to exercise the measure tables."""
+    vertebrae = []
+    for i, level in enumerate(LEVELS):
+        last = i == len(LEVELS) - 1
+        vertebrae.append(
+            {
+                "level": level,
+                "position": [0.0, 0.0, -26.0 * i],
+                "directors": [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]],
+                "u": None if last else [0.001, 0.002 * i, 0.0005],
+                "v": None if last else [0.0, 0.0, 1.0],
+                "pa_bending_deg": None if last else 1.5,
+                "lateral_bending_deg": None if last else 0.1 * i,
+                "twist_deg": None if last else 0.2,
+                "axial_rotation_deg": 0.5 * i,
+            }
+        )
+    return {
+        "vertebrae": vertebrae,
+        "measures": {
+            "cobb": [
+                {"upper": "T5", "lower": "T12", "apex": "T8", "angle_deg": major_cobb, "major": True,
+                 "convexity": "right", "apex_axial_rotation_deg": 7.0, "plane_of_max_curvature_deg": 60.0,
+                 "max_curvature_deg": 30.0},
+                {"upper": "T12", "lower": "L4", "apex": "L2", "angle_deg": 12.0, "major": False,
+                 "convexity": "left", "apex_axial_rotation_deg": -3.0, "plane_of_max_curvature_deg": 80.0,
+                 "max_curvature_deg": 14.0},
+            ],
+            "thoracic_kyphosis_t4_t12_deg": 30.0,
+            "thoracic_kyphosis_t5_t12_deg": 28.0,
+            "lumbar_lordosis_l1_l5_deg": -40.0,
+        },
+        "fit": {"residuals": [], "mean_registration_error_mm": 0.8, "energy_fit": 1.0, "energy_internal": 2.0,
+                "iterations": 12, "converged": True, "runtime_ms": 5.0,
+                "pa": {"scale": 1.0, "translation": [100.0, 50.0], "estimated": True}},
+        "engine": {"version": "9.9.9", "profile": "default"},
+    }  # fmt: skip
+
+
+def new_job(settings: Settings) -> uuid.UUID:
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, spine_payload())
+        return job.id
+
+
+def status_of(settings: Settings, job_id: uuid.UUID) -> Job:
+    with session_scope(settings) as session:
+        return repo.get_job(session, job_id)
+
+
+@BACKENDS
+def test_claim_is_conditional_so_a_second_delivery_does_nothing(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        first = repo.claim_job(s, job_id, "1.0")
+    with session_scope(db_settings) as s:
+        second = repo.claim_job(s, job_id, "1.0")
+    assert first is not None and first.attempt == 1 and first.payload == spine_payload()
+    assert second is None
+    with session_scope(db_settings) as s:
+        assert repo.finish_job(s, first, result=result_like(), engine_version="9.9.9")
+    with session_scope(db_settings) as s:
+        assert not repo.finish_job(s, first, error=LOST)  # a finished job keeps its one outcome
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts, job.engine_version, job.error) == ("succeeded", 1, "9.9.9", None)
+    assert job.started_at is not None and job.finished_at is not None and job.finished_at >= job.started_at
+
+
+@BACKENDS
+def test_measures_are_stored_queryably(db_settings: Settings) -> None:
+    ids = []
+    for cobb in (10.0, 35.0, 52.0):
+        job_id = new_job(db_settings)
+        with session_scope(db_settings) as s:
+            claim = repo.claim_job(s, job_id, "1.0")
+            assert claim is not None
+            assert repo.finish_job(s, claim, result=result_like(cobb))
+        ids.append(job_id)
+    with session_scope(db_settings) as s:
+        severe = s.scalars(select(JobMeasures.job_id).where(JobMeasures.major_cobb_deg > 30)).all()
+        assert set(severe) == set(ids[1:])
+        row = s.get(JobMeasures, ids[0])
+        assert row is not None
+        assert (row.major_curve_apex, row.major_convexity, row.curve_count) == ("T8", "right", 2)
+        assert row.lumbar_lordosis_l1_l5_deg == -40.0 and row.converged
+        strains = s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == ids[0])).all()
+        assert len(strains) == 17
+        t3 = next(v for v in strains if v.level == "T3")
+        assert (t3.u2, t3.v3, t3.twist_deg) == (pytest.approx(0.004), 1.0, 0.2)
+        assert next(v for v in strains if v.level == "L5").u1 is None
+
+
+@BACKENDS
+def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        claim = repo.claim_job(s, job_id, "1.0")
+    assert claim is not None
+    with session_scope(db_settings) as s:
+        assert repo.cancel_job(s, job_id).status == "cancelled"
+    with session_scope(db_settings) as s:
+        assert not repo.finish_job(s, claim, result=result_like())
+    job = status_of(db_settings, job_id)
+    assert job.status == "cancelled" and job.result is None
+    with session_scope(db_settings) as s:
+        assert s.get(JobMeasures, job_id) is None
+        assert repo.claim_job(s, job_id, "1.0") is None  # never run again
+
+
+@BACKENDS
+def test_cancel_a_finished_job_is_refused(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        claim = repo.claim_job(s, job_id, "1.0")
+        assert claim is not None
+        repo.finish_job(s, claim, error=LOST)
+    with session_scope(db_settings) as s, pytest.raises(repo.JobFinished):
+        repo.cancel_job(s, job_id)
+    assert status_of(db_settings, job_id).status == "failed"
+
+
+def _age(settings: Settings, job_id: uuid.UUID, **values: Any) -> None:
+    with session_scope(settings) as s:
+        s.execute(update(Job).where(Job.id == job_id).values(**values))
+
+
+def _reconcile(settings: Settings, max_attempts: int = 2) -> repo.Reconciliation:
+    with session_scope(settings) as s:
+        return repo.reconcile(
+            s,
+            queued_timeout=timedelta(minutes=5),
+            running_timeout=timedelta(minutes=10),
+            max_attempts=max_attempts,
+            lost_problem=LOST,
+        )
+
+
+@BACKENDS
+def test_reconciler_takes_back_a_lost_run_and_fences_the_stale_worker(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        stale = repo.claim_job(s, job_id, "1.0")
+    assert stale is not None
+    assert _reconcile(db_settings).requeue == []  # recent: left alone
+    _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
+    outcome = _reconcile(db_settings)
+    assert outcome.requeue == [job_id] and outcome.failed == []
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts) == ("queued", 1)
+    with session_scope(db_settings) as s:
+        fresh = repo.claim_job(s, job_id, "1.0")
+    assert fresh is not None and fresh.attempt == 2
+    with session_scope(db_settings) as s:
+        assert not repo.finish_job(s, stale, result=result_like())  # the lost worker woke up
+        assert repo.finish_job(s, fresh, result=result_like())
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts) == ("succeeded", 2)
+
+
+@BACKENDS
+def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    for _ in range(2):
+        with session_scope(db_settings) as s:
+            assert repo.claim_job(s, job_id, "1.0") is not None
+        _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
+        _reconcile(db_settings)
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts, job.error) == ("failed", 2, LOST)
+
+
+@BACKENDS
+def test_reconciler_republishes_stale_queued_jobs_once_per_timeout(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    assert _reconcile(db_settings).requeue == []
+    _age(db_settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
+    assert _reconcile(db_settings).requeue == [job_id]
+    assert _reconcile(db_settings).requeue == []  # enqueued_at was refreshed
+    assert status_of(db_settings, job_id).status == "queued"
+
+
+@BACKENDS
+def test_idempotency_key_is_unique_per_owner(db_settings: Settings) -> None:
+    with session_scope(db_settings) as s:
+        a, created_a = repo.create_job(s, spine_payload(), idempotency_key="k")
+        b, created_b = repo.create_job(s, spine_payload(), idempotency_key="k")
+        c, created_c = repo.create_job(s, spine_payload(), owner="clinic-1", idempotency_key="k")
+        assert (created_a, created_b, created_c) == (True, False, True)
+        assert a.id == b.id != c.id
+        with pytest.raises(repo.IdempotencyConflict):
+            repo.create_job(s, spine_payload(curve_mm=1.0), idempotency_key="k")
+
+
+@BACKENDS
+def test_migrations_go_down_and_up_again(db_settings: Settings) -> None:
+    downgrade(db_settings, "base")
+    assert set(inspect(get_engine(db_settings)).get_table_names()) <= {"alembic_version"}
+    upgrade(db_settings, quiet=True)
+    tables = set(inspect(get_engine(db_settings)).get_table_names())
+    assert {"jobs", "job_measures", "vertebra_strains"} <= tables
+    indexes = {ix["name"] for ix in inspect(get_engine(db_settings)).get_indexes("jobs")}
+    assert {"ix_jobs_status_created_at_id", "ix_jobs_created_at_id", "ix_jobs_finished_at"} <= indexes
