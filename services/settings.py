@@ -43,6 +43,12 @@ class Settings(BaseSettings):
     queued_timeout_s: float = Field(
         300.0, gt=0, description="A job queued this long since it was last enqueued is enqueued again."
     )
+    running_grace_s: float = Field(
+        30.0,
+        ge=0,
+        description="A job still running this long past the fit time limit is taken back by the "
+        "reconciler (its worker is presumed dead).",
+    )
     max_attempts: int = Field(
         3, ge=1, description="Runs a job may start; a job stranded in running after that many fails."
     )

@@ -94,7 +94,7 @@ def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
         outcome = jobs_repo.reconcile(
             session,
             queued_timeout=timedelta(seconds=settings.queued_timeout_s),
-            running_timeout=timedelta(seconds=settings.fit_time_limit_s + 30),
+            running_timeout=timedelta(seconds=settings.fit_time_limit_s + settings.running_grace_s),
             max_attempts=settings.max_attempts,
             lost_problem=lost,
         )
