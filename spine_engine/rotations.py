@@ -1,0 +1,214 @@
+"""Batched SO(3) kernels: hat/vee, exponential and logarithm maps, and their Jacobians.
+
+Every function works on stacks: vectors have shape ``(..., 3)`` and matrices ``(..., 3, 3)``.
+Angles are in radians. Notation: φ ∈ R³ is a rotation vector, θ = ‖φ‖, Φ = hat(φ).
+
+Jacobian conventions (right-trivialised, as in Chirikjian and Sola et al.):
+    exp(φ + δ) ≈ exp(φ) exp(J_r(φ) δ),       log(exp(φ) exp(δ)) ≈ φ + J_r⁻¹(φ) δ,
+    exp(φ + δ) ≈ exp(J_l(φ) δ) exp(φ),       log(exp(δ) exp(φ)) ≈ φ + J_l⁻¹(φ) δ,
+with J_l(φ) = J_r(−φ) = J_r(φ)ᵀ.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+_SMALL = 0.05
+"""Below this angle (rad) the Jacobian coefficients use their Taylor series (truncation < 1e-17)."""
+
+_NEAR_PI_COS = -0.7
+"""Above θ = arccos(−0.7) ≈ 134° the logarithm takes the axis from the symmetric part of R."""
+
+# hat(w).reshape(9) = _HAT @ w and vee(W) = _VEE @ W.reshape(9) (skew part), as constant matrices
+# so that both are one matrix product on a stack.
+_HAT = np.array(
+    [[0, 0, 0], [0, 0, -1], [0, 1, 0], [0, 0, 1], [0, 0, 0], [-1, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 0]],
+    dtype=float,
+)
+_VEE = 0.5 * _HAT.T
+_TRACE = np.array([0.5, 0, 0, 0, 0.5, 0, 0, 0, 0.5])
+
+
+def hat(w: ArrayLike) -> FloatArray:
+    """Skew-symmetric matrix of ``w``: hat(w) @ x = w × x.
+
+    hat(w) = [[0, −w3, w2], [w3, 0, −w1], [−w2, w1, 0]]; shape (..., 3) → (..., 3, 3).
+    """
+    w = np.asarray(w, dtype=float)
+    return (w @ _HAT.T).reshape(*w.shape[:-1], 3, 3)
+
+
+def vee(W: ArrayLike) -> FloatArray:
+    """Inverse of ``hat``: the vector (W32, W13, W21) of a skew matrix, shape (..., 3, 3) → (..., 3).
+
+    For a matrix that is not exactly skew it returns the vector of its skew part ½(W − Wᵀ).
+    """
+    W = np.asarray(W, dtype=float)
+    return W.reshape(*W.shape[:-2], 9) @ _VEE.T
+
+
+def _angle(phi: FloatArray) -> FloatArray:
+    return np.sqrt(np.einsum("...i,...i->...", phi, phi))
+
+
+def _quaternion_to_matrix_table() -> FloatArray:
+    # R.reshape(9) = C @ (q qᵀ).reshape(16) for a unit quaternion q = (w, x, y, z).
+    w, x, y, z = range(4)
+    terms: list[list[tuple[float, int, int]]] = [
+        [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)],
+        [(2, x, y), (-2, w, z)],
+        [(2, x, z), (2, w, y)],
+        [(2, x, y), (2, w, z)],
+        [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)],
+        [(2, y, z), (-2, w, x)],
+        [(2, x, z), (-2, w, y)],
+        [(2, y, z), (2, w, x)],
+        [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)],
+    ]
+    C = np.zeros((9, 16))
+    for k, entry in enumerate(terms):
+        for coef, a, b in entry:
+            C[k, 4 * a + b] += coef
+    return C
+
+
+_QUAT_TO_R = _quaternion_to_matrix_table()
+
+
+def exp_so3(phi: ArrayLike) -> FloatArray:
+    """Rodrigues' formula exp(Φ) = cos θ I + (sin θ/θ) Φ + ((1 − cos θ)/θ²) φφᵀ, shape (..., 3) → (..., 3, 3).
+
+    Evaluated through the unit quaternion q = (cos(θ/2), sin(θ/2) φ/θ) with sin(θ/2)/θ computed
+    as a ratio that has no cancellation at any θ > 0 (and ½ at θ = 0), so it is exact for small
+    angles without a Taylor branch; R is the quadratic form of q (one product with a table).
+    """
+    phi = np.asarray(phi, dtype=float)
+    h = 0.5 * _angle(phi)
+    sigma = np.divide(np.sin(h), h, out=np.ones_like(h), where=h > 0.0)
+    q = np.empty((*phi.shape[:-1], 4))
+    q[..., 0] = np.cos(h)
+    np.multiply((0.5 * sigma)[..., None], phi, out=q[..., 1:])
+    qq = (q[..., :, None] * q[..., None, :]).reshape(*phi.shape[:-1], 16)
+    return (qq @ _QUAT_TO_R.T).reshape(*phi.shape[:-1], 3, 3)
+
+
+def log_so3(R: ArrayLike) -> FloatArray:
+    """Rotation vector φ with exp(hat φ) = R and θ = ‖φ‖ ∈ [0, π]; shape (..., 3, 3) → (..., 3).
+
+    θ = atan2(‖w‖, (tr R − 1)/2) with w = vee(R) = sin θ · axis, which is accurate at every angle,
+    and φ = (θ / sin θ) w. Near π (cos θ < −0.7), where sin θ → 0, the axis a is taken from the
+    symmetric part instead: aaᵀ = (½(R + Rᵀ) − cos θ I)/(1 − cos θ), the column of largest
+    diagonal entry normalised, with its sign chosen so that a·w ≥ 0. At θ = π exactly both
+    signs are valid and either may be returned.
+    """
+    R = np.asarray(R, dtype=float)
+    flat = R.reshape(*R.shape[:-2], 9)
+    w = flat @ _VEE.T
+    c = flat @ _TRACE - 0.5
+    s = _angle(w)
+    theta = np.arctan2(s, c)
+    phi = (theta / np.where(s > 0.0, s, 1.0))[..., None] * w
+    near_pi = c < _NEAR_PI_COS
+    if near_pi.any():
+        Rn, cn, wn, tn = R[near_pi], c[near_pi], w[near_pi], theta[near_pi]
+        M = 0.5 * (Rn + np.swapaxes(Rn, -1, -2))
+        M[..., [0, 1, 2], [0, 1, 2]] -= cn[..., None]
+        M /= (1.0 - cn)[..., None, None]
+        j = np.argmax(np.diagonal(M, axis1=-2, axis2=-1), axis=-1)
+        idx = np.arange(len(j))
+        axis = M[idx, :, j] / np.sqrt(M[idx, j, j])[..., None]
+        sign = np.where(np.einsum("ni,ni->n", axis, wn) < 0.0, -1.0, 1.0)
+        phi[near_pi] = (sign * tn)[..., None] * axis
+    return phi
+
+
+def _jr_coefficients(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(1 − cos θ)/θ² (as ½ sinc²(θ/2), exact) and (θ − sin θ)/θ³ (Taylor series below ``_SMALL``)."""
+    t2 = theta * theta
+    small = theta < _SMALL
+    safe = np.where(small, 1.0, theta)
+    b = 0.5 * np.sinc(theta / (2.0 * np.pi)) ** 2
+    series = 1.0 / 6.0 + t2 * (-1.0 / 120.0 + t2 * (1.0 / 5040.0 - t2 / 362880.0))
+    c = np.where(small, series, (safe - np.sin(safe)) / (safe * safe * safe))
+    return b, c
+
+
+def _jr_inv_coefficient(theta: FloatArray) -> FloatArray:
+    """1/θ² − cot(θ/2)/(2θ) = 1/θ² − (1 + cos θ)/(2θ sin θ), with its Taylor series below ``_SMALL``."""
+    t2 = theta * theta
+    small = theta < _SMALL
+    safe = np.where(small, 1.0, theta)
+    exact = 1.0 / (safe * safe) - 0.5 / (safe * np.tan(0.5 * safe))
+    series = 1.0 / 12.0 + t2 * (1.0 / 720.0 + t2 * (1.0 / 30240.0 + t2 / 1209600.0))
+    return np.where(small, series, exact)
+
+
+def right_jacobian(phi: ArrayLike) -> FloatArray:
+    """J_r(φ) = I − ((1 − cos θ)/θ²) Φ + ((θ − sin θ)/θ³) Φ²; shape (..., 3) → (..., 3, 3)."""
+    phi = np.asarray(phi, dtype=float)
+    b, c = _jr_coefficients(_angle(phi))
+    P = hat(phi)
+    return np.eye(3) - b[..., None, None] * P + c[..., None, None] * (P @ P)
+
+
+def right_jacobian_inv(phi: ArrayLike) -> FloatArray:
+    """J_r⁻¹(φ) = I + ½Φ + (1/θ² − (1 + cos θ)/(2θ sin θ)) Φ²; shape (..., 3) → (..., 3, 3).
+
+    Finite for θ < 2π (singular at 2π); log_so3 returns θ ≤ π.
+    """
+    phi = np.asarray(phi, dtype=float)
+    d = _jr_inv_coefficient(_angle(phi))
+    P = hat(phi)
+    return np.eye(3) + 0.5 * P + d[..., None, None] * (P @ P)
+
+
+def left_jacobian_inv(phi: ArrayLike) -> FloatArray:
+    """J_l⁻¹(φ) = J_r⁻¹(−φ) = I − ½Φ + (1/θ² − (1 + cos θ)/(2θ sin θ)) Φ²; (..., 3) → (..., 3, 3)."""
+    return right_jacobian_inv(-np.asarray(phi, dtype=float))
+
+
+def rotation_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """The smallest rotation taking the direction of ``a`` onto that of ``b``, (..., 3) → (..., 3, 3).
+
+    For unit â, b̂ with c = â × b̂ and cos θ = â·b̂: R = cos θ I + hat(c) + c cᵀ/(1 + cos θ)
+    (axis c, angle atan2(‖c‖, cos θ)). When some pair is within 25° of opposite, where that
+    division loses accuracy, the axis-angle form is used, with any axis perpendicular to â for
+    exactly opposite vectors.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a, b = np.broadcast_arrays(
+        a / np.linalg.norm(a, axis=-1, keepdims=True), b / np.linalg.norm(b, axis=-1, keepdims=True)
+    )
+    Ha = hat(a)
+    c = (Ha @ b[..., None])[..., 0]
+    cos = np.einsum("...i,...i->...", a, b)
+    if np.all(cos > -0.9):
+        out = (c / (1.0 + cos)[..., None])[..., :, None] * c[..., None, :] + hat(c)
+        out.reshape(*out.shape[:-2], 9)[..., ::4] += cos[..., None]
+        return out
+    s = _angle(c)
+    theta = np.arctan2(s, cos)
+    phi = (theta / np.where(s > 0.0, s, 1.0))[..., None] * c
+    opposite = (s < 1e-12) & (cos < 0.0)
+    if np.any(opposite):
+        ao = a[opposite]
+        trial = np.where(np.abs(ao[:, :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        perp = (hat(ao) @ trial[:, :, None])[:, :, 0]
+        phi[opposite] = np.pi * perp / np.linalg.norm(perp, axis=-1, keepdims=True)
+    return exp_so3(phi)
+
+
+def slerp(R0: ArrayLike, R1: ArrayLike, t: ArrayLike) -> FloatArray:
+    """Geodesic interpolation R0 exp(t log(R0ᵀ R1)); t = 0 gives R0 and t = 1 gives R1.
+
+    ``R0``, ``R1`` broadcast against ``t[..., None, None]``; t is dimensionless.
+    """
+    R0 = np.asarray(R0, dtype=float)
+    R1 = np.asarray(R1, dtype=float)
+    t = np.asarray(t, dtype=float)
+    phi = log_so3(np.swapaxes(R0, -1, -2) @ R1)
+    return R0 @ exp_so3(t[..., None] * phi)
