@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi clean
+.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -36,6 +36,13 @@ bench-perf: $(STAMP)
 
 openapi: $(STAMP)
 	$(BIN)/spine openapi > openapi.yaml
+
+# Service load benchmark: PostgreSQL + Redis on 127.0.0.1, API and workers started by the bench.
+LOADTEST_ARGS ?= --spawn --url http://127.0.0.1:8090 --workers 1 --worker-concurrency 2
+loadtest: $(STAMP)
+	DATABASE_URL=$${DATABASE_URL:-postgresql+psycopg://postgres@127.0.0.1:5432/spine_load} \
+	CELERY_BROKER_URL=$${CELERY_BROKER_URL:-redis://127.0.0.1:6379/1} \
+	$(BIN)/python -m services.loadbench $(LOADTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) .spine .pytest_cache .mypy_cache .ruff_cache

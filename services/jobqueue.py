@@ -9,8 +9,8 @@ import logging
 import sqlite3
 import uuid
 from collections.abc import Iterable
-from typing import Any
 from contextlib import closing
+from typing import Any
 
 from celery import Celery
 from kombu.exceptions import ChannelError

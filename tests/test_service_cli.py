@@ -124,3 +124,28 @@ def test_spine_migrate_creates_the_embedded_database(tmp_path: Path) -> None:
     subprocess.run([sys.executable, "-m", "services.cli", "migrate"], env=env, check=True, timeout=60,
                    capture_output=True)  # fmt: skip
     assert (tmp_path / "data" / "spine.db").stat().st_size > 0
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_readme_starts_with_make_run_then_make_test() -> None:
+    lines = [ln for ln in (ROOT / "README.md").read_text().splitlines() if ln.strip()]
+    commands = [ln.split("#")[0].strip() for ln in lines[1:3]]
+    assert lines[0].startswith("```") and lines[3] == "```"
+    assert commands == ["make run", "make test"]
+
+
+def test_readme_documents_every_setting() -> None:
+    from services.settings import Settings
+
+    readme = (ROOT / "README.md").read_text()
+    for name, info in Settings.model_fields.items():
+        alias = info.validation_alias
+        env = alias.choices[0] if alias is not None else f"SPINE_{name.upper()}"  # type: ignore[union-attr]
+        assert f"| `{env}` |" in readme, f"README's settings table lacks {env}"
+
+
+def test_ci_runs_the_readme_test_command() -> None:
+    script = (ROOT / ".ci" / "run").read_text()
+    assert "make test" in script and os.access(ROOT / ".ci" / "run", os.X_OK)
