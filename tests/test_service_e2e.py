@@ -40,7 +40,7 @@ def test_a_job_runs_to_a_stored_result(service: Service) -> None:
     assert done["attempts"] == 1 and done["error"] is None
     assert done["created_at"] <= done["started_at"] <= done["finished_at"]
     result = RegistrationResult.model_validate(done["result"])
-    assert [v.level for v in result.vertebrae][0] == "T1" and len(result.vertebrae) == 17
+    assert result.vertebrae[0].level == "T1" and len(result.vertebrae) == 17
     assert done["engine_version"] == result.engine.version
     assert stored(service, job["id"]) == (1, 17)
     listed = service.client.get("/v1/jobs", params={"status": "succeeded"}).json()["jobs"]
@@ -88,12 +88,8 @@ def test_the_reconciler_recovers_a_lost_message_and_a_dead_run(service: Service)
         stranded, _ = repo.create_job(s, spine_payload())  # its worker died mid-fit
         hopeless, _ = repo.create_job(s, spine_payload())  # died on its last allowed attempt
         s.execute(update(Job).where(Job.id == lost.id).values(enqueued_at=long_ago))
-        s.execute(
-            update(Job).where(Job.id == stranded.id).values(status="running", attempts=1, started_at=long_ago)
-        )
-        s.execute(
-            update(Job).where(Job.id == hopeless.id).values(status="running", attempts=2, started_at=long_ago)
-        )
+        s.execute(update(Job).where(Job.id == stranded.id).values(status="running", attempts=1, started_at=long_ago))
+        s.execute(update(Job).where(Job.id == hopeless.id).values(status="running", attempts=2, started_at=long_ago))
     assert service.wait(str(lost.id), 30)["status"] == "succeeded"
     recovered = service.wait(str(stranded.id), 30)
     assert (recovered["status"], recovered["attempts"]) == ("succeeded", 2)
