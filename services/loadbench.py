@@ -230,8 +230,25 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
 # ------------------------------------------------------------------ spawning the service
 
 
+def ensure_database(url: str) -> None:
+    """Create the PostgreSQL database of ``url`` if it does not exist yet."""
+    if not url.startswith("postgresql"):
+        return
+    import psycopg
+    from sqlalchemy.engine import make_url
+
+    target = make_url(url)
+    conninfo = target.set(drivername="postgresql", database="postgres").render_as_string(hide_password=False)
+    with psycopg.connect(conninfo, autocommit=True) as conn:
+        if conn.execute("SELECT 1 FROM pg_database WHERE datname = %s", (target.database,)).fetchone() is None:
+            conn.execute(f'CREATE DATABASE "{target.database}"')
+
+
 def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[bytes]]:
     env = dict(os.environ)
+    if "DATABASE_URL" not in env or "CELERY_BROKER_URL" not in env:
+        raise SystemExit("--spawn measures the distributed service: set DATABASE_URL and CELERY_BROKER_URL")
+    ensure_database(env["DATABASE_URL"])
     spine = [sys.executable, "-m", "services.cli"]
     subprocess.run([*spine, "migrate"], env=env, check=True, capture_output=True)
     port = urlparse(args.url).port or 80
@@ -242,6 +259,8 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
     procs.append(_start(api_cmd, env, log_dir / "api.log"))
     for w in range(args.workers):
         cmd = [*spine, "worker", "--concurrency", str(args.worker_concurrency), "--loglevel", "WARNING"]
+        if args.worker_nice:
+            cmd = ["nice", "-n", str(args.worker_nice), *cmd]
         if w > 0:
             cmd.append("--no-beat")
         procs.append(_start(cmd, env, log_dir / f"worker-{w}.log"))
@@ -289,6 +308,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--spawn", action="store_true", help="start API and workers here, stop them after")
     parser.add_argument("--workers", type=int, default=1, help="with --spawn: `spine worker` processes")
     parser.add_argument("--worker-concurrency", type=int, default=2, help="with --spawn: pool size of each")
+    parser.add_argument(
+        "--worker-nice",
+        type=int,
+        default=0,
+        help="with --spawn: run workers at this niceness, so that fits yield the CPU to the API",
+    )
     parser.add_argument("--api-processes", type=int, default=1, help="with --spawn: uvicorn processes")
     parser.add_argument("--log-dir", type=Path, default=Path("bench-out/loadbench"))
     parser.add_argument("--output", type=Path, help="write the JSON report here")

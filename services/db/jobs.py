@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import CursorResult, and_, func, insert, or_, select, update
+from sqlalchemy import CursorResult, and_, func, insert, or_, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -206,7 +206,14 @@ class Claim:
 
 
 def claim_job(session: Session, job_id: uuid.UUID, engine_version: str | None) -> Claim | None:
-    """queued → running, attempts + 1; None when the job is not queued (duplicate, cancelled…)."""
+    """queued → running, attempts + 1; None when the job is not queued (duplicate, cancelled…).
+
+    On PostgreSQL this commit does not wait for the disk: if the server crashes and loses it, the
+    job is simply queued again, and the run's final update, fenced on running and this attempt,
+    stores nothing.
+    """
+    if session.get_bind().dialect.name == "postgresql":
+        session.execute(text("SET LOCAL synchronous_commit TO OFF"))
     row = session.execute(
         update(Job)
         .where(Job.id == job_id, Job.status == JobStatus.queued.value)
