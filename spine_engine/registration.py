@@ -10,8 +10,9 @@ with P the weak perspective p = s·(e_c·r, e_r·r) + T. Dividing the image resi
 it in patient mm, so the 3D result does not depend on the image scale or translation.
 
 E = ‖ρ‖² for the stacked residual vector ρ = (√(Δs α/2)(u − u0), √(Δs β/2)(v − v0),
-√w (P r − p)/s), minimised by Levenberg–Marquardt with an analytic Jacobian. Parameters are
-ordered per interior vertebra j = 1..N−2 as [δr_j (3, mm), δθ_j (3, rad)], and a step updates
+√w (P r − p)/s), minimised by a damped Newton / Levenberg–Marquardt method with the analytic
+Jacobian and second derivatives of ρ (``RegistrationProblem``). Parameters are ordered per
+interior vertebra j = 1..N−2 as [δr_j (3, mm), δθ_j (3, rad)], and a step updates
 r_j ← r_j + δr_j, R_j ← R_j exp(hat δθ_j) (a right, body-frame rotation increment).
 """
 
@@ -32,18 +33,18 @@ Pose = tuple[ArrayLike, ArrayLike]
 """(position (3,) in mm, rotation (3, 3) with the directors as columns) of a boundary vertebra."""
 
 XTOL_MM = 1e-6
-"""Convergence: largest position update of the last step, mm."""
+"""Convergence: a Gauss–Newton/Newton step moving no position by more than this (mm) ..."""
 XTOL_RAD = 1e-8
-"""Convergence: largest rotation update of the last step, rad."""
+"""... and no rotation by more than this (rad) ends the search (``RegistrationProblem.solve``)."""
 FTOL = 1e-10
-"""Convergence: largest relative energy decrease of the last step."""
+"""Convergence: a step predicted to lower E by at most FTOL·E + ETOL ends the search."""
 ETOL = 1e-12
-"""Convergence: energy decrease (N·mm) below which the step counts as stationary whatever E is."""
+"""Convergence: absolute part of that energy tolerance, N·mm (for E near zero)."""
 
-_NEWTON_SWITCH = 0.5
-"""Add the second-order terms once an accepted step lowers E by less than this fraction of E."""
 _DATA_WEIGHT = 1e6
 """initial_configuration: weight of the landmarks against the smoothing of the displacements."""
+_LAMBDA_DOWN = 0.1
+"""Largest decrease of the damping after a step of ideal gain ratio (Nielsen's rule has 1/3)."""
 _LAMBDA0 = 1e-8
 """Initial Marquardt damping, relative to the diagonal of JᵀJ."""
 _LAMBDA_GN = 1e-3
@@ -107,8 +108,9 @@ class FitOutput:
     energy_internal: float
     """E_I, N·mm."""
     iterations: int
-    """Accepted Levenberg–Marquardt steps."""
+    """Accepted (Newton / Levenberg–Marquardt) steps."""
     converged: bool
+    """Whether a convergence criterion of ``RegistrationProblem.solve`` was met."""
     residuals_mm: dict[str, np.ndarray]
     """Per view name, (k,) distance between landmark and projected vertebra in patient mm."""
 
@@ -388,8 +390,8 @@ class RegistrationProblem:
 
     def _normal_equations(
         self, res: FloatArray, cache: tuple[FloatArray, ...], second_order: bool
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Band JᵀJ (+ Σρ∇²ρ when ``second_order``), gradient Jᵀρ and diag(JᵀJ), over the unknowns."""
+    ) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+        """Band JᵀJ, band Σ_k ρ_k ∇²ρ_k (when ``second_order``, else None) and Jᵀρ, over the unknowns."""
         ns = self.n - 1
         local = self._local_jacobian(cache)
         J = local[0]
@@ -399,16 +401,13 @@ class RegistrationProblem:
         gloc = (JT @ rho[:, :, None]).ravel()
         gfit = (self._fit_ET @ res[6 * ns :].reshape(-1, 2, 1)).ravel()
         g = _accumulate(self._gbins, np.concatenate((gloc, gfit)), minlength=self._n_ext)[6:-6]
-        if second_order:
-            S = self._second_order(cache, local, rho).reshape(ns, 144)[:, self._upper]
-            both = _accumulate(self._hbins, np.concatenate((H.ravel(), S.ravel())), minlength=2 * self._band_size)
-            both = both.reshape(2, _KD + 1, self._n_ext)[:, :, 6:-6]
-            ab_gn = both[0] + self._ab_fit
-            ab = ab_gn + both[1]
-        else:
+        if not second_order:
             ab = _accumulate(self._hbins[: H.size], H.ravel(), minlength=self._band_size)
-            ab_gn = ab = ab.reshape(_KD + 1, self._n_ext)[:, 6:-6] + self._ab_fit
-        return ab, g, ab_gn[_KD]
+            return ab.reshape(_KD + 1, self._n_ext)[:, 6:-6] + self._ab_fit, None, g
+        S = self._second_order(cache, local, rho).reshape(ns, 144)[:, self._upper]
+        both = _accumulate(self._hbins, np.concatenate((H.ravel(), S.ravel())), minlength=2 * self._band_size)
+        both = both.reshape(2, _KD + 1, self._n_ext)[:, :, 6:-6]
+        return both[0] + self._ab_fit, both[1], g
 
     def residuals(self, positions: ArrayLike, rotations: ArrayLike) -> FloatArray:
         """Residual vector ρ (layout in the class docstring) of a configuration; E = ‖ρ‖² in N·mm."""
@@ -439,8 +438,8 @@ class RegistrationProblem:
         r, R = self.with_boundary(positions, rotations)
         res = np.empty(self.n_residuals)
         cache = self._evaluate(r, R, res)
-        ab, g, _ = self._normal_equations(res, cache, second_order)
-        return g.copy(), _band_to_dense(ab)
+        ab_gn, ab_2, g = self._normal_equations(res, cache, second_order)
+        return g, _band_to_dense(ab_gn if ab_2 is None else ab_gn + ab_2)
 
     def energy(self, positions: ArrayLike, rotations: ArrayLike) -> float:
         """E = E_f + E_I = ‖ρ‖², N·mm."""
@@ -452,16 +451,26 @@ class RegistrationProblem:
     def solve(self, positions: ArrayLike, rotations: ArrayLike, max_iterations: int = 100) -> FitOutput:
         """Damped Newton (Levenberg–Marquardt) from (positions, rotations); ends reset to top and bottom.
 
-        Each iteration solves (H + λD) h = −Jᵀρ with H = JᵀJ + Σρ∇²ρ (the exact Hessian of E/2 in
-        the chart δ ↦ (r + δr, R exp(hat δθ))) or, where that H + λD is not positive definite, the
-        Gauss–Newton H = JᵀJ; D is the running maximum of diag(JᵀJ) and λ follows Nielsen's rule.
-        A trial step is accepted when it lowers E. Converged when either
-          * an accepted step moved every position by ≤ XTOL_MM and every rotation by ≤ XTOL_RAD
-            and lowered E by ≤ FTOL·E + ETOL, or
-          * the undamped-enough step (λ ≤ 1e-3) proposed at the current point is already within
-            XTOL_MM / XTOL_RAD: the point is stationary to that tolerance and the step is dropped.
-        ``iterations`` counts accepted steps; reaching ``max_iterations`` of them, or a damping
-        over 1e12 without a decrease, ends the search unconverged.
+        Each iteration solves (H + λD) h = −Jᵀρ in band storage (LAPACK dpbtrf/dpbtrs). The first
+        iteration uses the Gauss–Newton H = JᵀJ (at the initial configuration the large residuals
+        make the second-order terms misleading); later ones the Newton H = JᵀJ + Σ_k ρ_k ∇²ρ_k,
+        the exact Hessian of E/2 in the chart δ ↦ (r + δr, R exp(hat δθ)), falling back to
+        Gauss–Newton at the same λ when that matrix is not positive definite or its step does
+        not lower E. D is the running maximum of diag(JᵀJ); λ starts at 1e-8 and follows
+        Nielsen's rule (× max(0.1, 1 − (2ϱ − 1)³) on success, × 2, 4, 8, … on failure), with ϱ
+        the ratio of actual to predicted decrease. A trial step is accepted when it lowers E.
+
+        Convergence (with λ ≤ 1e-3, so that the step is not a damped one):
+          * the step moves every position by ≤ XTOL_MM = 1e-6 mm and every rotation by
+            ≤ XTOL_RAD = 1e-8 rad, or
+          * its predicted decrease of E (the Newton decrement) is ≤ FTOL·E + ETOL with
+            FTOL = 1e-10 and ETOL = 1e-12 N·mm, i.e. what is left is at the level of rounding;
+        that last step is applied when it lowers E. Also converged: an accepted step that is
+        within XTOL_MM / XTOL_RAD and lowered E by ≤ FTOL·E + ETOL. ``iterations`` counts
+        accepted steps; reaching ``max_iterations`` of them, or λ > 1e12 without a decrease
+        (non-finite data), ends the search unconverged.
+
+        Not thread-safe on one instance (it reuses work buffers); ``fit`` makes a new one per call.
         """
         r, R = self.with_boundary(positions, rotations)
         res, res_t = self._buffers
@@ -475,49 +484,46 @@ class RegistrationProblem:
         m = self._m
         newton = False
         while iterations < max_iterations:
-            ab, g, diag = self._normal_equations(res, cache, second_order=newton)
-            np.maximum(D, diag, out=D)
+            ab_gn, ab_2, g = self._normal_equations(res, cache, second_order=newton)
+            np.maximum(D, ab_gn[_KD], out=D)
             Dd = np.where(D > 0.0, D, 1.0)
+            ab = ab_gn if ab_2 is None else ab_gn + ab_2
             accepted = False
-            first = True
             while lam <= _LAMBDA_MAX:
                 A = ab.copy()
                 A[_KD] += lam * Dd
                 c, info = dpbtrf(A, overwrite_ab=1)
-                if info != 0:
-                    if newton:
-                        ab, g, diag = self._normal_equations(res, cache, second_order=False)
-                        newton = False
-                    else:
-                        lam *= nu
-                        nu *= 2.0
-                    continue
-                h, info = dpbtrs(c, -g[:, None])
-                h = h[:, 0]
-                hm = np.abs(h.reshape(m, 6))
-                small = hm[:, :3].max() <= XTOL_MM and hm[:, 3:].max() <= XTOL_RAD
-                if first and small and lam <= _LAMBDA_GN:
-                    converged = True
-                    break
-                first = False
-                r_t, R_t = self.retract(r, R, h)
-                cache_t = self._evaluate(r_t, R_t, res_t)
-                E_t = float(res_t @ res_t)
-                if E_t < E:
-                    # Far from the minimum the second-order terms can mislead: Newton only once
-                    # a step no longer halves E (Gauss–Newton has done the large part).
-                    newton = E_t > _NEWTON_SWITCH * E
+                if info == 0:
+                    h = dpbtrs(c, -g[:, None])[0][:, 0]
+                    hm = np.abs(h.reshape(m, 6))
+                    small = hm[:, :3].max() <= XTOL_MM and hm[:, 3:].max() <= XTOL_RAD
                     predicted = float(lam * (h * Dd) @ h - h @ g)
-                    rho = (E - E_t) / predicted if predicted > 0.0 else 1.0
-                    lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                    nu = 2.0
-                    accepted = True
-                    iterations += 1
-                    if small and E - E_t <= FTOL * E + ETOL:
+                    final = lam <= _LAMBDA_GN and (small or predicted <= FTOL * E + ETOL)
+                    r_t, R_t = self.retract(r, R, h)
+                    cache_t = self._evaluate(r_t, R_t, res_t)
+                    E_t = float(res_t @ res_t)
+                    if E_t < E:
+                        # From the initial configuration the second-order terms, weighted by
+                        # its large residuals, mislead: the first step is Gauss–Newton.
+                        newton = True
+                        rho = (E - E_t) / predicted if predicted > 0.0 else 1.0
+                        lam *= max(_LAMBDA_DOWN, 1.0 - (2.0 * rho - 1.0) ** 3)
+                        nu = 2.0
+                        accepted = True
+                        iterations += 1
+                        converged = final or (small and E - E_t <= FTOL * E + ETOL)
+                        r, R, E, cache = r_t, R_t, E_t, cache_t
+                        res, res_t = res_t, res
+                        break
+                    if final:
+                        # Nothing left above rounding: the current point is the minimum.
                         converged = True
-                    r, R, E, cache = r_t, R_t, E_t, cache_t
-                    res, res_t = res_t, res
-                    break
+                        break
+                if ab is not ab_gn:
+                    # The Newton model failed (indefinite, or its step did not lower E): retry
+                    # with Gauss–Newton at the same damping before damping more.
+                    ab = ab_gn
+                    continue
                 lam *= nu
                 nu *= 2.0
             if converged or not accepted:
@@ -623,51 +629,52 @@ def initial_configuration(
         raise ValueError(f"expected rest positions (N, 3) and rotations (N, 3, 3) with N ≥ 3, got {p.shape}, {Q.shape}")
     for view in views:
         _check_view(view, n)
-    r_top, R_top = np.asarray(top[0], dtype=float), np.asarray(top[1], dtype=float)
-    r_bot, R_bot = np.asarray(bottom[0], dtype=float), np.asarray(bottom[1], dtype=float)
+    r_top, R_top = _pose(top, "top")
+    r_bot, R_bot = _pose(bottom, "bottom")
 
     R_a = R_top @ Q[0].T
     R_b = R_bot @ Q[-1].T
-    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    t = np.concatenate(([0.0], np.cumsum(seg))) / max(float(seg.sum()), 1e-300)
-    pa = (p - p[0]) @ R_a.T + r_top
-    pb = (p - p[-1]) @ R_b.T + r_bot
-    r = (1.0 - t)[:, None] * pa + t[:, None] * pb
+    chords = p[1:] - p[:-1]
+    t = np.zeros(n)
+    np.cumsum(np.sqrt(np.einsum("ij,ij->i", chords, chords)), out=t[1:])
+    t /= max(t[-1], 1e-300)
+    r = (1.0 - t)[:, None] * ((p - p[0]) @ R_a.T + r_top) + t[:, None] * ((p - p[-1]) @ R_b.T + r_bot)
     R = slerp(R_a, R_b, t) @ Q
     r[0], R[0] = r_top, R_top
     r[-1], R[-1] = r_bot, R_bot
 
-    # Band system (upper storage, half-bandwidth 5) over the extended index 3·vertebra + k.
+    # Band system (upper storage, half-bandwidth 5) over the extended index 3·vertebra + k; the
+    # ends' rows and columns are sliced off before solving.
     kd = 5
     n_ext = 3 * n
+    a, b = _UPPER3
     rows, cols, vals, rhs_bins, rhs_vals = [], [], [], [], []
-    a, b = np.triu_indices(3)
     for view in views:
         idx = np.asarray(view.indices, dtype=int)
         E = np.stack((np.asarray(view.e_c, dtype=float), np.asarray(view.e_r, dtype=float)))
         wE = _DATA_WEIGHT * max(float(view.weight), 1e-12) * E
-        target = (np.asarray(view.points, dtype=float) - np.asarray(view.translation)) / view.scale
-        gap = target - r[idx] @ E.T
-        rows.append(np.broadcast_to(kd + a - b, (len(idx), len(a))).ravel())
+        target = (np.asarray(view.points, dtype=float) - np.asarray(view.translation, dtype=float)) / view.scale
+        rows.append(np.tile(kd + a - b, len(idx)))
         cols.append((3 * idx[:, None] + b).ravel())
-        vals.append(np.broadcast_to((E.T @ wE)[a, b], (len(idx), len(a))).ravel())
+        vals.append(np.tile((E.T @ wE)[a, b], len(idx)))
         rhs_bins.append((3 * idx[:, None] + np.arange(3)).ravel())
-        rhs_vals.append((gap @ wE).ravel())
-    k = 1.0 / np.maximum(np.linalg.norm(np.diff(r, axis=0), axis=1), 1e-9)
+        rhs_vals.append(((target - r[idx] @ E.T) @ wE).ravel())
+    seg = r[1:] - r[:-1]
+    k = 1.0 / np.maximum(np.sqrt(np.einsum("ij,ij->i", seg, seg)), 1e-9)
     ab = np.zeros((kd + 1, n_ext))
-    ab[kd] = np.repeat(np.concatenate(([0.0], k)) + np.concatenate((k, [0.0])), 3)
-    ab[kd - 3, 3:] = -np.repeat(k, 3)
+    k3 = np.repeat(k, 3)
+    ab[kd, :-3] = k3
+    ab[kd, 3:] += k3
+    ab[kd - 3, 3:] = -k3
+    rhs = np.zeros(n_ext)
     if rows:
         flat = np.concatenate(rows) * n_ext + np.concatenate(cols)
         ab += _accumulate(flat, np.concatenate(vals), minlength=ab.size).reshape(ab.shape)
         rhs = _accumulate(np.concatenate(rhs_bins), np.concatenate(rhs_vals), minlength=n_ext)
-    else:
-        rhs = np.zeros(n_ext)
     c, info = dpbtrf(ab[:, 3:-3])
     if info != 0:
         raise ValueError("initial configuration: the displacement system is singular (non-finite input?)")
-    d, _ = dpbtrs(c, rhs[3:-3, None])
-    d = d.reshape(n - 2, 3)
+    d = dpbtrs(c, rhs[3:-3, None])[0].reshape(n - 2, 3)
 
     r_new = r.copy()
     r_new[1:-1] += d
