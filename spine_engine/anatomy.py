@@ -1,0 +1,326 @@
+"""The generic spine T1..L5 at rest: segment lengths, cross-sections, normal sagittal profile,
+elastic profiles, and the rest model of the discrete Cosserat rod.
+
+Frame and directors as in ``DESIGN.md`` (LPS mm; R = [d1 d2 d3] as columns). Segment j joins
+vertebra j to vertebra j+1 (16 segments); its rest length Δs_j is the distance between the two
+vertebral-body centres: half of each body height plus the disc between them.
+
+Dimension tables (``VERTEBRA_TABLE``, ``DISC_HEIGHT_MM``)
+--------------------------------------------------------
+Vertebral body height H (mean of anterior and posterior heights), endplate width W and depth D
+(means of the upper and lower endplates), in mm, after Panjabi et al., "Thoracic human vertebrae:
+quantitative three-dimensional anatomy", Spine 1991;16(8):888–901 (T1–T12), and Panjabi et al.,
+"Human lumbar vertebrae: quantitative three-dimensional anatomy", Spine 1992;17(3):299–306
+(L1–L5), their tables of linear dimensions (VBHa/VBHp, EPWu/EPWl, EPDu/EPDl). The numbers were
+entered from our reading of those tables and rounded to 0.5 mm; they were not re-checked against
+the printed tables and may be off by about 1–2 mm at some levels.
+
+Disc heights (mid-disc, mm): thoracic about 4–6.5 mm increasing caudally, after Kunkel et al.,
+"Morphometric analysis of the relationships between intervertebral disc and vertebral body
+heights: an anatomical and radiographic study of the human thoracic spine", J Anat
+2011;219:375–387 (approximate, as recalled); T12–L1 and lumbar 7.5–11.5 mm after the radiographic
+values of Tibrewal & Pearcy, Spine 1985;10:452–454 (approximate, as recalled).
+
+Check against real spines (VerSe 2019/2020 dev split, 24 CT spines, vertebral-body centroids;
+Sekuboyina et al., Med Image Anal 2021, CC BY-SA 4.0): mean inter-centroid distance per segment,
+T1–T2 … L4–L5, mm:
+    VerSe dev: 20.3 20.8 20.9 20.9 22.2 22.3 23.0 23.5 24.9 26.4 28.6 30.7 32.7 34.4 35.3 33.8
+    this table: 19.3 20.3 20.8 21.8 22.3 23.3 23.8 24.3 25.5 27.0 28.8 31.5 34.5 36.3 37.5 37.8
+Thoracic segments agree within about 1 mm; lumbar ones are 5–11 % longer here (VerSe patients
+are older, scanned supine, with lower lumbar discs). ``length_scale`` absorbs a patient's size.
+
+Normal sagittal profile
+-----------------------
+Thoracic kyphosis T4–T12 = 38° and lumbar lordosis L1–L5 = 46°: values of the order of the
+means reported for healthy adolescents and young adults (e.g. Bernhardt & Bridwell, Spine
+1989;14:717–721, T3–T12 kyphosis about 36°; Mac-Thiong et al., Eur Spine J 2007;16:227–234);
+the exact pair 38°/46° is the project's choice, not a single study's table. The angle is
+distributed over the discs with the relative weights ``KYPHOSIS_WEIGHTS`` and
+``LORDOSIS_WEIGHTS``: kyphosis largest at mid-thorax (T5–T9), the thoracolumbar junction
+neutral, lordosis growing caudally, as described by Bernhardt & Bridwell (1989); the weights
+are ours, shaped after that description, not their numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import brentq
+
+from .errors import UnknownProfile
+from .frames import frames_from_centreline
+from .levels import LEVELS, N_LEVELS
+from .measures import kyphosis_lordosis_deg
+
+FloatArray = npt.NDArray[np.float64]
+
+PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
+
+# level: (body height H, endplate width W, endplate depth D), mm (sources in the module docstring)
+VERTEBRA_TABLE: dict[str, tuple[float, float, float]] = {
+    "T1": (14.5, 25.5, 15.5),
+    "T2": (16.0, 26.0, 16.5),
+    "T3": (16.5, 26.0, 17.5),
+    "T4": (17.0, 26.5, 18.5),
+    "T5": (17.5, 27.5, 20.0),
+    "T6": (18.0, 28.5, 21.5),
+    "T7": (18.5, 29.5, 23.0),
+    "T8": (19.0, 30.5, 24.5),
+    "T9": (19.5, 32.0, 25.5),
+    "T10": (20.5, 34.0, 26.5),
+    "T11": (21.5, 37.0, 27.5),
+    "T12": (23.0, 39.5, 28.5),
+    "L1": (25.0, 41.5, 29.5),
+    "L2": (26.0, 43.5, 31.0),
+    "L3": (26.5, 45.5, 32.5),
+    "L4": (26.5, 47.5, 33.5),
+    "L5": (26.0, 49.0, 34.0),
+}
+
+# disc below each level T1..L4 (T1–T2 … L4–L5), mid-disc height, mm (sources in the module docstring)
+DISC_HEIGHT_MM: tuple[float, ...] = (
+    4.0,
+    4.0,
+    4.0,
+    4.5,
+    4.5,
+    5.0,
+    5.0,
+    5.0,
+    5.5,
+    6.0,
+    6.5,  # T1–T2 … T11–T12
+    7.5,  # T12–L1
+    9.0,
+    10.0,
+    11.0,
+    11.5,  # L1–L2 … L4–L5
+)
+
+NORMAL_KYPHOSIS_T4_T12_DEG = 38.0
+NORMAL_LORDOSIS_L1_L5_DEG = 46.0
+
+# Relative kyphotic angle of each disc T1–T2 … T11–T12 (then 0 at T12–L1), and relative lordotic
+# angle of L1–L2 … L4–L5 (shape after Bernhardt & Bridwell 1989; see module docstring).
+KYPHOSIS_WEIGHTS: tuple[float, ...] = (1, 2, 3, 4, 5, 5, 5, 5, 4, 3, 2)
+LORDOSIS_WEIGHTS: tuple[float, ...] = (4, 7, 13, 20)
+
+_I_T4, _I_T12, _I_L1 = LEVELS.index("T4"), LEVELS.index("T12"), LEVELS.index("L1")
+
+
+# ---------------------------------------------------------------- geometry
+
+
+def rest_segment_lengths(length_scale: float = 1.0) -> FloatArray:
+    """Rest lengths Δs_j = (H_j + H_{j+1})/2 + disc_j between consecutive vertebral-body centres,
+    mm (16,), times ``length_scale``."""
+    h = np.array([VERTEBRA_TABLE[lv][0] for lv in LEVELS])
+    return length_scale * (0.5 * (h[:-1] + h[1:]) + np.asarray(DISC_HEIGHT_MM))
+
+
+def segment_semi_axes(length_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+    """Semi-axes (a along d1, b along d2) of each segment's elliptical section, mm (16,) each:
+    half the mean endplate width and depth of its two vertebrae, times ``length_scale``."""
+    w = np.array([VERTEBRA_TABLE[lv][1] for lv in LEVELS])
+    d = np.array([VERTEBRA_TABLE[lv][2] for lv in LEVELS])
+    return length_scale * 0.25 * (w[:-1] + w[1:]), length_scale * 0.25 * (d[:-1] + d[1:])
+
+
+def section_properties(a: npt.ArrayLike, b: npt.ArrayLike) -> dict[str, FloatArray]:
+    """Area and second moments of an ellipse with semi-axes a (along d1) and b (along d2), mm:
+    A = πab (mm²), I1 = πab³/4 about d1, I2 = πa³b/4 about d2, J = πa³b³/(a² + b²) (mm⁴)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return {
+        "A": np.pi * a * b,
+        "I1": np.pi * a * b**3 / 4.0,
+        "I2": np.pi * a**3 * b / 4.0,
+        "J": np.pi * a**3 * b**3 / (a**2 + b**2),
+    }
+
+
+def sagittal_profile_deg(kyphosis_deg: float, lordosis_deg: float) -> FloatArray:
+    """Sagittal inclination β_i of each vertebra's tangent (17,), degrees, with β_T1 = 0: β_{i+1} =
+    β_i − Δ_i, Δ the disc angles from the weights, scaled so that Σ Δ over T4–T12 = kyphosis and
+    −Σ Δ over L1–L5 = lordosis (β as in ``measures.sagittal_inclination_deg``)."""
+    wk = np.zeros(N_LEVELS - 1)
+    wk[: len(KYPHOSIS_WEIGHTS)] = KYPHOSIS_WEIGHTS
+    wl = np.zeros(N_LEVELS - 1)
+    wl[_I_L1 : _I_L1 + len(LORDOSIS_WEIGHTS)] = LORDOSIS_WEIGHTS
+    disc = kyphosis_deg * wk / wk[_I_T4:_I_T12].sum() - lordosis_deg * wl / wl.sum()
+    return np.concatenate([[0.0], -np.cumsum(disc)])
+
+
+def centreline_from_angles(ds: npt.ArrayLike, frontal_deg: npt.ArrayLike, sagittal_deg: npt.ArrayLike) -> FloatArray:
+    """Positions (17,3) from T1 at the origin, given the segment lengths ds (16,) mm and the
+    projected tangent angles of each vertebra (17,) in degrees: frontal φ (toward +x going
+    caudally) and sagittal β (toward +y going caudally).
+
+    Chord j runs along u_j = (tan φ̄_j, tan β̄_j, −1)/|…| with φ̄_j, β̄_j the means over its two
+    vertebrae, so its frontal and sagittal projections make exactly the angles φ̄_j and β̄_j with
+    the caudal vertical; p_{j+1} = p_j + Δs_j u_j.
+    """
+    ds = np.asarray(ds, dtype=float)
+    phi = np.radians(np.asarray(frontal_deg, dtype=float))
+    beta = np.radians(np.asarray(sagittal_deg, dtype=float))
+    pm, bm = 0.5 * (phi[:-1] + phi[1:]), 0.5 * (beta[:-1] + beta[1:])
+    u = np.stack([np.tan(pm), np.tan(bm), -np.ones_like(pm)], axis=1)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(ds[:, None] * u, axis=0)])
+
+
+def balance_offset_deg(
+    ds: npt.ArrayLike, frontal_deg: npt.ArrayLike, sagittal_deg: npt.ArrayLike, axis: int, target_mm: float = 0.0
+) -> float:
+    """Constant c (degrees) to add to the frontal (axis 0) or sagittal (axis 1) angles so that
+    p_L5 − p_T1 along that axis equals ``target_mm`` (0: L5 straight below T1)."""
+    angles = [np.asarray(frontal_deg, dtype=float), np.asarray(sagittal_deg, dtype=float)]
+
+    def gap(c: float) -> float:
+        shifted = [a + c if k == axis else a for k, a in enumerate(angles)]
+        return float(centreline_from_angles(ds, *shifted)[-1, axis] - target_mm)
+
+    shifted = angles[axis]
+    return float(brentq(gap, -80.0 - shifted.min(), 80.0 - shifted.max(), xtol=1e-10))
+
+
+# ---------------------------------------------------------------- elastic profiles
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Elastic and fitting constants of the rod.
+
+    youngs_modulus_mpa Y and shear_modulus_mpa G (MPa = N/mm²); shear_coefficient k (Timoshenko,
+    dimensionless); fit_weight_pa and fit_weight_lateral w (N/mm): the fitting energy of a view
+    is w Σ_i |r_i|², r_i the landmark residual in patient mm, so w·r² is in N·mm like the rod's
+    potential energy. provenance: where each value comes from.
+    """
+
+    name: str
+    youngs_modulus_mpa: float
+    shear_modulus_mpa: float
+    shear_coefficient: float
+    fit_weight_pa: float
+    fit_weight_lateral: float
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for key in ("youngs_modulus_mpa", "shear_modulus_mpa", "shear_coefficient", "fit_weight_pa"):
+            value = getattr(self, key)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ValueError(f"profile {self.name!r}: {key} must be a finite number > 0, got {value!r}")
+        lateral = self.fit_weight_lateral
+        if not (isinstance(lateral, int | float) and np.isfinite(lateral) and lateral >= 0):
+            raise ValueError(f"profile {self.name!r}: fit_weight_lateral must be finite and >= 0, got {lateral!r}")
+
+
+_PROFILE_KEYS = tuple(Profile.__dataclass_fields__)
+_PROFILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+
+def list_profiles() -> list[str]:
+    """Names of the profiles shipped in ``spine_engine/profiles/`` (file stems), sorted."""
+    return sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
+
+
+def profile_from_dict(data: dict[str, Any]) -> Profile:
+    """A Profile from its JSON object; every key of the dataclass is required, no other key allowed."""
+    missing = [k for k in _PROFILE_KEYS if k not in data]
+    extra = [k for k in data if k not in _PROFILE_KEYS]
+    if missing or extra:
+        raise ValueError(f"profile keys: missing {missing}, unexpected {extra}")
+    return Profile(**{k: data[k] for k in _PROFILE_KEYS})
+
+
+def load_profile(name: str = "default") -> Profile:
+    """The shipped profile ``spine_engine/profiles/<name>.json``; UnknownProfile if there is none."""
+    known = list_profiles()
+    if not _PROFILE_NAME.match(name) or name not in known:
+        raise UnknownProfile(name, known)
+    with (PROFILES_DIR / f"{name}.json").open(encoding="utf-8") as fh:
+        return profile_from_dict(json.load(fh))
+
+
+def save_profile(profile: Profile, path: str | os.PathLike[str]) -> None:
+    """Write ``profile`` as JSON (the keys ``load_profile`` reads, in dataclass order)."""
+    text = json.dumps(asdict(profile), indent=2, ensure_ascii=False)
+    Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+# ---------------------------------------------------------------- rest model
+
+
+@dataclass(frozen=True)
+class RestModel:
+    """The generic spine at rest, for one profile and size.
+
+    levels: T1..L5; ds (16,) mm; positions (17,3) mm with T1 at the origin and L5 straight below it;
+    rotations (17,3,3), directors as columns, from ``frames_from_centreline`` (no lateral curve,
+    no axial rotation: d1 = +x everywhere); alpha (16,3) = (Y·I1, Y·I2, G·J) in N·mm², bending
+    about d1, bending about d2, torsion; beta (16,3) = (k·G·A, k·G·A, Y·A) in N, shear along d1,
+    shear along d2, stretch.
+    """
+
+    levels: tuple[str, ...]
+    ds: FloatArray
+    positions: FloatArray
+    rotations: FloatArray
+    alpha: FloatArray
+    beta: FloatArray
+    profile: Profile
+    length_scale: float
+
+
+def _normal_profile_positions(ds: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Positions and rotations of the normal sagittal profile whose kyphosis and lordosis, measured
+    by ``measures.kyphosis_lordosis_deg`` on the discrete centreline, are exactly the targets: the
+    prescribed angles are corrected by fixed-point iteration on the measured ones."""
+    target = np.array([NORMAL_KYPHOSIS_T4_T12_DEG, NORMAL_LORDOSIS_L1_L5_DEG])
+    prescribed = target.copy()
+    frontal = np.zeros(N_LEVELS)
+    for _ in range(50):
+        beta = sagittal_profile_deg(*prescribed)
+        beta = beta + balance_offset_deg(ds, frontal, beta, axis=1)
+        positions = centreline_from_angles(ds, frontal, beta)
+        rotations = frames_from_centreline(positions)
+        k4, _, lordosis = kyphosis_lordosis_deg(rotations)
+        error = target - np.array([k4, lordosis])
+        if np.max(np.abs(error)) < 1e-9:
+            break
+        prescribed += error
+    return positions, rotations
+
+
+def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
+    """The rest model of the generic spine for ``profile``; ``length_scale`` multiplies every
+    length (segment lengths, positions and section semi-axes, so A ∝ scale², I, J ∝ scale⁴)."""
+    if not (np.isfinite(length_scale) and length_scale > 0):
+        raise ValueError(f"length_scale must be finite and > 0, got {length_scale}")
+    ds = rest_segment_lengths(length_scale)
+    positions, rotations = _normal_profile_positions(ds)
+    sec = section_properties(*segment_semi_axes(length_scale))
+    Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient
+    alpha = np.stack([Y * sec["I1"], Y * sec["I2"], G * sec["J"]], axis=1)
+    beta = np.stack([k * G * sec["A"], k * G * sec["A"], Y * sec["A"]], axis=1)
+    for arr in (ds, positions, rotations, alpha, beta):
+        arr.setflags(write=False)
+    return RestModel(LEVELS, ds, positions, rotations, alpha, beta, profile, float(length_scale))
+
+
+def typical_bending_energy_nmm(profile: Profile, cobb_deg: float = 40.0, segments: int = 6) -> float:
+    """Bending energy of one mid-thoracic segment (T7–T8) of a typical scoliotic curve, N·mm:
+    ½ (Y·I2) θ²/Δs for a lateral bend θ = cobb/segments spread evenly over ``segments`` segments.
+    It sets the scale of the fit weight: w·(0.2 mm)² ≈ this energy (``profiles/default.json``)."""
+    j = LEVELS.index("T7")
+    a, b = segment_semi_axes()
+    i2 = section_properties(a[j], b[j])["I2"]
+    theta = np.radians(cobb_deg / segments)
+    return float(0.5 * profile.youngs_modulus_mpa * i2 * theta**2 / rest_segment_lengths()[j])

@@ -1,0 +1,254 @@
+"""Clinical measures of a spine from its vertebra positions and directors (``docs/measures.md``).
+
+Inputs: positions (17,3) mm and rotations (17,3,3) with the directors as columns [d1 d2 d3], in
+DICOM LPS (+x patient left, +y posterior, +z superior), levels T1..L5 in order.
+Every angle here is in degrees.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Literal, cast
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import minimize_scalar
+
+from .frames import axial_rotation_deg
+from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
+from .models import CobbCurve, Measures
+
+FloatArray = npt.NDArray[np.float64]
+
+TILT_HYSTERESIS_DEG = 5.0
+"""A reversal of the tilt sequence smaller than this does not end a curve. Chosen at the size of
+the intra-observer error of manual Cobb measurement, about ±5° (Morrissy et al., J Bone Joint
+Surg Am 1990;72:320–327, report a 95 % confidence interval of roughly this size; value rounded)."""
+
+_AXIS_Z = np.array([0.0, 0.0, 1.0])
+
+
+def frontal_tilt_deg(rotations: npt.ArrayLike) -> FloatArray:
+    """Frontal tilt θ_i = atan2(d1_z, d1_x) of each vertebra: the angle of d1 projected on the
+    frontal (x, z) plane from patient left, positive when d1 rises toward the left (17,)."""
+    R = np.asarray(rotations, dtype=float)
+    d1 = R[..., :, 0]
+    return np.degrees(np.arctan2(d1[..., 2], d1[..., 0]))
+
+
+def sagittal_inclination_deg(rotations: npt.ArrayLike) -> FloatArray:
+    """Sagittal inclination β_i = atan2(d3_y, −d3_z) of the caudal tangent d3 projected on the
+    sagittal (y, z) plane, from the caudal vertical, positive when the spine runs posteriorly
+    going down (17,)."""
+    R = np.asarray(rotations, dtype=float)
+    d3 = R[..., :, 2]
+    return np.degrees(np.arctan2(d3[..., 1], -d3[..., 2]))
+
+
+def kyphosis_lordosis_deg(rotations: npt.ArrayLike) -> tuple[float, float, float]:
+    """(kyphosis T4–T12, kyphosis T5–T12, lordosis L1–L5), degrees.
+
+    Kyphosis = β_T4 − β_T12 (resp. β_T5 − β_T12), positive when convex posteriorly;
+    lordosis = β_L5 − β_L1, positive when convex anteriorly (β: ``sagittal_inclination_deg``).
+    """
+    beta = sagittal_inclination_deg(rotations)
+    i = LEVEL_INDEX
+    return (
+        float(beta[i["T4"]] - beta[i["T12"]]),
+        float(beta[i["T5"]] - beta[i["T12"]]),
+        float(beta[i["L5"]] - beta[i["L1"]]),
+    )
+
+
+def tilt_turning_points(tilt_deg: npt.ArrayLike, hysteresis_deg: float = TILT_HYSTERESIS_DEG) -> list[int]:
+    """Indices of the local extremes of a tilt sequence, with hysteresis ("zig-zag" filter).
+
+    A running extreme becomes a turning point once the sequence has moved back from it by at least
+    ``hysteresis_deg``. The first point is the extreme before the first such move; the last is the
+    extreme of the final run. Returns [] when the whole range is below the hysteresis.
+    """
+    t = np.asarray(tilt_deg, dtype=float)
+    h = float(hysteresis_deg)
+    lo = hi = 0
+    trend = 0
+    points: list[int] = []
+    ext = 0
+    for i in range(1, len(t)):
+        if trend == 0:
+            if t[i] > t[hi]:
+                hi = i
+            if t[i] < t[lo]:
+                lo = i
+            if t[hi] - t[lo] >= max(h, 1e-12):
+                up = lo < hi
+                points.append(lo if up else hi)
+                trend, ext = (1, hi) if up else (-1, lo)
+        elif trend == 1:
+            if t[i] >= t[ext]:
+                ext = i
+            elif t[ext] - t[i] >= h:
+                points.append(ext)
+                trend, ext = -1, i
+        else:
+            if t[i] <= t[ext]:
+                ext = i
+            elif t[i] - t[ext] >= h:
+                points.append(ext)
+                trend, ext = 1, i
+    if trend != 0:
+        points.append(ext)
+    return points
+
+
+@dataclass(frozen=True)
+class FrontalCurve:
+    """A frontal curve between two end vertebrae (indices into T1..L5)."""
+
+    upper: int
+    lower: int
+    apex: int
+    angle_deg: float
+    convexity: Literal["left", "right"]
+
+
+def _apex(positions: FloatArray, upper: int, lower: int, tilt: FloatArray) -> tuple[int, Literal["left", "right"]]:
+    """Vertebra between the ends farthest from their chord in the frontal (x, z) plane, and its side.
+
+    Signed distance δ_i = (p_i − p_U)·n with n = (−c_z, c_x) the normal of the unit chord
+    c = (p_L − p_U)/|…| that points toward +x for a chord running caudally: δ > 0 is patient left.
+    """
+    xz = positions[:, [0, 2]]
+    chord = xz[lower] - xz[upper]
+    length = float(np.linalg.norm(chord))
+    inner = np.arange(upper + 1, lower)
+    if length > 0 and len(inner):
+        c = chord / length
+        n = np.array([-c[1], c[0]])
+        if n[0] < 0:
+            n = -n
+        dist = (xz[inner] - xz[upper]) @ n
+        k = int(np.argmax(np.abs(dist)))
+        if abs(dist[k]) > 1e-9:
+            return int(inner[k]), "left" if dist[k] > 0 else "right"
+    # No interior vertebra off the chord: the tilt rising caudally means convex right.
+    apex = int(inner[len(inner) // 2]) if len(inner) else upper
+    return apex, "right" if tilt[lower] > tilt[upper] else "left"
+
+
+def frontal_curves(
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    min_cobb_deg: float = 10.0,
+    hysteresis_deg: float = TILT_HYSTERESIS_DEG,
+) -> list[FrontalCurve]:
+    """Frontal Cobb curves, top to bottom: consecutive turning points of the frontal tilt sequence
+    are the end vertebrae; Cobb = |θ_upper − θ_lower|; curves below ``min_cobb_deg`` are dropped."""
+    p = np.asarray(positions, dtype=float)
+    tilt = frontal_tilt_deg(rotations)
+    turning = tilt_turning_points(tilt, hysteresis_deg)
+    curves = []
+    for upper, lower in itertools.pairwise(turning):
+        angle = float(abs(tilt[upper] - tilt[lower]))
+        if angle < min_cobb_deg:
+            continue
+        apex, convexity = _apex(p, upper, lower, tilt)
+        curves.append(FrontalCurve(upper, lower, apex, angle, convexity))
+    return curves
+
+
+def _plane_tilt_deg(R: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
+    """Tilt of a vertebra's endplate director in the vertical plane of azimuth φ, degrees, per φ.
+
+    The plane has horizontal direction h = cos φ e_x − sin φ e_y (patient left turned toward
+    anterior). The director is the direction of the endplate plane (span of d1, d2) closest to h,
+    w = h − (h·d3) d3: for a vertebra without axial rotation it is d1 at φ = 0 (so Cobb(0) is the
+    frontal Cobb angle) and close to cos φ d1 + sin φ d2 in general. Its tilt in the plane is
+    atan2(w·z, w·h).
+    """
+    phi = np.radians(np.asarray(phi_deg, dtype=float))
+    c, s = np.cos(phi), np.sin(phi)
+    h = np.stack([c, -s, np.zeros_like(c)], axis=-1)
+    d3 = R[:, 2]
+    w = h - np.outer(h @ d3, d3)
+    return np.degrees(np.arctan2(w @ _AXIS_Z, np.sum(w * h, axis=-1)))
+
+
+def _plane_cobb_deg(R_upper: FloatArray, R_lower: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
+    diff = _plane_tilt_deg(R_upper, phi_deg) - _plane_tilt_deg(R_lower, phi_deg)
+    return np.abs((diff + 180.0) % 360.0 - 180.0)
+
+
+def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tuple[float, float]:
+    """(φ*, Cobb(φ*)), degrees: the azimuth φ* ∈ [0°, 180°) of the vertical plane in which the Cobb
+    angle between the two end vertebrae is largest, and that angle.
+
+    Cobb(φ) = |tilt_U(φ) − tilt_L(φ)| with the endplate tilts of ``_plane_tilt_deg``; φ = 0° is the
+    frontal plane (Cobb(0) is the frontal Cobb angle when the end vertebrae have no axial
+    rotation), φ = 90° the sagittal plane. It turns with the spine: rotating the whole spine by −α
+    about +z moves φ* by +α. A 1° grid, then a bounded scalar search (tolerance 1e-4°) around its
+    best point.
+    """
+    Ru = np.asarray(R_upper, dtype=float)
+    Rl = np.asarray(R_lower, dtype=float)
+    grid = np.arange(0.0, 180.0, 1.0)
+    values = _plane_cobb_deg(Ru, Rl, grid)
+    best = float(grid[int(np.argmax(values))])
+    res = minimize_scalar(
+        lambda f: -float(_plane_cobb_deg(Ru, Rl, [f])[0]),
+        bounds=(best - 1.0, best + 1.0),
+        method="bounded",
+        options={"xatol": 1e-4},
+    )
+    phi, value = (float(res.x), -float(res.fun)) if -res.fun >= values.max() else (best, float(values.max()))
+    phi %= 180.0
+    if phi > 180.0 - 1e-3:
+        phi = 0.0
+    return phi, value
+
+
+def compute_measures(
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    min_cobb_deg: float = 10.0,
+    *,
+    hysteresis_deg: float = TILT_HYSTERESIS_DEG,
+) -> Measures:
+    """Frontal Cobb curves with their 3D descriptors, thoracic kyphosis and lumbar lordosis.
+
+    positions (17,3) mm and rotations (17,3,3) (directors as columns), T1..L5. Exactly one curve
+    is ``major`` (the largest; the upper one on a tie) when any curve reaches ``min_cobb_deg``.
+    Definitions and sign conventions: ``docs/measures.md``.
+    """
+    p = np.asarray(positions, dtype=float)
+    R = np.asarray(rotations, dtype=float)
+    if p.shape != (N_LEVELS, 3) or R.shape != (N_LEVELS, 3, 3):
+        raise ValueError(f"expected positions (17,3) and rotations (17,3,3), got {p.shape} and {R.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+        raise ValueError("positions and rotations must be finite")
+    curves = frontal_curves(p, R, min_cobb_deg, hysteresis_deg)
+    major = int(np.argmax([c.angle_deg for c in curves])) if curves else -1
+    psi = axial_rotation_deg(R)
+    cobb = []
+    for k, c in enumerate(curves):
+        phi, max_angle = plane_of_max_curvature(R[c.upper], R[c.lower])
+        cobb.append(
+            CobbCurve(
+                upper=cast(Level, LEVELS[c.upper]),
+                lower=cast(Level, LEVELS[c.lower]),
+                apex=cast(Level, LEVELS[c.apex]),
+                angle_deg=c.angle_deg,
+                major=k == major,
+                convexity=c.convexity,
+                apex_axial_rotation_deg=float(psi[c.apex]),
+                plane_of_max_curvature_deg=phi,
+                max_curvature_deg=max_angle,
+            )
+        )
+    k4, k5, lordosis = kyphosis_lordosis_deg(R)
+    return Measures(
+        cobb=cobb,
+        thoracic_kyphosis_t4_t12_deg=k4,
+        thoracic_kyphosis_t5_t12_deg=k5,
+        lumbar_lordosis_l1_l5_deg=lordosis,
+    )

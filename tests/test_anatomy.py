@@ -1,0 +1,137 @@
+"""The generic rest model and the elastic profiles."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spine_engine.anatomy import (
+    NORMAL_KYPHOSIS_T4_T12_DEG,
+    NORMAL_LORDOSIS_L1_L5_DEG,
+    Profile,
+    list_profiles,
+    load_profile,
+    profile_from_dict,
+    rest_model,
+    rest_segment_lengths,
+    save_profile,
+    section_properties,
+    segment_semi_axes,
+    typical_bending_energy_nmm,
+)
+from spine_engine.errors import InvalidInput, UnknownProfile
+from spine_engine.levels import LEVELS
+from spine_engine.measures import compute_measures, frontal_tilt_deg
+
+VERSE_DEV = Path(__file__).parent / "data" / "verse_dev.csv"
+
+
+@pytest.fixture(scope="module")
+def profile() -> Profile:
+    return load_profile("default")
+
+
+def test_rest_model_has_the_documented_sagittal_profile_and_no_frontal_curve(profile: Profile) -> None:
+    rest = rest_model(profile)
+    m = compute_measures(rest.positions, rest.rotations, min_cobb_deg=0.5)
+    assert m.thoracic_kyphosis_t4_t12_deg == pytest.approx(NORMAL_KYPHOSIS_T4_T12_DEG, abs=1.0)
+    assert m.lumbar_lordosis_l1_l5_deg == pytest.approx(NORMAL_LORDOSIS_L1_L5_DEG, abs=1.0)
+    assert (NORMAL_KYPHOSIS_T4_T12_DEG, NORMAL_LORDOSIS_L1_L5_DEG) == (38.0, 46.0)
+    assert m.cobb == []
+    np.testing.assert_allclose(frontal_tilt_deg(rest.rotations), 0.0, atol=1e-12)
+
+
+def test_rest_model_geometry(profile: Profile) -> None:
+    rest = rest_model(profile)
+    assert rest.levels == LEVELS
+    assert rest.ds.shape == (16,) and rest.positions.shape == (17, 3) and rest.rotations.shape == (17, 3, 3)
+    np.testing.assert_allclose(rest.positions[0], 0.0)
+    np.testing.assert_allclose(rest.positions[:, 0], 0.0, atol=1e-12)  # no lateral curve
+    np.testing.assert_allclose(np.linalg.norm(np.diff(rest.positions, axis=0), axis=1), rest.ds, rtol=1e-12)
+    np.testing.assert_allclose(rest.rotations[:, :, 0], np.tile([1.0, 0.0, 0.0], (17, 1)), atol=1e-12)
+    R = rest.rotations
+    np.testing.assert_allclose(np.swapaxes(R, 1, 2) @ R, np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    assert np.all(R[:, 2, 2] < -0.8) and np.all(R[:, 1, 1] < -0.8)  # d3 caudal, d2 anterior
+    assert rest.positions[-1, 1] == pytest.approx(0.0, abs=1e-6)  # L5 straight below T1
+    assert np.argmax(rest.positions[:, 1]) in range(4, 9)  # kyphosis apex mid-thoracic, posterior
+
+
+def test_stiffness_formulas_and_length_scale(profile: Profile) -> None:
+    rest = rest_model(profile)
+    a, b = segment_semi_axes()
+    j = 7
+    A = np.pi * a[j] * b[j]
+    Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient
+    expected_alpha = [
+        Y * np.pi * a[j] * b[j] ** 3 / 4,
+        Y * np.pi * a[j] ** 3 * b[j] / 4,
+        G * np.pi * a[j] ** 3 * b[j] ** 3 / (a[j] ** 2 + b[j] ** 2),
+    ]
+    np.testing.assert_allclose(rest.alpha[j], expected_alpha, rtol=1e-12)
+    np.testing.assert_allclose(rest.beta[j], [k * G * A, k * G * A, Y * A], rtol=1e-12)
+    assert np.all(a > b)  # endplates are wider than deep: lateral bending (about d2) is stiffer
+    assert np.all(rest.alpha[:, 1] > rest.alpha[:, 0])
+
+    big = rest_model(profile, length_scale=1.2)
+    np.testing.assert_allclose(big.ds, 1.2 * rest.ds)
+    np.testing.assert_allclose(big.positions, 1.2 * rest.positions, atol=1e-9)
+    np.testing.assert_allclose(big.rotations, rest.rotations, atol=1e-12)
+    np.testing.assert_allclose(big.alpha, 1.2**4 * rest.alpha, rtol=1e-12)
+    np.testing.assert_allclose(big.beta, 1.2**2 * rest.beta, rtol=1e-12)
+    with pytest.raises(ValueError):
+        rest_model(profile, length_scale=0.0)
+    with pytest.raises(ValueError):
+        rest.ds[0] = 1.0  # read-only
+
+
+def test_circle_section() -> None:
+    sec = section_properties(10.0, 10.0)
+    assert sec["A"] == pytest.approx(np.pi * 100)
+    assert sec["I1"] == pytest.approx(np.pi * 1e4 / 4) and sec["I2"] == pytest.approx(np.pi * 1e4 / 4)
+    assert sec["J"] == pytest.approx(np.pi * 1e4 / 2)
+
+
+def test_segment_lengths_are_close_to_verse_dev() -> None:
+    """Tables vs VerSe dev (a tuning split): each level within 12 %, the total within 8 %."""
+    rows = np.genfromtxt(VERSE_DEV, delimiter=",", skip_header=1)[:, 1:].reshape(-1, 17, 3)
+    verse = np.linalg.norm(np.diff(rows, axis=1), axis=2).mean(axis=0)
+    table = rest_segment_lengths()
+    assert np.all(np.abs(table / verse - 1) < 0.12)
+    assert abs(table.sum() / verse.sum() - 1) < 0.08
+
+
+def test_default_profile(profile: Profile) -> None:
+    assert "default" in list_profiles()
+    assert profile.name == "default"
+    assert profile.provenance["status"].startswith("initial values from the literature")
+    nu = profile.youngs_modulus_mpa / (2 * profile.shear_modulus_mpa) - 1
+    assert 0.3 < nu < 0.5
+    assert 0.8 < profile.shear_coefficient < 1.0
+    # the fit weight makes a 0.2 mm residual cost about one segment's bending energy
+    ratio = profile.fit_weight_pa * 0.2**2 / typical_bending_energy_nmm(profile)
+    assert 0.5 < ratio < 2.0
+    raw = json.loads((Path(__file__).parents[1] / "spine_engine" / "profiles" / "default.json").read_text())
+    assert set(raw) == set(Profile.__dataclass_fields__)
+
+
+@pytest.mark.parametrize("name", ["nope", "../default", "", ".hidden", "default.json"])
+def test_unknown_profile_raises(name: str) -> None:
+    with pytest.raises(UnknownProfile) as info:
+        load_profile(name)
+    assert isinstance(info.value, InvalidInput)
+    assert info.value.errors[0].loc == ("options", "profile")
+
+
+def test_save_and_read_back(profile: Profile, tmp_path: Path) -> None:
+    path = tmp_path / "calibrated.json"
+    changed = Profile(**{**profile.__dict__, "name": "calibrated", "youngs_modulus_mpa": 12.5})
+    save_profile(changed, path)
+    data = json.loads(path.read_text())
+    assert list(data) == list(Profile.__dataclass_fields__)
+    assert profile_from_dict(data) == changed
+    with pytest.raises(ValueError):
+        profile_from_dict({**data, "extra": 1})
+    with pytest.raises(ValueError):
+        Profile(**{**profile.__dict__, "shear_modulus_mpa": -1.0})
