@@ -12,10 +12,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy
 
 from ..projection import image_axes, project
 from ..registration import RodParameters, ViewData, fit, initial_configuration
@@ -179,7 +182,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.lateral:
         results.append(run(args.repeats, lateral=True))
     if args.json:
-        print(json.dumps(results, indent=2))
+        environment = {
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "scipy": scipy.__version__,
+            "cpus": os.cpu_count(),
+            **{name: os.environ.get(name) for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
+        }
+        print(json.dumps({"environment": environment, "results": results}, indent=2))
         return 0
     print(f"{'problem':<28} {'timed':<22} {'median ms':>10} {'p90 ms':>8} {'mean ms':>8} {'iter':>5}")
     for res in results:
