@@ -32,7 +32,9 @@ def create_db_engine(url: str, pool_size: int = 10) -> Engine:
         engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
         event.listen(engine, "connect", _sqlite_pragmas)
         return engine
-    return create_engine(url, pool_size=pool_size, max_overflow=pool_size, pool_pre_ping=True)
+    # No pre-ping (a round trip per checkout): after a database restart, a stale pooled
+    # connection fails one request (503 problem / task retry) and the pool is refreshed.
+    return create_engine(url, pool_size=pool_size, max_overflow=pool_size)
 
 
 def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
