@@ -5,3 +5,8 @@ Li, Leow, Huang, Howe, "Modeling and Measurement of 3D Deformation of Scoliotic 
 """
 
 __version__ = "0.1.0"
+
+from .errors import FitFailed, InvalidInput, SpineEngineError
+from .reconstruction import register
+
+__all__ = ["FitFailed", "InvalidInput", "SpineEngineError", "__version__", "register"]

@@ -43,6 +43,7 @@ are ours, shaped after that description, not their numbers.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
@@ -279,10 +280,13 @@ class RestModel:
     length_scale: float
 
 
-def _normal_profile_positions(ds: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Positions and rotations of the normal sagittal profile whose kyphosis and lordosis, measured
-    by ``measures.kyphosis_lordosis_deg`` on the discrete centreline, are exactly the targets: the
-    prescribed angles are corrected by fixed-point iteration on the measured ones."""
+@functools.lru_cache(maxsize=1)
+def _normal_profile_unit() -> tuple[FloatArray, FloatArray]:
+    """Positions and rotations of the normal sagittal profile at length scale 1, whose kyphosis and
+    lordosis, measured by ``measures.kyphosis_lordosis_deg`` on the discrete centreline, are exactly
+    the targets: the prescribed angles are corrected by fixed-point iteration on the measured ones.
+    Angles do not depend on a uniform length scale, so a scaled model scales these positions."""
+    ds = rest_segment_lengths(1.0)
     target = np.array([NORMAL_KYPHOSIS_T4_T12_DEG, NORMAL_LORDOSIS_L1_L5_DEG])
     prescribed = target.copy()
     frontal = np.zeros(N_LEVELS)
@@ -296,6 +300,8 @@ def _normal_profile_positions(ds: FloatArray) -> tuple[FloatArray, FloatArray]:
         if np.max(np.abs(error)) < 1e-9:
             break
         prescribed += error
+    positions.setflags(write=False)
+    rotations.setflags(write=False)
     return positions, rotations
 
 
@@ -305,12 +311,13 @@ def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
     if not (np.isfinite(length_scale) and length_scale > 0):
         raise ValueError(f"length_scale must be finite and > 0, got {length_scale}")
     ds = rest_segment_lengths(length_scale)
-    positions, rotations = _normal_profile_positions(ds)
+    unit_positions, rotations = _normal_profile_unit()
+    positions = unit_positions * length_scale
     sec = section_properties(*segment_semi_axes(length_scale))
     Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient
     alpha = np.stack([Y * sec["I1"], Y * sec["I2"], G * sec["J"]], axis=1)
     beta = np.stack([k * G * sec["A"], k * G * sec["A"], Y * sec["A"]], axis=1)
-    for arr in (ds, positions, rotations, alpha, beta):
+    for arr in (ds, positions, alpha, beta):
         arr.setflags(write=False)
     return RestModel(LEVELS, ds, positions, rotations, alpha, beta, profile, float(length_scale))
 

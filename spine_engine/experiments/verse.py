@@ -1,0 +1,141 @@
+"""Reconstruction of real spines from CT (VerSe): project, reconstruct, compare in 3D.
+
+Each spine of a VerSe split (vertebral centroids T1..L5, LPS mm) is projected on a PA view
+(and, for the PA+L case, a lateral view) by weak perspective; T1 and L5 are given from the truth
+(position, and directors built from the centreline by ``frames_from_centreline``); the spine is
+reconstructed and its 3D error measured per spine and per level. Tune on ``dev``, report ``test``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..anatomy import Profile, load_profile
+from ..frames import frames_from_centreline
+from ..levels import LEVELS, N_LEVELS
+from ..measures import compute_measures
+from ..reconstruction import build_problem, solve
+from ..validation import validate_payload
+from .report import format_table, write_json
+from .truth import payload_from_truth, read_verse
+
+CASES: dict[str, tuple[list[int], list[int] | None]] = {
+    "PA-17": (list(range(N_LEVELS)), None),
+    "PA-17+L-17": (list(range(N_LEVELS)), list(range(N_LEVELS))),
+}
+
+
+def default_data_dir() -> Path:
+    """``$SPINE_SHARED_DATA/verse``, else ``../shared/data/verse`` beside the repository."""
+    env = os.environ.get("SPINE_SHARED_DATA")
+    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    return base / "verse"
+
+
+@dataclass(frozen=True)
+class SpineOutcome:
+    spine_id: str
+    per_level_mm: np.ndarray
+    kyphosis_error_deg: float
+    lordosis_error_deg: float
+    registration_error_mm: float
+    converged: bool
+
+
+def reconstruct_spine(
+    spine_id: str, positions: np.ndarray, case: str, profile: Profile
+) -> SpineOutcome:
+    """Reconstruct one real spine in one case and compare it with the truth."""
+    rotations = frames_from_centreline(positions)
+    pa_levels, lateral_levels = CASES[case]
+    model = validate_payload(payload_from_truth(positions, rotations, pa_levels, lateral_levels))
+    problem = build_problem(model, profile)
+    out, _ = solve(problem, profile)
+    truth_m = compute_measures(positions, rotations)
+    recon_m = compute_measures(out.positions, out.rotations)
+    return SpineOutcome(
+        spine_id=spine_id,
+        per_level_mm=np.linalg.norm(out.positions - positions, axis=1),
+        kyphosis_error_deg=abs(recon_m.thoracic_kyphosis_t4_t12_deg - truth_m.thoracic_kyphosis_t4_t12_deg),
+        lordosis_error_deg=abs(recon_m.lumbar_lordosis_l1_l5_deg - truth_m.lumbar_lordosis_l1_l5_deg),
+        registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
+        converged=out.converged,
+    )
+
+
+def evaluate(spines: list[tuple[str, np.ndarray]], case: str, profile: Profile) -> list[SpineOutcome]:
+    return [reconstruct_spine(sid, pos, case, profile) for sid, pos in spines]
+
+
+def mean_interior_error(outcomes: list[SpineOutcome]) -> float:
+    """Mean over spines of the mean 3D error over T2..L4 (T1, L5 are given)."""
+    return float(np.mean([o.per_level_mm[1:-1].mean() for o in outcomes]))
+
+
+def summary(case: str, outcomes: list[SpineOutcome]) -> dict[str, Any]:
+    per_level = np.array([o.per_level_mm for o in outcomes])
+    return {
+        "case": case,
+        "spines": len(outcomes),
+        "mean_3d_error_mm": mean_interior_error(outcomes),
+        "max_3d_error_mm": float(per_level.max()),
+        "mean_registration_error_mm": float(np.mean([o.registration_error_mm for o in outcomes])),
+        "kyphosis_mae_deg": float(np.mean([o.kyphosis_error_deg for o in outcomes])),
+        "lordosis_mae_deg": float(np.mean([o.lordosis_error_deg for o in outcomes])),
+        "not_converged": int(sum(not o.converged for o in outcomes)),
+        "per_level_mean_mm": dict(zip(LEVELS, per_level.mean(axis=0).round(3).tolist(), strict=True)),
+        "per_spine": [
+            {"id": o.spine_id, "mean_mm": float(o.per_level_mm[1:-1].mean()), "max_mm": float(o.per_level_mm.max())}
+            for o in outcomes
+        ],
+    }
+
+
+def plot(summaries: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for s in summaries:
+        label = f"{s['case']} (mean {s['mean_3d_error_mm']:.2f} mm)"
+        ax.plot(LEVELS, list(s["per_level_mean_mm"].values()), "o-", label=label)
+    ax.set(xlabel="level", ylabel="mean 3D error (mm)", title=f"VerSe, {summaries[0]['spines']} real spines")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench verse", description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="VerSe folder with dev.csv and test.csv")
+    parser.add_argument("--split", choices=["dev", "test"], default="test")
+    parser.add_argument("--profile", default="default")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
+    args = parser.parse_args(argv)
+    path = (args.data or default_data_dir()) / f"{args.split}.csv"
+    if not path.is_file():
+        print(f"error: VerSe split not found at {path} (pass --data or set SPINE_SHARED_DATA)")
+        return 2
+    spines = read_verse(path)
+    profile = load_profile(args.profile)
+    summaries = [summary(case, evaluate(spines, case, profile)) for case in CASES]
+    columns = ["case", "spines", "mean_3d_error_mm", "max_3d_error_mm", "mean_registration_error_mm",
+               "kyphosis_mae_deg", "lordosis_mae_deg", "not_converged"]
+    print(format_table(columns, [[s[c] for c in columns] for s in summaries]))
+    print()
+    print(format_table(["level", *[s["case"] for s in summaries]],
+                       [[lv, *[s["per_level_mean_mm"][lv] for s in summaries]] for lv in LEVELS]))
+    write_json(args.out / f"verse-{args.split}.json", {"data": str(path), "profile": args.profile, "cases": summaries})
+    plot(summaries, args.out / f"verse-{args.split}.png")
+    print(f"wrote {args.out}/verse-{args.split}.json and .png")
+    return 0

@@ -1,0 +1,220 @@
+"""The public entry point: a job payload in, a reconstruction result out.
+
+``register(payload)`` validates the payload, builds the generic rod for the chosen elastic
+profile, converts the landmarks to detector mm, fixes the weak perspective of each view,
+registers the rod to the landmarks (``registration.fit``) and reports strains and measures.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .anatomy import Profile, RestModel, load_profile, rest_model
+from .errors import FieldError, FitFailed, InvalidInput
+from .frames import axial_rotation_deg
+from .levels import LEVEL_INDEX, LEVELS
+from .measures import compute_measures
+from .models import (
+    EngineInfo,
+    FitReport,
+    JobPayload,
+    LateralView,
+    PAView,
+    RegistrationResult,
+    Residual,
+    VertebraResult,
+    ViewProjection,
+)
+from .projection import estimate_projection, image_axes
+from .registration import FitOutput, RodParameters, ViewData, fit, initial_configuration
+from .rod import strains
+from .validation import validate_payload
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A validated registration problem in arrays: what ``solve`` needs, nothing of JSON."""
+
+    views: list[ViewData]
+    projections: dict[str, ViewProjection]
+    top: tuple[np.ndarray, np.ndarray]
+    bottom: tuple[np.ndarray, np.ndarray]
+
+
+def _pose(pose: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Position (3,) and rotation matrix with the directors as columns, R = [d1 d2 d3]."""
+    return np.asarray(pose.position, dtype=float), np.asarray(pose.directors, dtype=float).T
+
+
+def _orthonormalise(R: np.ndarray) -> np.ndarray:
+    """Nearest rotation to R (polar decomposition): directors valid within 1e-3 become exact."""
+    U, _, Vt = np.linalg.svd(R)
+    return np.asarray(U @ Vt)
+
+
+def _detector_mm(view: PAView | LateralView) -> np.ndarray:
+    """Landmarks as (column, row) in detector mm; px × DICOM pixel spacing [row, column]."""
+    points = np.array([lm.point for lm in view.landmarks], dtype=float).reshape(-1, 2)
+    if view.units == "px":
+        assert view.pixel_spacing is not None  # validate_payload guarantees it
+        row_spacing, column_spacing = view.pixel_spacing
+        points = points * np.array([column_spacing, row_spacing])
+    return points
+
+
+def build_view(
+    name: str,
+    view: PAView | LateralView,
+    weight: float,
+    top: tuple[np.ndarray, np.ndarray],
+    bottom: tuple[np.ndarray, np.ndarray],
+) -> tuple[ViewData, ViewProjection]:
+    """One view's landmarks in detector mm with its weak perspective (given or estimated)."""
+    e_c, e_r = image_axes(view.patient_orientation)
+    indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=int)
+    points = _detector_mm(view)
+    if view.projection is not None:
+        scale = float(view.projection.scale)
+        translation = np.asarray(view.projection.translation, dtype=float)  # detector mm
+        estimated = False
+    else:
+        ends = [int(np.flatnonzero(indices == 0)[0]), int(np.flatnonzero(indices == len(LEVELS) - 1)[0])]
+        try:
+            scale, translation = estimate_projection(
+                np.stack([top[0], bottom[0]]), points[ends], e_c, e_r
+            )
+        except ValueError as exc:
+            raise InvalidInput([FieldError((name, "landmarks"), str(exc), "projection_not_estimable")]) from None
+        estimated = True
+    data = ViewData(
+        name=name,
+        indices=indices,
+        points=points,
+        e_c=e_c,
+        e_r=e_r,
+        scale=float(scale),
+        translation=np.asarray(translation, dtype=float),
+        weight=weight,
+    )
+    projection = ViewProjection(
+        scale=float(scale), translation=(float(translation[0]), float(translation[1])), estimated=estimated
+    )
+    return data, projection
+
+
+def build_problem(model: JobPayload, profile: Profile) -> Problem:
+    """Arrays of a validated payload: views in detector mm, projections, fixed boundary poses."""
+    p1, R1 = _pose(model.boundary.T1)
+    p5, R5 = _pose(model.boundary.L5)
+    top, bottom = (p1, _orthonormalise(R1)), (p5, _orthonormalise(R5))
+    views, projections = [], {}
+    pa, pa_projection = build_view("pa", model.pa, profile.fit_weight_pa, top, bottom)
+    views.append(pa)
+    projections["pa"] = pa_projection
+    if model.lateral is not None and model.lateral.landmarks:
+        lateral, lateral_projection = build_view(
+            "lateral", model.lateral, profile.fit_weight_lateral, top, bottom
+        )
+        views.append(lateral)
+        projections["lateral"] = lateral_projection
+    return Problem(views=views, projections=projections, top=top, bottom=bottom)
+
+
+def rod_parameters(rest: RestModel) -> RodParameters:
+    """Rest lengths, rest strains u⁰, v⁰ of the generic shape, and stiffness of the rod."""
+    u0, v0 = strains(rest.positions, rest.rotations, rest.ds)
+    return RodParameters(ds=rest.ds, u0=u0, v0=v0, alpha=rest.alpha, beta=rest.beta)
+
+
+def patient_rest_model(profile: Profile, top: np.ndarray, bottom: np.ndarray) -> RestModel:
+    """The generic rod scaled so that its T1–L5 chord equals the patient's (from the boundary)."""
+    generic = rest_model(profile)
+    generic_chord = float(np.linalg.norm(generic.positions[-1] - generic.positions[0]))
+    patient_chord = float(np.linalg.norm(bottom - top))
+    return rest_model(profile, length_scale=patient_chord / generic_chord)
+
+
+def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
+    rest = patient_rest_model(profile, problem.top[0], problem.bottom[0])
+    init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
+    out = fit(rod_parameters(rest), problem.views, problem.top, problem.bottom, init_r, init_R)
+    return out, rest
+
+
+def _vertebrae(out: FitOutput, rest: RestModel) -> list[VertebraResult]:
+    angles = np.degrees(out.u * rest.ds[:, None])
+    rotation = axial_rotation_deg(out.rotations)
+    vertebrae = []
+    for i, level in enumerate(LEVELS):
+        has_segment = i < len(LEVELS) - 1
+        vertebrae.append(
+            VertebraResult(
+                level=level,  # type: ignore[arg-type]
+                position=tuple(out.positions[i].tolist()),
+                directors=tuple(tuple(row) for row in out.rotations[i].T.tolist()),  # type: ignore[arg-type]
+                u=tuple(out.u[i].tolist()) if has_segment else None,
+                v=tuple(out.v[i].tolist()) if has_segment else None,
+                pa_bending_deg=float(angles[i, 0]) if has_segment else None,
+                lateral_bending_deg=float(angles[i, 1]) if has_segment else None,
+                twist_deg=float(angles[i, 2]) if has_segment else None,
+                axial_rotation_deg=float(rotation[i]),
+            )
+        )
+    return vertebrae
+
+
+def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitReport:
+    residuals = [
+        Residual(view=view.name, level=LEVELS[idx], residual_mm=float(res))  # type: ignore[arg-type]
+        for view in problem.views
+        for idx, res in zip(view.indices, out.residuals_mm[view.name], strict=True)
+    ]
+    return FitReport(
+        residuals=residuals,
+        mean_registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
+        energy_fit=out.energy_fit,
+        energy_internal=out.energy_internal,
+        iterations=out.iterations,
+        converged=out.converged,
+        runtime_ms=runtime_ms,
+        pa=problem.projections["pa"],
+        lateral=problem.projections.get("lateral"),
+    )
+
+
+def register_model(model: JobPayload) -> RegistrationResult:
+    """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge."""
+    profile = load_profile(model.options.profile)
+    problem = build_problem(model, profile)
+    start = time.perf_counter()
+    out, rest = solve(problem, profile)
+    runtime_ms = (time.perf_counter() - start) * 1e3
+    if not out.converged:
+        raise FitFailed(
+            f"the registration did not converge in {out.iterations} iterations "
+            f"(E_f = {out.energy_fit:.4g} N·mm, E_I = {out.energy_internal:.4g} N·mm)",
+            iterations=out.iterations,
+        )
+    if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
+        raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
+    return RegistrationResult(
+        vertebrae=_vertebrae(out, rest),
+        measures=compute_measures(out.positions, out.rotations),
+        fit=_fit_report(problem, out, runtime_ms),
+        engine=EngineInfo(version=__version__, profile=profile.name),
+    )
+
+
+def register(payload: dict[str, Any]) -> dict[str, Any]:
+    """Reconstruct a spine from a job payload (the JSON body of ``POST /v1/jobs``).
+
+    Returns the ``result`` object a client reads back (``RegistrationResult`` as JSON types).
+    Raises ``InvalidInput`` naming every bad field, or ``FitFailed`` when the fit fails.
+    """
+    return register_model(validate_payload(payload)).model_dump(mode="json")
