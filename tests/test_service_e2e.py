@@ -123,7 +123,9 @@ def test_killing_the_worker_mid_run_strands_no_job(distributed_service: Service)
     service.env, saved = quick, service.env
     try:
         service.start_worker()
-        body = service.client.post("/v1/jobs/batch", json={"jobs": [spine_payload(curve_mm=i) for i in range(60)]})
+        body = service.client.post(
+            "/v1/jobs/batch", json={"jobs": [spine_payload(curve_mm=i % 40) for i in range(300)]}
+        )
         ids = [e["job"]["id"] for e in body.json()["results"]]
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
