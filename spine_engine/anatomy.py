@@ -202,7 +202,12 @@ class Profile:
     youngs_modulus_mpa Y and shear_modulus_mpa G (MPa = N/mm²); shear_coefficient k (Timoshenko,
     dimensionless); fit_weight_pa and fit_weight_lateral w (N/mm): the fitting energy of a view
     is w Σ_i |r_i|², r_i the landmark residual in patient mm, so w·r² is in N·mm like the rod's
-    potential energy. provenance: where each value comes from.
+    potential energy. stretch_factor (dimensionless) scales the stretch stiffness Y·A: a disc's
+    effective axial modulus differs from its bending one, so the two are calibrated apart.
+    rest_shape: ``None`` for the normal literature profile (kyphosis/lordosis of healthy controls),
+    else a calibrated sagittal rest shape ``{"sagittal_inclination_deg": [17 values, T1 = 0],
+    "length_fractions": [16 values summing to 1], "source": ...}``. provenance: where each value
+    comes from.
     """
 
     name: str
@@ -212,18 +217,29 @@ class Profile:
     fit_weight_pa: float
     fit_weight_lateral: float
     provenance: dict[str, Any] = field(default_factory=dict)
+    stretch_factor: float = 1.0
+    rest_shape: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         for key in ("youngs_modulus_mpa", "shear_modulus_mpa", "shear_coefficient", "fit_weight_pa"):
             value = getattr(self, key)
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
                 raise ValueError(f"profile {self.name!r}: {key} must be a finite number > 0, got {value!r}")
+        if not (isinstance(self.stretch_factor, int | float) and np.isfinite(self.stretch_factor)
+                and self.stretch_factor > 0):
+            raise ValueError(f"profile {self.name!r}: stretch_factor must be a finite number > 0")
+        if self.rest_shape is not None:
+            incl = np.asarray(self.rest_shape.get("sagittal_inclination_deg", []), dtype=float)
+            frac = np.asarray(self.rest_shape.get("length_fractions", []), dtype=float)
+            if incl.shape != (N_LEVELS,) or frac.shape != (N_LEVELS - 1,) or not np.all(frac > 0):
+                raise ValueError(f"profile {self.name!r}: rest_shape needs 17 inclinations and 16 positive fractions")
         lateral = self.fit_weight_lateral
         if not (isinstance(lateral, int | float) and np.isfinite(lateral) and lateral >= 0):
             raise ValueError(f"profile {self.name!r}: fit_weight_lateral must be finite and >= 0, got {lateral!r}")
 
 
 _PROFILE_KEYS = tuple(Profile.__dataclass_fields__)
+_OPTIONAL_PROFILE_KEYS = ("stretch_factor", "rest_shape")
 _PROFILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 
@@ -233,12 +249,13 @@ def list_profiles() -> list[str]:
 
 
 def profile_from_dict(data: dict[str, Any]) -> Profile:
-    """A Profile from its JSON object; every key of the dataclass is required, no other key allowed."""
-    missing = [k for k in _PROFILE_KEYS if k not in data]
+    """A Profile from its JSON object; every key of the dataclass but the optional ones
+    (stretch_factor, rest_shape) is required, no other key allowed."""
+    missing = [k for k in _PROFILE_KEYS if k not in data and k not in _OPTIONAL_PROFILE_KEYS]
     extra = [k for k in data if k not in _PROFILE_KEYS]
     if missing or extra:
         raise ValueError(f"profile keys: missing {missing}, unexpected {extra}")
-    return Profile(**{k: data[k] for k in _PROFILE_KEYS})
+    return Profile(**{k: data[k] for k in _PROFILE_KEYS if k in data})
 
 
 def load_profile(name: str = "default") -> Profile:
@@ -305,18 +322,41 @@ def _normal_profile_unit() -> tuple[FloatArray, FloatArray]:
     return positions, rotations
 
 
+@functools.lru_cache(maxsize=8)
+def _calibrated_shape_unit(
+    inclination_deg: tuple[float, ...], fractions: tuple[float, ...]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Segment lengths, positions and rotations of a calibrated sagittal rest shape at length
+    scale 1: total length that of the literature table, L5 straight below T1 (balanced)."""
+    ds = np.asarray(fractions) / np.sum(fractions) * rest_segment_lengths(1.0).sum()
+    frontal = np.zeros(N_LEVELS)
+    beta = np.asarray(inclination_deg, dtype=float)
+    beta = beta + balance_offset_deg(ds, frontal, beta, axis=1)
+    positions = centreline_from_angles(ds, frontal, beta)
+    rotations = frames_from_centreline(positions)
+    for arr in (ds, positions, rotations):
+        arr.setflags(write=False)
+    return ds, positions, rotations
+
+
 def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
     """The rest model of the generic spine for ``profile``; ``length_scale`` multiplies every
     length (segment lengths, positions and section semi-axes, so A ∝ scale², I, J ∝ scale⁴)."""
     if not (np.isfinite(length_scale) and length_scale > 0):
         raise ValueError(f"length_scale must be finite and > 0, got {length_scale}")
-    ds = rest_segment_lengths(length_scale)
-    unit_positions, rotations = _normal_profile_unit()
+    if profile.rest_shape is None:
+        ds = rest_segment_lengths(length_scale)
+        unit_positions, rotations = _normal_profile_unit()
+    else:
+        unit_ds, unit_positions, rotations = _calibrated_shape_unit(
+            tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
+        )
+        ds = unit_ds * length_scale
     positions = unit_positions * length_scale
     sec = section_properties(*segment_semi_axes(length_scale))
     Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient
     alpha = np.stack([Y * sec["I1"], Y * sec["I2"], G * sec["J"]], axis=1)
-    beta = np.stack([k * G * sec["A"], k * G * sec["A"], Y * sec["A"]], axis=1)
+    beta = np.stack([k * G * sec["A"], k * G * sec["A"], profile.stretch_factor * Y * sec["A"]], axis=1)
     for arr in (ds, positions, alpha, beta):
         arr.setflags(write=False)
     return RestModel(LEVELS, ds, positions, rotations, alpha, beta, profile, float(length_scale))

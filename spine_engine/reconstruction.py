@@ -7,6 +7,7 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -33,6 +34,7 @@ from .models import (
 from .projection import estimate_projection, image_axes
 from .registration import FitOutput, RodParameters, ViewData, fit, initial_configuration
 from .rod import strains
+from .rotations import rotation_between
 from .validation import validate_payload
 
 
@@ -131,17 +133,41 @@ def rod_parameters(rest: RestModel) -> RodParameters:
     return RodParameters(ds=rest.ds, u0=u0, v0=v0, alpha=rest.alpha, beta=rest.beta)
 
 
-def patient_rest_model(profile: Profile, top: np.ndarray, bottom: np.ndarray) -> RestModel:
-    """The generic rod scaled so that its T1–L5 chord equals the patient's (from the boundary)."""
+def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
+    """Length scale of the rest rod from one view: the landmarks' polyline length in patient mm
+    (image distances / s) over that of the rest rod's projection through the same levels.
+
+    With all 17 PA landmarks it compares the projected arc lengths, so lateral curvature is
+    counted; with T1 and L5 alone it compares the projected chords.
+    """
+    rest_2d = np.stack([rest_positions[view.indices] @ view.e_c, rest_positions[view.indices] @ view.e_r], axis=1)
+    rest_arc = float(np.linalg.norm(np.diff(rest_2d, axis=0), axis=1).sum())
+    image_arc = float(np.linalg.norm(np.diff(view.points / view.scale, axis=0), axis=1).sum())
+    return image_arc / rest_arc
+
+
+def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
+    """The generic rod turned and scaled to the patient.
+
+    It is turned rigidly so that its T1→L5 chord has the direction of the patient's (known from
+    the boundary), then scaled so that its projection on the PA view is as long as the PA
+    landmarks' polyline. Strains do not depend on the turn; the scale sets the rest lengths.
+    """
     generic = rest_model(profile)
-    generic_chord = float(np.linalg.norm(generic.positions[-1] - generic.positions[0]))
-    patient_chord = float(np.linalg.norm(bottom - top))
-    return rest_model(profile, length_scale=patient_chord / generic_chord)
+    turn = rotation_between(
+        generic.positions[-1] - generic.positions[0], problem.bottom[0] - problem.top[0]
+    )
+    turned = generic.positions @ turn.T
+    scale = projected_arc_scale(turned, problem.views[0])
+    scaled = rest_model(profile, length_scale=scale)
+    return dataclasses.replace(
+        scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)
+    )
 
 
 def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
     """Register the patient-scaled generic rod to the landmarks of ``problem``."""
-    rest = patient_rest_model(profile, problem.top[0], problem.bottom[0])
+    rest = patient_rest_model(profile, problem)
     init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
     out = fit(rod_parameters(rest), problem.views, problem.top, problem.bottom, init_r, init_R)
     return out, rest

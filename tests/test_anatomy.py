@@ -1,5 +1,6 @@
 """The generic rest model and the elastic profiles."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -29,7 +30,8 @@ VERSE_DEV = Path(__file__).parent / "data" / "verse_dev.csv"
 
 @pytest.fixture(scope="module")
 def profile() -> Profile:
-    return load_profile("default")
+    """The literature profile: normal sagittal rest shape, uncalibrated elastic values."""
+    return load_profile("literature")
 
 
 def test_rest_model_has_the_documented_sagittal_profile_and_no_frontal_curve(profile: Profile) -> None:
@@ -102,9 +104,9 @@ def test_segment_lengths_are_close_to_verse_dev() -> None:
     assert abs(table.sum() / verse.sum() - 1) < 0.08
 
 
-def test_default_profile(profile: Profile) -> None:
-    assert "default" in list_profiles()
-    assert profile.name == "default"
+def test_literature_profile(profile: Profile) -> None:
+    assert {"default", "literature"} <= set(list_profiles())
+    assert profile.name == "literature" and profile.rest_shape is None and profile.stretch_factor == 1.0
     assert profile.provenance["status"].startswith("initial values from the literature")
     nu = profile.youngs_modulus_mpa / (2 * profile.shear_modulus_mpa) - 1
     assert 0.3 < nu < 0.5
@@ -112,8 +114,29 @@ def test_default_profile(profile: Profile) -> None:
     # the fit weight makes a 0.2 mm residual cost about one segment's bending energy
     ratio = profile.fit_weight_pa * 0.2**2 / typical_bending_energy_nmm(profile)
     assert 0.5 < ratio < 2.0
-    raw = json.loads((Path(__file__).parents[1] / "spine_engine" / "profiles" / "default.json").read_text())
-    assert set(raw) == set(Profile.__dataclass_fields__)
+    raw = json.loads((Path(__file__).parents[1] / "spine_engine" / "profiles" / "literature.json").read_text())
+    assert set(raw) <= set(Profile.__dataclass_fields__)
+
+
+def test_default_profile_is_calibrated_with_provenance() -> None:
+    default = load_profile("default")
+    assert default.name == "default"
+    assert "Monte Carlo" in default.provenance["method"] and "dev" in default.provenance["training_set"]
+    assert default.rest_shape is not None and "VerSe dev" in default.rest_shape["source"]
+    rest = rest_model(default, length_scale=1.1)
+    assert sum(rest_model(default).ds) * 1.1 == pytest.approx(sum(rest.ds))
+    assert abs(rest.positions[-1, 1] - rest.positions[0, 1]) < 1e-6  # balanced: L5 below T1
+    np.testing.assert_allclose(rest.beta[:, 2] / rest.beta[:, 0],
+                               default.stretch_factor * default.youngs_modulus_mpa
+                               / (default.shear_coefficient * default.shear_modulus_mpa))
+
+
+def test_profile_rest_shape_is_checked() -> None:
+    base = load_profile("literature")
+    with pytest.raises(ValueError, match="rest_shape"):
+        dataclasses.replace(base, rest_shape={"sagittal_inclination_deg": [0.0] * 3, "length_fractions": [1.0]})
+    with pytest.raises(ValueError, match="stretch_factor"):
+        dataclasses.replace(base, stretch_factor=0.0)
 
 
 @pytest.mark.parametrize("name", ["nope", "../default", "", ".hidden", "default.json"])

@@ -49,12 +49,18 @@ class SpineOutcome:
 
 
 def reconstruct_spine(
-    spine_id: str, positions: np.ndarray, case: str, profile: Profile
+    spine_id: str, positions: np.ndarray, case: str, profile: Profile, noise_mm: float = 0.0, seed: int = 0
 ) -> SpineOutcome:
-    """Reconstruct one real spine in one case and compare it with the truth."""
+    """Reconstruct one real spine in one case and compare it with the truth.
+
+    ``noise_mm``: SD of Gaussian noise added to every landmark coordinate (detector mm), as a
+    clinician's or a detector's landmark error; the boundary poses stay exact.
+    """
     rotations = frames_from_centreline(positions)
     pa_levels, lateral_levels = CASES[case]
-    model = validate_payload(payload_from_truth(positions, rotations, pa_levels, lateral_levels))
+    rng = np.random.default_rng([seed, sum(map(ord, spine_id))])
+    payload = payload_from_truth(positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng)
+    model = validate_payload(payload)
     problem = build_problem(model, profile)
     out, _ = solve(problem, profile)
     truth_m = compute_measures(positions, rotations)
@@ -69,8 +75,10 @@ def reconstruct_spine(
     )
 
 
-def evaluate(spines: list[tuple[str, np.ndarray]], case: str, profile: Profile) -> list[SpineOutcome]:
-    return [reconstruct_spine(sid, pos, case, profile) for sid, pos in spines]
+def evaluate(
+    spines: list[tuple[str, np.ndarray]], case: str, profile: Profile, noise_mm: float = 0.0
+) -> list[SpineOutcome]:
+    return [reconstruct_spine(sid, pos, case, profile, noise_mm) for sid, pos in spines]
 
 
 def mean_interior_error(outcomes: list[SpineOutcome]) -> float:
@@ -120,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=None, help="VerSe folder with dev.csv and test.csv")
     parser.add_argument("--split", choices=["dev", "test"], default="test")
     parser.add_argument("--profile", default="default")
+    parser.add_argument("--noise-mm", type=float, default=0.0, help="landmark noise SD, detector mm")
     parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
     args = parser.parse_args(argv)
     path = (args.data or default_data_dir()) / f"{args.split}.csv"
@@ -128,14 +137,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     spines = read_verse(path)
     profile = load_profile(args.profile)
-    summaries = [summary(case, evaluate(spines, case, profile)) for case in CASES]
+    summaries = [summary(case, evaluate(spines, case, profile, args.noise_mm)) for case in CASES]
     columns = ["case", "spines", "mean_3d_error_mm", "max_3d_error_mm", "mean_registration_error_mm",
                "kyphosis_mae_deg", "lordosis_mae_deg", "not_converged"]
     print(format_table(columns, [[s[c] for c in columns] for s in summaries]))
     print()
     print(format_table(["level", *[s["case"] for s in summaries]],
                        [[lv, *[s["per_level_mean_mm"][lv] for s in summaries]] for lv in LEVELS]))
-    write_json(args.out / f"verse-{args.split}.json", {"data": str(path), "profile": args.profile, "cases": summaries})
-    plot(summaries, args.out / f"verse-{args.split}.png")
-    print(f"wrote {args.out}/verse-{args.split}.json and .png")
+    stem = f"verse-{args.split}" + (f"-noise{args.noise_mm:g}" if args.noise_mm else "")
+    write_json(args.out / f"{stem}.json",
+               {"data": str(path), "profile": args.profile, "noise_mm": args.noise_mm, "cases": summaries})
+    plot(summaries, args.out / f"{stem}.png")
+    print(f"wrote {args.out}/{stem}.json and .png")
     return 0
