@@ -16,6 +16,7 @@ import os
 import platform
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import scipy
@@ -172,15 +173,50 @@ def run(repeats: int = 200, lateral: bool = False, warmup: int = 10) -> dict[str
     }
 
 
+REAL_SPINES = Path(__file__).resolve().parents[2] / "tests" / "data" / "verse_dev.csv"
+
+
+def run_register(repeats: int, spines_csv: Path = REAL_SPINES) -> dict[str, object]:
+    """Time the public ``register(payload)`` end to end (validation, patient rest rod, fit,
+    measures, result model) with the calibrated default profile, cycling over real spines (VerSe
+    dev, 17 PA landmarks projected from CT); also the fit alone as the result reports it."""
+    from ..frames import frames_from_centreline
+    from ..reconstruction import register
+    from .truth import payload_from_truth, read_verse
+
+    payloads = [
+        payload_from_truth(r, frames_from_centreline(r), list(range(17))) for _, r in read_verse(spines_csv)
+    ]
+    for payload in payloads[:5]:
+        register(payload)
+    total, fit_ms, iterations = [], [], []
+    for k in range(repeats):
+        start = time.perf_counter()
+        result = register(payloads[k % len(payloads)])
+        total.append((time.perf_counter() - start) * 1e3)
+        fit_ms.append(result["fit"]["runtime_ms"])
+        iterations.append(result["fit"]["iterations"])
+    return {
+        "problem": f"register(), {len(payloads)} real spines, 17 PA",
+        "iterations": f"{np.median(iterations):.0f}",
+        "initial_plus_fit": _stats(fit_ms),
+        "register_total": _stats(total),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="spine bench perf", description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=200, help="timed registrations (default 200)")
     parser.add_argument("--lateral", action="store_true", help="also time PA + lateral (17 + 17 landmarks)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--register", action="store_true",
+                        help="also time the public register() with the calibrated profile on real spines")
     args = parser.parse_args(argv)
     results = [run(args.repeats)]
     if args.lateral:
         results.append(run(args.repeats, lateral=True))
+    if args.register:
+        results.append(run_register(args.repeats))
     if args.json:
         environment = {
             "python": platform.python_version(),
@@ -193,7 +229,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"{'problem':<28} {'timed':<22} {'median ms':>10} {'p90 ms':>8} {'mean ms':>8} {'iter':>5}")
     for res in results:
-        for key, label in (("initial_plus_fit", "initial config + fit"), ("fit_only", "fit only")):
+        for key, label in (("initial_plus_fit", "initial config + fit"), ("fit_only", "fit only"),
+                           ("register_total", "whole register()")):
+            if key not in res:
+                continue
             st = res[key]
             assert isinstance(st, dict)
             print(
