@@ -25,6 +25,7 @@ KINDS: dict[str, tuple[str, int]] = {
     "method-not-allowed": ("Method not allowed", 405),
     "idempotency-conflict": ("The Idempotency-Key was used with another body", 409),
     "job-not-cancellable": ("The job has already finished", 409),
+    "job-has-no-result": ("The job has no result: it has not succeeded (yet)", 409),
     "service-unavailable": ("A dependency of the service is unreachable", 503),
     "internal-error": ("Internal error", 500),
     "http-error": ("HTTP error", 400),

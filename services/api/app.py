@@ -13,7 +13,8 @@ from prometheus_client import CollectorRegistry
 
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
-from services.api.routes import health, jobs
+from services.api.routes import figures, health, jobs
+from services.api.web import mount_web
 from services.jobqueue import make_celery
 from services.problems import PROBLEM_BASE
 from services.settings import Settings, get_settings
@@ -48,6 +49,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app)
     app.include_router(jobs.router)
     app.include_router(health.router)
+    app.include_router(figures.router)
+    mount_web(app)
     app.add_middleware(HTTPMetrics, registry=registry)
 
     def openapi() -> dict[str, Any]:

@@ -15,9 +15,9 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import CursorResult, and_, func, insert, or_, select, text, update
+from sqlalchemy import CursorResult, Table, and_, bindparam, func, insert, or_, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -212,6 +212,39 @@ class Claim:
     created_at: datetime
 
 
+_JOBS = cast(Table, Job.__table__)
+_CLAIM = (
+    update(_JOBS)
+    .where(_JOBS.c.id == bindparam("job_id"), _JOBS.c.status == JobStatus.queued.value)
+    .values(
+        status=JobStatus.running.value,
+        started_at=bindparam("now"),
+        attempts=_JOBS.c.attempts + 1,
+        engine_version=bindparam("engine_version"),
+    )
+    .returning(_JOBS.c.attempts, _JOBS.c.payload, _JOBS.c.created_at)
+)
+_FINISH = (
+    update(_JOBS)
+    .where(
+        _JOBS.c.id == bindparam("job_id"),
+        _JOBS.c.status == JobStatus.running.value,
+        _JOBS.c.attempts == bindparam("attempt"),
+    )
+    .values(
+        status=bindparam("status"),
+        finished_at=bindparam("now"),
+        result=bindparam("result"),
+        error=bindparam("error"),
+        engine_version=func.coalesce(bindparam("engine_version"), _JOBS.c.engine_version),
+    )
+)
+_INSERT_MEASURES = insert(cast(Table, JobMeasures.__table__))
+_INSERT_STRAINS = insert(cast(Table, VertebraStrain.__table__))
+# Statements are built once and executed on Core tables with bound parameters: the worker's
+# per-job cost stays in the database, not in statement construction.
+
+
 def claim_job(session: Session, job_id: uuid.UUID, engine_version: str | None) -> Claim | None:
     """queued → running, attempts + 1; None when the job is not queued (duplicate, cancelled…).
 
@@ -222,15 +255,7 @@ def claim_job(session: Session, job_id: uuid.UUID, engine_version: str | None) -
     if session.get_bind().dialect.name == "postgresql":
         session.execute(text("SET LOCAL synchronous_commit TO OFF"))
     row = session.execute(
-        update(Job)
-        .where(Job.id == job_id, Job.status == JobStatus.queued.value)
-        .values(
-            status=JobStatus.running.value,
-            started_at=utcnow(),
-            attempts=Job.attempts + 1,
-            engine_version=engine_version,
-        )
-        .returning(Job.attempts, Job.payload, Job.created_at)
+        _CLAIM, {"job_id": job_id, "now": utcnow(), "engine_version": engine_version}
     ).first()
     session.commit()
     if row is None:
@@ -251,14 +276,16 @@ def finish_job(
     Returns False, storing nothing, when the job was cancelled or handed to another run meanwhile.
     """
     status = JobStatus.succeeded if error is None else JobStatus.failed
-    values: dict[str, Any] = {"status": status.value, "finished_at": utcnow(), "result": result, "error": error}
-    if engine_version is not None:
-        values["engine_version"] = engine_version
-    outcome: CursorResult[Any] = session.execute(  # type: ignore[assignment]
-        update(Job)
-        .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)
-        .values(**values)
-    )
+    params = {
+        "job_id": claim.job_id,
+        "attempt": claim.attempt,
+        "status": status.value,
+        "now": utcnow(),
+        "result": result,
+        "error": error,
+        "engine_version": engine_version,
+    }
+    outcome: CursorResult[Any] = session.execute(_FINISH, params)  # type: ignore[assignment]
     if outcome.rowcount != 1:
         session.rollback()
         return False
@@ -274,22 +301,23 @@ def _store_measures(session: Session, job_id: uuid.UUID, result: dict[str, Any])
     major = next((c for c in curves if c.get("major")), None) or {}
     fit = result.get("fit") or {}
     session.execute(
-        insert(JobMeasures).values(
-            job_id=job_id,
-            major_cobb_deg=major.get("angle_deg"),
-            major_curve_upper=major.get("upper"),
-            major_curve_lower=major.get("lower"),
-            major_curve_apex=major.get("apex"),
-            major_convexity=major.get("convexity"),
-            major_apex_axial_rotation_deg=major.get("apex_axial_rotation_deg"),
-            major_plane_of_max_curvature_deg=major.get("plane_of_max_curvature_deg"),
-            curve_count=len(curves),
-            thoracic_kyphosis_t4_t12_deg=measures["thoracic_kyphosis_t4_t12_deg"],
-            thoracic_kyphosis_t5_t12_deg=measures["thoracic_kyphosis_t5_t12_deg"],
-            lumbar_lordosis_l1_l5_deg=measures["lumbar_lordosis_l1_l5_deg"],
-            mean_registration_error_mm=fit["mean_registration_error_mm"],
-            converged=bool(fit["converged"]),
-        )
+        _INSERT_MEASURES,
+        {
+            "job_id": job_id,
+            "major_cobb_deg": major.get("angle_deg"),
+            "major_curve_upper": major.get("upper"),
+            "major_curve_lower": major.get("lower"),
+            "major_curve_apex": major.get("apex"),
+            "major_convexity": major.get("convexity"),
+            "major_apex_axial_rotation_deg": major.get("apex_axial_rotation_deg"),
+            "major_plane_of_max_curvature_deg": major.get("plane_of_max_curvature_deg"),
+            "curve_count": len(curves),
+            "thoracic_kyphosis_t4_t12_deg": measures["thoracic_kyphosis_t4_t12_deg"],
+            "thoracic_kyphosis_t5_t12_deg": measures["thoracic_kyphosis_t5_t12_deg"],
+            "lumbar_lordosis_l1_l5_deg": measures["lumbar_lordosis_l1_l5_deg"],
+            "mean_registration_error_mm": fit["mean_registration_error_mm"],
+            "converged": bool(fit["converged"]),
+        },
     )
     rows = []
     for v in result.get("vertebrae") or []:
@@ -308,7 +336,7 @@ def _store_measures(session: Session, job_id: uuid.UUID, result: dict[str, Any])
             }
         )  # fmt: skip
     if rows:
-        session.execute(insert(VertebraStrain), rows)
+        session.execute(_INSERT_STRAINS, rows)
 
 
 @dataclass(frozen=True)
