@@ -1,0 +1,264 @@
+"""Figures of a reconstruction: PA and lateral views with landmarks and residuals, and strains.
+
+``render_figure(result, payload, fmt)`` is a pure function from a ``RegistrationResult`` dict and
+the ``JobPayload`` dict it came from to the bytes of a PNG or SVG image (matplotlib, Agg; no
+pyplot state, so it is safe in threads). It knows nothing of HTTP.
+
+The figure has four panels:
+
+- PA view, in the PA image's detector frame (column right, row down, mm): the landmarks, the
+  model's vertebrae projected by the view's weak perspective, and the residual of each landmark
+  (a line to the projected model point);
+- lateral view: the lateral image's frame when the payload has one (same content as PA), else
+  the model projected laterally (``["A","F"]``) with the PA scale, its rows aligned with the PA
+  panel's;
+- per-level angular strain u = (u1, u2, u3) and per-level v = (v1, v2, v3).
+
+Vertebrae are drawn as the projection of a box below their top endplate midpoint, spanned by
+d1 (PA) or d2 (lateral) and d3, and coloured by lateral bending (u2·Δs, degrees) on a diverging
+map, as in Fig. 2 of Li et al. (CAIP 2009). L5 has no segment below it and is drawn grey.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+from matplotlib import colormaps, rc_context
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+from .levels import LEVELS
+from .models import JobPayload
+from .projection import image_axes, project
+
+FigureFormat = Literal["png", "svg"]
+MEDIA_TYPES: dict[str, str] = {"png": "image/png", "svg": "image/svg+xml"}
+
+BODY_WIDTH = 1.4
+"""Drawn vertebral body width, as a multiple of the segment length (about 36 mm for 26 mm)."""
+BODY_HEIGHT = 0.7
+"""Drawn vertebral body height along d3, as a multiple of the segment length."""
+BENDING_CMAP = "coolwarm"
+LATERAL_ORIENTATION = ("A", "F")
+
+
+def bending_norm(values: Sequence[float | None]) -> Normalize:
+    """Symmetric colour scale of the lateral bending angles (at least ±1°)."""
+    finite = [abs(v) for v in values if v is not None]
+    limit = max([1.0, *finite])
+    return Normalize(vmin=-limit, vmax=limit)
+
+
+def landmark_point(landmark: Any) -> tuple[float, float]:
+    """The landmark's top endplate midpoint: its point, or the middle of its two top corners."""
+    point = getattr(landmark, "point", None)
+    if point is not None:
+        return (float(point[0]), float(point[1]))
+    top_left, top_right = landmark.corners[0], landmark.corners[1]
+    return ((top_left[0] + top_right[0]) / 2, (top_left[1] + top_right[1]) / 2)
+
+
+def _detector_mm(view: Any) -> np.ndarray:
+    points = np.array([landmark_point(lm) for lm in view.landmarks], dtype=float).reshape(-1, 2)
+    if view.units == "px" and view.pixel_spacing is not None:
+        row_spacing, column_spacing = view.pixel_spacing
+        points = points * np.array([column_spacing, row_spacing])
+    return points
+
+
+def _segment_lengths(positions: np.ndarray) -> np.ndarray:
+    gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    return np.append(gaps, gaps[-1] if gaps.size else 25.0)
+
+
+def _bodies(positions: np.ndarray, directors: np.ndarray, across: int) -> np.ndarray:
+    """(n, 4, 3) corners of each vertebra's box: width along d1 (across=0) or d2 (across=1)."""
+    seg = _segment_lengths(positions)
+    a = directors[:, across, :] * (BODY_WIDTH * seg / 2)[:, None]
+    d = directors[:, 2, :] * (BODY_HEIGHT * seg)[:, None]
+    p = positions
+    return np.stack([p - a, p + a, p + a + d, p - a + d], axis=1)
+
+
+def _draw_view(
+    ax: Axes,
+    *,
+    title: str,
+    positions: np.ndarray,
+    directors: np.ndarray,
+    across: int,
+    e_c: np.ndarray,
+    e_r: np.ndarray,
+    scale: float,
+    translation: np.ndarray,
+    colours: np.ndarray,
+    landmarks: list[tuple[str, np.ndarray]],
+    residuals: Mapping[str, float],
+) -> None:
+    corners = project(_bodies(positions, directors, across), e_c, e_r, scale, translation)
+    ax.add_collection(PolyCollection(list(corners), facecolors=colours, edgecolors="0.25", linewidths=0.6))
+    centre = project(positions, e_c, e_r, scale, translation)
+    ax.plot(centre[:, 0], centre[:, 1], "-", color="0.2", linewidth=1.0, label="model (endplate midpoints)")
+    ax.plot(centre[:, 0], centre[:, 1], ".", color="0.2", markersize=3)
+    if landmarks:
+        index = {lv: i for i, lv in enumerate(LEVELS)}
+        marks = np.array([p for _, p in landmarks])
+        segments = [[p, centre[index[lv]]] for lv, p in landmarks]
+        ax.add_collection(LineCollection(segments, colors="crimson", linewidths=1.2, label="residual"))
+        ax.plot(marks[:, 0], marks[:, 1], "x", color="black", markersize=5, label="landmark")
+        worst = max(landmarks, key=lambda item: residuals.get(item[0], 0.0))
+        if residuals.get(worst[0], 0.0) > 0:
+            ax.annotate(
+                f"{worst[0]}: {residuals[worst[0]]:.2f} mm",
+                xy=tuple(worst[1]),
+                xytext=(8, 0),
+                textcoords="offset points",
+                fontsize=7,
+                color="crimson",
+                va="center",
+            )
+    for i in (0, len(LEVELS) // 2, len(LEVELS) - 1):
+        if i < len(centre):
+            ax.annotate(LEVELS[i], xy=tuple(centre[i]), xytext=(-30, 0), textcoords="offset points",
+                        fontsize=7, va="center", ha="right")  # fmt: skip
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("column (mm)", fontsize=8)
+    ax.set_ylabel("row (mm)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.invert_yaxis()
+    ax.legend(loc="lower left", fontsize=6, frameon=False)
+
+
+def _strain_panel(ax: Axes, levels: list[str], values: np.ndarray, names: Sequence[str], title: str,
+                  ylabel: str) -> None:  # fmt: skip
+    x = np.arange(len(levels))
+    for k, (name, marker) in enumerate(zip(names, "os^", strict=True)):
+        ax.plot(x, values[:, k], marker=marker, markersize=3, linewidth=1.0, label=name)
+    ax.axhline(0.0, color="0.6", linewidth=0.6)
+    ax.set_xticks(x, levels, rotation=90, fontsize=7)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.set_title(title, fontsize=10)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.grid(True, linewidth=0.3, alpha=0.6)
+    ax.legend(fontsize=6, frameon=False, ncols=3, loc="upper right")
+
+
+def _summary(result: Mapping[str, Any]) -> str:
+    measures = result.get("measures", {})
+    fit = result.get("fit", {})
+    parts = []
+    major = next((c for c in measures.get("cobb", []) if c.get("major")), None)
+    if major:
+        parts.append(f"major Cobb {major['angle_deg']:.1f}° ({major['upper']}–{major['lower']}, "
+                     f"apex {major['apex']}, {major['convexity']})")  # fmt: skip
+    else:
+        parts.append("no frontal curve")
+    if "thoracic_kyphosis_t4_t12_deg" in measures:
+        parts.append(f"kyphosis T4–T12 {measures['thoracic_kyphosis_t4_t12_deg']:.1f}°")
+    if "lumbar_lordosis_l1_l5_deg" in measures:
+        parts.append(f"lordosis L1–L5 {measures['lumbar_lordosis_l1_l5_deg']:.1f}°")
+    if "mean_registration_error_mm" in fit:
+        parts.append(f"mean PA residual {fit['mean_registration_error_mm']:.2f} mm")
+    return " · ".join(parts)
+
+
+def render_figure(
+    result: Mapping[str, Any], payload: Mapping[str, Any], fmt: FigureFormat = "png", *, dpi: int = 110
+) -> bytes:
+    """The figure of a reconstruction as PNG or SVG bytes.
+
+    ``result`` is a ``RegistrationResult`` as JSON (what a succeeded job holds), ``payload`` the
+    ``JobPayload`` it was computed from. Raises ValueError for an unknown format.
+    """
+    if fmt not in MEDIA_TYPES:
+        raise ValueError(f"unknown figure format {fmt!r}; expected one of {sorted(MEDIA_TYPES)}")
+    model = JobPayload.model_validate(payload)
+    vertebrae = list(result["vertebrae"])
+    levels = [v["level"] for v in vertebrae]
+    positions = np.array([v["position"] for v in vertebrae], dtype=float)
+    directors = np.array([v["directors"] for v in vertebrae], dtype=float)  # rows d1, d2, d3
+    bending = [v.get("lateral_bending_deg") for v in vertebrae]
+    norm = bending_norm(bending)
+    cmap = colormaps[BENDING_CMAP]
+    colours = np.array([cmap(norm(b)) if b is not None else (0.75, 0.75, 0.75, 1.0) for b in bending])
+
+    fit = result["fit"]
+    residuals: dict[str, dict[str, float]] = {"pa": {}, "lateral": {}}
+    for r in fit.get("residuals", []):
+        residuals[r["view"]][r["level"]] = float(r["residual_mm"])
+
+    with rc_context({"svg.hashsalt": "spine-figure", "svg.fonttype": "path", "font.family": "DejaVu Sans"}):
+        fig = Figure(figsize=(12.0, 8.0), dpi=dpi, layout="constrained")
+        FigureCanvasAgg(fig)
+        grid = fig.add_gridspec(2, 3, width_ratios=[1.0, 1.0, 1.5])
+        ax_pa = fig.add_subplot(grid[:, 0])
+        ax_lat = fig.add_subplot(grid[:, 1])
+        ax_u = fig.add_subplot(grid[0, 2])
+        ax_v = fig.add_subplot(grid[1, 2])
+
+        pa_proj = fit["pa"]
+        e_c, e_r = image_axes(model.pa.patient_orientation)
+        pa_points = _detector_mm(model.pa)
+        _draw_view(
+            ax_pa,
+            title="PA view: landmarks, model and residuals",
+            positions=positions, directors=directors, across=0, e_c=e_c, e_r=e_r,
+            scale=float(pa_proj["scale"]), translation=np.asarray(pa_proj["translation"], dtype=float),
+            colours=colours,
+            landmarks=[(lm.level, p) for lm, p in zip(model.pa.landmarks, pa_points, strict=True)],
+            residuals=residuals["pa"],
+        )  # fmt: skip
+
+        lateral = model.lateral
+        lat_proj = fit.get("lateral")
+        if lateral is not None and lateral.landmarks and lat_proj is not None:
+            e_c, e_r = image_axes(lateral.patient_orientation)
+            lat_points = _detector_mm(lateral)
+            _draw_view(
+                ax_lat,
+                title="Lateral view: landmarks, model and residuals",
+                positions=positions, directors=directors, across=1, e_c=e_c, e_r=e_r,
+                scale=float(lat_proj["scale"]), translation=np.asarray(lat_proj["translation"], dtype=float),
+                colours=colours,
+                landmarks=[(lm.level, p) for lm, p in zip(lateral.landmarks, lat_points, strict=True)],
+                residuals=residuals["lateral"],
+            )  # fmt: skip
+        else:
+            e_c, e_r = image_axes(LATERAL_ORIENTATION)
+            scale = float(pa_proj["scale"])
+            _draw_view(
+                ax_lat,
+                title="Lateral projection of the model (anterior right)",
+                positions=positions, directors=directors, across=1, e_c=e_c, e_r=e_r,
+                scale=scale, translation=np.array([0.0, float(pa_proj["translation"][1])]),
+                colours=colours, landmarks=[], residuals={},
+            )  # fmt: skip
+
+        seg = [v for v in vertebrae if v.get("u") is not None and v.get("v") is not None]
+        seg_levels = [v["level"] for v in seg]
+        u = np.array([v["u"] for v in seg], dtype=float).reshape(-1, 3) * 1e3
+        vv = np.array([v["v"] for v in seg], dtype=float).reshape(-1, 3)
+        _strain_panel(ax_u, seg_levels, u, ("u1 sagittal bending", "u2 lateral bending", "u3 twist"),
+                      "Angular strain u per segment", "u (10⁻³ rad/mm)")  # fmt: skip
+        _strain_panel(ax_v, seg_levels, vv, ("v1 shear", "v2 shear", "v3 stretch"),
+                      "Linear strain v per segment", "v (dimensionless)")  # fmt: skip
+
+        bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=[ax_pa, ax_lat], location="bottom",
+                           shrink=0.7, pad=0.02)  # fmt: skip
+        bar.set_label("lateral bending u2·Δs of the segment below (degrees); L5 grey", fontsize=8)
+        bar.ax.tick_params(labelsize=7)
+        fig.suptitle(f"Spine reconstruction ({len(levels)} vertebrae) — {_summary(result)}", fontsize=11)
+
+        buffer = io.BytesIO()
+        metadata: dict[str, Any] = {"Date": None} if fmt == "svg" else {"Software": None}
+        fig.savefig(buffer, format=fmt, metadata=metadata)
+    return buffer.getvalue()

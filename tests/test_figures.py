@@ -1,0 +1,116 @@
+"""Figures of a reconstruction: the pure renderer (spine_engine.figures) and
+GET /v1/jobs/{id}/figure.png|svg (services/api/routes/figures.py)."""
+
+from __future__ import annotations
+
+import uuid
+import xml.etree.ElementTree as ET
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from services.db import jobs as repo
+from services.db.engine import session_scope
+from services.problems import PROBLEM_BASE
+from spine_engine import register
+from spine_engine.figures import render_figure
+from tests.conftest import problem_of, spine_payload
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+SVG_ROOT = "{http://www.w3.org/2000/svg}svg"
+
+
+@pytest.fixture(scope="module")
+def fitted() -> tuple[dict[str, Any], dict[str, Any]]:
+    payload = spine_payload(curve_mm=30.0)
+    return register(payload), payload
+
+
+def test_png_is_a_png_of_the_figure_size(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
+    body = render_figure(*fitted, "png")
+    assert body.startswith(PNG_SIGNATURE)
+    width, height = int.from_bytes(body[16:20], "big"), int.from_bytes(body[20:24], "big")
+    assert (width, height) == (1320, 880)  # 12 x 8 in at 110 dpi
+
+
+def test_svg_is_an_svg_document_and_deterministic(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
+    body = render_figure(*fitted, "svg")
+    root = ET.fromstring(body)
+    assert root.tag == SVG_ROOT
+    assert body == render_figure(*fitted, "svg")  # no date, fixed ids
+
+
+def test_lateral_view_and_pixel_units_are_drawn() -> None:
+    payload = spine_payload(curve_mm=20.0)
+    spacing = 0.25
+    for lm in payload["pa"]["landmarks"]:
+        lm["point"] = [round(lm["point"][0] / spacing, 2), round(lm["point"][1] / spacing, 2)]
+    payload["pa"].update(units="px", pixel_spacing=[spacing, spacing])
+    lateral = [{"level": lm["level"], "point": [200.0 + 3 * i, lm["point"][1] * spacing]}
+               for i, lm in enumerate(payload["pa"]["landmarks"])]  # fmt: skip
+    payload["lateral"] = {"landmarks": lateral}
+    result = register(payload)
+    assert result["fit"]["lateral"] is not None
+    assert render_figure(result, payload, "png").startswith(PNG_SIGNATURE)
+    assert ET.fromstring(render_figure(result, payload, "svg")).tag == SVG_ROOT
+
+
+def test_unknown_format_is_refused(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
+    with pytest.raises(ValueError, match="unknown figure format"):
+        render_figure(*fitted, "gif")  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------ the routes
+
+
+def _run_job(api: TestClient, payload: dict[str, Any], *, fail: bool = False) -> str:
+    """Submit a job and run it as the worker would (claim, register, finish), in process."""
+    job_id = api.post("/v1/jobs", json=payload).json()["id"]
+    settings = api.app.state.settings  # type: ignore[attr-defined]
+    with session_scope(settings) as session:
+        claim = repo.claim_job(session, uuid.UUID(job_id), "test")
+        assert claim is not None
+        if fail:
+            error = {"type": PROBLEM_BASE + "fit-failed", "title": "failed", "status": 422, "detail": "no"}
+            assert repo.finish_job(session, claim, error=error)
+        else:
+            assert repo.finish_job(session, claim, result=register(claim.payload))
+    return str(job_id)
+
+
+@pytest.mark.parametrize(("fmt", "media_type"), [("png", "image/png"), ("svg", "image/svg+xml")])
+def test_a_succeeded_job_has_its_figure(api: TestClient, fmt: str, media_type: str) -> None:
+    job_id = _run_job(api, spine_payload(curve_mm=25.0))
+    response = api.get(f"/v1/jobs/{job_id}/figure.{fmt}")
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"].startswith(media_type)
+    if fmt == "png":
+        assert response.content.startswith(PNG_SIGNATURE)
+    else:
+        assert ET.fromstring(response.content).tag == SVG_ROOT
+
+
+@pytest.mark.parametrize("fmt", ["png", "svg"])
+def test_queued_failed_and_cancelled_jobs_answer_409(api: TestClient, fmt: str) -> None:
+    queued = api.post("/v1/jobs", json=spine_payload()).json()["id"]
+    failed = _run_job(api, spine_payload(), fail=True)
+    cancelled = api.post("/v1/jobs", json=spine_payload()).json()["id"]
+    api.post(f"/v1/jobs/{cancelled}/cancel")
+    for job_id, status in ((queued, "queued"), (failed, "failed"), (cancelled, "cancelled")):
+        response = api.get(f"/v1/jobs/{job_id}/figure.{fmt}")
+        assert response.status_code == 409
+        problem = problem_of(response)
+        assert problem["type"] == PROBLEM_BASE + "job-has-no-result"
+        assert problem["job_status"] == status
+        assert problem["instance"] == f"/v1/jobs/{job_id}/figure.{fmt}"
+
+
+@pytest.mark.parametrize("fmt", ["png", "svg"])
+def test_unknown_job_is_404_and_bad_id_422(api: TestClient, fmt: str) -> None:
+    response = api.get(f"/v1/jobs/{uuid.uuid4()}/figure.{fmt}")
+    assert response.status_code == 404
+    assert problem_of(response)["type"] == PROBLEM_BASE + "not-found"
+    response = api.get(f"/v1/jobs/not-a-uuid/figure.{fmt}")
+    assert response.status_code == 422
+    assert problem_of(response)["type"] == PROBLEM_BASE + "validation-error"

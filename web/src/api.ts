@@ -1,0 +1,93 @@
+// The page's only network access: the service's own /v1 API, with the API key when one is set.
+import type { Job, JobPayload, Problem } from "./types";
+
+const KEY_STORAGE = "spine.apiKey";
+
+export function loadApiKey(): string {
+  try {
+    return sessionStorage.getItem(KEY_STORAGE) ?? "";
+  } catch {
+    return "";
+  }
+}
+
+export function saveApiKey(key: string): void {
+  try {
+    if (key) sessionStorage.setItem(KEY_STORAGE, key);
+    else sessionStorage.removeItem(KEY_STORAGE);
+  } catch {
+    /* storage disabled: the key lives in the field only */
+  }
+}
+
+export class ApiError extends Error {
+  constructor(readonly problem: Problem) {
+    super(problem.detail || problem.title);
+  }
+}
+
+function asProblem(status: number, body: unknown, fallback: string): Problem {
+  if (body && typeof body === "object" && "title" in body) return body as Problem;
+  return { type: "about:blank", title: fallback, status, detail: fallback };
+}
+
+export class Api {
+  constructor(private readonly apiKey: () => string) {}
+
+  private headers(extra: Record<string, string> = {}): Headers {
+    const headers = new Headers({ Accept: "application/json, application/problem+json", ...extra });
+    const key = this.apiKey().trim();
+    if (key) headers.set("Authorization", `Bearer ${key}`);
+    return headers;
+  }
+
+  private async send(method: string, path: string, body?: unknown): Promise<Response> {
+    try {
+      return await fetch(path, {
+        method,
+        headers: this.headers(body === undefined ? {} : { "Content-Type": "application/json" }),
+        body: body === undefined ? undefined : JSON.stringify(body),
+        cache: "no-store",
+      });
+    } catch (error) {
+      const detail = `the service did not answer (${error instanceof Error ? error.message : String(error)})`;
+      throw new ApiError({ type: "about:blank", title: "Network error", status: 0, detail });
+    }
+  }
+
+  private async json<T>(response: Response): Promise<T> {
+    const text = await response.text();
+    let body: unknown = undefined;
+    try {
+      body = text ? JSON.parse(text) : undefined;
+    } catch {
+      /* not JSON */
+    }
+    if (!response.ok) {
+      const fallback = response.status === 401 || response.status === 403
+        ? `the service refused the request (HTTP ${response.status}): check the API key`
+        : `HTTP ${response.status} ${response.statusText}`;
+      throw new ApiError(asProblem(response.status, body, fallback));
+    }
+    return body as T;
+  }
+
+  async submit(payload: JobPayload): Promise<Job> {
+    return this.json<Job>(await this.send("POST", "/v1/jobs", payload));
+  }
+
+  async job(id: string): Promise<Job> {
+    return this.json<Job>(await this.send("GET", `/v1/jobs/${encodeURIComponent(id)}`));
+  }
+
+  async cancel(id: string): Promise<Job> {
+    return this.json<Job>(await this.send("POST", `/v1/jobs/${encodeURIComponent(id)}/cancel`));
+  }
+
+  /** A binary resource (the figures), as a Blob. */
+  async blob(path: string): Promise<Blob> {
+    const response = await this.send("GET", path);
+    if (!response.ok) await this.json(response);
+    return response.blob();
+  }
+}

@@ -1,0 +1,87 @@
+// The landmark CSV the page accepts, and the CSV of a result it offers for download.
+//
+// Landmark CSV: one landmark a line, `level,column,row[,view]`. level is T1..L5; column and row
+// are the image coordinates (in the units chosen beside the CSV); view is `pa` (the default) or
+// `lateral`. An optional header line (starting with "level"), blank lines and lines starting
+// with "#" are skipped. A level may appear once per view.
+import { isLevel, landmarkPoint, LEVELS, type Landmark, type RegistrationResult } from "./types";
+
+export interface ParsedCsv {
+  pa: Landmark[];
+  lateral: Landmark[];
+  errors: string[];
+}
+
+const byLevel = (a: Landmark, b: Landmark): number => LEVELS.indexOf(a.level) - LEVELS.indexOf(b.level);
+
+export function parseLandmarkCsv(text: string): ParsedCsv {
+  const out: ParsedCsv = { pa: [], lateral: [], errors: [] };
+  const seen = { pa: new Set<string>(), lateral: new Set<string>() };
+  text.split(/\r?\n/).forEach((raw, index) => {
+    const line = raw.trim();
+    const where = `line ${index + 1}`;
+    if (!line || line.startsWith("#")) return;
+    const cells = line.split(",").map((c) => c.trim());
+    if (cells[0].toLowerCase() === "level") return; // a header line
+    if (cells.length < 3 || cells.length > 4) {
+      out.errors.push(`${where}: expected level,column,row[,view], got ${cells.length} fields`);
+      return;
+    }
+    const level = cells[0].toUpperCase();
+    if (!isLevel(level)) {
+      out.errors.push(`${where}: level ${JSON.stringify(cells[0])} is not one of T1..T12, L1..L5`);
+      return;
+    }
+    const column = Number(cells[1]);
+    const row = Number(cells[2]);
+    if (cells[1] === "" || cells[2] === "" || !Number.isFinite(column) || !Number.isFinite(row)) {
+      out.errors.push(`${where}: column and row must be finite numbers`);
+      return;
+    }
+    const view = (cells[3] || "pa").toLowerCase();
+    if (view !== "pa" && view !== "lateral") {
+      out.errors.push(`${where}: view ${JSON.stringify(cells[3])} is not pa or lateral`);
+      return;
+    }
+    if (seen[view].has(level)) {
+      out.errors.push(`${where}: level ${level} is given more than once for the ${view} view`);
+      return;
+    }
+    seen[view].add(level);
+    out[view].push({ level, point: [column, row] });
+  });
+  out.pa.sort(byLevel);
+  out.lateral.sort(byLevel);
+  if (!out.errors.length && !out.pa.length) out.errors.push("no PA landmark found");
+  return out;
+}
+
+export function landmarkCsv(pa: Landmark[], lateral: Landmark[]): string {
+  const rows = ["level,column,row,view"];
+  for (const [view, list] of [["pa", pa], ["lateral", lateral]] as const) {
+    for (const lm of list) rows.push(`${lm.level},${landmarkPoint(lm)[0]},${landmarkPoint(lm)[1]},${view}`);
+  }
+  return rows.join("\n") + "\n";
+}
+
+export const RESULT_CSV_COLUMNS = [
+  "level", "x_mm", "y_mm", "z_mm",
+  "d1_x", "d1_y", "d1_z", "d2_x", "d2_y", "d2_z", "d3_x", "d3_y", "d3_z",
+  "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
+  "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "pa_residual_mm",
+];
+
+/** One row per vertebra: pose (LPS mm, directors as rows), strains, angles and PA residual. */
+export function resultCsv(result: RegistrationResult): string {
+  const residual = new Map(result.fit.residuals.filter((r) => r.view === "pa").map((r) => [r.level, r.residual_mm]));
+  const cell = (v: number | null | undefined): string => (v === null || v === undefined ? "" : String(v));
+  const rows = [RESULT_CSV_COLUMNS.join(",")];
+  for (const v of result.vertebrae) {
+    rows.push([
+      v.level, ...v.position, ...v.directors.flat(),
+      ...(v.u ?? [null, null, null]), ...(v.v ?? [null, null, null]),
+      v.pa_bending_deg, v.lateral_bending_deg, v.twist_deg, v.axial_rotation_deg, residual.get(v.level),
+    ].map((x) => (typeof x === "string" ? x : cell(x))).join(","));
+  }
+  return rows.join("\n") + "\n";
+}

@@ -1,0 +1,131 @@
+// The job contract of the service (spine_engine/models.py, openapi.yaml), as the page uses it.
+
+export const LEVELS = [
+  "T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
+  "L1", "L2", "L3", "L4", "L5",
+] as const;
+export type Level = (typeof LEVELS)[number];
+
+export type Vec2 = [number, number];
+export type Vec3 = [number, number, number];
+export type Mat3 = [Vec3, Vec3, Vec3];
+
+export interface Landmark {
+  level: Level;
+  /** Top endplate midpoint (column, row); or, instead, the body's four corners. */
+  point?: Vec2 | null;
+  corners?: [Vec2, Vec2, Vec2, Vec2] | null;
+  [extra: string]: unknown;
+}
+
+/** The landmark's top endplate midpoint: its point, or the middle of its two top corners. */
+export function landmarkPoint(lm: Landmark): Vec2 {
+  if (lm.point) return lm.point;
+  if (lm.corners) return [(lm.corners[0][0] + lm.corners[1][0]) / 2, (lm.corners[0][1] + lm.corners[1][1]) / 2];
+  throw new Error(`landmark ${lm.level} has neither point nor corners`);
+}
+
+export interface ViewPayload {
+  units?: "mm" | "px";
+  pixel_spacing?: Vec2 | null;
+  patient_orientation?: [string, string];
+  landmarks: Landmark[];
+  projection?: { scale: number; translation: Vec2 } | null;
+  [extra: string]: unknown;
+}
+
+export interface Pose {
+  position: Vec3;
+  directors: Mat3;
+}
+
+export interface JobPayload {
+  pa: ViewPayload;
+  lateral?: ViewPayload | null;
+  boundary: { T1: Pose; L5: Pose };
+  options?: { profile?: string };
+  [extra: string]: unknown;
+}
+
+export interface VertebraResult {
+  level: Level;
+  position: Vec3;
+  directors: Mat3;
+  u: Vec3 | null;
+  v: Vec3 | null;
+  pa_bending_deg: number | null;
+  lateral_bending_deg: number | null;
+  twist_deg: number | null;
+  axial_rotation_deg: number;
+}
+
+export interface CobbCurve {
+  upper: Level;
+  lower: Level;
+  apex: Level;
+  angle_deg: number;
+  major: boolean;
+  convexity: "left" | "right";
+  apex_axial_rotation_deg: number;
+  plane_of_max_curvature_deg: number;
+  max_curvature_deg: number;
+}
+
+export interface ViewProjection {
+  scale: number;
+  translation: Vec2;
+  estimated: boolean;
+}
+
+export interface RegistrationResult {
+  vertebrae: VertebraResult[];
+  measures: {
+    cobb: CobbCurve[];
+    thoracic_kyphosis_t4_t12_deg: number;
+    thoracic_kyphosis_t5_t12_deg: number;
+    lumbar_lordosis_l1_l5_deg: number;
+  };
+  fit: {
+    residuals: { view: "pa" | "lateral"; level: Level; residual_mm: number }[];
+    mean_registration_error_mm: number;
+    energy_fit: number;
+    energy_internal: number;
+    iterations: number;
+    converged: boolean;
+    runtime_ms: number;
+    pa: ViewProjection;
+    lateral?: ViewProjection | null;
+  };
+  engine: { version: string; profile: string };
+}
+
+export type JobStatus = "queued" | "running" | "succeeded" | "failed" | "cancelled";
+export const FINAL_STATUSES: ReadonlySet<JobStatus> = new Set(["succeeded", "failed", "cancelled"]);
+
+export interface Problem {
+  type: string;
+  title: string;
+  status: number;
+  detail: string;
+  instance?: string | null;
+  errors?: { path: string; msg: string; type: string }[] | null;
+  [extra: string]: unknown;
+}
+
+export interface Job {
+  id: string;
+  status: JobStatus;
+  owner: string | null;
+  created_at: string;
+  started_at: string | null;
+  finished_at: string | null;
+  attempts: number;
+  engine_version: string | null;
+  result: RegistrationResult | null;
+  error: Problem | null;
+  payload?: JobPayload | null;
+}
+
+export function isLevel(value: string): value is Level {
+  return (LEVELS as readonly string[]).includes(value);
+}
