@@ -104,6 +104,8 @@ def test_queued_failed_and_cancelled_jobs_answer_409(api: TestClient, fmt: str) 
         assert problem["type"] == PROBLEM_BASE + "job-has-no-result"
         assert problem["job_status"] == status
         assert problem["instance"] == f"/v1/jobs/{job_id}/figure.{fmt}"
+        assert problem["detail"].startswith(f"job {job_id} ")
+    assert "once it has succeeded" in problem_of(api.get(f"/v1/jobs/{queued}/figure.{fmt}"))["detail"]
 
 
 @pytest.mark.parametrize("fmt", ["png", "svg"])

@@ -42,11 +42,11 @@ def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, owner: str |
     except jobs_repo.JobNotFound:
         raise ProblemError(problem("not-found", f"there is no job {job_id}")) from None
     if job.status != "succeeded" or job.result is None:
-        when = "once it has succeeded" if job.status in ("queued", "running") else "never: it has no result"
-        raise ProblemError(
-            problem("job-has-no-result", f"job {job_id} is {job.status}; its figure exists {when}",
-                    job_status=str(job.status), job=f"/v1/jobs/{job_id}")
-        )  # fmt: skip
+        if job.status in ("queued", "running"):
+            detail = f"job {job_id} is {job.status}; its figure exists once it has succeeded"
+        else:
+            detail = f"job {job_id} {'was cancelled' if job.status == 'cancelled' else job.status} and has no result"
+        raise ProblemError(problem("job-has-no-result", detail, job_status=str(job.status), job=f"/v1/jobs/{job_id}"))
     result, payload = job.result, job.payload
     body = render_figure(result, payload, fmt)  # a sync route: this runs in the thread pool
     return Response(body, media_type=MEDIA_TYPES[fmt], headers={"Cache-Control": "private, max-age=3600"})
