@@ -212,7 +212,11 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     limits = httpx.Limits(max_connections=args.concurrency + 4, max_keepalive_connections=args.concurrency + 4)
     report: dict[str, Any] = {"url": args.url}
     async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits) as client:
+        if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
+            warm = await fixed_rate(client, args.rate, args.warmup_seconds)
+            await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
         for phase_name in args.phases:
+            load_before = os.getloadavg()
             since = datetime.now().astimezone()
             if phase_name == "latency":
                 phase = await fixed_rate(client, args.rate, args.rate_seconds)
@@ -223,6 +227,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             await asyncio.sleep(args.recheck_seconds)
             second = await read_back(client, since)
             report[phase_name] = summarize(phase, first, second)
+            report[phase_name]["loadavg_1m_before_after"] = [round(load_before[0], 2), round(os.getloadavg()[0], 2)]
             print(json.dumps({phase_name: report[phase_name]}, indent=2), flush=True)
     return report
 
@@ -304,6 +309,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--concurrency", type=int, default=16, help="requests in flight in the throughput phase")
     parser.add_argument("--batch", type=int, default=1, help="payloads per request (>1: POST /v1/jobs/batch)")
     parser.add_argument("--max-seconds", type=float, default=900.0, help="hard bound of the whole run")
+    parser.add_argument("--warmup-seconds", type=float, default=3.0, help="uncounted traffic at --rate first")
     parser.add_argument("--recheck-seconds", type=float, default=3.0)
     parser.add_argument("--spawn", action="store_true", help="start API and workers here, stop them after")
     parser.add_argument("--workers", type=int, default=1, help="with --spawn: `spine worker` processes")

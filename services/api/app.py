@@ -7,6 +7,8 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import anyio.to_thread
+from celery import Celery
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry
@@ -15,10 +17,13 @@ from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
 from services.api.routes import figures, health, jobs
 from services.api.web import mount_web
+from services.db.engine import get_engine
 from services.jobqueue import make_celery
 from services.problems import PROBLEM_BASE
 from services.settings import Settings, get_settings
 from spine_engine.models import JobPayload
+
+log = logging.getLogger(__name__)
 
 DESCRIPTION = (
     "3D reconstruction of a scoliotic spine from landmarks on radiographs (discrete Cosserat rod "
@@ -28,11 +33,29 @@ DESCRIPTION = (
 )
 
 
+def warm_up(settings: Settings, celery: Celery) -> None:
+    """Open database and broker connections before the first request, so that it does not pay
+    for them (a dependency that is down is only logged: /readyz reports it)."""
+    connections = []
+    try:
+        engine = get_engine(settings)
+        for _ in range(min(settings.db_pool_size, 8)):
+            connections.append(engine.connect())
+        with celery.producer_or_acquire():
+            pass
+    except Exception as exc:
+        log.warning("warm-up: a dependency is unreachable: %s", exc)
+    finally:
+        for connection in connections:
+            connection.close()
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await anyio.to_thread.run_sync(warm_up, settings, app.state.celery)
         yield
 
     app = FastAPI(

@@ -254,9 +254,7 @@ def claim_job(session: Session, job_id: uuid.UUID, engine_version: str | None) -
     """
     if session.get_bind().dialect.name == "postgresql":
         session.execute(text("SET LOCAL synchronous_commit TO OFF"))
-    row = session.execute(
-        _CLAIM, {"job_id": job_id, "now": utcnow(), "engine_version": engine_version}
-    ).first()
+    row = session.execute(_CLAIM, {"job_id": job_id, "now": utcnow(), "engine_version": engine_version}).first()
     session.commit()
     if row is None:
         return None
