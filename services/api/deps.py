@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import AsyncIterator
 from typing import Annotated, Any
 
 from celery import Celery
@@ -16,8 +16,11 @@ from services.problems import problem
 from services.settings import Settings
 from spine_engine.errors import FieldError
 
+# The dependencies are `async def` although they do no I/O: FastAPI runs a plain `def`
+# dependency in the thread pool, a thread hop per dependency and request.
 
-def get_settings(request: Request) -> Settings:
+
+async def get_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
@@ -25,7 +28,8 @@ def get_settings(request: Request) -> Settings:
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 
-def get_session(settings: SettingsDep) -> Iterator[Session]:
+async def get_session(settings: SettingsDep) -> AsyncIterator[Session]:
+    """A session for the request; it connects on first use (in the endpoint's thread)."""
     session = session_factory(settings)()
     try:
         yield session
@@ -36,7 +40,7 @@ def get_session(settings: SettingsDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def get_queue(request: Request) -> Celery:
+async def get_queue(request: Request) -> Celery:
     queue: Celery = request.app.state.celery
     return queue
 
@@ -44,7 +48,7 @@ def get_queue(request: Request) -> Celery:
 QueueDep = Annotated[Celery, Depends(get_queue)]
 
 
-def get_owner() -> str | None:
+async def get_owner() -> str | None:
     """The caller's identity; None until API keys exist (a later issue fills this in)."""
     return None
 
