@@ -209,13 +209,16 @@ def summarize(phase: Phase, first: dict[str, Any], second: dict[str, Any]) -> di
 
 async def run(args: argparse.Namespace) -> dict[str, Any]:
     deadline = time.monotonic() + args.max_seconds
-    limits = httpx.Limits(max_connections=args.concurrency + 4, max_keepalive_connections=args.concurrency + 4)
+    # Open loop: enough connections that a slow answer never makes the next request wait for one.
+    pool = max(args.concurrency, int(args.rate)) + 4
+    limits = httpx.Limits(max_connections=pool, max_keepalive_connections=pool)
     report: dict[str, Any] = {"url": args.url}
     async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits) as client:
         if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
             warm = await fixed_rate(client, args.rate, args.warmup_seconds)
             await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
         for phase_name in args.phases:
+            histogram_before = await server_histogram(client)
             load_before = os.getloadavg()
             since = datetime.now().astimezone()
             if phase_name == "latency":
@@ -227,9 +230,41 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             await asyncio.sleep(args.recheck_seconds)
             second = await read_back(client, since)
             report[phase_name] = summarize(phase, first, second)
+            server = diff_histogram(await server_histogram(client), histogram_before)
+            report[phase_name]["server_post_ms_p50_bucket"] = bucket_quantile(server, 0.5)
+            report[phase_name]["server_post_ms_p99_bucket"] = bucket_quantile(server, 0.99)
             report[phase_name]["loadavg_1m_before_after"] = [round(load_before[0], 2), round(os.getloadavg()[0], 2)]
             print(json.dumps({phase_name: report[phase_name]}, indent=2), flush=True)
     return report
+
+
+async def server_histogram(client: httpx.AsyncClient) -> dict[float, float]:
+    """Cumulative bucket counts of the API's own POST /v1/jobs and /batch timings (from /metrics)."""
+    text = (await client.get("/metrics")).text
+    buckets: dict[float, float] = {}
+    for line in text.splitlines():
+        if line.startswith("spine_http_request_duration_seconds_bucket") and 'method="POST"' in line:
+            if 'route="/v1/jobs"' not in line and 'route="/v1/jobs/batch"' not in line:
+                continue
+            le = line.split('le="', 1)[1].split('"', 1)[0]
+            bound = float("inf") if le == "+Inf" else float(le)
+            buckets[bound] = buckets.get(bound, 0.0) + float(line.rsplit(" ", 1)[1])
+    return buckets
+
+
+def diff_histogram(after: dict[float, float], before: dict[float, float]) -> dict[float, float]:
+    return {le: n - before.get(le, 0.0) for le, n in after.items()}
+
+
+def bucket_quantile(buckets: dict[float, float], q: float) -> str:
+    """The upper bound (ms) of the histogram bucket holding the q-quantile, e.g. '<= 25 ms'."""
+    total = buckets.get(float("inf"), 0.0)
+    if total <= 0:
+        return "n/a"
+    for le in sorted(buckets):
+        if buckets[le] >= q * total:
+            return "> 10000 ms" if le == float("inf") else f"<= {le * 1000:g} ms"
+    return "n/a"
 
 
 # ------------------------------------------------------------------ spawning the service
