@@ -17,7 +17,7 @@ from scipy.optimize import minimize_scalar
 
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
-from .models import CobbCurve, Measures
+from .models import AasceMajorAngle, CobbCurve, LenkeCurve, LenkeInputs, Measures
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -157,6 +157,56 @@ def frontal_curves(
     return curves
 
 
+def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> list[tuple[int, int, float]]:
+    """Frontal curves (upper, lower, Cobb angle in degrees) of a tilt sequence, top to bottom.
+
+    1. The **major curve** ends at the two most tilted vertebrae relative to each other: the pair
+       i < j with the largest |θ_i − θ_j| (first pair in row-major order on a tie, as the AASCE
+       2019 script's argmax). Its Cobb angle is max θ − min θ.
+    2. Going up from its upper end U, the next curve ends at the vertebra above U most tilted
+       relative to U (the nearest on a tie), and so on to T1; going down from its lower end
+       likewise to L5. Each such curve is no larger than the one it joins, and the curves
+       alternate in direction.
+    3. Curves below ``min_cobb_deg`` are dropped (they still separate their neighbours).
+    A flat sequence (all tilts equal) has no curve.
+    """
+    t = np.asarray(tilt_deg, dtype=float)
+    n = len(t)
+    diff = np.abs(t[:, None] - t[None, :])
+    if n < 2 or float(diff.max()) <= 0.0:
+        return []
+    upper, lower = sorted(divmod(int(np.argmax(diff)), n))
+    curves = [(upper, lower, float(diff[upper, lower]))]
+    end = upper
+    while end > 0:
+        above = np.abs(t[:end] - t[end])
+        k = end - 1 - int(np.argmax(above[::-1]))
+        curves.insert(0, (k, end, float(above[k])))
+        end = k
+    end = lower
+    while end < n - 1:
+        below = np.abs(t[end + 1 :] - t[end])
+        k = end + 1 + int(np.argmax(below))
+        curves.append((end, k, float(below[k - end - 1])))
+        end = k
+    return [c for c in curves if c[2] >= min_cobb_deg]
+
+
+def aasce_major_angle(tilt_deg: npt.ArrayLike) -> tuple[float, int, int]:
+    """The major angle of the AASCE 2019 challenge's Cobb script and its vertebrae (upper, lower).
+
+    The script takes each vertebra's vector from the midpoint of its left edge to the midpoint of
+    its right edge, the angle A_ij = arccos(clip(cos ∠(v_i, v_j), 0, 1)) between every two, and
+    the largest (row of the largest row maximum, then its first column). With the vectors' frontal
+    tilts θ, cos ∠(v_i, v_j) = cos(θ_i − θ_j). Degrees; at most 90° (the clip).
+    """
+    t = np.radians(np.asarray(tilt_deg, dtype=float))
+    angles = np.arccos(np.clip(np.cos(t[:, None] - t[None, :]), 0.0, 1.0))
+    row = int(np.argmax(angles.max(axis=1)))
+    col = int(np.argmax(angles[row]))
+    return float(np.degrees(angles[row, col])), min(row, col), max(row, col)
+
+
 def _plane_tilt_deg(R: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
     """Tilt of a vertebra's endplate director in the vertical plane of azimuth φ, degrees, per φ.
 
@@ -207,18 +257,95 @@ def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tu
     return phi, value
 
 
+LENKE_REGIONS: dict[str, tuple[str, str]] = {
+    "proximal_thoracic": ("T2", "T5"),
+    "main_thoracic": ("T6", "T11"),
+    "thoracolumbar_lumbar": ("T12", "L4"),
+}
+"""Apex levels of each Lenke region (Lenke et al., J Bone Joint Surg Am 2001;83:1169–1181:
+proximal thoracic apex T3–T5, main thoracic T6 to the T11–T12 disc, thoracolumbar T12–L1,
+lumbar L1–L2 disc to L4; apexes here are vertebrae, so T2 joins the proximal region and T12
+starts the thoracolumbar/lumbar one)."""
+LENKE_STRUCTURAL_COBB_DEG = 25.0
+"""Lenke 2001: a minor curve is structural when its side-bending Cobb angle is ≥ 25°."""
+LENKE_STRUCTURAL_KYPHOSIS_DEG = 20.0
+"""Lenke 2001: ... or when its regional kyphosis (T2–T5, or T10–L2) is ≥ +20°."""
+LENKE_MODIFIER_DEG = (10.0, 40.0)
+"""Lenke 2001 sagittal thoracic modifier on T5–T12 kyphosis: '-' below 10°, 'N' 10–40°, '+' above."""
+
+
+def regional_kyphosis_deg(rotations: npt.ArrayLike, upper: str, lower: str) -> float:
+    """β_upper − β_lower (``sagittal_inclination_deg``): positive when convex posteriorly."""
+    beta = sagittal_inclination_deg(rotations)
+    return float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])
+
+
+def lenke_inputs(cobb: list[CobbCurve], rotations: npt.ArrayLike) -> LenkeInputs:
+    """The Lenke classification inputs a reconstruction supports (model estimates)."""
+    t2_t5 = regional_kyphosis_deg(rotations, "T2", "T5")
+    t5_t12 = regional_kyphosis_deg(rotations, "T5", "T12")
+    t10_l2 = regional_kyphosis_deg(rotations, "T10", "L2")
+    curves = []
+    for region, (first, last) in LENKE_REGIONS.items():
+        inside = [c for c in cobb if LEVEL_INDEX[first] <= LEVEL_INDEX[c.apex] <= LEVEL_INDEX[last]]
+        if not inside:
+            continue
+        c = max(inside, key=lambda c: c.angle_deg)
+        kyphosis = t2_t5 if region == "proximal_thoracic" else t10_l2
+        curves.append(
+            LenkeCurve(
+                region=region,
+                upper=c.upper,
+                lower=c.lower,
+                apex=c.apex,
+                angle_deg=c.angle_deg,
+                major=c.major,
+                structural_by_magnitude=c.major or c.angle_deg >= LENKE_STRUCTURAL_COBB_DEG,
+                structural_by_kyphosis=kyphosis >= LENKE_STRUCTURAL_KYPHOSIS_DEG,
+            )
+        )
+    lo, hi = LENKE_MODIFIER_DEG
+    modifier = "-" if t5_t12 < lo else ("+" if t5_t12 > hi else "N")
+    return LenkeInputs(
+        curves=curves,
+        t2_t5_kyphosis_deg=t2_t5,
+        t5_t12_kyphosis_deg=t5_t12,
+        t10_l2_kyphosis_deg=t10_l2,
+        sagittal_thoracic_modifier=modifier,
+        not_supported=["side_bending_cobb", "lumbar_modifier_csvl"],
+    )
+
+
+def frontal_tilts(
+    rotations: npt.ArrayLike, observed_tilt_deg: npt.ArrayLike | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Tilt of each vertebra for the Cobb measure (17,) and a mask of those observed (17,) bool:
+    the observed tilt (from corners) where finite, else the model's ``frontal_tilt_deg``."""
+    model = frontal_tilt_deg(rotations)
+    if observed_tilt_deg is None:
+        return model, np.zeros(len(model), dtype=bool)
+    observed = np.asarray(observed_tilt_deg, dtype=float)
+    mask = np.isfinite(observed)
+    return np.where(mask, observed, model), mask
+
+
 def compute_measures(
     positions: npt.ArrayLike,
     rotations: npt.ArrayLike,
     min_cobb_deg: float = 10.0,
     *,
-    hysteresis_deg: float = TILT_HYSTERESIS_DEG,
+    observed_tilt_deg: npt.ArrayLike | None = None,
+    observed_endplate_tilt_deg: npt.ArrayLike | None = None,
 ) -> Measures:
-    """Frontal Cobb curves with their 3D descriptors, thoracic kyphosis and lumbar lordosis.
+    """Frontal Cobb curves with their 3D descriptors, kyphosis, lordosis and Lenke inputs.
 
-    positions (17,3) mm and rotations (17,3,3) (directors as columns), T1..L5. Exactly one curve
-    is ``major`` (the largest; the upper one on a tie) when any curve reaches ``min_cobb_deg``.
-    Definitions and sign conventions: ``docs/measures.md``.
+    positions (17,3) mm and rotations (17,3,3) (directors as columns), T1..L5. The curves come
+    from the frontal tilts (``major_first_curves``): ``observed_tilt_deg`` (17,), the tilts of the
+    corner lines where finite, else the model's d1. Exactly one curve is ``major`` (the largest)
+    when any curve reaches ``min_cobb_deg``. ``observed_endplate_tilt_deg`` (17, 2): the superior
+    and inferior endplate tilts from corners where finite, else the vertebra's tilt (the model has
+    one frame per vertebra: both endplates are perpendicular to d3). With observed tilts on all 17
+    levels ``aasce2019`` holds the AASCE script's major angle. Definitions: ``docs/measures.md``.
     """
     p = np.asarray(positions, dtype=float)
     R = np.asarray(rotations, dtype=float)
@@ -226,29 +353,44 @@ def compute_measures(
         raise ValueError(f"expected positions (17,3) and rotations (17,3,3), got {p.shape} and {R.shape}")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
         raise ValueError("positions and rotations must be finite")
-    curves = frontal_curves(p, R, min_cobb_deg, hysteresis_deg)
-    major = int(np.argmax([c.angle_deg for c in curves])) if curves else -1
+    tilt, observed = frontal_tilts(R, observed_tilt_deg)
+    endplates = np.stack([tilt, tilt], axis=1)
+    if observed_endplate_tilt_deg is not None:
+        given = np.asarray(observed_endplate_tilt_deg, dtype=float).reshape(N_LEVELS, 2)
+        endplates = np.where(np.isfinite(given), given, endplates)
+    found = major_first_curves(tilt, min_cobb_deg)
+    major = int(np.argmax([angle for _, _, angle in found])) if found else -1
     psi = axial_rotation_deg(R)
     cobb = []
-    for k, c in enumerate(curves):
-        phi, max_angle = plane_of_max_curvature(R[c.upper], R[c.lower])
+    for k, (upper, lower, angle) in enumerate(found):
+        apex, convexity = _apex(p, upper, lower, tilt)
+        phi, max_angle = plane_of_max_curvature(R[upper], R[lower])
+        n_observed = int(observed[upper]) + int(observed[lower])
         cobb.append(
             CobbCurve(
-                upper=cast(Level, LEVELS[c.upper]),
-                lower=cast(Level, LEVELS[c.lower]),
-                apex=cast(Level, LEVELS[c.apex]),
-                angle_deg=c.angle_deg,
+                upper=cast(Level, LEVELS[upper]),
+                lower=cast(Level, LEVELS[lower]),
+                apex=cast(Level, LEVELS[apex]),
+                angle_deg=angle,
                 major=k == major,
-                convexity=c.convexity,
-                apex_axial_rotation_deg=float(psi[c.apex]),
+                convexity=convexity,
+                apex_axial_rotation_deg=float(psi[apex]),
                 plane_of_max_curvature_deg=phi,
                 max_curvature_deg=max_angle,
+                endplate_angle_deg=float(abs(endplates[upper, 0] - endplates[lower, 1])),
+                tilt_source=("model", "mixed", "corners")[n_observed],
             )
         )
+    aasce = None
+    if observed.all():
+        angle, upper, lower = aasce_major_angle(tilt)
+        aasce = AasceMajorAngle(angle_deg=angle, upper=cast(Level, LEVELS[upper]), lower=cast(Level, LEVELS[lower]))
     k4, k5, lordosis = kyphosis_lordosis_deg(R)
     return Measures(
         cobb=cobb,
         thoracic_kyphosis_t4_t12_deg=k4,
         thoracic_kyphosis_t5_t12_deg=k5,
         lumbar_lordosis_l1_l5_deg=lordosis,
+        aasce2019=aasce,
+        lenke=lenke_inputs(cobb, R),
     )

@@ -13,6 +13,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from .levels import LEVEL_INDEX, Level
 
@@ -37,10 +38,35 @@ class _Strict(BaseModel):
 
 
 class Landmark(_Strict):
-    """A landmark of one vertebra on one view: the midpoint of its top endplate, as (column, row)."""
+    """A landmark of one vertebra on one view, as image (column, row) in the view's units: either
+    the midpoint of its top endplate (``point``, the paper's form) or its four corners
+    (``corners``, the AASCE 2019 form), exactly one of the two; optionally its two pedicle centres.
+    """
 
     level: Level = Field(description="Vertebral level, T1..L5.")
-    point: Vec2 = Field(description="Image coordinates (column, row) in the view's units.")
+    point: Vec2 | None = Field(
+        None, description="Midpoint of the superior endplate, image (column, row). Exactly one of point / corners."
+    )
+    corners: tuple[Vec2, Vec2, Vec2, Vec2] | None = Field(
+        None,
+        description="The vertebral body's four corners as they appear in the image: top-left, top-right, "
+        "bottom-left, bottom-right (column, row). The superior endplate midpoint is fitted as the point; the "
+        "line from the left-edge midpoint to the right-edge midpoint constrains the vertebra's tilt. Needs an "
+        "upright view (rows toward F or H). Exactly one of point / corners.",
+    )
+    pedicles: tuple[Vec2, Vec2] | None = Field(
+        None,
+        description="Centres of the two pedicles, image-left then image-right (column, row); PA (frontal) "
+        "view only. Their columns make axial rotation observable (docs/measures.md).",
+    )
+
+    @model_validator(mode="after")
+    def _one_form(self) -> Landmark:
+        if self.point is None and self.corners is None:
+            raise PydanticCustomError("landmark_point_missing", "a landmark needs either point or corners")
+        if self.point is not None and self.corners is not None:
+            raise PydanticCustomError("landmark_point_and_corners", "give either point or corners, not both")
+        return self
 
 
 class Projection(_Strict):
@@ -152,6 +178,12 @@ class Boundary(_Strict):
 
 class Options(_Strict):
     profile: str = Field("default", description="Name of the elastic-property profile to use.")
+    tilt_prior: bool | None = Field(
+        None,
+        description="Use the calibrated prior on the frontal tilt of PA vertebrae given by a point only "
+        "(predicted from the landmarks' chords; docs/accuracy.md). Default (null): on without boundary "
+        "conditions, off with them.",
+    )
 
 
 class JobPayload(_Strict):
@@ -164,7 +196,11 @@ class JobPayload(_Strict):
 
     pa: PAView
     lateral: LateralView | None = None
-    boundary: Boundary
+    boundary: Boundary | None = Field(
+        None,
+        description="T1 and L5 poses. Optional: without them the spine is placed from the generic model and "
+        "the PA landmarks, and fit.unreliable lists the quantities that then come from the model only.",
+    )
     options: Options = Field(default_factory=Options)
 
 
@@ -189,6 +225,12 @@ class VertebraResult(BaseModel):
     axial_rotation_deg: float = Field(
         description="Axial rotation in the transverse plane, degrees (docs/measures.md)."
     )
+    frontal_tilt_deg: float | None = Field(
+        None,
+        description="Frontal tilt used by the Cobb measure, degrees: from the corners when given on the PA "
+        "view, else the reconstructed d1 projected on the frontal plane (docs/measures.md).",
+    )
+    frontal_tilt_source: Literal["corners", "model"] | None = None
 
 
 class CobbCurve(BaseModel):
@@ -206,6 +248,62 @@ class CobbCurve(BaseModel):
         "anterior, degrees (SRS 3D terminology; docs/measures.md)."
     )
     max_curvature_deg: float = Field(description="Cobb angle measured in that plane, degrees.")
+    endplate_angle_deg: float | None = Field(
+        None,
+        description="Endplate variant: angle between the superior endplate of the upper end vertebra and the "
+        "inferior endplate of the lower one, frontal plane, degrees (docs/measures.md).",
+    )
+    tilt_source: Literal["corners", "model", "mixed"] | None = Field(
+        None, description="Where the end vertebrae's tilts come from."
+    )
+
+
+class AasceMajorAngle(BaseModel):
+    """The major angle of the AASCE 2019 challenge's Cobb script, from four corners on every level."""
+
+    angle_deg: float = Field(
+        description="Largest angle between the transverse axes (left-edge midpoint → right-edge midpoint) of "
+        "any two vertebrae, arccos of the cosine clipped to [0, 1] (so at most 90°), degrees."
+    )
+    upper: Level
+    lower: Level
+
+
+class LenkeCurve(BaseModel):
+    """The largest frontal curve of one Lenke region (apex level), with the structural criteria the
+    reconstruction can evaluate. A model estimate: side-bending radiographs decide structurality."""
+
+    region: Literal["proximal_thoracic", "main_thoracic", "thoracolumbar_lumbar"]
+    upper: Level
+    lower: Level
+    apex: Level
+    angle_deg: float
+    major: bool = Field(description="The largest curve of the spine (always structural in Lenke's scheme).")
+    structural_by_magnitude: bool = Field(
+        description="Major, or standing Cobb ≥ 25°: a curve below 25° cannot reach 25° on side bending, so "
+        "only these can be structural by Lenke's bending criterion."
+    )
+    structural_by_kyphosis: bool = Field(
+        description="Regional kyphosis ≥ +20° (T2–T5 for proximal thoracic, T10–L2 otherwise), from the 3D model."
+    )
+
+
+class LenkeInputs(BaseModel):
+    """Inputs of the Lenke classification (Lenke et al., J Bone Joint Surg Am 2001;83:1169–1181)
+    that the reconstruction supports. Model estimates, not a classification (docs/measures.md)."""
+
+    model_estimate: Literal[True] = True
+    curves: list[LenkeCurve]
+    t2_t5_kyphosis_deg: float
+    t5_t12_kyphosis_deg: float
+    t10_l2_kyphosis_deg: float
+    sagittal_thoracic_modifier: Literal["-", "N", "+"] = Field(
+        description="T5–T12 kyphosis < 10° '-', 10–40° 'N', > 40° '+'."
+    )
+    not_supported: list[str] = Field(
+        description="Lenke inputs the reconstruction cannot give (e.g. side-bending Cobb angles, the lumbar "
+        "modifier's CSVL)."
+    )
 
 
 class Measures(BaseModel):
@@ -215,12 +313,35 @@ class Measures(BaseModel):
     thoracic_kyphosis_t4_t12_deg: float
     thoracic_kyphosis_t5_t12_deg: float
     lumbar_lordosis_l1_l5_deg: float
+    aasce2019: AasceMajorAngle | None = Field(
+        None, description="The AASCE 2019 script's major angle; only when the PA view has corners on all 17 levels."
+    )
+    lenke: LenkeInputs | None = None
 
 
 class Residual(BaseModel):
     view: Literal["pa", "lateral"]
     level: Level
     residual_mm: float = Field(description="Distance between landmark and projected model point, patient mm.")
+
+
+class TiltResidual(BaseModel):
+    view: Literal["pa", "lateral"]
+    level: Level
+    source: Literal["corners", "prior"]
+    residual_deg: float = Field(description="Signed angle from the observed to the model's transverse axis, degrees.")
+
+
+class PedicleResidual(BaseModel):
+    view: Literal["pa"]
+    level: Level
+    side: Literal["image_left", "image_right"]
+    residual_mm: float = Field(description="Signed column residual of the pedicle centre, patient mm.")
+
+
+Unreliable = Literal[
+    "scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist"
+]
 
 
 class ViewProjection(BaseModel):
@@ -239,6 +360,17 @@ class FitReport(BaseModel):
     runtime_ms: float
     pa: ViewProjection
     lateral: ViewProjection | None = None
+    boundary: Literal["given", "estimated"] = Field(
+        "given", description="Whether T1 and L5 were given or placed from the generic model and the landmarks."
+    )
+    unreliable: list[Unreliable] = Field(
+        default_factory=list,
+        description="Quantities that come from the generic model only, not from the input (docs/measures.md): "
+        "empty when the boundary is given.",
+    )
+    tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")
+    tilt_residuals: list[TiltResidual] = Field(default_factory=list)
+    pedicle_residuals: list[PedicleResidual] = Field(default_factory=list)
 
 
 class EngineInfo(BaseModel):

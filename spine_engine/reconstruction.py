@@ -9,25 +9,29 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from . import __version__
 from .anatomy import Profile, RestModel, load_profile, rest_model
+from .clinical import landmark_arrays, observed_frontal_tilts, place_without_boundary, size_factor, with_observations
 from .errors import FieldError, FitFailed, InvalidInput
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
-from .measures import compute_measures
+from .measures import compute_measures, frontal_tilts
 from .models import (
     EngineInfo,
     FitReport,
     JobPayload,
     LateralView,
     PAView,
+    PedicleResidual,
     RegistrationResult,
     Residual,
+    TiltResidual,
+    Unreliable,
     VertebraResult,
     ViewProjection,
 )
@@ -35,6 +39,7 @@ from .projection import estimate_projection, image_axes
 from .registration import FitOutput, RodParameters, ViewData, fit, initial_configuration
 from .rod import strains
 from .rotations import rotation_between
+from .tilt_prior import load_tilt_prior
 from .validation import validate_payload
 
 
@@ -46,6 +51,21 @@ class Problem:
     projections: dict[str, ViewProjection]
     top: tuple[np.ndarray, np.ndarray]
     bottom: tuple[np.ndarray, np.ndarray]
+    boundary_estimated: bool = False
+    """True when T1 and L5 were placed from the generic model (no boundary in the payload)."""
+    unreliable: list[Unreliable] = field(default_factory=list)
+    """Quantities that then come from the generic model only (``clinical.place_without_boundary``)."""
+    tilt_prior: bool = False
+    """Whether the tilt prior's observations were added."""
+    tilt_sources: dict[str, list[str]] = field(default_factory=dict)
+    """Per view, the source ("corners" or "prior") of each tilt observation, in order."""
+    offset_sources: dict[str, list[str]] = field(default_factory=dict)
+    """Per view, the source of each offset-point observation ("inferior_midpoint", "image_left",
+    "image_right" pedicle), in order."""
+    observed_tilt_deg: np.ndarray | None = None
+    """(17,) frontal tilt of the PA corner lines, NaN where a level has no corners (None: no corners)."""
+    observed_endplate_tilt_deg: np.ndarray | None = None
+    """(17, 2) superior and inferior endplate tilts from the PA corners, NaN where none."""
 
 
 def _pose(pose: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -60,13 +80,9 @@ def _orthonormalise(R: np.ndarray) -> np.ndarray:
 
 
 def _detector_mm(view: PAView | LateralView) -> np.ndarray:
-    """Landmarks as (column, row) in detector mm; px × DICOM pixel spacing [row, column]."""
-    points = np.array([lm.point for lm in view.landmarks], dtype=float).reshape(-1, 2)
-    if view.units == "px":
-        assert view.pixel_spacing is not None  # validate_payload guarantees it
-        row_spacing, column_spacing = view.pixel_spacing
-        points = points * np.array([column_spacing, row_spacing])
-    return points
+    """Landmarks as (column, row) in detector mm; px × DICOM pixel spacing [row, column]. A landmark
+    given by its corners counts as its superior endplate midpoint (``clinical.landmark_arrays``)."""
+    return landmark_arrays(view).points.reshape(-1, 2)
 
 
 def build_view(
@@ -75,12 +91,17 @@ def build_view(
     weight: float,
     top: tuple[np.ndarray, np.ndarray],
     bottom: tuple[np.ndarray, np.ndarray],
+    placed: tuple[float, np.ndarray] | None = None,
 ) -> tuple[ViewData, ViewProjection]:
-    """One view's landmarks in detector mm with its weak perspective (given or estimated)."""
+    """One view's landmarks in detector mm with its weak perspective (given, estimated from the
+    boundary, or ``placed``: the (scale, translation) of a spine placed without boundary)."""
     e_c, e_r = image_axes(view.patient_orientation)
     indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=int)
     points = _detector_mm(view)
-    if view.projection is not None:
+    if placed is not None:
+        scale, translation = placed[0], np.asarray(placed[1], dtype=float)
+        estimated = view.projection is None
+    elif view.projection is not None:
         scale = float(view.projection.scale)
         translation = np.asarray(view.projection.translation, dtype=float)  # detector mm
         estimated = False
@@ -110,21 +131,63 @@ def build_view(
 
 
 def build_problem(model: JobPayload, profile: Profile) -> Problem:
-    """Arrays of a validated payload: views in detector mm, projections, fixed boundary poses."""
-    p1, R1 = _pose(model.boundary.T1)
-    p5, R5 = _pose(model.boundary.L5)
-    top, bottom = (p1, _orthonormalise(R1)), (p5, _orthonormalise(R5))
-    views, projections = [], {}
-    pa, pa_projection = build_view("pa", model.pa, profile.fit_weight_pa, top, bottom)
+    """Arrays of a validated payload: views in detector mm, projections, fixed boundary poses,
+    and the clinical observations (corner tilts, pedicles, tilt prior; ``clinical``).
+
+    Without ``boundary`` the T1 and L5 poses and the projections come from
+    ``clinical.place_without_boundary``."""
+    pa_arrays = landmark_arrays(model.pa)
+    has_lateral = model.lateral is not None and bool(model.lateral.landmarks)
+    lateral_arrays = landmark_arrays(model.lateral) if model.lateral is not None and has_lateral else None
+    use_prior = model.options.tilt_prior if model.options.tilt_prior is not None else model.boundary is None
+    prior = load_tilt_prior() if use_prior else None
+    placement = None
+    if model.boundary is None:
+        try:
+            placement = place_without_boundary(model, profile, pa_arrays, lateral_arrays, prior)
+        except ValueError as exc:
+            raise InvalidInput([FieldError(("pa", "landmarks"), str(exc), "spine_not_placeable")]) from None
+        top, bottom = placement.top, placement.bottom
+    else:
+        p1, R1 = _pose(model.boundary.T1)
+        p5, R5 = _pose(model.boundary.L5)
+        top, bottom = (p1, _orthonormalise(R1)), (p5, _orthonormalise(R5))
+    views, projections, sources, offsets = [], {}, {}, {}
+    pa, pa_projection = build_view(
+        "pa", model.pa, profile.fit_weight_pa, top, bottom, None if placement is None else placement.pa
+    )
+    size = size_factor(profile, pa)
+    pa, sources["pa"], offsets["pa"] = with_observations(pa, pa_arrays, size=size, prior=prior)
     views.append(pa)
     projections["pa"] = pa_projection
-    if model.lateral is not None and model.lateral.landmarks:
+    if model.lateral is not None and lateral_arrays is not None:
         lateral, lateral_projection = build_view(
-            "lateral", model.lateral, profile.fit_weight_lateral, top, bottom
+            "lateral",
+            model.lateral,
+            profile.fit_weight_lateral,
+            top,
+            bottom,
+            None if placement is None else placement.lateral,
+        )
+        lateral, sources["lateral"], offsets["lateral"] = with_observations(
+            lateral, lateral_arrays, size=size, prior=None
         )
         views.append(lateral)
         projections["lateral"] = lateral_projection
-    return Problem(views=views, projections=projections, top=top, bottom=bottom)
+    observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
+    return Problem(
+        views=views,
+        projections=projections,
+        top=top,
+        bottom=bottom,
+        boundary_estimated=placement is not None,
+        unreliable=[] if placement is None else placement.unreliable,
+        tilt_prior=prior is not None and "prior" in sources["pa"],
+        tilt_sources=sources,
+        offset_sources=offsets,
+        observed_tilt_deg=observed,
+        observed_endplate_tilt_deg=endplates,
+    )
 
 
 def rod_parameters(rest: RestModel) -> RodParameters:
@@ -173,9 +236,10 @@ def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
     return out, rest
 
 
-def _vertebrae(out: FitOutput, rest: RestModel) -> list[VertebraResult]:
+def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | None = None) -> list[VertebraResult]:
     angles = np.degrees(out.u * rest.ds[:, None])
     rotation = axial_rotation_deg(out.rotations)
+    tilt, from_corners = frontal_tilts(out.rotations, observed_tilt_deg)
     vertebrae = []
     for i, level in enumerate(LEVELS):
         has_segment = i < len(LEVELS) - 1
@@ -190,6 +254,8 @@ def _vertebrae(out: FitOutput, rest: RestModel) -> list[VertebraResult]:
                 lateral_bending_deg=float(angles[i, 1]) if has_segment else None,
                 twist_deg=float(angles[i, 2]) if has_segment else None,
                 axial_rotation_deg=float(rotation[i]),
+                frontal_tilt_deg=float(tilt[i]),
+                frontal_tilt_source="corners" if from_corners[i] else "model",
             )
         )
     return vertebrae
@@ -211,6 +277,26 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
         runtime_ms=runtime_ms,
         pa=problem.projections["pa"],
         lateral=problem.projections.get("lateral"),
+        boundary="estimated" if problem.boundary_estimated else "given",
+        unreliable=list(problem.unreliable),
+        tilt_prior=problem.tilt_prior,
+        tilt_residuals=[
+            TiltResidual(view=view.name, level=LEVELS[idx], source=src, residual_deg=float(res))
+            for view in problem.views
+            if view.tilt_indices is not None
+            for idx, src, res in zip(
+                view.tilt_indices, problem.tilt_sources[view.name], out.tilt_residuals_deg[view.name], strict=True
+            )
+        ],
+        pedicle_residuals=[
+            PedicleResidual(view="pa", level=LEVELS[idx], side=src, residual_mm=float(res))
+            for view in problem.views
+            if view.offset_indices is not None
+            for idx, src, res in zip(
+                view.offset_indices, problem.offset_sources[view.name], out.offset_residuals_mm[view.name], strict=True
+            )
+            if src in ("image_left", "image_right")
+        ],
     )
 
 
@@ -230,8 +316,13 @@ def register_model(model: JobPayload) -> RegistrationResult:
     if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
     return RegistrationResult(
-        vertebrae=_vertebrae(out, rest),
-        measures=compute_measures(out.positions, out.rotations),
+        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg),
+        measures=compute_measures(
+            out.positions,
+            out.rotations,
+            observed_tilt_deg=problem.observed_tilt_deg,
+            observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
+        ),
         fit=_fit_report(problem, out, runtime_ms),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )

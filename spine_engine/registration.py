@@ -9,6 +9,16 @@ vertebra 0 (T1) and N−1 (L5) fixed exactly:
 with P the weak perspective p = s·(e_c·r, e_r·r) + T. Dividing the image residual by s measures
 it in patient mm, so the 3D result does not depend on the image scale or translation.
 
+Two optional kinds of observation per view join E_f (``ViewData``; both touch one vertebra):
+
+    offsets   w Σ_q (e_c·(r_j + R_j o_q) − (c_q − T_c)/s)²       (N·mm; o_q body-frame offset, mm)
+    tilts     Σ_m w_m α_m²,  α_m = ∠(ĉ_m, E R_j e)               (N·mm; w_m in N·mm/rad²)
+
+with c_q the image column of a point fixed in vertebra j (a pedicle centre, the inferior endplate
+midpoint of its corners), ĉ_m the observed image direction of a vertebra's
+transverse axis (e.g. from its four corners) and e the body-frame director the view's column
+axis shows (d1 on a PA view). Formulas and derivatives: ``RegistrationProblem``.
+
 E = ‖ρ‖² for the stacked residual vector ρ = (√(Δs α/2)(u − u0), √(Δs β/2)(v − v0),
 √w (P r − p)/s), minimised by a damped Newton / Levenberg–Marquardt method with the analytic
 Jacobian and second derivatives of ρ (``RegistrationProblem``). Parameters are ordered per
@@ -18,7 +28,7 @@ r_j ← r_j + δr_j, R_j ← R_j exp(hat δθ_j) (a right, body-frame rotation i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import cast
 
@@ -73,6 +83,28 @@ class ViewData:
     """(2,) weak-perspective translation T, detector mm."""
     weight: float
     """Fitting weight w, N/mm."""
+    offset_indices: np.ndarray | None = None
+    """(q,) int: vertebra index of each offset-point observation (optional)."""
+    offset_vectors: np.ndarray | None = None
+    """(q, 3) the point in the vertebra's body frame, o = (o1, o2, o3) along (d1, d2, d3), mm."""
+    offset_columns: np.ndarray | None = None
+    """(q,) image column of each point, detector mm (only the column, across the spine, is fitted)."""
+    tilt_indices: np.ndarray | None = None
+    """(m,) int: vertebra index of each tilt observation (optional)."""
+    tilt_directions: np.ndarray | None = None
+    """(m, 2) observed image direction (column, row) of the vertebra's transverse axis; any length > 0."""
+    tilt_weights: np.ndarray | None = None
+    """(m,) weight w_m of each tilt observation, N·mm/rad²."""
+    tilt_director: np.ndarray | None = None
+    """(3,) body-frame director e whose projection the tilts observe (e.g. (1, 0, 0) = d1 on PA)."""
+
+    @property
+    def n_offsets(self) -> int:
+        return 0 if self.offset_indices is None else len(self.offset_indices)
+
+    @property
+    def n_tilts(self) -> int:
+        return 0 if self.tilt_indices is None else len(self.tilt_indices)
 
 
 @dataclass(frozen=True)
@@ -113,6 +145,10 @@ class FitOutput:
     """Whether a convergence criterion of ``RegistrationProblem.solve`` was met."""
     residuals_mm: dict[str, np.ndarray]
     """Per view name, (k,) distance between landmark and projected vertebra in patient mm."""
+    offset_residuals_mm: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per view name with offset points, (q,) signed column residual e_c·(r + R o) − (c − T_c)/s, patient mm."""
+    tilt_residuals_deg: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per view name with tilts, (m,) signed angle α from the observed to the model's axis, degrees."""
 
 
 def _check_params(params: RodParameters) -> int:
@@ -130,6 +166,10 @@ def _check_params(params: RodParameters) -> int:
     return len(ds) + 1
 
 
+def _shape(a: np.ndarray | None) -> tuple[int, ...]:
+    return () if a is None else tuple(np.shape(a))
+
+
 def _check_view(view: ViewData, n: int) -> None:
     idx = np.asarray(view.indices)
     pts = np.asarray(view.points)
@@ -141,6 +181,30 @@ def _check_view(view: ViewData, n: int) -> None:
         raise ValueError(f"view {view.name!r}: scale must be positive, got {view.scale}")
     if not view.weight >= 0.0:
         raise ValueError(f"view {view.name!r}: weight must be non-negative, got {view.weight}")
+    if view.n_offsets:
+        q = view.n_offsets
+        pi = np.asarray(view.offset_indices)
+        if (
+            pi.ndim != 1
+            or _shape(view.offset_vectors) != (q, 3)
+            or _shape(view.offset_columns) != (q,)
+        ):
+            raise ValueError(f"view {view.name!r}: offset indices (q,), vectors (q, 3) and columns (q,) expected")
+        if pi.min() < 0 or pi.max() >= n:
+            raise ValueError(f"view {view.name!r}: offset indices must lie in 0..{n - 1}")
+    if view.n_tilts:
+        m = view.n_tilts
+        ti = np.asarray(view.tilt_indices)
+        if ti.ndim != 1 or _shape(view.tilt_directions) != (m, 2) or _shape(view.tilt_weights) != (m,):
+            raise ValueError(f"view {view.name!r}: tilt indices (m,), directions (m, 2) and weights (m,) expected")
+        if ti.min() < 0 or ti.max() >= n:
+            raise ValueError(f"view {view.name!r}: tilt indices must lie in 0..{n - 1}")
+        if _shape(view.tilt_director) != (3,):
+            raise ValueError(f"view {view.name!r}: tilts need a tilt_director (3,)")
+        if np.any(np.linalg.norm(np.asarray(view.tilt_directions, dtype=float), axis=1) <= 0.0):
+            raise ValueError(f"view {view.name!r}: tilt directions must be non-zero")
+        if np.any(~(np.asarray(view.tilt_weights, dtype=float) >= 0.0)):
+            raise ValueError(f"view {view.name!r}: tilt weights must be non-negative")
 
 
 def _pose(pose: Pose, name: str) -> tuple[FloatArray, FloatArray]:
@@ -218,6 +282,21 @@ class RegistrationProblem:
         ∂(P r − p)/s / ∂r = [e_c; e_r] (constant).
     Each segment touches two neighbouring vertebrae and each landmark one, so the normal matrix
     is banded (half-bandwidth 11) and is assembled and factored in LAPACK band storage.
+
+    Optional rows after the landmarks (``ViewData``), each touching one vertebra j:
+
+    * an offset point (pedicle centre, inferior endplate midpoint), one row
+      ρ = √w (e_c·(r_j + R_j o) − (c − T_c)/s) (patient mm · √(N/mm)):
+        ∂ρ/∂δr_j = √w e_c,  ∂ρ/∂δθ_j = o × (R_jᵀ √w e_c),
+        ∇²_θθ ρ = ½(ω oᵀ + o ωᵀ) − (ω·o) I with ω = R_jᵀ √w e_c;
+    * a tilt, one row ρ = √w_m α (rad · √(N·mm)), α = atan2(ĉ × a, ĉ·a) the signed angle from the
+      observed unit direction ĉ to the projected director a = E R_j e (E = [e_c; e_r]):
+        ∂a/∂δθ_j = A with rows e × (R_jᵀ E_k), k = column, row;  ∂α/∂a = a⊥/|a|², a⊥ = (−a_row, a_col);
+        ∂ρ/∂δθ_j = √w_m Aᵀ a⊥/|a|²;
+        ∇²_θθ ρ = √w_m (Aᵀ H_a A + ½(ω eᵀ + e ωᵀ) − (ω·e) I), ω = R_jᵀ Eᵀ a⊥/|a|², and H_a the
+        Hessian of atan2(a_row, a_col): [[2xy, y² − x²], [y² − x², −2xy]]/|a|⁴, (x, y) = a.
+    (With a right perturbation R exp(hat δθ), ∂(R exp(hat δθ) b)/∂δθ = −R hat(b) and the second
+    derivative of cᵀR exp(hat δθ) b is ½(ω bᵀ + b ωᵀ) − (ω·b) I with ω = Rᵀc.)
     """
 
     def __init__(self, params: RodParameters, views: list[ViewData] | tuple[ViewData, ...], top: Pose, bottom: Pose):
@@ -267,7 +346,8 @@ class RegistrationProblem:
         self._fit_target = sqrt_w[:, None] * self._fit_t1
         self._fit_slices = slices
         self.n_fit = 2 * start
-        self.n_residuals = 6 * ns + self.n_fit
+        self._init_extras(n_ext)
+        self.n_residuals = 6 * ns + self.n_fit + self.n_offsets + self.n_tilts
         self._buffers = [np.empty(self.n_residuals), np.empty(self.n_residuals)]
 
         # Band storage (upper, LAPACK): ab[KD + I − J, J] = H[I, J] for J − KD ≤ I ≤ J, over an
@@ -287,6 +367,143 @@ class RegistrationProblem:
         self._Jloc = np.zeros((ns, 6, 12))
         self._Sloc = np.zeros((ns, 12, 12))
         self._m = n - 2
+
+    def _init_extras(self, n_ext: int) -> None:
+        """Stack the offset-point and tilt observations of every view, and their band/gradient bins."""
+        p_idx, p_o, p_ec, p_t, p_sw = [], [], [], [], []
+        t_idx, t_e, t_E, t_c, t_sw = [], [], [], [], []
+        self._ped_slices: dict[str, slice] = {}
+        self._tilt_slices: dict[str, slice] = {}
+        q0 = m0 = 0
+        for view in self.views:
+            sw = np.sqrt(float(view.weight))
+            e_c = np.asarray(view.e_c, dtype=float)
+            if view.n_offsets:
+                q = view.n_offsets
+                p_idx.append(np.asarray(view.offset_indices, dtype=int))
+                p_o.append(np.asarray(view.offset_vectors, dtype=float))
+                p_ec.append(np.broadcast_to(e_c, (q, 3)))
+                p_sw.append(np.full(q, sw))
+                columns = np.asarray(view.offset_columns, dtype=float)
+                p_t.append((columns - float(np.asarray(view.translation, dtype=float)[0])) / view.scale)
+                self._ped_slices[view.name] = slice(q0, q0 + q)
+                q0 += q
+            if view.n_tilts:
+                m = view.n_tilts
+                E = np.stack((e_c, np.asarray(view.e_r, dtype=float)))
+                d = np.asarray(view.tilt_directions, dtype=float)
+                t_idx.append(np.asarray(view.tilt_indices, dtype=int))
+                t_e.append(np.broadcast_to(np.asarray(view.tilt_director, dtype=float), (m, 3)))
+                t_E.append(np.broadcast_to(E, (m, 2, 3)))
+                t_c.append(d / np.linalg.norm(d, axis=1)[:, None])
+                t_sw.append(np.sqrt(np.asarray(view.tilt_weights, dtype=float)))
+                self._tilt_slices[view.name] = slice(m0, m0 + m)
+                m0 += m
+        self.n_offsets = q0
+        self.n_tilts = m0
+        self._ped_idx = np.concatenate(p_idx) if p_idx else np.zeros(0, dtype=int)
+        self._ped_o = np.concatenate(p_o) if p_o else np.zeros((0, 3))
+        self._ped_e1 = np.concatenate(p_ec) if p_ec else np.zeros((0, 3))
+        self._ped_t1 = np.concatenate(p_t) if p_t else np.zeros(0)
+        ped_sw = np.concatenate(p_sw) if p_sw else np.zeros(0)
+        self._ped_ec = ped_sw[:, None] * self._ped_e1
+        self._ped_target = ped_sw * self._ped_t1
+        self._tilt_idx = np.concatenate(t_idx) if t_idx else np.zeros(0, dtype=int)
+        self._tilt_e = np.concatenate(t_e) if t_e else np.zeros((0, 3))
+        self._tilt_E = np.concatenate(t_E) if t_E else np.zeros((0, 2, 3))
+        self._tilt_c = np.concatenate(t_c) if t_c else np.zeros((0, 2))
+        self._tilt_sw = np.concatenate(t_sw) if t_sw else np.zeros(0)
+        idx = np.concatenate((self._ped_idx, self._tilt_idx))
+        self._x_idx = idx
+        a6, b6 = np.triu_indices(6)
+        self._x_upper6 = a6 * 6 + b6
+        self._x_hbins = ((_KD + a6 - b6) * n_ext + 6 * idx[:, None] + b6).ravel()
+        a3, b3 = _UPPER3
+        self._x_upper3 = a3 * 3 + b3
+        self._x_sbins = ((_KD + a3 - b3) * n_ext + 6 * idx[:, None] + 3 + b3).ravel()
+        self._x_gbins = (6 * idx[:, None] + np.arange(6)).ravel()
+
+    def _evaluate_extras(self, r: FloatArray, R: FloatArray, out: FloatArray) -> None:
+        """Write the offset-point and tilt rows of ρ into ``out`` (its tail after the landmark rows)."""
+        start = 6 * (self.n - 1) + self.n_fit
+        q = self.n_offsets
+        if q:
+            Ro = (R[self._ped_idx] @ self._ped_o[:, :, None])[:, :, 0]
+            out[start : start + q] = np.einsum("ij,ij->i", self._ped_ec, r[self._ped_idx] + Ro) - self._ped_target
+        if self.n_tilts:
+            a = self._tilt_projection(R)
+            c = self._tilt_c
+            cross = c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]
+            dot = c[:, 0] * a[:, 0] + c[:, 1] * a[:, 1]
+            out[start + q :] = self._tilt_sw * np.arctan2(cross, dot)
+
+    def _tilt_projection(self, R: FloatArray) -> FloatArray:
+        """a = E R_j e (m, 2): the image direction of each observed vertebra's director."""
+        return (self._tilt_E @ (R[self._tilt_idx] @ self._tilt_e[:, :, None]))[:, :, 0]
+
+    def _extra_jacobian(self, R: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Rows (q + m, 6) of ∂ρ/∂[δr_j, δθ_j] of the offset-point and tilt observations, and what the
+        second derivatives reuse: ω of the offset points (q, 3), A (m, 2, 3) and a⊥/|a|² (m, 2) of the tilts."""
+        q, m = self.n_offsets, self.n_tilts
+        J = np.zeros((q + m, 6))
+        omega_p = np.einsum("nji,nj->ni", R[self._ped_idx], self._ped_ec) if q else np.zeros((0, 3))
+        if q:
+            J[:q, :3] = self._ped_ec
+            J[:q, 3:] = np.cross(self._ped_o, omega_p)
+        A = np.zeros((m, 2, 3))
+        ga = np.zeros((m, 2))
+        if m:
+            Rs = R[self._tilt_idx]
+            W = np.einsum("nji,nkj->nki", Rs, self._tilt_E)  # W[n, k] = R_jᵀ E_k
+            A = np.cross(self._tilt_e[:, None, :], W)
+            a = self._tilt_projection(R)
+            ga = np.stack((-a[:, 1], a[:, 0]), axis=1) / np.einsum("ij,ij->i", a, a)[:, None]
+            J[q:, 3:] = self._tilt_sw[:, None] * np.einsum("nki,nk->ni", A, ga)
+        return J, omega_p, A, ga
+
+    def _extra_second_order(
+        self, R: FloatArray, rho: FloatArray, omega_p: FloatArray, A: FloatArray, ga: FloatArray
+    ) -> FloatArray:
+        """ρ ∇²_θθ ρ of each offset-point and tilt row (q + m, 3, 3); formulas in the class docstring."""
+        q, m = self.n_offsets, self.n_tilts
+        S = np.zeros((q + m, 3, 3))
+        eye = np.eye(3)
+
+        def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
+            outer = omega[:, :, None] * b[:, None, :]
+            return 0.5 * (outer + np.swapaxes(outer, 1, 2)) - np.einsum("ij,ij->i", omega, b)[:, None, None] * eye
+
+        if q:
+            S[:q] = rho[:q, None, None] * rotational(omega_p, self._ped_o)
+        if m:
+            a = self._tilt_projection(R)
+            x, y = a[:, 0], a[:, 1]
+            r4 = np.einsum("ij,ij->i", a, a) ** 2
+            Ha = np.empty((m, 2, 2))
+            Ha[:, 0, 0] = 2.0 * x * y / r4
+            Ha[:, 1, 1] = -Ha[:, 0, 0]
+            Ha[:, 0, 1] = Ha[:, 1, 0] = (y * y - x * x) / r4
+            omega_t = np.einsum("nji,nkj,nk->ni", R[self._tilt_idx], self._tilt_E, ga)
+            hess = np.swapaxes(A, 1, 2) @ Ha @ A + rotational(omega_t, self._tilt_e)
+            S[q:] = (rho[q:] * self._tilt_sw)[:, None, None] * hess
+        return S
+
+    def _extra_normal_equations(
+        self, res: FloatArray, R: FloatArray, second_order: bool
+    ) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+        """Band JᵀJ, band Σ ρ∇²ρ (or None) and Jᵀρ of the offset-point and tilt rows, over the unknowns."""
+        start = 6 * (self.n - 1) + self.n_fit
+        rho = res[start:]
+        J, omega_p, A, ga = self._extra_jacobian(R)
+        gn = (J[:, :, None] * J[:, None, :]).reshape(-1, 36)[:, self._x_upper6]
+        ab = _accumulate(self._x_hbins, gn.ravel(), minlength=self._band_size)
+        ab_gn = ab.reshape(_KD + 1, self._n_ext)[:, 6:-6]
+        g = _accumulate(self._x_gbins, (J * rho[:, None]).ravel(), minlength=self._n_ext)[6:-6]
+        if not second_order:
+            return ab_gn, None, g
+        S = self._extra_second_order(R, rho, omega_p, A, ga).reshape(-1, 9)[:, self._x_upper3]
+        ab2 = _accumulate(self._x_sbins, S.ravel(), minlength=self._band_size)
+        return ab_gn, ab2.reshape(_KD + 1, self._n_ext)[:, 6:-6], g
 
     # ------------------------------------------------------------------ configuration helpers
 
@@ -324,14 +541,16 @@ class RegistrationProblem:
         rod[:, :3] -= self._bu
         np.multiply(self._cv, v, out=rod[:, 3:])
         rod[:, 3:] -= self._bv
-        fit = out[6 * ns :].reshape(-1, 2, 1)
+        fit = out[6 * ns : 6 * ns + self.n_fit].reshape(-1, 2, 1)
         np.matmul(self._fit_E, r[self._fit_idx, :, None], out=fit)
         fit[:, :, 0] -= self._fit_target
-        return Rt, phi, v
+        if self.n_offsets or self.n_tilts:
+            self._evaluate_extras(r, R, out)
+        return Rt, phi, v, R
 
     def _local_jacobian(self, cache: tuple[FloatArray, ...]) -> tuple[FloatArray, ...]:
         """Fill the per-segment Jacobians (N−1, 6, 12) over [r_i, θ_i, r_{i+1}, θ_{i+1}]."""
-        Rt, phi, v = cache
+        Rt, phi, v = cache[:3]
         theta2 = np.einsum("ij,ij->i", phi, phi)
         d, dp = _jr_inv_coefficients(theta2)
         half_P = hat(0.5 * phi)
@@ -360,7 +579,7 @@ class RegistrationProblem:
             θ_{i+1} θ_i: −K₊ J_l⁻¹;
         with μ = ρ_v ⊙ √(Δs β/2): θ_i θ_i += ½(μvᵀ + vμᵀ) − (μ·v) I, θ_i r_{i±1} = ±hat(μ) R_iᵀ/Δs.
         """
-        Rt, phi, v = cache
+        Rt, phi, v = cache[:3]
         _, Jr_inv, Jl_inv, theta2, d, dp = local
         lam = rho[:, :3] * self._au
         mu = rho[:, 3:] * self._cv
@@ -399,14 +618,23 @@ class RegistrationProblem:
         rho = res[: 6 * ns].reshape(ns, 6)
         H = (JT @ J).reshape(ns, 144)[:, self._upper]
         gloc = (JT @ rho[:, :, None]).ravel()
-        gfit = (self._fit_ET @ res[6 * ns :].reshape(-1, 2, 1)).ravel()
+        gfit = (self._fit_ET @ res[6 * ns : 6 * ns + self.n_fit].reshape(-1, 2, 1)).ravel()
         g = _accumulate(self._gbins, np.concatenate((gloc, gfit)), minlength=self._n_ext)[6:-6]
+        extra = (
+            self._extra_normal_equations(res, cache[3], second_order) if self.n_offsets or self.n_tilts else None
+        )
+        if extra is not None:
+            g = g + extra[2]
         if not second_order:
             ab = _accumulate(self._hbins[: H.size], H.ravel(), minlength=self._band_size)
-            return ab.reshape(_KD + 1, self._n_ext)[:, 6:-6] + self._ab_fit, None, g
+            ab_gn = ab.reshape(_KD + 1, self._n_ext)[:, 6:-6] + self._ab_fit
+            return (ab_gn if extra is None else ab_gn + extra[0]), None, g
         S = self._second_order(cache, local, rho).reshape(ns, 144)[:, self._upper]
         both = _accumulate(self._hbins, np.concatenate((H.ravel(), S.ravel())), minlength=2 * self._band_size)
         both = both.reshape(2, _KD + 1, self._n_ext)[:, :, 6:-6]
+        if extra is not None:
+            assert extra[1] is not None
+            return both[0] + self._ab_fit + extra[0], both[1] + extra[1], g
         return both[0] + self._ab_fit, both[1], g
 
     def residuals(self, positions: ArrayLike, rotations: ArrayLike) -> FloatArray:
@@ -426,6 +654,11 @@ class RegistrationProblem:
             J[6 * i : 6 * i + 6, 6 * i : 6 * i + 12] = J_loc[i]
         for k, j in enumerate(self._fit_idx):
             J[6 * ns + 2 * k : 6 * ns + 2 * k + 2, 6 * j : 6 * j + 3] = self._fit_E[k]
+        if self.n_offsets or self.n_tilts:
+            Jx = self._extra_jacobian(R)[0]
+            start = 6 * ns + self.n_fit
+            for k, j in enumerate(self._x_idx):
+                J[start + k, 6 * j : 6 * j + 6] = Jx[k]
         return J[:, 6:-6]
 
     def gradient_and_hessian(
@@ -539,11 +772,17 @@ class RegistrationProblem:
         iterations: int,
         converged: bool,
     ) -> FitOutput:
-        _, phi, v = cache
+        phi, v = cache[1], cache[2]
         rod = res[: 6 * (self.n - 1)]
         fit = res[6 * (self.n - 1) :]
         diff = (self._fit_E1 @ r[self._fit_idx, :, None])[:, :, 0] - self._fit_t1
         distance = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        # unweighted residuals (a zero weight would hide them in ρ)
+        Ro = (R[self._ped_idx] @ self._ped_o[:, :, None])[:, :, 0]
+        ped = np.einsum("ij,ij->i", self._ped_e1, r[self._ped_idx] + Ro) - self._ped_t1
+        a = self._tilt_projection(R)
+        c = self._tilt_c
+        tilt = np.degrees(np.arctan2(c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0], np.einsum("ij,ij->i", c, a)))
         return FitOutput(
             positions=r,
             rotations=R,
@@ -554,6 +793,8 @@ class RegistrationProblem:
             iterations=iterations,
             converged=converged,
             residuals_mm={name: distance[sl] for name, sl in self._fit_slices.items()},
+            offset_residuals_mm={name: ped[sl].copy() for name, sl in self._ped_slices.items()},
+            tilt_residuals_deg={name: tilt[sl].copy() for name, sl in self._tilt_slices.items()},
         )
 
 

@@ -7,10 +7,46 @@ from pydantic import ValidationError
 from .errors import FieldError, InvalidInput
 from .models import JobPayload, LateralView, PAView
 
+_FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
+"""Errors raised by a model validator on a whole landmark, and the field their location names."""
 
-def _clean_loc(loc: tuple[Any, ...]) -> tuple[str | int, ...]:
+_UPRIGHT_ROWS = ("H", "F")
+_FRONTAL_COLUMNS = ("L", "R")
+
+
+def _clean_loc(loc: tuple[Any, ...], kind: str = "") -> tuple[str | int, ...]:
     # pydantic adds the type of a union member or a validator tag to the location: drop them.
-    return tuple(p for p in loc if isinstance(p, int) or not str(p).startswith(("function-", "tagged-union")))
+    clean = tuple(p for p in loc if isinstance(p, int) or not str(p).startswith(("function-", "tagged-union")))
+    return (*clean, _FIELD_OF_ERROR[kind]) if kind in _FIELD_OF_ERROR else clean
+
+
+def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+    """Corners need an upright view and pedicles a frontal one; locations use the payload's indices."""
+    errors: list[FieldError] = []
+    raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
+    if not isinstance(raw_landmarks, list):
+        return errors
+    column, row = view.patient_orientation
+    for i, lm in enumerate(raw_landmarks):
+        if not isinstance(lm, dict):
+            continue
+        if lm.get("corners") is not None and row not in _UPRIGHT_ROWS:
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i, "corners"),
+                    f"corners need an upright image (row direction H or F), got patient orientation {[column, row]}",
+                    "corners_need_upright_view",
+                )
+            )
+        if lm.get("pedicles") is not None and (name != "pa" or column not in _FRONTAL_COLUMNS):
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i, "pedicles"),
+                    "pedicles are supported on the PA view only, with columns toward the patient's L or R",
+                    "pedicles_not_supported",
+                )
+            )
+    return errors
 
 
 def _view_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
@@ -39,7 +75,10 @@ def validate_payload(payload: Any) -> JobPayload:
 
     Numbers must be finite, levels known and unique per view, directors orthonormal and
     right-handed within 1e-3, ``px`` units need ``pixel_spacing``, and without a given
-    projection a view must have the T1 and L5 landmarks to estimate it.
+    projection a view must have the T1 and L5 landmarks to estimate it. A landmark has exactly
+    one of ``point`` / ``corners`` (the error names the field: ``point`` when neither is given,
+    ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
+    with columns L or R. Without ``boundary`` the PA view needs T1 and L5 landmarks.
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -48,13 +87,28 @@ def validate_payload(payload: Any) -> JobPayload:
     except ValidationError as exc:
         raise InvalidInput(
             [
-                FieldError(_clean_loc(tuple(e["loc"])), str(e["msg"]).removeprefix("Value error, "), e["type"])
+                FieldError(
+                    _clean_loc(tuple(e["loc"]), e["type"]), str(e["msg"]).removeprefix("Value error, "), e["type"]
+                )
                 for e in exc.errors(include_url=False)
             ]
         ) from None
-    errors = _view_errors("pa", model.pa)
+    errors = _view_errors("pa", model.pa) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
     if model.lateral is not None:
         errors += _view_errors("lateral", model.lateral)
+        errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
+    if model.boundary is None and model.pa.projection is not None:
+        levels = {lm.level for lm in model.pa.landmarks}
+        missing = [lv for lv in ("T1", "L5") if lv not in levels]
+        if missing:
+            errors.append(
+                FieldError(
+                    ("pa", "landmarks"),
+                    f"the boundary vertebrae {missing} have no landmark: without boundary conditions the PA "
+                    "view needs the T1 and L5 landmarks to place the spine",
+                    "boundary_landmarks_missing",
+                )
+            )
     if errors:
         raise InvalidInput(errors)
     return model

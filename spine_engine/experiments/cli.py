@@ -10,6 +10,7 @@ COMMANDS = {
     "verse": ("spine_engine.experiments.verse", "3D error on real spines from CT (VerSe)"),
     "perf": ("spine_engine.experiments.perf", "time single 17-landmark fits"),
     "calibrate": ("spine_engine.experiments.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
+    "aasce": ("spine_engine.experiments.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
 }
 
 

@@ -13,8 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from ..anatomy import VERTEBRA_TABLE, load_profile
+from ..clinical import size_factor
 from ..levels import LEVELS, N_LEVELS
+from ..observations import pedicle_offsets_in_image_order
 from ..projection import image_axes, project
+from ..registration import ViewData
 from ..rod import strains
 
 PA_ORIENTATION = ("L", "F")
@@ -50,6 +54,63 @@ def _view(
     }
 
 
+def truth_size_factor(
+    positions: np.ndarray, levels: list[int], orientation: tuple[str, str] = PA_ORIENTATION
+) -> float:
+    """The size factor the engine will estimate (``clinical.size_factor``, default profile) from
+    exact landmarks of this spine at ``levels``: pedicle offsets and boxes are scaled by it."""
+    e_c, e_r = image_axes(orientation)
+    idx = np.asarray(levels, dtype=int)
+    points = project(positions[idx], e_c, e_r, 1.0, np.zeros(2))
+    return size_factor(load_profile("default"), ViewData("pa", idx, points, e_c, e_r, 1.0, np.zeros(2), 1.0))
+
+
+def vertebra_corners_3d(
+    positions: np.ndarray, rotations: np.ndarray, levels: list[int], size: float = 1.0
+) -> np.ndarray:
+    """Corners (k, 4, 3) of a frontal box around each vertebra, mm: its node is the superior
+    endplate midpoint, the box is W wide along d1 and H high along d3 (caudal), W and H from
+    ``anatomy.VERTEBRA_TABLE`` × ``size``. Order: superior (−d1, +d1), inferior (−d1, +d1)."""
+    out = []
+    for i in levels:
+        height, width, _ = VERTEBRA_TABLE[LEVELS[i]]
+        d1, d3 = rotations[i][:, 0], rotations[i][:, 2]
+        half = 0.5 * width * size * d1
+        down = height * size * d3
+        p = positions[i]
+        out.append([p - half, p + half, p - half + down, p + half + down])
+    return np.asarray(out, dtype=float)
+
+
+def image_corners(
+    corners3d: np.ndarray, orientation: tuple[str, str], scale: float, translation: np.ndarray
+) -> np.ndarray:
+    """Project box corners (k, 4, 3) (superior pair, inferior pair: ``vertebra_corners_3d``) and
+    name them as an annotator does: the superior endplate's corners are the "top" pair when the
+    rows run toward the feet (the bottom pair when toward the head), and within a pair the one
+    with the smaller column is "left". Order: top-left, top-right, bottom-left, bottom-right."""
+    e_c, e_r = image_axes(orientation)
+    img = project(corners3d, e_c, e_r, scale, translation)
+    superior, inferior = img[:, :2], img[:, 2:]
+    top, bottom = (superior, inferior) if float(e_r[2]) < 0 else (inferior, superior)
+    out = np.empty_like(img)
+    for k in range(len(img)):
+        for pair, slot in ((top[k], 0), (bottom[k], 2)):
+            out[k, slot : slot + 2] = pair[np.argsort(pair[:, 0], kind="stable")]
+    return out
+
+
+def pedicle_centres_3d(
+    positions: np.ndarray, rotations: np.ndarray, levels: list[int], size: float = 1.0
+) -> np.ndarray:
+    """3D pedicle centres (k, 2, 3), image-left then image-right on a PA ["L", "F"] view: node +
+    R·o with the engine's offsets (``observations.pedicle_offsets_in_image_order``) × ``size``."""
+    e_c, _ = image_axes(PA_ORIENTATION)
+    offsets = pedicle_offsets_in_image_order(levels, e_c, size).reshape(-1, 2, 3)
+    idx = np.asarray(levels, dtype=int)
+    return positions[idx][:, None, :] + np.einsum("kij,kpj->kpi", rotations[idx], offsets)
+
+
 def payload_from_truth(
     positions: np.ndarray,
     rotations: np.ndarray,
@@ -59,15 +120,45 @@ def payload_from_truth(
     translation: tuple[float, float] = (150.0, 120.0),
     noise_mm: float = 0.0,
     rng: np.random.Generator | None = None,
+    *,
+    corner_levels: list[int] | None = None,
+    pedicle_levels: list[int] | None = None,
+    boundary: bool = True,
+    projection: bool = False,
 ) -> dict[str, Any]:
-    """The job payload a client would send for this known spine."""
+    """The job payload a client would send for this known spine.
+
+    ``corner_levels``: PA landmarks given by the four corners of a box around the vertebra
+    (``vertebra_corners_3d``) instead of a point; ``pedicle_levels``: PA pedicle centres
+    (``pedicle_centres_3d``); boxes and pedicles are scaled by ``truth_size_factor``. Without
+    ``boundary`` the payload has no T1 / L5 poses; ``projection`` sends the PA view's (s, T).
+    """
     payload: dict[str, Any] = {
         "pa": _view(positions, pa_levels, PA_ORIENTATION, scale, translation, noise_mm, rng),
-        "boundary": {
+    }
+    if boundary:
+        payload["boundary"] = {
             level: {"position": positions[i].tolist(), "directors": rotations[i].T.tolist()}
             for level, i in (("T1", 0), ("L5", N_LEVELS - 1))
-        },
-    }
+        }
+    if projection:
+        payload["pa"]["projection"] = {"scale": scale, "translation": list(translation)}
+    if corner_levels or pedicle_levels:
+        size = truth_size_factor(positions, pa_levels)
+        by_level = {lm["level"]: lm for lm in payload["pa"]["landmarks"]}
+        T = np.asarray(translation, dtype=float)
+        e_c, e_r = image_axes(PA_ORIENTATION)
+        if corner_levels:
+            boxes = vertebra_corners_3d(positions, rotations, corner_levels, size)
+            quads = image_corners(boxes, PA_ORIENTATION, scale, T)
+            for i, quad in zip(corner_levels, quads, strict=True):
+                lm = by_level[LEVELS[i]]
+                lm.pop("point")
+                lm["corners"] = quad.tolist()
+        if pedicle_levels:
+            centres = project(pedicle_centres_3d(positions, rotations, pedicle_levels, size), e_c, e_r, scale, T)
+            for i, pair in zip(pedicle_levels, centres, strict=True):
+                by_level[LEVELS[i]]["pedicles"] = pair.tolist()
     if lateral_levels:
         payload["lateral"] = _view(
             positions, lateral_levels, LATERAL_ORIENTATION, scale, translation, noise_mm, rng

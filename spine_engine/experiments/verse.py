@@ -4,6 +4,13 @@ Each spine of a VerSe split (vertebral centroids T1..L5, LPS mm) is projected on
 (and, for the PA+L case, a lateral view) by weak perspective; T1 and L5 are given from the truth
 (position, and directors built from the centreline by ``frames_from_centreline``); the spine is
 reconstructed and its 3D error measured per spine and per level. Tune on ``dev``, report ``test``.
+
+``--clinical`` adds the cases of issue #5 (``CLINICAL_CASES``) to the 17 PA points: the two
+pedicle centres of every vertebra on the PA view, derived from the truth frames with the
+engine's offsets (``observations.pedicle_offsets_mm``; the truth frames carry no axial rotation,
+so these say "not rotated"), and/or four corners per vertebra (a box of the table's width and
+height around each truth frame, ``truth.vertebra_corners_3d``); it also reports the axial
+rotation error.
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..anatomy import Profile, load_profile
-from ..frames import frames_from_centreline
+from ..frames import axial_rotation_deg, frames_from_centreline
 from ..levels import LEVELS, N_LEVELS
 from ..measures import compute_measures
 from ..reconstruction import build_problem, solve
@@ -29,6 +36,14 @@ CASES: dict[str, tuple[list[int], list[int] | None]] = {
     "PA-17": (list(range(N_LEVELS)), None),
     "PA-17+L-17": (list(range(N_LEVELS)), list(range(N_LEVELS))),
 }
+ALL_LEVELS = list(range(N_LEVELS))
+CLINICAL_CASES: dict[str, dict[str, list[int]]] = {
+    "PA-17+pedicles": {"pedicle_levels": ALL_LEVELS},
+    "PA-17+corners": {"corner_levels": ALL_LEVELS},
+    "PA-17+corners+pedicles": {"corner_levels": ALL_LEVELS, "pedicle_levels": ALL_LEVELS},
+}
+"""PA-17 plus clinical landmarks (keyword arguments of ``truth.payload_from_truth``)."""
+CLINICAL_REPORT = ["PA-17", "PA-17+pedicles", "PA-17+corners", "PA-17+corners+pedicles", "PA-17+L-17"]
 
 
 def default_data_dir() -> Path:
@@ -46,6 +61,8 @@ class SpineOutcome:
     lordosis_error_deg: float
     registration_error_mm: float
     converged: bool
+    axial_rotation_error_deg: float = 0.0
+    """Mean |ψ − ψ_truth| over T2..L4, degrees (``frames.axial_rotation_deg``)."""
 
 
 def reconstruct_spine(
@@ -57,9 +74,15 @@ def reconstruct_spine(
     clinician's or a detector's landmark error; the boundary poses stay exact.
     """
     rotations = frames_from_centreline(positions)
-    pa_levels, lateral_levels = CASES[case]
+    extra: dict[str, list[int]] = {}
+    if case in CLINICAL_CASES:
+        pa_levels, lateral_levels, extra = ALL_LEVELS, None, CLINICAL_CASES[case]
+    else:
+        pa_levels, lateral_levels = CASES[case]
     rng = np.random.default_rng([seed, sum(map(ord, spine_id))])
-    payload = payload_from_truth(positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng)
+    payload = payload_from_truth(
+        positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng, **extra  # type: ignore[arg-type]
+    )
     model = validate_payload(payload)
     problem = build_problem(model, profile)
     out, _ = solve(problem, profile)
@@ -72,6 +95,9 @@ def reconstruct_spine(
         lordosis_error_deg=abs(recon_m.lumbar_lordosis_l1_l5_deg - truth_m.lumbar_lordosis_l1_l5_deg),
         registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
         converged=out.converged,
+        axial_rotation_error_deg=float(
+            np.mean(np.abs(axial_rotation_deg(out.rotations) - axial_rotation_deg(rotations))[1:-1])
+        ),
     )
 
 
@@ -96,6 +122,7 @@ def summary(case: str, outcomes: list[SpineOutcome]) -> dict[str, Any]:
         "mean_registration_error_mm": float(np.mean([o.registration_error_mm for o in outcomes])),
         "kyphosis_mae_deg": float(np.mean([o.kyphosis_error_deg for o in outcomes])),
         "lordosis_mae_deg": float(np.mean([o.lordosis_error_deg for o in outcomes])),
+        "axial_rotation_mae_deg": float(np.mean([o.axial_rotation_error_deg for o in outcomes])),
         "not_converged": int(sum(not o.converged for o in outcomes)),
         "per_level_mean_mm": dict(zip(LEVELS, per_level.mean(axis=0).round(3).tolist(), strict=True)),
         "per_spine": [
@@ -130,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", default="default")
     parser.add_argument("--noise-mm", type=float, default=0.0, help="landmark noise SD, detector mm")
     parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
+    parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases (issue #5)")
+    parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
     args = parser.parse_args(argv)
     path = (args.data or default_data_dir()) / f"{args.split}.csv"
     if not path.is_file():
@@ -137,16 +166,23 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     spines = read_verse(path)
     profile = load_profile(args.profile)
-    summaries = [summary(case, evaluate(spines, case, profile, args.noise_mm)) for case in CASES]
+    cases = CLINICAL_REPORT if args.clinical else list(CASES)
+    summaries = [summary(case, evaluate(spines, case, profile, args.noise_mm)) for case in cases]
     columns = ["case", "spines", "mean_3d_error_mm", "max_3d_error_mm", "mean_registration_error_mm",
                "kyphosis_mae_deg", "lordosis_mae_deg", "not_converged"]
+    if args.clinical:
+        columns.insert(-1, "axial_rotation_mae_deg")
     print(format_table(columns, [[s[c] for c in columns] for s in summaries]))
     print()
     print(format_table(["level", *[s["case"] for s in summaries]],
                        [[lv, *[s["per_level_mean_mm"][lv] for s in summaries]] for lv in LEVELS]))
-    stem = f"verse-{args.split}" + (f"-noise{args.noise_mm:g}" if args.noise_mm else "")
+    stem = f"verse-{args.split}" + ("-clinical" if args.clinical else "") + (
+        f"-noise{args.noise_mm:g}" if args.noise_mm else ""
+    )
     write_json(args.out / f"{stem}.json",
                {"data": str(path), "profile": args.profile, "noise_mm": args.noise_mm, "cases": summaries})
     plot(summaries, args.out / f"{stem}.png")
+    if args.plot:
+        plot(summaries, args.plot)
     print(f"wrote {args.out}/{stem}.json and .png")
     return 0

@@ -1,0 +1,337 @@
+"""Clinical inputs of a payload as arrays: corners, pedicles, the tilt prior, and a spine placed
+without boundary conditions. Used by ``reconstruction.build_problem``; pure functions on arrays
+and validated payload models, nothing of JSON.
+
+Without boundary conditions (``place_without_boundary``) the T1 and L5 poses that the registration
+holds fixed are estimated from the generic rest model and the PA landmarks:
+
+* **Scale and translation of the PA view**: given, or else s = (length of the PA landmarks'
+  polyline in the image) / (length of the generic spine's frontal projection through the same
+  levels), and T puts T1's landmark at the patient origin. The patient is then as long as the
+  generic spine: lengths in mm are the model's (``fit.unreliable`` has "scale").
+* **In-plane coordinates** of every PA-landmarked level are (p − T)/s; levels without a landmark
+  are interpolated along the generic spine's arc length.
+* **Depth** (along the image normal e_c × e_r) is the generic spine's, unless a lateral view gives
+  it: with its projection when given, else with the PA scale and T1's generic depth.
+* **Directors** of T1 and L5 follow that centreline (``frames.frames_from_centreline``: d3 the
+  one-sided tangent, d1 the patient-left axis made orthogonal to it, no axial rotation), turned
+  about the frontal normal so that their frontal tilt is the corners' (when given) or the tilt
+  prior's (when on).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from .anatomy import Profile, rest_model
+from .frames import frames_from_centreline
+from .levels import LEVEL_INDEX, N_LEVELS
+from .models import JobPayload, LateralView, PAView, Unreliable
+from .observations import (
+    chord_angles_deg,
+    corner_geometry,
+    frontal_tilt_deg_of_image_vectors,
+    image_vectors_of_frontal_tilt,
+    inferior_midpoint_offsets,
+    pedicle_offsets_in_image_order,
+    tilt_weight,
+    transverse_director,
+)
+from .projection import image_axes
+from .registration import ViewData
+from .rotations import exp_so3
+from .tilt_prior import TiltPrior, predict_tilts_deg
+
+FloatArray = npt.NDArray[np.float64]
+Pose = tuple[FloatArray, FloatArray]
+
+_X = np.array([1.0, 0.0, 0.0])
+_Y = np.array([0.0, 1.0, 0.0])
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class LandmarkArrays:
+    """One view's landmarks in detector mm, sorted by level: level indices (k,), the fitted point
+    (k, 2) (the given point, or the superior endplate midpoint of the corners), corners (k, 4, 2)
+    and pedicles (k, 2, 2) with NaN where a landmark has none."""
+
+    indices: npt.NDArray[np.intp]
+    points: FloatArray
+    corners: FloatArray
+    pedicles: FloatArray
+
+    @property
+    def has_corners(self) -> npt.NDArray[np.bool_]:
+        return np.asarray(np.isfinite(self.corners[:, 0, 0]))
+
+    @property
+    def has_pedicles(self) -> npt.NDArray[np.bool_]:
+        return np.asarray(np.isfinite(self.pedicles[:, 0, 0]))
+
+
+def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
+    """Arrays of a validated view; px are multiplied by the DICOM pixel spacing [row, column]."""
+    _, e_r = image_axes(view.patient_orientation)
+    k = len(view.landmarks)
+    spacing = np.ones(2)
+    if view.units == "px":
+        assert view.pixel_spacing is not None  # validate_payload guarantees it
+        row_spacing, column_spacing = view.pixel_spacing
+        spacing = np.array([column_spacing, row_spacing])
+    indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=np.intp)
+    corners = np.full((k, 4, 2), np.nan)
+    pedicles = np.full((k, 2, 2), np.nan)
+    points = np.full((k, 2), np.nan)
+    for i, lm in enumerate(view.landmarks):
+        if lm.corners is not None:
+            corners[i] = np.asarray(lm.corners, dtype=float) * spacing
+        else:
+            assert lm.point is not None  # Landmark guarantees exactly one of point / corners
+            points[i] = np.asarray(lm.point, dtype=float) * spacing
+        if lm.pedicles is not None:
+            pedicles[i] = np.asarray(lm.pedicles, dtype=float) * spacing
+    with_corners = np.isfinite(corners[:, 0, 0])
+    if with_corners.any():
+        points[with_corners] = corner_geometry(corners[with_corners], e_r).superior_midpoint
+    return LandmarkArrays(indices, points, corners, pedicles)
+
+
+def is_frontal(e_c: FloatArray, e_r: FloatArray) -> bool:
+    """Columns along ±x and rows along ±z: a PA or AP radiograph shown upright."""
+    return abs(float(e_c @ _X)) == 1.0 and abs(float(e_r @ _Z)) == 1.0
+
+
+def chords_by_level(arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> FloatArray:
+    """Frontal chord angles (16,) between consecutive levels, NaN where a level has no landmark."""
+    points = np.full((N_LEVELS, 2), np.nan)
+    points[arrays.indices] = arrays.points
+    return chord_angles_deg(points, e_c, e_r)
+
+
+def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> FloatArray:
+    """Tilt predicted by the prior for every level (17,), NaN where a needed chord is missing."""
+    return predict_tilts_deg(prior, chords_by_level(arrays, e_c, e_r))
+
+
+def generic_arc_scale(profile: Profile, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> float:
+    """(length of the landmarks' polyline, detector mm) / (length of the generic spine's projection
+    through the same levels, mm): the scale s that makes the patient as long as the generic spine."""
+    generic = rest_model(profile).positions[arrays.indices]
+    generic_2d = np.stack([generic @ e_c, generic @ e_r], axis=1)
+    image = float(np.linalg.norm(np.diff(arrays.points, axis=0), axis=1).sum())
+    model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
+    if not (image > 0.0 and model > 0.0):
+        raise ValueError("the landmarks do not span a length: cannot estimate the scale")
+    return image / model
+
+
+def size_factor(profile: Profile, view: ViewData) -> float:
+    """Patient size relative to the generic spine: the PA landmarks' polyline in patient mm over the
+    generic spine's frontal projection through the same levels (1 with fewer than 2 landmarks)."""
+    if len(view.indices) < 2:
+        return 1.0
+    generic = rest_model(profile).positions[view.indices]
+    generic_2d = np.stack([generic @ view.e_c, generic @ view.e_r], axis=1)
+    patient = float(np.linalg.norm(np.diff(np.asarray(view.points) / view.scale, axis=0), axis=1).sum())
+    model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
+    return patient / model if patient > 0.0 and model > 0.0 else 1.0
+
+
+def with_observations(
+    data: ViewData,
+    arrays: LandmarkArrays,
+    *,
+    size: float,
+    prior: TiltPrior | None,
+) -> tuple[ViewData, list[str], list[str]]:
+    """``data`` with its tilt observations (corners; the prior for point-only levels when ``prior``)
+    and offset-point observations (inferior endplate midpoints of corners, pedicle centres; offsets
+    × ``size``); also the source of each tilt ("corners", "prior") and of each offset point
+    ("inferior_midpoint", "image_left", "image_right"), in order."""
+    e_c, e_r = np.asarray(data.e_c), np.asarray(data.e_r)
+    tilt_idx: list[int] = []
+    tilt_dirs: list[FloatArray] = []
+    tilt_w: list[float] = []
+    sources: list[str] = []
+    offset_idx: list[npt.NDArray[np.intp]] = []
+    offset_vec: list[FloatArray] = []
+    offset_col: list[FloatArray] = []
+    offset_sources: list[str] = []
+    with_corners = arrays.has_corners
+    if with_corners.any():
+        geometry = corner_geometry(arrays.corners[with_corners], e_r)
+        levels = arrays.indices[with_corners]
+        tilt_idx += levels.tolist()
+        tilt_dirs += list(geometry.transverse)
+        tilt_w += tilt_weight(levels, data.weight).tolist()
+        sources += ["corners"] * len(levels)
+        offset_idx.append(levels)
+        offset_vec.append(inferior_midpoint_offsets(levels, size))
+        offset_col.append(geometry.inferior_midpoint[:, 0])
+        offset_sources += ["inferior_midpoint"] * len(levels)
+    if prior is not None and is_frontal(e_c, e_r):
+        predicted = prior_tilts_deg(prior, arrays, e_c, e_r)
+        levels = arrays.indices[~with_corners]
+        levels = levels[np.isfinite(predicted[levels])]
+        if len(levels):
+            tilt_idx += levels.tolist()
+            tilt_dirs += list(image_vectors_of_frontal_tilt(predicted[levels], e_c, e_r))
+            tilt_w += (prior.weight_fraction * tilt_weight(levels, data.weight)).tolist()
+            sources += ["prior"] * len(levels)
+    extra: dict[str, object] = {}
+    if tilt_idx:
+        extra.update(
+            tilt_indices=np.asarray(tilt_idx, dtype=int),
+            tilt_directions=np.asarray(tilt_dirs, dtype=float),
+            tilt_weights=np.asarray(tilt_w, dtype=float),
+            tilt_director=transverse_director(e_c),
+        )
+    with_pedicles = arrays.has_pedicles
+    if with_pedicles.any():
+        levels = arrays.indices[with_pedicles]
+        offset_idx.append(np.repeat(levels, 2))
+        offset_vec.append(pedicle_offsets_in_image_order(levels, e_c, size))
+        offset_col.append(arrays.pedicles[with_pedicles][:, :, 0].ravel())
+        offset_sources += ["image_left", "image_right"] * len(levels)
+    if offset_idx:
+        extra.update(
+            offset_indices=np.concatenate(offset_idx).astype(int),
+            offset_vectors=np.concatenate(offset_vec),
+            offset_columns=np.concatenate(offset_col),
+        )
+    return (replace(data, **extra) if extra else data), sources, offset_sources  # type: ignore[arg-type]
+
+
+def observed_frontal_tilts(
+    arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """Frontal tilt of each level's corner line (17,) and its superior / inferior endplate tilts
+    (17, 2), NaN where a level has no corners; (None, None) without corners or on a non-frontal view."""
+    with_corners = arrays.has_corners
+    if not with_corners.any() or not is_frontal(e_c, e_r):
+        return None, None
+    g = corner_geometry(arrays.corners[with_corners], e_r)
+    tilt = np.full(N_LEVELS, np.nan)
+    endplates = np.full((N_LEVELS, 2), np.nan)
+    levels = arrays.indices[with_corners]
+    tilt[levels] = frontal_tilt_deg_of_image_vectors(g.transverse, e_c, e_r)
+    endplates[levels, 0] = frontal_tilt_deg_of_image_vectors(g.superior_endplate, e_c, e_r)
+    endplates[levels, 1] = frontal_tilt_deg_of_image_vectors(g.inferior_endplate, e_c, e_r)
+    return tilt, endplates
+
+
+# ---------------------------------------------------------------- no boundary conditions
+
+
+@dataclass(frozen=True)
+class Placement:
+    """T1 and L5 poses placed without boundary conditions, the views' weak perspectives
+    (scale, translation) to use, and what then comes from the model only."""
+
+    top: Pose
+    bottom: Pose
+    pa: tuple[float, FloatArray]
+    lateral: tuple[float, FloatArray] | None
+    pa_estimated: bool
+    lateral_estimated: bool
+    unreliable: list[Unreliable]
+
+
+def _turn_to_frontal_tilt(R: FloatArray, target_deg: float) -> FloatArray:
+    """R turned about the frontal normal (y) so that d1's frontal tilt atan2(d1_z, d1_x) is
+    ``target_deg``: a rotation by a about +y moves every frontal angle by −a, exactly."""
+    current = float(np.degrees(np.arctan2(R[2, 0], R[0, 0])))
+    return np.asarray(exp_so3(np.radians(current - target_deg) * _Y) @ R)
+
+
+def place_without_boundary(
+    model: JobPayload,
+    profile: Profile,
+    pa: LandmarkArrays,
+    lateral: LandmarkArrays | None,
+    prior: TiltPrior | None,
+) -> Placement:
+    """Estimate T1 and L5 poses and the views' projections from the generic spine and the landmarks
+    (module docstring). ``pa`` must have the T1 and L5 landmarks (``validate_payload`` checks)."""
+    e_c, e_r = image_axes(model.pa.patient_orientation)
+    normal = np.cross(e_c, e_r)
+    generic = rest_model(profile).positions
+    if model.pa.projection is not None:
+        s = float(model.pa.projection.scale)
+        T = np.asarray(model.pa.projection.translation, dtype=float)
+        pa_estimated = False
+    else:
+        s = generic_arc_scale(profile, pa, e_c, e_r)
+        T = pa.points[0] - s * np.array([generic[0] @ e_c, generic[0] @ e_r])
+        pa_estimated = True
+    size = size_factor(profile, ViewData("pa", pa.indices, pa.points, e_c, e_r, s, T, 1.0))
+    model_positions = generic * size
+
+    # in-plane coordinates: landmarks where given, generic arc-length interpolation between them
+    inplane = np.full((N_LEVELS, 2), np.nan)
+    inplane[pa.indices] = (pa.points - T) / s
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(model_positions, axis=0), axis=1))])
+    known = np.isfinite(inplane[:, 0])
+    for axis in range(2):
+        inplane[:, axis] = np.interp(arc, arc[known], inplane[known, axis])
+    depth = model_positions @ normal
+
+    lateral_projection: tuple[float, FloatArray] | None = None
+    lateral_estimated = False
+    if lateral is not None and model.lateral is not None and len(lateral.indices):
+        lc, lr = image_axes(model.lateral.patient_orientation)
+        centre = inplane[:, :1] * e_c + inplane[:, 1:] * e_r + depth[:, None] * normal
+        if model.lateral.projection is not None:
+            sl = float(model.lateral.projection.scale)
+            Tl = np.asarray(model.lateral.projection.translation, dtype=float)
+        else:
+            sl = s
+            first = int(np.flatnonzero(lateral.indices == 0)[0])
+            Tl = lateral.points[first] - sl * np.array([centre[0] @ lc, centre[0] @ lr])
+            lateral_estimated = True
+        lateral_projection = (sl, Tl)
+        # depth along the normal of the PA view from the lateral columns (the axis both views share
+        # is the vertical; the lateral column axis lc is the PA normal up to its sign)
+        along = float(lc @ normal)
+        if abs(along) == 1.0:
+            measured = np.full(N_LEVELS, np.nan)
+            measured[lateral.indices] = (lateral.points[:, 0] - Tl[0]) / sl * along
+            ok = np.isfinite(measured)
+            if ok.sum() >= 2:
+                offset = np.interp(arc, arc[ok], measured[ok] - depth[ok])
+                depth = depth + offset
+
+    centreline = inplane[:, :1] * e_c + inplane[:, 1:] * e_r + depth[:, None] * normal
+    frames = frames_from_centreline(centreline)
+    observed, _ = observed_frontal_tilts(pa, e_c, e_r)
+    predicted = prior_tilts_deg(prior, pa, e_c, e_r) if prior is not None and is_frontal(e_c, e_r) else None
+    ends = []
+    for i in (0, N_LEVELS - 1):
+        R = frames[i]
+        if observed is not None and np.isfinite(observed[i]):
+            R = _turn_to_frontal_tilt(R, float(observed[i]))
+        elif predicted is not None and np.isfinite(predicted[i]):
+            R = _turn_to_frontal_tilt(R, float(predicted[i]))
+        ends.append((centreline[i], R))
+
+    unreliable: list[Unreliable] = []
+    if pa_estimated:
+        unreliable.append("scale")
+    depth_known = lateral is not None and len(lateral.indices) >= 2
+    if not depth_known:
+        unreliable += ["depth", "kyphosis", "lordosis", "plane_of_max_curvature"]
+    if not pa.has_pedicles.any():
+        unreliable += ["axial_rotation", "twist"]
+    return Placement(
+        top=ends[0],
+        bottom=ends[1],
+        pa=(s, T),
+        lateral=lateral_projection,
+        pa_estimated=pa_estimated,
+        lateral_estimated=lateral_estimated,
+        unreliable=unreliable,
+    )

@@ -1,0 +1,530 @@
+"""Cobb angles on real PA radiographs (AASCE 2019 / SpineWeb dataset 16): corners and midpoints.
+
+Each radiograph of a split has 4 corners per vertebra T1..L5 annotated by clinicians (pixels,
+``landmarks_px_from_mat.csv``) and three Cobb angles (``angles.csv``: the major curve first, then
+the curves above and below it) measured on those corners by the data set's own script. Per
+radiograph, with no boundary conditions (the data has no 3D):
+
+* (a) **corners**: the 68 corners go into the payload; ``measures.cobb``'s major curve uses the
+  corner lines' tilts (the definition the angles were measured with);
+* (a-model) the same fit, the major angle from the reconstructed vertebrae's d1 instead;
+* (b) **midpoints**: only the 17 superior endplate midpoints (the paper's form), through the
+  reconstruction with the tilt prior (``spine_engine.tilt_prior``, calibrated on ``training``);
+* (b-no-prior) the same without the prior, and (b-line) the straight-chord baseline: each
+  vertebra perpendicular to the chords of its midpoints (mean of the chords above and below).
+
+Reported: the mean absolute error of the major angle and the challenge's SMAPE over the three
+angles (per radiograph Σ|a − b| / Σ(a + b) × 100, averaged), the latter with the dataset script's
+rules for the two minor angles (``aasce_angles``) applied to each method's vertebra axes.
+Pixels are taken as square (pixel spacing [1, 1]: the data has no mm scale; angles do not depend
+on it). ``--calibrate`` fits the tilt prior on ``training`` (never on ``test``) and writes it.
+The data is read from its folder and never copied into the repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
+from ..errors import FitFailed
+from ..levels import LEVELS, N_LEVELS
+from ..measures import frontal_tilt_deg, major_first_curves
+from ..observations import chord_angles_deg
+from ..projection import image_axes
+from ..reconstruction import register
+from ..tilt_prior import (
+    DEFAULT_PRIOR,
+    PRIORS_DIR,
+    WINDOW,
+    TiltPrior,
+    fit_coefficients,
+    load_tilt_prior,
+    predict_tilts_deg,
+    save_tilt_prior,
+)
+from .report import format_table, write_json
+
+DATE = "2026-11-22"
+PA = ("L", "F")
+PLAUSIBLE_CHORD_DEG = 60.0
+"""A radiograph whose superior endplate midpoints make a chord steeper than this (or going up) has
+a misplaced landmark (e.g. an L5 annotated at the top of the image): left out of calibration."""
+WEIGHT_FRACTIONS = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+"""Candidate weights of the prior's tilts relative to corner tilts, tried on ``training``."""
+
+
+def default_data_dir() -> Path:
+    """``$SPINE_SHARED_DATA/aasce2019``, else ``../shared/data/aasce2019`` beside the repository."""
+    env = os.environ.get("SPINE_SHARED_DATA")
+    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    return base / "aasce2019"
+
+
+@dataclass(frozen=True)
+class Radiograph:
+    name: str
+    height_px: float
+    corners: np.ndarray  # (17, 4, 2) px: top-left, top-right, bottom-left, bottom-right
+    angles: np.ndarray  # (3,) degrees: major, above, below
+
+
+def read_split(folder: Path) -> list[Radiograph]:
+    """Radiographs of a split folder: ``landmarks_px_from_mat.csv`` (header; filename, img_w_est,
+    img_h_est, then x0, y0, …, x67, y67 in pixels, 4 corners per vertebra T1..L5) and
+    ``angles.csv`` (3 columns, same row order; checked against ``filenames.csv``)."""
+    with (folder / "landmarks_px_from_mat.csv").open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    header, rows = rows[0], rows[1:]
+    expected = ["filename", "img_w_est", "img_h_est"] + [f"{a}{k}" for k in range(4 * N_LEVELS) for a in "xy"]
+    if header != expected:
+        raise ValueError(
+            f"{folder}/landmarks_px_from_mat.csv: unexpected header (want filename, img_w_est, "
+            "img_h_est, x0, y0, ..., x67, y67)"
+        )
+    angles = np.loadtxt(folder / "angles.csv", delimiter=",", ndmin=2)
+    names = [line.strip() for line in (folder / "filenames.csv").read_text().splitlines() if line.strip()]
+    if len(rows) != len(angles) or [r[0] for r in rows] != names:
+        raise ValueError(f"{folder}: landmarks, angles and filenames do not list the same radiographs in order")
+    return [
+        Radiograph(r[0], float(r[2]), np.asarray(r[3:], dtype=float).reshape(N_LEVELS, 4, 2), a)
+        for r, a in zip(rows, angles, strict=True)
+    ]
+
+
+# ---------------------------------------------------------------- the data set's Cobb script
+
+
+def _is_s(mid_p_v: np.ndarray) -> bool:
+    """The script's S-shape test on the 34 endplate midpoints (float32 as in the script)."""
+    num = mid_p_v.shape[0]
+    ll = []
+    with np.errstate(divide="ignore", invalid="ignore"):  # as the script: a vertical T1–L5 line gives nan
+        for i in range(num - 2):
+            term1 = (mid_p_v[i, 1] - mid_p_v[num - 1, 1]) / (mid_p_v[0, 1] - mid_p_v[num - 1, 1])
+            term2 = (mid_p_v[i, 0] - mid_p_v[num - 1, 0]) / (mid_p_v[0, 0] - mid_p_v[num - 1, 0])
+            ll.append(term1 - term2)
+        lv = np.asarray(ll, np.float32)[:, None]
+        pair = lv @ lv.T
+        return bool(abs(float(np.sum(pair)) - float(np.sum(np.abs(pair)))) >= 1e-4)
+
+
+def aasce_angles(vectors: np.ndarray, endplate_midpoints: np.ndarray, height_px: float) -> np.ndarray:
+    """The three Cobb angles (degrees) of the AASCE 2019 challenge's script (its Python port of the
+    MATLAB original), from each vertebra's axis vector (17, 2) (left-edge midpoint → right-edge
+    midpoint) and the 34 endplate midpoints (superior, inferior per vertebra, image px):
+
+    angles A_ij = arccos(clip(cos ∠(v_i, v_j), 0, 1)); the major angle is the largest, at row p
+    (the row of the largest row maximum) and column q; if the midpoints are not S-shaped the
+    others are A[0, p] and A[16, q]; if S-shaped and the two ends' midpoints lie in the upper half
+    of the image (row_p + row_q < h), the others are max A[p, :p+1] and max A[q, q:]; else
+    max A[p, :p+1] and max A[p', :p'+1] with p' its argmax."""
+    v = np.asarray(vectors, dtype=np.float32)
+    mid = np.asarray(endplate_midpoints, dtype=np.float32)
+    norms = np.sqrt(np.sum(v**2, axis=1))[:, None]
+    cosine = np.clip((v @ v.T) / (norms @ norms.T), 0.0, 1.0)
+    angles = np.arccos(cosine)
+    pos1 = np.argmax(angles, axis=1)
+    maxt = np.amax(angles, axis=1)
+    pos2 = int(np.argmax(maxt))
+    first = float(np.amax(maxt))
+    vnum = len(v) - 1
+    if not _is_s(mid):
+        second, third = angles[0, pos2], angles[vnum, pos1[pos2]]
+    elif mid[pos2 * 2, 1] + mid[pos1[pos2] * 2, 1] < height_px:
+        second = np.max(angles[pos2, : pos2 + 1])
+        third = np.max(angles[pos1[pos2], pos1[pos2] : vnum + 1])
+    else:
+        row = angles[pos2, : pos2 + 1]
+        second = np.max(row)
+        above = int(np.argmax(row))
+        third = np.max(angles[above, : above + 1])
+    return np.degrees(np.array([first, second, third], dtype=float))
+
+
+def corner_axes(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis vectors (17, 2) and endplate midpoints (34, 2) of annotated corners (17, 4, 2)."""
+    vectors = 0.5 * (corners[:, 1] + corners[:, 3]) - 0.5 * (corners[:, 0] + corners[:, 2])
+    mids = np.empty((2 * N_LEVELS, 2))
+    mids[0::2] = 0.5 * (corners[:, 0] + corners[:, 1])
+    mids[1::2] = 0.5 * (corners[:, 2] + corners[:, 3])
+    return vectors, mids
+
+
+def smape(predicted: np.ndarray, truth: np.ndarray) -> float:
+    """The challenge's symmetric mean absolute percentage error, %: mean over radiographs of
+    Σ_j |a_j − b_j| / Σ_j (a_j + b_j) × 100 over the three angles."""
+    p, t = np.asarray(predicted, dtype=float), np.asarray(truth, dtype=float)
+    return float(np.mean(np.sum(np.abs(p - t), axis=1) / np.sum(p + t, axis=1)) * 100.0)
+
+
+def plausible(rad: Radiograph) -> bool:
+    """No chord of the superior endplate midpoints steeper than ``PLAUSIBLE_CHORD_DEG`` (or going up)."""
+    e_c, e_r = image_axes(PA)
+    mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
+    return bool(np.all(np.abs(chord_angles_deg(mids, e_c, e_r)) <= PLAUSIBLE_CHORD_DEG))
+
+
+# ---------------------------------------------------------------- reconstructions
+
+
+def payload(rad: Radiograph, form: str, tilt_prior: bool | None = None) -> dict[str, Any]:
+    """A no-boundary payload in px (spacing [1, 1]) with corners or superior endplate midpoints."""
+    landmarks = []
+    for level, quad in zip(LEVELS, rad.corners, strict=True):
+        if form == "corners":
+            landmarks.append({"level": level, "corners": quad.tolist()})
+        else:
+            landmarks.append({"level": level, "point": (0.5 * (quad[0] + quad[1])).tolist()})
+    body: dict[str, Any] = {
+        "pa": {"units": "px", "pixel_spacing": [1.0, 1.0], "patient_orientation": list(PA), "landmarks": landmarks}
+    }
+    if tilt_prior is not None:
+        body["options"] = {"tilt_prior": tilt_prior}
+    return body
+
+
+def model_axes(result: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Axis vectors (17, 2) and endplate midpoints (34, 2) of a reconstruction, in image px: each
+    vertebra's d1 projected, its node (superior endplate midpoint) projected, and the node + H·d3
+    projected as the inferior midpoint (H the table's body height × the reconstruction's length
+    over the table's)."""
+    e_c, e_r = image_axes(PA)
+    E = np.stack([e_c, e_r])
+    s = result["fit"]["pa"]["scale"]
+    T = np.asarray(result["fit"]["pa"]["translation"])
+    r = np.array([v["position"] for v in result["vertebrae"]])
+    R = np.array([np.asarray(v["directors"]).T for v in result["vertebrae"]])
+    size = float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum() / rest_segment_lengths().sum())
+    heights = size * np.array([VERTEBRA_TABLE[lv][0] for lv in LEVELS])
+    vectors = R[:, :, 0] @ E.T
+    mids = np.empty((2 * N_LEVELS, 2))
+    mids[0::2] = s * r @ E.T + T
+    mids[1::2] = s * (r + heights[:, None] * R[:, :, 2]) @ E.T + T
+    return vectors, mids
+
+
+def line_axes(rad: Radiograph) -> tuple[np.ndarray, np.ndarray]:
+    """The straight-chord baseline: each vertebra's axis perpendicular to the mean of the chords of
+    the superior endplate midpoints above and below it (one-sided at T1 and L5)."""
+    e_c, e_r = image_axes(PA)
+    mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
+    phi = chord_angles_deg(mids, e_c, e_r)
+    tilt = np.concatenate([[phi[0]], 0.5 * (phi[:-1] + phi[1:]), [phi[-1]]])
+    t = np.radians(tilt)
+    _, endplates = corner_axes(rad.corners)
+    return np.stack([np.cos(t), -np.sin(t)], axis=1), endplates
+
+
+def major_angle(result: dict[str, Any]) -> float:
+    """The major curve's Cobb angle of a result, without the 10° reporting threshold: the largest
+    curve of ``measures.major_first_curves`` on ``vertebrae[].frontal_tilt_deg`` (the tilts
+    ``measures.cobb`` uses: corner lines where given, else the reconstructed d1). It is
+    ``measures.cobb``'s major ``angle_deg`` whenever that curve reaches 10°."""
+    tilt = np.array([v["frontal_tilt_deg"] for v in result["vertebrae"]])
+    curves = major_first_curves(tilt, 0.0)
+    return max((angle for _, _, angle in curves), default=0.0)
+
+
+def in_order(rad: Radiograph) -> bool:
+    """Every superior endplate midpoint lies below (larger row than) the one of the level above."""
+    mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
+    return bool(np.all(np.diff(mids[:, 1]) > 0.0))
+
+
+@dataclass
+class Outcome:
+    major: dict[str, float]
+    three: dict[str, np.ndarray]
+    failed: list[str]
+
+
+def evaluate(rad: Radiograph) -> Outcome:
+    """Every method on one radiograph."""
+    major: dict[str, float] = {}
+    three: dict[str, np.ndarray] = {}
+    failed: list[str] = []
+    vectors, mids = corner_axes(rad.corners)
+    three["script"] = aasce_angles(vectors, mids, rad.height_px)
+
+    def run(name: str, body: dict[str, Any]) -> dict[str, Any] | None:
+        try:
+            return register(body)
+        except FitFailed:
+            failed.append(name)
+            return None
+
+    a = run("corners", payload(rad, "corners", tilt_prior=False))
+    if a is not None:
+        major["corners"] = major_angle(a)
+        major["corners_aasce"] = a["measures"]["aasce2019"]["angle_deg"]
+        three["corners"] = three["script"]  # the corner lines are the script's own vectors
+        mv, mm = model_axes(a)
+        tilt = frontal_tilt_deg(np.array([np.asarray(v["directors"]).T for v in a["vertebrae"]]))
+        major["corners_model"] = float(tilt.max() - tilt.min())
+        three["corners_model"] = aasce_angles(mv, mm, rad.height_px)
+    b = run("midpoints", payload(rad, "midpoints"))
+    if b is not None:
+        major["midpoints"] = major_angle(b)
+        three["midpoints"] = aasce_angles(*model_axes(b), rad.height_px)
+    b0 = run("midpoints_no_prior", payload(rad, "midpoints", tilt_prior=False))
+    if b0 is not None:
+        major["midpoints_no_prior"] = major_angle(b0)
+        three["midpoints_no_prior"] = aasce_angles(*model_axes(b0), rad.height_px)
+    lv, lm = line_axes(rad)
+    three["line"] = aasce_angles(lv, lm, rad.height_px)
+    major["line"] = float(three["line"][0])
+    return Outcome(major, three, failed)
+
+
+METHODS = {
+    "corners": "(a) 4 corners: Cobb of measures.cobb (corner lines)",
+    "corners_model": "(a-model) 4 corners: reconstructed d1",
+    "midpoints": "(b) midpoints + tilt prior, reconstructed d1",
+    "midpoints_no_prior": "(b-no-prior) midpoints, reconstructed d1",
+    "line": "(b-line) midpoints, chord-perpendicular tilts",
+}
+
+
+def summarise(
+    rads: list[Radiograph], outcomes: list[Outcome], subset: np.ndarray | None = None
+) -> list[dict[str, Any]]:
+    truth = np.array([r.angles for r in rads])
+    keep = np.ones(len(rads), dtype=bool) if subset is None else subset
+    rows = []
+    for method, label in METHODS.items():
+        ok = [i for i, o in enumerate(outcomes) if keep[i] and method in o.major and method in o.three]
+        if not ok:
+            continue
+        major = np.array([outcomes[i].major[method] for i in ok])
+        three = np.array([outcomes[i].three[method] for i in ok])
+        err = major - truth[ok, 0]
+        rows.append(
+            {
+                "method": method,
+                "label": label,
+                "radiographs": len(ok),
+                "major_mae_deg": float(np.mean(np.abs(err))),
+                "major_bias_deg": float(np.mean(err)),
+                "major_median_ae_deg": float(np.median(np.abs(err))),
+                "smape_pct": smape(three, truth[ok]),
+                "failed_fits": int(sum(method in outcomes[i].failed for i in range(len(outcomes)) if keep[i])),
+            }
+        )
+    return rows
+
+
+def plot(rads: list[Radiograph], outcomes: list[Outcome], path: Path, title: str) -> None:
+    """Engine against the annotation script's major angle, for (a) corners and (b) midpoints;
+    predictions beyond the axes are drawn on its top edge as triangles and counted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truth = np.array([r.angles[0] for r in rads])
+    top = 95.0
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.6))
+    for ax, method, label in (
+        (axes[0], "corners", "(a) corners"),
+        (axes[1], "midpoints", "(b) midpoints + prior"),
+    ):
+        series = [(method, label, ".")]
+        if method == "midpoints":
+            series.append(("midpoints_no_prior", "(b) without prior", "x"))
+        for name, text, marker in series:
+            ok = [i for i, o in enumerate(outcomes) if name in o.major]
+            pred = np.array([outcomes[i].major[name] for i in ok])
+            inside = pred <= top
+            ax.plot(
+                truth[ok][inside],
+                pred[inside],
+                marker,
+                ms=4 if marker == "." else 3,
+                alpha=1.0 if marker == "." else 0.5,
+                label=text,
+            )
+            if (~inside).any():
+                ax.plot(
+                    truth[ok][~inside],
+                    np.full(int((~inside).sum()), top),
+                    "^",
+                    color="C3",
+                    ms=5,
+                    label=f"{int((~inside).sum())} above {top:.0f}° (misplaced landmarks)",
+                )
+        ok = [i for i, o in enumerate(outcomes) if method in o.major]
+        err = np.mean(np.abs(np.array([outcomes[i].major[method] for i in ok]) - truth[ok]))
+        ax.plot([0, top], [0, top], "k-", lw=0.8)
+        ax.set(
+            xlabel="major Cobb, annotation script (deg)",
+            ylabel="engine (deg)",
+            title=f"{label}: MAE {err:.2f}° (all {len(ok)})",
+            xlim=(0, top),
+            ylim=(0, top + 3),
+        )
+        ax.title.set_fontsize(9)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------- calibration (training only)
+
+
+def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: int | None) -> TiltPrior:
+    """Fit the tilt prior's coefficients on ``training`` (plausible radiographs, major < 90°), check
+    them by 5-fold cross-validation, choose its weight fraction through the reconstruction, write it."""
+    rads = read_split(data / "training")
+    keep = [r for r in rads if plausible(r) and r.angles[0] < 90.0]
+    e_c, e_r = image_axes(PA)
+    tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in keep])
+    chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in keep])
+    major = np.array([r.angles[0] for r in keep])
+    folds = np.random.default_rng(0).integers(0, 5, len(keep))
+    cv_err = np.empty(len(keep))
+    for f in range(5):
+        coefficients = fit_coefficients(tilts[folds != f], chords[folds != f])
+        prior = TiltPrior("cv", WINDOW, coefficients, 1.0)
+        predicted = predict_tilts_deg(prior, chords[folds == f])
+        cv_err[folds == f] = predicted.max(axis=1) - predicted.min(axis=1) - major[folds == f]
+    coefficients = fit_coefficients(tilts, chords)
+    path = PRIORS_DIR / f"{DEFAULT_PRIOR}.json"
+    subset = keep if limit is None else keep[:limit]
+    scores = {}
+    for fraction in fractions:
+        save_tilt_prior(TiltPrior(DEFAULT_PRIOR, WINDOW, coefficients, fraction), path)
+        load_tilt_prior.cache_clear()
+        outcomes = [evaluate_midpoints(r) for r in subset]
+        scores[fraction] = float(np.nanmean(np.abs(np.array(outcomes) - np.array([r.angles[0] for r in subset]))))
+        print(
+            f"weight fraction {fraction:6.3g}: training major MAE {scores[fraction]:.2f}° ({len(subset)} radiographs)"
+        )
+    best = min(scores, key=lambda f: scores[f])
+    provenance = {
+        "method": "constrained least squares (sum of coefficients 1, ridge 1e-3) of each vertebra's corner-line "
+        "tilt on the frontal angles of the chords of the superior endplate midpoints, window (-2, -1, 0, +1); "
+        "weight fraction chosen by the major Cobb MAE through the reconstruction "
+        "(spine_engine.experiments.aasce --calibrate)",
+        "command": "spine bench aasce --calibrate" + (f" --limit {limit}" if limit else ""),
+        "training_set": f"AASCE 2019 training split: {len(keep)} of {len(rads)} radiographs (left out: a chord "
+        f"steeper than {PLAUSIBLE_CHORD_DEG}° or a major angle >= 90°); never the test split",
+        "cv_5fold_prior_only_major_mae_deg": round(float(np.mean(np.abs(cv_err))), 3),
+        "cv_5fold_prior_only_major_bias_deg": round(float(np.mean(cv_err)), 3),
+        "weight_fraction_training_major_mae_deg": {str(k): round(v, 3) for k, v in scores.items()},
+        "data": "AASCE 2019 / SpineWeb dataset 16 (Wu et al., MICCAI 2017; Med Image Anal 2018); evaluation use only",
+        "date": DATE,
+    }
+    prior = TiltPrior(DEFAULT_PRIOR, WINDOW, coefficients, best, provenance)
+    save_tilt_prior(prior, path)
+    load_tilt_prior.cache_clear()
+    write_json(out_dir / "calibration.json", {"weight_fraction": best, "provenance": provenance})
+    print(
+        f"5-fold CV of the prior alone on training: major MAE {np.mean(np.abs(cv_err)):.2f}°, "
+        f"bias {np.mean(cv_err):+.2f}°; chosen weight fraction {best}; wrote {path}"
+    )
+    return prior
+
+
+def frontal_tilt_deg_of_corners(corners: np.ndarray) -> np.ndarray:
+    """Frontal tilt (17,) of annotated corner lines on a PA ["L", "F"] image, degrees."""
+    from ..observations import frontal_tilt_deg_of_image_vectors
+
+    e_c, e_r = image_axes(PA)
+    vectors, _ = corner_axes(corners)
+    return frontal_tilt_deg_of_image_vectors(vectors, e_c, e_r)
+
+
+def evaluate_midpoints(rad: Radiograph) -> float:
+    """Major angle of the midpoints method with the shipped prior (NaN when the fit fails)."""
+    try:
+        return major_angle(register(payload(rad, "midpoints")))
+    except FitFailed:
+        return float("nan")
+
+
+# ---------------------------------------------------------------- command
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench aasce", description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="AASCE 2019 folder with training/ and test/")
+    parser.add_argument("--split", choices=["training", "test"], default="test")
+    parser.add_argument("--calibrate", action="store_true", help="fit the tilt prior on training and write it")
+    parser.add_argument("--limit", type=int, default=None, help="only the first N radiographs (quick runs)")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/aasce"))
+    parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
+    args = parser.parse_args(argv)
+    data = args.data or default_data_dir()
+    if not (data / args.split / "landmarks_px_from_mat.csv").is_file():
+        print(f"error: AASCE 2019 data not found at {data} (pass --data or set SPINE_SHARED_DATA)")
+        return 2
+    start = time.perf_counter()
+    if args.calibrate:
+        calibrate(data, args.out, WEIGHT_FRACTIONS, args.limit)
+    rads = read_split(data / args.split)[: args.limit]
+    outcomes = [evaluate(r) for r in rads]
+    ordered = np.array([in_order(r) for r in rads])
+    ok = np.array([plausible(r) for r in rads])
+    columns = [
+        "method",
+        "radiographs",
+        "major_mae_deg",
+        "major_bias_deg",
+        "major_median_ae_deg",
+        "smape_pct",
+        "failed_fits",
+    ]
+    tables = {
+        "all": summarise(rads, outcomes),
+        "in_order": summarise(rads, outcomes, ordered),
+        "plausible": summarise(rads, outcomes, ok),
+    }
+    print(f"AASCE 2019 {args.split}: all {len(rads)} radiographs")
+    print(format_table(columns, [[r[c] for c in columns] for r in tables["all"]]))
+    print(f"\n{int(ordered.sum())} radiographs whose superior endplate midpoints go down the image level by level:")
+    print(format_table(columns, [[r[c] for c in columns] for r in tables["in_order"]]))
+    print(f"\n{int(ok.sum())} radiographs with no midpoint chord steeper than {PLAUSIBLE_CHORD_DEG}°:")
+    print(format_table(columns, [[r[c] for c in columns] for r in tables["plausible"]]))
+    exact = [
+        abs(o.major["corners"] - o.major["corners_aasce"])
+        for o in outcomes
+        if "corners" in o.major and o.major["corners"] < 90.0
+    ]
+    script = np.array([o.three["script"] for o in outcomes])
+    truth = np.array([r.angles for r in rads])
+    print(f"\nmajor of measures.cobb vs measures.aasce2019 (same corners, < 90°): max |difference| {max(exact):.2e}°")
+    print(
+        f"script port vs angles.csv: MAE {np.mean(np.abs(script - truth), axis=0).round(4).tolist()} "
+        f"(major, above, below)"
+    )
+    write_json(
+        args.out / f"aasce-{args.split}.json",
+        {
+            "data": str(data / args.split),
+            "date": DATE,
+            **tables,
+            "out_of_order": [r.name for r, k in zip(rads, ordered, strict=True) if not k],
+            "implausible": [r.name for r, k in zip(rads, ok, strict=True) if not k],
+            "per_radiograph": [
+                {"name": r.name, "truth": r.angles.tolist(), "major": o.major, "failed": o.failed}
+                for r, o in zip(rads, outcomes, strict=True)
+            ],
+        },
+    )
+    title = f"AASCE 2019 {args.split} split, {len(rads)} radiographs"
+    plot(rads, outcomes, args.out / f"aasce-{args.split}.png", title)
+    if args.plot:
+        plot(rads, outcomes, args.plot, title)
+    print(f"wrote {args.out}/aasce-{args.split}.json and .png in {time.perf_counter() - start:.0f} s")
+    return 0

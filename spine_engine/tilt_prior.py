@@ -1,0 +1,111 @@
+"""A calibrated prior on the frontal tilt of vertebrae given by their endplate midpoint only.
+
+The midpoints fix where the vertebrae are, not how they are tilted: on real radiographs a
+vertebra's transverse axis (the AASCE line from its left-edge midpoint to its right-edge
+midpoint) is not perpendicular to the local chord of the midpoints, and the Cobb angle of a
+chord-perpendicular model misses by about 12–14° on AASCE 2019 (docs/accuracy.md). The prior
+predicts each vertebra's frontal tilt from the frontal angles of the chords near it,
+
+    θ̂_i = Σ_k c_ik φ_clip(i+k),   k ∈ ``WINDOW`` = (−2, −1, 0, +1),   Σ_k c_ik = 1,
+
+with φ_j the angle of the chord from landmark j to j + 1 (``observations.chord_angles_deg``,
+degrees) and indices clipped to the chords that exist (0..15). Σ c = 1 makes the prediction turn
+with the image; no intercept keeps it mirror-symmetric (a left curve is a mirrored right one).
+The coefficients are constrained least squares on the ``training`` split of AASCE 2019 only,
+written by ``spine bench aasce --calibrate`` (``spine_engine/priors/tilt_aasce2019.json``, with
+its provenance). In the registration each predicted tilt is a soft tilt observation
+(``registration.ViewData``), weighted ``weight_fraction`` × the weight of a tilt from corners.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .levels import N_LEVELS
+
+FloatArray = npt.NDArray[np.float64]
+
+PRIORS_DIR = Path(__file__).resolve().parent / "priors"
+DEFAULT_PRIOR = "tilt_aasce2019"
+WINDOW: tuple[int, ...] = (-2, -1, 0, 1)
+"""Chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1)."""
+
+
+@dataclass(frozen=True)
+class TiltPrior:
+    """Coefficients c (17, len(window)) of the tilt prior, the relative weight of its
+    observations, and where they come from."""
+
+    name: str
+    window: tuple[int, ...]
+    coefficients: FloatArray
+    weight_fraction: float
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+
+def chord_windows(window: tuple[int, ...] = WINDOW) -> npt.NDArray[np.intp]:
+    """Chord indices (17, len(window)) feeding each vertebra: i + k clipped to 0..15."""
+    return np.clip(np.arange(N_LEVELS)[:, None] + np.asarray(window)[None, :], 0, N_LEVELS - 2)
+
+
+def predict_tilts_deg(prior: TiltPrior, chord_deg: npt.ArrayLike) -> FloatArray:
+    """Predicted frontal tilt (degrees) of each vertebra (..., 17) from the 16 chord angles (..., 16);
+    NaN where a needed chord is missing (NaN in ``chord_deg``)."""
+    phi = np.asarray(chord_deg, dtype=float)
+    features = phi[..., chord_windows(prior.window)]
+    return np.einsum("...ik,ik->...i", features, prior.coefficients)
+
+
+def fit_coefficients(
+    tilts_deg: npt.ArrayLike, chord_deg: npt.ArrayLike, window: tuple[int, ...] = WINDOW, ridge: float = 1e-3
+) -> FloatArray:
+    """Least-squares coefficients (17, len(window)) with Σ_k c_ik = 1, per vertebra i:
+
+        min_c ‖X_i c − θ_i‖² + λ‖c‖²  subject to 1ᵀc = 1
+
+    (X_i the chord angles of the window, θ_i the observed tilts, over the n training spines),
+    solved from its KKT system [XᵀX + λI, 1; 1ᵀ, 0] [c; μ] = [Xᵀθ; 1]. tilts (n, 17), chords (n, 16)."""
+    T = np.asarray(tilts_deg, dtype=float)
+    P = np.asarray(chord_deg, dtype=float)
+    idx = chord_windows(window)
+    k = len(window)
+    coefficients = np.empty((N_LEVELS, k))
+    for i in range(N_LEVELS):
+        X = P[:, idx[i]]
+        kkt = np.zeros((k + 1, k + 1))
+        kkt[:k, :k] = X.T @ X + ridge * np.eye(k)
+        kkt[:k, k] = kkt[k, :k] = 1.0
+        rhs = np.concatenate([X.T @ T[:, i], [1.0]])
+        coefficients[i] = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:k]
+    return coefficients
+
+
+def save_tilt_prior(prior: TiltPrior, path: Path) -> None:
+    data = {
+        "name": prior.name,
+        "window": list(prior.window),
+        "coefficients": np.round(prior.coefficients, 6).tolist(),
+        "weight_fraction": prior.weight_fraction,
+        "provenance": prior.provenance,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+
+
+@lru_cache(maxsize=4)
+def load_tilt_prior(name: str = DEFAULT_PRIOR) -> TiltPrior:
+    """The shipped prior ``spine_engine/priors/<name>.json``."""
+    data = json.loads((PRIORS_DIR / f"{name}.json").read_text(encoding="utf-8"))
+    coefficients = np.asarray(data["coefficients"], dtype=float)
+    window = tuple(int(k) for k in data["window"])
+    if coefficients.shape != (N_LEVELS, len(window)):
+        raise ValueError(f"tilt prior {name!r}: coefficients must be (17, {len(window)}), got {coefficients.shape}")
+    coefficients.setflags(write=False)
+    return TiltPrior(data["name"], window, coefficients, float(data["weight_fraction"]), data.get("provenance", {}))
