@@ -1,10 +1,12 @@
 """Turn a raw payload (a JSON object) into a validated ``JobPayload`` or a typed ``InvalidInput``."""
 
+import itertools
 from typing import Any
 
 from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput
+from .levels import LEVEL_INDEX, LEVELS
 from .models import JobPayload, LateralView, PAView
 
 _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
@@ -49,6 +51,45 @@ def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> li
     return errors
 
 
+def _reference_row(landmark: dict[str, Any]) -> float | None:
+    """Image row of a raw landmark's top endplate midpoint: its point, or the mean of its top corners."""
+    if landmark.get("point") is not None:
+        return float(landmark["point"][1])
+    if landmark.get("corners") is not None:
+        return 0.5 * (float(landmark["corners"][0][1]) + float(landmark["corners"][1][1]))
+    return None
+
+
+def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+    """On an upright view (rows toward F or H) the levels must follow each other head to feet.
+
+    A vertebra drawn above the one cranial to it is an annotation error (swapped or misplaced
+    landmarks) that no spine can have; it is refused rather than reconstructed into nonsense.
+    Locations use the payload's own indices.
+    """
+    row_direction = view.patient_orientation[1]
+    if row_direction not in _UPRIGHT_ROWS or not isinstance(raw, dict) or not isinstance(raw.get("landmarks"), list):
+        return []
+    toward_feet = 1.0 if row_direction == "F" else -1.0
+    placed = sorted(
+        (LEVEL_INDEX[lm["level"]], i, row)
+        for i, lm in enumerate(raw["landmarks"])
+        if (row := _reference_row(lm)) is not None
+    )
+    errors = []
+    for (_, _, upper_row), (lower, i, lower_row) in itertools.pairwise(placed):
+        if (lower_row - upper_row) * toward_feet <= 0:
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i),
+                    f"level {LEVELS[lower]} (row {lower_row:g}) is not below the level above it (row {upper_row:g}): "
+                    f"on an image whose rows run toward {row_direction}, landmarks must run head to feet",
+                    "landmarks_out_of_order",
+                )
+            )
+    return errors
+
+
 def _view_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
     errors = []
     if view.units == "px" and view.pixel_spacing is None:
@@ -78,7 +119,8 @@ def validate_payload(payload: Any) -> JobPayload:
     projection a view must have the T1 and L5 landmarks to estimate it. A landmark has exactly
     one of ``point`` / ``corners`` (the error names the field: ``point`` when neither is given,
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
-    with columns L or R. Without ``boundary`` the PA view needs T1 and L5 landmarks.
+    with columns L or R. Without ``boundary`` the PA view needs T1 and L5 landmarks. On an
+    upright view the landmarks must run head to feet in level order.
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -94,9 +136,11 @@ def validate_payload(payload: Any) -> JobPayload:
             ]
         ) from None
     errors = _view_errors("pa", model.pa) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    errors += _order_errors("pa", model.pa, payload.get("pa"))
     if model.lateral is not None:
         errors += _view_errors("lateral", model.lateral)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
+        errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
     if model.boundary is None and model.pa.projection is not None:
         levels = {lm.level for lm in model.pa.landmarks}
         missing = [lv for lv in ("T1", "L5") if lv not in levels]

@@ -139,3 +139,25 @@ def test_every_error_is_reported_at_once() -> None:
     p["boundary"]["T1"]["directors"][0] = [2.0, 0.0, 0.0]
     p["options"] = {"profile": 3}
     assert len(errors_of(p)) == 3
+
+
+def test_landmarks_out_of_head_to_feet_order() -> None:
+    p = good()
+    p["pa"]["landmarks"] = [
+        {"level": "L5", "point": [101.0, 500.0]},
+        {"level": "T1", "point": [100.0, 50.0]},
+        {"level": "T8", "point": [104.0, 600.0]},  # drawn below L5
+    ]
+    errors = errors_of(p)
+    assert [(path, kind) for path, kind, _ in errors] == [("pa.landmarks[0]", "landmarks_out_of_order")]
+    assert "L5" in errors[0][2]
+
+
+def test_order_follows_the_row_direction() -> None:
+    p = good()
+    p["pa"]["patient_orientation"] = ["L", "H"]  # rows toward the head: T1 has the largest row
+    with pytest.raises(InvalidInput):
+        validate_payload(p)
+    for lm in p["pa"]["landmarks"]:
+        lm["point"][1] = 1000.0 - lm["point"][1]
+    validate_payload(p)

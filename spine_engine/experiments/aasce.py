@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
-from ..errors import FitFailed
+from ..errors import FitFailed, InvalidInput
 from ..levels import LEVELS, N_LEVELS
 from ..measures import frontal_tilt_deg, major_first_curves
 from ..observations import chord_angles_deg
@@ -257,7 +257,7 @@ def evaluate(rad: Radiograph) -> Outcome:
     def run(name: str, body: dict[str, Any]) -> dict[str, Any] | None:
         try:
             return register(body)
-        except FitFailed:
+        except (FitFailed, InvalidInput):  # refused annotations count as not reconstructed
             failed.append(name)
             return None
 
@@ -315,7 +315,7 @@ def summarise(
                 "major_bias_deg": float(np.mean(err)),
                 "major_median_ae_deg": float(np.median(np.abs(err))),
                 "smape_pct": smape(three, truth[ok]),
-                "failed_fits": int(sum(method in outcomes[i].failed for i in range(len(outcomes)) if keep[i])),
+                "not_reconstructed": int(sum(method in outcomes[i].failed for i in range(len(outcomes)) if keep[i])),
             }
         )
     return rows
@@ -449,7 +449,7 @@ def evaluate_midpoints(rad: Radiograph) -> float:
     """Major angle of the midpoints method with the shipped prior (NaN when the fit fails)."""
     try:
         return major_angle(register(payload(rad, "midpoints")))
-    except FitFailed:
+    except (FitFailed, InvalidInput):
         return float("nan")
 
 
@@ -483,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
         "major_bias_deg",
         "major_median_ae_deg",
         "smape_pct",
-        "failed_fits",
+        "not_reconstructed",
     ]
     tables = {
         "all": summarise(rads, outcomes),
