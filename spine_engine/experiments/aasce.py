@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +49,7 @@ from ..tilt_prior import (
     predict_tilts_deg,
     save_tilt_prior,
 )
-from .report import format_table, write_json
+from .report import format_table, shared_data_dir, write_json
 
 DATE = "2026-11-22"
 PA = ("L", "F")
@@ -62,10 +61,7 @@ WEIGHT_FRACTIONS = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
 
 
 def default_data_dir() -> Path:
-    """``$SPINE_SHARED_DATA/aasce2019``, else ``../shared/data/aasce2019`` beside the repository."""
-    env = os.environ.get("SPINE_SHARED_DATA")
-    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
-    return base / "aasce2019"
+    return shared_data_dir("aasce2019")
 
 
 @dataclass(frozen=True)

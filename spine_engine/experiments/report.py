@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,3 +22,11 @@ def format_table(columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
 def write_json(path: Path, data: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def shared_data_dir(name: str) -> Path:
+    """Folder of data set ``name``: ``$SPINE_SHARED_DATA/<name>``, else ``../shared/data/<name>``
+    beside the repository. Evaluation data stays outside the repository; commands take ``--data``."""
+    env = os.environ.get("SPINE_SHARED_DATA")
+    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    return base / name

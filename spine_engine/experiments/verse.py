@@ -16,7 +16,6 @@ rotation error.
 from __future__ import annotations
 
 import argparse
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,7 @@ from ..levels import LEVELS, N_LEVELS
 from ..measures import compute_measures
 from ..reconstruction import build_problem, solve
 from ..validation import validate_payload
-from .report import format_table, write_json
+from .report import format_table, shared_data_dir, write_json
 from .truth import payload_from_truth, read_verse
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -47,10 +46,7 @@ CLINICAL_REPORT = ["PA-17", "PA-17+pedicles", "PA-17+corners", "PA-17+corners+pe
 
 
 def default_data_dir() -> Path:
-    """``$SPINE_SHARED_DATA/verse``, else ``../shared/data/verse`` beside the repository."""
-    env = os.environ.get("SPINE_SHARED_DATA")
-    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
-    return base / "verse"
+    return shared_data_dir("verse")
 
 
 @dataclass(frozen=True)
