@@ -19,7 +19,7 @@ run: $(STAMP)
 	$(BIN)/spine serve --host 127.0.0.1 --port 8000
 
 lint: $(STAMP)
-	$(BIN)/ruff check spine_engine services migrations tests
+	$(BIN)/ruff check spine_engine services spine_client migrations tests
 	$(BIN)/mypy
 
 test: $(STAMP) lint browser

@@ -1,4 +1,4 @@
-"""The ``spine`` command: serve, worker, migrate, openapi, loadtest, bench.
+"""The ``spine`` command: serve, worker, migrate, openapi, loadtest, bench; submit, get, list… (client).
 
 ``spine serve`` runs the API with uvicorn and, on the embedded default, a Celery worker as its
 child process (Ctrl-C stops both). ``spine bench ...`` hands its arguments to the engine's
@@ -60,11 +60,13 @@ def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list
 def cmd_worker(args: argparse.Namespace) -> int:
     settings = _settings()
     logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    from services.webhooks.delivery import webhook_queue
     from services.worker.celery_app import app
 
     concurrency = args.concurrency if args.concurrency is not None else settings.worker_concurrency
+    queues = f"{settings.queue_name},{webhook_queue(settings)}"  # jobs, and webhook deliveries
     app.worker_main(worker_argv(concurrency, not args.no_beat, args.loglevel or settings.log_level,
-                                settings.queue_name))  # fmt: skip
+                                queues))  # fmt: skip
     return 0
 
 
@@ -172,7 +174,29 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="engine experiments (spine_engine.experiments)", add_help=False)
     bench.add_argument("rest", nargs=argparse.REMAINDER)
     bench.set_defaults(func=cmd_bench)
+
+    for name, text in CLIENT_COMMANDS.items():  # handed to spine_client.cli (README "Python client and CLI")
+        client = sub.add_parser(name, help=text, add_help=False)
+        client.add_argument("rest", nargs=argparse.REMAINDER)
+        client.set_defaults(func=cmd_client, client_command=name)
     return parser
+
+
+CLIENT_COMMANDS = {
+    "submit": "client: submit a job payload (JSON file), optionally wait for it",
+    "submit-dir": "client: submit every *.json of a folder as batches, wait, write a summary",
+    "get": "client: print a job as JSON, or its vertebrae or measures as CSV",
+    "list": "client: list jobs, newest first",
+    "cancel": "client: cancel a queued or running job",
+    "fhir": "client: print a succeeded job's measures as a FHIR R4 Bundle",
+}
+"""Commands of the service's client (``spine_client.cli``), talking to SPINE_URL with SPINE_API_KEY."""
+
+
+def cmd_client(args: argparse.Namespace) -> int:
+    from spine_client.cli import main as client_main
+
+    return client_main([args.client_command, *args.rest])
 
 
 PASSTHROUGH = {"bench": cmd_bench, "loadtest": cmd_loadtest}
@@ -183,6 +207,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in PASSTHROUGH:
         return PASSTHROUGH[argv[0]](argparse.Namespace(rest=argv[1:]))
+    if argv and argv[0] in CLIENT_COMMANDS:
+        return cmd_client(argparse.Namespace(client_command=argv[0], rest=argv[1:]))
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))

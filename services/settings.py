@@ -10,7 +10,7 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-from pydantic import AliasChoices, Field
+from pydantic import AliasChoices, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -68,6 +68,39 @@ class Settings(BaseSettings):
         300.0, gt=0, description="Window of finished jobs over which /metrics reports duration quantiles."
     )
     log_level: str = Field("INFO", description="Log level of API and worker.")
+    # Webhooks (services/webhooks): callback_url destinations, signing and delivery.
+    webhook_allowed_urls: str = Field(
+        "",
+        description="Comma-separated URL prefixes (scheme://host[:port][/path]) a job's callback_url must match; "
+        "empty: webhooks are refused.",
+    )
+    webhook_secret: SecretStr | None = Field(
+        None,
+        description="Service-wide Standard Webhooks signing secret (whsec_ + base64, at least 16 bytes), used until "
+        "API keys carry their own; unset: webhooks are refused.",
+    )
+    webhook_timeout_s: float = Field(10.0, gt=0, description="Time limit of one webhook delivery attempt.")
+    webhook_max_attempts: int = Field(6, ge=1, le=20, description="Delivery attempts of one webhook message.")
+    webhook_retry_base_s: float = Field(
+        2.0, gt=0, description="Delay before the 2nd attempt; doubles at each attempt (capped at 120 s)."
+    )
+
+    @field_validator("webhook_allowed_urls")
+    @classmethod
+    def _webhook_allow_list(cls, value: str) -> str:
+        from services.webhooks.policy import parse_allow_list
+
+        parse_allow_list(value)  # a bad entry stops the service at start, naming it
+        return value
+
+    @field_validator("webhook_secret")
+    @classmethod
+    def _webhook_secret(cls, value: SecretStr | None) -> SecretStr | None:
+        from services.webhooks.signing import decode_secret
+
+        if value is not None:
+            decode_secret(value.get_secret_value())
+        return value
 
     @property
     def embedded(self) -> bool:

@@ -186,6 +186,34 @@ class Options(_Strict):
     )
 
 
+DICOM_UID_MAX_LENGTH = 64
+
+
+class Study(_Strict):
+    """DICOM identifiers of the radiographs the landmarks come from. Carried unchanged to the job
+    (and its webhook and FHIR export) so that a PACS can match results to its images; the engine
+    does not use them. Each is a DICOM UID: digits in dot-separated components, at most 64 characters.
+    """
+
+    study_instance_uid: str = Field(description="Study Instance UID (0020,000D).")
+    series_instance_uid: str | None = Field(None, description="Series Instance UID (0020,000E).")
+    pa_sop_instance_uid: str | None = Field(None, description="SOP Instance UID (0008,0018) of the PA image.")
+    lateral_sop_instance_uid: str | None = Field(
+        None, description="SOP Instance UID (0008,0018) of the lateral image."
+    )
+
+    @field_validator("study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid")
+    @classmethod
+    def _dicom_uid(cls, value: str | None) -> str | None:
+        if value is None:
+            return value
+        if len(value) > DICOM_UID_MAX_LENGTH:
+            raise ValueError(f"a DICOM UID has at most {DICOM_UID_MAX_LENGTH} characters, this one {len(value)}")
+        if not value or not all(part.isascii() and part.isdigit() for part in value.split(".")):
+            raise ValueError("a DICOM UID is digits in dot-separated components, e.g. 1.2.840.10008.1.1")
+        return value
+
+
 class JobPayload(_Strict):
     """The body a client posts to create a job, and the argument of ``spine_engine.register``.
 
@@ -202,6 +230,15 @@ class JobPayload(_Strict):
         "the PA landmarks, and fit.unreliable lists the quantities that then come from the model only.",
     )
     options: Options = Field(default_factory=Options)
+    study: Study | None = Field(
+        None, description="DICOM identifiers of the images, carried unchanged to the job; not used by the engine."
+    )
+    callback_url: str | None = Field(
+        None,
+        max_length=2048,
+        description="Service only (the engine ignores it): http(s) URL that receives the job, signed as Standard "
+        "Webhooks do, when it ends. Must match the service's allow-list (SPINE_WEBHOOK_ALLOWED_URLS).",
+    )
 
 
 # ---------------------------------------------------------------- result

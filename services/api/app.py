@@ -15,7 +15,7 @@ from prometheus_client import CollectorRegistry
 
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
-from services.api.routes import figures, health, jobs
+from services.api.routes import fhir, figures, health, jobs
 from services.api.web import mount_web
 from services.db.engine import get_engine
 from services.jobqueue import make_celery
@@ -73,6 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router)
     app.include_router(health.router)
     app.include_router(figures.router)
+    app.include_router(fhir.router)
     mount_web(app)
     app.add_middleware(HTTPMetrics, registry=registry)
 

@@ -9,7 +9,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.db.models import Job as JobRow
-from spine_engine.models import RegistrationResult
+from services.webhooks.schemas import WebhookDeliveryAttempt
+from spine_engine.models import RegistrationResult, Study
 
 JobStatusName = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
@@ -50,6 +51,10 @@ class Job(BaseModel):
     result: RegistrationResult | None = Field(description="The reconstruction, when succeeded.")
     error: Problem | None = Field(description="Why the job failed, when failed.")
     payload: dict[str, Any] | None = Field(None, description="The payload as posted; only in GET /v1/jobs/{id}.")
+    study: Study | None = Field(None, description="The payload's DICOM identifiers, unchanged (null without).")
+    deliveries: list[WebhookDeliveryAttempt] | None = Field(
+        None, description="Webhook delivery attempts to the payload's callback_url; only in GET /v1/jobs/{id}."
+    )
 
 
 class JobPage(BaseModel):
@@ -98,6 +103,7 @@ def job_json(job: JobRow, *, with_payload: bool = False) -> dict[str, Any]:
         "engine_version": job.engine_version,
         "result": job.result,
         "error": job.error,
+        "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
     }
     if with_payload:
         body["payload"] = job.payload

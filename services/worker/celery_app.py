@@ -13,11 +13,13 @@ from celery.signals import worker_process_init
 from services.db.engine import dispose_engines
 from services.jobqueue import RECONCILE, make_celery
 from services.settings import get_settings
+from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
 
 settings = get_settings()
 app = make_celery(settings)
 tasks.register_tasks(app, settings)
+register_webhook_tasks(app, settings)
 app.conf.beat_schedule = {
     "reconcile": {"task": RECONCILE, "schedule": settings.reconcile_interval_s},
 }

@@ -26,6 +26,7 @@ from services.db.engine import session_scope
 from services.jobqueue import RECONCILE, RUN_JOB, enqueue
 from services.problems import problem, validation_problem
 from services.settings import Settings
+from services.webhooks import delivery as webhooks
 from spine_engine.errors import FitFailed, InvalidInput
 
 log = logging.getLogger(__name__)
@@ -80,7 +81,10 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     stored = store()
     if not stored:
         return "superseded"
-    return "succeeded" if error is None else "failed"
+    status = "succeeded" if error is None else "failed"
+    if claim.payload.get("callback_url"):  # only then: a message on the webhook queue
+        webhooks.job_ended(settings, job_id, status)
+    return status
 
 
 def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
@@ -100,6 +104,9 @@ def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
         )
     if outcome.requeue:
         enqueue(app, outcome.requeue)
+    if outcome.failed:
+        with session_scope(settings) as session:
+            webhooks.jobs_ended(session, settings, outcome.failed, app)
     if outcome.requeue or outcome.failed:
         log.info("reconciler: re-enqueued %d jobs, failed %d", len(outcome.requeue), len(outcome.failed))
     return outcome

@@ -13,8 +13,12 @@ from services.api.deps import BatchBody, JobBody, OwnerDep, QueueDep, SessionDep
 from services.api.errors import ProblemError
 from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem, job_json
 from services.db import jobs as jobs_repo
+from services.idempotent_batch import MAX_BATCH_KEY_LENGTH, batch_response
 from services.jobqueue import enqueue
 from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from services.webhooks.delivery import job_ended
+from services.webhooks.store import deliveries_json
+from services.webhooks.submission import check_payload as check_webhook
 from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.validation import validate_payload
 
@@ -57,10 +61,12 @@ def submit_job(
     session: SessionDep,
     queue: QueueDep,
     owner: OwnerDep,
+    settings: SettingsDep,
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
 ) -> JSONResponse:
     try:
         validate_payload(body)
+        check_webhook(body, settings, session, owner)
     except InvalidInput as exc:
         raise ProblemError(validation_problem(exc.errors)) from None
     try:
@@ -91,7 +97,12 @@ def submit_job(
     responses=_problems(400, 413, 415, 422),
 )
 def submit_batch(
-    body: BatchBody, session: SessionDep, queue: QueueDep, owner: OwnerDep, settings: SettingsDep
+    body: BatchBody,
+    session: SessionDep,
+    queue: QueueDep,
+    owner: OwnerDep,
+    settings: SettingsDep,
+    idempotency_key: Annotated[str | None, Header(max_length=MAX_BATCH_KEY_LENGTH)] = None,
 ) -> JSONResponse:
     if not isinstance(body, dict) or not isinstance(body.get("jobs"), list):
         raise ProblemError(
@@ -111,11 +122,15 @@ def submit_batch(
     for i, payload in enumerate(payloads):
         try:
             validate_payload(payload)
+            check_webhook(payload, settings, session, owner)
             valid.append((i, payload))
         except InvalidInput as exc:
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
             p = validation_problem(errors, instance="/v1/jobs/batch")
             entries[i] = {"index": i, "status": p["status"], "problem": p}
+    if idempotency_key is not None:
+        return batch_response(session, queue, owner=owner, key=idempotency_key, total=len(payloads), valid=valid,
+                              entries=entries)  # fmt: skip
     jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner) if valid else []
     enqueue(queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
@@ -167,7 +182,10 @@ def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONRes
         job = jobs_repo.get_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
         raise _not_found(job_id) from None
-    return JSONResponse(job_json(job, with_payload=True))
+    body = job_json(job, with_payload=True)
+    has_callback = isinstance(job.payload, dict) and job.payload.get("callback_url")
+    body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
+    return JSONResponse(body)
 
 
 @router.post(
@@ -178,7 +196,9 @@ def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONRes
     "A job that already succeeded or failed is a 409.",
     responses=_problems(404, 409, 422),
 )
-def cancel_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
+def cancel_job(
+    job_id: uuid.UUID, session: SessionDep, owner: OwnerDep, queue: QueueDep, settings: SettingsDep
+) -> JSONResponse:
     try:
         job = jobs_repo.cancel_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
@@ -187,4 +207,6 @@ def cancel_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONR
         raise ProblemError(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
         ) from None
+    if isinstance(job.payload, dict) and job.payload.get("callback_url"):
+        job_ended(settings, job.id, "cancelled", celery=queue)
     return JSONResponse(job_json(job))

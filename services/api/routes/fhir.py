@@ -1,0 +1,62 @@
+"""/v1/jobs/{id}/fhir: a succeeded job's clinical measures as a FHIR R4 Bundle of Observations."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from typing import Any
+
+from fastapi import APIRouter
+from fastapi.responses import Response
+
+from services.api.deps import OwnerDep, SessionDep
+from services.api.errors import ProblemError
+from services.api.schemas import Problem
+from services.db import jobs as jobs_repo
+from services.db.models import utcnow
+from services.problems import PROBLEM_MEDIA_TYPE, problem
+
+router = APIRouter(prefix="/v1/jobs", tags=["interoperability"])
+
+FHIR_MEDIA_TYPE = "application/fhir+json"
+
+DESCRIPTION = (
+    "A FHIR R4 Bundle (type `collection`) of Observations (status `final`, category `imaging`, UCUM `deg`): "
+    "the Cobb angle of every frontal curve (end and apex vertebrae, convexity, apical axial rotation and plane "
+    "of maximum curvature as components), thoracic kyphosis T4–T12 and T5–T12, lumbar lordosis L1–L5, and the "
+    "apical axial rotation of the major curve. `code` is text only (no LOINC or SNOMED CT code is asserted). "
+    "With a `study` in the payload, each Observation's `derivedFrom` names the ImagingStudy by its DICOM Study "
+    "Instance UID. 404 for an unknown job; 409 (`job-has-no-result`) unless the job succeeded."
+)
+
+
+@router.get(
+    "/{job_id}/fhir",
+    response_class=Response,
+    summary="A succeeded job's measures as a FHIR R4 Bundle",
+    description=DESCRIPTION,
+    responses={
+        200: {
+            "content": {FHIR_MEDIA_TYPE: {"schema": {"type": "object", "description": "FHIR R4 Bundle (collection)"}}},
+            "description": "The Bundle.",
+        },
+        **{s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in (404, 409, 422)},
+    },
+)
+def job_fhir(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
+    try:
+        job = jobs_repo.get_job(session, job_id, owner=owner)
+    except jobs_repo.JobNotFound:
+        raise ProblemError(problem("not-found", f"there is no job {job_id}")) from None
+    if job.status != "succeeded" or job.result is None:
+        if job.status in ("queued", "running"):
+            detail = f"job {job_id} is {job.status}; its FHIR export exists once it has succeeded"
+        else:
+            detail = f"job {job_id} {'was cancelled' if job.status == 'cancelled' else job.status} and has no result"
+        raise ProblemError(problem("job-has-no-result", detail, job_status=str(job.status), job=f"/v1/jobs/{job_id}"))
+    from services.fhir_export import observation_bundle  # fhir.resources loads in ~0.5 s: only when used
+
+    payload: Any = job.payload
+    study = payload.get("study") if isinstance(payload, dict) else None
+    bundle = observation_bundle(job.id, job.result, finished_at=job.finished_at or utcnow(), study=study)
+    return Response(json.dumps(bundle, ensure_ascii=False), media_type=FHIR_MEDIA_TYPE)

@@ -1,0 +1,21 @@
+"""Response models of webhook deliveries (the ``deliveries`` member of a job)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, Field
+
+
+class WebhookDeliveryAttempt(BaseModel):
+    """One attempt to POST a job's webhook to its callback_url."""
+
+    event: str = Field(description="job.succeeded, job.failed or job.cancelled.")
+    message_id: str = Field(description="The webhook-id header: the same on every attempt of a message.")
+    attempt: int = Field(description="1 for the first attempt of the message.")
+    url: str
+    attempted_at: datetime
+    status_code: int | None = Field(description="The receiver's HTTP status; null when no answer came.")
+    error: str | None = Field(description="Why the attempt failed or was not made; null on success (2xx).")
+    duration_ms: float | None
+    next_attempt_at: datetime | None = Field(description="When the next attempt is due; null when none follows.")

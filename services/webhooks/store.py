@@ -1,0 +1,77 @@
+"""The ``webhook_deliveries`` table: one row per delivery attempt, shown on the job."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import Float, ForeignKey, Index, Integer, String, Text, Uuid, exists, insert, select
+from sqlalchemy.orm import Mapped, Session, mapped_column
+
+from services.db.models import Base, UTCDateTime
+
+
+class WebhookDelivery(Base):
+    """One attempt to deliver one webhook message of a job."""
+
+    __tablename__ = "webhook_deliveries"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, ForeignKey("jobs.id", ondelete="CASCADE"), nullable=False)
+    message_id: Mapped[str] = mapped_column(String(64), nullable=False)
+    event: Mapped[str] = mapped_column(String(32), nullable=False)
+    attempt: Mapped[int] = mapped_column(Integer, nullable=False)
+    url: Mapped[str] = mapped_column(String(2048), nullable=False)
+    attempted_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    status_code: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    duration_ms: Mapped[float | None] = mapped_column(Float, nullable=True)
+    next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+    __table_args__ = (
+        Index("ix_webhook_deliveries_job_id_id", "job_id", "id"),
+        Index("ix_webhook_deliveries_message_id", "message_id"),
+    )
+
+
+def record(session: Session, **values: Any) -> None:
+    session.execute(insert(WebhookDelivery), [values])
+
+
+def delivered(session: Session, message_id: str) -> bool:
+    """Whether a receiver already accepted (2xx) this message."""
+    query = select(
+        exists().where(
+            WebhookDelivery.message_id == message_id,
+            WebhookDelivery.status_code >= 200,
+            WebhookDelivery.status_code < 300,
+        )
+    )
+    return bool(session.scalar(query))
+
+
+def attempted(session: Session, message_id: str) -> bool:
+    """Whether any attempt of this message was made (a second first attempt is a duplicate)."""
+    return bool(session.scalar(select(exists().where(WebhookDelivery.message_id == message_id))))
+
+
+def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]:
+    """The job's delivery attempts, oldest first, as the ``deliveries`` member of a job."""
+    rows = session.scalars(
+        select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+    )
+    return [
+        {
+            "event": row.event,
+            "message_id": row.message_id,
+            "attempt": row.attempt,
+            "url": row.url,
+            "attempted_at": row.attempted_at.isoformat(),
+            "status_code": row.status_code,
+            "error": row.error,
+            "duration_ms": row.duration_ms,
+            "next_attempt_at": row.next_attempt_at.isoformat() if row.next_attempt_at else None,
+        }
+        for row in rows
+    ]

@@ -1,0 +1,23 @@
+"""The API side of webhooks: refuse a payload whose callback_url this service may not call."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from services.settings import Settings
+from services.webhooks.policy import check_callback_url
+from services.webhooks.signing import secret_for
+
+
+def check_payload(payload: Any, settings: Settings, session: Session, owner: str | None) -> None:
+    """Raise ``InvalidInput`` naming ``callback_url`` when it is present and not allowed.
+
+    Allowed means: http(s), no credentials, matching ``SPINE_WEBHOOK_ALLOWED_URLS``, and a signing
+    secret exists for ``owner`` (per API key, or the service-wide ``SPINE_WEBHOOK_SECRET``).
+    """
+    if not isinstance(payload, dict) or payload.get("callback_url") is None:
+        return
+    has_secret = secret_for(session, owner, settings) is not None
+    check_callback_url(payload, settings.webhook_allowed_urls, has_secret)

@@ -1,0 +1,52 @@
+"""Python client of the spine reconstruction service, and its command line (``spine submit`` …).
+
+    from spine_client import SpineClient
+
+    with SpineClient("http://127.0.0.1:8000", api_key="…") as client:
+        job = client.wait(client.submit(payload).id, timeout=60).raise_for_status()
+        print(job.result.measures.cobb[0].angle_deg)
+"""
+
+from spine_client.client import SpineClient
+from spine_client.errors import (
+    ApiError,
+    Conflict,
+    Forbidden,
+    IdempotencyConflict,
+    InvalidRequest,
+    JobFailed,
+    JobHasNoResult,
+    JobNotCancellable,
+    NotFound,
+    RateLimited,
+    ServerError,
+    ServiceUnreachable,
+    SpineError,
+    Unauthorized,
+    WaitTimeout,
+)
+from spine_client.models import BatchEntry, BatchResult, Job, JobPage, Problem
+
+__all__ = [
+    "ApiError",
+    "BatchEntry",
+    "BatchResult",
+    "Conflict",
+    "Forbidden",
+    "IdempotencyConflict",
+    "InvalidRequest",
+    "Job",
+    "JobFailed",
+    "JobHasNoResult",
+    "JobNotCancellable",
+    "JobPage",
+    "NotFound",
+    "Problem",
+    "RateLimited",
+    "ServerError",
+    "ServiceUnreachable",
+    "SpineClient",
+    "SpineError",
+    "Unauthorized",
+    "WaitTimeout",
+]

@@ -1,0 +1,239 @@
+"""``SpineClient``: the service's HTTP API for scripts (httpx, retries with tenacity).
+
+Every request is retried with exponential backoff and jitter on connection errors, timeouts,
+429 and 5xx, honouring ``Retry-After``. Retrying a POST is safe: ``submit`` and ``submit_batch``
+send an ``Idempotency-Key`` (a new UUID unless given), so the service returns the job it already
+made instead of making a second one; cancelling twice is a no-op. Errors are typed
+(``spine_client.errors``) and carry the server's problem+json.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import time
+import uuid
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from datetime import datetime
+from email.utils import parsedate_to_datetime
+from typing import Any, Literal
+
+import httpx
+from tenacity import RetryCallState, Retrying, retry_if_exception, stop_after_attempt
+
+from spine_client.errors import ServiceUnreachable, WaitTimeout, error_for
+from spine_client.models import BatchEntry, BatchResult, Job, JobPage
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+URL_ENV = "SPINE_URL"
+API_KEY_ENV = "SPINE_API_KEY"
+USER_AGENT = "spine-client/1"
+BATCH_CHUNK = 500
+"""Payloads per POST /v1/jobs/batch request (the service takes up to 1,000 and 16 MiB)."""
+
+
+class _RetryableStatus(Exception):
+    def __init__(self, response: httpx.Response):
+        self.response = response
+
+
+def _retryable(exc: BaseException) -> bool:
+    return isinstance(exc, (_RetryableStatus, httpx.TransportError))
+
+
+def retry_after_seconds(value: str | None) -> float | None:
+    """Seconds a ``Retry-After`` header asks to wait (delta-seconds or an HTTP date), or None."""
+    if not value:
+        return None
+    value = value.strip()
+    try:
+        return max(0.0, float(value))
+    except ValueError:
+        pass
+    try:
+        return max(0.0, parsedate_to_datetime(value).timestamp() - time.time())
+    except (TypeError, ValueError):
+        return None
+
+
+class SpineClient:
+    """Client of one service. ``base_url`` defaults to ``$SPINE_URL`` (else http://127.0.0.1:8000)
+    and ``api_key`` to ``$SPINE_API_KEY``, sent as ``Authorization: Bearer <key>``.
+
+    ``retries`` is the number of attempts after the first; waits grow as ``backoff``·2ⁿ (with jitter)
+    up to ``max_backoff``; a ``Retry-After`` is honoured up to ``max_retry_after`` seconds.
+    """
+
+    def __init__(
+        self,
+        base_url: str | None = None,
+        api_key: str | None = None,
+        *,
+        timeout: float = 30.0,
+        retries: int = 5,
+        backoff: float = 0.5,
+        max_backoff: float = 30.0,
+        max_retry_after: float = 120.0,
+        transport: httpx.BaseTransport | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+    ):
+        self.base_url = (base_url or os.environ.get(URL_ENV) or DEFAULT_URL).rstrip("/")
+        key = api_key if api_key is not None else os.environ.get(API_KEY_ENV)
+        headers = {"user-agent": USER_AGENT, "accept": "application/json, application/problem+json"}
+        if key:
+            headers["authorization"] = f"Bearer {key}"
+        self.retries = retries
+        self.backoff = backoff
+        self.max_backoff = max_backoff
+        self.max_retry_after = max_retry_after
+        self._sleep = sleep
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=headers, transport=transport)
+
+    # -- plumbing
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> SpineClient:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+    def _wait(self, state: RetryCallState) -> float:
+        exc = state.outcome.exception() if state.outcome is not None else None
+        if isinstance(exc, _RetryableStatus):
+            asked = retry_after_seconds(exc.response.headers.get("retry-after"))
+            if asked is not None:
+                return min(asked, self.max_retry_after)
+        delay = min(self.max_backoff, self.backoff * 2 ** (state.attempt_number - 1))
+        return delay * (0.5 + random.random() / 2)  # jitter: retries of many clients spread out
+
+    def request(
+        self,
+        method: str,
+        path: str,
+        *,
+        json: Any = None,
+        params: Mapping[str, Any] | None = None,
+        headers: Mapping[str, str] | None = None,
+    ) -> httpx.Response:
+        """Send a request with retries; return the 2xx response or raise a typed error."""
+
+        def attempt() -> httpx.Response:
+            response = self._http.request(method, path, json=json, params=params, headers=headers)
+            if response.status_code == 429 or response.status_code >= 500:
+                response.read()
+                raise _RetryableStatus(response)
+            return response
+
+        retrying = Retrying(
+            retry=retry_if_exception(_retryable),
+            stop=stop_after_attempt(self.retries + 1),
+            wait=self._wait,
+            sleep=self._sleep,
+            reraise=True,
+        )
+        try:
+            response = retrying(attempt)
+        except _RetryableStatus as exc:
+            raise error_for(exc.response) from None
+        except httpx.TransportError as exc:
+            raise ServiceUnreachable(f"{method} {self.base_url}{path}: {type(exc).__name__}: {exc}") from exc
+        if response.status_code >= 400:
+            raise error_for(response)
+        return response
+
+    def _json(self, method: str, path: str, **kwargs: Any) -> Any:
+        return self.request(method, path, **kwargs).json()
+
+    # -- jobs
+    def submit(self, payload: Mapping[str, Any], *, idempotency_key: str | None = None) -> Job:
+        """POST /v1/jobs; the job as queued (or as it is, when the key was used before with this body)."""
+        key = idempotency_key or str(uuid.uuid4())
+        return Job.model_validate(self._json("POST", "/v1/jobs", json=payload, headers={"idempotency-key": key}))
+
+    def submit_batch(
+        self, payloads: Sequence[Mapping[str, Any]], *, idempotency_key: str | None = None, chunk: int = BATCH_CHUNK
+    ) -> BatchResult:
+        """POST /v1/jobs/batch in chunks of ``chunk``; entries are indexed in ``payloads``' order."""
+        key = idempotency_key or str(uuid.uuid4())
+        results: list[BatchEntry] = []
+        for n, start in enumerate(range(0, len(payloads), chunk)):
+            part = list(payloads[start : start + chunk])
+            body = self._json("POST", "/v1/jobs/batch", json={"jobs": part}, headers={"idempotency-key": f"{key}.{n}"})
+            for entry in BatchResult.model_validate(body).results:
+                results.append(entry.model_copy(update={"index": entry.index + start}))
+        accepted = sum(1 for e in results if e.status == 202)
+        return BatchResult(accepted=accepted, rejected=len(results) - accepted, results=results)
+
+    def get_json(self, job_id: uuid.UUID | str) -> dict[str, Any]:
+        """GET /v1/jobs/{id} as the server sent it."""
+        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}")
+        return body
+
+    def get(self, job_id: uuid.UUID | str) -> Job:
+        return Job.model_validate(self.get_json(job_id))
+
+    def wait(
+        self,
+        job_id: uuid.UUID | str,
+        timeout: float | None = None,
+        *,
+        poll_interval: float = 0.2,
+        max_poll_interval: float = 2.0,
+    ) -> Job:
+        """Poll until the job is succeeded, failed or cancelled; ``WaitTimeout`` after ``timeout`` s."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        interval = poll_interval
+        while True:
+            job = self.get(job_id)
+            if job.finished:
+                return job
+            if deadline is not None and time.monotonic() >= deadline:
+                raise WaitTimeout(job, float(timeout or 0))
+            pause = interval if deadline is None else max(0.0, min(interval, deadline - time.monotonic()))
+            self._sleep(pause)
+            interval = min(max_poll_interval, interval * 1.5)
+
+    def list(
+        self,
+        *,
+        status: str | Sequence[str] | None = None,
+        created_after: datetime | str | None = None,
+        created_before: datetime | str | None = None,
+        limit: int = 50,
+        cursor: str | None = None,
+    ) -> JobPage:
+        """One page of GET /v1/jobs, newest first."""
+        params: dict[str, Any] = {"limit": limit}
+        if status:
+            params["status"] = [status] if isinstance(status, str) else list(status)
+        for name, value in (("created_after", created_after), ("created_before", created_before)):
+            if value is not None:
+                params[name] = value.isoformat() if isinstance(value, datetime) else value
+        if cursor:
+            params["cursor"] = cursor
+        return JobPage.model_validate(self._json("GET", "/v1/jobs", params=params))
+
+    def iter_jobs(self, *, page_size: int = 100, **filters: Any) -> Iterator[Job]:
+        """Every job matching the filters of ``list``, following the cursor."""
+        cursor = None
+        while True:
+            page = self.list(limit=page_size, cursor=cursor, **filters)
+            yield from page.jobs
+            if not page.next_cursor:
+                return
+            cursor = page.next_cursor
+
+    def cancel(self, job_id: uuid.UUID | str) -> Job:
+        """POST /v1/jobs/{id}/cancel; ``JobNotCancellable`` when it already succeeded or failed."""
+        return Job.model_validate(self._json("POST", f"/v1/jobs/{job_id}/cancel"))
+
+    # -- exports
+    def fhir(self, job_id: uuid.UUID | str) -> dict[str, Any]:
+        """GET /v1/jobs/{id}/fhir: the FHIR R4 Bundle of a succeeded job's measures."""
+        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}/fhir")
+        return body
+
+    def figure(self, job_id: uuid.UUID | str, fmt: Literal["png", "svg"] = "png") -> bytes:
+        return self.request("GET", f"/v1/jobs/{job_id}/figure.{fmt}").content

@@ -1,0 +1,139 @@
+"""Typed exceptions of the client. An ``ApiError`` carries the server's RFC 9457 problem."""
+
+from __future__ import annotations
+
+import contextlib
+from typing import TYPE_CHECKING, Any
+
+import httpx
+
+from spine_client.models import Problem
+
+if TYPE_CHECKING:
+    from spine_client.models import Job
+
+PROBLEM_BASE = "https://spine.example/problems/"
+
+
+class SpineError(Exception):
+    """Base of every error the client raises."""
+
+
+class ApiError(SpineError):
+    """The service answered with an error status; ``problem`` is its problem+json body."""
+
+    def __init__(self, status: int, problem: Problem, headers: dict[str, str] | None = None):
+        self.status = status
+        self.problem = problem
+        self.headers = headers or {}
+        text = f"{status} {problem.title}"
+        super().__init__(f"{text}: {problem.detail}" if problem.detail else text)
+
+    @property
+    def kind(self) -> str:
+        """The problem type without the service's URI prefix, e.g. ``validation-error``."""
+        return self.problem.type.removeprefix(PROBLEM_BASE)
+
+
+class InvalidRequest(ApiError):
+    """400, 413, 415 or 422: the request (usually the payload) was refused; see ``problem.errors``."""
+
+
+class Unauthorized(ApiError):
+    """401: missing, invalid or revoked API key."""
+
+
+class Forbidden(ApiError):
+    """403: the API key may not do this."""
+
+
+class NotFound(ApiError):
+    """404: no such job (or not one of this API key's)."""
+
+
+class Conflict(ApiError):
+    """409: the request conflicts with the job's state or an earlier request."""
+
+
+class IdempotencyConflict(Conflict):
+    """The Idempotency-Key was used before with another body."""
+
+
+class JobNotCancellable(Conflict):
+    """The job already succeeded or failed."""
+
+
+class JobHasNoResult(Conflict):
+    """The job has not succeeded (yet): no figure, CSV or FHIR export."""
+
+
+class RateLimited(ApiError):
+    """429, still after the client's retries."""
+
+
+class ServerError(ApiError):
+    """5xx, still after the client's retries."""
+
+
+class ServiceUnreachable(SpineError):
+    """No HTTP answer (connection refused, timeout…), still after the client's retries."""
+
+
+class WaitTimeout(SpineError):
+    """``wait`` gave up before the job finished; ``job`` is the last state seen."""
+
+    def __init__(self, job: Job, timeout: float):
+        self.job = job
+        self.timeout = timeout
+        super().__init__(f"job {job.id} still {job.status} after {timeout:g} s")
+
+
+class JobFailed(SpineError):
+    """Raised by ``Job.raise_for_status`` for a failed or cancelled job."""
+
+    def __init__(self, job: Job):
+        self.job = job
+        reason = f": {job.error.detail}" if job.error is not None else ""
+        super().__init__(f"job {job.id} {job.status}{reason}")
+
+
+_CONFLICTS = {
+    "idempotency-conflict": IdempotencyConflict,
+    "job-not-cancellable": JobNotCancellable,
+    "job-has-no-result": JobHasNoResult,
+}
+
+
+def problem_of(response: httpx.Response) -> Problem:
+    """The response's problem+json body, or one made from its status when it has none."""
+    body: Any = None
+    with contextlib.suppress(ValueError):
+        body = response.json()
+    if isinstance(body, dict) and "type" in body:
+        try:
+            return Problem.model_validate(body)
+        except ValueError:
+            pass
+    return Problem(
+        type="about:blank",
+        title=response.reason_phrase or f"HTTP {response.status_code}",
+        status=response.status_code,
+        detail=response.text[:500],
+    )
+
+
+def error_for(response: httpx.Response) -> ApiError:
+    """The typed exception of an error response."""
+    status = response.status_code
+    problem = problem_of(response)
+    headers = dict(response.headers)
+    cls: type[ApiError]
+    if status == 409:
+        cls = _CONFLICTS.get(problem.type.removeprefix(PROBLEM_BASE), Conflict)
+    elif status in (400, 413, 415, 422):
+        cls = InvalidRequest
+    else:
+        cls = {401: Unauthorized, 403: Forbidden, 404: NotFound, 429: RateLimited}.get(
+            status, ServerError if status >= 500 else ApiError
+        )
+    return cls(status, problem, headers)

@@ -1,0 +1,114 @@
+"""CSV views of a job's result: one row per vertebra, or one row per measure, and the summary of
+``spine submit-dir``. Column names carry their units (README "Python client and CLI")."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+VERTEBRA_COLUMNS = [
+    "level", "x_mm", "y_mm", "z_mm",
+    "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
+    "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "frontal_tilt_deg",
+]  # fmt: skip
+MEASURE_COLUMNS = ["measure", "value", "unit", "upper", "lower", "apex", "convexity", "major"]
+SUMMARY_COLUMNS = [
+    "file", "job_id", "status", "major_cobb_deg", "major_upper", "major_lower", "major_apex", "major_convexity",
+    "thoracic_kyphosis_t4_t12_deg", "lumbar_lordosis_l1_l5_deg", "mean_registration_error_mm", "problem_type",
+    "detail",
+]  # fmt: skip
+
+
+def _csv(columns: Sequence[str], rows: Iterable[dict[str, Any]]) -> str:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: _cell(v) for k, v in row.items()})
+    return out.getvalue()
+
+
+def _cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return value
+
+
+def vertebrae_csv(result: dict[str, Any]) -> str:
+    """One row per vertebra, T1 to L5: position (LPS, mm), strains u (rad/mm) and v, and angles."""
+    rows = []
+    for v in result.get("vertebrae") or []:
+        u = v.get("u") or (None, None, None)
+        s = v.get("v") or (None, None, None)
+        x, y, z = v["position"]
+        rows.append({
+            "level": v["level"], "x_mm": x, "y_mm": y, "z_mm": z,
+            "u1_rad_per_mm": u[0], "u2_rad_per_mm": u[1], "u3_rad_per_mm": u[2], "v1": s[0], "v2": s[1], "v3": s[2],
+            "pa_bending_deg": v.get("pa_bending_deg"), "lateral_bending_deg": v.get("lateral_bending_deg"),
+            "twist_deg": v.get("twist_deg"), "axial_rotation_deg": v.get("axial_rotation_deg"),
+            "frontal_tilt_deg": v.get("frontal_tilt_deg"),
+        })  # fmt: skip
+    return _csv(VERTEBRA_COLUMNS, rows)
+
+
+def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
+    measures = result.get("measures") or {}
+    rows: list[dict[str, Any]] = []
+    for c in measures.get("cobb") or []:
+        where = {"upper": c["upper"], "lower": c["lower"], "apex": c["apex"], "convexity": c["convexity"],
+                 "major": bool(c.get("major"))}  # fmt: skip
+        rows.append({"measure": "cobb_angle", "value": c["angle_deg"], "unit": "deg", **where})
+        rows.append({"measure": "apex_axial_rotation", "value": c["apex_axial_rotation_deg"], "unit": "deg", **where})
+        rows.append(
+            {"measure": "plane_of_max_curvature", "value": c["plane_of_max_curvature_deg"], "unit": "deg", **where}
+        )
+        rows.append({"measure": "max_curvature", "value": c["max_curvature_deg"], "unit": "deg", **where})
+    for name, upper, lower in (
+        ("thoracic_kyphosis_t4_t12", "T4", "T12"),
+        ("thoracic_kyphosis_t5_t12", "T5", "T12"),
+        ("lumbar_lordosis_l1_l5", "L1", "L5"),
+    ):
+        if measures.get(f"{name}_deg") is not None:
+            rows.append({"measure": name, "value": measures[f"{name}_deg"], "unit": "deg", "upper": upper,
+                         "lower": lower})  # fmt: skip
+    fit = result.get("fit") or {}
+    if fit.get("mean_registration_error_mm") is not None:
+        rows.append({"measure": "mean_registration_error", "value": fit["mean_registration_error_mm"], "unit": "mm"})
+    return rows
+
+
+def measures_csv(result: dict[str, Any]) -> str:
+    """One row per measure: every Cobb curve (angle, apical rotation, plane and magnitude of maximum
+    curvature), kyphosis, lordosis and the mean registration error."""
+    return _csv(MEASURE_COLUMNS, measure_rows(result))
+
+
+def summary_row(file: str, job: dict[str, Any] | None, *, status: str | None = None,
+                problem: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    row: dict[str, Any] = {"file": file, "status": status or (job or {}).get("status")}
+    if job is not None:
+        row["job_id"] = job.get("id")
+        result = job.get("result") or {}
+        measures = result.get("measures") or {}
+        major = next((c for c in measures.get("cobb") or [] if c.get("major")), None) or {}
+        row.update({
+            "major_cobb_deg": major.get("angle_deg"), "major_upper": major.get("upper"),
+            "major_lower": major.get("lower"), "major_apex": major.get("apex"),
+            "major_convexity": major.get("convexity"),
+            "thoracic_kyphosis_t4_t12_deg": measures.get("thoracic_kyphosis_t4_t12_deg"),
+            "lumbar_lordosis_l1_l5_deg": measures.get("lumbar_lordosis_l1_l5_deg"),
+            "mean_registration_error_mm": (result.get("fit") or {}).get("mean_registration_error_mm"),
+        })  # fmt: skip
+        problem = problem or job.get("error")
+    if problem:
+        row["problem_type"] = str(problem.get("type", "")).rsplit("/", 1)[-1]
+        row["detail"] = problem.get("detail")
+    return row
+
+
+def summary_csv(rows: Iterable[dict[str, Any]]) -> str:
+    return _csv(SUMMARY_COLUMNS, rows)
