@@ -8,7 +8,7 @@ whose body differs from the one first sent under ``K#i`` gets an ``idempotency-c
 from __future__ import annotations
 
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from sqlalchemy import insert, select
@@ -26,12 +26,20 @@ def entry_key(key: str, index: int) -> str:
     return f"{key}#{index}"
 
 
+InsertHook = Callable[[Session, list[uuid.UUID]], None]
+"""Called with the ids of jobs just inserted, in their transaction (e.g. the API's audit rows)."""
+
 Outcome = tuple[Job, bool] | jobs_repo.IdempotencyConflict
 """Per payload: (job, created) or the conflict with the job first stored under its key."""
 
 
 def create_jobs_idempotent(
-    session: Session, payloads: Sequence[tuple[int, dict[str, Any]]], *, owner: str | None, key: str
+    session: Session,
+    payloads: Sequence[tuple[int, dict[str, Any]]],
+    *,
+    owner: str | None,
+    key: str,
+    on_insert: InsertHook | None = None,
 ) -> list[Outcome]:
     """Store the (index, payload) pairs under ``key#index``; replay those already stored."""
     keys = [entry_key(key, i) for i, _ in payloads]
@@ -56,6 +64,8 @@ def create_jobs_idempotent(
     if rows:
         try:
             session.execute(insert(Job), rows)
+            if on_insert is not None:
+                on_insert(session, [row["id"] for row in rows])
             session.commit()
             for slot, row in zip(slots, rows, strict=True):
                 outcomes[slot] = (_job(row), True)
@@ -63,12 +73,17 @@ def create_jobs_idempotent(
             session.rollback()
             for slot, row in zip(slots, rows, strict=True):
                 try:
-                    outcomes[slot] = jobs_repo.create_job(
-                        session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"]
-                    )
+                    outcomes[slot] = _create_one(session, row, owner, on_insert)
                 except jobs_repo.IdempotencyConflict as exc:
                     outcomes[slot] = exc
     return [o for o in outcomes if o is not None]
+
+
+def _create_one(session: Session, row: dict[str, Any], owner: str | None, on_insert: InsertHook | None) -> Outcome:
+    if on_insert is None:
+        return jobs_repo.create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"])
+    return jobs_repo.create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"],
+                                on_insert=on_insert)  # type: ignore[call-arg, unused-ignore]  # fmt: skip
 
 
 def _job(row: dict[str, Any]) -> Job:
@@ -85,15 +100,21 @@ def batch_response(
     total: int,
     valid: list[tuple[int, dict[str, Any]]],
     entries: list[dict[str, Any] | None],
+    on_insert: InsertHook | None = None,
+    on_accepted: Callable[[int], None] | None = None,
 ) -> Any:
-    """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones)."""
+    """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones).
+
+    ``on_insert(session, ids)`` runs in the inserting transaction; ``on_accepted(n)`` gets the number of
+    jobs made (replays are not counted).
+    """
     from fastapi.responses import JSONResponse
 
     from services.api.schemas import job_json
     from services.jobqueue import enqueue
     from services.problems import problem
 
-    outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key) if valid else []
+    outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert) if valid else []
     created: list[uuid.UUID] = []
     replayed = 0
     for (i, _), outcome in zip(valid, outcomes, strict=True):
@@ -108,6 +129,8 @@ def batch_response(
         else:
             replayed += 1
         entries[i] = {"index": i, "status": 202, "job": job_json(job)}
+    if on_accepted is not None:
+        on_accepted(len(created))
     enqueue(queue, created)
     accepted = sum(1 for e in entries if e is not None and e["status"] == 202)
     headers = {"Idempotent-Replayed": "true"} if replayed and not created else None
