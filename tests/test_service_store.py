@@ -226,3 +226,22 @@ def test_migrations_go_down_and_up_again(db_settings: Settings) -> None:
     assert {"jobs", "job_measures", "vertebra_strains"} <= tables
     indexes = {ix["name"] for ix in inspect(get_engine(db_settings)).get_indexes("jobs")}
     assert {"ix_jobs_status_created_at_id", "ix_jobs_created_at_id", "ix_jobs_finished_at"} <= indexes
+
+
+def test_reconciler_leaves_a_backlog_alone_while_the_broker_holds_its_messages(tmp_path: Any) -> None:
+    """Embedded broker (real SQLite queue): stale queued jobs are re-published only if a message is missing."""
+    from services.jobqueue import enqueue, make_celery, queue_depth
+    from services.worker.tasks import reconcile_once
+
+    settings = Settings(data_dir=tmp_path, queue_name="backlog")
+    upgrade(settings, quiet=True)
+    app = make_celery(settings)
+    published = [new_job(settings), new_job(settings)]
+    enqueue(app, published)
+    for job_id in published:
+        _age(settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
+    assert reconcile_once(settings, app).requeue == []  # two messages wait for two jobs
+    lost = new_job(settings)  # stored, never published
+    _age(settings, lost, enqueued_at=utcnow() - timedelta(hours=1))
+    assert set(reconcile_once(settings, app).requeue) == {*published, lost}
+    assert queue_depth(app, "backlog") == 5

@@ -18,12 +18,14 @@ from celery import Celery, Task
 from celery.exceptions import SoftTimeLimitExceeded
 from kombu.exceptions import OperationalError as BrokerError
 from sqlalchemy.exc import InterfaceError, OperationalError
+from sqlalchemy.orm import Session
 from tenacity import retry, retry_if_exception_type, stop_after_attempt, wait_exponential
 
 import spine_engine
 from services.db import jobs as jobs_repo
 from services.db.engine import session_scope
-from services.jobqueue import RECONCILE, RUN_JOB, enqueue
+from services.db.models import JobStatus
+from services.jobqueue import RECONCILE, RUN_JOB, enqueue, queue_depth
 from services.problems import problem, validation_problem
 from services.settings import Settings
 from services.webhooks import delivery as webhooks
@@ -87,6 +89,19 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     return status
 
 
+def _messages_cover_queued_jobs(session: Session, app: Celery, settings: Settings) -> bool:
+    """True when the broker holds at least one message per queued job.
+
+    Then no queued job lost its message, however long the backlog, and re-publishing the stale
+    ones would only add duplicates for the workers to skip.
+    """
+    try:
+        depth = queue_depth(app, settings.queue_name)
+    except Exception:
+        return False
+    return depth > 0 and depth >= jobs_repo.count_by_status(session)[JobStatus.queued.value]
+
+
 def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
     """One pass of the reconciler: re-enqueue stranded jobs, fail those out of attempts."""
     lost = problem(
@@ -94,10 +109,13 @@ def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
         f"the job was still running {settings.fit_time_limit_s:g} s after it started, "
         f"{settings.max_attempts} times; its worker stopped or lost it",
     )
+    queued_timeout = timedelta(seconds=settings.queued_timeout_s)
     with session_scope(settings) as session:
+        if _messages_cover_queued_jobs(session, app, settings):
+            queued_timeout = timedelta(days=36500)  # nothing lost: leave a long backlog alone
         outcome = jobs_repo.reconcile(
             session,
-            queued_timeout=timedelta(seconds=settings.queued_timeout_s),
+            queued_timeout=queued_timeout,
             running_timeout=timedelta(seconds=settings.fit_time_limit_s + settings.running_grace_s),
             max_attempts=settings.max_attempts,
             lost_problem=lost,
