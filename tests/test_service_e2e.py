@@ -137,11 +137,17 @@ def test_killing_the_worker_mid_run_strands_no_job(distributed_service: Service)
         os.killpg(service.worker.pid, signal.SIGKILL)
         service.worker.wait()
         service.worker = None
+        at_kill = {i: service.job(i) for i in ids}
+        unfinished = [i for i, j in at_kill.items() if j["status"] in ("queued", "running")]
+        stranded = [i for i, j in at_kill.items() if j["status"] == "running"]  # its process is dead
+        assert unfinished, "the worker finished every job before it was killed: nothing was tested"
         service.start_worker()
-        finished = service.wait_all(ids, timeout=90)
-        assert {j["status"] for j in finished} == {"succeeded"}
+        finished = {j["id"]: j for j in service.wait_all(ids, timeout=90)}
+        assert {j["status"] for j in finished.values()} == {"succeeded"}
         for job_id in ids:
             assert stored(service, job_id) == (1, 17)
+        for job_id in stranded:  # taken back by the reconciler and run again, to one outcome
+            assert finished[job_id]["attempts"] == at_kill[job_id]["attempts"] + 1
     finally:
         service.stop_worker()
         service.env = saved
