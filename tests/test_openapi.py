@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,9 +20,11 @@ def test_openapi_yaml_matches_the_app() -> None:
 
 
 def test_spine_openapi_prints_it(tmp_path: Path) -> None:
+    # From the repository under test (not whatever checkout the venv was installed from).
+    env = {**os.environ, "SPINE_DATA_DIR": str(tmp_path)}
     out = subprocess.run(
         [sys.executable, "-m", "services.cli", "openapi"],
-        capture_output=True, text=True, check=True, cwd=tmp_path, timeout=60,
+        capture_output=True, text=True, check=True, cwd=ROOT, env=env, timeout=60,
     )  # fmt: skip
     assert out.stdout == (ROOT / "openapi.yaml").read_text()
 
