@@ -59,7 +59,10 @@ def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list
 
 def cmd_worker(args: argparse.Namespace) -> int:
     settings = _settings()
-    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    from services.logs import configure_logging, install_celery_job_context
+
+    configure_logging(settings.log_level)  # JSON lines, with the job id of the task running
+    install_celery_job_context()
     from services.webhooks.delivery import webhook_queue
     from services.worker.celery_app import app
 
@@ -74,11 +77,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     settings = _settings()
-    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    from services.logs import configure_logging, uvicorn_log_config
+
+    configure_logging(settings.log_level)  # JSON lines, with the request id
     if settings.embedded:
         from services.db.migrate import upgrade
+        from services.keys_cli import ensure_first_key
 
         upgrade(settings, quiet=True)
+        ensure_first_key(settings)  # first start: an admin key, printed once
     # uvicorn re-raises the signal that stopped it: make SIGTERM an exception, so that the
     # worker child is stopped below instead of being orphaned.
     signal.signal(signal.SIGTERM, _raise_exit)
@@ -99,6 +106,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             port=args.port,
             workers=args.workers,
             log_level=settings.log_level.lower(),
+            log_config=uvicorn_log_config(settings.log_level),
             access_log=args.access_log,
         )
     finally:
@@ -162,6 +170,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     migrate = sub.add_parser("migrate", help="apply the database migrations")
     migrate.set_defaults(func=cmd_migrate)
+
+    from services.keys_cli import add_keys_parser
+
+    add_keys_parser(sub)  # spine keys create|list|revoke
 
     openapi = sub.add_parser("openapi", help="print the API's OpenAPI schema as YAML")
     openapi.set_defaults(func=cmd_openapi)

@@ -213,7 +213,8 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     pool = max(args.concurrency, int(args.rate)) + 4
     limits = httpx.Limits(max_connections=pool, max_keepalive_connections=pool)
     report: dict[str, Any] = {"url": args.url}
-    async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits) as client:
+    headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
+    async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits, headers=headers) as client:
         if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
             warm = await fixed_rate(client, args.rate, args.warmup_seconds)
             await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
@@ -291,6 +292,10 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
     ensure_database(env["DATABASE_URL"])
     spine = [sys.executable, "-m", "services.cli"]
     subprocess.run([*spine, "migrate"], env=env, check=True, capture_output=True)
+    if not args.api_key:  # an admin key (not capped), printed alone on the last line
+        created = subprocess.run([*spine, "keys", "create", "--name", "loadbench", "--role", "admin"], env=env,
+                                 check=True, capture_output=True, text=True)  # fmt: skip
+        args.api_key = created.stdout.strip().splitlines()[-1]
     port = urlparse(args.url).port or 80
     procs = []
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -337,6 +342,8 @@ def stop(procs: list[subprocess.Popen[bytes]]) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m services.loadbench", description=__doc__.splitlines()[0])
     parser.add_argument("--url", default="http://127.0.0.1:8000", help="base URL (loopback only)")
+    parser.add_argument("--api-key", default=os.environ.get("SPINE_API_KEY"),
+                        help="API key (default $SPINE_API_KEY; --spawn makes an admin key when unset)")  # fmt: skip
     parser.add_argument("--phases", nargs="+", choices=["latency", "throughput"], default=["latency", "throughput"])
     parser.add_argument("--rate", type=float, default=100.0, help="POSTs per second in the latency phase")
     parser.add_argument("--rate-seconds", type=float, default=30.0, help="length of the latency phase")
@@ -366,7 +373,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
     finally:
         stop(procs)
-    report["settings"] = {k: str(v) for k, v in vars(args).items()}
+    report["settings"] = {k: str(v) for k, v in vars(args).items() if k != "api_key"}  # no secret in reports
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(report, indent=2))

@@ -27,6 +27,9 @@ KINDS: dict[str, tuple[str, int]] = {
     "job-not-cancellable": ("The job has already finished", 409),
     "job-has-no-result": ("The job has no result: it has not succeeded (yet)", 409),
     "service-unavailable": ("A dependency of the service is unreachable", 503),
+    "unauthorized": ("Missing, invalid or revoked API key", 401),
+    "forbidden": ("The API key's role does not allow this", 403),
+    "too-many-queued-jobs": ("Too many of this client's jobs are queued", 429),
     "internal-error": ("Internal error", 500),
     "http-error": ("HTTP error", 400),
     # Stored on failed jobs by the worker.

@@ -68,6 +68,29 @@ class Settings(BaseSettings):
         300.0, gt=0, description="Window of finished jobs over which /metrics reports duration quantiles."
     )
     log_level: str = Field("INFO", description="Log level of API and worker.")
+    # Security (services/api/security.py, services/auth.py): API keys, headers, CORS, limits.
+    api_key_cache_s: float = Field(
+        5.0,
+        ge=0,
+        description="Seconds an API process trusts a verified key without reading it again: "
+        "a revoked key is refused at most this long after `spine keys revoke`.",
+    )
+    max_queued_per_client: int = Field(
+        2000,
+        ge=0,
+        description="Most jobs a client (API key name, role client) may have queued at once; "
+        "past it, submissions answer 429 with Retry-After. 0: no cap. Admin keys are not capped.",
+    )
+    cors_origins: str = Field(
+        "",
+        description="Comma-separated origins (scheme://host[:port]) allowed to call the API from a browser; "
+        "empty: CORS is off.",
+    )
+    hsts_max_age_s: int = Field(
+        0, ge=0, description="When > 0, every answer carries Strict-Transport-Security with this max-age (HTTPS only)."
+    )
+    metrics_require_key: bool = Field(False, description="Whether /metrics needs an admin API key.")
+    access_log: bool = Field(True, description="Whether the API logs one JSON line per request.")
     # Webhooks (services/webhooks): callback_url destinations, signing and delivery.
     webhook_allowed_urls: str = Field(
         "",

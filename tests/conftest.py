@@ -122,6 +122,8 @@ class Service:
         self.settings = Settings(**_settings_kwargs(env))
         upgrade(self.settings, quiet=True)
         self.client = TestClient(create_app(self.settings))
+        self.api_key = make_key(self.settings, f"{name}-admin", "admin")  # sees every job, stored ones too
+        self.client.headers["Authorization"] = f"Bearer {self.api_key}"
         self.worker: subprocess.Popen[bytes] | None = None
         self.log_path = data_dir / "worker.log"
 
@@ -258,12 +260,23 @@ def service(request: pytest.FixtureRequest) -> Service:
     return svc
 
 
+def make_key(settings: Settings, name: str = "test-client", role: str = "client") -> str:
+    """A new API key (``spine keys create``'s store) in the database of ``settings``."""
+    from services.db.access import create_key
+    from services.db.engine import session_factory
+
+    with session_factory(settings)() as session:
+        return create_key(session, name, role)[1]
+
+
 @pytest.fixture
 def api(tmp_path: Path) -> Iterator[TestClient]:
-    """The API alone on a fresh embedded database (no worker): jobs stay queued."""
+    """The API alone on a fresh embedded database (no worker): jobs stay queued. It sends the API key
+    of a client named ``test-client``."""
     settings = Settings(data_dir=tmp_path)
     upgrade(settings, quiet=True)
     with TestClient(create_app(settings)) as client:
+        client.headers["Authorization"] = f"Bearer {make_key(settings)}"
         yield client
 
 

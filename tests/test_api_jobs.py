@@ -13,7 +13,7 @@ from services.api.app import create_app
 from services.db.migrate import upgrade
 from services.problems import PROBLEM_BASE
 from services.settings import Settings
-from tests.conftest import problem_of, spine_payload
+from tests.conftest import make_key, problem_of, spine_payload
 
 
 def test_submit_answers_202_with_location_and_a_queued_job(api: TestClient, payload: dict[str, Any]) -> None:
@@ -21,7 +21,7 @@ def test_submit_answers_202_with_location_and_a_queued_job(api: TestClient, payl
     assert response.status_code == 202
     job = response.json()
     assert response.headers["location"] == f"/v1/jobs/{job['id']}"
-    assert job["status"] == "queued" and job["attempts"] == 0 and job["owner"] is None
+    assert job["status"] == "queued" and job["attempts"] == 0 and job["owner"] == "test-client"
     assert job["result"] is None and job["error"] is None
     read = api.get(response.headers["location"]).json()
     assert read["payload"] == payload
@@ -227,7 +227,7 @@ def test_health_ready_and_metrics(api: TestClient, payload: dict[str, Any]) -> N
 def test_readyz_is_503_when_the_broker_or_database_is_unreachable(tmp_path: Any, payload: Any) -> None:
     settings = Settings(data_dir=tmp_path, CELERY_BROKER_URL="redis://127.0.0.1:9/0")
     upgrade(settings, quiet=True)
-    client = TestClient(create_app(settings))
+    client = TestClient(create_app(settings), headers={"Authorization": f"Bearer {make_key(settings)}"})
     response = client.get("/readyz")
     assert response.status_code == 503
     problem = problem_of(response)
@@ -237,7 +237,9 @@ def test_readyz_is_503_when_the_broker_or_database_is_unreachable(tmp_path: Any,
     assert client.post("/v1/jobs", json=payload).status_code == 202
 
     down = Settings(data_dir=tmp_path, DATABASE_URL="postgresql+psycopg://nobody@127.0.0.1:9/none")
-    client = TestClient(create_app(down), raise_server_exceptions=False)
+    well_formed = "spine_0123456789ab_" + "x" * 43  # its lookup needs the database, which is down
+    client = TestClient(create_app(down), raise_server_exceptions=False,
+                        headers={"Authorization": f"Bearer {well_formed}"})  # fmt: skip
     response = client.get("/readyz")
     assert response.status_code == 503 and problem_of(response)["checks"]["database"] != "ok"
     submit = client.post("/v1/jobs", json=payload)

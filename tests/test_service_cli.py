@@ -34,8 +34,11 @@ def _alive(pid: int) -> bool:
     return True
 
 
+KEY = re.compile(r"^(spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43})$", re.M)
+
+
 class Serve:
-    def __init__(self, data_dir: Path):
+    def __init__(self, data_dir: Path, api_key: str | None = None):
         self.port = _free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.log = data_dir / f"serve-{self.port}.log"
@@ -51,6 +54,11 @@ class Serve:
         while time.monotonic() < deadline:
             try:
                 if self.client.get("/readyz").status_code == 200 and " ready." in self.text():
+                    # the first start of the embedded default prints an admin key, once
+                    printed = KEY.search(self.text())
+                    self.api_key = api_key or (printed.group(1) if printed else "")
+                    assert self.api_key, f"no API key printed at first start:\n{self.text()}"
+                    self.client.headers["Authorization"] = f"Bearer {self.api_key}"
                     return
             except httpx.TransportError:
                 pass
@@ -103,7 +111,8 @@ def test_serve_runs_api_and_worker_and_ctrl_c_stops_both(tmp_path: Path) -> None
     assert not _alive(worker), "the worker child outlived spine serve"
     assert (tmp_path / "spine.db").exists() and (tmp_path / "broker.db").exists()
 
-    again = Serve(tmp_path)  # jobs survive a restart
+    again = Serve(tmp_path, api_key=serve.api_key)  # jobs survive a restart; the key is not printed again
+    assert not KEY.search(again.text())
     try:
         kept = again.client.get(f"/v1/jobs/{job['id']}").json()
         assert kept["status"] == job["status"] and kept["finished_at"] == job["finished_at"]

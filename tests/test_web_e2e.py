@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import signal
 import socket
@@ -107,6 +108,10 @@ def live_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"spine serve did not become ready:\n{log_path.read_text(errors='replace')[-4000:]}")
             time.sleep(0.2)
+        # the first start of the embedded default prints an admin API key, once: the page needs it
+        printed = re.search(r"^(spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43})$", log_path.read_text(errors="replace"), re.M)
+        assert printed, f"spine serve printed no API key:\n{log_path.read_text(errors='replace')[-4000:]}"
+        API_KEYS[url] = printed.group(1)
         yield url
     finally:
         if proc.poll() is None:
@@ -116,6 +121,15 @@ def live_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
+
+
+API_KEYS: dict[str, str] = {}
+
+
+@pytest.fixture(scope="module")
+def api_key(live_url: str) -> str:
+    """The admin key `spine serve` printed at its first start."""
+    return API_KEYS[live_url]
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +169,11 @@ class PageWatch:
 
 
 def test_click_landmarks_on_a_radiograph_and_see_the_reconstruction(
-    browser: Any, live_url: str, tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture[str]
+    browser: Any,
+    live_url: str,
+    api_key: str,
+    tmp_path_factory: pytest.TempPathFactory,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     out = tmp_path_factory.mktemp("web-e2e")
     radiograph = out / "radiograph.png"
@@ -166,6 +184,7 @@ def test_click_landmarks_on_a_radiograph_and_see_the_reconstruction(
     page.goto(live_url + "/")
     page.wait_for_selector("body[data-ready=true]")
     assert page.title() == "Spine reconstruction"
+    page.fill("#api-key", api_key)
 
     # -- landmarks: click T1..L4 (T3 undone and clicked again), then L5 with the keyboard
     page.set_input_files("#image-file", str(radiograph))
@@ -207,7 +226,7 @@ def test_click_landmarks_on_a_radiograph_and_see_the_reconstruction(
     assert body["pa"]["units"] == "px" and body["pa"]["pixel_spacing"] == [PIXEL_SPACING, PIXEL_SPACING]
     assert [lm["level"] for lm in body["pa"]["landmarks"]] == LEVELS
     assert body["pa"]["landmarks"][5]["point"] == pytest.approx(list(points[5]), abs=1 / scale + 0.1)  # whole CSS px
-    assert "authorization" not in posted[0].headers  # no API key set
+    assert posted[0].headers.get("authorization") == f"Bearer {api_key}"
     polls = [r for r in watch.requests if r.method == "GET" and "/v1/jobs/" in r.url]
     assert polls, "the page did not poll the job"
 
@@ -257,7 +276,11 @@ def test_click_landmarks_on_a_radiograph_and_see_the_reconstruction(
 
 
 def test_sample_payload_with_an_api_key(
-    browser: Any, live_url: str, tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture[str]
+    browser: Any,
+    live_url: str,
+    api_key: str,
+    tmp_path_factory: pytest.TempPathFactory,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     """Also the 3D view's fallback without WebGL (three's SVG renderer, forced by ?renderer=svg)."""
     context = browser.new_context(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
@@ -282,8 +305,8 @@ def test_sample_payload_with_an_api_key(
         page.click("#download-landmarks")
     saved = Path(info.value.path()).read_text().splitlines()
     assert saved[0] == "level,column,row,view" and saved[1] == "T1,100,50,pa" and saved[-1] == "T1,200,50,lateral"
-    page.fill("#api-key", "test-key-123")
-    assert page.evaluate("sessionStorage.getItem('spine.apiKey')") == "test-key-123"
+    page.fill("#api-key", api_key)
+    assert page.evaluate("sessionStorage.getItem('spine.apiKey')") == api_key
     page.click("#tab-json")
     assert page.is_visible("#panel-json") and not page.is_visible("#panel-image")
     page.click("#load-sample")
@@ -291,7 +314,7 @@ def test_sample_payload_with_an_api_key(
     page.click("#submit")
     page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
     posted = next(r for r in watch.requests if r.method == "POST" and r.url.endswith("/v1/jobs"))
-    assert posted.headers.get("authorization") == "Bearer test-key-123"
+    assert posted.headers.get("authorization") == f"Bearer {api_key}"
     assert page.locator("#view-pa svg image").count() == 0  # no radiograph: detector mm
     assert page.locator("#strains tbody tr").count() == 17
     assert page.get_attribute("#view3d", "data-renderer") == "svg"

@@ -9,19 +9,24 @@ from typing import Any
 
 import anyio.to_thread
 from celery import Celery
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry
 
+from services.api.deps import reject_unknown_query
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
 from services.api.routes import fhir, figures, health, jobs
+from services.api.schemas import BatchRequest
+from services.api.security import install_auth, install_edge, secure_openapi
 from services.api.web import mount_web
 from services.db.engine import get_engine
 from services.jobqueue import make_celery
 from services.problems import PROBLEM_BASE
 from services.settings import Settings, get_settings
 from spine_engine.models import JobPayload
+
+REF = "#/components/schemas/{model}"
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +68,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="1.0.0",
         description=DESCRIPTION,
         lifespan=lifespan,
+        dependencies=[Depends(reject_unknown_query)],
     )
     app.state.settings = settings
     app.state.celery = make_celery(settings)
@@ -75,7 +81,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(figures.router)
     app.include_router(fhir.router)
     mount_web(app)
+    install_auth(app, settings)  # API keys on /v1, inside the metrics middleware: refusals are counted
     app.add_middleware(HTTPMetrics, registry=registry)
+    install_edge(app, settings)  # outermost: request id, security headers, CORS, access log
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
@@ -85,7 +93,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for name, definition in defs.pop("$defs", {}).items():
                 components.setdefault(name, definition)
             components["JobPayload"] = defs
-            app.openapi_schema = schema
+            # POST /v1/jobs/batch's body (declared through openapi_extra, so FastAPI does not add it)
+            components.setdefault("BatchRequest", BatchRequest.model_json_schema(ref_template=REF))
+            app.openapi_schema = secure_openapi(schema)
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import json
 from collections.abc import AsyncIterator
+from datetime import datetime
 from typing import Annotated, Any
 
 from celery import Celery
 from fastapi import Depends, Request
+from pydantic import BeforeValidator
 from sqlalchemy.orm import Session
 
 from services.api.errors import ProblemError
+from services.db.access import Caller
 from services.db.engine import session_factory
-from services.problems import problem
+from services.problems import problem, validation_problem
 from services.settings import Settings
 from spine_engine.errors import FieldError
 
@@ -48,12 +51,69 @@ async def get_queue(request: Request) -> Celery:
 QueueDep = Annotated[Celery, Depends(get_queue)]
 
 
-async def get_owner() -> str | None:
-    """The caller's identity; None until API keys exist (a later issue fills this in)."""
-    return None
+async def get_caller(request: Request) -> Caller:
+    """The client of the request, authenticated by the API-key middleware (services/api/security.py)."""
+    caller: Caller | None = getattr(request.state, "caller", None)
+    if caller is None:  # a route outside /v1 asked for a caller: refuse rather than guess
+        raise ProblemError(problem("unauthorized", "this endpoint needs an API key"),
+                           headers={"WWW-Authenticate": 'Bearer realm="spine"'})  # fmt: skip
+    return caller
+
+
+CallerDep = Annotated[Caller, Depends(get_caller)]
+
+
+async def get_owner(caller: CallerDep) -> str | None:
+    """The owner whose jobs the caller creates, sees and cancels: its client name (key name) for the
+    ``client`` role; None for ``admin``, which sees every job (and whose own jobs have no owner)."""
+    return caller.read_scope
 
 
 OwnerDep = Annotated[str | None, Depends(get_owner)]
+
+
+_KNOWN_QUERY: dict[int, frozenset[str]] = {}
+
+
+async def reject_unknown_query(request: Request) -> None:
+    """A /v1 query parameter the operation does not have is a 422, not silently ignored
+    (``?stauts=queued`` would otherwise list every job)."""
+    if not request.url.path.startswith("/v1/") or not request.query_params:
+        return
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    if dependant is None:
+        return
+    known = _KNOWN_QUERY.get(id(route))
+    if known is None:
+        known = _KNOWN_QUERY[id(route)] = frozenset(_query_names(dependant))
+    unknown = [name for name in dict.fromkeys(request.query_params.keys()) if name not in known]
+    if unknown:
+        raise ProblemError(validation_problem(
+            [FieldError(("query", name), "unknown query parameter", "extra_forbidden") for name in unknown],
+            instance=request.url.path,
+        ))  # fmt: skip
+
+
+def _query_names(dependant: Any) -> set[str]:
+    names = {p.alias for p in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _query_names(sub)
+    return names
+
+
+def _iso_only(value: Any) -> Any:
+    """A query timestamp is ISO 8601 text: refuse what pydantic would read as Unix seconds."""
+    text = str(value).strip()
+    try:
+        float(text)
+    except ValueError:
+        return value
+    raise ValueError("expected an ISO 8601 date-time, e.g. 2026-11-22T10:00:00Z, not a number")
+
+
+IsoDateTime = Annotated[datetime, BeforeValidator(_iso_only)]
+"""A date-time query parameter (format: date-time in the contract, and nothing else)."""
 
 
 def _is_json(content_type: str) -> bool:
@@ -89,9 +149,17 @@ async def read_json(request: Request, limit: int) -> Any:
     raw = b"".join(chunks)
     try:
         return json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError, ValueError) as exc:
+        # RecursionError: nested too deeply; ValueError: an integer of more than 4300 digits.
         where = f"line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else "body"
-        msg = exc.msg if isinstance(exc, json.JSONDecodeError) else "the body is not UTF-8"
+        if isinstance(exc, json.JSONDecodeError):
+            msg = exc.msg
+        elif isinstance(exc, UnicodeDecodeError):
+            msg = "the body is not UTF-8"
+        elif isinstance(exc, RecursionError):
+            msg = "the body is nested too deeply"
+        else:
+            msg = "a number has too many digits"
         error = FieldError((), f"{msg} ({where})", "json_invalid")
         raise ProblemError(
             problem(

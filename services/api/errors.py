@@ -10,6 +10,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from spine_engine.errors import FieldError
@@ -52,7 +53,19 @@ async def _http_error(request: Request, exc: Exception) -> JSONResponse:
     kind = {404: "not-found", 405: "method-not-allowed", 413: "payload-too-large", 415: "unsupported-media-type"}
     body = problem(kind.get(exc.status_code, "http-error"), str(exc.detail), status=exc.status_code,
                    instance=request.url.path)  # fmt: skip
-    return problem_response(body, dict(exc.headers) if exc.headers else None)
+    headers = dict(exc.headers) if exc.headers else {}
+    if exc.status_code == 405:  # every method the path has, not only those of the first route matched
+        headers["Allow"] = ", ".join(_allowed_methods(request))
+    return problem_response(body, headers or None)
+
+
+def _allowed_methods(request: Request) -> list[str]:
+    methods: set[str] = set()
+    for route in request.app.router.routes:
+        match, _ = route.matches(request.scope)
+        if match != Match.NONE:
+            methods |= set(getattr(route, "methods", None) or ())
+    return sorted(methods)
 
 
 async def _database_down(request: Request, exc: Exception) -> JSONResponse:

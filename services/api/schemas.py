@@ -63,8 +63,9 @@ class JobPage(BaseModel):
 
 
 class BatchRequest(BaseModel):
-    jobs: list[dict[str, Any]] = Field(
-        description="Up to SPINE_BATCH_MAX_JOBS (1000) job payloads, each validated on its own."
+    jobs: list[Any] = Field(
+        description="Up to SPINE_BATCH_MAX_JOBS (1000) job payloads (JobPayload), each validated on its own: "
+        "an entry that is not a valid payload (not even an object) gets its own 422 problem in the answer."
     )
 
 

@@ -29,12 +29,13 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
 def create_db_engine(url: str, pool_size: int = 10) -> Engine:
     """An engine for ``url``: WAL and a busy timeout on SQLite, a sized pool on PostgreSQL."""
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False}, hide_parameters=True)
         event.listen(engine, "connect", _sqlite_pragmas)
         return engine
     # No pre-ping (a round trip per checkout): after a database restart, a stale pooled
     # connection fails one request (503 problem / task retry) and the pool is refreshed.
-    return create_engine(url, pool_size=pool_size, max_overflow=pool_size)
+    # hide_parameters: a database error never carries a job's payload into the logs.
+    return create_engine(url, pool_size=pool_size, max_overflow=pool_size, hide_parameters=True)
 
 
 def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:

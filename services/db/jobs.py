@@ -12,7 +12,7 @@ import binascii
 import hashlib
 import json
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, cast
@@ -24,6 +24,9 @@ from sqlalchemy.orm import Session
 from services.db.models import FINAL_STATUSES, Job, JobMeasures, JobStatus, VertebraStrain, utcnow
 
 FINISHED = [s.value for s in FINAL_STATUSES]
+
+InsertHook = Callable[[Session, list[uuid.UUID]], None]
+"""Called with the ids of jobs just inserted, in their transaction (the API's audit rows)."""
 
 
 class IdempotencyConflict(Exception):
@@ -75,10 +78,12 @@ def create_job(
     *,
     owner: str | None = None,
     idempotency_key: str | None = None,
+    on_insert: InsertHook | None = None,
 ) -> tuple[Job, bool]:
     """Store a queued job; return it and whether it is new (False: an idempotent replay).
 
     Raises ``IdempotencyConflict`` when ``idempotency_key`` was used by this owner with another body.
+    ``on_insert(session, [job id])`` runs in the inserting transaction (the API's audit row).
     """
     digest = request_hash(payload) if idempotency_key is not None else None
     if idempotency_key is not None:
@@ -88,6 +93,8 @@ def create_job(
     values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest)
     try:
         session.execute(insert(Job), [values])  # Core insert: the hot path skips the unit of work
+        if on_insert is not None:
+            on_insert(session, [values["id"]])
         session.commit()
     except IntegrityError:
         session.rollback()
@@ -118,11 +125,19 @@ def _replay(existing: Job, digest: str | None) -> tuple[Job, bool]:
     return existing, False
 
 
-def create_jobs(session: Session, payloads: Sequence[dict[str, Any]], *, owner: str | None = None) -> list[Job]:
+def create_jobs(
+    session: Session,
+    payloads: Sequence[dict[str, Any]],
+    *,
+    owner: str | None = None,
+    on_insert: InsertHook | None = None,
+) -> list[Job]:
     """Store many queued jobs in one transaction (the batch endpoint)."""
     now = utcnow()
     rows = [_new_job(p, owner, now) for p in payloads]
     session.execute(insert(Job), rows)
+    if on_insert is not None:
+        on_insert(session, [row["id"] for row in rows])
     session.commit()
     return [_detached(row) for row in rows]
 

@@ -9,6 +9,7 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
+from services.api import security
 from services.api.deps import OwnerDep, SessionDep
 from services.api.errors import ProblemError
 from services.api.schemas import Problem
@@ -41,6 +42,7 @@ def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, owner: str |
         job = jobs_repo.get_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
         raise ProblemError(problem("not-found", f"there is no job {job_id}")) from None
+    security.record(session, "read", [job.id])
     if job.status != "succeeded" or job.result is None:
         if job.status in ("queued", "running"):
             detail = f"job {job_id} is {job.status}; its figure exists once it has succeeded"

@@ -6,11 +6,13 @@ import uuid
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Query
+from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import JSONResponse
 
-from services.api.deps import BatchBody, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
+from services.api import security
+from services.api.deps import BatchBody, IsoDateTime, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
+from services.api.limits import check_magnitudes
 from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem, job_json
 from services.db import jobs as jobs_repo
 from services.idempotent_batch import MAX_BATCH_KEY_LENGTH, batch_response
@@ -66,11 +68,14 @@ def submit_job(
 ) -> JSONResponse:
     try:
         validate_payload(body)
+        check_magnitudes(body)
         check_webhook(body, settings, session, owner)
     except InvalidInput as exc:
         raise ProblemError(validation_problem(exc.errors)) from None
+    security.admit(session, 1)
     try:
-        job, created = jobs_repo.create_job(session, body, owner=owner, idempotency_key=idempotency_key)
+        job, created = jobs_repo.create_job(session, body, owner=owner, idempotency_key=idempotency_key,
+                                            on_insert=security.audit_created)  # fmt: skip
     except jobs_repo.IdempotencyConflict as exc:
         raise ProblemError(
             problem(
@@ -80,7 +85,10 @@ def submit_job(
             )
         ) from None
     if created:
+        security.accepted(1)
         enqueue(queue, [job.id])
+    else:
+        security.record(session, "read", [job.id])
     headers = {"Location": _location(job.id)}
     if not created:
         headers["Idempotent-Replayed"] = "true"
@@ -122,20 +130,32 @@ def submit_batch(
     for i, payload in enumerate(payloads):
         try:
             validate_payload(payload)
+            check_magnitudes(payload)
             check_webhook(payload, settings, session, owner)
             valid.append((i, payload))
         except InvalidInput as exc:
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
             p = validation_problem(errors, instance="/v1/jobs/batch")
             entries[i] = {"index": i, "status": p["status"], "problem": p}
+    security.admit(session, len(valid))
     if idempotency_key is not None:
         return batch_response(session, queue, owner=owner, key=idempotency_key, total=len(payloads), valid=valid,
-                              entries=entries)  # fmt: skip
-    jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner) if valid else []
+                              entries=entries, on_insert=security.audit_created,
+                              on_accepted=security.accepted)  # fmt: skip
+    jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner,
+                                 on_insert=security.audit_created) if valid else []  # fmt: skip
+    security.accepted(len(jobs))
     enqueue(queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
         entries[i] = {"index": i, "status": 202, "job": job_json(job)}
     return JSONResponse({"accepted": len(jobs), "rejected": len(payloads) - len(jobs), "results": entries})
+
+
+@router.api_route("/batch", methods=["GET", "PUT", "PATCH", "DELETE"], include_in_schema=False)
+async def batch_other_methods(request: Request) -> JSONResponse:
+    """/v1/jobs/batch takes POST only: a 405, not the job route's 422 for a job id "batch"."""
+    body = problem("method-not-allowed", "Method Not Allowed", instance=request.url.path)
+    return JSONResponse(body, status_code=405, media_type=PROBLEM_MEDIA_TYPE, headers={"Allow": "POST"})
 
 
 @router.get(
@@ -149,8 +169,8 @@ def list_jobs(
     session: SessionDep,
     owner: OwnerDep,
     status: Annotated[list[JobStatusName] | None, Query(description="Keep jobs in these states.")] = None,
-    created_after: Annotated[datetime | None, Query(description="Created at or after (ISO 8601).")] = None,
-    created_before: Annotated[datetime | None, Query(description="Created before (ISO 8601).")] = None,
+    created_after: Annotated[IsoDateTime | None, Query(description="Created at or after (ISO 8601).")] = None,
+    created_before: Annotated[IsoDateTime | None, Query(description="Created before (ISO 8601).")] = None,
     cursor: Annotated[str | None, Query(description="next_cursor of the previous page.")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
 ) -> JSONResponse:
@@ -169,6 +189,7 @@ def list_jobs(
         )
     except jobs_repo.BadCursor as exc:
         raise ProblemError(validation_problem([FieldError(("query", "cursor"), str(exc), "cursor")])) from None
+    security.record(session, "list", [j.id for j in jobs])
     return JSONResponse({"jobs": [job_json(j) for j in jobs], "next_cursor": next_cursor})
 
 
@@ -182,6 +203,7 @@ def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONRes
         job = jobs_repo.get_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
         raise _not_found(job_id) from None
+    security.record(session, "read", [job.id])
     body = job_json(job, with_payload=True)
     has_callback = isinstance(job.payload, dict) and job.payload.get("callback_url")
     body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
@@ -207,6 +229,7 @@ def cancel_job(
         raise ProblemError(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
         ) from None
+    security.record(session, "cancel", [job_id])
     if isinstance(job.payload, dict) and job.payload.get("callback_url"):
         job_ended(settings, job.id, "cancelled", celery=queue)
     return JSONResponse(job_json(job))

@@ -1,0 +1,46 @@
+"""Limits the API puts on a payload before it is stored, beside the engine's own validation.
+
+Coordinates, poses, spacings and scales are millimetres or pixels: a number larger than
+``MAX_MAGNITUDE`` in absolute value is a mistake (or an attack on the fit's arithmetic: 1e300
+overflows it). The engine's contract already refuses NaN and infinities; this refuses the
+absurdly large finite ones with the same 422 validation problem, naming each field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+from spine_engine.errors import FieldError, InvalidInput
+
+MAX_MAGNITUDE = 1e6
+MAX_ERRORS = 20
+
+
+def _numbers(value: Any, path: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], float]]:
+    if isinstance(value, bool):
+        return
+    if isinstance(value, int | float):
+        yield path, value
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from _numbers(item, (*path, str(key)))
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _numbers(item, (*path, index))
+
+
+def check_magnitudes(payload: Any) -> None:
+    """Raise ``InvalidInput`` naming every number of ``payload`` above ``MAX_MAGNITUDE`` in absolute value."""
+    errors = []
+    for path, number in _numbers(payload, ()):
+        try:
+            too_large = abs(number) > MAX_MAGNITUDE
+        except OverflowError:  # an int beyond float range
+            too_large = True
+        if too_large:
+            errors.append(FieldError(path, f"must be at most {MAX_MAGNITUDE:g} in absolute value", "number_too_large"))
+            if len(errors) >= MAX_ERRORS:
+                break
+    if errors:
+        raise InvalidInput(errors)

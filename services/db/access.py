@@ -1,0 +1,199 @@
+"""API keys and the audit trail of job access (tables ``api_keys`` and ``job_audit``).
+
+A key is ``spine_<id>_<secret>``: a 12-hex-digit id, visible in logs, listings and the audit
+trail, and a 256-bit random secret. Only the SHA-256 digest of the whole key is stored; a
+presented key is looked up by its id and its digest compared in constant time. A high-entropy
+key needs no salt nor slow hash: nothing can be guessed from its digest.
+
+A key's ``name`` is the client it belongs to: it is the ``owner`` of the jobs created with the
+key, so that a client keeps its jobs when its key is rotated (a new key, same name). The
+``client`` role sees only its own jobs; ``admin`` sees every job.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import re
+import secrets
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, Literal, cast
+
+from sqlalchemy import (
+    BigInteger,
+    CheckConstraint,
+    Index,
+    Integer,
+    String,
+    Table,
+    Uuid,
+    func,
+    insert,
+    select,
+    update,
+)
+from sqlalchemy.orm import Mapped, Session, mapped_column
+
+from services.db.models import Base, UTCDateTime, utcnow
+
+Role = Literal["admin", "client"]
+ROLES: tuple[Role, ...] = ("admin", "client")
+KEY_PREFIX = "spine_"
+KEY_PATTERN = re.compile(r"^spine_([0-9a-f]{12})_([A-Za-z0-9_-]{43})$")
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$")
+AuditAction = Literal["create", "read", "list", "cancel"]
+
+
+class ApiKey(Base):
+    __tablename__ = "api_keys"
+
+    id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), nullable=False)
+    role: Mapped[str] = mapped_column(String(8), nullable=False)
+    key_hash: Mapped[str] = mapped_column(String(64), nullable=False)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+    __table_args__ = (
+        CheckConstraint("role IN ('admin', 'client')", name="role"),
+        Index("ix_api_keys_name", "name"),
+    )
+
+
+class JobAudit(Base):
+    """Who (key id) created, read, listed or cancelled which job, when, in which request."""
+
+    __tablename__ = "job_audit"
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer(), "sqlite"), primary_key=True,
+                                    autoincrement=True)  # fmt: skip
+    at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    key_id: Mapped[str] = mapped_column(String(16), nullable=False)
+    action: Mapped[str] = mapped_column(String(8), nullable=False)
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, nullable=False)
+    request_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+    __table_args__ = (
+        CheckConstraint("action IN ('create', 'read', 'list', 'cancel')", name="action"),
+        Index("ix_job_audit_job_id_at", "job_id", "at"),
+        Index("ix_job_audit_key_id_at", "key_id", "at"),
+    )
+
+
+@dataclass(frozen=True)
+class Caller:
+    """The authenticated client of a request."""
+
+    key_id: str
+    name: str
+    role: str
+
+    @property
+    def is_admin(self) -> bool:
+        return self.role == "admin"
+
+    @property
+    def owner(self) -> str:
+        """The owner of the jobs this caller creates (and whose idempotency keys it shares)."""
+        return self.name
+
+    @property
+    def read_scope(self) -> str | None:
+        """The owner whose jobs this caller may see and cancel; None (all) for an admin."""
+        return None if self.is_admin else self.name
+
+
+def digest(key: str) -> str:
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+def new_key() -> tuple[str, str]:
+    """A fresh (key id, whole key)."""
+    key_id = secrets.token_hex(6)
+    return key_id, f"{KEY_PREFIX}{key_id}_{secrets.token_urlsafe(32)}"
+
+
+def key_id_of(key: str) -> str | None:
+    """The id of a well-formed key, else None."""
+    match = KEY_PATTERN.match(key)
+    return match.group(1) if match else None
+
+
+class BadKeyName(ValueError):
+    pass
+
+
+def create_key(session: Session, name: str, role: str = "client") -> tuple[ApiKey, str]:
+    """Store a new key for client ``name``; return it and the whole key (shown once, never stored)."""
+    if not NAME_PATTERN.match(name):
+        raise BadKeyName(f"a key name is 1 to 64 of A-Z a-z 0-9 . _ @ -, starting with a letter or digit: {name!r}")
+    if role not in ROLES:
+        raise BadKeyName(f"role must be one of {', '.join(ROLES)}, not {role!r}")
+    key_id, key = new_key()
+    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow())
+    session.add(row)
+    session.commit()
+    return row, key
+
+
+def verify_key(session: Session, key: str) -> Caller | None:
+    """The caller a presented key belongs to; None for a malformed, unknown or revoked key."""
+    presented = digest(key)
+    key_id = key_id_of(key)
+    row = session.get(ApiKey, key_id) if key_id is not None else None
+    stored = row.key_hash if row is not None else "0" * 64
+    valid = hmac.compare_digest(stored, presented)  # constant time whatever matched
+    if row is None or not valid or row.revoked_at is not None:
+        return None
+    return Caller(key_id=row.id, name=row.name, role=row.role)
+
+
+def list_keys(session: Session) -> list[ApiKey]:
+    return list(session.scalars(select(ApiKey).order_by(ApiKey.created_at, ApiKey.id)))
+
+
+def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
+    """Revoke the key with this id, or else every active key of the client with this name."""
+    now = utcnow()
+    by_id = session.get(ApiKey, name_or_id)
+    if by_id is not None:
+        targets = [by_id] if by_id.revoked_at is None else []
+    else:
+        targets = list(session.scalars(select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))))
+    if targets:
+        session.execute(update(ApiKey).where(ApiKey.id.in_([k.id for k in targets])).values(revoked_at=now))
+        session.commit()
+        for key in targets:
+            session.refresh(key)
+    return targets
+
+
+def count_keys(session: Session) -> int:
+    return int(session.scalar(select(func.count()).select_from(ApiKey)) or 0)
+
+
+# ------------------------------------------------------------------ audit
+
+_AUDIT = insert(cast(Table, JobAudit.__table__))
+
+
+def audit(
+    session: Session, caller: Caller, action: AuditAction, job_ids: Sequence[uuid.UUID], request_id: str | None
+) -> None:
+    """Add one audit row per job to the session's transaction (one INSERT statement; the caller commits)."""
+    if not job_ids:
+        return
+    now = utcnow()
+    rows: list[dict[str, Any]] = [
+        {"at": now, "key_id": caller.key_id, "action": action, "job_id": job_id, "request_id": request_id}
+        for job_id in job_ids
+    ]
+    session.execute(_AUDIT, rows)
+
+
+def audit_trail(session: Session, job_id: uuid.UUID) -> list[JobAudit]:
+    """The audit rows of a job, oldest first."""
+    return list(session.scalars(select(JobAudit).where(JobAudit.job_id == job_id).order_by(JobAudit.id)))
