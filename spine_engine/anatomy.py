@@ -259,10 +259,15 @@ def profile_from_dict(data: dict[str, Any]) -> Profile:
 
 
 def load_profile(name: str = "default") -> Profile:
-    """The shipped profile ``spine_engine/profiles/<name>.json``; UnknownProfile if there is none."""
-    known = list_profiles()
-    if not _PROFILE_NAME.match(name) or name not in known:
-        raise UnknownProfile(name, known)
+    """The shipped profile ``spine_engine/profiles/<name>.json``; UnknownProfile if there is none.
+    Read once per process (``save_profile`` forgets what was read)."""
+    if not _PROFILE_NAME.match(name) or not (PROFILES_DIR / f"{name}.json").is_file():
+        raise UnknownProfile(name, list_profiles())
+    return _read_profile(name)
+
+
+@functools.lru_cache(maxsize=16)
+def _read_profile(name: str) -> Profile:
     with (PROFILES_DIR / f"{name}.json").open(encoding="utf-8") as fh:
         return profile_from_dict(json.load(fh))
 
@@ -271,6 +276,7 @@ def save_profile(profile: Profile, path: str | os.PathLike[str]) -> None:
     """Write ``profile`` as JSON (the keys ``load_profile`` reads, in dataclass order)."""
     text = json.dumps(asdict(profile), indent=2, ensure_ascii=False)
     Path(path).write_text(text + "\n", encoding="utf-8")
+    _read_profile.cache_clear()
 
 
 # ---------------------------------------------------------------- rest model

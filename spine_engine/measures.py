@@ -13,7 +13,6 @@ from typing import Literal, cast
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize_scalar
 
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
@@ -236,22 +235,18 @@ def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tu
     Cobb(φ) = |tilt_U(φ) − tilt_L(φ)| with the endplate tilts of ``_plane_tilt_deg``; φ = 0° is the
     frontal plane (Cobb(0) is the frontal Cobb angle when the end vertebrae have no axial
     rotation), φ = 90° the sagittal plane. It turns with the spine: rotating the whole spine by −α
-    about +z moves φ* by +α. A 1° grid, then a bounded scalar search (tolerance 1e-4°) around its
-    best point.
+    about +z moves φ* by +α. A 1° grid, then two finer grids around the best point (0.01°, then
+    1e-4°), all vectorised.
     """
     Ru = np.asarray(R_upper, dtype=float)
     Rl = np.asarray(R_lower, dtype=float)
-    grid = np.arange(0.0, 180.0, 1.0)
-    values = _plane_cobb_deg(Ru, Rl, grid)
-    best = float(grid[int(np.argmax(values))])
-    res = minimize_scalar(
-        lambda f: -float(_plane_cobb_deg(Ru, Rl, [f])[0]),
-        bounds=(best - 1.0, best + 1.0),
-        method="bounded",
-        options={"xatol": 1e-4},
-    )
-    phi, value = (float(res.x), -float(res.fun)) if -res.fun >= values.max() else (best, float(values.max()))
-    phi %= 180.0
+    best, step = 90.0, 90.0
+    for fine_step in (1.0, 1e-2, 1e-4):
+        grid = best + np.arange(-step, step + fine_step / 2, fine_step)
+        values = _plane_cobb_deg(Ru, Rl, grid)
+        k = int(np.argmax(values))
+        best, value, step = float(grid[k]), float(values[k]), fine_step
+    phi = best % 180.0
     if phi > 180.0 - 1e-3:
         phi = 0.0
     return phi, value
