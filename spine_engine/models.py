@@ -25,7 +25,12 @@ MAX_LANDMARKS_PER_VIEW = 17 * 6
 
 PATIENT_DIRECTIONS = ("L", "R", "A", "P", "H", "F")
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+MAX_COORDINATE = 1e6
+"""Largest accepted |coordinate| (mm or px): a metre-scale spine never comes near it, and larger
+numbers only overflow the fit."""
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+PositiveFactor = Annotated[float, Field(gt=0, le=1e3, allow_inf_nan=False)]
 Vec2 = tuple[FiniteFloat, FiniteFloat]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -72,7 +77,7 @@ class Landmark(_Strict):
 class Projection(_Strict):
     """Weak perspective of a view: image point = scale·(e_c·r, e_r·r) + translation (mm)."""
 
-    scale: Annotated[float, Field(gt=0, allow_inf_nan=False)] = Field(
+    scale: PositiveFactor = Field(
         description="Dimensionless magnification s from patient mm to detector mm."
     )
     translation: Vec2 = Field(description="Translation T (column, row) in detector mm.")
@@ -81,7 +86,7 @@ class Projection(_Strict):
 class _View(_Strict):
     units: Literal["mm", "px"] = Field("mm", description="Units of the landmark coordinates.")
     pixel_spacing: tuple[
-        Annotated[float, Field(gt=0, allow_inf_nan=False)], Annotated[float, Field(gt=0, allow_inf_nan=False)]
+        PositiveFactor, PositiveFactor
     ] | None = Field(
         None,
         description="DICOM (0028,0030) pixel spacing [row spacing, column spacing] in mm; "

@@ -303,9 +303,14 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
 def register_model(model: JobPayload) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge."""
     profile = load_profile(model.options.profile)
-    problem = build_problem(model, profile)
     start = time.perf_counter()
-    out, rest = solve(problem, profile)
+    try:
+        with np.errstate(over="raise", invalid="raise", divide="raise"):
+            problem = build_problem(model, profile)
+            out, rest = solve(problem, profile)
+    except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError) as exc:
+        # A degenerate geometry (e.g. landmarks that no spine can have) breaks the numerics.
+        raise FitFailed(f"the registration broke down numerically: {exc}") from None
     runtime_ms = (time.perf_counter() - start) * 1e3
     if not out.converged:
         raise FitFailed(

@@ -161,3 +161,13 @@ def test_order_follows_the_row_direction() -> None:
     for lm in p["pa"]["landmarks"]:
         lm["point"][1] = 1000.0 - lm["point"][1]
     validate_payload(p)
+
+
+@pytest.mark.parametrize("bad", [1e300, -2e6])
+def test_huge_coordinates_are_refused(bad: float) -> None:
+    """Numbers past 1e6 (mm or px) would only overflow the fit: they are refused by name."""
+    p = good()
+    p["pa"]["landmarks"][1]["point"][0] = bad
+    p["boundary"]["L5"]["position"][2] = bad
+    paths = {path for path, _, _ in errors_of(p)}
+    assert paths == {"pa.landmarks[1].point[0]", "boundary.L5.position[2]"}
