@@ -49,7 +49,7 @@ from ..tilt_prior import (
     predict_tilts_deg,
     save_tilt_prior,
 )
-from .report import format_table, shared_data_dir, write_json
+from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 
 DATE = "2026-11-22"
 PA = ("L", "F")
@@ -320,14 +320,9 @@ def summarise(
 def plot(rads: list[Radiograph], outcomes: list[Outcome], path: Path, title: str) -> None:
     """Engine against the annotation script's major angle, for (a) corners and (b) midpoints;
     predictions beyond the axes are drawn on its top edge as triangles and counted."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     truth = np.array([r.angles[0] for r in rads])
     top = 95.0
-    fig, axes = plt.subplots(1, 2, figsize=(8, 3.6))
+    fig, axes = subplots(1, 2, figsize=(8, 3.6))
     for ax, method, label in (
         (axes[0], "corners", "(a) corners"),
         (axes[1], "midpoints", "(b) midpoints + prior"),
@@ -369,10 +364,7 @@ def plot(rads: list[Radiograph], outcomes: list[Outcome], path: Path, title: str
         ax.title.set_fontsize(9)
         ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 # ---------------------------------------------------------------- calibration (training only)

@@ -20,7 +20,7 @@ from ..errors import FitFailed
 from ..levels import N_LEVELS
 from ..reconstruction import register
 from ..synthetic import generate_spines
-from .report import format_table, write_json
+from .report import format_table, save_figure, subplots, write_json
 from .truth import errors, landmark_subset, payload_from_truth
 
 PAPER_PA17_MM = 2.114
@@ -78,15 +78,10 @@ def run(n_spines: int, seed: int, noise_mm: float, profile: str) -> list[dict[st
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
     """Error against the number of PA landmarks, like the paper's Fig. 3."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     pa = [r for r in rows if r["lateral_landmarks"] == 0]
     both = [r for r in rows if r["lateral_landmarks"] > 0]
     x = [r["pa_landmarks"] for r in pa]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    fig, axes = subplots(1, 2, figsize=(10, 4))
     axes[0].plot(x, [r["mean_3d_error_mm"] for r in pa], "o-", label="this engine, PA only")
     for r in both:
         axes[0].plot([17], [r["mean_3d_error_mm"]], "s", label="this engine, PA-17 + lateral-17")
@@ -98,10 +93,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     axes[1].plot(x, [r["twisting_error_deg"] for r in pa], "s-", label="twisting")
     axes[1].set(xlabel="PA landmarks", ylabel="mean abs. error per segment (deg)", title="Strain errors")
     axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:

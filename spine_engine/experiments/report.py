@@ -30,3 +30,23 @@ def shared_data_dir(name: str) -> Path:
     env = os.environ.get("SPINE_SHARED_DATA")
     base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
     return base / name
+
+
+def subplots(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """``plt.subplots`` on the Agg backend (no display needed): (figure, axes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(*args, **kwargs)
+
+
+def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
+    """Lay out, write as PNG (creating the folder) and close ``fig``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)

@@ -28,7 +28,7 @@ from ..levels import LEVELS, N_LEVELS
 from ..measures import compute_measures
 from ..reconstruction import build_problem, solve
 from ..validation import validate_payload
-from .report import format_table, shared_data_dir, write_json
+from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 from .truth import payload_from_truth, read_verse
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -129,21 +129,13 @@ def summary(case: str, outcomes: list[SpineOutcome]) -> dict[str, Any]:
 
 
 def plot(summaries: list[dict[str, Any]], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = subplots(figsize=(8, 4))
     for s in summaries:
         label = f"{s['case']} (mean {s['mean_3d_error_mm']:.2f} mm)"
         ax.plot(LEVELS, list(s["per_level_mean_mm"].values()), "o-", label=label)
     ax.set(xlabel="level", ylabel="mean 3D error (mm)", title=f"VerSe, {summaries[0]['spines']} real spines")
     ax.legend()
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:
