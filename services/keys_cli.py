@@ -1,7 +1,10 @@
-"""``spine keys create|list|revoke``: the service's API keys (services/db/access.py).
+"""``spine keys create|list|revoke|webhook-secret|rotate-webhook-secret``: the service's API keys
+(services/db/access.py).
 
-``create`` prints the new key alone on the last line of its output, once: only its SHA-256
-digest is stored. ``revoke`` takes a key id, or a client name (every active key of that client).
+``create`` prints the key's webhook signing secret on a line of its own, then the new key alone on
+the last line of its output, once: only the key's SHA-256 digest is stored. The webhook secret is
+stored as is (it must be, to sign) and never logged; ``webhook-secret`` prints it again,
+``rotate-webhook-secret`` replaces it. ``revoke`` takes a key id, or a client name (every active key of that client).
 On the embedded default the database is migrated first, so that a key can be made before the
 first ``spine serve``.
 """
@@ -35,8 +38,32 @@ def cmd_create(args: argparse.Namespace) -> int:
         except BadKeyName as exc:
             print(f"spine keys create: {exc}", file=sys.stderr)
             return 2
+    print(f"webhook signing secret of key {row.id} (verify this client's webhooks with it):")
+    print(row.webhook_secret)
     print(f"created API key {row.id} for client {row.name!r} (role {row.role}); it is shown only now, keep it:")
     print(key)
+    return 0
+
+
+def cmd_webhook_secret(args: argparse.Namespace) -> int:
+    from services.db.access import key_for_secret, rotate_webhook_secret
+
+    command = "rotate-webhook-secret" if args.rotate else "webhook-secret"
+    with _session(get_settings()) as session:
+        key = key_for_secret(session, args.key)
+        if key is None:
+            print(f"spine keys {command}: no key with id {args.key!r} nor active key of client {args.key!r}",
+                  file=sys.stderr)  # fmt: skip
+            return 1
+        secret = rotate_webhook_secret(session, key) if args.rotate else key.webhook_secret
+        key_id, name = key.id, key.name
+    if secret is None:
+        print(f"spine keys webhook-secret: key {key_id} has no webhook secret; make one with "
+              f"`spine keys rotate-webhook-secret {key_id}`", file=sys.stderr)  # fmt: skip
+        return 1
+    state = "new " if args.rotate else ""
+    print(f"{state}webhook signing secret of key {key_id} (client {name!r}):")
+    print(secret)
     return 0
 
 
@@ -68,7 +95,7 @@ def cmd_revoke(args: argparse.Namespace) -> int:
 
 def add_keys_parser(sub: Any) -> None:
     """Add ``keys`` and its subcommands to the ``spine`` parser's subparsers."""
-    keys = sub.add_parser("keys", help="create, list and revoke API keys")
+    keys = sub.add_parser("keys", help="create, list and revoke API keys; their webhook secrets")
     actions = keys.add_subparsers(dest="keys_command", required=True, metavar="ACTION")
     create = actions.add_parser("create", help="create a key; prints it alone on the last line, once")
     create.add_argument("--name", required=True, help="the client the key belongs to (owner of its jobs)")
@@ -80,6 +107,12 @@ def add_keys_parser(sub: Any) -> None:
     revoke = actions.add_parser("revoke", help="revoke a key by id, or every active key of a client by name")
     revoke.add_argument("key", metavar="ID_OR_NAME")
     revoke.set_defaults(func=cmd_revoke)
+    show = actions.add_parser("webhook-secret", help="print a key's webhook signing secret (id, or a client's latest)")
+    show.add_argument("key", metavar="ID_OR_NAME")
+    show.set_defaults(func=cmd_webhook_secret, rotate=False)
+    rotate = actions.add_parser("rotate-webhook-secret", help="give a key a new webhook signing secret; prints it")
+    rotate.add_argument("key", metavar="ID_OR_NAME")
+    rotate.set_defaults(func=cmd_webhook_secret, rotate=True)
 
 
 def ensure_first_key(settings: Settings) -> None:

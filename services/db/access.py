@@ -8,10 +8,16 @@ key needs no salt nor slow hash: nothing can be guessed from its digest.
 A key's ``name`` is the client it belongs to: it is the ``owner`` of the jobs created with the
 key, so that a client keeps its jobs when its key is rotated (a new key, same name). The
 ``client`` role sees only its own jobs; ``admin`` sees every job.
+
+Each key also carries a Standard Webhooks signing secret (``whsec_<base64 of 32 random bytes>``),
+made with the key and stored as is (it must be, to sign): the webhooks of a client's jobs are
+signed with the secret of that client's most recent active key that has one
+(``key_webhook_secret``, registered as the webhook secret resolver by ``install_webhook_secrets``).
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import hmac
 import re
@@ -38,6 +44,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import Mapped, Session, mapped_column
 
 from services.db.models import Base, UTCDateTime, utcnow
+from services.webhooks.signing import decode_secret, register_secret_resolver
 
 Role = Literal["admin", "client"]
 ROLES: tuple[Role, ...] = ("admin", "client")
@@ -56,6 +63,7 @@ class ApiKey(Base):
     key_hash: Mapped[str] = mapped_column(String(64), nullable=False)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    webhook_secret: Mapped[str | None] = mapped_column(String(64), nullable=True)
 
     __table_args__ = (
         CheckConstraint("role IN ('admin', 'client')", name="role"),
@@ -133,7 +141,8 @@ def create_key(session: Session, name: str, role: str = "client") -> tuple[ApiKe
     if role not in ROLES:
         raise BadKeyName(f"role must be one of {', '.join(ROLES)}, not {role!r}")
     key_id, key = new_key()
-    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow())
+    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow(),
+                 webhook_secret=new_webhook_secret())  # fmt: skip
     session.add(row)
     session.commit()
     return row, key
@@ -173,6 +182,56 @@ def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
 
 def count_keys(session: Session) -> int:
     return int(session.scalar(select(func.count()).select_from(ApiKey)) or 0)
+
+
+# ------------------------------------------------------------------ webhook secrets
+
+
+def new_webhook_secret() -> str:
+    """A fresh Standard Webhooks secret: ``whsec_`` + base64 of 32 random bytes."""
+    return "whsec_" + base64.b64encode(secrets.token_bytes(32)).decode()
+
+
+def key_for_secret(session: Session, name_or_id: str) -> ApiKey | None:
+    """The key with this id, or else the client's most recent active key (None when there is none)."""
+    by_id = session.get(ApiKey, name_or_id)
+    if by_id is not None:
+        return by_id
+    latest = select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))
+    return session.scalars(latest.order_by(ApiKey.created_at.desc(), ApiKey.id.desc()).limit(1)).first()
+
+
+def rotate_webhook_secret(session: Session, key: ApiKey) -> str:
+    """Give ``key`` a new webhook secret, commit, and return it."""
+    key.webhook_secret = new_webhook_secret()
+    session.commit()
+    return key.webhook_secret
+
+
+def key_webhook_secret(session: Session, owner: str | None) -> bytes | None:
+    """The signing key of ``owner``'s webhooks: the secret of that client's most recent active key
+    that has one; None (the service-wide secret then) for no owner or no such key."""
+    if owner is None:
+        return None
+    latest = (
+        select(ApiKey.webhook_secret)
+        .where(ApiKey.name == owner, ApiKey.revoked_at.is_(None), ApiKey.webhook_secret.is_not(None))
+        .order_by(ApiKey.created_at.desc(), ApiKey.id.desc())
+        .limit(1)
+    )
+    secret = session.scalar(latest)
+    return decode_secret(secret) if secret else None
+
+
+_INSTALLED = False
+
+
+def install_webhook_secrets() -> None:
+    """Register ``key_webhook_secret`` as the webhook secret resolver (once per process)."""
+    global _INSTALLED
+    if not _INSTALLED:
+        register_secret_resolver(key_webhook_secret)
+        _INSTALLED = True
 
 
 # ------------------------------------------------------------------ audit

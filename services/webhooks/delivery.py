@@ -208,8 +208,11 @@ def _record(settings: Settings, row: dict[str, Any], **values: Any) -> None:
 
 
 def register_webhook_tasks(app: Celery, settings: Settings) -> None:
-    """Define ``spine.deliver_webhook`` on the worker's Celery app."""
+    """Define ``spine.deliver_webhook`` on the worker's Celery app, signing with per-key secrets."""
+    from services.db.access import install_webhook_secrets
     from services.worker.tasks import TRANSIENT
+
+    install_webhook_secrets()
 
     @app.task(name=DELIVER, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
               retry_backoff_max=60, max_retries=10)  # fmt: skip

@@ -121,14 +121,18 @@ def destination_problem(url: str, allowed: Sequence[AllowedPrefix]) -> str | Non
 def check_callback_url(payload: Any, allowed_urls: str, secret_configured: bool) -> None:
     """Raise ``InvalidInput`` naming ``callback_url`` when the payload's callback_url is not allowed.
 
-    Called by the API after the payload validated; a payload without callback_url passes.
+    ``secret_configured``: the service-wide secret is set or the submitting client's API key has a
+    webhook secret (``services.webhooks.submission``). Called by the API after the payload validated;
+    a payload without callback_url passes.
     """
     url = payload.get("callback_url") if isinstance(payload, dict) else None
     if url is None:
         return
     try:
         if not secret_configured:
-            raise WebhooksDisabled("this service accepts no callback_url: it has no webhook signing secret")
+            raise WebhooksDisabled(
+                "this service accepts no callback_url: it has no webhook signing secret for this client"
+            )
         reason = destination_problem(str(url), allow_list(allowed_urls))
     except WebhooksDisabled as exc:
         raise InvalidInput([FieldError(("callback_url",), str(exc), "webhooks_disabled")]) from None

@@ -6,8 +6,9 @@ receiver can drop duplicates), ``webhook-timestamp`` (Unix seconds of this attem
 Standard Webhooks writes them: ``whsec_`` followed by the base64 of the key bytes.
 
 Whose secret: ``secret_for(session, owner, settings)`` asks the resolvers registered with
-``register_secret_resolver`` first (API keys register one that returns the secret of the key that
-owns the job), then falls back to the service-wide ``SPINE_WEBHOOK_SECRET``.
+``register_secret_resolver`` first (the API and the worker register
+``services.db.access.key_webhook_secret``: the secret of the job owner's most recent active API key
+that has one), then falls back to the service-wide ``SPINE_WEBHOOK_SECRET``.
 """
 
 from __future__ import annotations
