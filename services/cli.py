@@ -58,6 +58,8 @@ def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
+    if not args.child:
+        return supervise_worker(args)
     settings = _settings()
     from services.logs import configure_logging, install_celery_job_context
 
@@ -115,6 +117,60 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _worker_child_argv(args: argparse.Namespace) -> list[str]:
+    argv = [sys.executable, "-m", "services.cli", "worker", "--child"]
+    if args.concurrency is not None:
+        argv += ["--concurrency", str(args.concurrency)]
+    if args.no_beat:
+        argv.append("--no-beat")
+    if args.loglevel:
+        argv += ["--loglevel", args.loglevel]
+    return argv
+
+
+def supervise_worker(args: argparse.Namespace, max_backoff_s: float = 30.0) -> int:
+    """Run the Celery worker as a child process and start it again whenever it stops unasked.
+
+    Celery's worker can leave its main loop for good on a broker fault (seen here: kombu failing
+    to reconnect to a restarted Redis while acknowledging a message); the jobs themselves are safe
+    in the database, but nothing would consume them. SIGTERM or SIGINT to this process stops the
+    child (one SIGTERM, then SIGKILL after a grace period) and ends the supervision. Restarts back
+    off from 1 s to ``max_backoff_s``; a child that ran for a minute resets the backoff.
+    """
+    import time
+
+    from services.logs import configure_logging
+
+    configure_logging(_settings().log_level)
+    stopping: list[int] = []
+
+    def _on_signal(signum: int, _frame: object) -> None:
+        stopping.append(signum)
+
+    signal.signal(signal.SIGTERM, _on_signal)
+    signal.signal(signal.SIGINT, _on_signal)
+    backoff = 1.0
+    while True:
+        started = time.monotonic()
+        child = subprocess.Popen(_worker_child_argv(args), preexec_fn=_die_with_parent)
+        while child.poll() is None and not stopping:
+            time.sleep(0.2)
+        if stopping:
+            _stop(child)
+            return 0
+        code = child.returncode
+        if time.monotonic() - started > 60:
+            backoff = 1.0
+        log.warning("celery worker %d stopped unasked (exit code %s); starting it again in %.0f s",
+                    child.pid, code, backoff)  # fmt: skip
+        deadline = time.monotonic() + backoff
+        while time.monotonic() < deadline and not stopping:
+            time.sleep(0.2)
+        if stopping:
+            return 0
+        backoff = min(2 * backoff, max_backoff_s)
+
+
 def _die_with_parent() -> None:
     if sys.platform.startswith("linux"):
         import ctypes
@@ -166,6 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     worker.add_argument("--concurrency", type=int, default=None, help="processes (default SPINE_WORKER_CONCURRENCY)")
     worker.add_argument("--no-beat", action="store_true", help="do not run the reconciler in this worker")
     worker.add_argument("--loglevel", default=None)
+    worker.add_argument("--child", action="store_true",
+                        help="run the Celery worker in this process, unsupervised (what the supervisor starts)")
     worker.set_defaults(func=cmd_worker)
 
     migrate = sub.add_parser("migrate", help="apply the database migrations")

@@ -158,3 +158,46 @@ def test_readme_documents_every_setting() -> None:
 def test_ci_runs_the_readme_test_command() -> None:
     script = (ROOT / ".ci" / "run").read_text()
     assert "make test" in script and os.access(ROOT / ".ci" / "run", os.X_OK)
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        out += [int(c) for c in task.read_text().split()]
+    return out
+
+
+def test_worker_supervisor_restarts_a_celery_worker_that_stopped_unasked(tmp_path: Path) -> None:
+    """`spine worker` runs Celery as a child: a child that dies (here SIGKILL, as after a broker
+    fault that ends Celery's loop) is started again; SIGTERM to `spine worker` stops both."""
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("needs Linux /proc to find the supervisor's child")
+    env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
+    env.update(SPINE_DATA_DIR=str(tmp_path / "data"), SPINE_WORKER_CONCURRENCY="1")
+    subprocess.run([sys.executable, "-m", "services.cli", "migrate"], env=env, check=True, timeout=60,
+                   capture_output=True)  # fmt: skip
+    log_path = tmp_path / "worker.log"
+    with log_path.open("wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "services.cli", "worker", "--no-beat"], env=env,
+                                stdout=out, stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+    try:
+        def wait_for(predicate: Any, what: str, timeout: float = 60.0) -> None:
+            deadline = time.monotonic() + timeout
+            while not predicate():
+                assert proc.poll() is None, log_path.read_text()[-2000:]
+                assert time.monotonic() < deadline, f"{what}; log:\n{log_path.read_text()[-2000:]}"
+                time.sleep(0.2)
+
+        wait_for(lambda: log_path.read_text().count(" ready.") >= 1, "the first worker to be ready")
+        [first] = _children(proc.pid)
+        os.kill(first, signal.SIGKILL)
+        wait_for(lambda: log_path.read_text().count(" ready.") >= 2, "a second worker to be ready")
+        [second] = _children(proc.pid)
+        assert second != first and "stopped unasked" in log_path.read_text()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(40) == 0
+        assert not _alive(second)  # stopped and reaped by the supervisor
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
