@@ -90,24 +90,32 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Field
     return errors
 
 
-def _view_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
+def _view_errors(name: str, view: PAView | LateralView, has_boundary: bool) -> list[FieldError]:
+    """px units need a pixel spacing; the T1 and L5 landmarks are needed to estimate a view's
+    projection when none is given, and on the PA view to place the spine without a boundary."""
     errors = []
     if view.units == "px" and view.pixel_spacing is None:
         errors.append(
             FieldError((name, "pixel_spacing"), "pixel_spacing is required when units is 'px'", "missing")
         )
     if view.projection is None:
-        levels = {lm.level for lm in view.landmarks}
-        missing = [lv for lv in ("T1", "L5") if lv not in levels]
-        if missing:
-            errors.append(
-                FieldError(
-                    (name, "landmarks"),
-                    f"the boundary vertebrae {missing} have no landmark: without {name}.projection "
-                    "the T1 and L5 landmarks are needed to estimate the scale and translation",
-                    "boundary_landmarks_missing",
-                )
+        needed_for = (
+            f"without {name}.projection the T1 and L5 landmarks are needed to estimate the scale and translation"
+        )
+    elif name == "pa" and not has_boundary:
+        needed_for = "without boundary conditions the PA view needs the T1 and L5 landmarks to place the spine"
+    else:
+        return errors
+    levels = {lm.level for lm in view.landmarks}
+    missing = [lv for lv in ("T1", "L5") if lv not in levels]
+    if missing:
+        errors.append(
+            FieldError(
+                (name, "landmarks"),
+                f"the boundary vertebrae {missing} have no landmark: {needed_for}",
+                "boundary_landmarks_missing",
             )
+        )
     return errors
 
 
@@ -135,24 +143,13 @@ def validate_payload(payload: Any) -> JobPayload:
                 for e in exc.errors(include_url=False)
             ]
         ) from None
-    errors = _view_errors("pa", model.pa) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    has_boundary = model.boundary is not None
+    errors = _view_errors("pa", model.pa, has_boundary) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
     errors += _order_errors("pa", model.pa, payload.get("pa"))
     if model.lateral is not None:
-        errors += _view_errors("lateral", model.lateral)
+        errors += _view_errors("lateral", model.lateral, has_boundary)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
-    if model.boundary is None and model.pa.projection is not None:
-        levels = {lm.level for lm in model.pa.landmarks}
-        missing = [lv for lv in ("T1", "L5") if lv not in levels]
-        if missing:
-            errors.append(
-                FieldError(
-                    ("pa", "landmarks"),
-                    f"the boundary vertebrae {missing} have no landmark: without boundary conditions the PA "
-                    "view needs the T1 and L5 landmarks to place the spine",
-                    "boundary_landmarks_missing",
-                )
-            )
     if errors:
         raise InvalidInput(errors)
     return model

@@ -171,3 +171,14 @@ def test_huge_coordinates_are_refused(bad: float) -> None:
     p["boundary"]["L5"]["position"][2] = bad
     paths = {path for path, _, _ in errors_of(p)}
     assert paths == {"pa.landmarks[1].point[0]", "boundary.L5.position[2]"}
+
+
+def test_no_boundary_needs_t1_and_l5_on_pa_even_with_a_projection() -> None:
+    p = good()
+    del p["boundary"]
+    p["pa"]["projection"] = {"scale": 1.1, "translation": [100.0, 50.0]}
+    validate_payload(p)
+    del p["pa"]["landmarks"][0]  # T1
+    [(path, kind, msg)] = errors_of(p)
+    assert (path, kind) == ("pa.landmarks", "boundary_landmarks_missing")
+    assert "T1" in msg and "without boundary conditions" in msg
