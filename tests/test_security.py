@@ -152,6 +152,8 @@ def test_the_audit_trail_records_who_did_what_in_which_request(tenants: Tenants)
     job_id = created.json()["id"]
     assert created.headers["x-request-id"] == "req-create-1"
     c.get(f"/v1/jobs/{job_id}", headers={**tenants.a, "X-Request-ID": "req-read-1"})
+    fhir = c.get(f"/v1/jobs/{job_id}/fhir", headers={**tenants.a, "X-Request-ID": "req-fhir-1"})
+    assert fhir.status_code == 409  # still queued, but the read is audited like any other
     c.get("/v1/jobs", headers={**tenants.b, "X-Request-ID": "req-list-b"})  # sees nothing: no row
     c.get("/v1/jobs", headers={**tenants.admin, "X-Request-ID": "req-list-admin"})
     c.post(f"/v1/jobs/{job_id}/cancel", headers={**tenants.a, "X-Request-ID": "req-cancel-1"})
@@ -160,7 +162,8 @@ def test_the_audit_trail_records_who_did_what_in_which_request(tenants: Tenants)
     with session_factory(tenants.settings)() as session:
         trail = [(row.action, row.request_id) for row in audit_trail(session, uuid.UUID(job_id))]
         key_ids = {row.key_id for row in audit_trail(session, uuid.UUID(job_id))}
-    assert trail == [("create", "req-create-1"), ("read", "req-read-1"), ("list", "req-list-admin"),
+    assert trail == [("create", "req-create-1"), ("read", "req-read-1"), ("read", "req-fhir-1"),
+                     ("list", "req-list-admin"),
                      ("cancel", "req-cancel-1"), ("read", bad.headers["x-request-id"])]  # fmt: skip
     assert len(key_ids) == 2  # clinic-a's key and the admin's
 

@@ -10,11 +10,10 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 
 from services.api.deps import OwnerDep, SessionDep
-from services.api.errors import ProblemError
+from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
-from services.db import jobs as jobs_repo
 from services.db.models import utcnow
-from services.problems import PROBLEM_MEDIA_TYPE, problem
+from services.problems import PROBLEM_MEDIA_TYPE
 
 router = APIRouter(prefix="/v1/jobs", tags=["interoperability"])
 
@@ -44,19 +43,10 @@ DESCRIPTION = (
     },
 )
 def job_fhir(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
-    try:
-        job = jobs_repo.get_job(session, job_id, owner=owner)
-    except jobs_repo.JobNotFound:
-        raise ProblemError(problem("not-found", f"there is no job {job_id}")) from None
-    if job.status != "succeeded" or job.result is None:
-        if job.status in ("queued", "running"):
-            detail = f"job {job_id} is {job.status}; its FHIR export exists once it has succeeded"
-        else:
-            detail = f"job {job_id} {'was cancelled' if job.status == 'cancelled' else job.status} and has no result"
-        raise ProblemError(problem("job-has-no-result", detail, job_status=str(job.status), job=f"/v1/jobs/{job_id}"))
+    job, result = read_succeeded_job(session, job_id, owner, "FHIR export")
     from services.fhir_export import observation_bundle  # fhir.resources loads in ~0.5 s: only when used
 
     payload: Any = job.payload
     study = payload.get("study") if isinstance(payload, dict) else None
-    bundle = observation_bundle(job.id, job.result, finished_at=job.finished_at or utcnow(), study=study)
+    bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)
     return Response(json.dumps(bundle, ensure_ascii=False), media_type=FHIR_MEDIA_TYPE)

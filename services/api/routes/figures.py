@@ -9,12 +9,10 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
-from services.api import security
 from services.api.deps import OwnerDep, SessionDep
-from services.api.errors import ProblemError
+from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
-from services.db import jobs as jobs_repo
-from services.problems import PROBLEM_MEDIA_TYPE, problem
+from services.problems import PROBLEM_MEDIA_TYPE
 from spine_engine.figures import MEDIA_TYPES, FigureFormat, render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["figures"])
@@ -38,19 +36,8 @@ def _responses(fmt: str) -> dict[int | str, dict[str, Any]]:
 
 
 def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, owner: str | None) -> Response:
-    try:
-        job = jobs_repo.get_job(session, job_id, owner=owner)
-    except jobs_repo.JobNotFound:
-        raise ProblemError(problem("not-found", f"there is no job {job_id}")) from None
-    security.record(session, "read", [job.id])
-    if job.status != "succeeded" or job.result is None:
-        if job.status in ("queued", "running"):
-            detail = f"job {job_id} is {job.status}; its figure exists once it has succeeded"
-        else:
-            detail = f"job {job_id} {'was cancelled' if job.status == 'cancelled' else job.status} and has no result"
-        raise ProblemError(problem("job-has-no-result", detail, job_status=str(job.status), job=f"/v1/jobs/{job_id}"))
-    result, payload = job.result, job.payload
-    body = render_figure(result, payload, fmt)  # a sync route: this runs in the thread pool
+    job, result = read_succeeded_job(session, job_id, owner, "figure")
+    body = render_figure(result, job.payload, fmt)  # a sync route: this runs in the thread pool
     return Response(body, media_type=MEDIA_TYPES[fmt], headers={"Cache-Control": "private, max-age=3600"})
 
 

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import JSONResponse
 
-from services.api import security
+from services.api import job_reads, security
 from services.api.deps import BatchBody, IsoDateTime, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
 from services.api.limits import check_magnitudes
@@ -193,17 +193,9 @@ def list_jobs(
     return JSONResponse({"jobs": [job_json(j) for j in jobs], "next_cursor": next_cursor})
 
 
-def _not_found(job_id: uuid.UUID) -> ProblemError:
-    return ProblemError(problem("not-found", f"there is no job {job_id}"))
-
-
 @router.get("/{job_id}", response_model=Job, summary="Read a job", responses=_problems(404, 422))
 def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
-    try:
-        job = jobs_repo.get_job(session, job_id, owner=owner)
-    except jobs_repo.JobNotFound:
-        raise _not_found(job_id) from None
-    security.record(session, "read", [job.id])
+    job = job_reads.read_job(session, job_id, owner)
     body = job_json(job, with_payload=True)
     has_callback = isinstance(job.payload, dict) and job.payload.get("callback_url")
     body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
@@ -224,7 +216,7 @@ def cancel_job(
     try:
         job = jobs_repo.cancel_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
-        raise _not_found(job_id) from None
+        raise job_reads.not_found(job_id) from None
     except jobs_repo.JobFinished as exc:
         raise ProblemError(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
