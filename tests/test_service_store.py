@@ -10,10 +10,10 @@ from datetime import timedelta
 from typing import Any
 
 import pytest
-from sqlalchemy import inspect, select, update
+from sqlalchemy import inspect, select, text, update
 
 from services.db import jobs as repo
-from services.db.engine import get_engine, session_scope
+from services.db.engine import get_engine, session_scope, worker_session
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from services.settings import Settings
@@ -130,7 +130,31 @@ def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
     assert job.status == "cancelled" and job.result is None
     with session_scope(db_settings) as s:
         assert s.get(JobMeasures, job_id) is None
+        assert not s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == job_id)).all()
         assert repo.claim_job(s, job_id, "1.0") is None  # never run again
+
+
+@BACKENDS
+def test_worker_sessions_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
+    """The worker's sessions: each statement commits alone; a failed run stores no measures."""
+    ok, bad = new_job(db_settings), new_job(db_settings)
+    with worker_session(db_settings, durable=False) as s:
+        if s.get_bind().dialect.name == "postgresql":  # the claim does not wait for the WAL flush
+            assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "off"
+        claims = [repo.claim_job(s, job_id, "1.0") for job_id in (ok, bad)]
+    assert all(c is not None for c in claims)
+    with worker_session(db_settings) as s:
+        if s.get_bind().dialect.name == "postgresql":
+            assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "on"
+        assert repo.finish_job(s, claims[0], result=result_like(41.0))  # type: ignore[arg-type]
+        assert repo.finish_job(s, claims[1], error=LOST)  # type: ignore[arg-type]
+        assert not repo.finish_job(s, claims[0], error=LOST)  # type: ignore[arg-type]
+    with session_scope(db_settings) as s:
+        assert status_of(db_settings, ok).status == "succeeded"
+        assert s.get(JobMeasures, ok).major_cobb_deg == 41.0  # type: ignore[union-attr]
+        assert len(s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == ok)).all()) == 17
+        assert status_of(db_settings, bad).status == "failed" and s.get(JobMeasures, bad) is None
+        assert not s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == bad)).all()
 
 
 @BACKENDS

@@ -70,9 +70,60 @@ def session_scope(settings: Settings) -> Iterator[Session]:
         session.close()
 
 
+_WORKER_SESSIONS: dict[tuple[str, int, bool], sessionmaker[Session]] = {}
+
+
+def _worker_sessionmaker(settings: Settings, durable: bool) -> sessionmaker[Session]:
+    key = (settings.sqlalchemy_url, os.getpid(), durable)
+    with _LOCK:
+        if key in _WORKER_SESSIONS:
+            return _WORKER_SESSIONS[key]
+    engine = get_engine(settings)
+    if engine.dialect.name == "postgresql":
+        if durable:
+            engine = engine.execution_options(isolation_level="AUTOCOMMIT")  # type: ignore[assignment]
+        else:
+            engine = create_engine(
+                settings.sqlalchemy_url,
+                pool_size=2,
+                max_overflow=2,
+                hide_parameters=True,
+                isolation_level="AUTOCOMMIT",
+                connect_args={"options": "-c synchronous_commit=off"},
+            )
+    made = sessionmaker(engine, expire_on_commit=False)
+    with _LOCK:
+        return _WORKER_SESSIONS.setdefault(key, made)
+
+
+@contextmanager
+def worker_session(settings: Settings, *, durable: bool = True) -> Iterator[Session]:
+    """A session for the worker's one-statement state changes (claim, finish).
+
+    On PostgreSQL each statement commits by itself (no BEGIN/COMMIT round trips), and with
+    ``durable=False`` its commit does not wait for the WAL flush (``synchronous_commit=off``; a
+    crash of the server may lose the last such commits, never corrupt anything). On SQLite it is
+    ``session_scope``: a transaction around the statements.
+    """
+    session = _worker_sessionmaker(settings, durable)()
+    try:
+        yield session
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    finally:
+        session.close()
+
+
 def dispose_engines() -> None:
     """Forget every engine of this process (e.g. in a worker child right after fork)."""
     with _LOCK:
         for key, (engine, _) in list(_ENGINES.items()):
             engine.dispose(close=key[1] == os.getpid())
             del _ENGINES[key]
+        for wkey, made in list(_WORKER_SESSIONS.items()):
+            bound = made.kw["bind"]
+            if bound.dialect.name == "postgresql" and not wkey[2]:
+                bound.dispose(close=wkey[1] == os.getpid())
+            del _WORKER_SESSIONS[wkey]

@@ -17,7 +17,21 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, cast
 
-from sqlalchemy import CursorResult, Table, and_, bindparam, func, insert, or_, select, text, update
+from sqlalchemy import (
+    Boolean,
+    CursorResult,
+    Table,
+    and_,
+    bindparam,
+    column,
+    func,
+    insert,
+    or_,
+    select,
+    true,
+    update,
+)
+from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -254,8 +268,43 @@ _FINISH = (
         engine_version=func.coalesce(bindparam("engine_version"), _JOBS.c.engine_version),
     )
 )
-_INSERT_MEASURES = insert(cast(Table, JobMeasures.__table__))
-_INSERT_STRAINS = insert(cast(Table, VertebraStrain.__table__))
+_MEASURES = cast(Table, JobMeasures.__table__)
+_STRAINS = cast(Table, VertebraStrain.__table__)
+_INSERT_MEASURES = insert(_MEASURES)
+_INSERT_STRAINS = insert(_STRAINS)
+_MEASURE_COLUMNS = [c for c in _MEASURES.c if c.name != "job_id"]
+_STRAIN_COLUMNS = [c for c in _STRAINS.c if c.name != "job_id"]
+_NO_MEASURES = {c.name: None for c in _MEASURE_COLUMNS}
+
+
+def _finish_one_statement() -> Any:
+    """PostgreSQL: ``_FINISH`` and both measure inserts as one statement with data-modifying CTEs.
+
+    ``WITH done AS (UPDATE jobs … RETURNING id), m AS (INSERT INTO job_measures SELECT … FROM done
+    WHERE :with_measures), s AS (INSERT INTO vertebra_strains SELECT done.id, r.* FROM done,
+    jsonb_to_recordset(:strains) AS r(level text, u1 float8, …)) SELECT count(*) FROM done``:
+    nothing is inserted when the fenced update matched no row, and all of it commits together.
+    """
+    done = _FINISH.returning(_JOBS.c.id).cte("done")
+    measures = insert(_MEASURES).from_select(
+        ["job_id", *[c.name for c in _MEASURE_COLUMNS]],
+        select(done.c.id, *[bindparam(c.name, type_=c.type) for c in _MEASURE_COLUMNS]).where(
+            bindparam("with_measures", type_=Boolean())
+        ),
+    )
+    record = (
+        func.jsonb_to_recordset(bindparam("strains", type_=JSONB()))
+        .table_valued(*[column(c.name, c.type) for c in _STRAIN_COLUMNS])
+        .render_derived(with_types=True)
+    )
+    strains = insert(_STRAINS).from_select(
+        ["job_id", *[c.name for c in _STRAIN_COLUMNS]],
+        select(done.c.id, *[record.c[c.name] for c in _STRAIN_COLUMNS]).select_from(done).join(record, true()),
+    )
+    return select(func.count()).select_from(done).add_cte(measures.cte("m"), strains.cte("s"))
+
+
+_FINISH_ONE_STATEMENT = _finish_one_statement()
 # Statements are built once and executed on Core tables with bound parameters: the worker's
 # per-job cost stays in the database, not in statement construction.
 
@@ -263,12 +312,11 @@ _INSERT_STRAINS = insert(cast(Table, VertebraStrain.__table__))
 def claim_job(session: Session, job_id: uuid.UUID, engine_version: str | None) -> Claim | None:
     """queued → running, attempts + 1; None when the job is not queued (duplicate, cancelled…).
 
-    On PostgreSQL this commit does not wait for the disk: if the server crashes and loses it, the
-    job is simply queued again, and the run's final update, fenced on running and this attempt,
-    stores nothing.
+    One statement. The worker runs it on a session of ``services.db.engine.worker_session(settings,
+    durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
+    crashes and loses the claim, the job is simply queued again, and the run's final update,
+    fenced on running and this attempt, stores nothing.
     """
-    if session.get_bind().dialect.name == "postgresql":
-        session.execute(text("SET LOCAL synchronous_commit TO OFF"))
     row = session.execute(_CLAIM, {"job_id": job_id, "now": utcnow(), "engine_version": engine_version}).first()
     session.commit()
     if row is None:
@@ -286,6 +334,8 @@ def finish_job(
 ) -> bool:
     """running → succeeded (with ``result``) or failed (with ``error``), only for this run.
 
+    The job's row, its ``job_measures`` row and its ``vertebra_strains`` rows are written in one
+    transaction: on PostgreSQL as one statement (one round trip), elsewhere as three.
     Returns False, storing nothing, when the job was cancelled or handed to another run meanwhile.
     """
     status = JobStatus.succeeded if error is None else JobStatus.failed
@@ -298,47 +348,58 @@ def finish_job(
         "error": error,
         "engine_version": engine_version,
     }
+    measures = _measures_row(result) if result is not None else None
+    strains = _strain_rows(result) if result is not None else []
+    if session.get_bind().dialect.name == "postgresql":
+        stored = session.execute(
+            _FINISH_ONE_STATEMENT,
+            {**params, **(measures or _NO_MEASURES), "with_measures": measures is not None, "strains": strains},
+        ).scalar_one()
+        session.commit()
+        return bool(stored)
     outcome: CursorResult[Any] = session.execute(_FINISH, params)  # type: ignore[assignment]
     if outcome.rowcount != 1:
         session.rollback()
         return False
-    if result is not None:
-        _store_measures(session, claim.job_id, result)
+    if measures is not None:
+        session.execute(_INSERT_MEASURES, {**measures, "job_id": claim.job_id})
+    if strains:
+        session.execute(_INSERT_STRAINS, [{**row, "job_id": claim.job_id} for row in strains])
     session.commit()
     return True
 
 
-def _store_measures(session: Session, job_id: uuid.UUID, result: dict[str, Any]) -> None:
+def _measures_row(result: dict[str, Any]) -> dict[str, Any]:
+    """The ``job_measures`` columns of a result (the major curve, kyphosis, lordosis, fit)."""
     measures = result.get("measures") or {}
     curves = measures.get("cobb") or []
     major = next((c for c in curves if c.get("major")), None) or {}
     fit = result.get("fit") or {}
-    session.execute(
-        _INSERT_MEASURES,
-        {
-            "job_id": job_id,
-            "major_cobb_deg": major.get("angle_deg"),
-            "major_curve_upper": major.get("upper"),
-            "major_curve_lower": major.get("lower"),
-            "major_curve_apex": major.get("apex"),
-            "major_convexity": major.get("convexity"),
-            "major_apex_axial_rotation_deg": major.get("apex_axial_rotation_deg"),
-            "major_plane_of_max_curvature_deg": major.get("plane_of_max_curvature_deg"),
-            "curve_count": len(curves),
-            "thoracic_kyphosis_t4_t12_deg": measures["thoracic_kyphosis_t4_t12_deg"],
-            "thoracic_kyphosis_t5_t12_deg": measures["thoracic_kyphosis_t5_t12_deg"],
-            "lumbar_lordosis_l1_l5_deg": measures["lumbar_lordosis_l1_l5_deg"],
-            "mean_registration_error_mm": fit["mean_registration_error_mm"],
-            "converged": bool(fit["converged"]),
-        },
-    )
+    return {
+        "major_cobb_deg": major.get("angle_deg"),
+        "major_curve_upper": major.get("upper"),
+        "major_curve_lower": major.get("lower"),
+        "major_curve_apex": major.get("apex"),
+        "major_convexity": major.get("convexity"),
+        "major_apex_axial_rotation_deg": major.get("apex_axial_rotation_deg"),
+        "major_plane_of_max_curvature_deg": major.get("plane_of_max_curvature_deg"),
+        "curve_count": len(curves),
+        "thoracic_kyphosis_t4_t12_deg": measures["thoracic_kyphosis_t4_t12_deg"],
+        "thoracic_kyphosis_t5_t12_deg": measures["thoracic_kyphosis_t5_t12_deg"],
+        "lumbar_lordosis_l1_l5_deg": measures["lumbar_lordosis_l1_l5_deg"],
+        "mean_registration_error_mm": fit["mean_registration_error_mm"],
+        "converged": bool(fit["converged"]),
+    }
+
+
+def _strain_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The ``vertebra_strains`` rows of a result, one per vertebra (without the job id)."""
     rows = []
     for v in result.get("vertebrae") or []:
         u = v.get("u") or (None, None, None)
         s = v.get("v") or (None, None, None)
         rows.append(
             {
-                "job_id": job_id,
                 "level": v["level"],
                 "u1": u[0], "u2": u[1], "u3": u[2],
                 "v1": s[0], "v2": s[1], "v3": s[2],
@@ -348,8 +409,7 @@ def _store_measures(session: Session, job_id: uuid.UUID, result: dict[str, Any])
                 "axial_rotation_deg": v["axial_rotation_deg"],
             }
         )  # fmt: skip
-    if rows:
-        session.execute(_INSERT_STRAINS, rows)
+    return rows
 
 
 @dataclass(frozen=True)

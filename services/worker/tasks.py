@@ -23,7 +23,7 @@ from tenacity import retry, retry_if_exception_type, stop_after_attempt, wait_ex
 
 import spine_engine
 from services.db import jobs as jobs_repo
-from services.db.engine import session_scope
+from services.db.engine import session_scope, worker_session
 from services.db.models import JobStatus
 from services.jobqueue import RECONCILE, RUN_JOB, enqueue, queue_depth
 from services.problems import problem, validation_problem
@@ -67,7 +67,7 @@ def run_engine(payload: dict[str, Any], instance: str) -> tuple[dict[str, Any] |
 
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     """Claim, run and finish one job; return what happened (for logs and tests)."""
-    with session_scope(settings) as session:
+    with worker_session(settings, durable=False) as session:
         claim = jobs_repo.claim_job(session, job_id, _engine_version())
     if claim is None:
         return "skipped"
@@ -77,7 +77,7 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
 
     @_store_retry
     def store() -> bool:
-        with session_scope(settings) as session:
+        with worker_session(settings) as session:
             return jobs_repo.finish_job(session, claim, result=result, error=error, engine_version=engine_version)
 
     stored = store()
