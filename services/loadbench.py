@@ -7,7 +7,9 @@ Two phases, both bounded in count and time, traffic only to a loopback address:
    or batches), then waits until every job is final: submitted/s, completed/s, POST→result.
 
 Afterwards it reads every job back twice, a few seconds apart: a job not final (or missing) is
-*lost*; a job whose outcome changed between the reads has *two outcomes*.
+*lost*; a job whose outcome changed between the reads has *two outcomes*. Each phase also gives
+the CPU time per job of each role on this machine (API, workers, PostgreSQL, Redis, the load
+generator itself). Exit status 1 when a job was lost or had two outcomes.
 
 ``--spawn`` starts the service itself (migrate, ``spine serve --no-worker`` and W ``spine worker``
 processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, and stops it at the end.
@@ -207,6 +209,49 @@ def summarize(phase: Phase, first: dict[str, Any], second: dict[str, Any]) -> di
     return out
 
 
+ROLES = (("api", "services.cli serve"), ("worker", "services.cli worker"), ("postgres", "postgres:"),
+         ("redis", "redis-server"))  # fmt: skip
+"""Which process does what, by a piece of its command line (this machine's processes only)."""
+
+
+def cpu_seconds_by_role() -> dict[str, float]:
+    """CPU time (user + system, s) used so far by this machine's processes of each role.
+
+    Read from ``/proc/<pid>/stat``; the load generator is this process. Processes that exit
+    between two readings take their time with them (none should during a phase). Empty where
+    there is no ``/proc``.
+    """
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return {}
+    tick = os.sysconf("SC_CLK_TCK")
+    totals = {role: 0.0 for role, _ in ROLES}
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        role = next((r for r, marker in ROLES if marker in cmdline), None)
+        if role is not None:
+            fields = stat[stat.rfind(")") + 2 :].split()
+            totals[role] += (int(fields[11]) + int(fields[12])) / tick
+    mine = os.times()
+    totals["load generator"] = mine.user + mine.system
+    return totals
+
+
+def cpu_ms_per_job(before: dict[str, float], after: dict[str, float], jobs: int) -> dict[str, float]:
+    """CPU milliseconds per job of each role between two ``cpu_seconds_by_role`` readings."""
+    if not before or jobs <= 0:
+        return {}
+    per_job = {role: round(1000 * (after[role] - before[role]) / jobs, 2) for role in after}
+    per_job["total"] = round(sum(per_job.values()), 2)
+    return per_job
+
+
 async def run(args: argparse.Namespace) -> dict[str, Any]:
     deadline = time.monotonic() + args.max_seconds
     # Open loop: enough connections that a slow answer never makes the next request wait for one.
@@ -221,16 +266,19 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         for phase_name in args.phases:
             histogram_before = await server_histogram(client)
             load_before = os.getloadavg()
+            cpu_before = cpu_seconds_by_role()
             since = datetime.now().astimezone()
             if phase_name == "latency":
                 phase = await fixed_rate(client, args.rate, args.rate_seconds)
             else:
                 phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline)
             await wait_final(client, since, deadline)
+            cpu_after = cpu_seconds_by_role()  # before the read-back, which is not the service's load
             first = await read_back(client, since)
             await asyncio.sleep(args.recheck_seconds)
             second = await read_back(client, since)
             report[phase_name] = summarize(phase, first, second)
+            report[phase_name]["cpu_ms_per_job"] = cpu_ms_per_job(cpu_before, cpu_after, len(phase.sent_at))
             server = diff_histogram(await server_histogram(client), histogram_before)
             report[phase_name]["server_post_ms_p50_bucket"] = bucket_quantile(server, 0.5)
             report[phase_name]["server_post_ms_p99_bucket"] = bucket_quantile(server, 0.99)
@@ -377,7 +425,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(report, indent=2))
-    return 0
+    return exit_code(report)
+
+
+def exit_code(report: dict[str, Any]) -> int:
+    """0 when every phase ran with no job lost and none with two outcomes, else 1 (for QA scripts)."""
+    phases = [report[name] for name in ("latency", "throughput") if name in report]
+    broken = any(p["jobs_lost"] or p["jobs_with_two_outcomes"] for p in phases)
+    return 1 if broken or not phases else 0
 
 
 if __name__ == "__main__":
