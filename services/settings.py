@@ -107,6 +107,12 @@ class Settings(BaseSettings):
     webhook_retry_base_s: float = Field(
         2.0, gt=0, description="Delay before the 2nd attempt; doubles at each attempt (capped at 120 s)."
     )
+    webhook_sweep_after_s: float = Field(
+        300.0,
+        gt=0,
+        description="A webhook attempt due this long ago that never happened (its message could not be "
+        "published, or was lost) is published again by the reconciler; it looks back one day.",
+    )
 
     @field_validator("webhook_allowed_urls")
     @classmethod

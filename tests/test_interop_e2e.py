@@ -23,7 +23,8 @@ from standardwebhooks import Webhook
 
 from services.db import jobs as jobs_repo
 from services.db.engine import session_scope
-from services.webhooks.delivery import message_id
+from services.jobqueue import make_celery
+from services.webhooks.delivery import job_ended, message_id
 from spine_client import (
     IdempotencyConflict,
     InvalidRequest,
@@ -65,6 +66,8 @@ def served(tmp_path_factory: pytest.TempPathFactory, receiver: Receiver) -> Iter
         SPINE_WEBHOOK_SECRET=SECRET,
         SPINE_WEBHOOK_RETRY_BASE_S="0.2",
         SPINE_WEBHOOK_MAX_ATTEMPTS="3",
+        SPINE_RECONCILE_INTERVAL_S="1",
+        SPINE_WEBHOOK_SWEEP_AFTER_S="0.5",
     )
     yield service
     service.stop()
@@ -344,6 +347,26 @@ def test_webhook_is_signed_retried_and_visible_on_the_job(client: SpineClient, r
     tampered = dict(got[1].headers, **{"webhook-signature": "v1," + base64.b64encode(b"x" * 32).decode()})
     with pytest.raises(Exception, match="signature"):
         Webhook(SECRET).verify(got[1].body, tampered)
+
+
+def test_a_webhook_that_could_not_be_published_is_sent_by_the_reconciler(
+    served: Served, client: SpineClient, receiver: Receiver
+) -> None:
+    """The broker refuses the publish as the job ends; the running service's reconciler sends it."""
+    path = f"/hooks/{uuid.uuid4().hex}"
+    payload = spine_payload()
+    payload["callback_url"] = receiver.url(path)
+    with session_scope(served.settings) as session:  # stored, never enqueued, then cancelled here
+        job, _ = jobs_repo.create_job(session, payload)
+        jobs_repo.cancel_job(session, job.id)
+    down = make_celery(served.settings.model_copy(update={"broker_url": "redis://127.0.0.1:1/0"}))
+    assert not job_ended(served.settings, job.id, "cancelled", url=payload["callback_url"], celery=down)
+    deliveries = _deliveries(client, job.id, 2)
+    assert [(d.attempt, d.status_code) for d in deliveries] == [(0, None), (1, 204)]
+    assert deliveries[0].error is not None and deliveries[0].error.startswith("not published")
+    [got] = receiver.at(path)
+    assert got.headers["webhook-id"] == message_id(job.id, "cancelled")
+    assert Webhook(SECRET).verify(got.body, got.headers)["type"] == "job.cancelled"
 
 
 def test_webhooks_on_cancel_and_failure_and_refused_destinations(

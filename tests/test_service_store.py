@@ -123,7 +123,9 @@ def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
         claim = repo.claim_job(s, job_id, "1.0")
     assert claim is not None
     with session_scope(db_settings) as s:
-        assert repo.cancel_job(s, job_id).status == "cancelled"
+        job, cancelled_now = repo.cancel_job(s, job_id)
+        assert job.status == "cancelled" and cancelled_now
+        assert repo.cancel_job(s, job_id)[1] is False  # already cancelled: returned as it is
     with session_scope(db_settings) as s:
         assert not repo.finish_job(s, claim, result=result_like())
     job = status_of(db_settings, job_id)

@@ -209,13 +209,14 @@ def list_jobs(
     return jobs[:limit], next_cursor
 
 
-def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None) -> Job:
-    """Move a queued or running job to cancelled; a cancelled job is returned as it is.
+def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None) -> tuple[Job, bool]:
+    """Move a queued or running job to cancelled; return it and whether this call cancelled it
+    (False: it already was, and is returned as it is).
 
     Raises ``JobNotFound``, or ``JobFinished`` when it already succeeded or failed.
     """
     get_job(session, job_id, owner=owner)
-    session.execute(
+    outcome: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == job_id, Job.status.in_([JobStatus.queued.value, JobStatus.running.value]))
         .values(status=JobStatus.cancelled.value, finished_at=utcnow())
@@ -225,7 +226,7 @@ def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None)
     session.refresh(job)
     if job.status in (JobStatus.succeeded.value, JobStatus.failed.value):
         raise JobFinished(job)
-    return job
+    return job, outcome.rowcount == 1
 
 
 # ------------------------------------------------------------------ worker side

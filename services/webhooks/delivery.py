@@ -3,7 +3,9 @@
 ``job_ended`` is called where a job reaches a final state (the worker after storing an outcome,
 the API after a cancel, the reconciler after failing a lost job); it only publishes a message on
 the webhook queue (``<SPINE_QUEUE_NAME>.webhooks``), never raises, and costs nothing for a job
-without ``callback_url`` because callers look at the payload first. The ``spine.deliver_webhook``
+without ``callback_url`` because callers look at the payload first. A message it cannot publish
+is recorded as attempt 0, and the reconciler's ``sweep`` publishes it (and any attempt whose
+message was lost) again. The ``spine.deliver_webhook``
 task POSTs the job, records the attempt in ``webhook_deliveries`` and, unless the receiver answered
 2xx (or 410 Gone), publishes the next attempt with exponential backoff (``Retry-After`` honoured),
 up to ``SPINE_WEBHOOK_MAX_ATTEMPTS``. The message id is derived from the job and its final
@@ -80,14 +82,34 @@ def publish_attempt(
     )
 
 
-def job_ended(settings: Settings, job_id: uuid.UUID | str, status: str, *, celery: Celery | None = None) -> bool:
-    """Publish the first delivery of a job's webhook. Never raises; False when publishing failed."""
+def job_ended(
+    settings: Settings, job_id: uuid.UUID | str, status: str, *, url: str | None = None,
+    celery: Celery | None = None,
+) -> bool:  # fmt: skip
+    """Publish the first delivery of a job's webhook. Never raises; False when publishing failed.
+
+    When it fails and ``url`` (the job's callback_url) is given, an attempt 0 is recorded on the
+    job, due now, so that the reconciler's ``sweep`` publishes the message later.
+    """
     try:
         publish_attempt(settings, job_id, status, 1, celery=celery)
         return True
     except Exception as exc:
         log.warning("could not publish the webhook of job %s (%s): %s", job_id, status, exc)
+        if url:
+            _record_unpublished(settings, uuid.UUID(str(job_id)), status, url, exc)
         return False
+
+
+def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception) -> None:
+    now = utcnow()
+    row = {"job_id": job_id, "message_id": message_id(job_id, status), "event": f"job.{status}", "attempt": 0,
+           "url": url, "attempted_at": now}  # fmt: skip
+    error = f"not published: {type(exc).__name__}; the reconciler publishes it again"
+    try:
+        _record(settings, row, error=error, next_attempt_at=now)
+    except Exception as db_exc:  # the database is down too: nothing left to remember it by
+        log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)
 
 
 def jobs_ended(session: Session, settings: Settings, job_ids: Iterable[uuid.UUID], celery: Celery) -> int:
@@ -97,9 +119,37 @@ def jobs_ended(session: Session, settings: Settings, job_ids: Iterable[uuid.UUID
         return 0
     sent = 0
     for job_id, status, payload in session.execute(select(Job.id, Job.status, Job.payload).where(Job.id.in_(ids))):
-        if isinstance(payload, dict) and payload.get("callback_url") and status in FINAL_STATUSES:
-            sent += job_ended(settings, job_id, str(status), celery=celery)
+        url = payload.get("callback_url") if isinstance(payload, dict) else None
+        if url and status in FINAL_STATUSES:
+            sent += job_ended(settings, job_id, str(status), url=url, celery=celery)
     return sent
+
+
+def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days=1)) -> int:
+    """Publish again every attempt that was due ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ago and never came.
+
+    Such an attempt's message was not published (attempt 0: the broker was down when the job
+    ended) or was lost with a broker. Each one found is published and its row's due time moved
+    ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ahead, so it is published again only if this one is lost too.
+    Looks back ``window``. Returns how many were published.
+    """
+    after = timedelta(seconds=settings.webhook_sweep_after_s)
+    now = utcnow()
+    with session_scope(settings) as session:
+        rows = store.overdue(session, due_before=now - after, due_after=now - window)
+        published = 0
+        for row in rows:
+            status = row.event.removeprefix("job.")
+            try:
+                publish_attempt(settings, row.job_id, status, row.attempt + 1, celery=celery)
+            except Exception as exc:
+                log.warning("webhook sweep: could not publish for job %s: %s", row.job_id, exc)
+                break
+            store.postpone(session, row.id, now + after)
+            published += 1
+    if published:
+        log.info("webhook sweep: published %d overdue webhook attempts", published)
+    return published
 
 
 # ------------------------------------------------------------------ delivering
@@ -157,7 +207,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         url = job.payload.get("callback_url") if job is not None and isinstance(job.payload, dict) else None
         if job is None or not url or store.delivered(session, mid):
             return None
-        if attempt == 1 and store.attempted(session, mid):  # published twice (e.g. a repeated cancel)
+        if store.attempted(session, mid, attempt):  # published twice (a repeated cancel, a sweep)
             return None
         body = webhook_body(job, status)
         key = secret_for(session, job.owner, settings)

@@ -12,7 +12,11 @@ class WebhookDeliveryAttempt(BaseModel):
 
     event: str = Field(description="job.succeeded, job.failed or job.cancelled.")
     message_id: str = Field(description="The webhook-id header: the same on every attempt of a message.")
-    attempt: int = Field(description="1 for the first attempt of the message.")
+    attempt: int = Field(
+        description="1 for the first attempt of the message; 0 when the message could not be published as the "
+        "job ended (no request was made; the reconciler publishes it again when next_attempt_at is "
+        "SPINE_WEBHOOK_SWEEP_AFTER_S past)."
+    )
     url: str
     attempted_at: datetime
     status_code: int | None = Field(description="The receiver's HTTP status; null when no answer came.")

@@ -6,7 +6,7 @@ import uuid
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Float, ForeignKey, Index, Integer, String, Text, Uuid, exists, insert, select
+from sqlalchemy import Float, ForeignKey, Index, Integer, String, Text, Uuid, and_, exists, insert, select, update
 from sqlalchemy.orm import Mapped, Session, mapped_column
 
 from services.db.models import Base, UTCDateTime
@@ -32,6 +32,7 @@ class WebhookDelivery(Base):
     __table_args__ = (
         Index("ix_webhook_deliveries_job_id_id", "job_id", "id"),
         Index("ix_webhook_deliveries_message_id", "message_id"),
+        Index("ix_webhook_deliveries_next_attempt_at", "next_attempt_at"),
     )
 
 
@@ -51,16 +52,47 @@ def delivered(session: Session, message_id: str) -> bool:
     return bool(session.scalar(query))
 
 
-def attempted(session: Session, message_id: str) -> bool:
-    """Whether any attempt of this message was made (a second first attempt is a duplicate)."""
-    return bool(session.scalar(select(exists().where(WebhookDelivery.message_id == message_id))))
+def attempted(session: Session, message_id: str, attempt: int) -> bool:
+    """Whether attempt ``attempt`` of this message was already made (a second one is a duplicate)."""
+    query = select(exists().where(WebhookDelivery.message_id == message_id, WebhookDelivery.attempt == attempt))
+    return bool(session.scalar(query))
+
+
+def overdue(session: Session, due_before: datetime, due_after: datetime, limit: int = 500) -> list[WebhookDelivery]:
+    """Rows whose next attempt was due between ``due_after`` and ``due_before`` and never came.
+
+    That is: no later attempt of the same message is recorded, and no attempt of it was accepted.
+    Row ``attempt = 0`` marks a message that could not be published when its job ended.
+    """
+    later = WebhookDelivery.__table__.alias("later")
+    query = (
+        select(WebhookDelivery)
+        .where(
+            WebhookDelivery.next_attempt_at.is_not(None),
+            WebhookDelivery.next_attempt_at > due_after,
+            WebhookDelivery.next_attempt_at <= due_before,
+            ~exists().where(
+                and_(
+                    later.c.message_id == WebhookDelivery.message_id,
+                    (later.c.attempt > WebhookDelivery.attempt)
+                    | and_(later.c.status_code >= 200, later.c.status_code < 300),
+                )
+            ),
+        )
+        .order_by(WebhookDelivery.next_attempt_at)
+        .limit(limit)
+    )
+    return list(session.scalars(query))
+
+
+def postpone(session: Session, row_id: int, until: datetime) -> None:
+    """Move a row's next attempt to ``until`` (the reconciler published it again)."""
+    session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(next_attempt_at=until))
 
 
 def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]:
     """The job's delivery attempts, oldest first, as the ``deliveries`` member of a job."""
-    rows = session.scalars(
-        select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
-    )
+    rows = session.scalars(select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id))
     return [
         {
             "event": row.event,

@@ -84,8 +84,9 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     if not stored:
         return "superseded"
     status = "succeeded" if error is None else "failed"
-    if claim.payload.get("callback_url"):  # only then: a message on the webhook queue
-        webhooks.job_ended(settings, job_id, status)
+    url = claim.payload.get("callback_url")
+    if url:  # only then: a message on the webhook queue
+        webhooks.job_ended(settings, job_id, status, url=url)
     return status
 
 
@@ -127,6 +128,7 @@ def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
             webhooks.jobs_ended(session, settings, outcome.failed, app)
     if outcome.requeue or outcome.failed:
         log.info("reconciler: re-enqueued %d jobs, failed %d", len(outcome.requeue), len(outcome.failed))
+    webhooks.sweep(settings, app)
     return outcome
 
 

@@ -214,7 +214,7 @@ def cancel_job(
     job_id: uuid.UUID, session: SessionDep, owner: OwnerDep, queue: QueueDep, settings: SettingsDep
 ) -> JSONResponse:
     try:
-        job = jobs_repo.cancel_job(session, job_id, owner=owner)
+        job, cancelled_now = jobs_repo.cancel_job(session, job_id, owner=owner)
     except jobs_repo.JobNotFound:
         raise job_reads.not_found(job_id) from None
     except jobs_repo.JobFinished as exc:
@@ -222,6 +222,7 @@ def cancel_job(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
         ) from None
     security.record(session, "cancel", [job_id])
-    if isinstance(job.payload, dict) and job.payload.get("callback_url"):
-        job_ended(settings, job.id, "cancelled", celery=queue)
+    url = job.payload.get("callback_url") if isinstance(job.payload, dict) else None
+    if url and cancelled_now:  # a repeated cancel sends no second webhook
+        job_ended(settings, job.id, "cancelled", url=url, celery=queue)
     return JSONResponse(job_json(job))
