@@ -111,7 +111,7 @@ def batch_response(
     from fastapi.responses import JSONResponse
 
     from services.api.schemas import job_json
-    from services.jobqueue import enqueue
+    from services.jobqueue import publish
     from services.problems import problem
 
     outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert) if valid else []
@@ -131,7 +131,7 @@ def batch_response(
         entries[i] = {"index": i, "status": 202, "job": job_json(job)}
     if on_accepted is not None:
         on_accepted(len(created))
-    enqueue(queue, created)
+    publish(session, queue, created)
     accepted = sum(1 for e in entries if e is not None and e["status"] == 202)
     headers = {"Idempotent-Replayed": "true"} if replayed and not created else None
     return JSONResponse({"accepted": accepted, "rejected": total - accepted, "results": entries}, headers=headers)

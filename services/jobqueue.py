@@ -8,12 +8,13 @@ from __future__ import annotations
 import logging
 import sqlite3
 import uuid
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from contextlib import closing
 from typing import Any
 
 from celery import Celery
 from kombu.exceptions import ChannelError
+from sqlalchemy.orm import Session
 
 from services.settings import Settings
 
@@ -91,6 +92,20 @@ def enqueue(app: Celery, job_ids: Iterable[uuid.UUID]) -> int:
                 sent += 1
     except Exception as exc:
         log.warning("could not publish job messages (the reconciler will): %s", exc)
+    return sent
+
+
+def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
+    """``enqueue`` the jobs; mark those whose message could not be published, so that the
+    reconciler's next pass (every ``SPINE_RECONCILE_INTERVAL_S``) publishes them. Never raises."""
+    from services.db import jobs as jobs_repo
+
+    sent = enqueue(app, job_ids)
+    if sent < len(job_ids):
+        try:
+            jobs_repo.mark_unpublished(session, job_ids[sent:])
+        except Exception as exc:  # the database too: the queued timeout still catches them
+            log.warning("could not mark %d unpublished jobs: %s", len(job_ids) - sent, exc)
     return sent
 
 

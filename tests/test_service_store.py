@@ -271,3 +271,32 @@ def test_reconciler_leaves_a_backlog_alone_while_the_broker_holds_its_messages(t
     _age(settings, lost, enqueued_at=utcnow() - timedelta(hours=1))
     assert set(reconcile_once(settings, app).requeue) == {*published, lost}
     assert queue_depth(app, "backlog") == 5
+
+
+def test_a_job_whose_message_could_not_be_published_is_published_at_the_next_reconcile(tmp_path: Any) -> None:
+    """A real publish refused (a broker on a closed port): the POST still answers 202, the job is
+    marked unpublished, and the next reconciler pass publishes it without waiting for the queued
+    timeout, on a real (embedded) broker."""
+    from fastapi.testclient import TestClient
+
+    from services.api.app import create_app
+    from services.jobqueue import make_celery, queue_depth
+    from services.worker.tasks import reconcile_once
+    from tests.conftest import make_key
+
+    down = Settings(data_dir=tmp_path, CELERY_BROKER_URL="redis://127.0.0.1:1/0", queue_name="unpublished")
+    upgrade(down, quiet=True)
+    with TestClient(create_app(down)) as api:
+        api.headers["Authorization"] = f"Bearer {make_key(down, 'unpublished', 'admin')}"
+        single = api.post("/v1/jobs", json=spine_payload())
+        batch = api.post("/v1/jobs/batch", json={"jobs": [spine_payload(curve_mm=3.0), spine_payload(curve_mm=4.0)]})
+    assert single.status_code == 202 and batch.status_code == 200 and batch.json()["accepted"] == 2
+    ids = [uuid.UUID(single.json()["id"]), *(uuid.UUID(e["job"]["id"]) for e in batch.json()["results"])]
+    assert all(status_of(down, i).enqueued_at is None and status_of(down, i).status == "queued" for i in ids)
+
+    up = Settings(data_dir=tmp_path, queue_name="unpublished", queued_timeout_s=3600)  # the embedded broker
+    app = make_celery(up)
+    outcome = reconcile_once(up, app)
+    assert sorted(outcome.requeue) == sorted(ids) and queue_depth(app, "unpublished") == 3
+    assert all(status_of(up, i).enqueued_at is not None for i in ids)
+    assert reconcile_once(up, app).requeue == []  # published: left alone until the queued timeout

@@ -453,21 +453,15 @@ def reconcile(
             )
             if back.rowcount == 1:
                 requeue.append(job_id)
+    # Queued too long since last enqueued, or known to have no message (``mark_unpublished``).
+    stale = or_(Job.enqueued_at < now - queued_timeout, Job.enqueued_at.is_(None))
     stale_queued = list(
-        session.scalars(
-            select(Job.id)
-            .where(Job.status == JobStatus.queued.value, Job.enqueued_at < now - queued_timeout)
-            .limit(batch)
-        )
+        session.scalars(select(Job.id).where(Job.status == JobStatus.queued.value, stale).limit(batch))
     )
     if stale_queued:
         touched = session.scalars(
             update(Job)
-            .where(
-                Job.id.in_(stale_queued),
-                Job.status == JobStatus.queued.value,
-                Job.enqueued_at < now - queued_timeout,
-            )
+            .where(Job.id.in_(stale_queued), Job.status == JobStatus.queued.value, stale)
             .values(enqueued_at=now)
             .returning(Job.id)
         ).all()
@@ -477,6 +471,18 @@ def reconcile(
 
 
 # ------------------------------------------------------------------ metrics
+
+
+def mark_unpublished(session: Session, job_ids: Sequence[uuid.UUID]) -> None:
+    """Mark queued jobs whose message could not be published (``enqueued_at`` NULL), so that the
+    reconciler's next pass publishes them instead of waiting ``SPINE_QUEUED_TIMEOUT_S``."""
+    if job_ids:
+        session.execute(
+            update(Job)
+            .where(Job.id.in_(list(job_ids)), Job.status == JobStatus.queued.value)
+            .values(enqueued_at=None)
+        )
+        session.commit()
 
 
 def count_by_status(session: Session) -> dict[str, int]:

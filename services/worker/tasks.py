@@ -25,7 +25,7 @@ import spine_engine
 from services.db import jobs as jobs_repo
 from services.db.engine import session_scope, worker_session
 from services.db.models import JobStatus
-from services.jobqueue import RECONCILE, RUN_JOB, enqueue, queue_depth
+from services.jobqueue import RECONCILE, RUN_JOB, publish, queue_depth
 from services.problems import problem, validation_problem
 from services.settings import Settings
 from services.webhooks import delivery as webhooks
@@ -122,7 +122,8 @@ def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
             lost_problem=lost,
         )
     if outcome.requeue:
-        enqueue(app, outcome.requeue)
+        with session_scope(settings) as session:
+            publish(session, app, outcome.requeue)
     if outcome.failed:
         with session_scope(settings) as session:
             webhooks.jobs_ended(session, settings, outcome.failed, app)

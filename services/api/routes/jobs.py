@@ -16,7 +16,7 @@ from services.api.limits import check_magnitudes
 from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem, job_json
 from services.db import jobs as jobs_repo
 from services.idempotent_batch import MAX_BATCH_KEY_LENGTH, batch_response
-from services.jobqueue import enqueue
+from services.jobqueue import publish
 from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.webhooks.delivery import job_ended
 from services.webhooks.store import deliveries_json
@@ -86,7 +86,7 @@ def submit_job(
         ) from None
     if created:
         security.accepted(1)
-        enqueue(queue, [job.id])
+        publish(session, queue, [job.id])
     else:
         security.record(session, "read", [job.id])
     headers = {"Location": _location(job.id)}
@@ -145,7 +145,7 @@ def submit_batch(
     jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner,
                                  on_insert=security.audit_created) if valid else []  # fmt: skip
     security.accepted(len(jobs))
-    enqueue(queue, [job.id for job in jobs])
+    publish(session, queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
         entries[i] = {"index": i, "status": 202, "job": job_json(job)}
     return JSONResponse({"accepted": len(jobs), "rejected": len(payloads) - len(jobs), "results": entries})
