@@ -57,9 +57,8 @@ def session_factory(settings: Settings) -> sessionmaker[Session]:
 
 
 @contextmanager
-def session_scope(settings: Settings) -> Iterator[Session]:
-    """A session that commits on success and rolls back on error."""
-    session = session_factory(settings)()
+def _scope(factory: sessionmaker[Session]) -> Iterator[Session]:
+    session = factory()
     try:
         yield session
         session.commit()
@@ -68,6 +67,13 @@ def session_scope(settings: Settings) -> Iterator[Session]:
         raise
     finally:
         session.close()
+
+
+@contextmanager
+def session_scope(settings: Settings) -> Iterator[Session]:
+    """A session that commits on success and rolls back on error."""
+    with _scope(session_factory(settings)) as session:
+        yield session
 
 
 _WORKER_SESSIONS: dict[tuple[str, int, bool], sessionmaker[Session]] = {}
@@ -105,15 +111,8 @@ def worker_session(settings: Settings, *, durable: bool = True) -> Iterator[Sess
     crash of the server may lose the last such commits, never corrupt anything). On SQLite it is
     ``session_scope``: a transaction around the statements.
     """
-    session = _worker_sessionmaker(settings, durable)()
-    try:
+    with _scope(_worker_sessionmaker(settings, durable)) as session:
         yield session
-        session.commit()
-    except BaseException:
-        session.rollback()
-        raise
-    finally:
-        session.close()
 
 
 def dispose_engines() -> None:

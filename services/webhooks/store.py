@@ -92,7 +92,9 @@ def postpone(session: Session, row_id: int, until: datetime) -> None:
 
 def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]:
     """The job's delivery attempts, oldest first, as the ``deliveries`` member of a job."""
-    rows = session.scalars(select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id))
+    rows = session.scalars(
+        select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+    )
     return [
         {
             "event": row.event,
