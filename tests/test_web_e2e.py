@@ -12,6 +12,7 @@ Skipped, saying why, when the Python `playwright` package or a Chromium executab
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -330,6 +331,18 @@ def test_sample_payload_with_an_api_key(
     page.click("#submit")
     page.wait_for_selector("#problem:not([hidden])")
     assert "boundary.L5.directors" in page.text_content("#problem")  # type: ignore[operator]
+
+    # T1 and L5 not known: the payload goes without boundary and the result says what is estimated
+    page.check("#no-boundary")
+    assert page.is_disabled("#L5-d1-x") and page.is_disabled("#auto-l5")
+    assert '"boundary"' not in page.text_content("#payload-preview")  # type: ignore[operator]
+    page.click("#submit")
+    page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
+    sent = [r for r in watch.requests if r.method == "POST" and r.url.endswith("/v1/jobs")][-1]
+    assert "boundary" not in json.loads(sent.post_data or "{}")
+    assert "estimated from the generic model and the landmarks" in page.text_content("#result")  # type: ignore[operator]
+    page.uncheck("#no-boundary")
+    assert not page.is_disabled("#L5-d1-x") and '"boundary"' in page.text_content("#payload-preview")  # type: ignore[operator]
     assert not watch.errors or all("422" in e for e in watch.errors), watch.errors
     assert not watch.foreign
     context.close()

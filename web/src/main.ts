@@ -165,6 +165,7 @@ function useJson(): void {
     autoL5.checked = false;
     setBoundary({ T1: b.T1 ?? defaultBoundary().T1, L5: b.L5 ?? defaultBoundary().L5 });
   }
+  setNoBoundary(boundary === undefined || boundary === null);
   draftChanged();
 }
 
@@ -277,15 +278,28 @@ magnification.addEventListener("input", () => {
 $("reset-boundary").addEventListener("click", () => {
   setBoundary(defaultBoundary());
   autoL5.checked = true;
+  setNoBoundary(false);
   applyAutoL5();
   updatePreview();
 });
+
+// "T1 and L5 are not known": the payload goes without boundary, and the pose fields are disabled.
+const noBoundary = $<HTMLInputElement>("no-boundary");
+function setNoBoundary(on: boolean): void {
+  noBoundary.checked = on;
+  boundaryFields.querySelectorAll("fieldset").forEach((f) => (f.disabled = on));
+  autoL5.disabled = on;
+  magnification.disabled = on;
+  updatePreview();
+}
+noBoundary.addEventListener("change", () => setNoBoundary(noBoundary.checked));
 
 // ------------------------------------------------------------------ payload, submit, poll
 
 function buildPayload(): JobPayload | null {
   if (!draft) return null;
-  const payload: JobPayload = { ...draft.extras, pa: draft.pa, boundary: readBoundary() };
+  const payload: JobPayload = { ...draft.extras, pa: draft.pa };
+  if (!noBoundary.checked) payload.boundary = readBoundary();
   if (draft.lateral) payload.lateral = draft.lateral;
   return payload;
 }

@@ -33,6 +33,9 @@ export function fillMeasures(table: HTMLTableElement, job: Job, result: Registra
   const f = result.fit;
   rows.push(row("Mean PA registration error", `${num(f.mean_registration_error_mm, 2)} mm`));
   rows.push(row("Fit", `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`));
+  if (f.boundary === "estimated") {
+    rows.push(row("T1 and L5", `estimated from the generic model and the landmarks; from the model only: ${(f.unreliable ?? []).join(", ") || "none"}`));
+  }
   rows.push(row("Job", `${job.id} · engine ${result.engine.version}, profile ${result.engine.profile}`));
   body.replaceChildren(...rows);
 }

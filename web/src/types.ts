@@ -42,7 +42,7 @@ export interface Pose {
 export interface JobPayload {
   pa: ViewPayload;
   lateral?: ViewPayload | null;
-  boundary: { T1: Pose; L5: Pose };
+  boundary?: { T1: Pose; L5: Pose };
   options?: { profile?: string };
   [extra: string]: unknown;
 }
@@ -95,6 +95,8 @@ export interface RegistrationResult {
     runtime_ms: number;
     pa: ViewProjection;
     lateral?: ViewProjection | null;
+    boundary?: "given" | "estimated";
+    unreliable?: string[];
   };
   engine: { version: string; profile: string };
 }
