@@ -336,11 +336,13 @@ def test_sample_payload_with_an_api_key(
     page.check("#no-boundary")
     assert page.is_disabled("#L5-d1-x") and page.is_disabled("#auto-l5")
     assert '"boundary"' not in page.text_content("#payload-preview")  # type: ignore[operator]
-    page.click("#submit")
-    page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
-    sent = [r for r in watch.requests if r.method == "POST" and r.url.endswith("/v1/jobs")][-1]
-    assert "boundary" not in json.loads(sent.post_data or "{}")
-    assert "estimated from the generic model and the landmarks" in page.text_content("#result")  # type: ignore[operator]
+    with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/v1/jobs")) as posted_job:
+        page.click("#submit")
+    assert posted_job.value.status == 202 and "boundary" not in json.loads(posted_job.value.request.post_data or "{}")
+    # the status still shows the previous job's "succeeded": wait for this job's result instead
+    estimated = page.locator("#result").get_by_text("estimated from the generic model and the landmarks", exact=False)
+    estimated.first.wait_for(timeout=30_000)
+    assert "from the model only: scale, depth" in estimated.first.text_content()  # type: ignore[operator]
     page.uncheck("#no-boundary")
     assert not page.is_disabled("#L5-d1-x") and '"boundary"' in page.text_content("#payload-preview")  # type: ignore[operator]
     assert not watch.errors or all("422" in e for e in watch.errors), watch.errors
