@@ -26,8 +26,9 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cursor.close()
 
 
-def create_db_engine(url: str, pool_size: int = 10) -> Engine:
-    """An engine for ``url``: WAL and a busy timeout on SQLite, a sized pool on PostgreSQL."""
+def create_db_engine(url: str, pool_size: int = 10, **postgres_options: Any) -> Engine:
+    """An engine for ``url``: WAL and a busy timeout on SQLite, a sized pool on PostgreSQL
+    (``postgres_options`` go to ``create_engine`` there, e.g. an isolation level)."""
     if url.startswith("sqlite"):
         engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False}, hide_parameters=True)
         event.listen(engine, "connect", _sqlite_pragmas)
@@ -35,7 +36,7 @@ def create_db_engine(url: str, pool_size: int = 10) -> Engine:
     # No pre-ping (a round trip per checkout): after a database restart, a stale pooled
     # connection fails one request (503 problem / task retry) and the pool is refreshed.
     # hide_parameters: a database error never carries a job's payload into the logs.
-    return create_engine(url, pool_size=pool_size, max_overflow=pool_size, hide_parameters=True)
+    return create_engine(url, pool_size=pool_size, max_overflow=pool_size, hide_parameters=True, **postgres_options)
 
 
 def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
@@ -89,11 +90,9 @@ def _worker_sessionmaker(settings: Settings, durable: bool) -> sessionmaker[Sess
         if durable:
             engine = engine.execution_options(isolation_level="AUTOCOMMIT")  # type: ignore[assignment]
         else:
-            engine = create_engine(
+            engine = create_db_engine(
                 settings.sqlalchemy_url,
                 pool_size=2,
-                max_overflow=2,
-                hide_parameters=True,
                 isolation_level="AUTOCOMMIT",
                 connect_args={"options": "-c synchronous_commit=off"},
             )
