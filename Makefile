@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean web browser
+.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean web browser pacs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -19,10 +19,11 @@ run: $(STAMP)
 	$(BIN)/spine serve --host 127.0.0.1 --port 8000
 
 lint: $(STAMP)
-	$(BIN)/ruff check spine_engine services spine_client migrations tests
+	$(BIN)/ruff check spine_engine services spine_client migrations tests tools
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
-test: $(STAMP) lint browser
+test: $(STAMP) lint browser pacs
 	$(BIN)/python -m pytest -ra
 
 bench-paper: $(STAMP)
@@ -42,19 +43,42 @@ openapi: $(STAMP)
 web:
 	cd web && npm ci --no-audit --no-fund && npm run build
 
-# Debian's chromium for the browser test (tests/test_web_e2e.py): installed with apt-get when
-# missing and we are root (CI is); otherwise that test is skipped and says why.
+# Debian packages some tests need, installed with apt-get when missing and we are root (CI is).
+# Outside CI a missing one only makes its tests skip (saying why); in CI (CI=true or
+# SPINE_REQUIRE_BACKENDS=1) an install that fails stops `make test`, and tests/conftest.py turns
+# every skip into a failure, so that a green CI cannot hide a missing back end.
+REQUIRE_BACKENDS = $(if $(filter true 1,$(CI) $(SPINE_REQUIRE_BACKENDS)),1,)
+define apt_install
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && [ -z "$$SPINE_NO_APT_INSTALL" ]; then \
+		echo "installing Debian's $(2) for $(3)"; \
+		{ apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+			$(2); } >/tmp/spine-apt-$(1).log 2>&1 \
+			|| { tail -n 20 /tmp/spine-apt-$(1).log; echo "$(2) could not be installed: $(3) will be skipped"; \
+				[ -z "$(REQUIRE_BACKENDS)" ] || { echo "CI: failing (a skipped test would hide it)"; exit 1; }; }; \
+	else \
+		echo "$(1) is missing and cannot be installed here (needs root and apt-get): $(3) will be skipped"; \
+		[ -z "$(REQUIRE_BACKENDS)" ] || { echo "CI: failing (a skipped test would hide it)"; exit 1; }; \
+	fi
+endef
+
+# Debian's chromium for the browser tests (tests/browser/).
 CHROMIUM ?= /usr/bin/chromium
 browser:
 	@if [ -x "$(CHROMIUM)" ]; then \
 		echo "browser test: $(CHROMIUM)"; \
-	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && [ -z "$$SPINE_NO_BROWSER_INSTALL" ]; then \
-		echo "installing Debian's chromium for the browser test"; \
-		{ apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
-			chromium fonts-dejavu-core; } >/tmp/spine-apt-chromium.log 2>&1 \
-			|| { tail -n 20 /tmp/spine-apt-chromium.log; echo "chromium could not be installed: the browser test will be skipped"; }; \
 	else \
-		echo "no chromium at $(CHROMIUM) and no way to install it (needs root and apt-get): the browser test will be skipped"; \
+		$(call apt_install,chromium,chromium fonts-dejavu-core,the browser test); \
+	fi
+
+# Debian's Orthanc with its DICOMweb plug-in and DCMTK, for the PACS tests (services/dicom): the
+# tests start their own Orthanc on a free loopback port.
+ORTHANC ?= /usr/sbin/Orthanc
+pacs:
+	@if [ -x "$(ORTHANC)" ] && command -v storescu >/dev/null 2>&1 \
+		&& ls /usr/share/orthanc/plugins/libOrthancDicomWeb.so* >/dev/null 2>&1; then \
+		echo "PACS tests: $(ORTHANC)"; \
+	else \
+		$(call apt_install,orthanc,orthanc orthanc-dicomweb dcmtk,the PACS tests); \
 	fi
 
 # Service load benchmark: PostgreSQL + Redis on 127.0.0.1, API and workers started by the bench.
@@ -62,7 +86,7 @@ LOADTEST_ARGS ?= --spawn --url http://127.0.0.1:8090 --workers 1 --worker-concur
 loadtest: $(STAMP)
 	DATABASE_URL=$${DATABASE_URL:-postgresql+psycopg://postgres@127.0.0.1:5432/spine_load} \
 	CELERY_BROKER_URL=$${CELERY_BROKER_URL:-redis://127.0.0.1:6379/1} \
-	$(BIN)/python -m services.loadbench $(LOADTEST_ARGS)
+	$(BIN)/python -m tools.loadbench $(LOADTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) .spine .pytest_cache .mypy_cache .ruff_cache

@@ -6,9 +6,9 @@ from logging.config import fileConfig
 
 from alembic import context
 
+from services.core.config import get_settings
 from services.db.engine import create_db_engine
 from services.db.models import Base
-from services.settings import get_settings
 
 config = context.config
 if config.config_file_name is not None and config.attributes.get("configure_logging", True):

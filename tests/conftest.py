@@ -3,6 +3,10 @@
 Integration fixtures use the real PostgreSQL and Redis on 127.0.0.1 (override with
 SPINE_TEST_POSTGRES / SPINE_TEST_REDIS) and skip, saying why, when they are unreachable. Each
 test session gets its own PostgreSQL database and queue name, dropped at the end.
+
+In CI (``CI=true``, as ``.ci/run`` runs) or with ``SPINE_REQUIRE_BACKENDS=1``, a skip is a failure:
+a test that needs PostgreSQL, Redis, Chromium or Orthanc and does not find it fails, so that a
+green run cannot hide a missing back end.
 """
 
 from __future__ import annotations
@@ -24,8 +28,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
+from services.core.config import Settings
 from services.db.migrate import upgrade
-from services.settings import Settings
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
 REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
@@ -33,6 +37,23 @@ LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
 FINAL = {"succeeded", "failed", "cancelled"}
+
+
+REQUIRE_BACKENDS = os.environ.get("CI", "").lower() in ("true", "1") or os.environ.get("SPINE_REQUIRE_BACKENDS") == "1"
+"""Whether every skip fails (CI): set by ``.ci/run`` (CI=true) or SPINE_REQUIRE_BACKENDS=1."""
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """In CI, turn every skipped test (a missing back end, browser, tool) into a failure naming why."""
+    outcome = yield
+    report = outcome.get_result()  # type: ignore[attr-defined]
+    if REQUIRE_BACKENDS and report.skipped and not hasattr(report, "wasxfail"):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        report.outcome = "failed"
+        report.longrepr = (
+            f"skipped where every back end must be present (CI=true or SPINE_REQUIRE_BACKENDS=1): {reason}"
+        )
 
 
 def spine_payload(curve_mm: float = 15.0, length_mm: float = 420.0) -> dict[str, Any]:
@@ -95,6 +116,13 @@ def postgres_url() -> Iterator[str]:
 def postgres_store_url() -> Iterator[str]:
     """Another fresh PostgreSQL database, with no worker on it, for tests of the job store."""
     with _postgres_database("store") as url:
+        yield url
+
+
+@pytest.fixture
+def fresh_postgres_url() -> Iterator[str]:
+    """An empty PostgreSQL database of its own, for one test (e.g. of the migrations)."""
+    with _postgres_database("fresh") as url:
         yield url
 
 
@@ -262,8 +290,8 @@ def service(request: pytest.FixtureRequest) -> Service:
 
 def make_key(settings: Settings, name: str = "test-client", role: str = "client") -> str:
     """A new API key (``spine keys create``'s store) in the database of ``settings``."""
-    from services.db.access import create_key
     from services.db.engine import session_factory
+    from services.db.keys import create_key
 
     with session_factory(settings)() as session:
         return create_key(session, name, role)[1]

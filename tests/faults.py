@@ -1,4 +1,4 @@
-"""Fault-injection harness of the reliability tests (tests/test_reliability.py).
+"""Fault-injection harness of the reliability tests (tests/integration/test_reliability.py).
 
 - ``OwnRedis``: a throwaway ``redis-server`` on a free port of 127.0.0.1 (``--save ""``: it keeps
   nothing, so a restart loses every queued message), never the machine's shared Redis.
@@ -45,10 +45,10 @@ import pytest
 from sqlalchemy import func, select
 from sqlalchemy.exc import OperationalError
 
+from services.core.config import Settings
 from services.db.engine import dispose_engines, session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job, JobMeasures
-from services.settings import Settings
 from tests.conftest import _settings_kwargs, make_key, spine_payload
 
 FINAL = {"succeeded", "failed", "cancelled"}

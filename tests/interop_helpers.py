@@ -19,7 +19,7 @@ from typing import Any
 
 import httpx
 
-from services.settings import Settings
+from services.core.config import Settings
 
 
 def free_port() -> int:
@@ -31,7 +31,7 @@ def free_port() -> int:
 def api_key_for(settings: Settings, name: str, role: str = "admin") -> str | None:
     """A new API key in the service's database, or None while the service has no API keys."""
     try:
-        from services.db.access import create_key  # type: ignore[import-not-found, unused-ignore]
+        from services.db.keys import create_key  # type: ignore[import-not-found, unused-ignore]
     except ImportError:
         return None
     from services.db.engine import session_factory

@@ -10,9 +10,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from services.core.problems import PROBLEM_BASE
 from services.db import jobs as repo
 from services.db.engine import session_scope
-from services.problems import PROBLEM_BASE
 from spine_engine import register
 from spine_engine.figures import render_figure
 from tests.conftest import problem_of, spine_payload

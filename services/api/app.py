@@ -20,11 +20,10 @@ from services.api.routes import fhir, figures, health, jobs
 from services.api.schemas import BatchRequest
 from services.api.security import install_auth, install_edge, secure_openapi
 from services.api.web import mount_web
-from services.db.access import install_webhook_secrets
+from services.core.config import Settings, get_settings
+from services.core.jobqueue import make_celery
+from services.core.problems import PROBLEM_BASE
 from services.db.engine import get_engine
-from services.jobqueue import make_celery
-from services.problems import PROBLEM_BASE
-from services.settings import Settings, get_settings
 from spine_engine.models import JobPayload
 
 REF = "#/components/schemas/{model}"
@@ -72,7 +71,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         dependencies=[Depends(reject_unknown_query)],
     )
     app.state.settings = settings
-    install_webhook_secrets()  # webhooks of a client's jobs: signed with its key's secret
     app.state.celery = make_celery(settings)
     registry = CollectorRegistry()
     registry.register(JobStateCollector(settings, app.state.celery))

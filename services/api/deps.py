@@ -13,10 +13,10 @@ from pydantic import BeforeValidator
 from sqlalchemy.orm import Session
 
 from services.api.errors import ProblemError
-from services.db.access import Caller
+from services.core.config import Settings
+from services.core.problems import problem, validation_problem
 from services.db.engine import session_factory
-from services.problems import problem, validation_problem
-from services.settings import Settings
+from services.db.keys import Caller
 from spine_engine.errors import FieldError
 
 # The dependencies are `async def` although they do no I/O: FastAPI runs a plain `def`

@@ -12,7 +12,7 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
-from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from spine_engine.errors import FieldError
 
 log = logging.getLogger(__name__)

@@ -9,9 +9,9 @@ from sqlalchemy.orm import Session
 
 from services.api import security
 from services.api.errors import ProblemError
+from services.core.problems import problem
 from services.db import jobs as jobs_repo
 from services.db.models import Job
-from services.problems import problem
 
 
 def not_found(job_id: uuid.UUID) -> ProblemError:

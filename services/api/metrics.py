@@ -19,11 +19,11 @@ from prometheus_client.core import GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.db import jobs as jobs_repo
+from services.core.config import Settings
+from services.core.jobqueue import queue_depth
+from services.db import stats
 from services.db.engine import session_scope
 from services.db.models import utcnow
-from services.jobqueue import queue_depth
-from services.settings import Settings
 
 log = logging.getLogger(__name__)
 
@@ -48,9 +48,9 @@ class JobStateCollector(Collector):
         up = GaugeMetricFamily("spine_dependency_up", "Whether a dependency answered this scrape.", labels=["name"])
         try:
             with session_scope(self.settings) as session:
-                counts = jobs_repo.count_by_status(session)
+                counts = stats.count_by_status(session)
                 since = utcnow() - timedelta(seconds=self.settings.metrics_window_s)
-                durations = jobs_repo.recent_durations(session, since)
+                durations = stats.recent_durations(session, since)
             up.add_metric(["database"], 1)
         except Exception as exc:
             log.warning("metrics: database unreachable: %s", exc)

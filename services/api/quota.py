@@ -15,9 +15,9 @@ from sqlalchemy import func, literal_column, select
 from sqlalchemy.orm import Session
 
 from services.api.errors import ProblemError
-from services.db.access import Caller
+from services.core.problems import problem
+from services.db.keys import Caller
 from services.db.models import Job
-from services.problems import problem
 
 REFRESH_S = 1.0
 RETRY_AFTER_S = 30

@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.db.models import Job as JobRow
+from services.core.status import JobStatus
 from services.webhooks.schemas import WebhookDeliveryAttempt
 from spine_engine.models import RegistrationResult, Study
 
-JobStatusName = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+JobStatusName = JobStatus
+"""The job status of the contract (one enum: ``services.core.status.JobStatus``)."""
 
 
 class FieldProblem(BaseModel):
@@ -85,27 +86,3 @@ class BatchResponse(BaseModel):
 class Health(BaseModel):
     status: str
     checks: dict[str, str] = Field(default_factory=dict)
-
-
-def _ts(value: datetime | None) -> str | None:
-    return value.isoformat() if value is not None else None
-
-
-def job_json(job: JobRow, *, with_payload: bool = False) -> dict[str, Any]:
-    """A job as the JSON of the ``Job`` model, built directly (the hot path skips re-validation)."""
-    body: dict[str, Any] = {
-        "id": str(job.id),
-        "status": job.status,
-        "owner": job.owner,
-        "created_at": _ts(job.created_at),
-        "started_at": _ts(job.started_at),
-        "finished_at": _ts(job.finished_at),
-        "attempts": job.attempts,
-        "engine_version": job.engine_version,
-        "result": job.result,
-        "error": job.error,
-        "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
-    }
-    if with_payload:
-        body["payload"] = job.payload
-    return body

@@ -38,11 +38,12 @@ from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.quota import QueuedCap
-from services.db.access import AuditAction, Caller, audit, digest, verify_key
+from services.core.config import Settings
+from services.core.logs import job_id_var, request_id_var
+from services.core.problems import PROBLEM_MEDIA_TYPE, problem
+from services.db.audit import AuditAction, audit
 from services.db.engine import session_factory
-from services.logs import job_id_var, request_id_var
-from services.problems import PROBLEM_MEDIA_TYPE, problem
-from services.settings import Settings
+from services.db.keys import Caller, digest, verify_key
 
 log = logging.getLogger(__name__)
 access_log = logging.getLogger("services.access")

@@ -11,7 +11,7 @@ from typing import Any
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
-from services.settings import Settings
+from services.core.config import Settings
 
 _LOCK = threading.Lock()
 _ENGINES: dict[tuple[str, int], tuple[Engine, sessionmaker[Session]]] = {}

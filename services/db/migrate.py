@@ -9,7 +9,7 @@ from alembic import command
 from alembic.config import Config
 
 import migrations
-from services.settings import Settings
+from services.core.config import Settings
 
 ALEMBIC_INI = Path(next(iter(migrations.__path__))) / "alembic.ini"
 

@@ -1,4 +1,9 @@
-"""SQLAlchemy 2 models of the job store. The Alembic migrations in ``migrations/`` create them.
+"""SQLAlchemy 2 models of the service: every table, in one metadata (``Base.metadata``), which
+``migrations/env.py`` compares with the database. The Alembic migrations in ``migrations/`` create
+them, and tests/db/test_migrations.py checks that the migrated schema equals these models.
+
+Tables: ``jobs``, ``job_measures``, ``vertebra_strains`` (results), ``api_keys``, ``job_audit``
+(keys and audit trail), ``webhook_deliveries`` (one row per webhook delivery attempt).
 
 ``jobs`` is the source of truth for job state. A succeeded job's clinical measures go to
 ``job_measures`` (one row per job) and its per-vertebra strains to ``vertebra_strains``, so
@@ -7,13 +12,13 @@ that they can be queried with SQL; the full result stays as JSON on the job.
 
 from __future__ import annotations
 
-import enum
 import uuid
 from datetime import UTC, datetime
 from typing import Any
 
 from sqlalchemy import (
     JSON,
+    BigInteger,
     Boolean,
     CheckConstraint,
     DateTime,
@@ -23,13 +28,17 @@ from sqlalchemy import (
     Integer,
     MetaData,
     String,
+    Text,
     Uuid,
     func,
+    text,
 )
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
+
+from services.core.status import JobStatus
 
 NAMING_CONVENTION = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -40,17 +49,6 @@ NAMING_CONVENTION = {
 }
 
 JSONDocument = JSON().with_variant(JSONB(), "postgresql")
-
-
-class JobStatus(enum.StrEnum):
-    queued = "queued"
-    running = "running"
-    succeeded = "succeeded"
-    failed = "failed"
-    cancelled = "cancelled"
-
-
-FINAL_STATUSES = frozenset({JobStatus.succeeded, JobStatus.failed, JobStatus.cancelled})
 
 
 class UTCDateTime(TypeDecorator[datetime]):
@@ -98,13 +96,22 @@ class Job(Base):
     engine_version: Mapped[str | None] = mapped_column(String(64), nullable=True)
     idempotency_key: Mapped[str | None] = mapped_column(String(255), nullable=True)
     request_hash: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    callback_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    """While running: when the worker's lease on the job ends unless renewed (``SPINE_LEASE_S``)."""
 
     __table_args__ = (
-        CheckConstraint("status IN ('queued', 'running', 'succeeded', 'failed', 'cancelled')", name="status"),
+        CheckConstraint(f"status IN ({', '.join(repr(s.value) for s in JobStatus)})", name="status"),
         Index("ix_jobs_created_at_id", "created_at", "id"),
         Index("ix_jobs_status_created_at_id", "status", "created_at", "id"),
         Index("ix_jobs_owner_created_at_id", "owner", "created_at", "id"),
         Index("ix_jobs_finished_at", "finished_at"),
+        # The per-client cap on queued jobs counts these (services/api/quota.py): queued jobs only.
+        Index("ix_jobs_owner_queued", "owner", postgresql_where=text("status = 'queued'"),
+              sqlite_where=text("status = 'queued'")),
+        # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
+        Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
+              sqlite_where=text("status = 'running'")),
         Index(
             "uq_jobs_owner_idempotency_key",
             func.coalesce(owner, ""),  # type: ignore[arg-type]
@@ -156,3 +163,64 @@ class VertebraStrain(Base):
     axial_rotation_deg: Mapped[float] = mapped_column(Float, nullable=False)
 
     __table_args__ = (Index("ix_vertebra_strains_level_twist_deg", "level", "twist_deg"),)
+
+
+class ApiKey(Base):
+    __tablename__ = "api_keys"
+
+    id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), nullable=False)
+    role: Mapped[str] = mapped_column(String(8), nullable=False)
+    key_hash: Mapped[str] = mapped_column(String(64), nullable=False)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    webhook_secret: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+    __table_args__ = (
+        CheckConstraint("role IN ('admin', 'client')", name="role"),
+        Index("ix_api_keys_name", "name"),
+    )
+
+
+class JobAudit(Base):
+    """Who (key id) created, read, listed or cancelled which job, when, in which request."""
+
+    __tablename__ = "job_audit"
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer(), "sqlite"), primary_key=True,
+                                    autoincrement=True)  # fmt: skip
+    at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    key_id: Mapped[str] = mapped_column(String(16), nullable=False)
+    action: Mapped[str] = mapped_column(String(8), nullable=False)
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, nullable=False)
+    request_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+    __table_args__ = (
+        CheckConstraint("action IN ('create', 'read', 'list', 'cancel')", name="action"),
+        Index("ix_job_audit_job_id_at", "job_id", "at"),
+        Index("ix_job_audit_key_id_at", "key_id", "at"),
+    )
+
+
+class WebhookDelivery(Base):
+    """One attempt to deliver one webhook message of a job."""
+
+    __tablename__ = "webhook_deliveries"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    job_id: Mapped[uuid.UUID] = mapped_column(Uuid, ForeignKey("jobs.id", ondelete="CASCADE"), nullable=False)
+    message_id: Mapped[str] = mapped_column(String(64), nullable=False)
+    event: Mapped[str] = mapped_column(String(32), nullable=False)
+    attempt: Mapped[int] = mapped_column(Integer, nullable=False)
+    url: Mapped[str] = mapped_column(String(2048), nullable=False)
+    attempted_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    status_code: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    duration_ms: Mapped[float | None] = mapped_column(Float, nullable=True)
+    next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+    __table_args__ = (
+        Index("ix_webhook_deliveries_job_id_id", "job_id", "id"),
+        Index("ix_webhook_deliveries_message_id", "message_id"),
+        Index("ix_webhook_deliveries_next_attempt_at", "next_attempt_at"),
+    )

@@ -31,12 +31,15 @@ from celery import Celery
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from services.core.config import Settings
+from services.core.jobqueue import make_celery
+from services.core.retry import TRANSIENT
+from services.core.status import FINAL_STATUSES
+from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
+from services.db import deliveries as store
 from services.db.engine import session_scope
-from services.db.models import FINAL_STATUSES, Job, utcnow
-from services.jobqueue import make_celery
-from services.settings import Settings
-from services.webhooks import store
-from services.webhooks.policy import WebhooksDisabled, allow_list, destination_problem
+from services.db.models import Job, utcnow
+from services.db.views import job_json
 from services.webhooks.signing import secret_for, signed_headers
 
 log = logging.getLogger(__name__)
@@ -47,10 +50,6 @@ MAX_RETRY_DELAY_S = 120.0
 is never delivered twice)."""
 USER_AGENT = "spine-webhooks/1"
 _NAMESPACE = uuid.UUID("0b7e3b9e-4f53-5a8e-9c4e-5e1f2a6c9d01")
-
-
-def webhook_queue(settings: Settings) -> str:
-    return f"{settings.queue_name}.webhooks"
 
 
 def message_id(job_id: uuid.UUID | str, status: str) -> str:
@@ -78,7 +77,7 @@ def publish_attempt(
 ) -> None:  # fmt: skip
     app = celery or _publisher(settings)
     app.send_task(
-        DELIVER, args=[str(job_id), status, attempt], countdown=countdown or None, queue=webhook_queue(settings)
+        DELIVER, args=[str(job_id), status, attempt], countdown=countdown or None, queue=settings.webhook_queue
     )
 
 
@@ -118,8 +117,7 @@ def jobs_ended(session: Session, settings: Settings, job_ids: Iterable[uuid.UUID
     if not ids:
         return 0
     sent = 0
-    for job_id, status, payload in session.execute(select(Job.id, Job.status, Job.payload).where(Job.id.in_(ids))):
-        url = payload.get("callback_url") if isinstance(payload, dict) else None
+    for job_id, status, url in session.execute(select(Job.id, Job.status, Job.callback_url).where(Job.id.in_(ids))):
         if url and status in FINAL_STATUSES:
             sent += job_ended(settings, job_id, str(status), url=url, celery=celery)
     return sent
@@ -170,8 +168,6 @@ def _client(timeout: float) -> httpx.Client:
 
 def webhook_body(job: Job, status: str) -> bytes:
     """The JSON a receiver gets: ``{"type": "job.<status>", "timestamp", "data": <the job>}``."""
-    from services.api.schemas import job_json
-
     finished = job.finished_at or utcnow()
     body = {"type": f"job.{status}", "timestamp": finished.isoformat(), "data": job_json(job)}
     return json.dumps(body, separators=(",", ":"), ensure_ascii=False).encode()
@@ -204,7 +200,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
     mid = message_id(job_id, status)
     with session_scope(settings) as session:
         job = session.get(Job, job_id)
-        url = job.payload.get("callback_url") if job is not None and isinstance(job.payload, dict) else None
+        url = job.callback_url if job is not None else None
         if job is None or not url or store.delivered(session, mid):
             return None
         if store.attempted(session, mid, attempt):  # published twice (a repeated cancel, a sweep)
@@ -259,11 +255,6 @@ def _record(settings: Settings, row: dict[str, Any], **values: Any) -> None:
 
 def register_webhook_tasks(app: Celery, settings: Settings) -> None:
     """Define ``spine.deliver_webhook`` on the worker's Celery app, signing with per-key secrets."""
-    from services.db.access import install_webhook_secrets
-    from services.worker.tasks import TRANSIENT
-
-    install_webhook_secrets()
-
     @app.task(name=DELIVER, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
               retry_backoff_max=60, max_retries=10)  # fmt: skip
     def deliver_webhook(job_id: str, status: str, attempt: int) -> None:

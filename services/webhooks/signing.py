@@ -5,57 +5,29 @@ receiver can drop duplicates), ``webhook-timestamp`` (Unix seconds of this attem
 ``webhook-signature: v1,<base64 HMAC-SHA256 of "{id}.{timestamp}.{body}">``. Secrets are written as
 Standard Webhooks writes them: ``whsec_`` followed by the base64 of the key bytes.
 
-Whose secret: ``secret_for(session, owner, settings)`` asks the resolvers registered with
-``register_secret_resolver`` first (the API and the worker register
-``services.db.access.key_webhook_secret``: the secret of the job owner's most recent active API key
-that has one), then falls back to the service-wide ``SPINE_WEBHOOK_SECRET``.
+Whose secret: ``secret_for(session, owner, settings)`` reads the secret of the job owner's most
+recent active API key that has one (``services.db.keys.key_webhook_secret``), then falls back to
+the service-wide ``SPINE_WEBHOOK_SECRET``.
 """
 
 from __future__ import annotations
 
 import base64
-import binascii
 import hashlib
 import hmac
-from collections.abc import Callable
 
 from sqlalchemy.orm import Session
 
-from services.settings import Settings
-
-SECRET_PREFIX = "whsec_"
-MIN_SECRET_BYTES = 16
-
-SecretResolver = Callable[[Session, str | None], bytes | None]
-"""(session, job owner) -> that owner's signing key bytes, or None to fall through."""
-
-_RESOLVERS: list[SecretResolver] = []
-
-
-def decode_secret(secret: str) -> bytes:
-    """The key bytes of a ``whsec_<base64>`` (or bare base64) secret; raise ``ValueError``."""
-    text = secret.strip().removeprefix(SECRET_PREFIX)
-    try:
-        key = base64.b64decode(text + "=" * (-len(text) % 4), validate=True)
-    except (binascii.Error, ValueError):
-        raise ValueError("a webhook secret is whsec_ followed by base64") from None
-    if len(key) < MIN_SECRET_BYTES:
-        raise ValueError(f"a webhook secret needs at least {MIN_SECRET_BYTES} bytes of key, this one {len(key)}")
-    return key
-
-
-def register_secret_resolver(resolver: SecretResolver) -> None:
-    """Make ``resolver`` the first place a job owner's signing key is looked up."""
-    _RESOLVERS.insert(0, resolver)
+from services.core.config import Settings
+from services.core.webhook_policy import decode_secret
+from services.db.keys import key_webhook_secret
 
 
 def secret_for(session: Session, owner: str | None, settings: Settings) -> bytes | None:
-    """The key that signs webhooks of ``owner``'s jobs, or None when there is none."""
-    for resolver in _RESOLVERS:
-        key = resolver(session, owner)
-        if key is not None:
-            return key
-    return service_secret(settings)
+    """The key that signs webhooks of ``owner``'s jobs: the secret of the owner's most recent
+    active API key that has one, else the service-wide ``SPINE_WEBHOOK_SECRET``; None when neither."""
+    key = key_webhook_secret(session, owner)
+    return key if key is not None else service_secret(settings)
 
 
 def service_secret(settings: Settings) -> bytes | None:

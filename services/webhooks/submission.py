@@ -6,8 +6,8 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from services.settings import Settings
-from services.webhooks.policy import check_callback_url
+from services.core.config import Settings
+from services.core.webhook_policy import check_callback_url
 from services.webhooks.signing import secret_for
 
 

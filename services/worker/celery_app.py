@@ -10,9 +10,9 @@ from typing import Any
 
 from celery.signals import worker_process_init
 
+from services.core.config import get_settings
+from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
-from services.jobqueue import RECONCILE, make_celery
-from services.settings import get_settings
 from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
 

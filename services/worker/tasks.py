@@ -16,32 +16,22 @@ from typing import Any
 
 from celery import Celery, Task
 from celery.exceptions import SoftTimeLimitExceeded
-from kombu.exceptions import OperationalError as BrokerError
-from sqlalchemy.exc import InterfaceError, OperationalError
 from sqlalchemy.orm import Session
-from tenacity import retry, retry_if_exception_type, stop_after_attempt, wait_exponential
 
 import spine_engine
-from services.db import jobs as jobs_repo
+from services.core.config import Settings
+from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_depth
+from services.core.problems import problem, validation_problem
+from services.core.retry import TRANSIENT, store_retry
+from services.core.status import JobStatus
+from services.db import runs, stats
 from services.db.engine import session_scope, worker_session
-from services.db.models import JobStatus
-from services.jobqueue import RECONCILE, RUN_JOB, publish, queue_depth
-from services.problems import problem, validation_problem
-from services.settings import Settings
 from services.webhooks import delivery as webhooks
+from services.worker.leases import LeaseKeeper
+from spine_engine import register
 from spine_engine.errors import FitFailed, InvalidInput
 
 log = logging.getLogger(__name__)
-
-TRANSIENT = (OperationalError, InterfaceError, BrokerError, ConnectionError, TimeoutError)
-"""Faults of an unreachable database or broker: the task is retried with backoff."""
-
-_store_retry = retry(
-    retry=retry_if_exception_type(TRANSIENT),
-    wait=wait_exponential(multiplier=0.5, max=10),
-    stop=stop_after_attempt(6),
-    reraise=True,
-)
 
 
 def _engine_version() -> str:
@@ -51,8 +41,6 @@ def _engine_version() -> str:
 def run_engine(payload: dict[str, Any], instance: str) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """Run the registration; return (result, None) or (None, problem)."""
     try:
-        from spine_engine import register  # the engine's public entry point
-
         return register(payload), None
     except InvalidInput as exc:
         return None, validation_problem(exc.errors, instance=instance)
@@ -65,65 +53,105 @@ def run_engine(payload: dict[str, Any], instance: str) -> tuple[dict[str, Any] |
         return None, problem("engine-error", f"{type(exc).__name__}: {exc}", instance=instance)
 
 
+_KEEPERS: dict[str, LeaseKeeper] = {}
+
+
+def lease_keeper(settings: Settings) -> LeaseKeeper:
+    """The process's lease keeper for the database of ``settings``."""
+    keeper = _KEEPERS.get(settings.sqlalchemy_url)
+    if keeper is None:
+        keeper = _KEEPERS[settings.sqlalchemy_url] = LeaseKeeper(settings)
+    return keeper
+
+
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
-    """Claim, run and finish one job; return what happened (for logs and tests)."""
+    """Claim (with a lease), run and finish one job; return what happened (for logs and tests)."""
     with worker_session(settings, durable=False) as session:
-        claim = jobs_repo.claim_job(session, job_id, _engine_version())
+        claim = runs.claim_job(session, job_id, _engine_version(), timedelta(seconds=settings.lease_s))
     if claim is None:
         return "skipped"
     instance = f"/v1/jobs/{job_id}"
-    result, error = run_engine(claim.payload, instance)
+    keeper = lease_keeper(settings)
+    keeper.hold(claim)
+    try:
+        result, error = run_engine(claim.payload, instance)
+    finally:
+        keeper.release(claim)
     engine_version = (result or {}).get("engine", {}).get("version") if result else None
 
-    @_store_retry
+    @store_retry
     def store() -> bool:
         with worker_session(settings) as session:
-            return jobs_repo.finish_job(session, claim, result=result, error=error, engine_version=engine_version)
+            return runs.finish_job(session, claim, result=result, error=error, engine_version=engine_version)
 
     stored = store()
     if not stored:
         return "superseded"
     status = "succeeded" if error is None else "failed"
-    url = claim.payload.get("callback_url")
+    url = claim.callback_url
     if url:  # only then: a message on the webhook queue
         webhooks.job_ended(settings, job_id, status, url=url)
     return status
 
 
-def _messages_cover_queued_jobs(session: Session, app: Celery, settings: Settings) -> bool:
-    """True when the broker holds at least one message per queued job.
+_LAST_RUN_ID: dict[str, str] = {}
 
-    Then no queued job lost its message, however long the backlog, and re-publishing the stale
-    ones would only add duplicates for the workers to skip.
-    """
+
+def broker_restarted(app: Celery) -> bool:
+    """Whether the broker restarted since this process last looked (its run id changed): then the
+    messages it held are gone. False on the first look and for brokers without a run id."""
+    try:
+        run_id = broker_run_id(app)
+    except Exception:
+        return False
+    if run_id is None:
+        return False
+    url = str(app.conf.broker_url)
+    previous = _LAST_RUN_ID.get(url)
+    _LAST_RUN_ID[url] = run_id
+    return previous is not None and previous != run_id
+
+
+def missing_messages(session: Session, app: Celery, settings: Settings) -> int | None:
+    """How many queued jobs the broker holds no message for (queued jobs − messages waiting), at
+    least 0; None when the queue cannot be read. Messages prefetched by busy workers count as
+    missing too: their jobs are the oldest, and re-publishing them adds a duplicate that is
+    skipped (the claim is conditional)."""
     try:
         depth = queue_depth(app, settings.queue_name)
     except Exception:
-        return False
-    return depth > 0 and depth >= jobs_repo.count_by_status(session)[JobStatus.queued.value]
+        return None
+    return max(0, stats.count_by_status(session)[JobStatus.queued.value] - depth)
 
 
-def reconcile_once(settings: Settings, app: Celery) -> jobs_repo.Reconciliation:
-    """One pass of the reconciler: re-enqueue stranded jobs, fail those out of attempts."""
+def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
+    """One pass of the reconciler: take back running jobs whose lease expired (or fail those out of
+    attempts), and publish again the queued jobs whose message is missing: all of them when the
+    broker restarted, else as many of the oldest as the broker lacks messages, once they waited
+    ``SPINE_QUEUED_TIMEOUT_S``; jobs marked unpublished at once."""
     lost = problem(
         "worker-lost",
-        f"the job was still running {settings.fit_time_limit_s:g} s after it started, "
+        f"the job's worker stopped renewing its lease (SPINE_LEASE_S {settings.lease_s:g} s), "
         f"{settings.max_attempts} times; its worker stopped or lost it",
     )
     queued_timeout = timedelta(seconds=settings.queued_timeout_s)
+    restarted = broker_restarted(app)
     with session_scope(settings) as session:
-        if _messages_cover_queued_jobs(session, app, settings):
-            queued_timeout = timedelta(days=36500)  # nothing lost: leave a long backlog alone
-        outcome = jobs_repo.reconcile(
+        missing = None if restarted else missing_messages(session, app, settings)
+        if restarted:  # every message is gone: publish every queued job now
+            log.warning("reconciler: the broker restarted; publishing every queued job again")
+            queued_timeout = timedelta(0)
+        outcome = runs.reconcile(
             session,
             queued_timeout=queued_timeout,
             running_timeout=timedelta(seconds=settings.fit_time_limit_s + settings.running_grace_s),
             max_attempts=settings.max_attempts,
             lost_problem=lost,
+            republish_queued=missing,
         )
     if outcome.requeue:
         with session_scope(settings) as session:
-            publish(session, app, outcome.requeue)
+            runs.publish(session, app, outcome.requeue)
     if outcome.failed:
         with session_scope(settings) as session:
             webhooks.jobs_ended(session, settings, outcome.failed, app)

@@ -12,8 +12,9 @@ from fastapi.responses import Response
 from services.api.deps import OwnerDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
+from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.db.models import utcnow
-from services.problems import PROBLEM_MEDIA_TYPE
+from services.fhir.export import observation_bundle
 
 router = APIRouter(prefix="/v1/jobs", tags=["interoperability"])
 
@@ -44,8 +45,6 @@ DESCRIPTION = (
 )
 def job_fhir(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
     job, result = read_succeeded_job(session, job_id, owner, "FHIR export")
-    from services.fhir_export import observation_bundle  # fhir.resources loads in ~0.5 s: only when used
-
     payload: Any = job.payload
     study = payload.get("study") if isinstance(payload, dict) else None
     bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from services.api.deps import OwnerDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
-from services.problems import PROBLEM_MEDIA_TYPE
+from services.core.problems import PROBLEM_MEDIA_TYPE
 from spine_engine.figures import MEDIA_TYPES, FigureFormat, render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["figures"])

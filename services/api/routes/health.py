@@ -11,8 +11,8 @@ from sqlalchemy import text
 
 from services.api.deps import QueueDep, SessionDep
 from services.api.schemas import Health, Problem
-from services.jobqueue import ping_broker
-from services.problems import PROBLEM_MEDIA_TYPE, problem
+from services.core.jobqueue import ping_broker
+from services.core.problems import PROBLEM_MEDIA_TYPE, problem
 
 router = APIRouter(tags=["operations"])
 

@@ -10,16 +10,18 @@ from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import JSONResponse
 
 from services.api import job_reads, security
+from services.api.batch import batch_response
 from services.api.deps import BatchBody, IsoDateTime, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
 from services.api.limits import check_magnitudes
-from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem, job_json
+from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem
+from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.db import jobs as jobs_repo
-from services.idempotent_batch import MAX_BATCH_KEY_LENGTH, batch_response
-from services.jobqueue import publish
-from services.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from services.db.deliveries import deliveries_json
+from services.db.jobs import MAX_BATCH_KEY_LENGTH
+from services.db.runs import publish
+from services.db.views import job_json
 from services.webhooks.delivery import job_ended
-from services.webhooks.store import deliveries_json
 from services.webhooks.submission import check_payload as check_webhook
 from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.validation import validate_payload
@@ -197,7 +199,7 @@ def list_jobs(
 def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
     job = job_reads.read_job(session, job_id, owner)
     body = job_json(job, with_payload=True)
-    has_callback = isinstance(job.payload, dict) and job.payload.get("callback_url")
+    has_callback = job.callback_url is not None
     body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
     return JSONResponse(body)
 
@@ -222,7 +224,7 @@ def cancel_job(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
         ) from None
     security.record(session, "cancel", [job_id])
-    url = job.payload.get("callback_url") if isinstance(job.payload, dict) else None
+    url = job.callback_url
     if url and cancelled_now:  # a repeated cancel sends no second webhook
         job_ended(settings, job.id, "cancelled", url=url, celery=queue)
     return JSONResponse(job_json(job))

@@ -1,0 +1,279 @@
+"""The ``spine`` command: serve, worker, migrate, openapi, loadtest, bench; submit, get, list… (client).
+
+``spine serve`` runs the API with uvicorn and, on the embedded default, a Celery worker as its
+child process (Ctrl-C stops both). ``spine bench ...`` hands its arguments to the engine's
+experiments (``spine_engine.experiments.cli``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import yaml
+
+from services.cli.keys import add_keys_parser, ensure_first_key
+from services.core.config import Settings, get_settings
+from services.core.logs import configure_logging, install_celery_job_context, uvicorn_log_config
+from services.db.migrate import upgrade
+
+log = logging.getLogger("services.cli")
+TOOLS_DIR = Path(__file__).resolve().parents[2] / "tools"
+"""The repository's tools/ (load benchmark), beside services/: not part of the installed package."""
+
+
+def _settings() -> Settings:
+    return get_settings()
+
+
+def cmd_migrate(_: argparse.Namespace) -> int:
+    upgrade(_settings())
+    return 0
+
+
+def cmd_openapi(_: argparse.Namespace) -> int:
+    sys.stdout.write(openapi_yaml())
+    return 0
+
+
+def openapi_yaml() -> str:
+    """The app's OpenAPI schema as YAML, exactly as ``openapi.yaml`` holds it."""
+    from services.api.app import create_app  # lazy: the API (FastAPI, fhir.resources) only for this command
+
+    schema = create_app(Settings()).openapi()
+    return yaml.safe_dump(schema, sort_keys=False, allow_unicode=True, width=100)
+
+
+def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list[str]:
+    argv = ["worker", "--loglevel", loglevel, "-Q", queue, "-n", f"spine-{os.getpid()}@%h", "--without-gossip",
+            "--without-mingle"]  # fmt: skip
+    if concurrency > 0:
+        argv += ["--concurrency", str(concurrency)]
+    if beat:
+        argv += ["-B", "--schedule", os.devnull]
+    return argv
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    if not args.child:
+        return supervise_worker(args)
+    settings = _settings()
+    configure_logging(settings.log_level)  # JSON lines, with the job id of the task running
+    install_celery_job_context()
+    from services.worker.celery_app import app  # lazy: builds the worker's Celery app from the settings
+
+    concurrency = args.concurrency if args.concurrency is not None else settings.worker_concurrency
+    queues = f"{settings.queue_name},{settings.webhook_queue}"  # jobs, and webhook deliveries
+    app.worker_main(worker_argv(concurrency, not args.no_beat, args.loglevel or settings.log_level,
+                                queues))  # fmt: skip
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn  # lazy: the HTTP server only for `spine serve`
+
+    settings = _settings()
+    configure_logging(settings.log_level)  # JSON lines, with the request id
+    if settings.embedded:
+        upgrade(settings, quiet=True)
+        ensure_first_key(settings)  # first start: an admin key, printed once
+    # uvicorn re-raises the signal that stopped it: make SIGTERM an exception, so that the
+    # worker child is stopped below instead of being orphaned.
+    signal.signal(signal.SIGTERM, _raise_exit)
+    child: subprocess.Popen[bytes] | None = None
+    if settings.starts_worker and not args.no_worker:
+        # Its own session: a Ctrl-C or a group signal reaches `serve` only, which then stops the
+        # worker with one SIGTERM (a pool child killed by a stray group signal hangs Celery's
+        # shutdown). On Linux the worker is also told to stop if `serve` dies without cleaning up.
+        child = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "worker"], start_new_session=True, preexec_fn=_die_with_parent
+        )
+        log.info("started worker process %d", child.pid)
+    try:
+        uvicorn.run(
+            "services.api.app:create_app",
+            factory=True,
+            host=args.host,
+            port=args.port,
+            workers=args.workers,
+            log_level=settings.log_level.lower(),
+            log_config=uvicorn_log_config(settings.log_level),
+            access_log=args.access_log,
+        )
+    finally:
+        if child is not None:
+            _stop(child)
+    return 0
+
+
+def _worker_child_argv(args: argparse.Namespace) -> list[str]:
+    argv = [sys.executable, "-m", "services.cli", "worker", "--child"]
+    if args.concurrency is not None:
+        argv += ["--concurrency", str(args.concurrency)]
+    if args.no_beat:
+        argv.append("--no-beat")
+    if args.loglevel:
+        argv += ["--loglevel", args.loglevel]
+    return argv
+
+
+def supervise_worker(args: argparse.Namespace, max_backoff_s: float = 30.0) -> int:
+    """Run the Celery worker as a child process and start it again whenever it stops unasked.
+
+    Celery's worker can leave its main loop for good on a broker fault (seen here: kombu failing
+    to reconnect to a restarted Redis while acknowledging a message); the jobs themselves are safe
+    in the database, but nothing would consume them. SIGTERM or SIGINT to this process stops the
+    child (one SIGTERM, then SIGKILL after a grace period) and ends the supervision. Restarts back
+    off from 1 s to ``max_backoff_s``; a child that ran for a minute resets the backoff.
+    """
+    configure_logging(_settings().log_level)
+    stopping: list[int] = []
+
+    def _on_signal(signum: int, _frame: object) -> None:
+        stopping.append(signum)
+
+    signal.signal(signal.SIGTERM, _on_signal)
+    signal.signal(signal.SIGINT, _on_signal)
+    backoff = 1.0
+    while True:
+        started = time.monotonic()
+        child = subprocess.Popen(_worker_child_argv(args), preexec_fn=_die_with_parent)
+        while child.poll() is None and not stopping:
+            time.sleep(0.2)
+        if stopping:
+            _stop(child)
+            return 0
+        code = child.returncode
+        if time.monotonic() - started > 60:
+            backoff = 1.0
+        log.warning("celery worker %d stopped unasked (exit code %s); starting it again in %.0f s",
+                    child.pid, code, backoff)  # fmt: skip
+        deadline = time.monotonic() + backoff
+        while time.monotonic() < deadline and not stopping:
+            time.sleep(0.2)
+        if stopping:
+            return 0
+        backoff = min(2 * backoff, max_backoff_s)
+
+
+def _die_with_parent() -> None:
+    if sys.platform.startswith("linux"):
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+
+
+def _raise_exit(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+def _stop(child: subprocess.Popen[bytes], grace: float = 30.0) -> None:
+    if child.poll() is None:
+        child.send_signal(signal.SIGTERM)
+        try:
+            child.wait(grace)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+    log.info("worker process %d stopped (exit %s)", child.pid, child.returncode)
+
+
+def cmd_loadtest(args: argparse.Namespace) -> int:
+    """Run the load benchmark (tools/loadbench.py, a tool of the repository, not of the package)."""
+    if not (TOOLS_DIR / "loadbench.py").is_file():
+        print(f"spine loadtest: the load benchmark is a tool of the source repository ({TOOLS_DIR} not found)",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    return subprocess.call([sys.executable, "-m", "tools.loadbench", *args.rest], cwd=TOOLS_DIR.parent)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from spine_engine.experiments.cli import main as bench_main  # lazy: the experiments' data and plots
+
+    return int(bench_main(args.rest))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="spine", description=__doc__.splitlines()[0] if __doc__ else None)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    serve = sub.add_parser("serve", help="run the API (and, on the embedded default, a worker)")
+    serve.add_argument("--host", default="127.0.0.1")
+    serve.add_argument("--port", type=int, default=8000)
+    serve.add_argument("--workers", type=int, default=1, help="uvicorn worker processes of the API")
+    serve.add_argument("--no-worker", action="store_true", help="do not start a Celery worker child")
+    serve.add_argument("--access-log", action="store_true", help="log every request")
+    serve.set_defaults(func=cmd_serve)
+
+    worker = sub.add_parser("worker", help="run a Celery worker with the reconciler (beat) embedded")
+    worker.add_argument("--concurrency", type=int, default=None, help="processes (default SPINE_WORKER_CONCURRENCY)")
+    worker.add_argument("--no-beat", action="store_true", help="do not run the reconciler in this worker")
+    worker.add_argument("--loglevel", default=None)
+    worker.add_argument("--child", action="store_true",
+                        help="run the Celery worker in this process, unsupervised (what the supervisor starts)")
+    worker.set_defaults(func=cmd_worker)
+
+    migrate = sub.add_parser("migrate", help="apply the database migrations")
+    migrate.set_defaults(func=cmd_migrate)
+
+    add_keys_parser(sub)  # spine keys create|list|revoke
+
+    openapi = sub.add_parser("openapi", help="print the API's OpenAPI schema as YAML")
+    openapi.set_defaults(func=cmd_openapi)
+
+    loadtest = sub.add_parser("loadtest", help="load benchmark of a running service (tools/loadbench.py)",
+                              add_help=False)  # fmt: skip
+    loadtest.add_argument("rest", nargs=argparse.REMAINDER)
+    loadtest.set_defaults(func=cmd_loadtest)
+
+    bench = sub.add_parser("bench", help="engine experiments (spine_engine.experiments)", add_help=False)
+    bench.add_argument("rest", nargs=argparse.REMAINDER)
+    bench.set_defaults(func=cmd_bench)
+
+    for name, text in CLIENT_COMMANDS.items():  # handed to spine_client.cli (README "Python client and CLI")
+        client = sub.add_parser(name, help=text, add_help=False)
+        client.add_argument("rest", nargs=argparse.REMAINDER)
+        client.set_defaults(func=cmd_client, client_command=name)
+    return parser
+
+
+CLIENT_COMMANDS = {
+    "submit": "client: submit a job payload (JSON file), optionally wait for it",
+    "submit-dir": "client: submit every *.json of a folder as batches, wait, write a summary",
+    "get": "client: print a job as JSON, or its vertebrae or measures as CSV",
+    "list": "client: list jobs, newest first",
+    "cancel": "client: cancel a queued or running job",
+    "fhir": "client: print a succeeded job's measures as a FHIR R4 Bundle",
+}
+"""Commands of the service's client (``spine_client.cli``), talking to SPINE_URL with SPINE_API_KEY."""
+
+
+def cmd_client(args: argparse.Namespace) -> int:
+    from spine_client.cli import main as client_main  # lazy: the client only for its commands
+
+    return client_main([args.client_command, *args.rest])
+
+
+PASSTHROUGH = {"bench": cmd_bench, "loadtest": cmd_loadtest}
+"""Subcommands whose arguments belong to another parser: handed over untouched."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PASSTHROUGH:
+        return PASSTHROUGH[argv[0]](argparse.Namespace(rest=argv[1:]))
+    if argv and argv[0] in CLIENT_COMMANDS:
+        return cmd_client(argparse.Namespace(client_command=argv[0], rest=argv[1:]))
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        return 130
+

@@ -1,0 +1,185 @@
+"""The one settings object of the service, read from environment variables (pydantic-settings).
+
+With no variables set, the service runs on its embedded default: a SQLite database and a
+SQLite-backed Celery broker (kombu's SQLAlchemy transport) under ``SPINE_DATA_DIR``. Setting
+``DATABASE_URL`` (PostgreSQL) and ``CELERY_BROKER_URL`` (Redis) runs the same code distributed.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import AliasChoices, Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from services.core.webhook_policy import decode_secret, parse_allow_list
+
+
+class Settings(BaseSettings):
+    """Every setting of the API and the worker. Names are the environment variables (README)."""
+
+    model_config = SettingsConfigDict(env_prefix="SPINE_", extra="ignore", frozen=True)
+
+    data_dir: Path = Field(
+        Path(".spine"),
+        description="Folder of the embedded default's files (SQLite database and broker).",
+    )
+    database_url: str | None = Field(
+        None,
+        validation_alias=AliasChoices("DATABASE_URL", "SPINE_DATABASE_URL"),
+        description="SQLAlchemy URL of the job database, e.g. postgresql+psycopg://user@host/db. "
+        "Default: sqlite:///$SPINE_DATA_DIR/spine.db.",
+    )
+    broker_url: str | None = Field(
+        None,
+        validation_alias=AliasChoices("CELERY_BROKER_URL", "SPINE_BROKER_URL"),
+        description="Celery broker URL, e.g. redis://host:6379/0. "
+        "Default: sqla+sqlite:///$SPINE_DATA_DIR/broker.db (no server needed).",
+    )
+    queue_name: str = Field("spine.jobs", description="Name of the broker queue that carries job ids.")
+    db_pool_size: int = Field(10, ge=1, description="Connections kept per process (PostgreSQL).")
+    fit_time_limit_s: float = Field(
+        120.0, gt=0, description="Time limit of one fit; past it the job fails with fit-timeout."
+    )
+    queued_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        description="A queued job whose message the broker is missing (it holds fewer messages than queued "
+        "jobs) is enqueued again once it has waited this long since it was last enqueued; a broker that "
+        "restarted has all queued jobs enqueued again at once. Sized for a 5 ms fit: 10 s is 2000 fits of one "
+        "process, far longer than a prefetched message waits.",
+    )
+    lease_s: float = Field(
+        10.0,
+        gt=0,
+        description="A running job's lease: the worker renews it every third of this while the fit runs; a job "
+        "whose lease expired (its worker died) is taken back by the reconciler, fenced by attempt.",
+    )
+    running_grace_s: float = Field(
+        30.0,
+        ge=0,
+        description="A job running without a lease (claimed before leases existed) this long past the fit time "
+        "limit is taken back by the reconciler (its worker is presumed dead).",
+    )
+    max_attempts: int = Field(
+        3, ge=1, description="Runs a job may start; a job stranded in running after that many fails."
+    )
+    reconcile_interval_s: float = Field(
+        2.0,
+        gt=0,
+        description="Period of the reconciler task: a stranded job is found within lease + this, a lost message "
+        "within this after the broker is back.",
+    )
+    worker_concurrency: int = Field(0, ge=0, description="Worker processes per `spine worker`; 0 means one per core.")
+    serve_worker: bool | None = Field(
+        None,
+        description="Whether `spine serve` starts a worker as its child process. Unset: yes on the "
+        "embedded default (no DATABASE_URL), no when distributed.",
+    )
+    max_body_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted request body (413 above).")
+    max_batch_body_bytes: int = Field(
+        16 * 1_048_576, ge=1024, description="Largest accepted body of POST /v1/jobs/batch (413 above)."
+    )
+    batch_max_jobs: int = Field(1000, ge=1, description="Most payloads in one POST /v1/jobs/batch.")
+    metrics_window_s: float = Field(
+        300.0, gt=0, description="Window of finished jobs over which /metrics reports duration quantiles."
+    )
+    log_level: str = Field("INFO", description="Log level of API and worker.")
+    # Security (services/api/security.py, services/auth.py): API keys, headers, CORS, limits.
+    api_key_cache_s: float = Field(
+        5.0,
+        ge=0,
+        description="Seconds an API process trusts a verified key without reading it again: "
+        "a revoked key is refused at most this long after `spine keys revoke`.",
+    )
+    max_queued_per_client: int = Field(
+        2000,
+        ge=0,
+        description="Most jobs a client (API key name, role client) may have queued at once; "
+        "past it, submissions answer 429 with Retry-After. 0: no cap. Admin keys are not capped.",
+    )
+    cors_origins: str = Field(
+        "",
+        description="Comma-separated origins (scheme://host[:port]) allowed to call the API from a browser; "
+        "empty: CORS is off.",
+    )
+    hsts_max_age_s: int = Field(
+        0, ge=0, description="When > 0, every answer carries Strict-Transport-Security with this max-age (HTTPS only)."
+    )
+    metrics_require_key: bool = Field(False, description="Whether /metrics needs an admin API key.")
+    access_log: bool = Field(True, description="Whether the API logs one JSON line per request.")
+    # Webhooks (services/webhooks): callback_url destinations, signing and delivery.
+    webhook_allowed_urls: str = Field(
+        "",
+        description="Comma-separated URL prefixes (scheme://host[:port][/path]) a job's callback_url must match; "
+        "empty: webhooks are refused.",
+    )
+    webhook_secret: SecretStr | None = Field(
+        None,
+        description="Service-wide Standard Webhooks signing secret (whsec_ + base64, at least 16 bytes), used until "
+        "API keys carry their own; unset: webhooks are refused.",
+    )
+    webhook_timeout_s: float = Field(10.0, gt=0, description="Time limit of one webhook delivery attempt.")
+    webhook_max_attempts: int = Field(6, ge=1, le=20, description="Delivery attempts of one webhook message.")
+    webhook_retry_base_s: float = Field(
+        2.0, gt=0, description="Delay before the 2nd attempt; doubles at each attempt (capped at 120 s)."
+    )
+    webhook_sweep_after_s: float = Field(
+        300.0,
+        gt=0,
+        description="A webhook attempt due this long ago that never happened (its message could not be "
+        "published, or was lost) is published again by the reconciler; it looks back one day.",
+    )
+
+    @field_validator("webhook_allowed_urls")
+    @classmethod
+    def _webhook_allow_list(cls, value: str) -> str:
+        parse_allow_list(value)  # a bad entry stops the service at start, naming it
+        return value
+
+    @field_validator("webhook_secret")
+    @classmethod
+    def _webhook_secret(cls, value: SecretStr | None) -> SecretStr | None:
+        if value is not None:
+            decode_secret(value.get_secret_value())
+        return value
+
+    @property
+    def embedded(self) -> bool:
+        """True when the database is the embedded SQLite default (no DATABASE_URL set)."""
+        return self.database_url is None
+
+    @property
+    def sqlalchemy_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{self.data_dir.resolve() / 'spine.db'}"
+
+    @property
+    def celery_broker_url(self) -> str:
+        if self.broker_url:
+            return self.broker_url
+        return f"sqla+sqlite:///{self.data_dir.resolve() / 'broker.db'}"
+
+    @property
+    def webhook_queue(self) -> str:
+        """The queue of webhook deliveries (``<SPINE_QUEUE_NAME>.webhooks``): they neither wait behind
+        nor delay fits."""
+        return f"{self.queue_name}.webhooks"
+
+    @property
+    def starts_worker(self) -> bool:
+        """Whether `spine serve` starts a worker child process."""
+        return self.embedded if self.serve_worker is None else self.serve_worker
+
+    def ensure_data_dir(self) -> None:
+        """Create SPINE_DATA_DIR when the embedded database or broker lives there."""
+        if self.database_url is None or self.broker_url is None:
+            self.data_dir.mkdir(parents=True, exist_ok=True)
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The process-wide settings, read once from the environment."""
+    return Settings()

@@ -1,0 +1,119 @@
+"""The job queue: the Celery app's configuration and the publishing side used by the API.
+
+Messages carry only a job id; the database holds the job. Celery's result backend is not used.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+import uuid
+from collections.abc import Iterable
+from contextlib import closing
+from typing import Any
+
+from celery import Celery
+from kombu.exceptions import ChannelError
+
+from services.core.config import Settings
+
+log = logging.getLogger(__name__)
+
+RUN_JOB = "spine.run_job"
+RECONCILE = "spine.reconcile"
+
+
+def make_celery(settings: Settings) -> Celery:
+    """A Celery app for ``settings``: broker from the settings, no result backend."""
+    settings.ensure_data_dir()
+    app = Celery("spine", broker=settings.celery_broker_url, set_as_current=False)
+    transport_options: dict[str, object] = {}
+    if settings.celery_broker_url.startswith("sqla+sqlite:///"):
+        _use_wal(settings.celery_broker_url.removeprefix("sqla+sqlite:///"))
+        transport_options = {"connect_args": {"timeout": 30, "factory": _BrokerConnection}}
+    elif settings.celery_broker_url.startswith(("redis", "rediss")):
+        # A message not acknowledged within this time is delivered again (acks_late); keep it
+        # above the fit time limit so that a slow fit is not run twice.
+        transport_options = {"visibility_timeout": int(settings.fit_time_limit_s * 2 + 60)}
+    app.conf.update(
+        broker_transport_options=transport_options,
+        broker_connection_retry_on_startup=True,
+        broker_connection_timeout=5,
+        result_backend=None,
+        task_ignore_result=True,
+        task_store_errors_even_if_ignored=False,
+        task_default_queue=settings.queue_name,
+        task_routes={RUN_JOB: {"queue": settings.queue_name}, RECONCILE: {"queue": settings.queue_name}},
+        task_serializer="json",
+        accept_content=["json"],
+        task_acks_late=True,
+        task_reject_on_worker_lost=False,
+        task_publish_retry_policy={"max_retries": 2, "interval_start": 0, "interval_step": 0.5},
+        worker_prefetch_multiplier=4,
+        worker_hijack_root_logger=False,
+        worker_send_task_events=False,
+        task_send_sent_event=False,
+        enable_utc=True,
+        beat_scheduler="celery.beat:Scheduler",
+    )
+    return app
+
+
+class _BrokerConnection(sqlite3.Connection):
+    """A connection to the embedded broker file that does not fsync every commit.
+
+    Safe in WAL mode (no corruption; at worst the last messages are lost at a power cut, and
+    the reconciler publishes their jobs again).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.execute("PRAGMA synchronous=NORMAL")
+
+
+def _use_wal(path: str) -> None:
+    """Put the embedded broker's SQLite file in WAL mode (persistent): commits get much cheaper."""
+    with closing(sqlite3.connect(path, timeout=30)) as db:
+        db.execute("PRAGMA journal_mode=WAL")
+
+
+def enqueue(app: Celery, job_ids: Iterable[uuid.UUID]) -> int:
+    """Publish one message per job id; return how many were published.
+
+    A failure to publish is logged, not raised: the job is stored as queued and the reconciler
+    publishes it again (``services.db.runs.publish`` marks it for the reconciler's next pass).
+    """
+    sent = 0
+    try:
+        with app.producer_or_acquire() as producer:
+            for job_id in job_ids:
+                app.send_task(RUN_JOB, args=[str(job_id)], producer=producer)
+                sent += 1
+    except Exception as exc:
+        log.warning("could not publish job messages (the reconciler will): %s", exc)
+    return sent
+
+
+def queue_depth(app: Celery, queue: str) -> int:
+    """Messages waiting in ``queue`` on the broker."""
+    with app.connection_for_read() as conn:
+        try:
+            return int(conn.default_channel.queue_declare(queue=queue, passive=True).message_count)
+        except ChannelError:  # not declared yet: nothing was ever published to it
+            return 0
+
+
+def broker_run_id(app: Celery) -> str | None:
+    """An id of the broker's current run (Redis ``INFO server`` run_id): it changes when the
+    broker restarts, and with it every message it held may be gone. None for other brokers."""
+    if not app.conf.broker_url.startswith(("redis", "rediss")):
+        return None
+    with app.connection_for_read() as conn:
+        info = conn.default_channel.client.info("server")
+        return str(info.get("run_id")) if info.get("run_id") else None
+
+
+def ping_broker(app: Celery) -> None:
+    """Raise when the broker cannot be reached."""
+    with app.connection_for_read() as conn:
+        conn.ensure_connection(max_retries=1, timeout=2)

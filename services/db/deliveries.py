@@ -1,0 +1,87 @@
+"""Data access of the ``webhook_deliveries`` table: one row per delivery attempt, shown on the job."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import and_, exists, insert, select, update
+from sqlalchemy.orm import Session
+
+from services.db.models import WebhookDelivery
+
+
+def record(session: Session, **values: Any) -> None:
+    session.execute(insert(WebhookDelivery), [values])
+
+
+def delivered(session: Session, message_id: str) -> bool:
+    """Whether a receiver already accepted (2xx) this message."""
+    query = select(
+        exists().where(
+            WebhookDelivery.message_id == message_id,
+            WebhookDelivery.status_code >= 200,
+            WebhookDelivery.status_code < 300,
+        )
+    )
+    return bool(session.scalar(query))
+
+
+def attempted(session: Session, message_id: str, attempt: int) -> bool:
+    """Whether attempt ``attempt`` of this message was already made (a second one is a duplicate)."""
+    query = select(exists().where(WebhookDelivery.message_id == message_id, WebhookDelivery.attempt == attempt))
+    return bool(session.scalar(query))
+
+
+def overdue(session: Session, due_before: datetime, due_after: datetime, limit: int = 500) -> list[WebhookDelivery]:
+    """Rows whose next attempt was due between ``due_after`` and ``due_before`` and never came.
+
+    That is: no later attempt of the same message is recorded, and no attempt of it was accepted.
+    Row ``attempt = 0`` marks a message that could not be published when its job ended.
+    """
+    later = WebhookDelivery.__table__.alias("later")
+    query = (
+        select(WebhookDelivery)
+        .where(
+            WebhookDelivery.next_attempt_at.is_not(None),
+            WebhookDelivery.next_attempt_at > due_after,
+            WebhookDelivery.next_attempt_at <= due_before,
+            ~exists().where(
+                and_(
+                    later.c.message_id == WebhookDelivery.message_id,
+                    (later.c.attempt > WebhookDelivery.attempt)
+                    | and_(later.c.status_code >= 200, later.c.status_code < 300),
+                )
+            ),
+        )
+        .order_by(WebhookDelivery.next_attempt_at)
+        .limit(limit)
+    )
+    return list(session.scalars(query))
+
+
+def postpone(session: Session, row_id: int, until: datetime) -> None:
+    """Move a row's next attempt to ``until`` (the reconciler published it again)."""
+    session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(next_attempt_at=until))
+
+
+def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]:
+    """The job's delivery attempts, oldest first, as the ``deliveries`` member of a job."""
+    rows = session.scalars(
+        select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+    )
+    return [
+        {
+            "event": row.event,
+            "message_id": row.message_id,
+            "attempt": row.attempt,
+            "url": row.url,
+            "attempted_at": row.attempted_at.isoformat(),
+            "status_code": row.status_code,
+            "error": row.error,
+            "duration_ms": row.duration_ms,
+            "next_attempt_at": row.next_attempt_at.isoformat() if row.next_attempt_at else None,
+        }
+        for row in rows
+    ]

@@ -1,0 +1,170 @@
+"""API keys (table ``api_keys``): create, verify, list, revoke; their webhook signing secrets.
+
+A key is ``spine_<id>_<secret>``: a 12-hex-digit id, visible in logs, listings and the audit
+trail, and a 256-bit random secret. Only the SHA-256 digest of the whole key is stored; a
+presented key is looked up by its id and its digest compared in constant time. A high-entropy
+key needs no salt nor slow hash: nothing can be guessed from its digest.
+
+A key's ``name`` is the client it belongs to: it is the ``owner`` of the jobs created with the
+key, so that a client keeps its jobs when its key is rotated (a new key, same name). The
+``client`` role sees only its own jobs; ``admin`` sees every job.
+
+Each key also carries a Standard Webhooks signing secret (``whsec_<base64 of 32 random bytes>``),
+made with the key and stored as is (it must be, to sign): the webhooks of a client's jobs are
+signed with the secret of that client's most recent active key that has one
+(``key_webhook_secret``, which ``services.webhooks.signing.secret_for`` reads).
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import re
+import secrets
+from dataclasses import dataclass
+from typing import Literal
+
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from services.core.webhook_policy import decode_secret
+from services.db.models import ApiKey, utcnow
+
+Role = Literal["admin", "client"]
+ROLES: tuple[Role, ...] = ("admin", "client")
+KEY_PREFIX = "spine_"
+KEY_PATTERN = re.compile(r"^spine_([0-9a-f]{12})_([A-Za-z0-9_-]{43})$")
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$")
+
+
+@dataclass(frozen=True)
+class Caller:
+    """The authenticated client of a request."""
+
+    key_id: str
+    name: str
+    role: str
+
+    @property
+    def is_admin(self) -> bool:
+        return self.role == "admin"
+
+    @property
+    def owner(self) -> str:
+        """The owner of the jobs this caller creates (and whose idempotency keys it shares)."""
+        return self.name
+
+    @property
+    def read_scope(self) -> str | None:
+        """The owner whose jobs this caller may see and cancel; None (all) for an admin."""
+        return None if self.is_admin else self.name
+
+
+def digest(key: str) -> str:
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+def new_key() -> tuple[str, str]:
+    """A fresh (key id, whole key)."""
+    key_id = secrets.token_hex(6)
+    return key_id, f"{KEY_PREFIX}{key_id}_{secrets.token_urlsafe(32)}"
+
+
+def key_id_of(key: str) -> str | None:
+    """The id of a well-formed key, else None."""
+    match = KEY_PATTERN.match(key)
+    return match.group(1) if match else None
+
+
+class BadKeyName(ValueError):
+    pass
+
+
+def create_key(session: Session, name: str, role: str = "client") -> tuple[ApiKey, str]:
+    """Store a new key for client ``name``; return it and the whole key (shown once, never stored)."""
+    if not NAME_PATTERN.match(name):
+        raise BadKeyName(f"a key name is 1 to 64 of A-Z a-z 0-9 . _ @ -, starting with a letter or digit: {name!r}")
+    if role not in ROLES:
+        raise BadKeyName(f"role must be one of {', '.join(ROLES)}, not {role!r}")
+    key_id, key = new_key()
+    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow(),
+                 webhook_secret=new_webhook_secret())  # fmt: skip
+    session.add(row)
+    session.commit()
+    return row, key
+
+
+def verify_key(session: Session, key: str) -> Caller | None:
+    """The caller a presented key belongs to; None for a malformed, unknown or revoked key."""
+    presented = digest(key)
+    key_id = key_id_of(key)
+    row = session.get(ApiKey, key_id) if key_id is not None else None
+    stored = row.key_hash if row is not None else "0" * 64
+    valid = hmac.compare_digest(stored, presented)  # constant time whatever matched
+    if row is None or not valid or row.revoked_at is not None:
+        return None
+    return Caller(key_id=row.id, name=row.name, role=row.role)
+
+
+def list_keys(session: Session) -> list[ApiKey]:
+    return list(session.scalars(select(ApiKey).order_by(ApiKey.created_at, ApiKey.id)))
+
+
+def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
+    """Revoke the key with this id, or else every active key of the client with this name."""
+    now = utcnow()
+    by_id = session.get(ApiKey, name_or_id)
+    if by_id is not None:
+        targets = [by_id] if by_id.revoked_at is None else []
+    else:
+        targets = list(session.scalars(select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))))
+    if targets:
+        session.execute(update(ApiKey).where(ApiKey.id.in_([k.id for k in targets])).values(revoked_at=now))
+        session.commit()
+        for key in targets:
+            session.refresh(key)
+    return targets
+
+
+def count_keys(session: Session) -> int:
+    return int(session.scalar(select(func.count()).select_from(ApiKey)) or 0)
+
+
+# ------------------------------------------------------------------ webhook secrets
+
+
+def new_webhook_secret() -> str:
+    """A fresh Standard Webhooks secret: ``whsec_`` + base64 of 32 random bytes."""
+    return "whsec_" + base64.b64encode(secrets.token_bytes(32)).decode()
+
+
+def key_for_secret(session: Session, name_or_id: str) -> ApiKey | None:
+    """The key with this id, or else the client's most recent active key (None when there is none)."""
+    by_id = session.get(ApiKey, name_or_id)
+    if by_id is not None:
+        return by_id
+    latest = select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))
+    return session.scalars(latest.order_by(ApiKey.created_at.desc(), ApiKey.id.desc()).limit(1)).first()
+
+
+def rotate_webhook_secret(session: Session, key: ApiKey) -> str:
+    """Give ``key`` a new webhook secret, commit, and return it."""
+    key.webhook_secret = new_webhook_secret()
+    session.commit()
+    return key.webhook_secret
+
+
+def key_webhook_secret(session: Session, owner: str | None) -> bytes | None:
+    """The signing key of ``owner``'s webhooks: the secret of that client's most recent active key
+    that has one; None (the service-wide secret then) for no owner or no such key."""
+    if owner is None:
+        return None
+    latest = (
+        select(ApiKey.webhook_secret)
+        .where(ApiKey.name == owner, ApiKey.revoked_at.is_(None), ApiKey.webhook_secret.is_not(None))
+        .order_by(ApiKey.created_at.desc(), ApiKey.id.desc())
+        .limit(1)
+    )
+    secret = session.scalar(latest)
+    return decode_secret(secret) if secret else None

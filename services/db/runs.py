@@ -1,0 +1,316 @@
+"""Runs of jobs: the worker's claim and finish, fenced by attempt, and the reconciler's pass
+over stranded jobs; publishing job messages and marking those that could not be published.
+
+State changes are guarded by the expected current state (``WHERE status = ...``), so a message
+delivered twice, a cancel racing a fit, or a reconciler racing a slow worker never gives a job
+two outcomes. A run is fenced by its attempt number: a worker can only finish the run it claimed.
+"""
+
+from __future__ import annotations
+
+import logging
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any, cast
+
+from celery import Celery
+from sqlalchemy import (
+    Boolean,
+    CursorResult,
+    Table,
+    and_,
+    bindparam,
+    column,
+    func,
+    insert,
+    or_,
+    select,
+    true,
+    update,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import Session
+
+from services.core.jobqueue import enqueue
+from services.core.status import JobStatus
+from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
+from services.db.results import measures_row, strain_rows
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A run of a job that this worker owns: fenced by the attempt number."""
+
+    job_id: uuid.UUID
+    attempt: int
+    payload: dict[str, Any]
+    created_at: datetime
+    callback_url: str | None = None
+
+
+_JOBS = cast(Table, Job.__table__)
+_CLAIM = (
+    update(_JOBS)
+    .where(_JOBS.c.id == bindparam("job_id"), _JOBS.c.status == JobStatus.queued.value)
+    .values(
+        status=JobStatus.running.value,
+        started_at=bindparam("now"),
+        attempts=_JOBS.c.attempts + 1,
+        engine_version=bindparam("engine_version"),
+        lease_expires_at=bindparam("lease_until"),
+    )
+    .returning(_JOBS.c.attempts, _JOBS.c.payload, _JOBS.c.created_at, _JOBS.c.callback_url)
+)
+_RENEW = (
+    update(_JOBS)
+    .where(
+        _JOBS.c.id == bindparam("job_id"),
+        _JOBS.c.status == JobStatus.running.value,
+        _JOBS.c.attempts == bindparam("attempt"),
+    )
+    .values(lease_expires_at=bindparam("lease_until"))
+)
+_FINISH = (
+    update(_JOBS)
+    .where(
+        _JOBS.c.id == bindparam("job_id"),
+        _JOBS.c.status == JobStatus.running.value,
+        _JOBS.c.attempts == bindparam("attempt"),
+    )
+    .values(
+        status=bindparam("status"),
+        finished_at=bindparam("now"),
+        result=bindparam("result"),
+        error=bindparam("error"),
+        engine_version=func.coalesce(bindparam("engine_version"), _JOBS.c.engine_version),
+        lease_expires_at=None,
+    )
+)
+_MEASURES = cast(Table, JobMeasures.__table__)
+_STRAINS = cast(Table, VertebraStrain.__table__)
+_INSERT_MEASURES = insert(_MEASURES)
+_INSERT_STRAINS = insert(_STRAINS)
+_MEASURE_COLUMNS = [c for c in _MEASURES.c if c.name != "job_id"]
+_STRAIN_COLUMNS = [c for c in _STRAINS.c if c.name != "job_id"]
+_NO_MEASURES = {c.name: None for c in _MEASURE_COLUMNS}
+
+
+def _finish_one_statement() -> Any:
+    """PostgreSQL: ``_FINISH`` and both measure inserts as one statement with data-modifying CTEs.
+
+    ``WITH done AS (UPDATE jobs … RETURNING id), m AS (INSERT INTO job_measures SELECT … FROM done
+    WHERE :with_measures), s AS (INSERT INTO vertebra_strains SELECT done.id, r.* FROM done,
+    jsonb_to_recordset(:strains) AS r(level text, u1 float8, …)) SELECT count(*) FROM done``:
+    nothing is inserted when the fenced update matched no row, and all of it commits together.
+    """
+    done = _FINISH.returning(_JOBS.c.id).cte("done")
+    measures = insert(_MEASURES).from_select(
+        ["job_id", *[c.name for c in _MEASURE_COLUMNS]],
+        select(done.c.id, *[bindparam(c.name, type_=c.type) for c in _MEASURE_COLUMNS]).where(
+            bindparam("with_measures", type_=Boolean())
+        ),
+    )
+    record = (
+        func.jsonb_to_recordset(bindparam("strains", type_=JSONB()))
+        .table_valued(*[column(c.name, c.type) for c in _STRAIN_COLUMNS])
+        .render_derived(with_types=True)
+    )
+    strains = insert(_STRAINS).from_select(
+        ["job_id", *[c.name for c in _STRAIN_COLUMNS]],
+        select(done.c.id, *[record.c[c.name] for c in _STRAIN_COLUMNS]).select_from(done).join(record, true()),
+    )
+    return select(func.count()).select_from(done).add_cte(measures.cte("m"), strains.cte("s"))
+
+
+_FINISH_ONE_STATEMENT = _finish_one_statement()
+# Statements are built once and executed on Core tables with bound parameters: the worker's
+# per-job cost stays in the database, not in statement construction.
+
+
+def claim_job(
+    session: Session, job_id: uuid.UUID, engine_version: str | None, lease: timedelta = timedelta(seconds=10)
+) -> Claim | None:
+    """queued → running, attempts + 1, leased for ``lease``; None when the job is not queued
+    (duplicate, cancelled…).
+
+    One statement. The worker runs it on a session of ``services.db.engine.worker_session(settings,
+    durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
+    crashes and loses the claim, the job is simply queued again, and the run's final update,
+    fenced on running and this attempt, stores nothing.
+    """
+    now = utcnow()
+    params = {"job_id": job_id, "now": now, "engine_version": engine_version, "lease_until": now + lease}
+    row = session.execute(_CLAIM, params).first()
+    session.commit()
+    if row is None:
+        return None
+    return Claim(job_id, row.attempts, row.payload, row.created_at, row.callback_url)
+
+
+def renew_leases(session: Session, claims: Sequence[Claim], lease: timedelta) -> list[Claim]:
+    """Extend the lease of each claimed run to now + ``lease``; return the runs that still own
+    their job (a run whose job was cancelled or taken back by the reconciler is not renewed)."""
+    until = utcnow() + lease
+    kept = []
+    for claim in claims:
+        done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+            _RENEW, {"job_id": claim.job_id, "attempt": claim.attempt, "lease_until": until}
+        )
+        if done.rowcount == 1:
+            kept.append(claim)
+    session.commit()
+    return kept
+
+
+def finish_job(
+    session: Session,
+    claim: Claim,
+    *,
+    result: dict[str, Any] | None = None,
+    error: dict[str, Any] | None = None,
+    engine_version: str | None = None,
+) -> bool:
+    """running → succeeded (with ``result``) or failed (with ``error``), only for this run.
+
+    The job's row, its ``job_measures`` row and its ``vertebra_strains`` rows are written in one
+    transaction: on PostgreSQL as one statement (one round trip), elsewhere as three.
+    Returns False, storing nothing, when the job was cancelled or handed to another run meanwhile.
+    """
+    status = JobStatus.succeeded if error is None else JobStatus.failed
+    params = {
+        "job_id": claim.job_id,
+        "attempt": claim.attempt,
+        "status": status.value,
+        "now": utcnow(),
+        "result": result,
+        "error": error,
+        "engine_version": engine_version,
+    }
+    measures = measures_row(result) if result is not None else None
+    strains = strain_rows(result) if result is not None else []
+    if session.get_bind().dialect.name == "postgresql":
+        stored = session.execute(
+            _FINISH_ONE_STATEMENT,
+            {**params, **(measures or _NO_MEASURES), "with_measures": measures is not None, "strains": strains},
+        ).scalar_one()
+        session.commit()
+        return bool(stored)
+    outcome: CursorResult[Any] = session.execute(_FINISH, params)  # type: ignore[assignment]
+    if outcome.rowcount != 1:
+        session.rollback()
+        return False
+    if measures is not None:
+        session.execute(_INSERT_MEASURES, {**measures, "job_id": claim.job_id})
+    if strains:
+        session.execute(_INSERT_STRAINS, [{**row, "job_id": claim.job_id} for row in strains])
+    session.commit()
+    return True
+
+
+@dataclass(frozen=True)
+class Reconciliation:
+    requeue: list[uuid.UUID]
+    """Jobs to publish again: queued too long since last enqueued, or taken back from a lost run."""
+    failed: list[uuid.UUID]
+    """Jobs stranded in running after their last allowed attempt, now failed."""
+
+
+def reconcile(
+    session: Session,
+    *,
+    queued_timeout: timedelta,
+    running_timeout: timedelta,
+    max_attempts: int,
+    lost_problem: dict[str, Any],
+    batch: int = 1000,
+    republish_queued: int | None = None,
+) -> Reconciliation:
+    """Find jobs a lost message or a dead worker stranded, and hand them back or fail them.
+
+    A running job is stranded when its lease expired (its worker stopped renewing it:
+    ``lease_expires_at < now``), or, for a run that holds no lease (claimed before leases
+    existed), when it started more than ``running_timeout`` ago. A queued job is stranded when
+    it was last enqueued more than ``queued_timeout`` ago or is marked unpublished; with
+    ``republish_queued`` set, only that many of the oldest such jobs are taken (the broker is
+    missing about that many messages), and ``queued_timeout`` zero takes every queued job
+    (the broker lost its messages).
+    """
+    now = utcnow()
+    requeue: list[uuid.UUID] = []
+    failed: list[uuid.UUID] = []
+    expired = or_(
+        Job.lease_expires_at < now,
+        and_(Job.lease_expires_at.is_(None), Job.started_at < now - running_timeout),
+    )
+    stale_running = session.execute(
+        select(Job.id, Job.attempts).where(Job.status == JobStatus.running.value, expired).limit(batch)
+    ).all()
+    for job_id, attempts in stale_running:
+        guard = (Job.id == job_id, Job.status == JobStatus.running.value, Job.attempts == attempts)
+        if attempts >= max_attempts:
+            done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+                update(Job)
+                .where(*guard)
+                .values(status=JobStatus.failed.value, finished_at=now, error=lost_problem, lease_expires_at=None)
+            )
+            if done.rowcount == 1:
+                failed.append(job_id)
+        else:
+            back: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+                update(Job).where(*guard).values(status=JobStatus.queued.value, enqueued_at=now, lease_expires_at=None)
+            )
+            if back.rowcount == 1:
+                requeue.append(job_id)
+    # Queued too long since last enqueued, or known to have no message (``mark_unpublished``).
+    stale = or_(Job.enqueued_at <= now - queued_timeout, Job.enqueued_at.is_(None))
+    limit = batch if republish_queued is None else max(0, min(batch, republish_queued))
+    unpublished = list(
+        session.scalars(
+            select(Job.id).where(Job.status == JobStatus.queued.value, Job.enqueued_at.is_(None)).limit(batch)
+        )
+    )
+    oldest = select(Job.id).where(Job.status == JobStatus.queued.value, stale)
+    stale_queued = list(
+        dict.fromkeys(
+            unpublished + list(session.scalars(oldest.order_by(Job.enqueued_at, Job.id).limit(limit)))
+        )
+    )
+    if stale_queued:
+        touched = session.scalars(
+            update(Job)
+            .where(Job.id.in_(stale_queued), Job.status == JobStatus.queued.value, stale)
+            .values(enqueued_at=now)
+            .returning(Job.id)
+        ).all()
+        requeue.extend(touched)
+    session.commit()
+    return Reconciliation(requeue, failed)
+
+
+def mark_unpublished(session: Session, job_ids: Sequence[uuid.UUID]) -> None:
+    """Mark queued jobs whose message could not be published (``enqueued_at`` NULL), so that the
+    reconciler's next pass publishes them instead of waiting ``SPINE_QUEUED_TIMEOUT_S``."""
+    if job_ids:
+        session.execute(
+            update(Job)
+            .where(Job.id.in_(list(job_ids)), Job.status == JobStatus.queued.value)
+            .values(enqueued_at=None)
+        )
+        session.commit()
+
+
+log = logging.getLogger(__name__)
+
+
+def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
+    """``enqueue`` the jobs; mark those whose message could not be published, so that the
+    reconciler's next pass (every ``SPINE_RECONCILE_INTERVAL_S``) publishes them. Never raises."""
+    sent = enqueue(app, job_ids)
+    if sent < len(job_ids):
+        try:
+            mark_unpublished(session, job_ids[sent:])
+        except Exception as exc:  # the database too: the queued timeout still catches them
+            log.warning("could not mark %d unpublished jobs: %s", len(job_ids) - sent, exc)
+    return sent

@@ -1,0 +1,40 @@
+"""Counts and durations of jobs, for /metrics and the reconciler."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import (
+    func,
+    select,
+)
+from sqlalchemy.orm import Session
+
+from services.core.status import JobStatus
+from services.db.models import Job
+
+
+def count_by_status(session: Session) -> dict[str, int]:
+    counts = {s.value: 0 for s in JobStatus}
+    for status, n in session.execute(select(Job.status, func.count()).group_by(Job.status)):
+        counts[status] = n
+    return counts
+
+
+def recent_durations(session: Session, since: datetime, limit: int = 20_000) -> list[tuple[float, float]]:
+    """(fit seconds, end-to-end seconds) of jobs that succeeded or failed since ``since``."""
+    rows = session.execute(
+        select(Job.created_at, Job.started_at, Job.finished_at)
+        .where(
+            Job.finished_at >= since,
+            Job.status.in_([JobStatus.succeeded.value, JobStatus.failed.value]),
+            Job.started_at.is_not(None),
+        )
+        .order_by(Job.finished_at.desc())
+        .limit(limit)
+    ).all()
+    return [
+        ((finished - started).total_seconds(), (finished - created).total_seconds())
+        for created, started, finished in rows
+        if started is not None and finished is not None
+    ]

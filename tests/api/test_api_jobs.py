@@ -1,0 +1,247 @@
+"""The job API on the embedded default (SQLite, no worker): validation, problems, reads, cancel."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from services.api.app import create_app
+from services.core.config import Settings
+from services.core.problems import PROBLEM_BASE
+from services.db.migrate import upgrade
+from tests.conftest import make_key, problem_of, spine_payload
+
+
+def test_submit_answers_202_with_location_and_a_queued_job(api: TestClient, payload: dict[str, Any]) -> None:
+    response = api.post("/v1/jobs", json=payload)
+    assert response.status_code == 202
+    job = response.json()
+    assert response.headers["location"] == f"/v1/jobs/{job['id']}"
+    assert job["status"] == "queued" and job["attempts"] == 0 and job["owner"] == "test-client"
+    assert job["result"] is None and job["error"] is None
+    read = api.get(response.headers["location"]).json()
+    assert read["payload"] == payload
+    assert read["created_at"] == job["created_at"]
+
+
+def test_validation_problem_lists_every_field_with_its_json_path(api: TestClient, payload: dict[str, Any]) -> None:
+    payload["pa"]["landmarks"][3]["level"] = "T13"
+    payload["pa"]["landmarks"][5]["point"] = [1.0, "x"]
+    del payload["boundary"]["L5"]
+    payload["colour"] = "blue"
+    response = api.post("/v1/jobs", json=payload)
+    assert response.status_code == 422
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "validation-error"
+    assert problem["instance"] == "/v1/jobs"
+    paths = {e["path"] for e in problem["errors"]}
+    assert paths == {"pa.landmarks[3].level", "pa.landmarks[5].point[1]", "boundary.L5", "colour"}
+    assert all(e["msg"] and e["type"] for e in problem["errors"])
+    assert api.get("/v1/jobs").json()["jobs"] == []  # nothing stored
+
+
+def test_cross_field_validation_names_the_field(api: TestClient, payload: dict[str, Any]) -> None:
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][1:]  # no T1 landmark, no projection
+    problem = problem_of(api.post("/v1/jobs", json=payload))
+    assert [e["path"] for e in problem["errors"]] == ["pa.landmarks"]
+
+
+def test_malformed_json_is_a_400_problem(api: TestClient) -> None:
+    response = api.post("/v1/jobs", content=b'{"pa": [1, 2', headers={"content-type": "application/json"})
+    assert response.status_code == 400
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "malformed-json"
+    assert problem["errors"][0]["path"] == "" and "line 1" in problem["errors"][0]["msg"]
+
+
+@pytest.mark.parametrize("content_type", ["text/plain", "application/x-www-form-urlencoded", None])
+def test_wrong_content_type_is_a_415_problem(api: TestClient, content_type: str | None, payload: Any) -> None:
+    headers = {"content-type": content_type} if content_type else {}
+    response = api.post("/v1/jobs", content=json.dumps(payload).encode(), headers=headers)
+    assert response.status_code == 415
+    assert problem_of(response)["type"] == PROBLEM_BASE + "unsupported-media-type"
+
+
+def test_problem_json_content_type_is_accepted(api: TestClient, payload: Any) -> None:
+    response = api.post(
+        "/v1/jobs", content=json.dumps(payload), headers={"content-type": "application/json; charset=utf-8"}
+    )
+    assert response.status_code == 202
+
+
+def test_body_over_one_mebibyte_is_a_413_problem(api: TestClient, payload: dict[str, Any]) -> None:
+    payload["padding"] = "x" * (1024 * 1024)
+    response = api.post("/v1/jobs", json=payload)
+    assert response.status_code == 413
+    assert problem_of(response)["type"] == PROBLEM_BASE + "payload-too-large"
+
+    def chunks() -> Any:  # no Content-Length: the limit holds while streaming too
+        for _ in range(20):
+            yield b" " * 65536
+        yield b"{}"
+
+    response = api.post("/v1/jobs", content=chunks(), headers={"content-type": "application/json"})
+    assert response.status_code == 413
+
+
+def test_idempotency_key_same_body_same_job_other_body_409(api: TestClient, payload: dict[str, Any]) -> None:
+    first = api.post("/v1/jobs", json=payload, headers={"Idempotency-Key": "scan-42"})
+    reordered = json.loads(json.dumps(payload, sort_keys=True))  # same body, other key order
+    again = api.post("/v1/jobs", json=reordered, headers={"Idempotency-Key": "scan-42"})
+    assert first.status_code == again.status_code == 202
+    assert first.json()["id"] == again.json()["id"]
+    assert again.headers["idempotent-replayed"] == "true"
+    other = spine_payload(curve_mm=25.0)
+    conflict = api.post("/v1/jobs", json=other, headers={"Idempotency-Key": "scan-42"})
+    assert conflict.status_code == 409
+    problem = problem_of(conflict)
+    assert problem["type"] == PROBLEM_BASE + "idempotency-conflict"
+    assert problem["job"] == f"/v1/jobs/{first.json()['id']}"
+    fresh = api.post("/v1/jobs", json=other, headers={"Idempotency-Key": "scan-43"})
+    assert fresh.status_code == 202 and fresh.json()["id"] != first.json()["id"]
+    assert len(api.get("/v1/jobs").json()["jobs"]) == 2
+
+
+def test_batch_validates_each_payload_on_its_own(api: TestClient, payload: dict[str, Any]) -> None:
+    bad = spine_payload()
+    bad["boundary"]["T1"]["directors"][0] = [2.0, 0.0, 0.0]
+    response = api.post("/v1/jobs/batch", json={"jobs": [payload, bad, {"nope": 1}, payload]})
+    assert response.status_code == 200
+    body = response.json()
+    assert body["accepted"] == 2 and body["rejected"] == 2
+    assert [e["index"] for e in body["results"]] == [0, 1, 2, 3]
+    assert [e["status"] for e in body["results"]] == [202, 422, 422, 202]
+    assert body["results"][0]["job"]["status"] == "queued"
+    assert [e["path"] for e in body["results"][1]["problem"]["errors"]] == ["jobs[1].boundary.T1.directors"]
+    paths = {e["path"] for e in body["results"][2]["problem"]["errors"]}
+    assert {"jobs[2].pa", "jobs[2].nope"} <= paths
+    ids = {e["job"]["id"] for e in body["results"] if "job" in e}
+    assert ids == {j["id"] for j in api.get("/v1/jobs").json()["jobs"]}
+
+
+def test_batch_limits(api: TestClient, payload: dict[str, Any]) -> None:
+    too_many = api.post("/v1/jobs/batch", json={"jobs": [payload] * 1001})
+    assert too_many.status_code == 413
+    assert problem_of(too_many)["type"] == PROBLEM_BASE + "payload-too-large"
+    not_a_list = api.post("/v1/jobs/batch", json=[payload])
+    assert not_a_list.status_code == 422
+    assert problem_of(not_a_list)["errors"][0]["path"] == "jobs"
+    full = api.post("/v1/jobs/batch", json={"jobs": [payload] * 1000})
+    assert full.status_code == 200 and full.json()["accepted"] == 1000
+
+
+def test_list_newest_first_with_filters_and_cursor(api: TestClient, payload: dict[str, Any]) -> None:
+    ids = [api.post("/v1/jobs", json=payload).json()["id"] for _ in range(7)]
+    cancelled = ids[2]
+    assert api.post(f"/v1/jobs/{cancelled}/cancel").status_code == 200
+    seen: list[str] = []
+    cursor = None
+    while True:
+        params: dict[str, Any] = {"limit": 3}
+        if cursor:
+            params["cursor"] = cursor
+        page = api.get("/v1/jobs", params=params).json()
+        seen += [j["id"] for j in page["jobs"]]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    assert seen == ids[::-1]
+    queued = api.get("/v1/jobs", params={"status": "queued"}).json()["jobs"]
+    assert [j["id"] for j in queued] == [i for i in ids[::-1] if i != cancelled]
+    both = api.get("/v1/jobs", params=[("status", "queued"), ("status", "cancelled")]).json()["jobs"]
+    assert len(both) == 7
+    created = api.get(f"/v1/jobs/{ids[3]}").json()["created_at"]
+    after = api.get("/v1/jobs", params={"created_after": created}).json()["jobs"]
+    assert [j["id"] for j in after] == ids[3:][::-1]
+    before = api.get("/v1/jobs", params={"created_before": created}).json()["jobs"]
+    assert [j["id"] for j in before] == ids[:3][::-1]
+
+
+def test_list_rejects_bad_parameters_as_problems(api: TestClient) -> None:
+    for params, path in [
+        ({"status": "done"}, "query.status[0]"),
+        ({"limit": 0}, "query.limit"),
+        ({"created_after": "yesterday"}, "query.created_after"),
+        ({"cursor": "!!!"}, "query.cursor"),
+    ]:
+        response = api.get("/v1/jobs", params=params)
+        assert response.status_code == 422, params
+        assert [e["path"] for e in problem_of(response)["errors"]] == [path]
+
+
+def test_cancel_queued_job_and_cancel_again(api: TestClient, payload: dict[str, Any]) -> None:
+    job = api.post("/v1/jobs", json=payload).json()
+    first = api.post(f"/v1/jobs/{job['id']}/cancel")
+    assert first.status_code == 200 and first.json()["status"] == "cancelled"
+    assert first.json()["finished_at"] is not None
+    again = api.post(f"/v1/jobs/{job['id']}/cancel")
+    assert again.status_code == 200 and again.json()["finished_at"] == first.json()["finished_at"]
+
+
+def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None:
+    missing = uuid.uuid4()
+    for response in (api.get(f"/v1/jobs/{missing}"), api.post(f"/v1/jobs/{missing}/cancel"), api.get("/v2/x")):
+        assert response.status_code == 404
+        assert problem_of(response)["type"] == PROBLEM_BASE + "not-found"
+    malformed = api.get("/v1/jobs/not-a-uuid")
+    assert malformed.status_code == 422
+    assert problem_of(malformed)["errors"][0]["path"] == "path.job_id"
+    wrong_method = api.delete("/v1/jobs")
+    assert wrong_method.status_code == 405
+    assert problem_of(wrong_method)["type"] == PROBLEM_BASE + "method-not-allowed"
+
+
+def test_unexpected_error_is_a_500_problem_without_traceback(api: TestClient) -> None:
+    def explode() -> None:
+        raise RuntimeError("secret internals")
+
+    api.app.add_api_route("/explode", explode)  # type: ignore[attr-defined]
+    client = TestClient(api.app, raise_server_exceptions=False)
+    response = client.get("/explode")
+    assert response.status_code == 500
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "internal-error"
+    assert "secret" not in response.text and "Traceback" not in response.text
+
+
+def test_health_ready_and_metrics(api: TestClient, payload: dict[str, Any]) -> None:
+    assert api.get("/healthz").json()["status"] == "ok"
+    ready = api.get("/readyz")
+    assert ready.status_code == 200 and ready.json()["checks"] == {"database": "ok", "broker": "ok"}
+    api.post("/v1/jobs", json=payload)
+    api.post("/v1/jobs", json=payload)
+    metrics = api.get("/metrics")
+    assert metrics.status_code == 200 and metrics.headers["content-type"].startswith("text/plain")
+    text = metrics.text
+    assert 'spine_jobs{status="queued"} 2.0' in text
+    assert "spine_queue_depth 2.0" in text
+    assert 'spine_fit_duration_seconds{quantile="0.99"}' in text
+    assert 'spine_job_duration_seconds{quantile="0.5"}' in text
+    assert 'spine_http_requests_total{method="POST",route="/v1/jobs",status="202"} 2.0' in text
+
+
+def test_readyz_is_503_when_the_broker_or_database_is_unreachable(tmp_path: Any, payload: Any) -> None:
+    settings = Settings(data_dir=tmp_path, CELERY_BROKER_URL="redis://127.0.0.1:9/0")
+    upgrade(settings, quiet=True)
+    client = TestClient(create_app(settings), headers={"Authorization": f"Bearer {make_key(settings)}"})
+    response = client.get("/readyz")
+    assert response.status_code == 503
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "service-unavailable"
+    assert problem["checks"]["database"] == "ok" and problem["checks"]["broker"] != "ok"
+    # the job is stored even though it cannot be published now: the reconciler will publish it
+    assert client.post("/v1/jobs", json=payload).status_code == 202
+
+    down = Settings(data_dir=tmp_path, DATABASE_URL="postgresql+psycopg://nobody@127.0.0.1:9/none")
+    well_formed = "spine_0123456789ab_" + "x" * 43  # its lookup needs the database, which is down
+    client = TestClient(create_app(down), raise_server_exceptions=False,
+                        headers={"Authorization": f"Bearer {well_formed}"})  # fmt: skip
+    response = client.get("/readyz")
+    assert response.status_code == 503 and problem_of(response)["checks"]["database"] != "ok"
+    submit = client.post("/v1/jobs", json=payload)
+    assert submit.status_code == 503
+    assert problem_of(submit)["type"] == PROBLEM_BASE + "service-unavailable"

@@ -1,0 +1,89 @@
+"""Every kind of bad input, sent over HTTP to a real `spine serve` (tools/badinput.py --spawn):
+each is refused with the expected problem, none is a 5xx, and docs/reliability.md's table is the
+one this run produces."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools.badinput import run, spawned, table
+
+ROOT = Path(__file__).resolve().parents[2]
+DOC = ROOT / "docs" / "reliability.md"
+BEGIN, END = "<!-- bad-input-table: python -m tools.badinput --spawn -->", "<!-- /bad-input-table -->"
+
+EXPECTED = {
+    "malformed JSON": (400, "malformed-json"),
+    "empty body": (400, "malformed-json"),
+    "not UTF-8": (400, "malformed-json"),
+    "JSON but not an object": (422, "validation-error"),
+    "wrong types": (422, "validation-error"),
+    "NaN": (422, "validation-error"),
+    "infinity": (422, "validation-error"),
+    "huge number (float overflow)": (422, "validation-error"),
+    "huge number (finite)": (422, "validation-error"),
+    "huge number (too many digits)": (400, "malformed-json"),
+    "unknown level": (422, "validation-error"),
+    "duplicate levels": (422, "validation-error"),
+    "landmarks out of order": (422, "validation-error"),
+    "too many landmarks": (422, "validation-error"),
+    "non-orthonormal directors": (422, "validation-error"),
+    "left-handed directors": (422, "validation-error"),
+    "unknown field": (422, "validation-error"),
+    "deep nesting (parser)": (400, "malformed-json"),
+    "deep nesting (in a field)": (422, "validation-error"),
+    "10 MB body": (413, "payload-too-large"),
+    "batch of 1001": (413, "payload-too-large"),
+    "batch entry not an object": ("200 (entry 422)", "validation-error"),
+    "wrong content type": (415, "unsupported-media-type"),
+    "form content type": (415, "unsupported-media-type"),
+    "no content type": (415, "unsupported-media-type"),
+    "oversized Idempotency-Key": (422, "validation-error"),
+    "unknown query parameter": (422, "validation-error"),
+    "number as a timestamp": (422, "validation-error"),
+    "bad job id": (422, "validation-error"),
+    "another client's job": (404, "not-found"),
+    "unknown job": (404, "not-found"),
+    "missing API key": (401, "unauthorized"),
+    "malformed API key": (401, "unauthorized"),
+    "wrong API key": (401, "unauthorized"),
+    "revoked API key": (401, "unauthorized"),
+    "not Bearer": (401, "unauthorized"),
+}
+
+
+@pytest.fixture(scope="module")
+def rows() -> list[dict[str, Any]]:
+    with spawned() as (url, keys):
+        return run(url, keys)
+
+
+def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
+    got = {r["kind"]: (r["status"], r["type"]) for r in rows}
+    assert got == EXPECTED
+    for r in rows:
+        if r["status"] == 401:
+            assert r["www_authenticate"].startswith('Bearer realm="spine"'), r
+    validation = {r["kind"]: r["fields"] for r in rows if r["type"] == "validation-error"}
+    assert validation["unknown level"] == "pa.landmarks[3].level"
+    assert validation["non-orthonormal directors"] == "boundary.T1.directors"
+    assert validation["huge number (finite)"] == "pa.landmarks[0].point[0]"
+
+
+def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:
+    by_kind = {r["kind"]: r for r in rows}
+    other, unknown = by_kind["another client's job"], by_kind["unknown job"]
+    assert (other["status"], other["type"], other["detail"]) == (unknown["status"], unknown["type"], unknown["detail"])
+    assert other["detail"] == "there is no job <id>"
+
+
+def test_docs_hold_the_table_this_run_produces(rows: list[dict[str, Any]]) -> None:
+    text = DOC.read_text()
+    assert BEGIN in text and END in text, f"{DOC} lacks the bad-input table markers"
+    published = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
+    assert published == table(rows).strip(), (
+        "docs/reliability.md's bad-input table is stale: paste `python -m tools.badinput --spawn`"
+    )

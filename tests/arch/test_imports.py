@@ -1,0 +1,111 @@
+"""The service's import structure (issue 11, DESIGN.md "services/: layered"): the import-linter
+contracts of pyproject.toml hold, no module of ``services`` is in an import cycle, and no import
+hides inside a function except the few marked ``# lazy: <why>`` (an entry point's optional heavy
+dependency, e.g. the HTTP server for ``spine serve`` only)."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import grimp
+
+ROOT = Path(__file__).resolve().parents[2]
+SERVICES = ROOT / "services"
+LAZY_ALLOWED = 6
+"""Marked lazy imports allowed in all of services/ (today: the CLI's per-command imports)."""
+
+
+def test_import_linter_contracts_are_kept() -> None:
+    lint = Path(sys.executable).with_name("lint-imports")
+    run = subprocess.run([str(lint), "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
+    assert "0 broken" in run.stdout
+
+
+def _cycles(graph: grimp.ImportGraph, modules: set[str]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), i.e. import cycles."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.find_modules_directly_imported_by(v) & modules:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for module in sorted(modules):
+        if module not in index:
+            visit(module)
+    return found
+
+
+def test_no_module_import_cycle() -> None:
+    graph = grimp.build_graph("services", cache_dir=None)
+    modules = {m for m in graph.modules if m.startswith("services")}
+    assert len(modules) > 40  # the graph was really read
+    assert _cycles(graph, modules) == []
+
+
+def test_a_cycle_is_found() -> None:
+    """The cycle finder finds a cycle (so that the test above can fail)."""
+    graph = grimp.ImportGraph()
+    for name in ("a", "b", "c"):
+        graph.add_module(name)
+    graph.add_import(importer="a", imported="b")
+    graph.add_import(importer="b", imported="a")
+    graph.add_import(importer="b", imported="c")
+    assert _cycles(graph, {"a", "b", "c"}) == [["a", "b"]]
+
+
+def _function_imports(path: Path) -> list[tuple[int, bool]]:
+    """(line, marked lazy) of every import statement inside a function or method of ``path``."""
+    source = path.read_text()
+    lines = source.splitlines()
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            for inner in ast.walk(node):
+                if isinstance(inner, ast.Import | ast.ImportFrom):
+                    found.append((inner.lineno, "# lazy:" in lines[inner.lineno - 1]))
+    return found
+
+
+def test_no_import_inside_a_function() -> None:
+    unmarked, lazy = [], 0
+    for path in sorted(SERVICES.rglob("*.py")):
+        for line, marked in _function_imports(path):
+            if marked:
+                lazy += 1
+            else:
+                unmarked.append(f"{path.relative_to(ROOT)}:{line}")
+    assert unmarked == []
+    assert lazy <= LAZY_ALLOWED
+
+
+def test_loose_modules_are_gone() -> None:
+    """services/ holds packages only (layers), no loose module beside them."""
+    loose = [p.name for p in SERVICES.glob("*.py") if p.name != "__init__.py"]
+    assert loose == []

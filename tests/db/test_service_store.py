@@ -1,0 +1,336 @@
+"""The job store's state changes on real SQLite and PostgreSQL: one outcome per job, whatever races.
+
+These call the repository functions the API and the worker use, on migrated databases.
+"""
+
+from __future__ import annotations
+
+import uuid
+from datetime import timedelta
+from typing import Any
+
+import pytest
+from sqlalchemy import inspect, select, text, update
+
+from services.core.config import Settings
+from services.db import jobs as repo
+from services.db import runs
+from services.db.engine import get_engine, session_scope, worker_session
+from services.db.migrate import downgrade, upgrade
+from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
+from tests.conftest import LEVELS, spine_payload
+
+BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
+LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
+
+
+def result_like(major_cobb: float = 23.5) -> dict[str, Any]:
+    """A result shaped like RegistrationResult (engine output), to exercise the measure tables."""
+    vertebrae = []
+    for i, level in enumerate(LEVELS):
+        last = i == len(LEVELS) - 1
+        vertebrae.append(
+            {
+                "level": level,
+                "position": [0.0, 0.0, -26.0 * i],
+                "directors": [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]],
+                "u": None if last else [0.001, 0.002 * i, 0.0005],
+                "v": None if last else [0.0, 0.0, 1.0],
+                "pa_bending_deg": None if last else 1.5,
+                "lateral_bending_deg": None if last else 0.1 * i,
+                "twist_deg": None if last else 0.2,
+                "axial_rotation_deg": 0.5 * i,
+            }
+        )
+    return {
+        "vertebrae": vertebrae,
+        "measures": {
+            "cobb": [
+                {"upper": "T5", "lower": "T12", "apex": "T8", "angle_deg": major_cobb, "major": True,
+                 "convexity": "right", "apex_axial_rotation_deg": 7.0, "plane_of_max_curvature_deg": 60.0,
+                 "max_curvature_deg": 30.0},
+                {"upper": "T12", "lower": "L4", "apex": "L2", "angle_deg": 12.0, "major": False,
+                 "convexity": "left", "apex_axial_rotation_deg": -3.0, "plane_of_max_curvature_deg": 80.0,
+                 "max_curvature_deg": 14.0},
+            ],
+            "thoracic_kyphosis_t4_t12_deg": 30.0,
+            "thoracic_kyphosis_t5_t12_deg": 28.0,
+            "lumbar_lordosis_l1_l5_deg": -40.0,
+        },
+        "fit": {"residuals": [], "mean_registration_error_mm": 0.8, "energy_fit": 1.0, "energy_internal": 2.0,
+                "iterations": 12, "converged": True, "runtime_ms": 5.0,
+                "pa": {"scale": 1.0, "translation": [100.0, 50.0], "estimated": True}},
+        "engine": {"version": "9.9.9", "profile": "default"},
+    }  # fmt: skip
+
+
+def new_job(settings: Settings) -> uuid.UUID:
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, spine_payload())
+        return job.id
+
+
+def status_of(settings: Settings, job_id: uuid.UUID) -> Job:
+    with session_scope(settings) as session:
+        return repo.get_job(session, job_id)
+
+
+@BACKENDS
+def test_claim_is_conditional_so_a_second_delivery_does_nothing(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        first = runs.claim_job(s, job_id, "1.0")
+    with session_scope(db_settings) as s:
+        second = runs.claim_job(s, job_id, "1.0")
+    assert first is not None and first.attempt == 1 and first.payload == spine_payload()
+    assert second is None
+    with session_scope(db_settings) as s:
+        assert runs.finish_job(s, first, result=result_like(), engine_version="9.9.9")
+    with session_scope(db_settings) as s:
+        assert not runs.finish_job(s, first, error=LOST)  # a finished job keeps its one outcome
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts, job.engine_version, job.error) == ("succeeded", 1, "9.9.9", None)
+    assert job.started_at is not None and job.finished_at is not None and job.finished_at >= job.started_at
+
+
+@BACKENDS
+def test_measures_are_stored_queryably(db_settings: Settings) -> None:
+    ids = []
+    for cobb in (10.0, 35.0, 52.0):
+        job_id = new_job(db_settings)
+        with session_scope(db_settings) as s:
+            claim = runs.claim_job(s, job_id, "1.0")
+            assert claim is not None
+            assert runs.finish_job(s, claim, result=result_like(cobb))
+        ids.append(job_id)
+    with session_scope(db_settings) as s:
+        severe = s.scalars(select(JobMeasures.job_id).where(JobMeasures.major_cobb_deg > 30)).all()
+        assert set(severe) == set(ids[1:])
+        row = s.get(JobMeasures, ids[0])
+        assert row is not None
+        assert (row.major_curve_apex, row.major_convexity, row.curve_count) == ("T8", "right", 2)
+        assert row.lumbar_lordosis_l1_l5_deg == -40.0 and row.converged
+        strains = s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == ids[0])).all()
+        assert len(strains) == 17
+        t3 = next(v for v in strains if v.level == "T3")
+        assert (t3.u2, t3.v3, t3.twist_deg) == (pytest.approx(0.004), 1.0, 0.2)
+        assert next(v for v in strains if v.level == "L5").u1 is None
+
+
+@BACKENDS
+def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        claim = runs.claim_job(s, job_id, "1.0")
+    assert claim is not None
+    with session_scope(db_settings) as s:
+        job, cancelled_now = repo.cancel_job(s, job_id)
+        assert job.status == "cancelled" and cancelled_now
+        assert repo.cancel_job(s, job_id)[1] is False  # already cancelled: returned as it is
+    with session_scope(db_settings) as s:
+        assert not runs.finish_job(s, claim, result=result_like())
+    job = status_of(db_settings, job_id)
+    assert job.status == "cancelled" and job.result is None
+    with session_scope(db_settings) as s:
+        assert s.get(JobMeasures, job_id) is None
+        assert not s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == job_id)).all()
+        assert runs.claim_job(s, job_id, "1.0") is None  # never run again
+
+
+@BACKENDS
+def test_worker_sessions_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
+    """The worker's sessions: each statement commits alone; a failed run stores no measures."""
+    ok, bad = new_job(db_settings), new_job(db_settings)
+    with worker_session(db_settings, durable=False) as s:
+        if s.get_bind().dialect.name == "postgresql":  # the claim does not wait for the WAL flush
+            assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "off"
+        claims = [runs.claim_job(s, job_id, "1.0") for job_id in (ok, bad)]
+    assert all(c is not None for c in claims)
+    with worker_session(db_settings) as s:
+        if s.get_bind().dialect.name == "postgresql":
+            assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "on"
+        assert runs.finish_job(s, claims[0], result=result_like(41.0))  # type: ignore[arg-type]
+        assert runs.finish_job(s, claims[1], error=LOST)  # type: ignore[arg-type]
+        assert not runs.finish_job(s, claims[0], error=LOST)  # type: ignore[arg-type]
+    with session_scope(db_settings) as s:
+        assert status_of(db_settings, ok).status == "succeeded"
+        assert s.get(JobMeasures, ok).major_cobb_deg == 41.0  # type: ignore[union-attr]
+        assert len(s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == ok)).all()) == 17
+        assert status_of(db_settings, bad).status == "failed" and s.get(JobMeasures, bad) is None
+        assert not s.scalars(select(VertebraStrain).where(VertebraStrain.job_id == bad)).all()
+
+
+@BACKENDS
+def test_cancel_a_finished_job_is_refused(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        claim = runs.claim_job(s, job_id, "1.0")
+        assert claim is not None
+        runs.finish_job(s, claim, error=LOST)
+    with session_scope(db_settings) as s, pytest.raises(repo.JobFinished):
+        repo.cancel_job(s, job_id)
+    assert status_of(db_settings, job_id).status == "failed"
+
+
+def _age(settings: Settings, job_id: uuid.UUID, **values: Any) -> None:
+    with session_scope(settings) as s:
+        s.execute(update(Job).where(Job.id == job_id).values(**values))
+
+
+def _reconcile(settings: Settings, max_attempts: int = 2) -> runs.Reconciliation:
+    with session_scope(settings) as s:
+        return runs.reconcile(
+            s,
+            queued_timeout=timedelta(minutes=5),
+            running_timeout=timedelta(minutes=10),
+            max_attempts=max_attempts,
+            lost_problem=LOST,
+        )
+
+
+@BACKENDS
+def test_reconciler_takes_back_a_lost_run_and_fences_the_stale_worker(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        stale = runs.claim_job(s, job_id, "1.0")
+    assert stale is not None
+    assert _reconcile(db_settings).requeue == []  # recent: left alone
+    _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(seconds=1))  # its worker died
+    outcome = _reconcile(db_settings)
+    assert outcome.requeue == [job_id] and outcome.failed == []
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts) == ("queued", 1)
+    with session_scope(db_settings) as s:
+        fresh = runs.claim_job(s, job_id, "1.0")
+    assert fresh is not None and fresh.attempt == 2
+    with session_scope(db_settings) as s:
+        assert not runs.finish_job(s, stale, result=result_like())  # the lost worker woke up
+        assert runs.finish_job(s, fresh, result=result_like())
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts) == ("succeeded", 2)
+
+
+@BACKENDS
+def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    for _ in range(2):
+        with session_scope(db_settings) as s:
+            assert runs.claim_job(s, job_id, "1.0") is not None
+        _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(seconds=1))  # its worker died
+        _reconcile(db_settings)
+    job = status_of(db_settings, job_id)
+    assert (job.status, job.attempts, job.error) == ("failed", 2, LOST)
+
+
+@BACKENDS
+def test_reconciler_republishes_stale_queued_jobs_once_per_timeout(db_settings: Settings) -> None:
+    job_id = new_job(db_settings)
+    assert _reconcile(db_settings).requeue == []
+    _age(db_settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
+    assert _reconcile(db_settings).requeue == [job_id]
+    assert _reconcile(db_settings).requeue == []  # enqueued_at was refreshed
+    assert status_of(db_settings, job_id).status == "queued"
+
+
+@BACKENDS
+def test_idempotency_key_is_unique_per_owner(db_settings: Settings) -> None:
+    with session_scope(db_settings) as s:
+        a, created_a = repo.create_job(s, spine_payload(), idempotency_key="k")
+        b, created_b = repo.create_job(s, spine_payload(), idempotency_key="k")
+        c, created_c = repo.create_job(s, spine_payload(), owner="clinic-1", idempotency_key="k")
+        assert (created_a, created_b, created_c) == (True, False, True)
+        assert a.id == b.id != c.id
+        with pytest.raises(repo.IdempotencyConflict):
+            repo.create_job(s, spine_payload(curve_mm=1.0), idempotency_key="k")
+
+
+@BACKENDS
+def test_migrations_go_down_and_up_again(db_settings: Settings) -> None:
+    downgrade(db_settings, "base")
+    assert set(inspect(get_engine(db_settings)).get_table_names()) <= {"alembic_version"}
+    upgrade(db_settings, quiet=True)
+    tables = set(inspect(get_engine(db_settings)).get_table_names())
+    assert {"jobs", "job_measures", "vertebra_strains"} <= tables
+    indexes = {ix["name"] for ix in inspect(get_engine(db_settings)).get_indexes("jobs")}
+    assert {"ix_jobs_status_created_at_id", "ix_jobs_created_at_id", "ix_jobs_finished_at"} <= indexes
+
+
+def test_reconciler_leaves_a_backlog_alone_while_the_broker_holds_its_messages(tmp_path: Any) -> None:
+    """Embedded broker (real SQLite queue): stale queued jobs are re-published only if a message is missing."""
+    from services.core.jobqueue import enqueue, make_celery, queue_depth
+    from services.worker.tasks import reconcile_once
+
+    settings = Settings(data_dir=tmp_path, queue_name="backlog")
+    upgrade(settings, quiet=True)
+    app = make_celery(settings)
+    published = [new_job(settings), new_job(settings)]
+    enqueue(app, published)
+    for job_id in published:
+        _age(settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
+    assert reconcile_once(settings, app).requeue == []  # two messages wait for two jobs
+    lost = new_job(settings)  # stored, never published
+    _age(settings, lost, enqueued_at=utcnow() - timedelta(hours=1))
+    requeued = reconcile_once(settings, app).requeue  # one message missing: the oldest stale job again
+    assert len(requeued) == 1 and queue_depth(app, "backlog") == 3
+
+
+def test_a_job_whose_message_could_not_be_published_is_published_at_the_next_reconcile(tmp_path: Any) -> None:
+    """A real publish refused (a broker on a closed port): the POST still answers 202, the job is
+    marked unpublished, and the next reconciler pass publishes it without waiting for the queued
+    timeout, on a real (embedded) broker."""
+    from fastapi.testclient import TestClient
+
+    from services.api.app import create_app
+    from services.core.jobqueue import make_celery, queue_depth
+    from services.worker.tasks import reconcile_once
+    from tests.conftest import make_key
+
+    down = Settings(data_dir=tmp_path, CELERY_BROKER_URL="redis://127.0.0.1:1/0", queue_name="unpublished")
+    upgrade(down, quiet=True)
+    with TestClient(create_app(down)) as api:
+        api.headers["Authorization"] = f"Bearer {make_key(down, 'unpublished', 'admin')}"
+        single = api.post("/v1/jobs", json=spine_payload())
+        batch = api.post("/v1/jobs/batch", json={"jobs": [spine_payload(curve_mm=3.0), spine_payload(curve_mm=4.0)]})
+    assert single.status_code == 202 and batch.status_code == 200 and batch.json()["accepted"] == 2
+    ids = [uuid.UUID(single.json()["id"]), *(uuid.UUID(e["job"]["id"]) for e in batch.json()["results"])]
+    assert all(status_of(down, i).enqueued_at is None and status_of(down, i).status == "queued" for i in ids)
+
+    up = Settings(data_dir=tmp_path, queue_name="unpublished", queued_timeout_s=3600)  # the embedded broker
+    app = make_celery(up)
+    outcome = reconcile_once(up, app)
+    assert sorted(outcome.requeue) == sorted(ids) and queue_depth(app, "unpublished") == 3
+    assert all(status_of(up, i).enqueued_at is not None for i in ids)
+    assert reconcile_once(up, app).requeue == []  # published: left alone until the queued timeout
+
+
+@BACKENDS
+def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_settings: Settings) -> None:
+    """Leases (issue 11): a run renewing its lease is left alone however long it runs; once it stops
+    renewing, the reconciler takes the job back; a stale run's renewal is refused (fenced by attempt)."""
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        run = runs.claim_job(s, job_id, "1.0", lease=timedelta(seconds=30))
+    assert run is not None
+    _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))  # long past any fit time limit
+    assert _reconcile(db_settings).requeue == []  # its lease holds
+    with session_scope(db_settings) as s:
+        assert runs.renew_leases(s, [run], timedelta(seconds=30)) == [run]
+    _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(milliseconds=1))  # it stopped renewing
+    assert _reconcile(db_settings).requeue == [job_id]
+    with session_scope(db_settings) as s:
+        assert runs.renew_leases(s, [run], timedelta(seconds=30)) == []  # the dead run cannot renew
+        fresh = runs.claim_job(s, job_id, "1.0")
+    assert fresh is not None and fresh.attempt == 2
+    assert status_of(db_settings, job_id).lease_expires_at is not None
+
+
+@BACKENDS
+def test_a_run_without_a_lease_is_taken_back_after_the_running_timeout(db_settings: Settings) -> None:
+    """A run claimed before leases existed (lease NULL) falls back to started_at + running timeout."""
+    job_id = new_job(db_settings)
+    with session_scope(db_settings) as s:
+        assert runs.claim_job(s, job_id, "1.0") is not None
+    _age(db_settings, job_id, lease_expires_at=None)
+    assert _reconcile(db_settings).requeue == []
+    _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
+    assert _reconcile(db_settings).requeue == [job_id]

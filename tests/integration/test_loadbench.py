@@ -1,0 +1,81 @@
+"""The load benchmark command: its CPU accounting, and a short real run against a spawned
+distributed service (PostgreSQL + Redis + a `spine worker`), with its exit status."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from tools import loadbench
+
+
+def test_cpu_per_job_is_the_difference_of_two_readings_divided_by_jobs() -> None:
+    before = {"api": 1.0, "worker": 2.0}
+    after = {"api": 1.5, "worker": 4.0}
+    assert loadbench.cpu_ms_per_job(before, after, 100) == {"api": 5.0, "worker": 20.0, "total": 25.0}
+    assert loadbench.cpu_ms_per_job({}, after, 100) == {}
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="no /proc on this machine: CPU by role is not read")
+def test_cpu_reading_counts_the_load_generator_itself() -> None:
+    first = loadbench.cpu_seconds_by_role()
+    start = time.process_time()
+    while time.process_time() - start < 0.1:  # 0.1 s of CPU in this process: ten clock ticks
+        sum(i * i for i in range(10_000))
+    second = loadbench.cpu_seconds_by_role()
+    assert set(first) == {"api", "worker", "postgres", "redis", "load generator"}
+    assert second["load generator"] > first["load generator"]
+
+
+def test_exit_status_flags_lost_jobs_and_two_outcomes() -> None:
+    fine = {"jobs_lost": 0, "jobs_with_two_outcomes": 0}
+    assert loadbench.exit_code({"throughput": fine}) == 0
+    assert loadbench.exit_code({"throughput": {**fine, "jobs_lost": 1}}) == 1
+    assert loadbench.exit_code({"latency": fine, "throughput": {**fine, "jobs_with_two_outcomes": 2}}) == 1
+    assert loadbench.exit_code({}) == 1
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.mark.integration
+def test_a_short_run_against_a_spawned_distributed_service(
+    tmp_path: Path, postgres_store_url: str, redis_url: str
+) -> None:
+    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadbench_{uuid.uuid4().hex[:8]}"
+    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
+    env = {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
+           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
+    out = tmp_path / "report.json"
+    cmd = [sys.executable, "-m", "tools.loadbench", "--spawn", "--url", f"http://127.0.0.1:{_free_port()}",
+           "--phases", "throughput", "--jobs", "60", "--batch", "20", "--concurrency", "2", "--warmup-seconds", "0",
+           "--recheck-seconds", "0.5", "--max-seconds", "120", "--log-dir", str(tmp_path / "logs"),
+           "--output", str(out)]  # fmt: skip
+    try:
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240)
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+        run = json.loads(out.read_text())["throughput"]
+        assert run["jobs_submitted"] == 60 and run["statuses"] == {"succeeded": 60}
+        assert run["jobs_lost"] == 0 and run["jobs_with_two_outcomes"] == 0
+        assert run["completed_per_s"] > 0
+        assert run["cpu_ms_per_job"]["worker"] > 0 and run["cpu_ms_per_job"]["api"] > 0
+    finally:
+        import psycopg
+
+        from tests.conftest import PG_ADMIN_URL, _purge_queue
+
+        _purge_queue(redis_url, queue)
+
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+            admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')

@@ -1,0 +1,279 @@
+"""Webhook policy and signatures, the FHIR builder, the client's CSV tables, and the API's checks of
+`study`, `callback_url` and batch Idempotency-Keys (in-process API on a fresh SQLite database)."""
+
+from __future__ import annotations
+
+import base64
+import copy
+import csv
+import io
+import uuid
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+from email.utils import format_datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from pydantic import ValidationError
+from standardwebhooks import Webhook
+
+from services.api.app import create_app
+from services.core.config import Settings
+from services.core.webhook_policy import (
+    WebhooksDisabled,
+    allow_list,
+    decode_secret,
+    destination_problem,
+    parse_allow_list,
+)
+from services.db.migrate import upgrade
+from services.fhir.export import observation_bundle
+from services.webhooks.delivery import message_id, retry_delay
+from services.webhooks.signing import signed_headers
+from spine_client import tables
+from spine_client.client import retry_after_seconds
+from spine_engine import register
+from tests.conftest import problem_of, spine_payload
+from tests.interop_helpers import api_key_for
+
+SECRET = "whsec_" + base64.b64encode(b"0123456789abcdef0123456789abcdef").decode()
+
+
+@pytest.fixture(scope="module")
+def result() -> dict[str, Any]:
+    out: dict[str, Any] = register(spine_payload(curve_mm=30.0))
+    return out
+
+
+# ------------------------------------------------------------------ webhook destinations
+
+
+ALLOWED = "https://ris.hospital.example/hooks/, http://127.0.0.1:9000/cb"
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "https://ris.hospital.example/hooks/spine",
+        "https://RIS.hospital.example:443/hooks/a/b?job=1",
+        "https://ris.hospital.example/hooks",
+        "http://127.0.0.1:9000/cb",
+        "http://127.0.0.1:9000/cb/x",
+    ],
+)
+def test_allowed_destinations(url: str) -> None:
+    assert destination_problem(url, allow_list(ALLOWED)) is None
+
+
+@pytest.mark.parametrize(
+    ("url", "why"),
+    [
+        ("https://ris.hospital.example.evil.org/hooks/x", "matches none"),
+        ("https://ris.hospital.example/hooksx", "matches none"),
+        ("https://ris.hospital.example/other", "matches none"),
+        ("http://ris.hospital.example/hooks/x", "matches none"),
+        ("https://ris.hospital.example:8443/hooks/x", "matches none"),
+        ("http://127.0.0.1:9001/cb", "matches none"),
+        ("http://2130706433:9000/cb", "matches none"),
+        ("http://localhost:9000/cb", "matches none"),
+        ("https://admin:secret@ris.hospital.example/hooks/x", "credentials"),
+        ("https://@ris.hospital.example/hooks/x", "credentials"),
+        ("https://ris.hospital.example/hooks/../admin", "dot segments"),
+        ("https://ris.hospital.example/hooks/%2E%2E/admin", "dot segments"),
+        ("https://ris.hospital.example/hooks/..%2fadmin", "dot segments"),
+        ("ftp://ris.hospital.example/hooks/x", "scheme"),
+        ("file:///etc/passwd", "scheme"),
+        ("gopher://127.0.0.1:9000/cb", "scheme"),
+        ("https:///hooks", "no host"),
+        ("https://ris.hospital.example/hooks/a b", "spaces"),
+        ("http://127.0.0.1:99999/cb", "parse"),
+    ],
+)
+def test_refused_destinations(url: str, why: str) -> None:
+    reason = destination_problem(url, allow_list(ALLOWED))
+    assert reason is not None and why in reason
+
+
+def test_an_empty_allow_list_disables_webhooks() -> None:
+    with pytest.raises(WebhooksDisabled):
+        destination_problem("https://ris.hospital.example/hooks/x", allow_list(""))
+
+
+@pytest.mark.parametrize("entry", ["ftp://h/x", "https://u:p@h/", "https://h/x?q=1", "https://h/a/../b", "h/x"])
+def test_bad_allow_list_entries_stop_the_service(entry: str) -> None:
+    with pytest.raises(ValueError, match="SPINE_WEBHOOK_ALLOWED_URLS"):
+        parse_allow_list(entry)
+    with pytest.raises(ValidationError):
+        Settings(webhook_allowed_urls=entry)
+
+
+# ------------------------------------------------------------------ signatures and retries
+
+
+def test_signatures_verify_with_the_standard_webhooks_reference() -> None:
+    key = decode_secret(SECRET)
+    body = b'{"type":"job.succeeded","data":{"id":"x"}}'
+    now = int(datetime.now(UTC).timestamp())
+    headers = signed_headers(key, "msg_1", now, body)
+    assert headers["webhook-signature"].startswith("v1,")
+    assert Webhook(SECRET).verify(body, headers) == {"type": "job.succeeded", "data": {"id": "x"}}
+    with pytest.raises(Exception, match="signature"):
+        Webhook(SECRET).verify(body + b" ", headers)
+    assert decode_secret(SECRET.removeprefix("whsec_")) == key
+    for bad in ("whsec_short", "whsec_not base64!", ""):
+        with pytest.raises(ValueError):
+            decode_secret(bad)
+    with pytest.raises(ValidationError):
+        Settings(webhook_secret="whsec_c2hvcnQ=")
+
+
+def test_message_ids_are_stable_per_job_and_outcome() -> None:
+    job = uuid.uuid4()
+    assert message_id(job, "succeeded") == message_id(str(job), "succeeded") != message_id(job, "cancelled")
+
+
+def test_backoff_doubles_honours_retry_after_and_is_capped() -> None:
+    settings = Settings(webhook_retry_base_s=2.0)
+    assert [retry_delay(settings, n) for n in (1, 2, 3)] == [2.0, 4.0, 8.0]
+    assert retry_delay(settings, 1, "30") == 30.0
+    assert retry_delay(settings, 1, "100000") == 120.0
+    assert retry_delay(settings, 20) == 120.0
+    later = format_datetime(datetime.now(UTC) + timedelta(seconds=60), usegmt=True)
+    assert 50 < retry_delay(settings, 1, later) <= 60
+    assert retry_after_seconds("7") == 7.0 and retry_after_seconds("soon") is None
+    assert 50 < (retry_after_seconds(later) or 0) <= 60
+
+
+# ------------------------------------------------------------------ FHIR builder
+
+
+def test_fhir_bundle_without_study_and_with_model_estimates(result: dict[str, Any]) -> None:
+    from fhir.resources.R4B.bundle import Bundle
+
+    estimated = copy.deepcopy(result)
+    estimated["fit"]["unreliable"] = ["kyphosis", "axial_rotation"]
+    job_id = uuid.uuid4()
+    bundle = observation_bundle(job_id, estimated, finished_at=datetime.now(UTC))
+    Bundle.model_validate(bundle)
+    assert bundle["id"] == str(job_id) and bundle["identifier"]["value"] == f"urn:uuid:{job_id}"
+    obs = {e["resource"]["code"]["text"]: e["resource"] for e in bundle["entry"]}
+    assert all("derivedFrom" not in o for o in obs.values())
+    kyphosis = obs["Thoracic kyphosis T4–T12 (sagittal Cobb angle)"]
+    assert any("Model estimate" in n["text"] for n in kyphosis["note"])
+    lordosis = obs["Lumbar lordosis L1–L5 (sagittal Cobb angle)"]
+    assert not any("Model estimate" in n["text"] for n in lordosis["note"])
+    rotation = obs["Apical vertebral axial rotation of the major curve"]
+    assert any("Model estimate" in n["text"] for n in rotation["note"])
+    ids = [e["resource"]["id"] for e in bundle["entry"]]
+    again = observation_bundle(job_id, estimated, finished_at=datetime.now(UTC))
+    assert [e["resource"]["id"] for e in again["entry"]] == ids and len(set(ids)) == len(ids)  # stable
+
+
+def test_fhir_bundle_without_curves_has_no_cobb_or_apical_rotation(result: dict[str, Any]) -> None:
+    straight = copy.deepcopy(result)
+    straight["measures"]["cobb"] = []
+    bundle = observation_bundle(uuid.uuid4(), straight, finished_at=datetime.now(UTC))
+    texts = [e["resource"]["code"]["text"] for e in bundle["entry"]]
+    assert len(texts) == 3 and not any("Cobb angle, frontal" in t or "Apical" in t for t in texts)
+
+
+# ------------------------------------------------------------------ CSV tables
+
+
+def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
+    rows = list(csv.DictReader(io.StringIO(tables.vertebrae_csv(result))))
+    assert list(rows[0]) == tables.VERTEBRA_COLUMNS and len(rows) == 17
+    assert float(rows[3]["lateral_bending_deg"]) == pytest.approx(result["vertebrae"][3]["lateral_bending_deg"])
+    assert float(rows[3]["u2_rad_per_mm"]) == pytest.approx(result["vertebrae"][3]["u"][1])
+    assert rows[16]["level"] == "L5" and rows[16]["v3"] == ""
+    measures = list(csv.DictReader(io.StringIO(tables.measures_csv(result))))
+    assert list(measures[0]) == tables.MEASURE_COLUMNS
+    cobb = [m for m in measures if m["measure"] == "cobb_angle"]
+    assert len(cobb) == len(result["measures"]["cobb"]) and {m["major"] for m in cobb} <= {"true", "false"}
+    assert measures[-1]["measure"] == "mean_registration_error" and measures[-1]["unit"] == "mm"
+
+
+# ------------------------------------------------------------------ API checks
+
+
+@pytest.fixture
+def hooks_api(tmp_path: Path) -> Iterator[TestClient]:
+    """The API (no worker) with webhooks allowed to http://127.0.0.1:9/hooks."""
+    settings = Settings(data_dir=tmp_path, webhook_allowed_urls="http://127.0.0.1:9/hooks", webhook_secret=SECRET)
+    upgrade(settings, quiet=True)
+    with TestClient(create_app(settings)) as client:
+        key = api_key_for(settings, "units")
+        if key:
+            client.headers["Authorization"] = f"Bearer {key}"
+        yield client
+
+
+def test_study_is_validated_and_carried_unchanged(api: TestClient) -> None:
+    payload = spine_payload()
+    payload["study"] = {"study_instance_uid": "1.2.3", "series_instance_uid": "1..2", "lateral_sop_instance_uid": "x",
+                        "pa_sop_instance_uid": "1" * 65, "modality": "DX"}  # fmt: skip
+    problem = problem_of(api.post("/v1/jobs", json=payload))
+    assert {e["path"] for e in problem["errors"]} == {
+        "study.series_instance_uid", "study.lateral_sop_instance_uid", "study.pa_sop_instance_uid", "study.modality",
+    }  # fmt: skip
+    payload["study"] = {"study_instance_uid": "1.2.840.10008.1.2", "pa_sop_instance_uid": "0.1." + "9" * 60}
+    job = api.post("/v1/jobs", json=payload).json()
+    assert job["study"] == payload["study"]
+    assert api.get(f"/v1/jobs/{job['id']}").json()["study"] == payload["study"]
+    assert api.post("/v1/jobs", json=spine_payload()).json()["study"] is None
+
+
+def test_callback_url_is_refused_while_webhooks_are_off(api: TestClient) -> None:
+    payload = spine_payload()
+    payload["callback_url"] = "https://ris.hospital.example/hooks"
+    problem = problem_of(api.post("/v1/jobs", json=payload))
+    assert problem["status"] == 422
+    assert [(e["path"], e["type"]) for e in problem["errors"]] == [("callback_url", "webhooks_disabled")]
+    batch = api.post("/v1/jobs/batch", json={"jobs": [spine_payload(), payload]}).json()
+    assert (batch["accepted"], batch["rejected"]) == (1, 1)
+    assert batch["results"][1]["problem"]["errors"][0]["path"] == "jobs[1].callback_url"
+
+
+def test_callback_url_accepted_when_allowed(hooks_api: TestClient) -> None:
+    payload = spine_payload()
+    payload["callback_url"] = "http://127.0.0.1:9/hooks/spine"
+    job = hooks_api.post("/v1/jobs", json=payload)
+    assert job.status_code == 202, job.text
+    read = hooks_api.get(f"/v1/jobs/{job.json()['id']}").json()
+    assert read["deliveries"] == [] and read["payload"]["callback_url"] == payload["callback_url"]
+    payload["callback_url"] = "http://127.0.0.1:9/other"
+    problem = problem_of(hooks_api.post("/v1/jobs", json=payload))
+    assert [(e["path"], e["type"]) for e in problem["errors"]] == [("callback_url", "callback_url_not_allowed")]
+    assert "127.0.0.1:9/hooks" not in problem["detail"]  # the allow-list is not told to clients
+
+
+def test_batch_with_an_idempotency_key_replays(api: TestClient) -> None:
+    payloads: list[Any] = [spine_payload(curve_mm=5.0 + i) for i in range(3)]
+    payloads.insert(1, {"pa": {}})
+    first = api.post("/v1/jobs/batch", json={"jobs": payloads}, headers={"Idempotency-Key": "run-1"})
+    again = api.post("/v1/jobs/batch", json={"jobs": payloads}, headers={"Idempotency-Key": "run-1"})
+    assert first.status_code == again.status_code == 200
+    assert "idempotent-replayed" not in first.headers and again.headers["idempotent-replayed"] == "true"
+    ids = [e.get("job", {}).get("id") for e in first.json()["results"]]
+    assert [e.get("job", {}).get("id") for e in again.json()["results"]] == ids and ids[1] is None
+    assert (again.json()["accepted"], again.json()["rejected"]) == (3, 1)
+    changed = copy.deepcopy(payloads)
+    changed[2] = spine_payload(curve_mm=40.0)
+    mixed = api.post("/v1/jobs/batch", json={"jobs": changed}, headers={"Idempotency-Key": "run-1"}).json()
+    assert mixed["results"][2]["status"] == 409
+    assert mixed["results"][2]["problem"]["type"].endswith("/idempotency-conflict")
+    assert [mixed["results"][i]["job"]["id"] for i in (0, 3)] == [ids[0], ids[3]]
+    listed = api.get("/v1/jobs", params={"limit": 500}).json()["jobs"]
+    assert len(listed) == 3  # one job per payload, however often the batch was sent
+    too_long = api.post("/v1/jobs/batch", json={"jobs": payloads}, headers={"Idempotency-Key": "k" * 241})
+    assert too_long.status_code == 422
+
+
+def test_fhir_of_unknown_or_unfinished_jobs(api: TestClient) -> None:
+    assert problem_of(api.get(f"/v1/jobs/{uuid.uuid4()}/fhir"))["status"] == 404
+    job = api.post("/v1/jobs", json=spine_payload()).json()
+    problem = problem_of(api.get(f"/v1/jobs/{job['id']}/fhir"))
+    assert problem["status"] == 409 and problem["type"].endswith("/job-has-no-result")
+    assert problem["job_status"] == "queued"

@@ -1,0 +1,113 @@
+"""The reconciler's webhook sweep, on real SQLite and PostgreSQL stores and a real broker: a webhook
+whose message could not be published when its job ended (a broker that refuses connections) is
+recorded as attempt 0 and published again once it is overdue; nothing is published twice."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import timedelta
+from typing import Any
+
+import pytest
+from sqlalchemy import func, select, update
+
+from services.core.config import Settings
+from services.core.jobqueue import make_celery, queue_depth
+from services.db import jobs as repo
+from services.db.engine import session_scope
+from services.db.models import WebhookDelivery, utcnow
+from services.webhooks import delivery
+from tests.conftest import spine_payload
+
+BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
+URL = "http://127.0.0.1:9/hooks/sweep"
+
+
+def settle_earlier_tests(settings: Settings) -> None:
+    """The PostgreSQL store is shared by this session's tests: nothing of theirs is due any more."""
+    with session_scope(settings) as session:
+        session.execute(update(WebhookDelivery).values(next_attempt_at=None))
+
+
+def cancelled_job_with_callback(settings: Settings) -> uuid.UUID:
+    payload: dict[str, Any] = spine_payload()
+    payload["callback_url"] = URL
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, payload)
+        repo.cancel_job(session, job.id)
+    return job.id
+
+
+def rows(settings: Settings, job_id: uuid.UUID) -> list[WebhookDelivery]:
+    with session_scope(settings) as session:
+        query = select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+        return list(session.scalars(query))
+
+
+@BACKENDS
+def test_an_unpublished_webhook_is_recorded_and_swept_once(db_settings: Settings) -> None:
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05})
+    settle_earlier_tests(settings)
+    job_id = cancelled_job_with_callback(settings)
+    unreachable = make_celery(settings.model_copy(update={"broker_url": "redis://127.0.0.1:1/0"}))
+    assert not delivery.job_ended(settings, job_id, "cancelled", url=URL, celery=unreachable)
+    [row] = rows(settings, job_id)
+    assert (row.attempt, row.status_code, row.url, row.event) == (0, None, URL, "job.cancelled")
+    assert row.error is not None and row.error.startswith("not published: ")
+    assert row.message_id == delivery.message_id(job_id, "cancelled") and row.next_attempt_at is not None
+
+    broker = make_celery(settings)  # the embedded broker: a real queue, no server needed
+    queue = settings.webhook_queue
+    assert delivery.sweep(settings.model_copy(update={"webhook_sweep_after_s": 3600.0}), broker) == 0  # not yet due
+    [due] = rows(settings, job_id)
+    assert due.next_attempt_at == row.next_attempt_at
+    wait_past(due.next_attempt_at, 0.1)
+    assert delivery.sweep(settings, broker) == 1
+    assert queue_depth(broker, queue) == 1
+    assert delivery.sweep(settings, broker) == 0  # postponed: published once
+    [postponed] = rows(settings, job_id)
+    assert postponed.next_attempt_at is not None and postponed.next_attempt_at > row.next_attempt_at  # type: ignore[operator]
+
+
+@BACKENDS
+def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -> None:
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05})
+    settle_earlier_tests(settings)
+    job_id = cancelled_job_with_callback(settings)
+    mid = delivery.message_id(job_id, "cancelled")
+    now = utcnow()
+    base = {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "url": URL, "attempted_at": now,
+            "status_code": None, "duration_ms": None}  # fmt: skip
+    delivery._record(settings, {**base, "attempt": 1}, error="HTTP 500", next_attempt_at=now)
+    delivery._record(settings, {**base, "attempt": 2}, error="HTTP 503", next_attempt_at=now)
+    old = cancelled_job_with_callback(settings)  # due two days ago: outside the sweep's window
+    delivery._record(settings, {**base, "job_id": old, "message_id": delivery.message_id(old, "cancelled"),
+                                "attempt": 1}, error="HTTP 500", next_attempt_at=now - timedelta(days=2))  # fmt: skip
+    wait_past(now, 0.1)
+    broker = make_celery(settings)
+    assert delivery.sweep(settings, broker) == 1  # attempt 2's retry never came; attempt 1's did
+    assert queue_depth(broker, settings.webhook_queue) == 1
+    with session_scope(settings) as session:  # attempt 3 accepted: nothing is overdue any more
+        session.execute(update(WebhookDelivery).where(WebhookDelivery.attempt == 2).values(next_attempt_at=now))
+    delivery._record(settings, {**base, "attempt": 3, "status_code": 204})
+    assert delivery.sweep(settings, broker) == 0
+
+
+@BACKENDS
+def test_a_repeated_attempt_is_dropped_before_any_request(db_settings: Settings) -> None:
+    job_id = cancelled_job_with_callback(db_settings)
+    mid = delivery.message_id(job_id, "cancelled")
+    delivery._record(db_settings, {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "attempt": 2,
+                                   "url": URL, "attempted_at": utcnow()}, error="HTTP 500")  # fmt: skip
+    assert delivery.deliver_once(db_settings, job_id, "cancelled", 2) is None
+    with session_scope(db_settings) as session:
+        mine = select(func.count()).select_from(WebhookDelivery).where(WebhookDelivery.job_id == job_id)
+        count = session.scalar(mine)
+    assert count == 1  # no second row: not even a refusal was recorded
+
+
+def wait_past(moment: Any, seconds: float) -> None:
+    import time
+
+    while utcnow() < moment + timedelta(seconds=seconds):
+        time.sleep(0.02)

@@ -1,0 +1,439 @@
+"""Load benchmark of a running spine service on this machine (``python -m tools.loadbench``).
+
+Two phases, both bounded in count and time, traffic only to a loopback address:
+
+1. ``latency``: single POST /v1/jobs at a fixed rate (open loop), POST latency p50/p99.
+2. ``throughput``: N jobs submitted as fast as the API takes them (single POSTs with C in flight,
+   or batches), then waits until every job is final: submitted/s, completed/s, POST→result.
+
+Afterwards it reads every job back twice, a few seconds apart: a job not final (or missing) is
+*lost*; a job whose outcome changed between the reads has *two outcomes*. Each phase also gives
+the CPU time per job of each role on this machine (API, workers, PostgreSQL, Redis, the load
+generator itself). Exit status 1 when a job was lost or had two outcomes.
+
+``--spawn`` starts the service itself (migrate, ``spine serve --no-worker`` and W ``spine worker``
+processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, and stops it at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import ipaddress
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+import httpx
+
+FINAL = {"succeeded", "failed", "cancelled"}
+LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
+          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
+IDENTITY = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+
+
+def payload(i: int) -> dict[str, Any]:
+    """A plausible PA payload whose curve varies with ``i`` (17 endplate midpoints, T1/L5 poses)."""
+    curve = 5.0 + (i % 30)
+    landmarks = [
+        {"level": lv, "point": [round(100 + curve * math.sin(math.pi * k / 16), 3), round(50 + 420 * k / 16, 3)]}
+        for k, lv in enumerate(LEVELS)
+    ]
+    return {
+        "pa": {"landmarks": landmarks},
+        "boundary": {
+            "T1": {"position": [0.0, 0.0, 0.0], "directors": IDENTITY},
+            "L5": {"position": [0.0, 0.0, -420.0], "directors": IDENTITY},
+        },
+    }
+
+
+def pct(values: Sequence[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
+
+
+def check_loopback(url: str) -> None:
+    host = urlparse(url).hostname or ""
+    try:
+        loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if not loopback:
+        raise SystemExit(f"refusing to load {url}: the benchmark only targets loopback addresses")
+
+
+@dataclass
+class Phase:
+    name: str
+    sent_at: dict[str, float] = field(default_factory=dict)  # job id -> wall time the POST was sent
+    latencies_ms: list[float] = field(default_factory=list)
+    errors: int = 0
+    started: float = 0.0
+    submitted_by: float = 0.0
+
+
+async def post_one(client: httpx.AsyncClient, phase: Phase, i: int) -> None:
+    sent = time.time()
+    t0 = time.perf_counter()
+    try:
+        response = await client.post("/v1/jobs", json=payload(i))
+    except httpx.HTTPError:
+        phase.errors += 1
+        return
+    phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
+    if response.status_code == 202:
+        phase.sent_at[response.json()["id"]] = sent
+    else:
+        phase.errors += 1
+
+
+async def post_batch(client: httpx.AsyncClient, phase: Phase, start: int, size: int) -> None:
+    sent = time.time()
+    t0 = time.perf_counter()
+    try:
+        response = await client.post("/v1/jobs/batch", json={"jobs": [payload(start + k) for k in range(size)]})
+    except httpx.HTTPError:
+        phase.errors += size
+        return
+    phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
+    for entry in response.json().get("results", []) if response.status_code == 200 else []:
+        if entry.get("job"):
+            phase.sent_at[entry["job"]["id"]] = sent
+        else:
+            phase.errors += 1
+
+
+async def fixed_rate(client: httpx.AsyncClient, rate: float, seconds: float) -> Phase:
+    phase = Phase("latency", started=time.time())
+    count = int(rate * seconds)
+    t0 = time.perf_counter()
+    tasks = []
+    for i in range(count):
+        delay = t0 + i / rate - time.perf_counter()
+        if delay > 0:
+            await asyncio.sleep(delay)
+        tasks.append(asyncio.create_task(post_one(client, phase, i)))
+    await asyncio.gather(*tasks)
+    phase.submitted_by = time.time()
+    return phase
+
+
+async def flood(client: httpx.AsyncClient, jobs: int, concurrency: int, batch: int, deadline: float) -> Phase:
+    phase = Phase("throughput", started=time.time())
+    next_index = 0
+
+    async def lane() -> None:
+        nonlocal next_index
+        while next_index < jobs and time.monotonic() < deadline:
+            start = next_index
+            size = min(batch, jobs - start)
+            next_index += size
+            if batch == 1:
+                await post_one(client, phase, start)
+            else:
+                await post_batch(client, phase, start, size)
+
+    await asyncio.gather(*(lane() for _ in range(concurrency)))
+    phase.submitted_by = time.time()
+    return phase
+
+
+async def wait_final(client: httpx.AsyncClient, since: datetime, deadline: float) -> None:
+    params: list[tuple[str, str | int | float | bool | None]] = [
+        ("status", "queued"), ("status", "running"), ("created_after", since.isoformat()), ("limit", "1"),
+    ]  # fmt: skip
+    while time.monotonic() < deadline:
+        response = await client.get("/v1/jobs", params=params)
+        if response.status_code == 200 and not response.json()["jobs"]:
+            return
+        await asyncio.sleep(1.0)
+
+
+async def read_back(client: httpx.AsyncClient, since: datetime) -> dict[str, tuple[str, str | None, str | None]]:
+    """id -> (status, started_at, finished_at) of every job created since ``since``."""
+    seen: dict[str, tuple[str, str | None, str | None]] = {}
+    cursor = None
+    while True:
+        params: dict[str, Any] = {"created_after": since.isoformat(), "limit": 500}
+        if cursor:
+            params["cursor"] = cursor
+        page = (await client.get("/v1/jobs", params=params, timeout=60)).json()
+        for job in page["jobs"]:
+            seen[job["id"]] = (job["status"], job["started_at"], job["finished_at"])
+        cursor = page["next_cursor"]
+        if not cursor:
+            return seen
+
+
+def summarize(phase: Phase, first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:
+    ids = list(phase.sent_at)
+    lost = [i for i in ids if i not in first or first[i][0] not in FINAL]
+    changed = [i for i in ids if i in first and i in second and first[i] != second[i]]
+    finished = {i: datetime.fromisoformat(first[i][2]).timestamp() for i in ids if i not in lost and first[i][2]}
+    e2e = [finished[i] - phase.sent_at[i] for i in finished]
+    statuses: dict[str, int] = {}
+    for i in ids:
+        status = first.get(i, ("missing",))[0]
+        statuses[status] = statuses.get(status, 0) + 1
+    submit_span = max(phase.submitted_by - phase.started, 1e-9)
+    out: dict[str, Any] = {
+        "jobs_submitted": len(ids),
+        "submit_errors": phase.errors,
+        "submitted_per_s": round(len(ids) / submit_span, 1),
+        "post_latency_ms_p50": round(pct(phase.latencies_ms, 0.5), 2),
+        "post_latency_ms_p99": round(pct(phase.latencies_ms, 0.99), 2),
+        "statuses": statuses,
+        "jobs_lost": len(lost),
+        "jobs_with_two_outcomes": len(changed),
+        "post_to_result_s_p50": round(pct(e2e, 0.5), 3),
+        "post_to_result_s_p99": round(pct(e2e, 0.99), 3),
+    }
+    if finished:
+        times = sorted(finished.values())
+        out["completed_per_s"] = round(len(times) / max(times[-1] - phase.started, 1e-9), 1)
+        lo, hi = times[len(times) // 10], times[(len(times) * 9) // 10]
+        out["completed_per_s_steady_p10_p90"] = round(0.8 * len(times) / max(hi - lo, 1e-9), 1)
+    return out
+
+
+ROLES = (("api", "services.cli serve"), ("worker", "services.cli worker"), ("postgres", "postgres:"),
+         ("redis", "redis-server"))  # fmt: skip
+"""Which process does what, by a piece of its command line (this machine's processes only)."""
+
+
+def cpu_seconds_by_role() -> dict[str, float]:
+    """CPU time (user + system, s) used so far by this machine's processes of each role.
+
+    Read from ``/proc/<pid>/stat``; the load generator is this process. Processes that exit
+    between two readings take their time with them (none should during a phase). Empty where
+    there is no ``/proc``.
+    """
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return {}
+    tick = os.sysconf("SC_CLK_TCK")
+    totals = {role: 0.0 for role, _ in ROLES}
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        role = next((r for r, marker in ROLES if marker in cmdline), None)
+        if role is not None:
+            fields = stat[stat.rfind(")") + 2 :].split()
+            totals[role] += (int(fields[11]) + int(fields[12])) / tick
+    mine = os.times()
+    totals["load generator"] = mine.user + mine.system
+    return totals
+
+
+def cpu_ms_per_job(before: dict[str, float], after: dict[str, float], jobs: int) -> dict[str, float]:
+    """CPU milliseconds per job of each role between two ``cpu_seconds_by_role`` readings."""
+    if not before or jobs <= 0:
+        return {}
+    per_job = {role: round(1000 * (after[role] - before[role]) / jobs, 2) for role in after}
+    per_job["total"] = round(sum(per_job.values()), 2)
+    return per_job
+
+
+async def run(args: argparse.Namespace) -> dict[str, Any]:
+    deadline = time.monotonic() + args.max_seconds
+    # Open loop: enough connections that a slow answer never makes the next request wait for one.
+    pool = max(args.concurrency, int(args.rate)) + 4
+    limits = httpx.Limits(max_connections=pool, max_keepalive_connections=pool)
+    report: dict[str, Any] = {"url": args.url}
+    headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
+    async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits, headers=headers) as client:
+        if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
+            warm = await fixed_rate(client, args.rate, args.warmup_seconds)
+            await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
+        for phase_name in args.phases:
+            histogram_before = await server_histogram(client)
+            load_before = os.getloadavg()
+            cpu_before = cpu_seconds_by_role()
+            since = datetime.now().astimezone()
+            if phase_name == "latency":
+                phase = await fixed_rate(client, args.rate, args.rate_seconds)
+            else:
+                phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline)
+            await wait_final(client, since, deadline)
+            cpu_after = cpu_seconds_by_role()  # before the read-back, which is not the service's load
+            first = await read_back(client, since)
+            await asyncio.sleep(args.recheck_seconds)
+            second = await read_back(client, since)
+            report[phase_name] = summarize(phase, first, second)
+            report[phase_name]["cpu_ms_per_job"] = cpu_ms_per_job(cpu_before, cpu_after, len(phase.sent_at))
+            server = diff_histogram(await server_histogram(client), histogram_before)
+            report[phase_name]["server_post_ms_p50_bucket"] = bucket_quantile(server, 0.5)
+            report[phase_name]["server_post_ms_p99_bucket"] = bucket_quantile(server, 0.99)
+            report[phase_name]["loadavg_1m_before_after"] = [round(load_before[0], 2), round(os.getloadavg()[0], 2)]
+            print(json.dumps({phase_name: report[phase_name]}, indent=2), flush=True)
+    return report
+
+
+async def server_histogram(client: httpx.AsyncClient) -> dict[float, float]:
+    """Cumulative bucket counts of the API's own POST /v1/jobs and /batch timings (from /metrics)."""
+    text = (await client.get("/metrics")).text
+    buckets: dict[float, float] = {}
+    for line in text.splitlines():
+        if line.startswith("spine_http_request_duration_seconds_bucket") and 'method="POST"' in line:
+            if 'route="/v1/jobs"' not in line and 'route="/v1/jobs/batch"' not in line:
+                continue
+            le = line.split('le="', 1)[1].split('"', 1)[0]
+            bound = float("inf") if le == "+Inf" else float(le)
+            buckets[bound] = buckets.get(bound, 0.0) + float(line.rsplit(" ", 1)[1])
+    return buckets
+
+
+def diff_histogram(after: dict[float, float], before: dict[float, float]) -> dict[float, float]:
+    return {le: n - before.get(le, 0.0) for le, n in after.items()}
+
+
+def bucket_quantile(buckets: dict[float, float], q: float) -> str:
+    """The upper bound (ms) of the histogram bucket holding the q-quantile, e.g. '<= 25 ms'."""
+    total = buckets.get(float("inf"), 0.0)
+    if total <= 0:
+        return "n/a"
+    for le in sorted(buckets):
+        if buckets[le] >= q * total:
+            return "> 10000 ms" if le == float("inf") else f"<= {le * 1000:g} ms"
+    return "n/a"
+
+
+# ------------------------------------------------------------------ spawning the service
+
+
+def ensure_database(url: str) -> None:
+    """Create the PostgreSQL database of ``url`` if it does not exist yet."""
+    if not url.startswith("postgresql"):
+        return
+    import psycopg
+    from sqlalchemy.engine import make_url
+
+    target = make_url(url)
+    conninfo = target.set(drivername="postgresql", database="postgres").render_as_string(hide_password=False)
+    with psycopg.connect(conninfo, autocommit=True) as conn:
+        if conn.execute("SELECT 1 FROM pg_database WHERE datname = %s", (target.database,)).fetchone() is None:
+            conn.execute(f'CREATE DATABASE "{target.database}"')
+
+
+def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[bytes]]:
+    env = dict(os.environ)
+    if "DATABASE_URL" not in env or "CELERY_BROKER_URL" not in env:
+        raise SystemExit("--spawn measures the distributed service: set DATABASE_URL and CELERY_BROKER_URL")
+    ensure_database(env["DATABASE_URL"])
+    spine = [sys.executable, "-m", "services.cli"]
+    subprocess.run([*spine, "migrate"], env=env, check=True, capture_output=True)
+    if not args.api_key:  # an admin key (not capped), printed alone on the last line
+        created = subprocess.run([*spine, "keys", "create", "--name", "loadbench", "--role", "admin"], env=env,
+                                 check=True, capture_output=True, text=True)  # fmt: skip
+        args.api_key = created.stdout.strip().splitlines()[-1]
+    port = urlparse(args.url).port or 80
+    procs = []
+    log_dir.mkdir(parents=True, exist_ok=True)
+    api_cmd = [*spine, "serve", "--no-worker", "--host", "127.0.0.1", "--port", str(port),
+               "--workers", str(args.api_processes)]  # fmt: skip
+    procs.append(_start(api_cmd, env, log_dir / "api.log"))
+    for w in range(args.workers):
+        cmd = [*spine, "worker", "--concurrency", str(args.worker_concurrency), "--loglevel", "WARNING"]
+        if args.worker_nice:
+            cmd = ["nice", "-n", str(args.worker_nice), *cmd]
+        if w > 0:
+            cmd.append("--no-beat")
+        procs.append(_start(cmd, env, log_dir / f"worker-{w}.log"))
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(args.url + "/readyz", timeout=2).status_code == 200:
+                time.sleep(3)  # let the workers connect
+                return procs
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.5)
+    stop(procs)
+    raise SystemExit("the spawned service did not become ready; see " + str(log_dir))
+
+
+def _start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
+    with log.open("wb") as out:
+        return subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def stop(procs: list[subprocess.Popen[bytes]]) -> None:
+    for proc in procs:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+    for proc in procs:
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.loadbench", description=__doc__.splitlines()[0])
+    parser.add_argument("--url", default="http://127.0.0.1:8000", help="base URL (loopback only)")
+    parser.add_argument("--api-key", default=os.environ.get("SPINE_API_KEY"),
+                        help="API key (default $SPINE_API_KEY; --spawn makes an admin key when unset)")  # fmt: skip
+    parser.add_argument("--phases", nargs="+", choices=["latency", "throughput"], default=["latency", "throughput"])
+    parser.add_argument("--rate", type=float, default=100.0, help="POSTs per second in the latency phase")
+    parser.add_argument("--rate-seconds", type=float, default=30.0, help="length of the latency phase")
+    parser.add_argument("--jobs", type=int, default=10_000, help="jobs in the throughput phase")
+    parser.add_argument("--concurrency", type=int, default=16, help="requests in flight in the throughput phase")
+    parser.add_argument("--batch", type=int, default=1, help="payloads per request (>1: POST /v1/jobs/batch)")
+    parser.add_argument("--max-seconds", type=float, default=900.0, help="hard bound of the whole run")
+    parser.add_argument("--warmup-seconds", type=float, default=3.0, help="uncounted traffic at --rate first")
+    parser.add_argument("--recheck-seconds", type=float, default=3.0)
+    parser.add_argument("--spawn", action="store_true", help="start API and workers here, stop them after")
+    parser.add_argument("--workers", type=int, default=1, help="with --spawn: `spine worker` processes")
+    parser.add_argument("--worker-concurrency", type=int, default=2, help="with --spawn: pool size of each")
+    parser.add_argument(
+        "--worker-nice",
+        type=int,
+        default=0,
+        help="with --spawn: run workers at this niceness, so that fits yield the CPU to the API",
+    )
+    parser.add_argument("--api-processes", type=int, default=1, help="with --spawn: uvicorn processes")
+    parser.add_argument("--log-dir", type=Path, default=Path("bench-out/loadbench"))
+    parser.add_argument("--output", type=Path, help="write the JSON report here")
+    args = parser.parse_args(argv)
+    args.jobs = min(args.jobs, 100_000)
+    check_loopback(args.url)
+    procs = spawn(args, args.log_dir) if args.spawn else []
+    try:
+        report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
+    finally:
+        stop(procs)
+    report["settings"] = {k: str(v) for k, v in vars(args).items() if k != "api_key"}  # no secret in reports
+    if args.output:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(json.dumps(report, indent=2))
+    return exit_code(report)
+
+
+def exit_code(report: dict[str, Any]) -> int:
+    """0 when every phase ran with no job lost and none with two outcomes, else 1 (for QA scripts)."""
+    phases = [report[name] for name in ("latency", "throughput") if name in report]
+    broken = any(p["jobs_lost"] or p["jobs_with_two_outcomes"] for p in phases)
+    return 1 if broken or not phases else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
