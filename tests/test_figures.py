@@ -11,10 +11,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.core.problems import PROBLEM_BASE
-from services.db import jobs as repo
+from services.db import runs as repo
 from services.db.engine import session_scope
 from spine_engine import register
 from spine_engine.figures import render_figure
+from spine_engine.models import RegistrationResult
 from tests.conftest import problem_of, spine_payload
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -75,7 +76,7 @@ def _run_job(api: TestClient, payload: dict[str, Any], *, fail: bool = False) ->
             error = {"type": PROBLEM_BASE + "fit-failed", "title": "failed", "status": 422, "detail": "no"}
             assert repo.finish_job(session, claim, error=error)
         else:
-            assert repo.finish_job(session, claim, result=register(claim.payload))
+            assert repo.finish_job(session, claim, result=RegistrationResult.model_validate(register(claim.payload)))
     return str(job_id)
 
 

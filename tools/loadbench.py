@@ -12,18 +12,28 @@ the CPU time per job of each role on this machine (API, workers, PostgreSQL, Red
 generator itself). Exit status 1 when a job was lost or had two outcomes.
 
 ``--spawn`` starts the service itself (migrate, ``spine serve --no-worker`` and W ``spine worker``
-processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, and stops it at the end.
+processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, and stops it at the end;
+``--own-redis`` starts a throwaway ``redis-server`` on a free loopback port as the broker.
+
+``--fault`` injects one fault into the throughput phase once ``--fault-at`` of its jobs were
+submitted: ``kill-worker`` sends SIGKILL to the first worker's Celery process group (its
+supervisor starts it again), ``restart-redis`` stops the own Redis (its messages are lost with
+it) and starts it again ``--fault-seconds`` later. The report then gives the jobs in flight
+(queued or running, from /metrics) when the fault hit, and, as for every throughput phase, the
+time from the last submission to the last job final.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import ipaddress
 import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -131,13 +141,18 @@ async def fixed_rate(client: httpx.AsyncClient, rate: float, seconds: float) -> 
     return phase
 
 
-async def flood(client: httpx.AsyncClient, jobs: int, concurrency: int, batch: int, deadline: float) -> Phase:
+async def flood(
+    client: httpx.AsyncClient, jobs: int, concurrency: int, batch: int, deadline: float, fault: Fault | None = None
+) -> Phase:
     phase = Phase("throughput", started=time.time())
     next_index = 0
 
     async def lane() -> None:
         nonlocal next_index
         while next_index < jobs and time.monotonic() < deadline:
+            if fault is not None and not fault.started and next_index >= fault.at_job:
+                fault.started = True
+                fault.task = asyncio.ensure_future(fault.inject(client))
             start = next_index
             size = min(batch, jobs - start)
             next_index += size
@@ -148,7 +163,104 @@ async def flood(client: httpx.AsyncClient, jobs: int, concurrency: int, batch: i
 
     await asyncio.gather(*(lane() for _ in range(concurrency)))
     phase.submitted_by = time.time()
+    if fault is not None and fault.task is not None:
+        await fault.task
     return phase
+
+
+async def jobs_in_flight(client: httpx.AsyncClient) -> dict[str, int]:
+    """Queued and running jobs now, from the API's /metrics (``spine_jobs{status=...}``)."""
+    counts = {"queued": 0, "running": 0}
+    for line in (await client.get("/metrics")).text.splitlines():
+        for status in counts:
+            if line.startswith(f'spine_jobs{{status="{status}"}}'):
+                counts[status] = int(float(line.rsplit(" ", 1)[1]))
+    return counts
+
+
+@dataclass
+class Fault:
+    """One fault injected into the throughput phase (``--fault``)."""
+
+    kind: str
+    at_job: int
+    seconds: float
+    worker: subprocess.Popen[bytes] | None = None
+    redis: OwnRedis | None = None
+    started: bool = False
+    task: asyncio.Future[None] | None = None
+    report: dict[str, Any] = field(default_factory=dict)
+
+    async def inject(self, client: httpx.AsyncClient) -> None:
+        self.report["in_flight_at_fault"] = await jobs_in_flight(client)
+        self.report["at"] = time.time()
+        if self.kind == "kill-worker":
+            assert self.worker is not None
+            killed = worker_pids(self.worker.pid)
+            for pid in killed:  # the Celery process and its pool: the supervisor starts it again
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            self.report["killed_pids"] = len(killed)
+        elif self.kind == "restart-redis":
+            assert self.redis is not None
+            self.redis.stop()
+            await asyncio.sleep(self.seconds)
+            self.redis.start()
+        self.report["done"] = time.time()
+
+
+def worker_pids(supervisor: int) -> list[int]:
+    """The processes under a ``spine worker`` supervisor (its Celery child and that child's pool)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            parent = int(stat[stat.rfind(")") + 2 :].split()[1])
+            children.setdefault(parent, []).append(int(entry.name))
+    found, todo = [], list(children.get(supervisor, []))
+    while todo:
+        pid = todo.pop()
+        found.append(pid)
+        todo.extend(children.get(pid, []))
+    return found
+
+
+class OwnRedis:
+    """A throwaway redis-server on a free loopback port (no persistence: a restart loses every message)."""
+
+    def __init__(self, log_dir: Path):
+        self.port = free_port()
+        self.log_dir = log_dir
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self) -> None:
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        cmd = ["redis-server", "--bind", "127.0.0.1", "--port", str(self.port), "--save", "", "--appendonly", "no"]
+        self.proc = _start(cmd, dict(os.environ), self.log_dir / "redis.log")
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", self.port), timeout=0.2):
+                return
+            time.sleep(0.05)
+        raise SystemExit("the throwaway redis-server did not start; see " + str(self.log_dir / "redis.log"))
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 async def wait_final(client: httpx.AsyncClient, since: datetime, deadline: float) -> None:
@@ -203,6 +315,7 @@ def summarize(phase: Phase, first: dict[str, Any], second: dict[str, Any]) -> di
     }
     if finished:
         times = sorted(finished.values())
+        out["last_submission_to_last_final_s"] = round(times[-1] - phase.submitted_by, 2)
         out["completed_per_s"] = round(len(times) / max(times[-1] - phase.started, 1e-9), 1)
         lo, hi = times[len(times) // 10], times[(len(times) * 9) // 10]
         out["completed_per_s_steady_p10_p90"] = round(0.8 * len(times) / max(hi - lo, 1e-9), 1)
@@ -271,13 +384,20 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             if phase_name == "latency":
                 phase = await fixed_rate(client, args.rate, args.rate_seconds)
             else:
-                phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline)
+                fault = None
+                if args.fault != "none":
+                    worker = args.worker_procs[0] if args.worker_procs else None
+                    fault = Fault(args.fault, int(args.jobs * args.fault_at), args.fault_seconds, worker=worker,
+                                  redis=args.own_redis_server)  # fmt: skip
+                phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline, fault)
             await wait_final(client, since, deadline)
             cpu_after = cpu_seconds_by_role()  # before the read-back, which is not the service's load
             first = await read_back(client, since)
             await asyncio.sleep(args.recheck_seconds)
             second = await read_back(client, since)
             report[phase_name] = summarize(phase, first, second)
+            if phase_name == "throughput" and args.fault != "none" and fault is not None:
+                report[phase_name]["fault"] = {"kind": args.fault, **fault.report}
             report[phase_name]["cpu_ms_per_job"] = cpu_ms_per_job(cpu_before, cpu_after, len(phase.sent_at))
             server = diff_histogram(await server_histogram(client), histogram_before)
             report[phase_name]["server_post_ms_p50_bucket"] = bucket_quantile(server, 0.5)
@@ -350,6 +470,7 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
     api_cmd = [*spine, "serve", "--no-worker", "--host", "127.0.0.1", "--port", str(port),
                "--workers", str(args.api_processes)]  # fmt: skip
     procs.append(_start(api_cmd, env, log_dir / "api.log"))
+    args.worker_procs = []
     for w in range(args.workers):
         cmd = [*spine, "worker", "--concurrency", str(args.worker_concurrency), "--loglevel", "WARNING"]
         if args.worker_nice:
@@ -357,6 +478,7 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
         if w > 0:
             cmd.append("--no-beat")
         procs.append(_start(cmd, env, log_dir / f"worker-{w}.log"))
+        args.worker_procs.append(procs[-1])
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         try:
@@ -413,15 +535,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--api-processes", type=int, default=1, help="with --spawn: uvicorn processes")
     parser.add_argument("--log-dir", type=Path, default=Path("bench-out/loadbench"))
     parser.add_argument("--output", type=Path, help="write the JSON report here")
+    parser.add_argument("--own-redis", action="store_true",
+                        help="with --spawn: a throwaway redis-server on a free port is the broker")  # fmt: skip
+    parser.add_argument("--fault", choices=["none", "kill-worker", "restart-redis"], default="none",
+                        help="fault in the throughput phase (--spawn; restart-redis: --own-redis)")  # fmt: skip
+    parser.add_argument("--fault-at", type=float, default=0.5, help="fraction of the jobs submitted before the fault")
+    parser.add_argument("--fault-seconds", type=float, default=3.0, help="how long the restarted Redis stays down")
     args = parser.parse_args(argv)
     args.jobs = min(args.jobs, 100_000)
+    args.worker_procs = []
+    args.own_redis_server = None
     check_loopback(args.url)
-    procs = spawn(args, args.log_dir) if args.spawn else []
+    if args.fault != "none" and not args.spawn:
+        parser.error("--fault needs --spawn (the bench injects faults into processes it started)")
+    if args.fault == "restart-redis" and not args.own_redis:
+        parser.error("--fault restart-redis needs --own-redis (never restart a shared Redis)")
+    if args.own_redis:
+        args.own_redis_server = OwnRedis(args.log_dir)
+        args.own_redis_server.start()
+        os.environ["CELERY_BROKER_URL"] = args.own_redis_server.url
     try:
-        report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
+        procs = spawn(args, args.log_dir) if args.spawn else []
+        try:
+            report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
+        finally:
+            stop(procs)
     finally:
-        stop(procs)
-    report["settings"] = {k: str(v) for k, v in vars(args).items() if k != "api_key"}  # no secret in reports
+        if args.own_redis_server is not None:
+            args.own_redis_server.stop()
+    hidden = ("api_key", "worker_procs", "own_redis_server")  # no secret nor process in reports
+    report["settings"] = {k: str(v) for k, v in vars(args).items() if k not in hidden}
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(report, indent=2))

@@ -12,7 +12,9 @@ from fastapi import Depends, Request
 from pydantic import BeforeValidator
 from sqlalchemy.orm import Session
 
+from services.api.access import Access
 from services.api.errors import ProblemError
+from services.api.quota import QueuedCap
 from services.core.config import Settings
 from services.core.problems import problem, validation_problem
 from services.db.engine import session_factory
@@ -52,24 +54,26 @@ QueueDep = Annotated[Celery, Depends(get_queue)]
 
 
 async def get_caller(request: Request) -> Caller:
-    """The client of the request, authenticated by the API-key middleware (services/api/security.py)."""
-    caller: Caller | None = getattr(request.state, "caller", None)
-    if caller is None:  # a route outside /v1 asked for a caller: refuse rather than guess
+    """The client of the request, authenticated by the API-key middleware (services/api/security.py).
+    A route that asks for it without the middleware having put one there gets a 401, never a guess."""
+    caller = getattr(request.state, "caller", None)
+    if not isinstance(caller, Caller):
         raise ProblemError(problem("unauthorized", "this endpoint needs an API key"),
                            headers={"WWW-Authenticate": 'Bearer realm="spine"'})  # fmt: skip
     return caller
 
 
-CallerDep = Annotated[Caller, Depends(get_caller)]
+CurrentCaller = Annotated[Caller, Depends(get_caller)]
+"""The authenticated caller, as a typed dependency (the template's ``CurrentUser``)."""
 
 
-async def get_owner(caller: CallerDep) -> str | None:
-    """The owner whose jobs the caller creates, sees and cancels: its client name (key name) for the
-    ``client`` role; None for ``admin``, which sees every job (and whose own jobs have no owner)."""
-    return caller.read_scope
+async def get_access(request: Request, caller: CurrentCaller) -> Access:
+    """What the route does in the caller's name: audit and the queued-job cap (services/api/access.py)."""
+    cap: QueuedCap = request.app.state.queued_cap
+    return Access(caller, cap, request.state)
 
 
-OwnerDep = Annotated[str | None, Depends(get_owner)]
+AccessDep = Annotated[Access, Depends(get_access)]
 
 
 _KNOWN_QUERY: dict[int, frozenset[str]] = {}

@@ -7,7 +7,7 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from services.api import security
+from services.api.access import Access
 from services.api.errors import ProblemError
 from services.core.problems import problem
 from services.db import jobs as jobs_repo
@@ -19,22 +19,20 @@ def not_found(job_id: uuid.UUID) -> ProblemError:
     return ProblemError(problem("not-found", f"there is no job {job_id}"))
 
 
-def read_job(session: Session, job_id: uuid.UUID, owner: str | None) -> Job:
-    """The job ``owner`` may see (``None``: an admin sees all), audited as a read; else a 404 problem."""
+def read_job(session: Session, job_id: uuid.UUID, access: Access) -> Job:
+    """The job the caller may see (an admin sees all), audited as a read; else a 404 problem."""
     try:
-        job = jobs_repo.get_job(session, job_id, owner=owner)
+        job = jobs_repo.get_job(session, job_id, owner=access.owner)
     except jobs_repo.JobNotFound:
         raise not_found(job_id) from None
-    security.record(session, "read", [job.id])
+    access.record(session, "read", [job.id])
     return job
 
 
-def read_succeeded_job(
-    session: Session, job_id: uuid.UUID, owner: str | None, product: str
-) -> tuple[Job, dict[str, Any]]:
+def read_succeeded_job(session: Session, job_id: uuid.UUID, access: Access, product: str) -> tuple[Job, dict[str, Any]]:
     """``read_job`` and its result, or a 409 ``job-has-no-result`` problem unless the job succeeded;
     ``product`` names what the caller derives from the result (e.g. "figure"), for the detail."""
-    job = read_job(session, job_id, owner)
+    job = read_job(session, job_id, access)
     if job.status == "succeeded" and job.result is not None:
         return job, job.result
     if job.status in ("queued", "running"):

@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+from pydantic import BaseModel
+
 from spine_engine.errors import FieldError, InvalidInput
 
 MAX_MAGNITUDE = 1e6
@@ -18,20 +20,25 @@ MAX_ERRORS = 20
 
 
 def _numbers(value: Any, path: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], float]]:
-    if isinstance(value, bool):
+    """Every number in ``value`` (a validated model, or plain JSON) with its JSON path."""
+    if isinstance(value, bool) or value is None:
         return
     if isinstance(value, int | float):
         yield path, value
+    elif isinstance(value, BaseModel):
+        for name, info in type(value).model_fields.items():
+            yield from _numbers(getattr(value, name), (*path, info.alias or name))
     elif isinstance(value, dict):
         for key, item in value.items():
             yield from _numbers(item, (*path, str(key)))
-    elif isinstance(value, list):
+    elif isinstance(value, list | tuple):
         for index, item in enumerate(value):
             yield from _numbers(item, (*path, index))
 
 
-def check_magnitudes(payload: Any) -> None:
-    """Raise ``InvalidInput`` naming every number of ``payload`` above ``MAX_MAGNITUDE`` in absolute value."""
+def check_magnitudes(payload: BaseModel) -> None:
+    """Raise ``InvalidInput`` naming (by JSON path) every number of the validated ``payload`` above
+    ``MAX_MAGNITUDE`` in absolute value."""
     errors = []
     for path, number in _numbers(payload, ()):
         try:

@@ -11,22 +11,15 @@ from __future__ import annotations
 import threading
 import time
 
-from sqlalchemy import func, literal_column, select
 from sqlalchemy.orm import Session
 
 from services.api.errors import ProblemError
 from services.core.problems import problem
+from services.db import stats
 from services.db.keys import Caller
-from services.db.models import Job
 
 REFRESH_S = 1.0
 RETRY_AFTER_S = 30
-
-
-def count_queued(session: Session, owner: str, limit: int) -> int:
-    """Queued jobs of ``owner``, counted up to ``limit`` (the literal status lets the partial index serve)."""
-    ids = select(Job.id).where(Job.owner == owner, Job.status == literal_column("'queued'")).limit(limit)
-    return int(session.scalar(select(func.count()).select_from(ids.subquery())) or 0)
 
 
 class QueuedCap:
@@ -43,7 +36,7 @@ class QueuedCap:
         with self._lock:
             known = self._known.get(caller.owner)
         if known is None or now - known[1] > REFRESH_S:
-            known = (count_queued(session, caller.owner, self.cap + 1), now)
+            known = (stats.count_queued(session, caller.owner, self.cap + 1), now)
             with self._lock:
                 self._known[caller.owner] = known
         queued = known[0]

@@ -5,7 +5,8 @@
 - ``AuthMiddleware`` (inside the metrics middleware, so that refused requests are counted):
   every request under ``/v1`` needs ``Authorization: Bearer <key>``; a missing, malformed,
   unknown or revoked key answers a 401 problem with ``WWW-Authenticate: Bearer``. The caller
-  (key id, client name, role) is put in ``request.state.caller``. A verified key is trusted for
+  (key id, client name, role) is put in ``request.state.caller``, which routes receive as the
+  typed ``CurrentCaller`` dependency (``services/api/deps.py``). A verified key is trusted for
   ``SPINE_API_KEY_CACHE_S`` before the database is asked again (keys are not cached when refused).
   ``/metrics`` needs an admin key when ``SPINE_METRICS_REQUIRE_KEY`` is set.
 - ``EdgeMiddleware`` (outermost): the request id (``X-Request-ID`` accepted when it is 1 to 64 of
@@ -23,25 +24,20 @@ import re
 import threading
 import time
 import uuid
-from collections.abc import Sequence
-from contextvars import ContextVar
-from dataclasses import dataclass
 from typing import Any
 
 import anyio.to_thread
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import InterfaceError, OperationalError
-from sqlalchemy.orm import Session
 from starlette.datastructures import MutableHeaders
 from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.quota import QueuedCap
 from services.core.config import Settings
-from services.core.logs import job_id_var, request_id_var
+from services.core.logs import request_id_var
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
-from services.db.audit import AuditAction, audit
 from services.db.engine import session_factory
 from services.db.keys import Caller, digest, verify_key
 
@@ -60,54 +56,6 @@ DOCS_POLICY = (
 )
 DOCS_PATHS = ("/docs", "/redoc")
 CACHE_CACHE_MAX = 10_000
-
-
-@dataclass(frozen=True)
-class RequestSecurity:
-    """What the auth middleware knows of a request, for the routes (a context variable: no parameter)."""
-
-    caller: Caller
-    cap: QueuedCap
-    state: dict[str, Any]
-
-
-security_var: ContextVar[RequestSecurity | None] = ContextVar("spine_request_security", default=None)
-
-
-def current_caller() -> Caller | None:
-    context = security_var.get()
-    return context.caller if context is not None else None
-
-
-def record(session: Session, action: AuditAction, job_ids: Sequence[uuid.UUID], *, commit: bool = True) -> None:
-    """Audit this request's ``action`` on ``job_ids`` (one INSERT), and commit unless told not to."""
-    context = security_var.get()
-    if context is None or not job_ids:
-        return
-    if len(job_ids) == 1:
-        context.state["job_id"] = str(job_ids[0])
-        job_id_var.set(str(job_ids[0]))
-    audit(session, context.caller, action, job_ids, request_id_var.get())
-    if commit:
-        session.commit()
-
-
-def audit_created(session: Session, job_ids: Sequence[uuid.UUID]) -> None:
-    """The create hook of the job store: audit rows in the transaction that stores the jobs."""
-    record(session, "create", job_ids, commit=False)
-
-
-def admit(session: Session, n: int) -> None:
-    """429 problem when ``n`` more queued jobs would put this request's client over its cap."""
-    context = security_var.get()
-    if context is not None:
-        context.cap.admit(session, context.caller, n)
-
-
-def accepted(n: int) -> None:
-    context = security_var.get()
-    if context is not None:
-        context.cap.accepted(context.caller, n)
 
 
 def needs_key(path: str) -> bool:
@@ -166,11 +114,10 @@ def bearer_token(scope: Scope) -> str | None:
 class AuthMiddleware:
     """API keys on /v1 (and on /metrics when SPINE_METRICS_REQUIRE_KEY is set)."""
 
-    def __init__(self, app: ASGIApp, settings: Settings, cache: KeyCache, cap: QueuedCap):
+    def __init__(self, app: ASGIApp, settings: Settings, cache: KeyCache):
         self.app = app
         self.settings = settings
         self.cache = cache
-        self.cap = cap
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -202,13 +149,8 @@ class AuthMiddleware:
         if metrics and not caller.is_admin:
             await _problem(scope, problem("forbidden", "/metrics needs an admin API key"))(scope, receive, send)
             return
-        state = scope.setdefault("state", {})
-        state["caller"] = caller
-        context = security_var.set(RequestSecurity(caller, self.cap, state))
-        try:
-            await self.app(scope, receive, send)
-        finally:
-            security_var.reset(context)
+        scope.setdefault("state", {})["caller"] = caller  # read by the CurrentCaller dependency (deps.py)
+        await self.app(scope, receive, send)
 
     async def verify(self, token: str) -> Caller | None:
         key_digest = digest(token)
@@ -305,7 +247,7 @@ def install_auth(app: FastAPI, settings: Settings) -> None:
     """The API-key middleware; call before the metrics middleware is added (it then sits inside it)."""
     app.state.key_cache = KeyCache(settings.api_key_cache_s)
     app.state.queued_cap = QueuedCap(settings.max_queued_per_client)
-    app.add_middleware(AuthMiddleware, settings=settings, cache=app.state.key_cache, cap=app.state.queued_cap)
+    app.add_middleware(AuthMiddleware, settings=settings, cache=app.state.key_cache)
 
 
 def install_edge(app: FastAPI, settings: Settings) -> None:

@@ -21,7 +21,6 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 from urllib.parse import SplitResult, urlsplit
 
 from spine_engine.errors import FieldError, InvalidInput
@@ -126,14 +125,13 @@ def destination_problem(url: str, allowed: Sequence[AllowedPrefix]) -> str | Non
     return None
 
 
-def check_callback_url(payload: Any, allowed_urls: str, secret_configured: bool) -> None:
-    """Raise ``InvalidInput`` naming ``callback_url`` when the payload's callback_url is not allowed.
+def check_callback_url(url: str | None, allowed_urls: str, secret_configured: bool) -> None:
+    """Raise ``InvalidInput`` naming ``callback_url`` when a payload's callback_url is not allowed.
 
     ``secret_configured``: the service-wide secret is set or the submitting client's API key has a
     webhook secret (``services.webhooks.submission``). Called by the API after the payload validated;
     a payload without callback_url passes.
     """
-    url = payload.get("callback_url") if isinstance(payload, dict) else None
     if url is None:
         return
     try:

@@ -37,6 +37,7 @@ from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from services.db.results import measures_row, strain_rows
+from spine_engine.models import RegistrationResult
 
 
 @dataclass(frozen=True)
@@ -168,11 +169,11 @@ def finish_job(
     session: Session,
     claim: Claim,
     *,
-    result: dict[str, Any] | None = None,
+    result: RegistrationResult | None = None,
     error: dict[str, Any] | None = None,
     engine_version: str | None = None,
 ) -> bool:
-    """running → succeeded (with ``result``) or failed (with ``error``), only for this run.
+    """running → succeeded (with ``result``) or failed (with ``error``, a problem), only for this run.
 
     The job's row, its ``job_measures`` row and its ``vertebra_strains`` rows are written in one
     transaction: on PostgreSQL as one statement (one round trip), elsewhere as three.
@@ -184,7 +185,7 @@ def finish_job(
         "attempt": claim.attempt,
         "status": status.value,
         "now": utcnow(),
-        "result": result,
+        "result": result.model_dump(mode="json") if result is not None else None,
         "error": error,
         "engine_version": engine_version,
     }

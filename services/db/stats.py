@@ -6,6 +6,7 @@ from datetime import datetime
 
 from sqlalchemy import (
     func,
+    literal_column,
     select,
 )
 from sqlalchemy.orm import Session
@@ -38,3 +39,9 @@ def recent_durations(session: Session, since: datetime, limit: int = 20_000) -> 
         for created, started, finished in rows
         if started is not None and finished is not None
     ]
+
+
+def count_queued(session: Session, owner: str, limit: int) -> int:
+    """Queued jobs of ``owner``, counted up to ``limit`` (the literal status lets the partial index serve)."""
+    ids = select(Job.id).where(Job.owner == owner, Job.status == literal_column("'queued'")).limit(limit)
+    return int(session.scalar(select(func.count()).select_from(ids.subquery())) or 0)

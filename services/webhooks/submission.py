@@ -1,8 +1,6 @@
-"""The API side of webhooks: refuse a payload whose callback_url this service may not call."""
+"""The API side of webhooks: refuse a callback_url this service may not call."""
 
 from __future__ import annotations
-
-from typing import Any
 
 from sqlalchemy.orm import Session
 
@@ -11,13 +9,12 @@ from services.core.webhook_policy import check_callback_url
 from services.webhooks.signing import secret_for
 
 
-def check_payload(payload: Any, settings: Settings, session: Session, owner: str | None) -> None:
-    """Raise ``InvalidInput`` naming ``callback_url`` when it is present and not allowed.
+def check_callback(url: str | None, settings: Settings, session: Session, owner: str | None) -> None:
+    """Raise ``InvalidInput`` naming ``callback_url`` when it is given and not allowed.
 
     Allowed means: http(s), no credentials, matching ``SPINE_WEBHOOK_ALLOWED_URLS``, and a signing
     secret exists for ``owner`` (per API key, or the service-wide ``SPINE_WEBHOOK_SECRET``).
     """
-    if not isinstance(payload, dict) or payload.get("callback_url") is None:
+    if url is None:
         return
-    has_secret = secret_for(session, owner, settings) is not None
-    check_callback_url(payload, settings.webhook_allowed_urls, has_secret)
+    check_callback_url(url, settings.webhook_allowed_urls, secret_for(session, owner, settings) is not None)

@@ -28,8 +28,10 @@ from services.db import runs, stats
 from services.db.engine import session_scope, worker_session
 from services.webhooks import delivery as webhooks
 from services.worker.leases import LeaseKeeper
-from spine_engine import register
 from spine_engine.errors import FitFailed, InvalidInput
+from spine_engine.models import RegistrationResult
+from spine_engine.reconstruction import register_model
+from spine_engine.validation import validate_payload
 
 log = logging.getLogger(__name__)
 
@@ -38,10 +40,10 @@ def _engine_version() -> str:
     return str(getattr(spine_engine, "__version__", "unknown"))
 
 
-def run_engine(payload: dict[str, Any], instance: str) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+def run_engine(payload: dict[str, Any], instance: str) -> tuple[RegistrationResult | None, dict[str, Any] | None]:
     """Run the registration; return (result, None) or (None, problem)."""
     try:
-        return register(payload), None
+        return register_model(validate_payload(payload)), None
     except InvalidInput as exc:
         return None, validation_problem(exc.errors, instance=instance)
     except FitFailed as exc:
@@ -77,7 +79,7 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
         result, error = run_engine(claim.payload, instance)
     finally:
         keeper.release(claim)
-    engine_version = (result or {}).get("engine", {}).get("version") if result else None
+    engine_version = result.engine.version if result is not None else None
 
     @store_retry
     def store() -> bool:

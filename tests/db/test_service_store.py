@@ -5,6 +5,8 @@ These call the repository functions the API and the worker use, on migrated data
 
 from __future__ import annotations
 
+import copy
+import functools
 import uuid
 from datetime import timedelta
 from typing import Any
@@ -18,50 +20,41 @@ from services.db import runs
 from services.db.engine import get_engine, session_scope, worker_session
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
-from tests.conftest import LEVELS, spine_payload
+from spine_engine.models import RegistrationResult
+from spine_engine.reconstruction import register_model
+from spine_engine.validation import validate_payload
+from tests.conftest import spine_payload
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
 LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
 
 
-def result_like(major_cobb: float = 23.5) -> dict[str, Any]:
-    """A result shaped like RegistrationResult (engine output), to exercise the measure tables."""
-    vertebrae = []
-    for i, level in enumerate(LEVELS):
-        last = i == len(LEVELS) - 1
-        vertebrae.append(
-            {
-                "level": level,
-                "position": [0.0, 0.0, -26.0 * i],
-                "directors": [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]],
-                "u": None if last else [0.001, 0.002 * i, 0.0005],
-                "v": None if last else [0.0, 0.0, 1.0],
-                "pa_bending_deg": None if last else 1.5,
-                "lateral_bending_deg": None if last else 0.1 * i,
-                "twist_deg": None if last else 0.2,
-                "axial_rotation_deg": 0.5 * i,
-            }
-        )
-    return {
-        "vertebrae": vertebrae,
-        "measures": {
-            "cobb": [
-                {"upper": "T5", "lower": "T12", "apex": "T8", "angle_deg": major_cobb, "major": True,
-                 "convexity": "right", "apex_axial_rotation_deg": 7.0, "plane_of_max_curvature_deg": 60.0,
-                 "max_curvature_deg": 30.0},
-                {"upper": "T12", "lower": "L4", "apex": "L2", "angle_deg": 12.0, "major": False,
-                 "convexity": "left", "apex_axial_rotation_deg": -3.0, "plane_of_max_curvature_deg": 80.0,
-                 "max_curvature_deg": 14.0},
-            ],
-            "thoracic_kyphosis_t4_t12_deg": 30.0,
-            "thoracic_kyphosis_t5_t12_deg": 28.0,
-            "lumbar_lordosis_l1_l5_deg": -40.0,
-        },
-        "fit": {"residuals": [], "mean_registration_error_mm": 0.8, "energy_fit": 1.0, "energy_internal": 2.0,
-                "iterations": 12, "converged": True, "runtime_ms": 5.0,
-                "pa": {"scale": 1.0, "translation": [100.0, 50.0], "estimated": True}},
-        "engine": {"version": "9.9.9", "profile": "default"},
-    }  # fmt: skip
+@functools.cache
+def _fitted() -> dict[str, Any]:
+    """A real engine result (the fit of ``spine_payload()``) as JSON."""
+    return register_model(validate_payload(spine_payload())).model_dump(mode="json")
+
+
+def result_like(major_cobb: float = 23.5) -> RegistrationResult:
+    """A real ``RegistrationResult`` with known values where the tests read the measure tables: two
+    curves (the major one of ``major_cobb`` degrees), kyphosis, lordosis and per-vertebra strains."""
+    result = copy.deepcopy(_fitted())
+    for i, v in enumerate(result["vertebrae"]):
+        last = i == len(result["vertebrae"]) - 1
+        v.update({"u": None if last else [0.001, 0.002 * i, 0.0005], "v": None if last else [0.0, 0.0, 1.0],
+                  "pa_bending_deg": None if last else 1.5, "lateral_bending_deg": None if last else 0.1 * i,
+                  "twist_deg": None if last else 0.2, "axial_rotation_deg": 0.5 * i})  # fmt: skip
+    curve = result["measures"]["cobb"][0]
+    result["measures"]["cobb"] = [
+        {**curve, "upper": "T5", "lower": "T12", "apex": "T8", "angle_deg": major_cobb, "major": True,
+         "convexity": "right", "apex_axial_rotation_deg": 7.0, "plane_of_max_curvature_deg": 60.0},
+        {**curve, "upper": "T12", "lower": "L4", "apex": "L2", "angle_deg": 12.0, "major": False,
+         "convexity": "left", "apex_axial_rotation_deg": -3.0, "plane_of_max_curvature_deg": 80.0},
+    ]  # fmt: skip
+    result["measures"].update({"thoracic_kyphosis_t4_t12_deg": 30.0, "thoracic_kyphosis_t5_t12_deg": 28.0,
+                               "lumbar_lordosis_l1_l5_deg": -40.0})  # fmt: skip
+    result["fit"]["mean_registration_error_mm"] = 0.8
+    return RegistrationResult.model_validate(result)
 
 
 def new_job(settings: Settings) -> uuid.UUID:

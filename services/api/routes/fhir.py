@@ -9,7 +9,7 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from services.api.deps import OwnerDep, SessionDep
+from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
 from services.core.problems import PROBLEM_MEDIA_TYPE
@@ -43,8 +43,8 @@ DESCRIPTION = (
         **{s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in (404, 409, 422)},
     },
 )
-def job_fhir(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
-    job, result = read_succeeded_job(session, job_id, owner, "FHIR export")
+def job_fhir(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
+    job, result = read_succeeded_job(session, job_id, access, "FHIR export")
     payload: Any = job.payload
     study = payload.get("study") if isinstance(payload, dict) else None
     bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)

@@ -9,7 +9,8 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
-from services.api.deps import OwnerDep, SessionDep
+from services.api.access import Access
+from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
 from services.core.problems import PROBLEM_MEDIA_TYPE
@@ -35,8 +36,8 @@ def _responses(fmt: str) -> dict[int | str, dict[str, Any]]:
     return ok | problems
 
 
-def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, owner: str | None) -> Response:
-    job, result = read_succeeded_job(session, job_id, owner, "figure")
+def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, access: Access) -> Response:
+    job, result = read_succeeded_job(session, job_id, access, "figure")
     body = render_figure(result, job.payload, fmt)  # a sync route: this runs in the thread pool
     return Response(body, media_type=MEDIA_TYPES[fmt], headers={"Cache-Control": "private, max-age=3600"})
 
@@ -48,8 +49,8 @@ def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, owner: str |
     description=DESCRIPTION,
     responses=_responses("png"),
 )
-def figure_png(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
-    return _figure(job_id, "png", session, owner)
+def figure_png(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
+    return _figure(job_id, "png", session, access)
 
 
 @router.get(
@@ -59,5 +60,5 @@ def figure_png(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Respo
     description=DESCRIPTION,
     responses=_responses("svg"),
 )
-def figure_svg(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> Response:
-    return _figure(job_id, "svg", session, owner)
+def figure_svg(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
+    return _figure(job_id, "svg", session, access)

@@ -9,11 +9,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import JSONResponse
 
-from services.api import job_reads, security
+from services.api import job_reads
+from services.api.admission import admit
 from services.api.batch import batch_response
-from services.api.deps import BatchBody, IsoDateTime, JobBody, OwnerDep, QueueDep, SessionDep, SettingsDep
+from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
-from services.api.limits import check_magnitudes
 from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.db import jobs as jobs_repo
@@ -22,9 +22,7 @@ from services.db.jobs import MAX_BATCH_KEY_LENGTH
 from services.db.runs import publish
 from services.db.views import job_json
 from services.webhooks.delivery import job_ended
-from services.webhooks.submission import check_payload as check_webhook
 from spine_engine.errors import FieldError, InvalidInput
-from spine_engine.validation import validate_payload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -64,20 +62,18 @@ def submit_job(
     body: JobBody,
     session: SessionDep,
     queue: QueueDep,
-    owner: OwnerDep,
+    access: AccessDep,
     settings: SettingsDep,
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
 ) -> JSONResponse:
     try:
-        validate_payload(body)
-        check_magnitudes(body)
-        check_webhook(body, settings, session, owner)
+        admit(body, settings, session, access.owner)
     except InvalidInput as exc:
         raise ProblemError(validation_problem(exc.errors)) from None
-    security.admit(session, 1)
+    access.admit(session, 1)
     try:
-        job, created = jobs_repo.create_job(session, body, owner=owner, idempotency_key=idempotency_key,
-                                            on_insert=security.audit_created)  # fmt: skip
+        job, created = jobs_repo.create_job(session, body, owner=access.owner, idempotency_key=idempotency_key,
+                                            on_insert=access.created)  # fmt: skip
     except jobs_repo.IdempotencyConflict as exc:
         raise ProblemError(
             problem(
@@ -87,10 +83,10 @@ def submit_job(
             )
         ) from None
     if created:
-        security.accepted(1)
+        access.accepted(1)
         publish(session, queue, [job.id])
     else:
-        security.record(session, "read", [job.id])
+        access.record(session, "read", [job.id])
     headers = {"Location": _location(job.id)}
     if not created:
         headers["Idempotent-Replayed"] = "true"
@@ -110,7 +106,7 @@ def submit_batch(
     body: BatchBody,
     session: SessionDep,
     queue: QueueDep,
-    owner: OwnerDep,
+    access: AccessDep,
     settings: SettingsDep,
     idempotency_key: Annotated[str | None, Header(max_length=MAX_BATCH_KEY_LENGTH)] = None,
 ) -> JSONResponse:
@@ -131,22 +127,20 @@ def submit_batch(
     valid: list[tuple[int, dict[str, Any]]] = []
     for i, payload in enumerate(payloads):
         try:
-            validate_payload(payload)
-            check_magnitudes(payload)
-            check_webhook(payload, settings, session, owner)
+            admit(payload, settings, session, access.owner)
             valid.append((i, payload))
         except InvalidInput as exc:
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
             p = validation_problem(errors, instance="/v1/jobs/batch")
             entries[i] = {"index": i, "status": p["status"], "problem": p}
-    security.admit(session, len(valid))
+    access.admit(session, len(valid))
     if idempotency_key is not None:
-        return batch_response(session, queue, owner=owner, key=idempotency_key, total=len(payloads), valid=valid,
-                              entries=entries, on_insert=security.audit_created,
-                              on_accepted=security.accepted)  # fmt: skip
-    jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=owner,
-                                 on_insert=security.audit_created) if valid else []  # fmt: skip
-    security.accepted(len(jobs))
+        return batch_response(session, queue, owner=access.owner, key=idempotency_key, total=len(payloads), valid=valid,
+                              entries=entries, on_insert=access.created,
+                              on_accepted=access.accepted)  # fmt: skip
+    jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=access.owner,
+                                 on_insert=access.created) if valid else []  # fmt: skip
+    access.accepted(len(jobs))
     publish(session, queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
         entries[i] = {"index": i, "status": 202, "job": job_json(job)}
@@ -169,7 +163,7 @@ async def batch_other_methods(request: Request) -> JSONResponse:
 )
 def list_jobs(
     session: SessionDep,
-    owner: OwnerDep,
+    access: AccessDep,
     status: Annotated[list[JobStatusName] | None, Query(description="Keep jobs in these states.")] = None,
     created_after: Annotated[IsoDateTime | None, Query(description="Created at or after (ISO 8601).")] = None,
     created_before: Annotated[IsoDateTime | None, Query(description="Created before (ISO 8601).")] = None,
@@ -187,17 +181,17 @@ def list_jobs(
             created_before=utc(created_before),
             cursor=cursor,
             limit=limit,
-            owner=owner,
+            owner=access.owner,
         )
     except jobs_repo.BadCursor as exc:
         raise ProblemError(validation_problem([FieldError(("query", "cursor"), str(exc), "cursor")])) from None
-    security.record(session, "list", [j.id for j in jobs])
+    access.record(session, "list", [j.id for j in jobs])
     return JSONResponse({"jobs": [job_json(j) for j in jobs], "next_cursor": next_cursor})
 
 
 @router.get("/{job_id}", response_model=Job, summary="Read a job", responses=_problems(404, 422))
-def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONResponse:
-    job = job_reads.read_job(session, job_id, owner)
+def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> JSONResponse:
+    job = job_reads.read_job(session, job_id, access)
     body = job_json(job, with_payload=True)
     has_callback = job.callback_url is not None
     body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
@@ -213,17 +207,17 @@ def read_job(job_id: uuid.UUID, session: SessionDep, owner: OwnerDep) -> JSONRes
     responses=_problems(404, 409, 422),
 )
 def cancel_job(
-    job_id: uuid.UUID, session: SessionDep, owner: OwnerDep, queue: QueueDep, settings: SettingsDep
+    job_id: uuid.UUID, session: SessionDep, access: AccessDep, queue: QueueDep, settings: SettingsDep
 ) -> JSONResponse:
     try:
-        job, cancelled_now = jobs_repo.cancel_job(session, job_id, owner=owner)
+        job, cancelled_now = jobs_repo.cancel_job(session, job_id, owner=access.owner)
     except jobs_repo.JobNotFound:
         raise job_reads.not_found(job_id) from None
     except jobs_repo.JobFinished as exc:
         raise ProblemError(
             problem("job-not-cancellable", f"job {job_id} has already {exc.job.status}", job_status=exc.job.status)
         ) from None
-    security.record(session, "cancel", [job_id])
+    access.record(session, "cancel", [job_id])
     url = job.callback_url
     if url and cancelled_now:  # a repeated cancel sends no second webhook
         job_ended(settings, job.id, "cancelled", url=url, celery=queue)
