@@ -9,6 +9,7 @@ caudally, d1 × d2 = d3; directors are sent as rows ``[d1, d2, d3]``.
 from __future__ import annotations
 
 import math
+from datetime import date
 from typing import Annotated, Literal
 
 import numpy as np
@@ -192,12 +193,19 @@ class Options(_Strict):
 
 
 DICOM_UID_MAX_LENGTH = 64
+DICOM_LO_MAX_LENGTH = 64
+"""PS3.5 §6.2: Long String (LO), at most 64 characters."""
+DICOM_SH_MAX_LENGTH = 16
+"""PS3.5 §6.2: Short String (SH), at most 16 characters."""
+DICOM_PN_MAX_LENGTH = 5 * 64
+"""PS3.5 §6.2: a Person Name (PN) has five components of at most 64 characters each (one group)."""
 
 
 class Study(_Strict):
     """DICOM identifiers of the radiographs the landmarks come from. Carried unchanged to the job
     (and its webhook and FHIR export) so that a PACS can match results to its images; the engine
-    does not use them. Each is a DICOM UID: digits in dot-separated components, at most 64 characters.
+    does not use them. The UIDs are DICOM UIDs: digits in dot-separated components, at most 64 characters.
+    The patient and accession fields are filled from the image header when the DICOM layer reads one.
     """
 
     study_instance_uid: str = Field(description="Study Instance UID (0020,000D).")
@@ -206,6 +214,30 @@ class Study(_Strict):
     lateral_sop_instance_uid: str | None = Field(
         None, description="SOP Instance UID (0008,0018) of the lateral image."
     )
+    patient_id: str | None = Field(
+        None, max_length=DICOM_LO_MAX_LENGTH, description="Patient ID (0010,0020): DICOM LO, at most 64 characters."
+    )
+    patient_name: str | None = Field(
+        None,
+        max_length=DICOM_PN_MAX_LENGTH,
+        description="Patient's Name (0010,0010) in DICOM PN form (Family^Given^Middle^Prefix^Suffix), "
+        "at most 5 × 64 characters.",
+    )
+    accession_number: str | None = Field(
+        None, max_length=DICOM_SH_MAX_LENGTH, description="Accession Number (0008,0050): DICOM SH, at most 16 characters."
+    )
+    study_date: date | None = Field(None, description="Study Date (0008,0020) as ISO 8601 YYYY-MM-DD.")
+
+    @field_validator("patient_id", "patient_name", "accession_number")
+    @classmethod
+    def _dicom_text(cls, value: str | None) -> str | None:
+        """DICOM LO, SH and PN values (PS3.5 §6.2) hold no backslash (the value separator) and no
+        control character."""
+        if value is None:
+            return value
+        if "\\" in value or any(ord(ch) < 32 or ord(ch) == 127 for ch in value):
+            raise ValueError("a DICOM text value holds no backslash and no control character")
+        return value
 
     @field_validator("study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid")
     @classmethod
