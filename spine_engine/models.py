@@ -224,7 +224,9 @@ class Study(_Strict):
         "at most 5 × 64 characters.",
     )
     accession_number: str | None = Field(
-        None, max_length=DICOM_SH_MAX_LENGTH, description="Accession Number (0008,0050): DICOM SH, at most 16 characters."
+        None,
+        max_length=DICOM_SH_MAX_LENGTH,
+        description="Accession Number (0008,0050): DICOM SH, at most 16 characters.",
     )
     study_date: date | None = Field(None, description="Study Date (0008,0020) as ISO 8601 YYYY-MM-DD.")
 

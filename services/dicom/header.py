@@ -1,0 +1,479 @@
+"""A radiograph's DICOM header → the view fields the service needs (``RadiographHeader``).
+
+Only the header is read (``stop_before_pixels``): the photometric interpretation (MONOCHROME1 or 2),
+the bit depth and the pixel data's encoding do not matter, so no Transfer Syntax with a readable
+header is refused (explicit and implicit VR little endian, big endian, any compressed syntax).
+
+Pixel spacing follows PS3.3 §10.7.1.1 (Basic Pixel Spacing Calibration Macro) and §C.8.11.4
+(DX Detector Module, Imager Pixel Spacing) exactly as Cornerstone3D reads them:
+``packages/metadata/src/utilities/getPixelSpacingInformation.ts`` (cornerstonejs/cornerstone3D,
+commit 7034957b10f5e91ad8f4d7978591ef688e262d26, functions ``getERMF``,
+``calculateRadiographicPixelSpacing`` and ``getPixelSpacingInformation``). For a projection
+radiograph SOP class (CR, DX, MG, IO, XA, RF, the same list as Cornerstone3D):
+
+1. Pixel Spacing (0028,0030) with Pixel Spacing Calibration Type (0028,0A02) ``GEOMETRY`` →
+   Pixel Spacing, Cornerstone type ``ERMF``; with ``FIDUCIAL`` → Pixel Spacing, type ``Calibrated``.
+2. Else Imager Pixel Spacing (0018,1164) present: the magnification M is, in this order,
+   Estimated Radiographic Magnification Factor (0018,1114) when > 1; SID/SOD when SOD < SID
+   (Distance Source to Detector (0018,1110) over Distance Source to Patient (0018,1111), or
+   Distance Source to Entrance (0040,0306) when (0018,1111) is absent); "already applied" when
+   Imager Pixel Spacing > Pixel Spacing. Then spacing = Imager Pixel Spacing / M (type ``ERMF``),
+   or Pixel Spacing when already applied (type ``ERMF``), else Pixel Spacing or Imager Pixel
+   Spacing unchanged (type ``Proj``: millimetres at the detector).
+3. Else Pixel Spacing alone, type ``Unknown``.
+
+Other SOP classes (e.g. Secondary Capture) give Pixel Spacing with Cornerstone's type ``""``
+(not applicable), mapped to ``unknown``. The service's ``pixel_spacing_calibration`` (CONTRACT.md)
+is: ``calibrated`` (Cornerstone ``Calibrated`` or ``ERMF``: millimetres in the patient, at the
+plane the magnification refers to), ``projection`` (``Proj`` from Pixel Spacing: equal to, or
+standing for, the imager's spacing, millimetres at the detector), ``detector`` (``Proj`` from
+Imager Pixel Spacing alone), ``unknown``.
+
+Acquisition geometry (the view's ``acquisition``): ``distance_source_to_detector_mm`` = SID
+(0018,1110). ``distance_source_to_patient_mm`` is the source to the spine's mid-plane (DESIGN.md),
+which no attribute states: PS3.3 §C.8.11.7 (DX Positioning Module) defines Distance Source to
+Patient (0018,1111) as "from source to the table, support or bucky side that is closest to the
+Imaging Subject" (the detector-side surface of the body) and Distance Source to Entrance
+(0040,0306) (PS3.3 §C.8.7.8, X-Ray Acquisition Dose Module) as to the surface of the patient
+closest to the source; the spine lies between them. Conversion, in this order:
+(a) SID / ERMF when ERMF (0018,1114) is given: ERMF is defined as SID/SOD of the object of
+interest (PS3.3 §C.8.11.7), so its SOD is the one wanted;
+(b) (DSE + DSP) / 2 when both are given: the body's mid-plane between its two surfaces;
+(c) DSP alone, or DSE alone, unchanged (as Cornerstone3D does), recorded as an approximation: for a
+    typical adult trunk 200–300 mm deep the spine lies 100–150 mm from either surface, so at SID
+    1800 mm the magnification SID/SOD is off by about 0.5–1 % either way.
+``magnification`` = ERMF when given.
+
+Orientation: Patient Orientation (0020,0020) (PS3.3 §C.7.6.1.1.1: the patient directions of the
+image's rows and columns, the first letter of a combination being the main one); without it View
+Position (0018,5101) (PS3.3 §C.8.11.5, defined terms AP, PA, LL, RL, ...) gives the conventional
+display: AP/PA → ``["L","F"]``, LL/RL → ``["A","F"]`` (the project's defaults, DESIGN.md), marked
+as assumed; oblique (RLO, LLO...) and decubitus views are refused, and so is an orientation whose
+plane is not frontal (x, z) or sagittal (y, z).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from datetime import date
+from pathlib import Path
+from typing import Any, Literal
+
+import pydicom
+from pydicom.dataset import Dataset
+from pydicom.errors import InvalidDicomError
+
+from .errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation, attribute_label
+
+Calibration = Literal["calibrated", "projection", "detector", "unknown"]
+ViewRole = Literal["pa", "lateral"]
+
+PROJECTION_RADIOGRAPH_SOP_CLASSES = frozenset({
+    "1.2.840.10008.5.1.4.1.1.1",  # CR Image Storage
+    "1.2.840.10008.5.1.4.1.1.1.1",  # Digital X-Ray Image Storage - For Presentation
+    "1.2.840.10008.5.1.4.1.1.1.1.1",  # Digital X-Ray Image Storage - For Processing
+    "1.2.840.10008.5.1.4.1.1.1.2",  # Digital Mammography X-Ray Image Storage - For Presentation
+    "1.2.840.10008.5.1.4.1.1.1.2.1",  # Digital Mammography X-Ray Image Storage - For Processing
+    "1.2.840.10008.5.1.4.1.1.1.3",  # Digital Intra-Oral X-Ray Image Storage - For Presentation
+    "1.2.840.10008.5.1.4.1.1.1.3.1",  # Digital Intra-Oral X-Ray Image Storage - For Processing
+    "1.2.840.10008.5.1.4.1.1.12.1",  # X-Ray Angiographic Image Storage
+    "1.2.840.10008.5.1.4.1.1.12.1.1",  # Enhanced XA Image Storage
+    "1.2.840.10008.5.1.4.1.1.12.2",  # X-Ray Radiofluoroscopic Image Storage
+    "1.2.840.10008.5.1.4.1.1.12.2.1",  # Enhanced XRF Image Storage
+    "1.2.840.10008.5.1.4.1.1.12.3",  # X-Ray Angiographic Bi-plane Image Storage (retired)
+})  # fmt: skip
+"""The SOP classes Cornerstone3D treats as projection radiographs (``projectionRadiographSOPClassUIDs``)."""
+
+UID_PATTERN = re.compile(r"^(0|[1-9][0-9]*)(\.(0|[1-9][0-9]*))*$")
+"""PS3.5 §9.1: digits in dot-separated components, no leading zero in a component, at most 64 characters."""
+
+SPACING_EQUAL_RTOL = 1e-6
+"""Relative tolerance of 'Pixel Spacing equals Imager Pixel Spacing' (DS values are decimal strings,
+PS3.5 §6.2: at most 16 characters, so equal spacings print equal and differ by rounding only)."""
+
+_AXIS = {"L": 0, "R": 0, "A": 1, "P": 1, "H": 2, "F": 2}
+_VIEW_POSITION_ORIENTATION: dict[str, tuple[ViewRole, tuple[str, str]]] = {
+    "PA": ("pa", ("L", "F")),
+    "AP": ("pa", ("L", "F")),
+    "LL": ("lateral", ("A", "F")),
+    "RL": ("lateral", ("A", "F")),
+}
+"""View Position (0018,5101) → (view, conventional display orientation) (DESIGN.md defaults)."""
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """The view's acquisition geometry from the header (CONTRACT.md ``Acquisition``), mm and ratios."""
+
+    magnification: float | None = None
+    distance_source_to_detector_mm: float | None = None
+    distance_source_to_patient_mm: float | None = None
+
+    def as_payload(self) -> dict[str, float]:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+
+@dataclass(frozen=True)
+class RadiographHeader:
+    """What the service reads from one radiograph's header. Every value's source attribute is in
+    ``sources`` (payload field name → ``"Keyword (gggg,eeee)"`` or a rule naming several)."""
+
+    sop_class_uid: str | None
+    sop_instance_uid: str
+    series_instance_uid: str | None
+    study_instance_uid: str
+    patient_id: str | None
+    patient_name: str | None
+    accession_number: str | None
+    study_date: date | None
+    modality: str | None
+    rows: int | None
+    columns: int | None
+    photometric_interpretation: str | None
+    pixel_spacing: tuple[float, float] | None
+    """[row spacing, column spacing] in mm as Cornerstone3D computes it (module docstring)."""
+    pixel_spacing_calibration: Calibration | None
+    cornerstone_calibration_type: str | None
+    """Cornerstone3D's ``CalibrationTypes`` value ("Calibrated", "ERMF", "Proj", "Unknown", "")."""
+    patient_orientation: tuple[str, str] | None
+    orientation_assumed: bool
+    """True when the orientation comes from View Position's conventional display, not (0020,0020)."""
+    view: ViewRole | None
+    """``pa`` for a frontal image (rows and columns in the x–z plane), ``lateral`` for a sagittal one."""
+    acquisition: Acquisition
+    sources: Mapping[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    def require_spacing(self, json_path: str) -> tuple[float, float]:
+        if self.pixel_spacing is None:
+            raise MissingAttribute(
+                f"the image has neither {attribute_label('PixelSpacing')} nor {attribute_label('ImagerPixelSpacing')}, "
+                f"and the payload gives no {json_path}: the landmarks in px cannot be converted to millimetres",
+                attributes=("PixelSpacing", "ImagerPixelSpacing"),
+                field=json_path,
+            )
+        return self.pixel_spacing
+
+    def require_orientation(self, json_path: str) -> tuple[str, str]:
+        if self.patient_orientation is None:
+            raise MissingAttribute(
+                f"the image has neither {attribute_label('PatientOrientation')} nor a frontal or lateral "
+                f"{attribute_label('ViewPosition')}, and the payload gives no {json_path}",
+                attributes=("PatientOrientation", "ViewPosition"),
+                field=json_path,
+            )
+        return self.patient_orientation
+
+
+# ------------------------------------------------------------------ reading
+
+
+def load_dataset(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mapping[str, Any]) -> Dataset:
+    """A header as a pydicom Dataset from a file path, Part 10 bytes or stream, a Dataset, or
+    DICOM JSON (PS3.18 §F.2, what WADO-RS metadata returns). Raises ``NotDicom``."""
+    if isinstance(source, Dataset):
+        return source
+    if isinstance(source, Mapping):
+        try:
+            return Dataset.from_json(dict(source), bulk_data_uri_handler=lambda *_: None)
+        except Exception as exc:  # pydicom raises ValueError/TypeError/KeyError on malformed JSON
+            raise NotDicom(f"the DICOM JSON object is not valid: {exc}") from None
+    if isinstance(source, bytes):
+        source = io.BytesIO(source)
+    try:
+        return pydicom.dcmread(source, stop_before_pixels=True)
+    except InvalidDicomError:
+        name = source if isinstance(source, (str, Path)) else "the data"
+        raise NotDicom(
+            f"{name} is not a DICOM file: a DICOM Part 10 file has the four bytes 'DICM' after a 128-byte "
+            "preamble (PS3.10 §7.1)"
+        ) from None
+    except (OSError, EOFError, ValueError, KeyError, TypeError) as exc:
+        if isinstance(exc, FileNotFoundError | IsADirectoryError | PermissionError):
+            raise
+        raise NotDicom(f"the DICOM file could not be read: {exc}") from None
+
+
+def check_uid(value: str, keyword: str) -> str:
+    """``value`` if it is a DICOM UID (PS3.5 §9.1), else ``InvalidAttribute`` naming ``keyword``."""
+    value = str(value).strip("\0 ")
+    if len(value) > 64 or not UID_PATTERN.match(value):
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} is {value!r}, not a DICOM UID: digits in dot-separated components "
+            "without leading zeros, at most 64 characters (PS3.5 §9.1)",
+            attributes=(keyword,),
+        )
+    return value
+
+
+def _text(ds: Dataset, keyword: str) -> str | None:
+    value = ds.get(keyword)
+    if value is None:
+        return None
+    text = str(value).strip()
+    return text or None
+
+
+def _uid(ds: Dataset, keyword: str, *, required: bool) -> str | None:
+    value = _text(ds, keyword)
+    if value is None:
+        if required:
+            raise MissingAttribute(f"the image has no {attribute_label(keyword)}", attributes=(keyword,))
+        return None
+    return check_uid(value, keyword)
+
+
+def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...] | None:
+    if keyword not in ds or ds[keyword].value in (None, "", []):
+        return None
+    raw = ds[keyword].value
+    values = list(raw) if isinstance(raw, list | tuple | pydicom.multival.MultiValue) else [raw]
+    try:
+        numbers = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} is {raw!r}, not {count} decimal number(s)", attributes=(keyword,)
+        ) from None
+    if len(numbers) != count:
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} has {len(numbers)} value(s), expected {count}", attributes=(keyword,)
+        )
+    if not all(math.isfinite(n) and n > 0 for n in numbers):
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} is {list(numbers)}: every value must be a positive number",
+            attributes=(keyword,),
+        )
+    return numbers
+
+
+def _study_date(ds: Dataset) -> date | None:
+    text = _text(ds, "StudyDate")
+    if text is None:
+        return None
+    try:
+        return date(int(text[0:4]), int(text[4:6]), int(text[6:8])) if len(text) == 8 and text.isdigit() else None
+    except ValueError:
+        return None
+
+
+def _spacing_equal(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return all(math.isclose(x, y, rel_tol=SPACING_EQUAL_RTOL) for x, y in zip(a, b, strict=True))
+
+
+@dataclass(frozen=True)
+class SpacingReading:
+    spacing: tuple[float, float] | None
+    calibration: Calibration | None
+    cornerstone_type: str | None
+    source: str
+    warnings: tuple[str, ...] = ()
+
+
+def _ermf(ds: Dataset, ps: tuple[float, ...] | None, ips: tuple[float, ...]) -> tuple[float | bool | None, str]:
+    """Cornerstone3D's ``getERMF``: (magnification > 1 | True when already applied | None, its source)."""
+    ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
+    sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
+    sod = _positive_numbers(ds, "DistanceSourceToPatient", 1)
+    sod_kw = "DistanceSourceToPatient"
+    if sod is None:
+        sod = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
+        sod_kw = "DistanceSourceToEntrance"
+    if ermf is not None and ermf[0] > 1:
+        return ermf[0], attribute_label("EstimatedRadiographicMagnificationFactor")
+    if sid is not None and sod is not None and sod[0] < sid[0]:
+        return sid[0] / sod[0], f"{attribute_label('DistanceSourceToDetector')} / {attribute_label(sod_kw)}"
+    if ps is not None and ips[0] > ps[0]:
+        return True, attribute_label("PixelSpacing")
+    if ermf is not None:
+        return None, f"illegal {attribute_label('EstimatedRadiographicMagnificationFactor')} {ermf[0]:g} (≤ 1) ignored"
+    return None, ""
+
+
+def read_spacing(ds: Dataset) -> SpacingReading:
+    """Pixel spacing and its calibration type, as Cornerstone3D's ``getPixelSpacingInformation``
+    (module docstring). Spacing [row, column] in mm; ``spacing`` None when neither attribute is there."""
+    ps = _positive_numbers(ds, "PixelSpacing", 2)
+    ips = _positive_numbers(ds, "ImagerPixelSpacing", 2)
+    ctype = (_text(ds, "PixelSpacingCalibrationType") or "").upper()
+    ps_label, ips_label = attribute_label("PixelSpacing"), attribute_label("ImagerPixelSpacing")
+    ctype_label = attribute_label("PixelSpacingCalibrationType")
+    sop_class = _text(ds, "SOPClassUID")
+
+    def pair(v: tuple[float, ...]) -> tuple[float, float]:
+        return (v[0], v[1])
+
+    if sop_class not in PROJECTION_RADIOGRAPH_SOP_CLASSES:
+        if ps is None:
+            return SpacingReading(None, None, None, "")
+        note = f"SOP class {sop_class} is not a projection radiograph: {ps_label} taken as it is"
+        return SpacingReading(pair(ps), "unknown", "", ps_label, (note,))
+    if ps is not None and ctype == "GEOMETRY":
+        warnings: tuple[str, ...] = ()
+        if ips is not None and _spacing_equal(ps, ips):
+            warnings = (f"{ctype_label} is GEOMETRY but {ps_label} equals {ips_label}",)
+        return SpacingReading(pair(ps), "calibrated", "ERMF", f"{ps_label} with {ctype_label} GEOMETRY", warnings)
+    if ps is not None and ctype == "FIDUCIAL":
+        return SpacingReading(pair(ps), "calibrated", "Calibrated", f"{ps_label} with {ctype_label} FIDUCIAL")
+    if ips is not None:
+        ermf, source = _ermf(ds, ps, ips)
+        if isinstance(ermf, bool) and ermf and ps is not None:
+            return SpacingReading(pair(ps), "calibrated", "ERMF", f"{ps_label} (smaller than {ips_label})")
+        if isinstance(ermf, float):
+            return SpacingReading((ips[0] / ermf, ips[1] / ermf), "calibrated", "ERMF", f"{ips_label} / {source}")
+        warnings = (source,) if source.startswith("illegal") else ()
+        if ps is not None:
+            return SpacingReading(pair(ps), "projection", "Proj", ps_label, warnings)
+        return SpacingReading(pair(ips), "detector", "Proj", ips_label, warnings)
+    if ps is not None:
+        return SpacingReading(pair(ps), "unknown", "Unknown", ps_label)
+    return SpacingReading(None, None, None, "")
+
+
+def read_acquisition(ds: Dataset) -> tuple[Acquisition, dict[str, str]]:
+    """SID, SOD of the spine's mid-plane and ERMF (module docstring, rules (a)–(c)), with their sources."""
+    ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
+    sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
+    dsp = _positive_numbers(ds, "DistanceSourceToPatient", 1)
+    dse = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
+    sources: dict[str, str] = {}
+    magnification = ermf[0] if ermf is not None and ermf[0] > 1 else None
+    if magnification is not None:
+        sources["acquisition.magnification"] = attribute_label("EstimatedRadiographicMagnificationFactor")
+    if sid is not None:
+        sources["acquisition.distance_source_to_detector_mm"] = attribute_label("DistanceSourceToDetector")
+    sod: float | None = None
+    if sid is not None and magnification is not None:
+        sod = sid[0] / magnification
+        ermf_label = attribute_label("EstimatedRadiographicMagnificationFactor")
+        rule = f"{attribute_label('DistanceSourceToDetector')} / {ermf_label}"
+    elif dsp is not None and dse is not None:
+        sod = (dsp[0] + dse[0]) / 2
+        rule = (f"mid-plane: ({attribute_label('DistanceSourceToPatient')} + "
+                f"{attribute_label('DistanceSourceToEntrance')}) / 2")  # fmt: skip
+    elif dsp is not None:
+        sod = dsp[0]
+        rule = f"{attribute_label('DistanceSourceToPatient')} (detector-side surface, approximates the mid-plane)"
+    elif dse is not None:
+        sod = dse[0]
+        rule = f"{attribute_label('DistanceSourceToEntrance')} (source-side skin, approximates the mid-plane)"
+    if sod is not None:
+        if sid is not None and sod >= sid[0]:
+            raise InvalidAttribute(
+                f"the source-to-patient distance {sod:g} mm ({rule}) is not smaller than "
+                f"{attribute_label('DistanceSourceToDetector')} {sid[0]:g} mm",
+                attributes=("DistanceSourceToPatient", "DistanceSourceToDetector"),
+            )
+        sources["acquisition.distance_source_to_patient_mm"] = rule
+    return Acquisition(magnification, sid[0] if sid else None, sod), sources
+
+
+def view_of_orientation(orientation: tuple[str, str]) -> ViewRole:
+    """``pa`` when the image plane is frontal (x–z), ``lateral`` when sagittal (y–z); else refused."""
+    axes = {_AXIS[orientation[0]], _AXIS[orientation[1]]}
+    if axes == {0, 2}:
+        return "pa"
+    if axes == {1, 2}:
+        return "lateral"
+    raise UnsupportedOrientation(
+        f"{attribute_label('PatientOrientation')} {list(orientation)} is an axial image plane, not a frontal "
+        "(PA/AP) or lateral radiograph of the spine",
+        attributes=("PatientOrientation",),
+    )
+
+
+def read_orientation(ds: Dataset) -> tuple[tuple[str, str] | None, bool, str, tuple[str, ...]]:
+    """(orientation, assumed, source, warnings) from (0020,0020), else View Position (0018,5101)."""
+    label = attribute_label("PatientOrientation")
+    raw = ds.get("PatientOrientation")
+    if raw not in (None, "", []):
+        values = [
+            str(v).strip().upper() for v in (raw if isinstance(raw, list | pydicom.multival.MultiValue) else [raw])
+        ]
+        if len(values) != 2 or not all(v and set(v) <= set(_AXIS) for v in values):
+            raise InvalidAttribute(
+                f"{label} is {values}: expected two values (the direction of the rows, left to right, then of "
+                "the columns, top to bottom), each letters of L, R, A, P, H, F (PS3.3 §C.7.6.1.1.1)",
+                attributes=("PatientOrientation",),
+            )
+        orientation = (values[0][0], values[1][0])
+        if _AXIS[orientation[0]] == _AXIS[orientation[1]]:
+            raise InvalidAttribute(f"{label} is {values}: both directions are along one patient axis",
+                                   attributes=("PatientOrientation",))  # fmt: skip
+        warnings: tuple[str, ...] = ()
+        if any(len(v) > 1 for v in values):
+            warnings = (f"{label} {values} is oblique: its main directions {list(orientation)} are used",)
+        return orientation, False, label, warnings
+    position = (_text(ds, "ViewPosition") or "").upper()
+    if position in _VIEW_POSITION_ORIENTATION:
+        laterality = _text(ds, "ImageLaterality")
+        note = f" ({attribute_label('ImageLaterality')} {laterality})" if laterality else ""
+        return (
+            _VIEW_POSITION_ORIENTATION[position][1],
+            True,
+            f"{attribute_label('ViewPosition')} {position}{note}: conventional display assumed",
+            (),
+        )
+    if position:
+        raise UnsupportedOrientation(
+            f"the image has no {label} and its {attribute_label('ViewPosition')} {position!r} is not a frontal "
+            "(PA, AP) or lateral (LL, RL) projection (PS3.3 §C.8.11.5)",
+            attributes=("PatientOrientation", "ViewPosition"),
+        )
+    return None, False, "", ()
+
+
+def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mapping[str, Any]) -> RadiographHeader:
+    """Read one radiograph's header (file path, bytes, Dataset or DICOM JSON). Raises ``NotDicom``,
+    ``MissingAttribute`` (no Study or SOP Instance UID), ``InvalidAttribute`` (a value that is not
+    usable, a UID that is not a UID), ``UnsupportedOrientation``. Missing spacing or orientation is
+    not an error here (the payload may give them): see ``require_spacing`` / ``require_orientation``.
+    """
+    ds = load_dataset(source)
+    if not any(k in ds for k in ("SOPInstanceUID", "StudyInstanceUID", "SOPClassUID", "PixelSpacing",
+                                  "ImagerPixelSpacing", "PatientOrientation", "Rows")):  # fmt: skip
+        raise NotDicom("the data holds none of the attributes of an image header (no SOP Instance UID, no Rows)")
+    study_uid = _uid(ds, "StudyInstanceUID", required=True)
+    sop_uid = _uid(ds, "SOPInstanceUID", required=True)
+    assert study_uid is not None and sop_uid is not None
+    spacing = read_spacing(ds)
+    orientation, assumed, orientation_source, orientation_warnings = read_orientation(ds)
+    view = view_of_orientation(orientation) if orientation is not None else None
+    if orientation is not None and assumed:
+        view = _VIEW_POSITION_ORIENTATION[(_text(ds, "ViewPosition") or "").upper()][0]
+    acquisition, acquisition_sources = read_acquisition(ds)
+    sources: dict[str, str] = {}
+    if spacing.spacing is not None:
+        sources["pixel_spacing"] = spacing.source
+        sources["pixel_spacing_calibration"] = spacing.source
+    if orientation is not None:
+        sources["patient_orientation"] = orientation_source
+    sources.update(acquisition_sources)
+    name = ds.get("PatientName")
+    rows, columns = ds.get("Rows"), ds.get("Columns")
+    return RadiographHeader(
+        sop_class_uid=_uid(ds, "SOPClassUID", required=False),
+        sop_instance_uid=sop_uid,
+        series_instance_uid=_uid(ds, "SeriesInstanceUID", required=False),
+        study_instance_uid=study_uid,
+        patient_id=_text(ds, "PatientID"),
+        patient_name=(str(name).strip() or None) if name is not None else None,
+        accession_number=_text(ds, "AccessionNumber"),
+        study_date=_study_date(ds),
+        modality=_text(ds, "Modality"),
+        rows=int(rows) if rows is not None else None,
+        columns=int(columns) if columns is not None else None,
+        photometric_interpretation=_text(ds, "PhotometricInterpretation"),
+        pixel_spacing=spacing.spacing,
+        pixel_spacing_calibration=spacing.calibration,
+        cornerstone_calibration_type=spacing.cornerstone_type,
+        patient_orientation=orientation,
+        orientation_assumed=assumed,
+        view=view,
+        acquisition=acquisition,
+        sources=sources,
+        warnings=spacing.warnings + orientation_warnings,
+    )

@@ -1,0 +1,195 @@
+"""Header values into a job payload: what the payload gives explicitly wins, a header value that
+disagrees is reported as a conflict (never silently taken), and what was read is recorded with its
+attribute (``DicomProvenance``, shown on the job as ``dicom``; CONTRACT.md).
+
+Works on the payload as JSON (a dict), so that fields the engine adds (``acquisition``,
+``pixel_spacing_calibration``) pass through whatever the installed ``spine_engine.models`` holds.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+from .errors import UnsupportedOrientation, attribute_label
+from .header import RadiographHeader, ViewRole
+
+VALUE_RTOL = 1e-6
+"""Relative tolerance under which a payload number equals the header's (DS values carry at most 16
+characters, PS3.5 §6.2, so a value copied from a header and printed back differs by rounding only)."""
+
+
+class AttributeRead(BaseModel):
+    field: str = Field(description="JSON path of the payload field, e.g. pa.pixel_spacing.")
+    value: Any = Field(description="The value read from the header.")
+    attribute: str = Field(description="The DICOM attribute(s) it comes from, keyword and tag, or the rule used.")
+    used: bool = Field(description="True when the job uses it (the payload did not give the field).")
+
+
+class Conflict(BaseModel):
+    field: str
+    payload: Any
+    header: Any
+    attribute: str
+
+
+class ViewProvenance(BaseModel):
+    source: Literal["file", "dicomweb"]
+    study_instance_uid: str
+    series_instance_uid: str | None = None
+    sop_instance_uid: str
+    sop_class_uid: str | None = None
+    rows: int | None = None
+    columns: int | None = None
+    pixel_spacing_calibration: str | None = None
+    cornerstone_calibration_type: str | None = Field(
+        None, description="Cornerstone3D's calibration type for the same header (Calibrated, ERMF, Proj, Unknown)."
+    )
+    orientation_assumed: bool = False
+    read: list[AttributeRead] = Field(default_factory=list)
+    warnings: list[str] = Field(default_factory=list)
+
+
+class DicomProvenance(BaseModel):
+    """What the DICOM layer read, per view, and every disagreement between payload and header."""
+
+    pa: ViewProvenance | None = None
+    lateral: ViewProvenance | None = None
+    study: list[AttributeRead] = Field(default_factory=list)
+    conflicts: list[Conflict] = Field(default_factory=list)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, int | float) and isinstance(b, int | float):
+        return math.isclose(float(a), float(b), rel_tol=VALUE_RTOL)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return bool(a == b)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "isoformat"):
+        return value.isoformat()
+    return value
+
+
+class _Merger:
+    def __init__(self, provenance: DicomProvenance):
+        self.provenance = provenance
+
+    def fill(self, target: dict[str, Any], key: str, path: str, value: Any, attribute: str,
+             reads: list[AttributeRead]) -> bool:  # fmt: skip
+        """Put ``value`` into ``target[key]`` unless the payload has it; record the read and any conflict.
+        Returns True when the header's value is used."""
+        value = _jsonable(value)
+        given = target.get(key)
+        if given is None:
+            target[key] = value
+            reads.append(AttributeRead(field=path, value=value, attribute=attribute, used=True))
+            return True
+        reads.append(AttributeRead(field=path, value=value, attribute=attribute, used=False))
+        if not _same(_jsonable(given), value):
+            self.provenance.conflicts.append(Conflict(field=path, payload=_jsonable(given), header=value,
+                                                      attribute=attribute))  # fmt: skip
+        return False
+
+
+def merge_view(
+    payload: dict[str, Any], role: ViewRole, header: RadiographHeader, *,
+    source: Literal["file", "dicomweb"], provenance: DicomProvenance,
+) -> None:  # fmt: skip
+    """Fill ``payload[role]`` from ``header`` in place: pixel spacing (and its calibration when the
+    header's spacing is the one used), patient orientation, acquisition. Raises
+    ``UnsupportedOrientation`` when the header's image is not the view it is given as (a lateral
+    image sent as ``pa``), and ``MissingAttribute`` when the view's landmarks are in px and neither
+    payload nor header gives a spacing, or neither gives an orientation."""
+    view = payload.setdefault(role, {})
+    if header.view is not None and header.view != role:
+        raise UnsupportedOrientation(
+            f"the image given as {role} is a {header.view} radiograph by its "
+            f"{header.sources.get('patient_orientation', attribute_label('PatientOrientation'))} "
+            f"{list(header.patient_orientation or ())}",
+            attributes=("PatientOrientation",),
+            field=f"{role}.patient_orientation",
+        )
+    record = ViewProvenance(
+        source=source, study_instance_uid=header.study_instance_uid, series_instance_uid=header.series_instance_uid,
+        sop_instance_uid=header.sop_instance_uid, sop_class_uid=header.sop_class_uid, rows=header.rows,
+        columns=header.columns, pixel_spacing_calibration=header.pixel_spacing_calibration,
+        cornerstone_calibration_type=header.cornerstone_calibration_type,
+        orientation_assumed=header.orientation_assumed, warnings=list(header.warnings),
+    )  # fmt: skip
+    merger = _Merger(provenance)
+    if header.pixel_spacing is not None:
+        used = merger.fill(view, "pixel_spacing", f"{role}.pixel_spacing", header.pixel_spacing,
+                           header.sources["pixel_spacing"], record.read)  # fmt: skip
+        if used or _same(_jsonable(view["pixel_spacing"]), _jsonable(header.pixel_spacing)):
+            calibration_source = header.sources["pixel_spacing_calibration"]
+            merger.fill(view, "pixel_spacing_calibration", f"{role}.pixel_spacing_calibration",
+                        header.pixel_spacing_calibration, calibration_source, record.read)  # fmt: skip
+    elif view.get("units") == "px" and view.get("pixel_spacing") is None:
+        header.require_spacing(f"{role}.pixel_spacing")
+    if header.patient_orientation is not None:
+        merger.fill(view, "patient_orientation", f"{role}.patient_orientation", header.patient_orientation,
+                    header.sources["patient_orientation"], record.read)  # fmt: skip
+    elif view.get("patient_orientation") is None:
+        header.require_orientation(f"{role}.patient_orientation")
+    acquisition = header.acquisition.as_payload()
+    if acquisition:
+        target = dict(view.get("acquisition") or {})
+        for key, value in acquisition.items():
+            merger.fill(target, key, f"{role}.acquisition.{key}", value, header.sources[f"acquisition.{key}"],
+                        record.read)  # fmt: skip
+        view["acquisition"] = target
+    setattr(provenance, role, record)
+
+
+STUDY_FIELDS = (
+    ("study_instance_uid", "StudyInstanceUID"),
+    ("patient_id", "PatientID"),
+    ("patient_name", "PatientName"),
+    ("accession_number", "AccessionNumber"),
+    ("study_date", "StudyDate"),
+)
+
+
+def merge_study(
+    payload: dict[str, Any], headers: dict[ViewRole, RadiographHeader], provenance: DicomProvenance
+) -> None:
+    """Fill ``payload["study"]`` from the headers (the PA's first): study UID, patient, accession,
+    date, and each view's SOP Instance UID (and the PA's series). Conflicts between payload and
+    header, or between the two images, are recorded."""
+    study = payload.get("study") or {}
+    merger = _Merger(provenance)
+    for role in ("pa", "lateral"):
+        header = headers.get(role)  # type: ignore[call-overload]
+        if header is None:
+            continue
+        prefix = "" if role == "pa" else "lateral image's "
+        for key, keyword in STUDY_FIELDS:
+            value = getattr(header, key)
+            if value is not None:
+                merger.fill(study, key, f"study.{key}", value, prefix + attribute_label(keyword), provenance.study)
+        merger.fill(study, f"{role}_sop_instance_uid", f"study.{role}_sop_instance_uid", header.sop_instance_uid,
+                    attribute_label("SOPInstanceUID"), provenance.study)  # fmt: skip
+        if role == "pa" and header.series_instance_uid is not None:
+            merger.fill(study, "series_instance_uid", "study.series_instance_uid", header.series_instance_uid,
+                        attribute_label("SeriesInstanceUID"), provenance.study)  # fmt: skip
+    payload["study"] = study
+
+
+def apply_headers(
+    payload: dict[str, Any], headers: dict[ViewRole, RadiographHeader], *, source: Literal["file", "dicomweb"]
+) -> tuple[dict[str, Any], DicomProvenance]:
+    """A copy of ``payload`` with the headers' values filled in, and the provenance of every value."""
+    merged = copy.deepcopy(payload)
+    provenance = DicomProvenance()
+    for role, header in headers.items():
+        merge_view(merged, role, header, source=source, provenance=provenance)
+    merge_study(merged, headers, provenance)
+    return merged, provenance

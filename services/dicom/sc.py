@@ -1,0 +1,59 @@
+"""The job's figure (``spine_engine.figures`` PNG) as a Secondary Capture Image (PS3.3 §A.8.1), built with
+highdicom, in its own series of the SR's study (a series holds one modality, PS3.3 §C.7.3.1: the SR
+series is ``SR``, this one ``OT``), with the same patient, accession and study, UIDs derived from
+the job id (``uids.py``).
+
+The PNG is decoded with Pillow into 8-bit RGB (Photometric Interpretation RGB, PS3.3 §C.7.6.3.1.2),
+stored uncompressed (Explicit VR Little Endian). The figure is a chart, not a view of the patient:
+its Patient Orientation (0020,0020) is sent empty (a Type 2 value may be empty, PS3.5 §7.4.3; highdicom
+requires one for its ``PATIENT`` coordinate system, so it is cleared after), and so is Laterality (0020,0060)
+(Type 2C, General Series Module PS3.3 §C.7.3.1: the figure shows no paired structure).
+"""
+
+from __future__ import annotations
+
+import io
+import uuid
+from datetime import datetime
+
+import highdicom as hd
+import numpy as np
+from PIL import Image
+from pydicom.valuerep import DA, TM
+
+from .sr import MANUFACTURER, StudyIdentity
+from .uids import job_uids
+
+
+def png_to_rgb(png: bytes) -> np.ndarray:
+    """(rows, columns, 3) uint8 RGB pixels of a PNG (alpha composited on white)."""
+    with Image.open(io.BytesIO(png)) as image:
+        rgba = image.convert("RGBA")
+    background = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+    return np.asarray(Image.alpha_composite(background, rgba).convert("RGB"), dtype=np.uint8)
+
+
+def build_sc(
+    png: bytes, job_id: uuid.UUID | str, identity: StudyIdentity, *, series_number: int = 9902,
+    content_datetime: datetime | None = None,
+) -> hd.sc.SCImage:  # fmt: skip
+    """The figure as a Secondary Capture of the job's study (module docstring)."""
+    uids = job_uids(job_id)
+    pixels = png_to_rgb(png)
+    sc = hd.sc.SCImage(
+        pixel_array=pixels, photometric_interpretation="RGB", bits_allocated=8, coordinate_system="PATIENT",
+        study_instance_uid=identity.study_instance_uid or uids["study"], series_instance_uid=uids["sc-series"],
+        series_number=series_number, sop_instance_uid=uids["sc"], instance_number=1, manufacturer=MANUFACTURER,
+        patient_id=identity.patient_id, patient_name=identity.patient_name,
+        patient_birth_date=identity.patient_birth_date, patient_sex=identity.patient_sex,
+        accession_number=identity.accession_number, study_id=identity.study_id, study_date=identity.study_date,
+        study_time=identity.study_time, referring_physician_name=identity.referring_physician_name,
+        patient_orientation=("L", "F"), series_description="Spine reconstruction figure",
+    )  # fmt: skip
+    sc.PatientOrientation = []
+    sc.Laterality = ""
+    sc.BurnedInAnnotation = "NO"
+    if content_datetime is not None:
+        sc.ContentDate = DA(content_datetime.date())
+        sc.ContentTime = TM(content_datetime.time())
+    return sc

@@ -1,0 +1,370 @@
+"""A job's result as a DICOM Structured Report: TID 1500 Measurement Report (PS3.16), built with highdicom.
+
+Document: Comprehensive 3D SR (PS3.3 §A.35.13), in a new series of the source study, with the
+source's patient, accession and study (copied from the source image's header), UIDs derived from
+the job id (``uids.py``) so that a resend is the same instance.
+
+Content (PS3.16 TID 1500 → TID 1501 / TID 1410 groups, each measurement a TID 300 item):
+
+- one TID 1501 group per Cobb curve: Cobb angle (285285000, SCT, "Cobb angle"; PS3.16 CID 7550
+  Angle Measurement) in degrees (UCUM ``deg``), with finding sites (TID 300 row "Finding Site")
+  the upper end vertebra (topographical modifier Superior, 264217000 SCT), the lower end vertebra
+  (Inferior, 261089000 SCT) and the apex (Apical, 43674008 SCT), each vertebra by its SNOMED CT
+  code from PS3.16 CID 7603 "Vertebra" (``VERTEBRA_CODES``); the curve's apical axial rotation,
+  plane and magnitude of maximum curvature in the private scheme; convexity and "major" as
+  qualitative evaluations;
+- one group for the sagittal measures (kyphosis T4–T12 and T5–T12, lordosis L1–L5) and the fit's
+  mean registration error, in the private scheme;
+- one group per vertebra: axial rotation, sagittal and frontal bending and twist of its segment;
+- one TID 1410 group per landmark (endplate midpoint: POINT; four corners: closed POLYLINE; pedicle
+  centres: POINT each) as SCOORD on the source image, when its SOP Instance UID is known and its
+  coordinates can be put in pixels (``px``, or ``mm`` with a pixel spacing). SCOORD coordinates are
+  (column, row) with (0, 0) the top-left corner of the top-left pixel (PS3.3 §C.18.6.1.1); landmark
+  px coordinates are taken in that convention unchanged.
+
+Every measurement carries: its method (private ``MEASURED`` or ``MODEL_BASED``: model-based when
+``fit.unreliable`` names its quantity, CONTRACT.md), its standard deviation when the engine gives
+one (``*_sd_deg``) as TID 310 upper and lower measurement uncertainty (371886008 / 371885007 SCT)
+both equal to one SD, and the algorithm identification (TID 4019: name, version, profile).
+
+The private coding scheme ``99SPINE`` (PS3.16 §8: designators beginning "99" are private) is
+declared in the Coding Scheme Identification Sequence (0008,0110) (PS3.3 §C.12.1.1.1).
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import date, datetime
+from typing import Any
+
+import highdicom as hd
+import numpy as np
+from highdicom.sr import CodedConcept
+from pydicom.dataset import Dataset
+from pydicom.sr.codedict import codes
+from pydicom.valuerep import DA, TM
+
+from .uids import job_uids
+
+PRIVATE_SCHEME = "99SPINE"
+PRIVATE_SCHEME_NAME = "Spine reconstruction service measures"
+PRIVATE_SCHEME_VERSION = "1"
+
+ALGORITHM_NAME = "spine_engine Cosserat-rod registration"
+MANUFACTURER = "spine-reconstruction"
+
+VERTEBRA_CODES: dict[str, tuple[str, str]] = {
+    "T1": ("64864005", "T1 vertebra"),
+    "T2": ("53733008", "T2 vertebra"),
+    "T3": ("1626008", "T3 vertebra"),
+    "T4": ("73071006", "T4 vertebra"),
+    "T5": ("56401006", "T5 vertebra"),
+    "T6": ("45296009", "T6 vertebra"),
+    "T7": ("62487009", "T7 vertebra"),
+    "T8": ("11068009", "T8 vertebra"),
+    "T9": ("82687006", "T9 vertebra"),
+    "T10": ("7610001", "T10 vertebra"),
+    "T11": ("12989004", "T11 vertebra"),
+    "T12": ("23215003", "T12 vertebra"),
+    "L1": ("66794005", "L1 vertebra"),
+    "L2": ("14293000", "L2 vertebra"),
+    "L3": ("36470004", "L3 vertebra"),
+    "L4": ("11994002", "L4 vertebra"),
+    "L5": ("49668003", "L5 vertebra"),
+}
+"""SNOMED CT codes of the 17 vertebrae, PS3.16 CID 7603 "Vertebra" (as pydicom 3.0.2's
+``pydicom/sr/_concepts_dict.py`` lists them: ``codes.SCT.T1Vertebra`` ... ``codes.SCT.L5Vertebra``)."""
+
+
+def _private(value: str, meaning: str) -> CodedConcept:
+    return CodedConcept(value, PRIVATE_SCHEME, meaning, PRIVATE_SCHEME_VERSION)
+
+
+class P:
+    """The private scheme's concepts (code value SH, at most 16 characters; meaning LO, at most 64)."""
+
+    KYPHOSIS_T4_T12 = _private("KYPH-T4-T12", "Thoracic kyphosis T4-T12")
+    KYPHOSIS_T5_T12 = _private("KYPH-T5-T12", "Thoracic kyphosis T5-T12")
+    LORDOSIS_L1_L5 = _private("LORD-L1-L5", "Lumbar lordosis L1-L5")
+    APEX_AXIAL_ROTATION = _private("APEX-AXROT", "Axial rotation of the apical vertebra")
+    PLANE_MAX_CURVATURE = _private("PMC-ORIENT", "Orientation of the plane of maximum curvature")
+    MAX_CURVATURE = _private("PMC-COBB", "Cobb angle in the plane of maximum curvature")
+    ENDPLATE_ANGLE = _private("ENDPLATE-COBB", "Cobb angle between the end vertebrae's endplates")
+    AXIAL_ROTATION = _private("AXROT", "Vertebral axial rotation")
+    SAGITTAL_BENDING = _private("SAG-BEND", "Sagittal bending of the segment below the vertebra")
+    FRONTAL_BENDING = _private("FRONT-BEND", "Frontal bending of the segment below the vertebra")
+    TWIST = _private("TWIST", "Twist of the segment below the vertebra")
+    REGISTRATION_ERROR = _private("REG-ERR", "Mean registration error of the PA landmarks")
+    MEASURED = _private("MEASURED", "Measured (determined by the image landmarks)")
+    MODEL_BASED = _private("MODEL-BASED", "Model-based estimate (from the spine model's prior)")
+    CONVEXITY = _private("CONVEXITY", "Convexity of the curve")
+    MAJOR_CURVE = _private("MAJOR-CURVE", "Major curve (the largest)")
+    ENDPLATE_MIDPOINT = _private("LM-EP-MID", "Landmark: midpoint of the superior endplate")
+    BODY_CORNERS = _private("LM-CORNERS", "Landmark: four corners of the vertebral body")
+    PEDICLE_LEFT = _private("LM-PED-IMG-L", "Landmark: pedicle centre on the image's left")
+    PEDICLE_RIGHT = _private("LM-PED-IMG-R", "Landmark: pedicle centre on the image's right")
+
+
+DEGREE = CodedConcept("deg", "UCUM", "degree")
+MILLIMETRE = CodedConcept("mm", "UCUM", "millimeter")
+COBB_ANGLE = CodedConcept("285285000", "SCT", "Cobb angle")
+SUPERIOR, INFERIOR, APICAL = codes.SCT.Superior, codes.SCT.Inferior, codes.SCT.Apical
+PROCEDURE = CodedConcept("363680008", "SCT", "Radiographic imaging procedure")
+
+
+@dataclass(frozen=True)
+class SourceImage:
+    """A radiograph the landmarks were placed on, as far as it is known."""
+
+    sop_instance_uid: str
+    sop_class_uid: str
+    series_instance_uid: str | None = None
+    study_instance_uid: str | None = None
+    pixel_spacing: tuple[float, float] | None = None
+    """[row, column] mm per pixel of the landmarks' mm (for mm → px); None when the landmarks are in px."""
+
+
+@dataclass(frozen=True)
+class StudyIdentity:
+    """The study and patient the results belong to (from the source header or the job's ``study``)."""
+
+    study_instance_uid: str | None = None
+    patient_id: str | None = None
+    patient_name: str | None = None
+    accession_number: str | None = None
+    study_date: date | None = None
+    study_time: str | None = None
+    study_id: str | None = None
+    patient_birth_date: str | None = None
+    patient_sex: str | None = None
+    referring_physician_name: str | None = None
+
+    @classmethod
+    def from_study(cls, study: Mapping[str, Any] | None) -> StudyIdentity:
+        study = study or {}
+        when = study.get("study_date")
+        return cls(
+            study_instance_uid=study.get("study_instance_uid"),
+            patient_id=study.get("patient_id"),
+            patient_name=study.get("patient_name"),
+            accession_number=study.get("accession_number"),
+            study_date=date.fromisoformat(when) if isinstance(when, str) else when,
+        )
+
+
+def _evidence(identity: StudyIdentity, study_uid: str, image: SourceImage | None, fallback_uid: str) -> Dataset:
+    ds = Dataset()
+    ds.StudyInstanceUID = (image.study_instance_uid if image and image.study_instance_uid else None) or study_uid
+    ds.SeriesInstanceUID = (image.series_instance_uid if image else None) or fallback_uid
+    ds.SOPInstanceUID = image.sop_instance_uid if image else fallback_uid
+    ds.SOPClassUID = image.sop_class_uid if image else "1.2.840.10008.5.1.4.1.1.7"
+    ds.PatientID = identity.patient_id or ""
+    ds.PatientName = identity.patient_name or ""
+    ds.PatientBirthDate = identity.patient_birth_date or ""
+    ds.PatientSex = identity.patient_sex or ""
+    ds.AccessionNumber = identity.accession_number or ""
+    ds.StudyID = identity.study_id or ""
+    ds.StudyDate = identity.study_date.strftime("%Y%m%d") if identity.study_date else ""
+    ds.StudyTime = identity.study_time or ""
+    ds.ReferringPhysicianName = identity.referring_physician_name or ""
+    return ds
+
+
+class _Builder:
+    def __init__(self, result: Mapping[str, Any], algorithm: hd.sr.AlgorithmIdentification, job_id: uuid.UUID):
+        self.result = result
+        self.algorithm = algorithm
+        self.unreliable = set((result.get("fit") or {}).get("unreliable") or [])
+        self.job_id = job_id
+        self.groups: list[Any] = []
+
+    def measurement(self, name: CodedConcept, value: float | None, *, unit: CodedConcept = DEGREE,
+                    quantity: str | None = None, sd: float | None = None,
+                    sites: Sequence[hd.sr.FindingSite] = ()) -> hd.sr.Measurement | None:  # fmt: skip
+        if value is None:
+            return None
+        properties = None
+        if sd is not None:
+            properties = hd.sr.MeasurementProperties(upper_measurement_uncertainty=float(sd),
+                                                     lower_measurement_uncertainty=float(sd))  # fmt: skip
+        method = P.MODEL_BASED if quantity is not None and quantity in self.unreliable else P.MEASURED
+        return hd.sr.Measurement(
+            name=name, value=float(value), unit=unit, method=method, properties=properties,
+            algorithm_id=self.algorithm, finding_sites=list(sites) or None,
+        )  # fmt: skip
+
+    def group(self, label: str, measurements: Sequence[hd.sr.Measurement | None], *,
+              sites: Sequence[hd.sr.FindingSite] = (),
+              evaluations: Sequence[hd.sr.QualitativeEvaluation] = ()) -> None:  # fmt: skip
+        items = [m for m in measurements if m is not None]
+        if not items and not evaluations:
+            return
+        self.groups.append(hd.sr.MeasurementsAndQualitativeEvaluations(
+            tracking_identifier=hd.sr.TrackingIdentifier(uid=_tracking_uid(self.job_id, label), identifier=label),
+            algorithm_id=self.algorithm, finding_sites=list(sites) or None, measurements=items or None,
+            qualitative_evaluations=list(evaluations) or None,
+        ))  # fmt: skip
+
+
+def _tracking_uid(job_id: uuid.UUID, label: str) -> str:
+    return f"2.25.{uuid.uuid5(job_id, label).int}"
+
+
+def vertebra(level: str, modifier: Any = None) -> hd.sr.FindingSite:
+    code, meaning = VERTEBRA_CODES[level]
+    return hd.sr.FindingSite(anatomic_location=CodedConcept(code, "SCT", meaning), topographical_modifier=modifier)
+
+
+def _landmark_regions(builder: _Builder, payload: Mapping[str, Any], view: str, image: SourceImage) -> None:
+    """TID 1410 groups: each landmark as SCOORD on ``image`` (module docstring)."""
+    spec = payload.get(view) or {}
+    units = spec.get("units", "mm")
+    if units == "mm":
+        if image.pixel_spacing is None:
+            return
+        row_mm, col_mm = image.pixel_spacing
+    else:
+        row_mm = col_mm = 1.0
+    source = hd.sr.SourceImageForRegion(referenced_sop_class_uid=image.sop_class_uid,
+                                        referenced_sop_instance_uid=image.sop_instance_uid)  # fmt: skip
+
+    def px(points: Sequence[Sequence[float]]) -> np.ndarray:
+        return np.array([[p[0] / col_mm, p[1] / row_mm] for p in points], dtype=float)
+
+    for lm in spec.get("landmarks") or []:
+        level = lm["level"]
+        shapes: list[tuple[CodedConcept, str, np.ndarray]] = []
+        if lm.get("point") is not None:
+            shapes.append((P.ENDPLATE_MIDPOINT, "POINT", px([lm["point"]])))
+        if lm.get("corners") is not None:
+            tl, tr, bl, br = lm["corners"]
+            shapes.append((P.BODY_CORNERS, "POLYLINE", px([tl, tr, br, bl, tl])))
+        if lm.get("pedicles") is not None:
+            left, right = lm["pedicles"]
+            shapes.append((P.PEDICLE_LEFT, "POINT", px([left])))
+            shapes.append((P.PEDICLE_RIGHT, "POINT", px([right])))
+        for kind, graphic_type, data in shapes:
+            label = f"{view} {level} {kind.value}"
+            builder.groups.append(hd.sr.PlanarROIMeasurementsAndQualitativeEvaluations(
+                tracking_identifier=hd.sr.TrackingIdentifier(uid=_tracking_uid(builder.job_id, label),
+                                                             identifier=label),
+                referenced_region=hd.sr.ImageRegion(graphic_type=graphic_type, graphic_data=data, source_image=source),
+                finding_type=kind, finding_sites=[vertebra(level)], algorithm_id=builder.algorithm,
+            ))  # fmt: skip
+
+
+def build_sr(
+    result: Mapping[str, Any] | Any,
+    payload: Mapping[str, Any],
+    job_id: uuid.UUID | str,
+    identity: StudyIdentity,
+    images: Mapping[str, SourceImage] | None = None,
+    *,
+    series_number: int = 9901,
+    content_datetime: datetime | None = None,
+) -> hd.sr.Comprehensive3DSR:
+    """The SR of one job (module docstring). ``result`` is a ``RegistrationResult`` or its JSON,
+    ``payload`` the job's payload (JSON), ``images`` the source radiographs by view (``pa``,
+    ``lateral``) when known. Without a study UID (a job without ``study``) the SR opens a new study
+    whose UID is derived from the job id. ``content_datetime`` (e.g. the job's end) makes Content
+    Date/Time the same on every build; without it they are the build's time (highdicom's default)."""
+    if hasattr(result, "model_dump"):
+        result = result.model_dump(mode="json")
+    job = uuid.UUID(str(job_id))
+    uids = job_uids(job)
+    images = dict(images or {})
+    study_uid = identity.study_instance_uid or uids["study"]
+    engine = result.get("engine") or {}
+    algorithm = hd.sr.AlgorithmIdentification(
+        name=ALGORITHM_NAME, version=str(engine.get("version", "unknown")),
+        parameters=[f"profile={engine.get('profile', 'default')}"],
+    )  # fmt: skip
+    b = _Builder(result, algorithm, job)
+    measures = result.get("measures") or {}
+
+    for i, c in enumerate(measures.get("cobb") or [], start=1):
+        sites = [vertebra(c["upper"], SUPERIOR), vertebra(c["lower"], INFERIOR), vertebra(c["apex"], APICAL)]
+        b.group(
+            f"Cobb curve {i} {c['upper']}-{c['lower']}",
+            [
+                b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), sites=sites),
+                b.measurement(P.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"), quantity="axial_rotation",
+                              sites=[vertebra(c["apex"], APICAL)]),
+                b.measurement(P.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
+                              quantity="plane_of_max_curvature"),
+                b.measurement(P.MAX_CURVATURE, c.get("max_curvature_deg"), quantity="plane_of_max_curvature"),
+                b.measurement(P.ENDPLATE_ANGLE, c.get("endplate_angle_deg")),
+            ],
+            sites=sites,
+            evaluations=[
+                hd.sr.QualitativeEvaluation(P.CONVEXITY,
+                                            codes.SCT.Left if c["convexity"] == "left" else codes.SCT.Right),
+                hd.sr.QualitativeEvaluation(P.MAJOR_CURVE, codes.SCT.Yes if c.get("major") else codes.SCT.No),
+            ],
+        )  # fmt: skip
+
+    fit = result.get("fit") or {}
+    b.group("Sagittal measures", [
+        b.measurement(P.KYPHOSIS_T4_T12, measures.get("thoracic_kyphosis_t4_t12_deg"), quantity="kyphosis",
+                      sd=measures.get("thoracic_kyphosis_t4_t12_sd_deg"),
+                      sites=[vertebra("T4", SUPERIOR), vertebra("T12", INFERIOR)]),
+        b.measurement(P.KYPHOSIS_T5_T12, measures.get("thoracic_kyphosis_t5_t12_deg"), quantity="kyphosis",
+                      sd=measures.get("thoracic_kyphosis_t5_t12_sd_deg"),
+                      sites=[vertebra("T5", SUPERIOR), vertebra("T12", INFERIOR)]),
+        b.measurement(P.LORDOSIS_L1_L5, measures.get("lumbar_lordosis_l1_l5_deg"), quantity="lordosis",
+                      sd=measures.get("lumbar_lordosis_l1_l5_sd_deg"),
+                      sites=[vertebra("L1", SUPERIOR), vertebra("L5", INFERIOR)]),
+        b.measurement(P.REGISTRATION_ERROR, fit.get("mean_registration_error_mm"), unit=MILLIMETRE),
+    ])  # fmt: skip
+
+    for v in result.get("vertebrae") or []:
+        level = v["level"]
+        sagittal = v.get("sagittal_bending_deg", v.get("pa_bending_deg"))
+        frontal = v.get("frontal_bending_deg", v.get("lateral_bending_deg"))
+        b.group(f"Vertebra {level}", [
+            b.measurement(P.AXIAL_ROTATION, v.get("axial_rotation_deg"), quantity="axial_rotation",
+                          sd=v.get("axial_rotation_sd_deg")),
+            b.measurement(P.SAGITTAL_BENDING, sagittal, quantity="kyphosis"),
+            b.measurement(P.FRONTAL_BENDING, frontal),
+            b.measurement(P.TWIST, v.get("twist_deg"), quantity="twist"),
+        ], sites=[vertebra(level)])  # fmt: skip
+
+    for view, image in images.items():
+        _landmark_regions(b, payload, view, image)
+
+    device = hd.sr.ObserverContext(
+        observer_type=codes.DCM.Device,
+        observer_identifying_attributes=hd.sr.DeviceObserverIdentifyingAttributes(
+            uid=uids["device"], name=MANUFACTURER, manufacturer_name=MANUFACTURER, model_name="spine_engine",
+        ),
+    )  # fmt: skip
+    report = hd.sr.MeasurementReport(
+        observation_context=hd.sr.ObservationContext(observer_device_context=device),
+        procedure_reported=PROCEDURE,
+        imaging_measurements=b.groups,
+        title=codes.DCM.ImagingMeasurementReport,
+    )
+    evidence = [_evidence(identity, study_uid, image, uids["sr"]) for image in images.values()]
+    if not evidence:
+        evidence = [_evidence(identity, study_uid, None, uids["sr"])]
+    sr = hd.sr.Comprehensive3DSR(
+        evidence=evidence, content=report, series_instance_uid=uids["sr-series"], series_number=series_number,
+        sop_instance_uid=uids["sr"], instance_number=1, manufacturer=MANUFACTURER, is_complete=True,
+        series_description="Spine reconstruction measurements",
+    )  # fmt: skip
+    if content_datetime is not None:
+        sr.ContentDate = DA(content_datetime.date())
+        sr.ContentTime = TM(content_datetime.time())
+    if not images:
+        for keyword in ("CurrentRequestedProcedureEvidenceSequence", "PertinentOtherEvidenceSequence"):
+            if keyword in sr:
+                delattr(sr, keyword)
+    scheme = Dataset()
+    scheme.CodingSchemeDesignator = PRIVATE_SCHEME
+    scheme.CodingSchemeName = PRIVATE_SCHEME_NAME
+    scheme.CodingSchemeVersion = PRIVATE_SCHEME_VERSION
+    scheme.CodingSchemeResponsibleOrganization = MANUFACTURER
+    sr.CodingSchemeIdentificationSequence = [scheme]
+    return sr

@@ -1,0 +1,293 @@
+"""Reading a radiograph's header: each pixel-spacing case of PS3.3 §10.7.1.1 as Cornerstone3D reads
+it, orientation, acquisition geometry, identity, and each bad input as a typed error naming the
+attribute by keyword and tag. Merging header values into a payload: payload wins, conflicts listed."""
+
+from __future__ import annotations
+
+import io
+from datetime import date
+from typing import Any
+
+import pytest
+from pydicom.dataset import Dataset
+
+from services.dicom import synthetic
+from services.dicom.errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation
+from services.dicom.header import read_header
+from services.dicom.merge import apply_headers
+from spine_engine.models import Study
+
+
+def part10(ds: Dataset) -> bytes:
+    out = io.BytesIO()
+    ds.save_as(out, enforce_file_format=True)
+    return out.getvalue()
+
+
+# (case, radiograph kwargs, expected spacing [row, col], contract calibration, Cornerstone3D type)
+SPACING_CASES: list[tuple[str, dict[str, Any], tuple[float, float] | None, str | None, str | None]] = [
+    ("geometry", dict(pixel_spacing=(0.14, 0.13), imager_pixel_spacing=(0.15, 0.15), calibration_type="GEOMETRY"),
+     (0.14, 0.13), "calibrated", "ERMF"),
+    ("fiducial", dict(pixel_spacing=(0.12, 0.12), imager_pixel_spacing=(0.15, 0.15), calibration_type="FIDUCIAL"),
+     (0.12, 0.12), "calibrated", "Calibrated"),
+    ("ermf", dict(imager_pixel_spacing=(0.15, 0.15), ermf=1.25), (0.12, 0.12), "calibrated", "ERMF"),
+    ("sid/sod", dict(imager_pixel_spacing=(0.15, 0.15), sid=1800.0, sod=1500.0), (0.125, 0.125), "calibrated", "ERMF"),
+    ("sid/dse", dict(imager_pixel_spacing=(0.15, 0.15), sid=1800.0, dse=1200.0), (0.1, 0.1), "calibrated", "ERMF"),
+    ("ps<ips", dict(pixel_spacing=(0.1, 0.1), imager_pixel_spacing=(0.15, 0.15)), (0.1, 0.1), "calibrated", "ERMF"),
+    ("ps=ips", dict(pixel_spacing=(0.15, 0.15), imager_pixel_spacing=(0.15, 0.15)), (0.15, 0.15), "projection", "Proj"),
+    ("ips only", dict(imager_pixel_spacing=(0.2, 0.15)), (0.2, 0.15), "detector", "Proj"),
+    ("illegal ermf", dict(imager_pixel_spacing=(0.15, 0.15), ermf=0.9), (0.15, 0.15), "detector", "Proj"),
+    ("ps only", dict(pixel_spacing=(0.18, 0.18), imager_pixel_spacing=None), (0.18, 0.18), "unknown", "Unknown"),
+    ("none", dict(imager_pixel_spacing=None), None, None, None),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "kwargs", "spacing", "calibration", "cornerstone"), SPACING_CASES,
+                         ids=[c[0] for c in SPACING_CASES])  # fmt: skip
+def test_spacing_cases(case: str, kwargs: dict[str, Any], spacing: Any, calibration: Any, cornerstone: Any) -> None:
+    header = read_header(part10(synthetic.radiograph(**kwargs)))
+    if spacing is None:
+        assert header.pixel_spacing is None
+    else:
+        assert header.pixel_spacing is not None
+        assert header.pixel_spacing == pytest.approx(spacing, rel=1e-9)
+    assert header.pixel_spacing_calibration == calibration
+    assert header.cornerstone_calibration_type == cornerstone
+    if case == "illegal ermf":
+        assert any("EstimatedRadiographicMagnificationFactor (0018,1114)" in w for w in header.warnings)
+    if spacing is not None:
+        assert "(0028,0030)" in header.sources["pixel_spacing"] or "(0018,1164)" in header.sources["pixel_spacing"]
+
+
+def test_non_projection_sop_class_takes_pixel_spacing_as_unknown() -> None:
+    ds = synthetic.radiograph(pixel_spacing=(0.3, 0.3), imager_pixel_spacing=(0.15, 0.15))
+    ds.SOPClassUID = ds.file_meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.7"  # Secondary Capture
+    header = read_header(part10(ds))
+    assert header.pixel_spacing == (0.3, 0.3)
+    assert header.pixel_spacing_calibration == "unknown" and header.cornerstone_calibration_type == ""
+
+
+@pytest.mark.parametrize("transfer_syntax", ["explicit", "implicit", "big"])
+@pytest.mark.parametrize("photometric", ["MONOCHROME1", "MONOCHROME2"])
+@pytest.mark.parametrize("modality", ["DX", "CR"])
+def test_transfer_syntaxes_and_photometric_read_the_same(transfer_syntax: Any, photometric: Any, modality: Any) -> None:
+    ds = synthetic.radiograph(modality=modality, photometric=photometric, transfer_syntax=transfer_syntax,
+                              imager_pixel_spacing=(0.15, 0.15), ermf=1.2, sid=1800.0)  # fmt: skip
+    header = read_header(part10(ds))
+    assert header.pixel_spacing == pytest.approx((0.125, 0.125))
+    assert header.photometric_interpretation == photometric
+    assert header.modality == modality
+    assert (header.rows, header.columns) == (64, 32)
+    assert header.patient_orientation == ("L", "F") and header.view == "pa"
+    assert header.study_instance_uid == ds.StudyInstanceUID and header.sop_instance_uid == ds.SOPInstanceUID
+    assert header.series_instance_uid == ds.SeriesInstanceUID
+    assert (header.patient_id, header.patient_name, header.accession_number) == ("P-0001", "Doe^Jane", "ACC-42")
+    assert header.study_date == date(2026, 11, 30)
+
+
+def test_reads_from_path_dataset_and_dicom_json(tmp_path: Any) -> None:
+    ds = synthetic.radiograph(pixel_spacing=(0.14, 0.14), calibration_type="FIDUCIAL")
+    path = tmp_path / "pa.dcm"
+    synthetic.write(ds, path)
+    from_path, from_ds, from_json = read_header(path), read_header(ds), read_header(ds.to_json_dict())
+    assert from_path == from_ds == from_json
+
+
+def test_acquisition_geometry() -> None:
+    header = read_header(synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), ermf=1.2, sid=1800.0, sod=1700.0))
+    assert header.acquisition.magnification == pytest.approx(1.2)
+    assert header.acquisition.distance_source_to_detector_mm == 1800.0
+    assert header.acquisition.distance_source_to_patient_mm == pytest.approx(1500.0)  # SID / ERMF
+    both = read_header(synthetic.radiograph(sid=1800.0, sod=1700.0, dse=1500.0)).acquisition
+    assert both.distance_source_to_patient_mm == pytest.approx(1600.0)  # mid-plane
+    assert both.magnification is None
+    only = read_header(synthetic.radiograph(sid=1800.0, sod=1700.0))
+    assert only.acquisition.distance_source_to_patient_mm == 1700.0
+    assert "DistanceSourceToPatient (0018,1111)" in only.sources["acquisition.distance_source_to_patient_mm"]
+    assert read_header(synthetic.radiograph()).acquisition.as_payload() == {}
+
+
+@pytest.mark.parametrize(("orientation", "view_position", "expected", "view", "assumed"), [
+    (("L", "F"), None, ("L", "F"), "pa", False),
+    (("R", "F"), "AP", ("R", "F"), "pa", False),
+    (("A", "F"), "LL", ("A", "F"), "lateral", False),
+    (("P", "F"), None, ("P", "F"), "lateral", False),
+    (("LF", "FR"), None, ("L", "F"), "pa", False),
+    (None, "PA", ("L", "F"), "pa", True),
+    (None, "AP", ("L", "F"), "pa", True),
+    (None, "LL", ("A", "F"), "lateral", True),
+    (None, "RL", ("A", "F"), "lateral", True),
+])  # fmt: skip
+def test_orientation(orientation: Any, view_position: Any, expected: Any, view: Any, assumed: bool) -> None:
+    header = read_header(synthetic.radiograph(patient_orientation=orientation, view_position=view_position))
+    assert header.patient_orientation == expected
+    assert header.view == view
+    assert header.orientation_assumed is assumed
+    assert ("ViewPosition (0018,5101)" in header.sources["patient_orientation"]) is assumed
+
+
+def test_oblique_orientation_is_warned() -> None:
+    header = read_header(synthetic.radiograph(patient_orientation=("LF", "F")))
+    assert header.patient_orientation == ("L", "F")
+    assert any("oblique" in w for w in header.warnings)
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_not_dicom() -> None:
+    with pytest.raises(NotDicom, match="not a DICOM file"):
+        read_header(b"PNG\x89 this is not a DICOM file" * 10)
+    with pytest.raises(NotDicom):
+        read_header({"not": "dicom json"})
+
+
+@pytest.mark.parametrize(("orientation", "view_position", "label"), [
+    (("L", "P"), None, "PatientOrientation (0020,0020)"),
+    (None, "RLO", "ViewPosition (0018,5101)"),
+    (None, "LLD", "ViewPosition (0018,5101)"),
+])  # fmt: skip
+def test_orientation_not_pa_or_lateral(orientation: Any, view_position: Any, label: str) -> None:
+    with pytest.raises(UnsupportedOrientation) as info:
+        read_header(synthetic.radiograph(patient_orientation=orientation, view_position=view_position))
+    assert label in str(info.value)
+
+
+@pytest.mark.parametrize(("orientation", "message"), [
+    (("L",), "has 1" ), (("L", "L"), "one patient axis"), (("X", "F"), "letters of L, R, A, P, H, F"),
+])  # fmt: skip
+def test_bad_patient_orientation(orientation: Any, message: str) -> None:
+    ds = synthetic.radiograph()
+    ds.PatientOrientation = list(orientation)
+    with pytest.raises(InvalidAttribute) as info:
+        read_header(ds)
+    assert "PatientOrientation (0020,0020)" in str(info.value)
+    assert info.value.labels == ["PatientOrientation (0020,0020)"]
+
+
+def test_no_orientation_and_none_given() -> None:
+    header = read_header(synthetic.radiograph(patient_orientation=None, view_position=None))
+    assert header.patient_orientation is None
+    with pytest.raises(MissingAttribute) as info:
+        apply_headers({"pa": {"landmarks": []}}, {"pa": header}, source="file")
+    assert "PatientOrientation (0020,0020)" in str(info.value) and info.value.field == "pa.patient_orientation"
+
+
+def test_no_spacing_and_none_given() -> None:
+    header = read_header(synthetic.radiograph(imager_pixel_spacing=None))
+    with pytest.raises(MissingAttribute) as info:
+        apply_headers({"pa": {"units": "px", "landmarks": []}}, {"pa": header}, source="file")
+    text = str(info.value)
+    assert "PixelSpacing (0028,0030)" in text and "ImagerPixelSpacing (0018,1164)" in text
+    assert info.value.field == "pa.pixel_spacing"
+    merged, _ = apply_headers({"pa": {"units": "px", "pixel_spacing": [0.2, 0.2], "landmarks": []}},
+                              {"pa": header}, source="file")  # fmt: skip
+    assert merged["pa"]["pixel_spacing"] == [0.2, 0.2]
+
+
+@pytest.mark.parametrize(("keyword", "value", "label"), [
+    ("SOPInstanceUID", "1.2.03", "SOPInstanceUID (0008,0018)"),
+    ("StudyInstanceUID", "abc.1", "StudyInstanceUID (0020,000D)"),
+    ("SeriesInstanceUID", "1." + "2" * 70, "SeriesInstanceUID (0020,000E)"),
+])  # fmt: skip
+def test_uid_not_a_uid(keyword: str, value: str, label: str) -> None:
+    data = synthetic.radiograph().to_json_dict()
+    data[{"SOPInstanceUID": "00080018", "StudyInstanceUID": "0020000D", "SeriesInstanceUID": "0020000E"}[keyword]] = {
+        "vr": "UI", "Value": [value]}  # fmt: skip
+    with pytest.raises(InvalidAttribute) as info:
+        read_header(data)
+    assert label in str(info.value) and "not a DICOM UID" in str(info.value)
+
+
+def test_missing_study_uid() -> None:
+    ds = synthetic.radiograph()
+    del ds.StudyInstanceUID
+    with pytest.raises(MissingAttribute, match=r"StudyInstanceUID \(0020,000D\)"):
+        read_header(ds)
+
+
+@pytest.mark.parametrize(("keyword", "value"), [
+    ("PixelSpacing", ["0.1"]), ("PixelSpacing", ["-0.1", "0.1"]), ("ImagerPixelSpacing", ["0", "0.1"]),
+    ("ImagerPixelSpacing", ["nan", "0.1"]),
+])  # fmt: skip
+def test_bad_spacing_values(keyword: str, value: list[str]) -> None:
+    ds = synthetic.radiograph()
+    setattr(ds, keyword, value)
+    with pytest.raises(InvalidAttribute) as info:
+        read_header(ds)
+    assert {"PixelSpacing": "PixelSpacing (0028,0030)", "ImagerPixelSpacing": "ImagerPixelSpacing (0018,1164)"}[
+        keyword] in str(info.value)  # fmt: skip
+
+
+def test_source_to_patient_beyond_detector() -> None:
+    with pytest.raises(InvalidAttribute, match=r"DistanceSourceToDetector \(0018,1110\)"):
+        read_header(synthetic.radiograph(sid=1000.0, sod=1200.0))
+
+
+# ------------------------------------------------------------------ merge
+
+
+def test_merge_fills_missing_and_reports_conflicts() -> None:
+    pa = read_header(synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), ermf=1.25, sid=1800.0))
+    lateral_ds = synthetic.radiograph(patient_orientation=("A", "F"), view_position="LL",
+                                      study_instance_uid=pa.study_instance_uid, patient_id="OTHER")  # fmt: skip
+    lateral = read_header(lateral_ds)
+    payload = {
+        "pa": {"units": "px", "landmarks": []},
+        "lateral": {"units": "px", "pixel_spacing": [0.2, 0.2], "patient_orientation": ["A", "F"], "landmarks": []},
+        "study": {"study_instance_uid": pa.study_instance_uid, "accession_number": "TYPED"},
+    }
+    merged, provenance = apply_headers(payload, {"pa": pa, "lateral": lateral}, source="file")
+    assert payload["pa"] == {"units": "px", "landmarks": []}  # the input is not changed
+    assert merged["pa"]["pixel_spacing"] == pytest.approx([0.12, 0.12])
+    assert merged["pa"]["pixel_spacing_calibration"] == "calibrated"
+    assert merged["pa"]["patient_orientation"] == ["L", "F"]
+    assert merged["pa"]["acquisition"] == {"magnification": 1.25, "distance_source_to_detector_mm": 1800.0,
+                                           "distance_source_to_patient_mm": pytest.approx(1440.0)}  # fmt: skip
+    assert merged["lateral"]["pixel_spacing"] == [0.2, 0.2]  # the payload wins
+    assert "pixel_spacing_calibration" not in merged["lateral"]  # the header's calibration is not of this spacing
+    assert merged["study"]["accession_number"] == "TYPED"
+    assert merged["study"]["patient_id"] == "P-0001" and merged["study"]["patient_name"] == "Doe^Jane"
+    assert merged["study"]["study_date"] == "2026-11-30"
+    assert merged["study"]["pa_sop_instance_uid"] == pa.sop_instance_uid
+    assert merged["study"]["lateral_sop_instance_uid"] == lateral.sop_instance_uid
+    assert merged["study"]["series_instance_uid"] == pa.series_instance_uid
+    conflicts = {c.field: c for c in provenance.conflicts}
+    assert set(conflicts) == {"lateral.pixel_spacing", "study.accession_number", "study.patient_id"}
+    assert conflicts["lateral.pixel_spacing"].header == [0.15, 0.15]
+    assert conflicts["lateral.pixel_spacing"].attribute == "ImagerPixelSpacing (0018,1164)"
+    assert conflicts["study.accession_number"].payload == "TYPED"
+    assert conflicts["study.patient_id"].attribute == "lateral image's PatientID (0010,0020)"
+    assert provenance.pa is not None and provenance.pa.cornerstone_calibration_type == "ERMF"
+    read = {r.field: r for r in provenance.pa.read}
+    assert read["pa.pixel_spacing"].used and "EstimatedRadiographicMagnificationFactor (0018,1114)" in read[
+        "pa.pixel_spacing"].attribute  # fmt: skip
+    assert provenance.lateral is not None
+    assert not {r.field: r for r in provenance.lateral.read}["lateral.pixel_spacing"].used
+    Study.model_validate(merged["study"])  # the study block is a valid payload Study
+    assert provenance.model_dump(mode="json")["conflicts"][0].keys() == {"field", "payload", "header", "attribute"}
+
+
+def test_equal_values_are_no_conflict() -> None:
+    header = read_header(synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15)))
+    payload = {"pa": {"units": "px", "pixel_spacing": [0.15, 0.15000000001], "patient_orientation": ["L", "F"],
+                      "landmarks": []}}  # fmt: skip
+    merged, provenance = apply_headers(payload, {"pa": header}, source="dicomweb")
+    assert provenance.conflicts == []
+    assert merged["pa"]["pixel_spacing_calibration"] == "detector"  # the same spacing as the header's
+
+
+def test_lateral_image_given_as_pa_is_refused() -> None:
+    header = read_header(synthetic.radiograph(patient_orientation=("A", "F"), view_position="LL"))
+    with pytest.raises(UnsupportedOrientation) as info:
+        apply_headers({"pa": {"landmarks": []}}, {"pa": header}, source="file")
+    assert info.value.field == "pa.patient_orientation" and "lateral" in str(info.value)
+
+
+def test_study_fields_validate() -> None:
+    with pytest.raises(ValueError, match="at most 16"):
+        Study.model_validate({"study_instance_uid": "1.2", "accession_number": "A" * 17})
+    with pytest.raises(ValueError, match="backslash"):
+        Study.model_validate({"study_instance_uid": "1.2", "patient_id": "a\\b"})
+    study = Study.model_validate({"study_instance_uid": "1.2", "study_date": "2026-11-30", "patient_name": "Doe^J"})
+    assert study.study_date == date(2026, 11, 30)
