@@ -1,0 +1,99 @@
+"""DICOMweb against a real Orthanc (Debian's orthanc + orthanc-dicomweb, started by the fixture):
+WADO-RS metadata gives the same header as the file, QIDO finds the series, STOW stores the SR and
+the figure in the source study where QIDO finds them, and each failure is its own typed error."""
+
+from __future__ import annotations
+
+import uuid
+from typing import Any
+
+import pytest
+
+from services.dicom import synthetic
+from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.errors import InstanceNotFound, InvalidAttribute, PacsUnavailable
+from services.dicom.header import read_header
+from services.dicom.sc import build_sc
+from services.dicom.sr import SourceImage, StudyIdentity, build_sr
+from spine_engine import register
+from spine_engine.figures import render_figure
+
+from .conftest import OrthancServer, free_port, spine_payload
+
+HEADER_CASES: list[dict[str, Any]] = [
+    dict(pixel_spacing=(0.14, 0.13), imager_pixel_spacing=(0.15, 0.15), calibration_type="GEOMETRY"),
+    dict(imager_pixel_spacing=(0.15, 0.15), ermf=1.25, sid=1800.0),
+    dict(imager_pixel_spacing=(0.15, 0.15), sid=1800.0, sod=1500.0, dse=1300.0, transfer_syntax="implicit"),
+    dict(pixel_spacing=(0.15, 0.15), imager_pixel_spacing=(0.15, 0.15), photometric="MONOCHROME1"),
+    dict(imager_pixel_spacing=None, pixel_spacing=(0.2, 0.2), modality="CR", transfer_syntax="big"),
+    dict(patient_orientation=None, view_position="LL", transfer_syntax="implicit"),
+]
+
+
+def _pacs(orthanc: OrthancServer, **overrides: Any) -> Pacs:
+    config = {"url": orthanc.dicomweb_url, "username": orthanc.username, "password": orthanc.password, **overrides}
+    return Pacs(DicomwebConfig(**config))
+
+
+@pytest.mark.parametrize("kwargs", HEADER_CASES, ids=[str(i) for i in range(len(HEADER_CASES))])
+def test_wado_metadata_gives_the_file_header(orthanc: OrthancServer, kwargs: dict[str, Any]) -> None:
+    image = synthetic.radiograph(**kwargs)
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+        from_pacs = pacs.read_header(image.StudyInstanceUID, image.SOPInstanceUID)  # series found by QIDO
+        with_series = pacs.read_header(image.StudyInstanceUID, image.SOPInstanceUID, image.SeriesInstanceUID)
+    from_file = read_header(image)
+    assert from_pacs == from_file == with_series
+
+
+def test_missing_instance_and_bad_uid(orthanc: OrthancServer) -> None:
+    image = synthetic.radiograph()
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+        with pytest.raises(InstanceNotFound) as info:
+            pacs.read_header(image.StudyInstanceUID, "1.2.3.4")
+        assert info.value.uids["SOPInstanceUID"] == "1.2.3.4" and info.value.problem == "dicomweb-instance-not-found"
+        with pytest.raises(InstanceNotFound):
+            pacs.read_header(image.StudyInstanceUID, image.SOPInstanceUID, "1.2.3.4")
+        with pytest.raises(InvalidAttribute, match=r"SOPInstanceUID \(0008,0018\)"):
+            pacs.read_header(image.StudyInstanceUID, "1.2.03")
+
+
+def test_pacs_down_and_refused_credentials(orthanc: OrthancServer) -> None:
+    down = Pacs(DicomwebConfig(f"http://127.0.0.1:{free_port()}/dicom-web", timeout_s=2))
+    with down, pytest.raises(PacsUnavailable) as info:
+        down.read_header("1.2.3", "1.2.3.4")
+    assert info.value.problem == "dicomweb-unavailable" and "did not answer" in str(info.value)
+    refused = _pacs(orthanc, password="wrong")
+    with refused, pytest.raises(PacsUnavailable) as info:
+        refused.read_header("1.2.3", "1.2.3.4")
+    assert info.value.status == 401
+
+
+def test_stow_sr_and_figure_then_qido_finds_them(orthanc: OrthancServer) -> None:
+    image = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), rows=3200, columns=1200)
+    payload = spine_payload(spacing_mm=0.15)
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+        header = pacs.read_header(image.StudyInstanceUID, image.SOPInstanceUID)
+        payload["pa"]["pixel_spacing"] = list(header.pixel_spacing or ())
+        result = register(payload)
+        identity = StudyIdentity(study_instance_uid=header.study_instance_uid, patient_id=header.patient_id,
+                                 patient_name=header.patient_name, accession_number=header.accession_number,
+                                 study_date=header.study_date)  # fmt: skip
+        source = SourceImage(header.sop_instance_uid, str(header.sop_class_uid), header.series_instance_uid,
+                             header.study_instance_uid)  # fmt: skip
+        job = uuid.uuid4()
+        sr = build_sr(result, payload, job, identity, {"pa": source})
+        sc = build_sc(render_figure(result, payload, dpi=40), job, identity)
+        outcome = pacs.store([sr, sc])
+        assert set(outcome.stored) == {sr.SOPInstanceUID, sc.SOPInstanceUID}
+        again = pacs.store([sr])  # a resend is the same instance: stored again, not duplicated
+        assert again.stored == (sr.SOPInstanceUID,)
+        found = pacs.search_instances(image.StudyInstanceUID)
+        uids = sorted(item["00080018"]["Value"][0] for item in found)
+        assert uids == sorted([image.SOPInstanceUID, sr.SOPInstanceUID, sc.SOPInstanceUID])
+        srs = pacs.search_instances(image.StudyInstanceUID, Modality="SR")
+        assert [item["00080018"]["Value"][0] for item in srs] == [sr.SOPInstanceUID]
+        stored_sr = pacs.client.retrieve_instance(image.StudyInstanceUID, sr.SeriesInstanceUID, sr.SOPInstanceUID)
+    assert stored_sr.PatientID == "P-0001" and stored_sr.AccessionNumber == "ACC-42"

@@ -1,0 +1,190 @@
+"""The result as DICOM: the SR (TID 1500) passes dcmtk's dsrdump and dicom3tools' dciodvfy without
+errors, its Cobb items equal the result's, highdicom reads it back; the figure as a Secondary Capture
+is valid; both in new series of the source study, with UIDs derived from the job."""
+
+from __future__ import annotations
+
+import copy
+import shutil
+import subprocess
+import uuid
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import highdicom as hd
+import pytest
+from pydicom.dataset import Dataset
+
+from services.dicom import synthetic
+from services.dicom.header import read_header
+from services.dicom.sc import build_sc
+from services.dicom.sr import COBB_ANGLE, PRIVATE_SCHEME, VERTEBRA_CODES, P, SourceImage, StudyIdentity, build_sr
+from spine_engine import register
+from spine_engine.figures import render_figure
+
+from .conftest import spine_payload
+
+SPACING = 0.15
+JOB = uuid.UUID("0b4f6c1e-8f7a-4a77-9a53-7d6ad0a3f0c1")
+
+
+@pytest.fixture(scope="module")
+def case() -> dict[str, Any]:
+    image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200)
+    header = read_header(image)
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    result = register(payload)
+    identity = StudyIdentity(
+        study_instance_uid=header.study_instance_uid, patient_id=header.patient_id,
+        patient_name=header.patient_name, accession_number=header.accession_number, study_date=header.study_date,
+    )  # fmt: skip
+    source = SourceImage(header.sop_instance_uid, str(header.sop_class_uid), header.series_instance_uid,
+                         header.study_instance_uid)  # fmt: skip
+    return {"image": image, "payload": payload, "result": result, "identity": identity, "source": source}
+
+
+def _sr(case: dict[str, Any], result: dict[str, Any] | None = None, job: uuid.UUID = JOB) -> Dataset:
+    return build_sr(result or case["result"], case["payload"], job, case["identity"], {"pa": case["source"]},
+                    content_datetime=datetime(2026, 12, 1, 12, 0, 0))  # fmt: skip
+
+
+def _write(ds: Dataset, path: Path) -> Path:
+    ds.save_as(path, enforce_file_format=True)
+    return path
+
+
+def test_sr_passes_dsrdump(case: dict[str, Any], tmp_path: Path) -> None:
+    if shutil.which("dsrdump") is None:
+        pytest.skip("dcmtk's dsrdump is not installed (apt-get install dcmtk)")
+    path = _write(_sr(case), tmp_path / "sr.dcm")
+    run = subprocess.run(["dsrdump", "-v", str(path)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert "E:" not in run.stderr and "W:" not in run.stderr, run.stderr
+    assert '(285285000,SCT,"Cobb angle")' not in run.stdout  # a NUM's name is shown by its meaning only
+    assert 'NUM:(,,"Cobb angle")' in run.stdout
+    assert "Measurement Report" in run.stdout
+
+
+def test_sr_passes_dciodvfy(case: dict[str, Any], tmp_path: Path) -> None:
+    if shutil.which("dciodvfy") is None:
+        pytest.skip("dicom3tools' dciodvfy is not installed (apt-get install dicom3tools)")
+    path = _write(_sr(case), tmp_path / "sr.dcm")
+    run = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True, timeout=60)
+    errors = [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")]
+    assert errors == []
+    assert "Comprehensive3DSR" in run.stdout + run.stderr
+
+
+def test_sr_reads_back_with_cobb_items_equal_to_the_result(case: dict[str, Any], tmp_path: Path) -> None:
+    result = copy.deepcopy(case["result"])
+    result["measures"]["cobb"][0]["angle_sd_deg"] = 1.5
+    sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
+    assert isinstance(sr, hd.sr.Comprehensive3DSR)
+    groups = sr.content.get_image_measurement_groups()
+    cobbs = [(g, m) for g in groups for m in g.get_measurements(name=COBB_ANGLE)]
+    expected = result["measures"]["cobb"]
+    assert len(cobbs) == len(expected) >= 1
+    for (group, m), curve in zip(cobbs, expected, strict=True):
+        assert m.value == pytest.approx(curve["angle_deg"], rel=1e-12)
+        assert m.unit.value == "deg" and m.unit.scheme_designator == "UCUM"
+        sites = [(s.value.value, s.ContentSequence[0].ConceptCodeSequence[0].CodeMeaning) for s in m.finding_sites]
+        assert sites == [
+            (VERTEBRA_CODES[curve["upper"]][0], "Superior"),
+            (VERTEBRA_CODES[curve["lower"]][0], "Inferior"),
+            (VERTEBRA_CODES[curve["apex"]][0], "Apical"),
+        ]
+        assert m.method.value == P.MEASURED.value
+        assert group.tracking_identifier == f"Cobb curve 1 {curve['upper']}-{curve['lower']}"
+    first = cobbs[0][1]
+    uncertainty = {item.ConceptNameCodeSequence[0].CodeValue: item.MeasuredValueSequence[0].NumericValue
+                   for item in first[0].ContentSequence if item.ValueType == "NUM"}  # fmt: skip
+    assert uncertainty == {"371886008": 1.5, "371885007": 1.5}  # upper and lower measurement uncertainty = 1 SD
+
+
+def test_sr_identity_series_and_scheme(case: dict[str, Any]) -> None:
+    sr = _sr(case)
+    image = case["image"]
+    assert sr.StudyInstanceUID == image.StudyInstanceUID
+    assert sr.SeriesInstanceUID != image.SeriesInstanceUID
+    assert (sr.PatientID, str(sr.PatientName), sr.AccessionNumber, sr.StudyDate) == (
+        "P-0001", "Doe^Jane", "ACC-42", "20261130")  # fmt: skip
+    assert sr.Modality == "SR"
+    [scheme] = sr.CodingSchemeIdentificationSequence
+    assert scheme.CodingSchemeDesignator == PRIVATE_SCHEME
+    evidence = sr.CurrentRequestedProcedureEvidenceSequence[0].ReferencedSeriesSequence[0]
+    assert evidence.ReferencedSOPSequence[0].ReferencedSOPInstanceUID == image.SOPInstanceUID
+
+
+def test_sr_uids_derive_from_the_job(case: dict[str, Any]) -> None:
+    a, b, other = _sr(case), _sr(case), _sr(case, job=uuid.uuid4())
+    assert (a.SOPInstanceUID, a.SeriesInstanceUID) == (b.SOPInstanceUID, b.SeriesInstanceUID)
+    assert a.SOPInstanceUID != other.SOPInstanceUID and a.SeriesInstanceUID != other.SeriesInstanceUID
+    assert a.SOPInstanceUID.startswith("2.25.") and len(a.SOPInstanceUID) <= 64
+
+
+def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path) -> None:
+    result = copy.deepcopy(case["result"])
+    result["fit"]["unreliable"] = ["kyphosis", "lordosis", "axial_rotation"]
+    sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
+    methods: dict[str, set[str]] = {}
+    for group in sr.content.get_image_measurement_groups():
+        for m in group.get_measurements():
+            methods.setdefault(m.name.value, set()).add(m.method.value)
+    assert methods[COBB_ANGLE.value] == {"MEASURED"}
+    assert methods[P.KYPHOSIS_T4_T12.value] == {"MODEL-BASED"}
+    assert methods[P.LORDOSIS_L1_L5.value] == {"MODEL-BASED"}
+    assert methods[P.AXIAL_ROTATION.value] == {"MODEL-BASED"}
+    assert methods[P.FRONTAL_BENDING.value] == {"MEASURED"}
+
+
+def test_landmarks_are_scoord_on_the_source_image(case: dict[str, Any], tmp_path: Path) -> None:
+    sr = hd.sr.srread(_write(_sr(case), tmp_path / "sr.dcm"))
+    regions = sr.content.get_planar_roi_measurement_groups()
+    assert len(regions) == 17
+    first = regions[0]
+    roi = first.roi
+    assert roi.GraphicType == "POINT"
+    assert list(roi.GraphicData) == pytest.approx(case["payload"]["pa"]["landmarks"][0]["point"], abs=1e-3)
+    ref = roi.ContentSequence[0].ReferencedSOPSequence[0]
+    assert ref.ReferencedSOPInstanceUID == case["image"].SOPInstanceUID
+
+
+def _regions(sr: Dataset, tmp_path: Path) -> list[Any]:
+    return list(hd.sr.srread(_write(sr, tmp_path / "sr.dcm")).content.get_planar_roi_measurement_groups())
+
+
+def test_landmarks_in_mm_are_converted_with_the_spacing(case: dict[str, Any], tmp_path: Path) -> None:
+    payload = spine_payload()  # mm
+    result = register(payload)
+    source = SourceImage(case["source"].sop_instance_uid, case["source"].sop_class_uid, pixel_spacing=(0.2, 0.1))
+    groups = _regions(build_sr(result, payload, JOB, case["identity"], {"pa": source}), tmp_path)
+    col_mm, row_mm = payload["pa"]["landmarks"][0]["point"]
+    assert list(groups[0].roi.GraphicData) == pytest.approx([col_mm / 0.1, row_mm / 0.2], rel=1e-6)
+    no_spacing = SourceImage(case["source"].sop_instance_uid, case["source"].sop_class_uid)
+    assert _regions(build_sr(result, payload, JOB, case["identity"], {"pa": no_spacing}), tmp_path) == []
+
+
+def test_sr_without_source_study_opens_a_derived_study(case: dict[str, Any], tmp_path: Path) -> None:
+    sr = build_sr(case["result"], case["payload"], JOB, StudyIdentity())
+    assert sr.StudyInstanceUID.startswith("2.25.") and sr.StudyInstanceUID != case["image"].StudyInstanceUID
+    assert "CurrentRequestedProcedureEvidenceSequence" not in sr
+    assert _regions(sr, tmp_path) == []
+
+
+def test_figure_as_secondary_capture(case: dict[str, Any], tmp_path: Path) -> None:
+    png = render_figure(case["result"], case["payload"], dpi=40)
+    sc = build_sc(png, JOB, case["identity"])
+    sr = _sr(case)
+    assert sc.StudyInstanceUID == sr.StudyInstanceUID == case["image"].StudyInstanceUID
+    assert sc.SeriesInstanceUID not in (sr.SeriesInstanceUID, case["image"].SeriesInstanceUID)
+    assert sc.SOPInstanceUID == build_sc(png, JOB, case["identity"]).SOPInstanceUID
+    assert sc.PhotometricInterpretation == "RGB" and sc.SamplesPerPixel == 3 and sc.BitsAllocated == 8
+    assert sc.pixel_array.shape[2] == 3 and sc.pixel_array.shape[:2] == (sc.Rows, sc.Columns)
+    assert (sc.PatientID, sc.AccessionNumber) == ("P-0001", "ACC-42")
+    path = _write(sc, tmp_path / "sc.dcm")
+    if shutil.which("dciodvfy") is None:
+        pytest.skip("dicom3tools' dciodvfy is not installed (apt-get install dicom3tools)")
+    run = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True, timeout=60)
+    assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
