@@ -107,8 +107,36 @@ def _job_exit(job: dict[str, Any]) -> int:
 # ------------------------------------------------------------------ commands
 
 
+def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
+    """The payload of ``spine submit --pa-dicom``: landmarks CSV + headers read here; conflicts to stderr."""
+    from services.dicom.errors import DicomError
+    from spine_client.dicom_input import LandmarkCsvError, payload_from_dicom
+
+    base = _load_json(args.base) if args.base else {}
+    try:
+        payload, provenance = payload_from_dicom(args.payload, args.pa_dicom, args.lateral_dicom, units=args.units,
+                                                 base=base)  # fmt: skip
+    except LandmarkCsvError as exc:
+        raise UsageError(f"{args.payload}: {exc}") from None
+    except DicomError as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
+    for c in provenance["conflicts"]:
+        _err(f"warning: {c['field']}: the payload's {c['payload']!r} is kept; the header's {c['attribute']} "
+             f"says {c['header']!r}")  # fmt: skip
+    return payload
+
+
 def cmd_submit(args: argparse.Namespace) -> int:
-    payload = _load_json(args.payload)
+    if args.lateral_dicom and not args.pa_dicom:
+        raise UsageError("--lateral-dicom needs --pa-dicom")
+    if args.base and not args.pa_dicom:
+        raise UsageError("--base needs --pa-dicom (without it, FILE is the payload)")
+    payload = _dicom_payload(args) if args.pa_dicom else _load_json(args.payload)
+    if args.print_payload:
+        _print_json(payload)
+        return EXIT_OK
     with _client(args) as client:
         job = client.submit(payload, idempotency_key=args.idempotency_key)
         if not (args.wait or args.timeout is not None):
@@ -125,6 +153,17 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 
 def cmd_get(args: argparse.Namespace) -> int:
+    if args.sr or args.figure_dcm:
+        with _client(args) as client:
+            for path, fetch in ((args.sr, client.sr), (args.figure_dcm, client.figure_dicom)):
+                if path:
+                    data = fetch(args.job_id)
+                    try:
+                        Path(path).write_bytes(data)
+                    except OSError as exc:
+                        raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
+                    _err(f"wrote {path} ({len(data)} bytes)")
+        return EXIT_OK
     with _client(args) as client:
         body = client.get_json(args.job_id)
     if args.format == "json" and not args.measures:
@@ -140,7 +179,9 @@ def cmd_get(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    filters = {"status": args.status, "created_after": args.created_after, "created_before": args.created_before}
+    filters = {"status": args.status, "created_after": args.created_after, "created_before": args.created_before,
+               "study_instance_uid": args.study_instance_uid, "accession_number": args.accession_number,
+               "patient_id": args.patient_id}  # fmt: skip
     with _client(args) as client:
         if args.all:
             jobs = [j.model_dump(mode="json") for j in client.iter_jobs(**filters)]
@@ -278,8 +319,18 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("submit", parents=[common], help="submit a job payload (JSON file, - for stdin)")
-    p.add_argument("payload")
+    p = sub.add_parser("submit", parents=[common], help="submit a job payload (JSON file, - for stdin), or a "
+                       "landmark CSV with --pa-dicom")  # fmt: skip
+    p.add_argument("payload", metavar="FILE", help="payload JSON; with --pa-dicom, the landmark CSV "
+                   "(level,column,row[,view])")  # fmt: skip
+    p.add_argument("--pa-dicom", default=None, metavar="DCM", help="the PA radiograph's DICOM file: pixel spacing, "
+                   "orientation, geometry and study are read from its header here")  # fmt: skip
+    p.add_argument("--lateral-dicom", default=None, metavar="DCM", help="the lateral radiograph's DICOM file")
+    p.add_argument("--units", choices=["px", "mm"], default="px", help="units of the CSV's coordinates with "
+                   "--pa-dicom (default px: image pixels)")  # fmt: skip
+    p.add_argument("--base", default=None, metavar="JSON", help="with --pa-dicom: a payload whose values win "
+                   "over the headers' (options, boundary, a spacing typed in)")  # fmt: skip
+    p.add_argument("--print-payload", action="store_true", help="print the payload instead of submitting it")
     p.add_argument("--wait", action="store_true", help="wait until the job ends and print it")
     p.add_argument("--timeout", type=float, default=None, help="seconds to wait (implies --wait); exit 3 past it")
     p.add_argument("--idempotency-key", default=None, help="reuse to make a retried submission return the same job")
@@ -300,6 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("job_id")
     p.add_argument("--format", choices=["json", "csv"], default="json")
     p.add_argument("--measures", action="store_true", help="CSV of the measures instead of the vertebrae")
+    p.add_argument("--sr", default=None, metavar="OUT.dcm", help="write the result as a DICOM SR (TID 1500)")
+    p.add_argument("--figure-dcm", default=None, metavar="OUT.dcm", help="write the figure as a DICOM "
+                   "Secondary Capture")  # fmt: skip
     p.set_defaults(func=cmd_get)
 
     p = sub.add_parser("list", parents=[common], help="list jobs, newest first")
@@ -309,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=20)
     p.add_argument("--cursor", default=None, help="next_cursor of the previous page")
     p.add_argument("--all", action="store_true", help="every matching job, following the cursor")
+    p.add_argument("--study-instance-uid", default=None, help="jobs of this DICOM study")
+    p.add_argument("--accession-number", default=None, help="jobs of this accession number")
+    p.add_argument("--patient-id", default=None, help="jobs of this patient")
     p.add_argument("--format", choices=["table", "json", "csv"], default="table")
     p.set_defaults(func=cmd_list)
 

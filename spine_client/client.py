@@ -16,6 +16,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from datetime import datetime
 from email.utils import parsedate_to_datetime
+from pathlib import Path
 from typing import Any, Literal
 
 import httpx
@@ -203,14 +204,20 @@ class SpineClient:
         created_before: datetime | str | None = None,
         limit: int = 50,
         cursor: str | None = None,
+        study_instance_uid: str | None = None,
+        accession_number: str | None = None,
+        patient_id: str | None = None,
     ) -> JobPage:
-        """One page of GET /v1/jobs, newest first."""
+        """One page of GET /v1/jobs, newest first; the DICOM filters match the job's ``study``."""
         params: dict[str, Any] = {"limit": limit}
         if status:
             params["status"] = [status] if isinstance(status, str) else list(status)
         for name, value in (("created_after", created_after), ("created_before", created_before)):
             if value is not None:
                 params[name] = value.isoformat() if isinstance(value, datetime) else value
+        dicom = {"study_instance_uid": study_instance_uid, "accession_number": accession_number,
+                 "patient_id": patient_id}  # fmt: skip
+        params.update({k: v for k, v in dicom.items() if v is not None})
         if cursor:
             params["cursor"] = cursor
         return JobPage.model_validate(self._json("GET", "/v1/jobs", params=params))
@@ -237,3 +244,30 @@ class SpineClient:
 
     def figure(self, job_id: uuid.UUID | str, fmt: Literal["png", "svg"] = "png") -> bytes:
         return self.request("GET", f"/v1/jobs/{job_id}/figure.{fmt}").content
+
+    def sr(self, job_id: uuid.UUID | str) -> bytes:
+        """GET /v1/jobs/{id}/sr.dcm: the result as a DICOM SR (TID 1500 Measurement Report), Part 10 bytes."""
+        return self.request("GET", f"/v1/jobs/{job_id}/sr.dcm", headers={"accept": "application/dicom"}).content
+
+    def figure_dicom(self, job_id: uuid.UUID | str) -> bytes:
+        """GET /v1/jobs/{id}/figure.dcm: the figure as a DICOM Secondary Capture, Part 10 bytes."""
+        return self.request("GET", f"/v1/jobs/{job_id}/figure.dcm", headers={"accept": "application/dicom"}).content
+
+    def submit_dicom(
+        self,
+        landmarks_csv: str | Path,
+        pa_dicom: str | Path,
+        lateral_dicom: str | Path | None = None,
+        *,
+        units: Literal["px", "mm"] = "px",
+        base: Mapping[str, Any] | None = None,
+        idempotency_key: str | None = None,
+    ) -> tuple[Job, dict[str, Any]]:
+        """Submit a landmark CSV with the spacing, orientation, geometry and study read from the
+        radiographs' DICOM headers on this machine (``spine_client.dicom_input``); returns the job
+        and what was read (``conflicts`` lists header values that differ from ``base``'s)."""
+        from spine_client.dicom_input import payload_from_dicom
+
+        payload, provenance = payload_from_dicom(landmarks_csv, pa_dicom, lateral_dicom, units=units,
+                                                 base=dict(base or {}))  # fmt: skip
+        return self.submit(payload, idempotency_key=idempotency_key), provenance
