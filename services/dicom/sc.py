@@ -19,7 +19,7 @@ from datetime import datetime
 import highdicom as hd
 import numpy as np
 from PIL import Image
-from pydicom.valuerep import DA, TM
+from pydicom.valuerep import DA, DT, TM
 
 from .sr import MANUFACTURER, StudyIdentity
 from .uids import job_uids
@@ -54,6 +54,8 @@ def build_sc(
     sc.Laterality = ""
     sc.BurnedInAnnotation = "NO"
     if content_datetime is not None:
-        sc.ContentDate = DA(content_datetime.date())
-        sc.ContentTime = TM(content_datetime.time())
+        sc.ContentDate = sc.InstanceCreationDate = sc.DateOfSecondaryCapture = DA(content_datetime.date())
+        sc.ContentTime = sc.InstanceCreationTime = sc.TimeOfSecondaryCapture = TM(content_datetime.time())
+        for item in sc.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
+            item.ContributionDateTime = DT(content_datetime)
     return sc

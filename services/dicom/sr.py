@@ -44,7 +44,7 @@ import numpy as np
 from highdicom.sr import CodedConcept
 from pydicom.dataset import Dataset
 from pydicom.sr.codedict import codes
-from pydicom.valuerep import DA, TM
+from pydicom.valuerep import DA, DT, TM
 
 from .uids import job_uids
 
@@ -268,8 +268,9 @@ def build_sr(
     """The SR of one job (module docstring). ``result`` is a ``RegistrationResult`` or its JSON,
     ``payload`` the job's payload (JSON), ``images`` the source radiographs by view (``pa``,
     ``lateral``) when known. Without a study UID (a job without ``study``) the SR opens a new study
-    whose UID is derived from the job id. ``content_datetime`` (e.g. the job's end) makes Content
-    Date/Time the same on every build; without it they are the build's time (highdicom's default)."""
+    whose UID is derived from the job id. ``content_datetime`` (e.g. the job's end) is the Content
+    and Instance Creation Date/Time, so that every build of a job is the same bytes; without it they
+    are the build's time (highdicom's default)."""
     if hasattr(result, "model_dump"):
         result = result.model_dump(mode="json")
     job = uuid.UUID(str(job_id))
@@ -355,8 +356,10 @@ def build_sr(
         series_description="Spine reconstruction measurements",
     )  # fmt: skip
     if content_datetime is not None:
-        sr.ContentDate = DA(content_datetime.date())
-        sr.ContentTime = TM(content_datetime.time())
+        sr.ContentDate = sr.InstanceCreationDate = DA(content_datetime.date())
+        sr.ContentTime = sr.InstanceCreationTime = TM(content_datetime.time())
+        for item in sr.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
+            item.ContributionDateTime = DT(content_datetime)
     if not images:
         for keyword in ("CurrentRequestedProcedureEvidenceSequence", "PertinentOtherEvidenceSequence"):
             if keyword in sr:

@@ -13,6 +13,7 @@ from services.dicom import synthetic
 from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.errors import InstanceNotFound, InvalidAttribute, PacsUnavailable
 from services.dicom.header import read_header
+from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_engine import register
@@ -97,3 +98,28 @@ def test_stow_sr_and_figure_then_qido_finds_them(orthanc: OrthancServer) -> None
         assert [item["00080018"]["Value"][0] for item in srs] == [sr.SOPInstanceUID]
         stored_sr = pacs.client.retrieve_instance(image.StudyInstanceUID, sr.SeriesInstanceUID, sr.SOPInstanceUID)
     assert stored_sr.PatientID == "P-0001" and stored_sr.AccessionNumber == "ACC-42"
+
+
+def test_resolve_by_reference(orthanc: OrthancServer) -> None:
+    image = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), ermf=1.25, sid=1800.0, rows=3200, columns=1200)
+    payload = spine_payload(spacing_mm=0.12)
+    payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+        assert views_to_fetch(payload) == {"pa": image.SOPInstanceUID}
+        resolved, provenance = resolve_by_reference(payload, pacs)
+        assert provenance is not None and provenance.pa is not None and provenance.pa.source == "dicomweb"
+        assert resolved["pa"]["pixel_spacing"] == pytest.approx([0.12, 0.12])
+        assert resolved["pa"]["patient_orientation"] == ["L", "F"]
+        assert resolved["study"]["patient_id"] == "P-0001" and resolved["study"]["accession_number"] == "ACC-42"
+        assert resolved["study"]["series_instance_uid"] == image.SeriesInstanceUID
+        missing = {**payload, "study": {**payload["study"], "pa_sop_instance_uid": "1.2.3.4"}}
+        with pytest.raises(InstanceNotFound):
+            resolve_by_reference(missing, pacs)
+    complete = {**payload, "pa": {**payload["pa"], "pixel_spacing": [0.12, 0.12], "patient_orientation": ["L", "F"]}}
+    down = Pacs(DicomwebConfig(f"http://127.0.0.1:{free_port()}/dicom-web", timeout_s=2))
+    with down:
+        assert views_to_fetch(complete) == {}
+        assert resolve_by_reference(complete, down) == (complete, None)  # nothing needed: the PACS is not asked
+        with pytest.raises(PacsUnavailable):
+            resolve_by_reference(payload, down)

@@ -18,6 +18,7 @@ from pydicom.dataset import Dataset
 
 from services.dicom import synthetic
 from services.dicom.header import read_header
+from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
 from services.dicom.sr import COBB_ANGLE, PRIVATE_SCHEME, VERTEBRA_CODES, P, SourceImage, StudyIdentity, build_sr
 from spine_engine import register
@@ -188,3 +189,18 @@ def test_figure_as_secondary_capture(case: dict[str, Any], tmp_path: Path) -> No
         pytest.skip("dicom3tools' dciodvfy is not installed (apt-get install dicom3tools)")
     run = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True, timeout=60)
     assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
+
+
+def test_job_results_are_the_same_bytes_on_every_build(case: dict[str, Any]) -> None:
+    payload = {
+        **case["payload"],
+        "study": {"study_instance_uid": case["image"].StudyInstanceUID, "patient_id": "P-0001"},
+    }
+    provenance = {"pa": {"sop_instance_uid": case["image"].SOPInstanceUID, "sop_class_uid": str(case["image"].SOPClassUID),
+                         "series_instance_uid": case["image"].SeriesInstanceUID}}  # fmt: skip
+    finished = datetime(2026, 12, 1, 12, 0, 0)
+    first = job_sr(JOB, payload, case["result"], provenance, finished)
+    assert first == job_sr(JOB, payload, case["result"], provenance, finished)
+    png = render_figure(case["result"], payload, dpi=30)
+    assert job_figure_sc(JOB, payload, png, finished) == job_figure_sc(JOB, payload, png, finished)
+    assert job_sr(JOB, payload, case["result"], None, finished) != first  # without provenance: no image reference

@@ -1,0 +1,65 @@
+"""A finished job → its SR and its figure's Secondary Capture, as Part 10 bytes (what
+``GET /v1/jobs/{id}/sr.dcm`` and ``/figure.dcm`` return and what STOW-RS sends).
+
+The study and patient come from the job's ``study`` block (filled from the header when one was
+read); the source images (for the SR's evidence and the landmarks' SCOORD) from the job's DICOM
+provenance (``DicomProvenance`` as JSON: SOP Class UID, series) or, without it, from ``study``'s SOP
+Instance UIDs, whose SOP class is then unknown: such an image is not referenced (an SR's image
+reference needs its Referenced SOP Class UID, Type 1 in the SOP Instance Reference Macro, PS3.3
+Table 10-11) and the landmarks are left out of the SR.
+"""
+
+from __future__ import annotations
+
+import io
+import uuid
+from collections.abc import Mapping
+from datetime import datetime
+from typing import Any
+
+from pydicom.dataset import Dataset
+
+from .sc import build_sc
+from .sr import SourceImage, StudyIdentity, build_sr
+
+
+def part10(ds: Dataset) -> bytes:
+    """A dataset as a DICOM Part 10 file (PS3.10 §7.1)."""
+    out = io.BytesIO()
+    ds.save_as(out, enforce_file_format=True)
+    return out.getvalue()
+
+
+def source_images(payload: Mapping[str, Any], provenance: Mapping[str, Any] | None) -> dict[str, SourceImage]:
+    """The radiographs the landmarks were placed on, by view, as far as their SOP class is known."""
+    images: dict[str, SourceImage] = {}
+    for role in ("pa", "lateral"):
+        record = (provenance or {}).get(role)
+        if not record or not record.get("sop_class_uid"):
+            continue
+        view = payload.get(role) or {}
+        spacing = view.get("pixel_spacing")
+        images[role] = SourceImage(
+            sop_instance_uid=record["sop_instance_uid"], sop_class_uid=record["sop_class_uid"],
+            series_instance_uid=record.get("series_instance_uid"), study_instance_uid=record.get("study_instance_uid"),
+            pixel_spacing=(float(spacing[0]), float(spacing[1])) if spacing else None,
+        )  # fmt: skip
+    return images
+
+
+def job_sr(
+    job_id: uuid.UUID | str, payload: Mapping[str, Any], result: Mapping[str, Any],
+    provenance: Mapping[str, Any] | None = None, finished_at: datetime | None = None,
+) -> bytes:  # fmt: skip
+    """The job's SR (``sr.build_sr``) as Part 10 bytes; the same bytes for the same job and inputs."""
+    identity = StudyIdentity.from_study(payload.get("study"))
+    sr = build_sr(result, payload, job_id, identity, source_images(payload, provenance), content_datetime=finished_at)
+    return part10(sr)
+
+
+def job_figure_sc(
+    job_id: uuid.UUID | str, payload: Mapping[str, Any], png: bytes, finished_at: datetime | None = None
+) -> bytes:
+    """The job's figure as a Secondary Capture (``sc.build_sc``), Part 10 bytes."""
+    identity = StudyIdentity.from_study(payload.get("study"))
+    return part10(build_sc(png, job_id, identity, content_datetime=finished_at))
