@@ -192,12 +192,10 @@ def test_figure_as_secondary_capture(case: dict[str, Any], tmp_path: Path) -> No
 
 
 def test_job_results_are_the_same_bytes_on_every_build(case: dict[str, Any]) -> None:
-    payload = {
-        **case["payload"],
-        "study": {"study_instance_uid": case["image"].StudyInstanceUID, "patient_id": "P-0001"},
-    }
-    provenance = {"pa": {"sop_instance_uid": case["image"].SOPInstanceUID, "sop_class_uid": str(case["image"].SOPClassUID),
-                         "series_instance_uid": case["image"].SeriesInstanceUID}}  # fmt: skip
+    image = case["image"]
+    payload = {**case["payload"], "study": {"study_instance_uid": image.StudyInstanceUID, "patient_id": "P-0001"}}
+    provenance = {"pa": {"sop_instance_uid": image.SOPInstanceUID, "sop_class_uid": str(image.SOPClassUID),
+                         "series_instance_uid": image.SeriesInstanceUID}}  # fmt: skip
     finished = datetime(2026, 12, 1, 12, 0, 0)
     first = job_sr(JOB, payload, case["result"], provenance, finished)
     assert first == job_sr(JOB, payload, case["result"], provenance, finished)
