@@ -108,11 +108,23 @@ def _job_exit(job: dict[str, Any]) -> int:
 
 
 def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
-    """The payload of ``spine submit --pa-dicom``: landmarks CSV + headers read here; conflicts to stderr."""
-    from services.dicom.errors import DicomError
-    from spine_client.dicom_input import LandmarkCsvError, payload_from_dicom
+    """The payload of ``spine submit --pa-dicom`` (landmarks CSV + headers read here; conflicts to
+    stderr) or of ``--study-instance-uid`` (landmarks CSV + UIDs: the service reads the headers)."""
+    from spine_client.dicom_input import LandmarkCsvError, payload_by_reference, payload_from_dicom
 
     base = _load_json(args.base) if args.base else {}
+    if args.study_instance_uid:
+        if not args.pa_sop_instance_uid:
+            raise UsageError("--study-instance-uid needs --pa-sop-instance-uid")
+        try:
+            return payload_by_reference(args.payload, args.study_instance_uid, args.pa_sop_instance_uid,
+                                        args.lateral_sop_instance_uid, units=args.units, base=base)  # fmt: skip
+        except LandmarkCsvError as exc:
+            raise UsageError(f"{args.payload}: {exc}") from None
+        except OSError as exc:
+            raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
+    from services.dicom.errors import DicomError
+
     try:
         payload, provenance = payload_from_dicom(args.payload, args.pa_dicom, args.lateral_dicom, units=args.units,
                                                  base=base)  # fmt: skip
@@ -131,9 +143,12 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
 def cmd_submit(args: argparse.Namespace) -> int:
     if args.lateral_dicom and not args.pa_dicom:
         raise UsageError("--lateral-dicom needs --pa-dicom")
-    if args.base and not args.pa_dicom:
-        raise UsageError("--base needs --pa-dicom (without it, FILE is the payload)")
-    payload = _dicom_payload(args) if args.pa_dicom else _load_json(args.payload)
+    if args.pa_dicom and args.study_instance_uid:
+        raise UsageError("--pa-dicom and --study-instance-uid exclude each other (a file, or the PACS by UID)")
+    csv_mode = bool(args.pa_dicom or args.study_instance_uid)
+    if args.base and not csv_mode:
+        raise UsageError("--base needs --pa-dicom or --study-instance-uid (without them, FILE is the payload)")
+    payload = _dicom_payload(args) if csv_mode else _load_json(args.payload)
     if args.print_payload:
         _print_json(payload)
         return EXIT_OK
@@ -326,9 +341,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pa-dicom", default=None, metavar="DCM", help="the PA radiograph's DICOM file: pixel spacing, "
                    "orientation, geometry and study are read from its header here")  # fmt: skip
     p.add_argument("--lateral-dicom", default=None, metavar="DCM", help="the lateral radiograph's DICOM file")
+    p.add_argument("--study-instance-uid", default=None, metavar="UID", help="instead of --pa-dicom: the images "
+                   "by UID, whose headers the service reads from its PACS (SPINE_DICOMWEB_URL)")  # fmt: skip
+    p.add_argument("--pa-sop-instance-uid", default=None, metavar="UID", help="the PA image's SOP Instance UID")
+    p.add_argument("--lateral-sop-instance-uid", default=None, metavar="UID", help="the lateral image's")
     p.add_argument("--units", choices=["px", "mm"], default="px", help="units of the CSV's coordinates with "
-                   "--pa-dicom (default px: image pixels)")  # fmt: skip
-    p.add_argument("--base", default=None, metavar="JSON", help="with --pa-dicom: a payload whose values win "
+                   "--pa-dicom or --study-instance-uid (default px: image pixels)")  # fmt: skip
+    p.add_argument("--base", default=None, metavar="JSON", help="with a CSV: a payload whose values win "
                    "over the headers' (options, boundary, a spacing typed in)")  # fmt: skip
     p.add_argument("--print-payload", action="store_true", help="print the payload instead of submitting it")
     p.add_argument("--wait", action="store_true", help="wait until the job ends and print it")

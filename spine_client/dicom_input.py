@@ -65,6 +65,30 @@ def parse_landmark_csv(text: str) -> dict[str, list[dict[str, Any]]]:
     return out
 
 
+def payload_by_reference(
+    landmarks_csv: str | Path,
+    study_instance_uid: str,
+    pa_sop_instance_uid: str,
+    lateral_sop_instance_uid: str | None = None,
+    *,
+    units: Literal["px", "mm"] = "px",
+    base: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A payload naming its images by UID only: the service reads their spacing, orientation and
+    geometry from its PACS (``SPINE_DICOMWEB_URL``) when the job runs."""
+    landmarks = parse_landmark_csv(Path(landmarks_csv).read_text(encoding="utf-8"))
+    payload: dict[str, Any] = dict(base or {})
+    payload["pa"] = {"units": units, **(payload.get("pa") or {}), "landmarks": landmarks["pa"]}
+    if landmarks["lateral"] or lateral_sop_instance_uid is not None:
+        payload["lateral"] = {"units": units, **(payload.get("lateral") or {}), "landmarks": landmarks["lateral"]}
+    study = {**(payload.get("study") or {}), "study_instance_uid": study_instance_uid,
+             "pa_sop_instance_uid": pa_sop_instance_uid}  # fmt: skip
+    if lateral_sop_instance_uid is not None:
+        study["lateral_sop_instance_uid"] = lateral_sop_instance_uid
+    payload["study"] = study
+    return payload
+
+
 def payload_from_dicom(
     landmarks_csv: str | Path,
     pa_dicom: str | Path,

@@ -25,7 +25,9 @@ Content (PS3.16 TID 1500 → TID 1501 / TID 1410 groups, each measurement a TID 
 Every measurement carries: its method (private ``MEASURED`` or ``MODEL_BASED``: model-based when
 ``fit.unreliable`` names its quantity, CONTRACT.md), its standard deviation when the engine gives
 one (``*_sd_deg``) as TID 310 upper and lower measurement uncertainty (371886008 / 371885007 SCT)
-both equal to one SD, and the algorithm identification (TID 4019: name, version, profile).
+both equal to one SD; each group carries the algorithm identification (TID 4019: name, version,
+profile), once per group rather than once per measurement (TID 1501 row 5 and TID 300 row 9 both
+allow it; per measurement it tripled the document's size and build time).
 
 The private coding scheme ``99SPINE`` (PS3.16 §8: designators beginning "99" are private) is
 declared in the Coding Scheme Identification Sequence (0008,0110) (PS3.3 §C.12.1.1.1).
@@ -192,7 +194,7 @@ class _Builder:
         method = P.MODEL_BASED if quantity is not None and quantity in self.unreliable else P.MEASURED
         return hd.sr.Measurement(
             name=name, value=float(value), unit=unit, method=method, properties=properties,
-            algorithm_id=self.algorithm, finding_sites=list(sites) or None,
+            finding_sites=list(sites) or None,
         )  # fmt: skip
 
     def group(self, label: str, measurements: Sequence[hd.sr.Measurement | None], *,

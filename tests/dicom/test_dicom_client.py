@@ -104,3 +104,17 @@ def test_python_client_builds_the_same_payload(tmp_path: Path, capsys: pytest.Ca
     assert provenance["pa"]["cornerstone_calibration_type"] == "ERMF" and provenance["conflicts"] == []
     # lateral landmarks without a lateral image are sent as they are: the service names the missing spacing
     assert payload["lateral"]["units"] == "px" and "pixel_spacing" not in payload["lateral"]
+
+
+def test_submit_by_reference_prints_the_uids(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _files(tmp_path)
+    code, out, err = _run(capsys, "submit", str(tmp_path / "landmarks.csv"), "--study-instance-uid", "1.2.3",
+                          "--pa-sop-instance-uid", "1.2.3.4", "--lateral-sop-instance-uid", "1.2.3.5",
+                          "--print-payload")  # fmt: skip
+    assert code == EXIT_OK, err
+    payload = json.loads(out)
+    assert payload["study"] == {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4",
+                                "lateral_sop_instance_uid": "1.2.3.5"}  # fmt: skip
+    assert payload["pa"]["units"] == "px" and "pixel_spacing" not in payload["pa"]
+    code, _, err = _run(capsys, "submit", str(tmp_path / "landmarks.csv"), "--study-instance-uid", "1.2.3")
+    assert code == EXIT_USAGE and "--pa-sop-instance-uid" in err
