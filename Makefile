@@ -70,15 +70,15 @@ browser:
 		$(call apt_install,chromium,chromium fonts-dejavu-core,the browser test); \
 	fi
 
-# Debian's Orthanc with its DICOMweb plug-in and DCMTK, for the PACS tests (services/dicom): the
-# tests start their own Orthanc on a free loopback port.
+# Debian's Orthanc with its DICOMweb plug-in, DCMTK (dsrdump) and dicom3tools (dciodvfy), for the
+# PACS and DICOM tests (tests/dicom): the tests start their own Orthanc on a free loopback port.
 ORTHANC ?= /usr/sbin/Orthanc
 pacs:
-	@if [ -x "$(ORTHANC)" ] && command -v storescu >/dev/null 2>&1 \
+	@if [ -x "$(ORTHANC)" ] && command -v dsrdump >/dev/null 2>&1 && command -v dciodvfy >/dev/null 2>&1 \
 		&& ls /usr/share/orthanc/plugins/libOrthancDicomWeb.so* >/dev/null 2>&1; then \
 		echo "PACS tests: $(ORTHANC)"; \
 	else \
-		$(call apt_install,orthanc,orthanc orthanc-dicomweb dcmtk,the PACS tests); \
+		$(call apt_install,orthanc,orthanc orthanc-dicomweb dcmtk dicom3tools,the PACS and DICOM tests); \
 	fi
 
 # Service load benchmark: PostgreSQL + Redis on 127.0.0.1, API and workers started by the bench.
