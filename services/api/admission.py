@@ -6,6 +6,12 @@ of ``POST /v1/jobs/batch``: the engine's contract (``spine_engine.validation.val
 types, finite numbers, levels, orthonormal directors...), then the magnitudes
 (``services.api.limits``), then the ``callback_url`` (``services.webhooks.submission``). Every
 failure is an ``InvalidInput`` naming each offending field by its JSON path.
+
+By reference (``SPINE_DICOMWEB_URL`` set): a view whose image the ``study`` names by SOP Instance UID
+may leave out ``pixel_spacing`` even in px, since the worker reads it from the image's header
+(``services.dicom.reference``); the rest of the payload is checked now, with a stand-in spacing, and
+the header's own refusals (no spacing there either, not a radiograph...) fail the job with a problem
+naming the attribute.
 """
 
 from __future__ import annotations
@@ -16,15 +22,31 @@ from sqlalchemy.orm import Session
 
 from services.api.limits import check_magnitudes
 from services.core.config import Settings
+from services.dicom.reference import views_to_fetch
 from services.webhooks.submission import check_callback
 from spine_engine.models import JobPayload
 from spine_engine.validation import validate_payload
+
+STAND_IN_SPACING = [1.0, 1.0]
+"""Only for checking a by-reference payload before its header is read; never stored nor run."""
+
+
+def _with_stand_in_spacing(body: Any) -> Any:
+    wanted = views_to_fetch(body) if isinstance(body, dict) else {}
+    if not wanted:
+        return body
+    checked = dict(body)
+    for role in wanted:
+        view = checked.get(role)
+        if isinstance(view, dict) and view.get("pixel_spacing") is None:
+            checked[role] = {**view, "pixel_spacing": STAND_IN_SPACING}
+    return checked
 
 
 def admit(body: Any, settings: Settings, session: Session, owner: str | None) -> JobPayload:
     """The payload ``body`` as a validated ``JobPayload`` within the service's limits; raise
     ``InvalidInput`` otherwise."""
-    model = validate_payload(body)
+    model = validate_payload(_with_stand_in_spacing(body) if settings.dicomweb_url else body)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)
     return model

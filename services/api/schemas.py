@@ -9,6 +9,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.status import JobStatus
+from services.dicom.merge import DicomProvenance
+from services.dicom.store import DicomStoreAttempt
 from services.webhooks.schemas import WebhookDeliveryAttempt
 from spine_engine.models import RegistrationResult, Study
 
@@ -55,6 +57,14 @@ class Job(BaseModel):
     study: Study | None = Field(None, description="The payload's DICOM identifiers, unchanged (null without).")
     deliveries: list[WebhookDeliveryAttempt] | None = Field(
         None, description="Webhook delivery attempts to the payload's callback_url; only in GET /v1/jobs/{id}."
+    )
+    dicom: DicomProvenance | None = Field(
+        None,
+        description="What the DICOM layer read from the images' headers (per view: each attribute and what it "
+        "filled) and every conflict with the payload; null when no header was read. Only in GET /v1/jobs/{id}.",
+    )
+    dicom_stores: list[DicomStoreAttempt] | None = Field(
+        None, description="STOW-RS attempts of the job's SR and figure to the PACS; only in GET /v1/jobs/{id}."
     )
 
 

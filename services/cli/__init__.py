@@ -71,7 +71,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from services.worker.celery_app import app  # lazy: builds the worker's Celery app from the settings
 
     concurrency = args.concurrency if args.concurrency is not None else settings.worker_concurrency
-    queues = f"{settings.queue_name},{settings.webhook_queue}"  # jobs, and webhook deliveries
+    queues = f"{settings.queue_name},{settings.webhook_queue},{settings.dicom_queue}"  # jobs, webhooks, STOW-RS
     app.worker_main(worker_argv(concurrency, not args.no_beat, args.loglevel or settings.log_level,
                                 queues))  # fmt: skip
     return 0

@@ -132,6 +132,28 @@ class Settings(BaseSettings):
         "published, or was lost) is published again by the reconciler; it looks back one day.",
     )
 
+    # DICOMweb (services/dicom): a PACS to read headers from by reference and to store results in.
+    dicomweb_url: str | None = Field(
+        None,
+        description="DICOMweb base URL of the PACS (e.g. Orthanc's http://host:8042/dicom-web). With it, a job "
+        "whose study names its images by SOP Instance UID gets their spacing, orientation and geometry from "
+        "their WADO-RS metadata; unset: no PACS.",
+    )
+    dicomweb_username: str | None = Field(None, description="HTTP basic user name for the PACS.")
+    dicomweb_password: SecretStr | None = Field(None, description="HTTP basic password for the PACS.")
+    dicomweb_token: SecretStr | None = Field(
+        None, description="Bearer token for the PACS (wins over user name and password)."
+    )
+    dicomweb_store_results: bool = Field(
+        False,
+        description="Store each succeeded job's SR and figure (Secondary Capture) in its study by STOW-RS "
+        "(needs SPINE_DICOMWEB_URL); every attempt is recorded on the job (dicom_stores).",
+    )
+    dicomweb_timeout_s: float = Field(10.0, gt=0, description="Time limit of one DICOMweb request.")
+    dicomweb_max_attempts: int = Field(
+        5, ge=1, le=20, description="STOW-RS attempts of one job's results (backoff doubling from 2 s, up to 60 s)."
+    )
+
     @field_validator("webhook_allowed_urls")
     @classmethod
     def _webhook_allow_list(cls, value: str) -> str:
@@ -167,6 +189,11 @@ class Settings(BaseSettings):
         """The queue of webhook deliveries (``<SPINE_QUEUE_NAME>.webhooks``): they neither wait behind
         nor delay fits."""
         return f"{self.queue_name}.webhooks"
+
+    @property
+    def dicom_queue(self) -> str:
+        """The queue of STOW-RS pushes of results (``<SPINE_QUEUE_NAME>.dicom``)."""
+        return f"{self.queue_name}.dicom"
 
     @property
     def starts_worker(self) -> bool:

@@ -37,6 +37,16 @@ KINDS: dict[str, tuple[str, int]] = {
     "fit-timeout": ("The registration exceeded its time limit", 504),
     "worker-lost": ("The job's worker stopped too many times while running it", 500),
     "engine-error": ("The engine raised an unexpected error", 500),
+    # The DICOM layer (services/dicom): each names the DICOM attribute by keyword and tag.
+    "dicom-not-dicom": ("The data is not DICOM", 422),
+    "dicom-missing-attribute": ("The image's header lacks an attribute the job needs", 422),
+    "dicom-invalid-attribute": ("An attribute of the image's header is not usable", 422),
+    "dicom-unsupported-orientation": ("The image is not a PA/AP or lateral radiograph, or not the view given", 422),
+    "dicomweb-unavailable": ("The PACS (DICOMweb) did not answer, after the retries", 503),
+    "dicomweb-instance-not-found": ("The PACS does not hold the image the job names", 422),
+    "dicomweb-store-refused": ("The PACS refused to store the results", 502),
+    "dicomweb-error": ("The PACS answered with an error", 502),
+    "dicom-invalid": ("The DICOM data is not usable", 422),
 }
 
 

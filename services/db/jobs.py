@@ -77,8 +77,20 @@ def _new_job(payload: dict[str, Any], owner: str | None, now: datetime, **extra:
         "attempts": 0,
         "payload": payload,
         "callback_url": callback_url_of(payload),
+        **study_columns(payload),
         **extra,
     }
+
+
+STUDY_COLUMNS = ("study_instance_uid", "accession_number", "patient_id")
+"""The payload's study identifiers kept as indexed columns for the list filters."""
+
+
+def study_columns(payload: Any) -> dict[str, str | None]:
+    """``study_instance_uid``, ``accession_number``, ``patient_id`` of the payload's ``study`` (None when absent)."""
+    study = payload.get("study") if isinstance(payload, dict) else None
+    study = study if isinstance(study, dict) else {}
+    return {name: study.get(name) if isinstance(study.get(name), str) else None for name in STUDY_COLUMNS}
 
 
 def callback_url_of(payload: Any) -> str | None:
@@ -191,13 +203,23 @@ def list_jobs(
     cursor: str | None = None,
     limit: int = 50,
     owner: str | None = None,
+    study_instance_uid: str | None = None,
+    accession_number: str | None = None,
+    patient_id: str | None = None,
 ) -> tuple[list[Job], str | None]:
-    """Jobs newest first (created_at, then id, descending) and the cursor of the next page."""
+    """Jobs newest first (created_at, then id, descending) and the cursor of the next page; the
+    DICOM filters match the study's columns exactly (indexed with the owner)."""
     query = select(Job)
     if statuses:
         query = query.where(Job.status.in_(list(statuses)))
     if owner is not None:
         query = query.where(Job.owner == owner)
+    if study_instance_uid is not None:
+        query = query.where(Job.study_instance_uid == study_instance_uid)
+    if accession_number is not None:
+        query = query.where(Job.accession_number == accession_number)
+    if patient_id is not None:
+        query = query.where(Job.patient_id == patient_id)
     if created_after is not None:
         query = query.where(Job.created_at >= created_after)
     if created_before is not None:

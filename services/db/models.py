@@ -99,6 +99,15 @@ class Job(Base):
     callback_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     """While running: when the worker's lease on the job ends unless renewed (``SPINE_LEASE_S``)."""
+    # DICOM (services/dicom): the study's identifiers for the list filters, from the payload's study at
+    # admission and from the image header once read; what the DICOM layer read; STOW-RS attempts.
+    study_instance_uid: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    accession_number: Mapped[str | None] = mapped_column(String(16), nullable=True)
+    patient_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    dicom: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, nullable=True)
+    """``DicomProvenance`` as JSON: per view, the attributes read and where from; conflicts."""
+    dicom_stores: Mapped[list[dict[str, Any]] | None] = mapped_column(JSONDocument, nullable=True)
+    """One entry per STOW-RS attempt of the job's SR and figure: attempt, time, outcome."""
 
     __table_args__ = (
         CheckConstraint(f"status IN ({', '.join(repr(s.value) for s in JobStatus)})", name="status"),
@@ -109,6 +118,10 @@ class Job(Base):
         # The per-client cap on queued jobs counts these (services/api/quota.py): queued jobs only.
         Index("ix_jobs_owner_queued", "owner", postgresql_where=text("status = 'queued'"),
               sqlite_where=text("status = 'queued'")),
+        # GET /v1/jobs?study_instance_uid=|accession_number=|patient_id= within an owner, newest first.
+        Index("ix_jobs_owner_study_instance_uid", "owner", "study_instance_uid", "created_at"),
+        Index("ix_jobs_owner_accession_number", "owner", "accession_number", "created_at"),
+        Index("ix_jobs_owner_patient_id", "owner", "patient_id", "created_at"),
         # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
         Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
               sqlite_where=text("status = 'running'")),

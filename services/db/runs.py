@@ -315,3 +315,31 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
         except Exception as exc:  # the database too: the queued timeout still catches them
             log.warning("could not mark %d unpublished jobs: %s", len(job_ids) - sent, exc)
     return sent
+
+
+def release_claim(session: Session, claim: Claim) -> bool:
+    """running → queued for this run (fenced by attempt), to run again later: a dependency of the run
+    (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds the tries."""
+    done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+        update(Job)
+        .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)
+        .values(status=JobStatus.queued.value, enqueued_at=utcnow(), lease_expires_at=None, started_at=None)
+    )
+    session.commit()
+    return done.rowcount == 1
+
+
+def record_dicom(session: Session, claim: Claim, provenance: dict[str, Any], study: dict[str, Any]) -> bool:
+    """Store what the DICOM layer read for this run (``jobs.dicom``) and the study's identifiers it
+    completed (the list filters' columns), fenced by attempt."""
+    values: dict[str, Any] = {"dicom": provenance}
+    for name in ("study_instance_uid", "accession_number", "patient_id"):
+        if isinstance(study.get(name), str):
+            values[name] = study[name]
+    done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+        update(Job)
+        .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)
+        .values(**values)
+    )
+    session.commit()
+    return done.rowcount == 1

@@ -30,4 +30,6 @@ def job_json(job: JobRow, *, with_payload: bool = False) -> dict[str, Any]:
     }
     if with_payload:
         body["payload"] = job.payload
+        body["dicom"] = job.dicom
+        body["dicom_stores"] = job.dicom_stores or []
     return body

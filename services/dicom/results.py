@@ -47,19 +47,32 @@ def source_images(payload: Mapping[str, Any], provenance: Mapping[str, Any] | No
     return images
 
 
+def job_sr_dataset(
+    job_id: uuid.UUID | str, payload: Mapping[str, Any], result: Mapping[str, Any],
+    provenance: Mapping[str, Any] | None = None, finished_at: datetime | None = None,
+) -> Dataset:  # fmt: skip
+    """The job's SR (``sr.build_sr``)."""
+    identity = StudyIdentity.from_study(payload.get("study"))
+    return build_sr(result, payload, job_id, identity, source_images(payload, provenance), content_datetime=finished_at)
+
+
 def job_sr(
     job_id: uuid.UUID | str, payload: Mapping[str, Any], result: Mapping[str, Any],
     provenance: Mapping[str, Any] | None = None, finished_at: datetime | None = None,
 ) -> bytes:  # fmt: skip
-    """The job's SR (``sr.build_sr``) as Part 10 bytes; the same bytes for the same job and inputs."""
-    identity = StudyIdentity.from_study(payload.get("study"))
-    sr = build_sr(result, payload, job_id, identity, source_images(payload, provenance), content_datetime=finished_at)
-    return part10(sr)
+    """The job's SR as Part 10 bytes; the same bytes for the same job and inputs."""
+    return part10(job_sr_dataset(job_id, payload, result, provenance, finished_at))
+
+
+def job_figure_sc_dataset(
+    job_id: uuid.UUID | str, payload: Mapping[str, Any], png: bytes, finished_at: datetime | None = None
+) -> Dataset:
+    """The job's figure as a Secondary Capture (``sc.build_sc``)."""
+    return build_sc(png, job_id, StudyIdentity.from_study(payload.get("study")), content_datetime=finished_at)
 
 
 def job_figure_sc(
     job_id: uuid.UUID | str, payload: Mapping[str, Any], png: bytes, finished_at: datetime | None = None
 ) -> bytes:
-    """The job's figure as a Secondary Capture (``sc.build_sc``), Part 10 bytes."""
-    identity = StudyIdentity.from_study(payload.get("study"))
-    return part10(build_sc(png, job_id, identity, content_datetime=finished_at))
+    """The job's figure as a Secondary Capture, Part 10 bytes."""
+    return part10(job_figure_sc_dataset(job_id, payload, png, finished_at))

@@ -66,6 +66,17 @@ def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
     ]
 
 
+def _subject(study: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The Patient by identifier (DICOM Patient ID (0010,0020); its issuer is not known, so no system),
+    with the DICOM Patient's Name as display; None without a patient ID."""
+    if not study or not study.get("patient_id"):
+        return None
+    subject: dict[str, Any] = {"type": "Patient", "identifier": {"value": study["patient_id"]}}
+    if study.get("patient_name"):
+        subject["display"] = str(study["patient_name"]).replace("^", " ").strip()
+    return subject
+
+
 def _image_note(study: dict[str, Any] | None) -> list[dict[str, Any]]:
     if not study:
         return []
@@ -95,6 +106,8 @@ def observation_bundle(
     issued = finished_at.isoformat()
     derived = _derived_from(study)
     image_note = _image_note(study)
+    subject = _subject(study)
+    effective = (study or {}).get("study_date")
 
     def observation(key: str, name: str, value: float, *, notes: Sequence[str] = (),
                     components: Sequence[dict[str, Any]] = (), estimate: bool = False) -> dict[str, Any]:  # fmt: skip
@@ -115,6 +128,10 @@ def observation_bundle(
             body["note"] = texts
         if derived:
             body["derivedFrom"] = derived
+        if subject:
+            body["subject"] = subject
+        if effective:
+            body["effectiveDateTime"] = str(effective)
         if components:
             body["component"] = list(components)
         return body

@@ -13,6 +13,7 @@ from celery.signals import worker_process_init
 from services.core.config import get_settings
 from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
+from services.dicom.store import register_dicom_tasks
 from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
 
@@ -20,6 +21,7 @@ settings = get_settings()
 app = make_celery(settings)
 tasks.register_tasks(app, settings)
 register_webhook_tasks(app, settings)
+register_dicom_tasks(app, settings)
 app.conf.beat_schedule = {
     "reconcile": {"task": RECONCILE, "schedule": settings.reconcile_interval_s},
 }

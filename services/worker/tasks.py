@@ -26,6 +26,11 @@ from services.core.retry import TRANSIENT, store_retry
 from services.core.status import JobStatus
 from services.db import runs, stats
 from services.db.engine import session_scope, worker_session
+from services.dicom import store as dicom_store
+from services.dicom.dicomweb import Pacs
+from services.dicom.errors import DicomError, PacsUnavailable
+from services.dicom.merge import engine_payload
+from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.webhooks import delivery as webhooks
 from services.worker.leases import LeaseKeeper
 from spine_engine.errors import FitFailed, InvalidInput
@@ -66,8 +71,45 @@ def lease_keeper(settings: Settings) -> LeaseKeeper:
     return keeper
 
 
+class RunLater(Exception):
+    """The run cannot proceed now (the PACS is unavailable): the job went back to queued."""
+
+    def __init__(self, countdown: float):
+        super().__init__(countdown)
+        self.countdown = countdown
+
+
+def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The payload to run: with SPINE_DICOMWEB_URL, the headers of the images the study names by UID
+    fill what the payload lacks (``services.dicom.reference``), recorded on the job. Returns
+    (payload, None) or (payload, problem). A PACS that is unavailable hands the job back to the queue
+    (``RunLater``) until its attempts (SPINE_MAX_ATTEMPTS) are spent, then fails it
+    (``dicomweb-unavailable``); a missing instance or an unusable header fails it at once."""
+    config = dicom_store.dicomweb_config(settings)
+    payload = claim.payload
+    if config is None or not views_to_fetch(payload):
+        return payload, None
+    try:
+        with Pacs(config) as pacs:
+            resolved, provenance = resolve_by_reference(payload, pacs)
+    except PacsUnavailable as exc:
+        if claim.attempt < settings.max_attempts:
+            with worker_session(settings) as session:
+                runs.release_claim(session, claim)
+            raise RunLater(dicom_store.retry_delay_s(claim.attempt)) from None
+        detail = f"{exc}; {claim.attempt} attempts (SPINE_MAX_ATTEMPTS)"
+        return payload, problem("dicomweb-unavailable", detail, instance=instance, attempts=claim.attempt)
+    except DicomError as exc:
+        return payload, problem(exc.problem, str(exc), instance=instance, **dicom_store.as_problem_fields(exc))
+    if provenance is not None:
+        with worker_session(settings) as session:
+            runs.record_dicom(session, claim, provenance.model_dump(mode="json"), resolved.get("study") or {})
+    return engine_payload(resolved), None
+
+
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
-    """Claim (with a lease), run and finish one job; return what happened (for logs and tests)."""
+    """Claim (with a lease), run and finish one job; return what happened (for logs and tests).
+    Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable)."""
     with worker_session(settings, durable=False) as session:
         claim = runs.claim_job(session, job_id, _engine_version(), timedelta(seconds=settings.lease_s))
     if claim is None:
@@ -76,7 +118,10 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     keeper = lease_keeper(settings)
     keeper.hold(claim)
     try:
-        result, error = run_engine(claim.payload, instance)
+        payload, error = resolve_dicom(settings, claim, instance)
+        result = None
+        if error is None:
+            result, error = run_engine(payload, instance)
     finally:
         keeper.release(claim)
     engine_version = result.engine.version if result is not None else None
@@ -93,6 +138,8 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     url = claim.callback_url
     if url:  # only then: a message on the webhook queue
         webhooks.job_ended(settings, job_id, status, url=url)
+    if status == "succeeded":
+        dicom_store.job_succeeded(settings, job_id)  # STOW-RS of the SR and figure, when configured
     return status
 
 
@@ -186,7 +233,11 @@ def register_tasks(app: Celery, settings: Settings) -> None:
         except ValueError:
             log.error("dropping a message with a malformed job id %r", job_id)
             return
-        outcome = execute_job(settings, parsed)
+        try:
+            outcome = execute_job(settings, parsed)
+        except RunLater as later:
+            self.app.send_task(RUN_JOB, args=[job_id], countdown=later.countdown, queue=settings.queue_name)
+            outcome = f"back to the queue for {later.countdown:g} s (PACS unavailable)"
         log.info("job %s %s in %.1f ms", job_id, outcome, (time.perf_counter() - started) * 1000)
 
     @app.task(name=RECONCILE, ignore_result=True, autoretry_for=TRANSIENT, max_retries=0)

@@ -14,6 +14,7 @@ from services.api.job_reads import read_succeeded_job
 from services.api.schemas import Problem
 from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.db.models import utcnow
+from services.dicom.merge import apply_reads
 from services.fhir.export import observation_bundle
 
 router = APIRouter(prefix="/v1/jobs", tags=["interoperability"])
@@ -26,7 +27,9 @@ DESCRIPTION = (
     "of maximum curvature as components), thoracic kyphosis T4–T12 and T5–T12, lumbar lordosis L1–L5, and the "
     "apical axial rotation of the major curve. `code` is text only (no LOINC or SNOMED CT code is asserted). "
     "With a `study` in the payload, each Observation's `derivedFrom` names the ImagingStudy by its DICOM Study "
-    "Instance UID. 404 for an unknown job; 409 (`job-has-no-result`) unless the job succeeded."
+    "Instance UID; with its patient ID (typed in or read from the image header), `subject` is the Patient by "
+    "identifier, and with its study date, `effectiveDateTime` is that date. 404 for an unknown job; 409 "
+    "(`job-has-no-result`) unless the job succeeded."
 )
 
 
@@ -46,6 +49,6 @@ DESCRIPTION = (
 def job_fhir(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
     job, result = read_succeeded_job(session, job_id, access, "FHIR export")
     payload: Any = job.payload
-    study = payload.get("study") if isinstance(payload, dict) else None
+    study = apply_reads(payload, job.dicom).get("study") if isinstance(payload, dict) else None
     bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)
     return Response(json.dumps(bundle, ensure_ascii=False), media_type=FHIR_MEDIA_TYPE)

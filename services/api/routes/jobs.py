@@ -158,7 +158,8 @@ async def batch_other_methods(request: Request) -> JSONResponse:
     "",
     response_model=JobPage,
     summary="List jobs, newest first",
-    description="Filter by status (repeatable) and creation time; page with the returned cursor.",
+    description="Filter by status (repeatable), creation time and the DICOM study (Study Instance UID, accession "
+    "number, patient ID: the caller's own jobs only); page with the returned cursor.",
     responses=_problems(422),
 )
 def list_jobs(
@@ -169,6 +170,13 @@ def list_jobs(
     created_before: Annotated[IsoDateTime | None, Query(description="Created before (ISO 8601).")] = None,
     cursor: Annotated[str | None, Query(description="next_cursor of the previous page.")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    study_instance_uid: Annotated[
+        str | None, Query(max_length=64, description="Jobs of this DICOM Study Instance UID (0020,000D).")
+    ] = None,
+    accession_number: Annotated[
+        str | None, Query(max_length=16, description="Jobs of this Accession Number (0008,0050).")
+    ] = None,
+    patient_id: Annotated[str | None, Query(max_length=64, description="Jobs of this Patient ID (0010,0020).")] = None,
 ) -> JSONResponse:
     def utc(value: datetime | None) -> datetime | None:
         return value.replace(tzinfo=UTC) if value is not None and value.tzinfo is None else value
@@ -182,6 +190,9 @@ def list_jobs(
             cursor=cursor,
             limit=limit,
             owner=access.owner,
+            study_instance_uid=study_instance_uid,
+            accession_number=accession_number,
+            patient_id=patient_id,
         )
     except jobs_repo.BadCursor as exc:
         raise ProblemError(validation_problem([FieldError(("query", "cursor"), str(exc), "cursor")])) from None

@@ -1,0 +1,163 @@
+"""The service with a PACS, end to end on real Orthanc, PostgreSQL and Redis (a `spine worker`
+subprocess): a radiograph stored in Orthanc, a job posted with px landmarks and only the study's
+UIDs succeeds with the header's spacing (the same 3D result as with the spacing typed in), what was
+read is on the job, the SR and the figure land in the study (QIDO finds them), the job is found by
+study, accession and patient (only the caller's), FHIR has the subject and date; a missing instance
+fails the job with its own problem type. And the list filters alone, on the embedded database."""
+
+from __future__ import annotations
+
+import io
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pydicom
+import pytest
+from conftest import Service, make_key, service_env  # tests/conftest.py (the root conftest)
+from fastapi.testclient import TestClient
+
+from services.api.app import create_app
+from services.core.config import Settings
+from services.db.migrate import upgrade
+from services.dicom import synthetic
+from services.dicom.dicomweb import DicomwebConfig, Pacs
+
+from .conftest import OrthancServer, spine_payload
+
+SPACING = 0.15
+STORE_TIMEOUT_S = 60.0
+"""The SR is stored by the worker's dicom queue right after the job succeeds (seconds); 60 s covers
+building the SR on two loaded cores."""
+
+
+@pytest.fixture(scope="module")
+def pacs_service(
+    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str, orthanc: OrthancServer
+) -> Iterator[Service]:
+    data_dir = tmp_path_factory.mktemp("dicom-service")
+    env = service_env(
+        data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url, SPINE_DICOMWEB_URL=orthanc.dicomweb_url,
+        SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
+        SPINE_DICOMWEB_STORE_RESULTS="true",
+    )  # fmt: skip
+    service = Service("dicom", env, data_dir)
+    service.start_worker()
+    try:
+        yield service
+    finally:
+        service.stop_worker()
+
+
+def _pacs(orthanc: OrthancServer) -> Pacs:
+    return Pacs(DicomwebConfig(orthanc.dicomweb_url, orthanc.username, orthanc.password))
+
+
+def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServer) -> None:
+    image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
+                                 accession_number="ACC-E2E", patient_id="P-E2E")  # fmt: skip
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+    by_reference = spine_payload(spacing_mm=SPACING)
+    by_reference["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
+    typed = spine_payload(spacing_mm=SPACING)
+    typed["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    ref_job = pacs_service.submit(by_reference)
+    typed_job = pacs_service.submit(typed)
+    done = pacs_service.wait(ref_job["id"], timeout=120)
+    assert done["status"] == "succeeded", done.get("error")
+    other = pacs_service.wait(typed_job["id"], timeout=120)
+    assert other["status"] == "succeeded"
+    for a, b in zip(done["result"]["vertebrae"], other["result"]["vertebrae"], strict=True):
+        assert a["position"] == pytest.approx(b["position"], abs=1e-9)
+    assert done["result"]["measures"]["cobb"] == other["result"]["measures"]["cobb"]
+
+    dicom = done["dicom"]
+    read = {r["field"]: r for r in dicom["pa"]["read"]}
+    assert read["pa.pixel_spacing"]["value"] == [SPACING, SPACING] and read["pa.pixel_spacing"]["used"]
+    assert read["pa.pixel_spacing"]["attribute"] == "ImagerPixelSpacing (0018,1164)"
+    assert dicom["pa"]["source"] == "dicomweb" and dicom["conflicts"] == []
+    assert "pixel_spacing" not in done["payload"]["pa"]  # the payload stays as posted
+
+    # found by study, accession and patient; the typed-in job has no study
+    for key, value in (("study_instance_uid", image.StudyInstanceUID), ("accession_number", "ACC-E2E"),
+                       ("patient_id", "P-E2E")):  # fmt: skip
+        listed = pacs_service.client.get("/v1/jobs", params={key: value}).json()["jobs"]
+        assert [j["id"] for j in listed] == [ref_job["id"]], key
+
+    # the SR and the figure land in the study
+    deadline = time.monotonic() + STORE_TIMEOUT_S
+    with _pacs(orthanc) as pacs:
+        while True:
+            found = pacs.search_instances(image.StudyInstanceUID, Modality="SR")
+            if found or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert len(found) == 1, f"no SR in the study after {STORE_TIMEOUT_S:g} s:\n{pacs_service.worker_log()[-3000:]}"
+        assert len(pacs.search_instances(image.StudyInstanceUID)) == 3  # image, SR, figure
+    stores = pacs_service.job(ref_job["id"])["dicom_stores"]
+    assert stores[-1]["ok"] and len(stores[-1]["stored"]) == 2
+
+    sr_response = pacs_service.client.get(f"/v1/jobs/{ref_job['id']}/sr.dcm")
+    assert sr_response.status_code == 200 and sr_response.headers["content-type"] == "application/dicom"
+    sr = pydicom.dcmread(io.BytesIO(sr_response.content))
+    assert sr.SOPInstanceUID == found[0]["00080018"]["Value"][0]
+    assert (sr.StudyInstanceUID, sr.PatientID, sr.AccessionNumber) == (image.StudyInstanceUID, "P-E2E", "ACC-E2E")
+    figure = pacs_service.client.get(f"/v1/jobs/{ref_job['id']}/figure.dcm")
+    assert figure.status_code == 200 and pydicom.dcmread(io.BytesIO(figure.content)).Modality == "OT"
+
+    bundle = pacs_service.client.get(f"/v1/jobs/{ref_job['id']}/fhir").json()
+    observation = bundle["entry"][0]["resource"]
+    assert observation["subject"]["identifier"]["value"] == "P-E2E"
+    assert observation["effectiveDateTime"] == "2026-11-30"
+
+
+def test_missing_instance_fails_the_job(pacs_service: Service, orthanc: OrthancServer) -> None:
+    image = synthetic.radiograph()
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.99"}
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
+    assert job["status"] == "failed"
+    assert job["error"]["type"].endswith("/dicomweb-instance-not-found"), job["error"]
+    assert "1.2.826.0.1.99" in job["error"]["detail"]
+
+
+@pytest.fixture
+def two_clients(tmp_path: Path) -> Iterator[tuple[TestClient, TestClient]]:
+    settings = Settings(data_dir=tmp_path)
+    upgrade(settings, quiet=True)
+    with TestClient(create_app(settings)) as a, TestClient(create_app(settings)) as b:
+        a.headers["Authorization"] = f"Bearer {make_key(settings, 'client-a')}"
+        b.headers["Authorization"] = f"Bearer {make_key(settings, 'client-b')}"
+        yield a, b
+
+
+def _post(client: TestClient, study: dict[str, Any]) -> str:
+    payload = spine_payload()
+    payload["study"] = study
+    response = client.post("/v1/jobs", json=payload)
+    assert response.status_code == 202, response.text
+    return str(response.json()["id"])
+
+
+def test_list_filters_within_the_callers_jobs(two_clients: tuple[TestClient, TestClient]) -> None:
+    a, b = two_clients
+    mine = _post(a, {"study_instance_uid": "1.2.3", "accession_number": "A1", "patient_id": "P1"})
+    _post(a, {"study_instance_uid": "1.2.4", "accession_number": "A2", "patient_id": "P2"})
+    _post(b, {"study_instance_uid": "1.2.3", "accession_number": "A1", "patient_id": "P1"})  # another client's
+    for key, value in (("study_instance_uid", "1.2.3"), ("accession_number", "A1"), ("patient_id", "P1")):
+        listed = a.get("/v1/jobs", params={key: value}).json()["jobs"]
+        assert [j["id"] for j in listed] == [mine], key
+    assert a.get("/v1/jobs", params={"patient_id": "nobody"}).json()["jobs"] == []
+    assert a.get("/v1/jobs", params={"accession_number": "X" * 17}).status_code == 422
+
+
+def test_by_reference_needs_no_spacing_only_with_a_pacs(two_clients: tuple[TestClient, TestClient]) -> None:
+    a, _ = two_clients
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["study"] = {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4"}
+    response = a.post("/v1/jobs", json=payload)  # no SPINE_DICOMWEB_URL: the spacing is needed now
+    assert response.status_code == 422 and "pa.pixel_spacing" in response.text
