@@ -14,6 +14,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from spine_engine.models import LateralView, PAView
+
 from .errors import UnsupportedOrientation, attribute_label
 from .header import RadiographHeader, ViewRole
 
@@ -199,8 +201,6 @@ def engine_payload(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload`` without the view fields the installed ``spine_engine.models`` does not know (e.g.
     ``acquisition`` and ``pixel_spacing_calibration`` before the engine reads them): the header's
     extra values stay recorded in the provenance, and the engine's strict models do not refuse them."""
-    from spine_engine.models import LateralView, PAView
-
     out = dict(payload)
     for role, model in (("pa", PAView), ("lateral", LateralView)):
         view = out.get(role)

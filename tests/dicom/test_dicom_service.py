@@ -161,3 +161,27 @@ def test_by_reference_needs_no_spacing_only_with_a_pacs(two_clients: tuple[TestC
     payload["study"] = {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4"}
     response = a.post("/v1/jobs", json=payload)  # no SPINE_DICOMWEB_URL: the spacing is needed now
     assert response.status_code == 422 and "pa.pixel_spacing" in response.text
+
+
+def test_pacs_down_retries_then_fails_the_job(
+    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
+) -> None:
+    from services.dicom.orthanc import free_port
+
+    data_dir = tmp_path_factory.mktemp("dicom-down")
+    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
+                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
+                      SPINE_MAX_ATTEMPTS="2")  # fmt: skip
+    service = Service("dicom-down", env, data_dir)
+    service.start_worker()
+    try:
+        payload = spine_payload(spacing_mm=SPACING)
+        payload["study"] = {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4"}
+        job = service.wait(service.submit(payload)["id"], timeout=120)
+    finally:
+        service.stop_worker()
+    assert job["status"] == "failed"
+    assert job["error"]["type"].endswith("/dicomweb-unavailable"), job["error"]
+    assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
+    assert "did not answer" in job["error"]["detail"]
+    assert "back to the queue" in service.worker_log()
