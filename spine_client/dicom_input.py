@@ -100,12 +100,14 @@ def payload_from_dicom(
     """(payload, provenance as JSON) from a landmark CSV and the PA (and lateral) DICOM files.
 
     ``base`` is a payload whose explicit values win over the headers' (e.g. ``options``, a
-    ``boundary``, or a spacing typed in). Raises ``LandmarkCsvError`` and the DICOM layer's
-    ``DicomError`` subclasses (``NotDicom``, ``MissingAttribute``, ``InvalidAttribute``,
-    ``UnsupportedOrientation``), each naming the attribute by keyword and tag.
+    ``boundary``, or a spacing typed in). View fields this version's payload contract does not know
+    (``spine_engine.models``) are left out of the payload and stay in the provenance. Raises
+    ``LandmarkCsvError`` and the DICOM layer's ``DicomError`` subclasses (``NotDicom``,
+    ``MissingAttribute``, ``InvalidAttribute``, ``UnsupportedOrientation``), each naming the
+    attribute by keyword and tag.
     """
     from services.dicom.header import read_header
-    from services.dicom.merge import apply_headers
+    from services.dicom.merge import apply_headers, engine_payload
 
     landmarks = parse_landmark_csv(Path(landmarks_csv).read_text(encoding="utf-8"))
     payload: dict[str, Any] = dict(base or {})
@@ -116,4 +118,4 @@ def payload_from_dicom(
     if landmarks["lateral"] or lateral_dicom is not None:
         payload["lateral"] = {"units": units, **(payload.get("lateral") or {}), "landmarks": landmarks["lateral"]}
     merged, provenance = apply_headers(payload, headers, source="file")  # type: ignore[arg-type]
-    return merged, provenance.model_dump(mode="json")
+    return engine_payload(merged), provenance.model_dump(mode="json")

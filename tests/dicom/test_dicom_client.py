@@ -12,6 +12,7 @@ import pytest
 from services.dicom import synthetic
 from spine_client.cli import EXIT_OK, EXIT_USAGE, main
 from spine_client.dicom_input import LandmarkCsvError, parse_landmark_csv, payload_from_dicom
+from spine_engine.models import PAView
 
 from .conftest import LEVELS
 
@@ -44,11 +45,13 @@ def test_submit_reads_the_headers(tmp_path: Path, capsys: pytest.CaptureFixture[
     payload = json.loads(out)
     assert payload["pa"]["units"] == "px"
     assert payload["pa"]["pixel_spacing"] == pytest.approx([0.12, 0.12])  # Imager Pixel Spacing / ERMF
-    assert payload["pa"]["pixel_spacing_calibration"] == "calibrated"
-    assert payload["pa"]["acquisition"]["magnification"] == 1.25
+    if "acquisition" in PAView.model_fields:  # the contract's new view fields, once the engine has them
+        assert payload["pa"]["pixel_spacing_calibration"] == "calibrated"
+        assert payload["pa"]["acquisition"]["magnification"] == 1.25
+    else:
+        assert "acquisition" not in payload["pa"] and "pixel_spacing_calibration" not in payload["pa"]
     assert payload["pa"]["patient_orientation"] == ["L", "F"]
     assert payload["lateral"]["patient_orientation"] == ["A", "F"]
-    assert payload["lateral"]["pixel_spacing_calibration"] == "detector"
     assert [lm["level"] for lm in payload["pa"]["landmarks"]] == LEVELS
     assert [lm["level"] for lm in payload["lateral"]["landmarks"]] == LEVELS[4:]
     assert payload["pa"]["landmarks"][0]["point"] == [600.0, 300.0]
@@ -102,6 +105,8 @@ def test_python_client_builds_the_same_payload(tmp_path: Path, capsys: pytest.Ca
                         "--print-payload")  # fmt: skip
     assert code == EXIT_OK and json.loads(out) == json.loads(json.dumps(payload))
     assert provenance["pa"]["cornerstone_calibration_type"] == "ERMF" and provenance["conflicts"] == []
+    read = {r["field"]: r["value"] for r in provenance["pa"]["read"]}  # recorded even when not sent
+    assert read["pa.acquisition.magnification"] == 1.25 and read["pa.pixel_spacing_calibration"] == "calibrated"
     # lateral landmarks without a lateral image are sent as they are: the service names the missing spacing
     assert payload["lateral"]["units"] == "px" and "pixel_spacing" not in payload["lateral"]
 

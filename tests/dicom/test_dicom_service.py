@@ -185,3 +185,40 @@ def test_pacs_down_retries_then_fails_the_job(
     assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
     assert "did not answer" in job["error"]["detail"]
     assert "back to the queue" in service.worker_log()
+
+
+def test_python_client_and_cli_get_the_sr(
+    pacs_service: Service, orthanc: OrthancServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    from spine_client import SpineClient
+    from spine_client import cli as spine_cli
+
+    image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
+                                 accession_number="ACC-CLI", patient_id="P-CLI")  # fmt: skip
+    synthetic.write(image, tmp_path / "pa.dcm")
+    csv = tmp_path / "landmarks.csv"
+    payload = spine_payload(spacing_mm=SPACING)
+    csv.write_text("".join(f"{lm['level']},{lm['point'][0]},{lm['point'][1]}\n" for lm in payload["pa"]["landmarks"]))
+    transport = pacs_service.client._transport  # the API in process, through the client's own HTTP code
+    key = pacs_service.api_key
+
+    def client_for(args: Any) -> SpineClient:
+        return SpineClient("http://testserver", key, transport=transport, retries=0)
+
+    monkeypatch.setattr(spine_cli, "_client", client_for)
+    with client_for(None) as client:
+        base = {"boundary": payload["boundary"]}
+        job, provenance = client.submit_dicom(csv, tmp_path / "pa.dcm", base=base)  # headers read here
+        assert provenance["pa"]["sop_instance_uid"] == image.SOPInstanceUID
+        done = client.wait(job.id, timeout=120)
+        assert done.status == "succeeded", done
+        listed = client.list(accession_number="ACC-CLI").jobs
+        assert [str(j.id) for j in listed] == [str(job.id)]
+        sr = pydicom.dcmread(io.BytesIO(client.sr(job.id)))
+        assert sr.Modality == "SR" and sr.StudyInstanceUID == image.StudyInstanceUID and sr.PatientID == "P-CLI"
+    out = tmp_path / "out-sr.dcm"
+    assert spine_cli.main(["get", str(job.id), "--sr", str(out), "--figure-dcm", str(tmp_path / "fig.dcm")]) == 0
+    assert pydicom.dcmread(out).SOPInstanceUID == sr.SOPInstanceUID
+    assert pydicom.dcmread(tmp_path / "fig.dcm").Modality == "OT"
+    assert "wrote" in capsys.readouterr().err
