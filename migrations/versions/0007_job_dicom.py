@@ -1,6 +1,7 @@
 """Jobs get their DICOM study's identifiers as indexed columns (the list filters
 ``?study_instance_uid=``, ``?accession_number=``, ``?patient_id=`` within an owner), what the DICOM
-layer read (``dicom``) and the STOW-RS attempts of their results (``dicom_stores``).
+layer read (``dicom``), the STOW-RS attempts of their results (``dicom_stores``) and when the
+reconciler publishes a STOW-RS attempt no message carried (``dicom_store_due_at``).
 
 Revision ID: 0007_job_dicom
 Revises: 0006_job_callback_url_lease
@@ -28,6 +29,8 @@ def upgrade() -> None:
         op.add_column("jobs", sa.Column(name, sa.String(length), nullable=True))
     op.add_column("jobs", sa.Column("dicom", JSON_DOCUMENT, nullable=True))
     op.add_column("jobs", sa.Column("dicom_stores", JSON_DOCUMENT, nullable=True))
+    op.add_column("jobs", sa.Column("dicom_store_due_at", sa.DateTime(timezone=True), nullable=True))
+    op.create_index("ix_jobs_dicom_store_due_at", "jobs", ["dicom_store_due_at"])
     # Jobs stored before this revision: their study is in the payload.
     for name in COLUMNS:
         if op.get_bind().dialect.name == "postgresql":
@@ -41,7 +44,8 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    op.drop_index("ix_jobs_dicom_store_due_at", table_name="jobs")
     for name in COLUMNS:
         op.drop_index(f"ix_jobs_owner_{name}", table_name="jobs")
-    for name in (*COLUMNS, "dicom", "dicom_stores"):
+    for name in (*COLUMNS, "dicom", "dicom_stores", "dicom_store_due_at"):
         op.execute(f"ALTER TABLE jobs DROP COLUMN {name}")

@@ -153,6 +153,12 @@ class Settings(BaseSettings):
     dicomweb_max_attempts: int = Field(
         5, ge=1, le=20, description="STOW-RS attempts of one job's results (backoff doubling from 2 s, up to 60 s)."
     )
+    dicomweb_sweep_after_s: float = Field(
+        300.0,
+        gt=0,
+        description="A STOW-RS attempt due this long ago that never happened (its message could not be published "
+        "as the job ended, or was lost with the broker) is published again by the reconciler.",
+    )
 
     @field_validator("webhook_allowed_urls")
     @classmethod

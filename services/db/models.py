@@ -108,6 +108,9 @@ class Job(Base):
     """``DicomProvenance`` as JSON: per view, the attributes read and where from; conflicts."""
     dicom_stores: Mapped[list[dict[str, Any]] | None] = mapped_column(JSONDocument, nullable=True)
     """One entry per STOW-RS attempt of the job's SR and figure: attempt, time, outcome."""
+    dicom_store_due_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    """While the results are not stored: when the reconciler publishes the next STOW-RS attempt if no
+    message did (a lost or unpublished message); null once stored or out of attempts."""
 
     __table_args__ = (
         CheckConstraint(f"status IN ({', '.join(repr(s.value) for s in JobStatus)})", name="status"),
@@ -122,6 +125,7 @@ class Job(Base):
         Index("ix_jobs_owner_study_instance_uid", "owner", "study_instance_uid", "created_at"),
         Index("ix_jobs_owner_accession_number", "owner", "accession_number", "created_at"),
         Index("ix_jobs_owner_patient_id", "owner", "patient_id", "created_at"),
+        Index("ix_jobs_dicom_store_due_at", "dicom_store_due_at"),
         # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
         Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
               sqlite_where=text("status = 'running'")),

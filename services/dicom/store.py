@@ -19,7 +19,7 @@ from typing import Any
 
 from celery import Celery
 from pydantic import BaseModel, Field
-from sqlalchemy import select
+from sqlalchemy import select, update
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery
@@ -81,9 +81,16 @@ def publish_store(settings: Settings, job_id: uuid.UUID | str, attempt: int, *, 
 
 def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None = None) -> bool:
     """Publish the first STOW-RS attempt of a succeeded job when results are to be stored. Never
-    raises; a message that cannot be published is recorded as attempt 0 on the job."""
+    raises; a message that cannot be published is recorded as attempt 0 on the job, and the
+    reconciler's ``sweep`` publishes it once ``SPINE_DICOMWEB_SWEEP_AFTER_S`` overdue."""
     if not (settings.dicomweb_store_results and settings.dicomweb_url):
         return False
+    try:
+        with session_scope(settings) as session:
+            session.execute(update(Job).where(Job.id == job_id).values(
+                dicom_store_due_at=utcnow() + timedelta(seconds=settings.dicomweb_sweep_after_s)))  # fmt: skip
+    except Exception as exc:
+        log.warning("could not mark the STOW-RS of job %s as due: %s", job_id, exc)
     try:
         publish_store(settings, job_id, 1, celery=celery)
         return True
@@ -98,9 +105,41 @@ def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None =
 
 
 def _record(settings: Settings, job_id: uuid.UUID, attempt: DicomStoreAttempt) -> None:
+    """Append the attempt to the job; the sweep's due time follows the next attempt (none: cleared)."""
     with session_scope(settings) as session:
         job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
         job.dicom_stores = [*(job.dicom_stores or []), attempt.model_dump(mode="json")]
+        sweep = timedelta(seconds=settings.dicomweb_sweep_after_s)
+        if attempt.attempt == 0:
+            job.dicom_store_due_at = attempt.attempted_at + sweep
+        else:
+            job.dicom_store_due_at = attempt.next_attempt_at + sweep if attempt.next_attempt_at else None
+
+
+def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:
+    """Publish the STOW-RS attempt of every job whose attempt is overdue (``dicom_store_due_at`` past:
+    its message was never published or was lost), as the next attempt number, and push its due time
+    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts is cleared. Returns how many."""
+    if not (settings.dicomweb_store_results and settings.dicomweb_url):
+        return 0
+    now = utcnow()
+    sent = 0
+    with session_scope(settings) as session:
+        rows = session.execute(
+            select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < now).limit(batch)
+        ).all()
+        for job_id, stores in rows:
+            attempt = max([int(s.get("attempt", 0)) for s in stores or []] + [0]) + 1
+            due: datetime | None = now + timedelta(seconds=settings.dicomweb_sweep_after_s)
+            if attempt > settings.dicomweb_max_attempts:
+                due = None
+            else:
+                publish_store(settings, job_id, attempt, celery=app)
+                sent += 1
+            session.execute(update(Job).where(Job.id == job_id).values(dicom_store_due_at=due))
+    if sent:
+        log.info("STOW-RS sweep: published %d overdue attempts", sent)
+    return sent
 
 
 def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStoreAttempt:

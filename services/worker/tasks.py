@@ -207,6 +207,7 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
     if outcome.requeue or outcome.failed:
         log.info("reconciler: re-enqueued %d jobs, failed %d", len(outcome.requeue), len(outcome.failed))
     webhooks.sweep(settings, app)
+    dicom_store.sweep(settings, app)
     return outcome
 
 

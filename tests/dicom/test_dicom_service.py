@@ -8,6 +8,7 @@ fails the job with its own problem type. And the list filters alone, on the embe
 from __future__ import annotations
 
 import io
+import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -222,3 +223,51 @@ def test_python_client_and_cli_get_the_sr(
     assert pydicom.dcmread(out).SOPInstanceUID == sr.SOPInstanceUID
     assert pydicom.dcmread(tmp_path / "fig.dcm").Modality == "OT"
     assert "wrote" in capsys.readouterr().err
+
+
+def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
+    """A STOW-RS attempt whose message was never published (attempt 0) or was lost is published by the
+    reconciler's sweep once overdue, as the next attempt; out of attempts, the job is left alone."""
+    import uuid as uuid_module
+    from datetime import timedelta
+
+    import redis
+    from sqlalchemy import update
+
+    from services.core.jobqueue import make_celery
+    from services.db import jobs as jobs_repo
+    from services.db.engine import session_scope
+    from services.db.models import Job, utcnow
+    from services.dicom import store
+
+    queue = f"spine-test-{uuid_module.uuid4().hex[:8]}"
+    settings = Settings(data_dir=tmp_path, CELERY_BROKER_URL=redis_url, queue_name=queue,
+                        dicomweb_url="http://127.0.0.1:9/dicom-web", dicomweb_store_results=True,
+                        dicomweb_max_attempts=3)  # fmt: skip
+    upgrade(settings, quiet=True)
+    with session_scope(settings) as session:
+        job, _ = jobs_repo.create_job(session, spine_payload())
+    past = utcnow() - timedelta(seconds=1)
+    attempt0 = {"attempt": 0, "attempted_at": past.isoformat(), "ok": False, "error": "not published"}
+    with session_scope(settings) as session:
+        session.execute(update(Job).where(Job.id == job.id).values(
+            status="succeeded", dicom_stores=[attempt0], dicom_store_due_at=past))  # fmt: skip
+    broker = redis.Redis.from_url(redis_url)
+    app = make_celery(settings)
+    try:
+        assert store.sweep(settings, app) == 1
+        assert broker.llen(settings.dicom_queue) == 1
+        message = json.loads(broker.lindex(settings.dicom_queue, 0))  # type: ignore[arg-type]
+        assert message["headers"]["task"] == store.STORE and message["headers"]["argsrepr"] == f"['{job.id}', 1]"
+        assert store.sweep(settings, app) == 0  # due again only SPINE_DICOMWEB_SWEEP_AFTER_S later
+        with session_scope(settings) as session:
+            due = session.get(Job, job.id).dicom_store_due_at  # type: ignore[union-attr]
+            assert due is not None and due > utcnow() + timedelta(seconds=250)
+            stores = [{**attempt0, "attempt": n} for n in (1, 2, 3)]
+            session.execute(update(Job).where(Job.id == job.id).values(dicom_stores=stores, dicom_store_due_at=past))
+        assert store.sweep(settings, app) == 0  # out of attempts: cleared, not published
+        with session_scope(settings) as session:
+            assert session.get(Job, job.id).dicom_store_due_at is None  # type: ignore[union-attr]
+        assert broker.llen(settings.dicom_queue) == 1
+    finally:
+        broker.delete(settings.dicom_queue)
