@@ -75,6 +75,12 @@ def utcnow() -> datetime:
     return datetime.now(UTC)
 
 
+def iso_utc(value: datetime) -> str:
+    """A timestamp as every job view writes it (job, lists, deliveries, webhook bodies): UTC, always
+    with microseconds, ``Z`` for the zone, e.g. ``2026-12-01T16:42:47.123456Z`` (RFC 3339)."""
+    return value.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
 
