@@ -14,9 +14,12 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# `make run PORT=8080 HOST=0.0.0.0` serves elsewhere (default 127.0.0.1:8000).
+HOST ?= 127.0.0.1
+PORT ?= 8000
 run: $(STAMP)
 	$(BIN)/spine migrate
-	$(BIN)/spine serve --host 127.0.0.1 --port 8000
+	$(BIN)/spine serve --host $(HOST) --port $(PORT)
 
 lint: $(STAMP)
 	$(BIN)/ruff check spine_engine services spine_client migrations tests tools

@@ -306,7 +306,13 @@ def cmd_submit_dir(args: argparse.Namespace) -> int:
     counts: dict[str, int] = {}
     for row in ordered:
         counts[str(row["status"])] = counts.get(str(row["status"]), 0) + 1
-    sys.stdout.write(", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f"; summary: {summary_path}\n")
+    if args.json:  # one JSON document: the counts, the summary's path and one row per file
+        json.dump({"counts": dict(sorted(counts.items())), "summary": str(summary_path),
+                   "files": [{c: row.get(c) for c in tables.SUMMARY_COLUMNS} for row in ordered]},
+                  sys.stdout, indent=2)  # fmt: skip
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f"; summary: {summary_path}\n")
     statuses = set(counts)
     if timed_out:
         return EXIT_TIMEOUT
@@ -362,6 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, default=500, help="payloads per batch request (at most 1000)")
     p.add_argument("--no-wait", action="store_true", help="submit only; the summary lists the queued jobs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print the outcome as JSON (counts, summary path, a row per file), not one line")  # fmt: skip
     p.add_argument("--run-key", default=None, help="Idempotency-Key prefix: rerun with the same key after a crash "
                    "and no job is made twice (default: random)")  # fmt: skip
     p.set_defaults(func=cmd_submit_dir)

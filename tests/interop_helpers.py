@@ -179,7 +179,9 @@ class FlakyProxy:
 
 
 class Served:
-    """`spine serve` (API and worker, embedded default) as a subprocess on a free port."""
+    """`spine serve` (API and worker) as a subprocess on a free port: the embedded default, or
+    PostgreSQL and Redis when ``DATABASE_URL`` and ``CELERY_BROKER_URL`` are given (with
+    ``SPINE_SERVE_WORKER=true``, so that `serve` still starts its worker)."""
 
     def __init__(self, data_dir: Path, **env: str):
         self.port = free_port()
@@ -188,7 +190,8 @@ class Served:
         self.log = data_dir / "serve.log"
         self.env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
         self.env.update(SPINE_DATA_DIR=str(data_dir), SPINE_WORKER_CONCURRENCY="2", **env)
-        self.settings = Settings(data_dir=data_dir)
+        self.settings = Settings(data_dir=data_dir, DATABASE_URL=env.get("DATABASE_URL"),
+                                 CELERY_BROKER_URL=env.get("CELERY_BROKER_URL"))  # fmt: skip
         from services.db.migrate import upgrade
 
         upgrade(self.settings, quiet=True)

@@ -1,10 +1,13 @@
-"""What a route does in its caller's name: audit rows of the jobs it touches and the per-client cap
-on queued jobs. An ``Access`` is made per request by the ``AccessDep`` dependency from the
-``CurrentCaller`` (``services/api/deps.py``); there is no request without a caller here, so
-nothing is ever skipped silently."""
+"""What a route does in its caller's name: audit rows of the jobs it touches, and the per-client
+cap on queued jobs (``QueuedCap``: past ``SPINE_MAX_QUEUED_PER_CLIENT`` queued jobs of a client
+role, submissions answer 429 with Retry-After). An ``Access`` is made per request by the
+``AccessDep`` dependency from the ``CurrentCaller`` (``services/api/deps.py``); there is no
+request without a caller here, so nothing is ever skipped silently."""
 
 from __future__ import annotations
 
+import threading
+import time
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -12,10 +15,54 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 from starlette.datastructures import State
 
-from services.api.quota import QueuedCap
+from services.api.errors import ProblemError
 from services.core.logs import job_id_var
-from services.db.audit import AuditAction, audit
-from services.db.keys import Caller
+from services.core.problems import problem
+from services.db import stats
+from services.db.keys import AuditAction, Caller, audit
+
+REFRESH_S = 1.0
+RETRY_AFTER_S = 30
+
+
+class QueuedCap:
+    def __init__(self, cap: int):
+        self.cap = cap
+        self._lock = threading.Lock()
+        self._known: dict[str, tuple[int, float]] = {}  # owner -> (queued count, when read)
+
+    def admit(self, session: Session, caller: Caller, n: int) -> None:
+        """Raise a 429 problem when ``n`` more queued jobs would put ``caller`` over the cap."""
+        if self.cap <= 0 or caller.is_admin or n <= 0:
+            return
+        now = time.monotonic()
+        with self._lock:
+            known = self._known.get(caller.owner)
+        if known is None or now - known[1] > REFRESH_S:
+            known = (stats.count_queued(session, caller.owner, self.cap + 1), now)
+            with self._lock:
+                self._known[caller.owner] = known
+        queued = known[0]
+        if queued + n > self.cap:
+            raise ProblemError(
+                problem(
+                    "too-many-queued-jobs",
+                    f"{queued} of this client's jobs are queued and {n} more would pass the cap of {self.cap}; "
+                    f"retry once some have run",
+                    queued=queued,
+                    limit=self.cap,
+                ),
+                headers={"Retry-After": str(RETRY_AFTER_S)},
+            )
+
+    def accepted(self, caller: Caller, n: int) -> None:
+        """Count ``n`` jobs just stored for ``caller`` until the next read of the database."""
+        if self.cap <= 0 or caller.is_admin or n <= 0:
+            return
+        with self._lock:
+            known = self._known.get(caller.owner)
+            if known is not None:
+                self._known[caller.owner] = (known[0] + n, known[1])
 
 
 @dataclass(frozen=True)

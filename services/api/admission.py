@@ -3,9 +3,14 @@ applied to that model (not to the raw JSON again).
 
 ``admit`` is the one place a posted payload is checked, for ``POST /v1/jobs`` and for each entry
 of ``POST /v1/jobs/batch``: the engine's contract (``spine_engine.validation.validate_payload``:
-types, finite numbers, levels, orthonormal directors...), then the magnitudes
-(``services.api.limits``), then the ``callback_url`` (``services.webhooks.submission``). Every
-failure is an ``InvalidInput`` naming each offending field by its JSON path.
+types, finite numbers, levels, orthonormal directors...), then the magnitudes, then the
+``callback_url`` (``services.webhooks.submission``). Every failure is an ``InvalidInput`` naming
+each offending field by its JSON path.
+
+Magnitudes: coordinates, poses, spacings and scales are millimetres or pixels: a number larger
+than ``MAX_MAGNITUDE`` in absolute value is a mistake (or an attack on the fit's arithmetic: 1e300
+overflows it). The engine's contract already refuses NaN and infinities; this refuses the
+absurdly large finite ones with the same 422 validation problem, naming each field.
 
 By reference (``SPINE_DICOMWEB_URL`` set): a view whose image the ``study`` names by SOP Instance UID
 may leave out ``pixel_spacing`` even in px, since the worker reads it from the image's header
@@ -16,14 +21,16 @@ naming the attribute.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
+from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
-from services.api.limits import check_magnitudes
 from services.core.config import Settings
 from services.dicom.reference import views_to_fetch
 from services.webhooks.submission import check_callback
+from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.models import JobPayload
 from spine_engine.validation import validate_payload
 
@@ -41,6 +48,44 @@ def _with_stand_in_spacing(body: Any) -> Any:
         if isinstance(view, dict) and view.get("pixel_spacing") is None:
             checked[role] = {**view, "pixel_spacing": STAND_IN_SPACING}
     return checked
+
+
+MAX_MAGNITUDE = 1e6
+MAX_ERRORS = 20
+
+
+def _numbers(value: Any, path: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], float]]:
+    """Every number in ``value`` (a validated model, or plain JSON) with its JSON path."""
+    if isinstance(value, bool) or value is None:
+        return
+    if isinstance(value, int | float):
+        yield path, value
+    elif isinstance(value, BaseModel):
+        for name, info in type(value).model_fields.items():
+            yield from _numbers(getattr(value, name), (*path, info.alias or name))
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from _numbers(item, (*path, str(key)))
+    elif isinstance(value, list | tuple):
+        for index, item in enumerate(value):
+            yield from _numbers(item, (*path, index))
+
+
+def check_magnitudes(payload: BaseModel) -> None:
+    """Raise ``InvalidInput`` naming (by JSON path) every number of the validated ``payload`` above
+    ``MAX_MAGNITUDE`` in absolute value."""
+    errors = []
+    for path, number in _numbers(payload, ()):
+        try:
+            too_large = abs(number) > MAX_MAGNITUDE
+        except OverflowError:  # an int beyond float range
+            too_large = True
+        if too_large:
+            errors.append(FieldError(path, f"must be at most {MAX_MAGNITUDE:g} in absolute value", "number_too_large"))
+            if len(errors) >= MAX_ERRORS:
+                break
+    if errors:
+        raise InvalidInput(errors)
 
 
 def admit(body: Any, settings: Settings, session: Session, owner: str | None) -> JobPayload:

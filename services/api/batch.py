@@ -15,9 +15,8 @@ from sqlalchemy.orm import Session
 
 from services.core.problems import problem
 from services.db import jobs as jobs_repo
-from services.db.jobs import InsertHook, create_jobs_idempotent, entry_key
+from services.db.jobs import InsertHook, create_jobs_idempotent, entry_key, job_json
 from services.db.runs import publish
-from services.db.views import job_json
 
 
 def batch_response(

@@ -12,9 +12,8 @@ from fastapi import Depends, Request
 from pydantic import BeforeValidator
 from sqlalchemy.orm import Session
 
-from services.api.access import Access
+from services.api.access import Access, QueuedCap
 from services.api.errors import ProblemError
-from services.api.quota import QueuedCap
 from services.core.config import Settings
 from services.core.problems import problem, validation_problem
 from services.db.engine import session_factory

@@ -34,7 +34,7 @@ from starlette.datastructures import MutableHeaders
 from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.api.quota import QueuedCap
+from services.api.access import QueuedCap
 from services.core.config import Settings
 from services.core.logs import request_id_var
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem

@@ -14,13 +14,14 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import yaml
 
-from services.cli.keys import add_keys_parser, ensure_first_key
+from services.cli.keys import add_keys_parser, announce_first_key, ensure_first_key
 from services.core.config import Settings, get_settings
 from services.core.logs import configure_logging, install_celery_job_context, uvicorn_log_config
 from services.db.migrate import upgrade
@@ -84,7 +85,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     configure_logging(settings.log_level)  # JSON lines, with the request id
     if settings.embedded:
         upgrade(settings, quiet=True)
-        ensure_first_key(settings)  # first start: an admin key, printed once
+        first_key = ensure_first_key(settings)  # first start: an admin key, printed now and once ready
+        if first_key is not None:
+            host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+            threading.Thread(target=announce_first_key, args=(first_key, f"http://{host}:{args.port}"),
+                             name="spine-first-key", daemon=True).start()  # fmt: skip
     # uvicorn re-raises the signal that stopped it: make SIGTERM an exception, so that the
     # worker child is stopped below instead of being orphaned.
     signal.signal(signal.SIGTERM, _raise_exit)

@@ -13,7 +13,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+import urllib.request
 from typing import Any
+
+from sqlalchemy.engine import make_url
 
 from services.core.config import Settings, get_settings
 from services.db.engine import session_factory
@@ -45,7 +49,9 @@ def cmd_create(args: argparse.Namespace) -> int:
             return 2
     print(f"webhook signing secret of key {row.id} (verify this client's webhooks with it):")
     print(row.webhook_secret)
-    print(f"created API key {row.id} for client {row.name!r} (role {row.role}); it is shown only now, keep it:")
+    where = make_url(settings.sqlalchemy_url).render_as_string(hide_password=True)
+    print(f"created API key {row.id} for client {row.name!r} (role {row.role}) in {where}; it is shown only now, "
+          "keep it:")  # fmt: skip
     print(key)
     return 0
 
@@ -114,11 +120,12 @@ def add_keys_parser(sub: Any) -> None:
     rotate.set_defaults(func=cmd_webhook_secret, rotate=True)
 
 
-def ensure_first_key(settings: Settings) -> None:
-    """On first start of the embedded default (no key at all): create an admin key and print it once."""
+def ensure_first_key(settings: Settings) -> str | None:
+    """On first start of the embedded default (no key at all): create an admin key, print it once
+    and return it (None when keys exist)."""
     with session_factory(settings)() as session:
         if count_keys(session) > 0:
-            return
+            return None
         row, key = create_key(session, "admin", "admin")
     print(
         f"spine: created the first API key ({row.id}, client 'admin', role admin). It is shown only this once; "
@@ -126,3 +133,24 @@ def ensure_first_key(settings: Settings) -> None:
         flush=True,
     )
     print(key, flush=True)
+    return key
+
+
+def announce_first_key(key: str, url: str, timeout_s: float = 60.0, settle_s: float = 3.0) -> None:
+    """Print the first admin key again, framed, once the service at ``url`` is ready and the worker's
+    start-up banner has passed (``settle_s``): where a newcomer sees it, not lost above the banner."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            with urllib.request.urlopen(f"{url}/readyz", timeout=2) as answer:
+                if answer.status == 200:
+                    break
+        except OSError:
+            pass
+        time.sleep(0.5)
+    time.sleep(settle_s)
+    rule = "=" * 78
+    sys.stderr.write(f"\n{rule}\nspine: the first admin API key of this service (shown at this first start only):\n\n"
+                     f"    {key}\n\nPaste it in the page's \"API key\" field ({url}/), or send it as "
+                     f"`Authorization: Bearer <key>`.\n{rule}\n\n")  # fmt: skip
+    sys.stderr.flush()

@@ -7,6 +7,7 @@ SQLite-backed Celery broker (kombu's SQLAlchemy transport) under ``SPINE_DATA_DI
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -22,8 +23,10 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="SPINE_", extra="ignore", frozen=True)
 
     data_dir: Path = Field(
-        Path(".spine"),
-        description="Folder of the embedded default's files (SQLite database and broker).",
+        default_factory=lambda: default_data_dir(),
+        description="Folder of the embedded default's files (SQLite database and broker). Default: "
+        "$XDG_DATA_HOME/spine, else ~/.local/share/spine: one place whatever the working directory; a relative "
+        "value is made absolute once, at start.",
     )
     database_url: str | None = Field(
         None,
@@ -160,6 +163,11 @@ class Settings(BaseSettings):
         "as the job ended, or was lost with the broker) is published again by the reconciler.",
     )
 
+    @field_validator("data_dir")
+    @classmethod
+    def _absolute_data_dir(cls, value: Path) -> Path:
+        return value.expanduser().resolve()  # so that every process (worker children too) agrees
+
     @field_validator("webhook_allowed_urls")
     @classmethod
     def _webhook_allow_list(cls, value: str) -> str:
@@ -210,6 +218,12 @@ class Settings(BaseSettings):
         """Create SPINE_DATA_DIR when the embedded database or broker lives there."""
         if self.database_url is None or self.broker_url is None:
             self.data_dir.mkdir(parents=True, exist_ok=True)
+
+
+def default_data_dir() -> Path:
+    """``$XDG_DATA_HOME/spine``, else ``~/.local/share/spine`` (the XDG Base Directory default)."""
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "spine"
 
 
 @lru_cache

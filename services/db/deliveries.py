@@ -9,7 +9,7 @@ from typing import Any
 from sqlalchemy import and_, exists, insert, select, update
 from sqlalchemy.orm import Session
 
-from services.db.models import WebhookDelivery
+from services.db.models import WebhookDelivery, iso_utc
 
 
 def record(session: Session, **values: Any) -> None:
@@ -77,11 +77,11 @@ def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]
             "message_id": row.message_id,
             "attempt": row.attempt,
             "url": row.url,
-            "attempted_at": row.attempted_at.isoformat(),
+            "attempted_at": iso_utc(row.attempted_at),
             "status_code": row.status_code,
             "error": row.error,
             "duration_ms": row.duration_ms,
-            "next_attempt_at": row.next_attempt_at.isoformat() if row.next_attempt_at else None,
+            "next_attempt_at": iso_utc(row.next_attempt_at) if row.next_attempt_at else None,
         }
         for row in rows
     ]

@@ -1,4 +1,6 @@
-"""Jobs as clients see them: create (idempotent, single and batch), read, list, cancel.
+"""Jobs as clients see them: create (idempotent, single and batch), read, list, cancel, and the
+job's JSON view (``job_json``: the API's ``Job`` model, built directly from the row, the hot path
+skips re-validation; also the data of webhook bodies).
 
 The cancel is a conditional UPDATE (``WHERE status IN (queued, running)``), so it never gives a
 job a second outcome; runs (claim, finish, reconcile) are in ``services.db.runs``.
@@ -31,7 +33,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
-from services.db.models import Job, utcnow
+from services.db.models import Job, iso_utc, utcnow
 
 InsertHook = Callable[[Session, list[uuid.UUID]], None]
 """Called with the ids of jobs just inserted, in their transaction (the API's audit rows)."""
@@ -321,3 +323,32 @@ def _create_one(session: Session, row: dict[str, Any], owner: str | None, on_ins
 def _job(row: dict[str, Any]) -> Job:
     return Job(**{"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
                   "lease_expires_at": None, **row})  # fmt: skip
+
+
+# ------------------------------------------------------------------ the job's JSON view
+
+
+def _ts(value: datetime | None) -> str | None:
+    return iso_utc(value) if value is not None else None
+
+
+def job_json(job: Job, *, with_payload: bool = False) -> dict[str, Any]:
+    """A job as the JSON of the ``Job`` model, built directly (the hot path skips re-validation)."""
+    body: dict[str, Any] = {
+        "id": str(job.id),
+        "status": job.status,
+        "owner": job.owner,
+        "created_at": _ts(job.created_at),
+        "started_at": _ts(job.started_at),
+        "finished_at": _ts(job.finished_at),
+        "attempts": job.attempts,
+        "engine_version": job.engine_version,
+        "result": job.result,
+        "error": job.error,
+        "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
+    }
+    if with_payload:
+        body["payload"] = job.payload
+        body["dicom"] = job.dicom
+        body["dicom_stores"] = job.dicom_stores or []
+    return body

@@ -1,4 +1,6 @@
-"""API keys (table ``api_keys``): create, verify, list, revoke; their webhook signing secrets.
+"""API keys (table ``api_keys``): create, verify, list, revoke; their webhook signing secrets; and
+the audit trail of job access (table ``job_audit``): who (key id) did what to which job, when, in
+which request.
 
 A key is ``spine_<id>_<secret>``: a 12-hex-digit id, visible in logs, listings and the audit
 trail, and a 256-bit random secret. Only the SHA-256 digest of the whole key is stored; a
@@ -22,14 +24,16 @@ import hashlib
 import hmac
 import re
 import secrets
+import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, cast
 
-from sqlalchemy import func, select, update
+from sqlalchemy import Table, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from services.core.webhook_policy import decode_secret
-from services.db.models import ApiKey, utcnow
+from services.db.models import ApiKey, JobAudit, utcnow
 
 Role = Literal["admin", "client"]
 ROLES: tuple[Role, ...] = ("admin", "client")
@@ -168,3 +172,29 @@ def key_webhook_secret(session: Session, owner: str | None) -> bytes | None:
     )
     secret = session.scalar(latest)
     return decode_secret(secret) if secret else None
+
+
+# ------------------------------------------------------------------ audit
+
+AuditAction = Literal["create", "read", "list", "cancel"]
+
+_AUDIT = insert(cast(Table, JobAudit.__table__))
+
+
+def audit(
+    session: Session, caller: Caller, action: AuditAction, job_ids: Sequence[uuid.UUID], request_id: str | None
+) -> None:
+    """Add one audit row per job to the session's transaction (one INSERT statement; the caller commits)."""
+    if not job_ids:
+        return
+    now = utcnow()
+    rows: list[dict[str, Any]] = [
+        {"at": now, "key_id": caller.key_id, "action": action, "job_id": job_id, "request_id": request_id}
+        for job_id in job_ids
+    ]
+    session.execute(_AUDIT, rows)
+
+
+def audit_trail(session: Session, job_id: uuid.UUID) -> list[JobAudit]:
+    """The audit rows of a job, oldest first."""
+    return list(session.scalars(select(JobAudit).where(JobAudit.job_id == job_id).order_by(JobAudit.id)))

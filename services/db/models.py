@@ -75,6 +75,12 @@ def utcnow() -> datetime:
     return datetime.now(UTC)
 
 
+def iso_utc(value: datetime) -> str:
+    """A timestamp as every job view writes it (job, lists, deliveries, webhook bodies): UTC, always
+    with microseconds, ``Z`` for the zone, e.g. ``2026-12-01T16:42:47.123456Z`` (RFC 3339)."""
+    return value.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
 
@@ -118,7 +124,7 @@ class Job(Base):
         Index("ix_jobs_status_created_at_id", "status", "created_at", "id"),
         Index("ix_jobs_owner_created_at_id", "owner", "created_at", "id"),
         Index("ix_jobs_finished_at", "finished_at"),
-        # The per-client cap on queued jobs counts these (services/api/quota.py): queued jobs only.
+        # The per-client cap on queued jobs counts these (services/api/access.py): queued jobs only.
         Index("ix_jobs_owner_queued", "owner", postgresql_where=text("status = 'queued'"),
               sqlite_where=text("status = 'queued'")),
         # GET /v1/jobs?study_instance_uid=|accession_number=|patient_id= within an owner, newest first.

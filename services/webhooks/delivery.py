@@ -38,8 +38,8 @@ from services.core.status import FINAL_STATUSES
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
 from services.db import deliveries as store
 from services.db.engine import session_scope
-from services.db.models import Job, utcnow
-from services.db.views import job_json
+from services.db.jobs import job_json
+from services.db.models import Job, iso_utc, utcnow
 from services.webhooks.signing import secret_for, signed_headers
 
 log = logging.getLogger(__name__)
@@ -169,7 +169,7 @@ def _client(timeout: float) -> httpx.Client:
 def webhook_body(job: Job, status: str) -> bytes:
     """The JSON a receiver gets: ``{"type": "job.<status>", "timestamp", "data": <the job>}``."""
     finished = job.finished_at or utcnow()
-    body = {"type": f"job.{status}", "timestamp": finished.isoformat(), "data": job_json(job)}
+    body = {"type": f"job.{status}", "timestamp": iso_utc(finished), "data": job_json(job)}
     return json.dumps(body, separators=(",", ":"), ensure_ascii=False).encode()
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
 import uuid
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
@@ -13,6 +15,7 @@ from services.api.app import create_app
 from services.core.config import Settings
 from services.core.problems import PROBLEM_BASE
 from services.db.migrate import upgrade
+from services.db.models import iso_utc
 from tests.conftest import make_key, problem_of, spine_payload
 
 
@@ -245,3 +248,20 @@ def test_readyz_is_503_when_the_broker_or_database_is_unreachable(tmp_path: Any,
     submit = client.post("/v1/jobs", json=payload)
     assert submit.status_code == 503
     assert problem_of(submit)["type"] == PROBLEM_BASE + "service-unavailable"
+
+
+TIMESTAMP = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}Z$")
+
+
+def test_every_job_view_writes_timestamps_in_one_format(api: TestClient, payload: dict[str, Any]) -> None:
+    """created/started/finished in the POST answer, the job, the list, the batch and the cancel answer:
+    UTC with microseconds and Z, whatever the microseconds (a whole second too)."""
+    posted = api.post("/v1/jobs", json=payload).json()
+    batch = api.post("/v1/jobs/batch", json={"jobs": [payload]}).json()["results"][0]["job"]
+    cancelled = api.post(f"/v1/jobs/{posted['id']}/cancel").json()
+    read = api.get(f"/v1/jobs/{posted['id']}").json()
+    listed = api.get("/v1/jobs").json()["jobs"]
+    stamps = [posted["created_at"], batch["created_at"], cancelled["created_at"], cancelled["finished_at"],
+              read["created_at"], read["finished_at"], *(j["created_at"] for j in listed)]  # fmt: skip
+    assert all(TIMESTAMP.match(s) for s in stamps), stamps
+    assert iso_utc(datetime(2026, 12, 1, 17, 0, 0, tzinfo=UTC)) == "2026-12-01T17:00:00.000000Z"

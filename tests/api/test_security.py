@@ -11,6 +11,8 @@ import os
 import re
 import subprocess
 import sys
+import threading
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,10 +27,10 @@ from services.cli.keys import ensure_first_key
 from services.core.config import Settings
 from services.core.logs import JsonFormatter
 from services.core.problems import PROBLEM_BASE
-from services.db.audit import audit_trail
 from services.db.engine import session_factory
+from services.db.keys import audit_trail, revoke
 from services.db.migrate import upgrade
-from services.db.models import ApiKey
+from services.db.models import ApiKey, Job
 from tests.conftest import make_key, problem_of, spine_payload
 
 KEY_LINE = re.compile(r"^spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43}$")
@@ -43,15 +45,25 @@ class Tenants:
         self.admin = {"Authorization": f"Bearer {make_key(settings, 'ops', 'admin')}"}
 
 
-def _app(tmp_path: Path, **settings: Any) -> tuple[Settings, TestClient]:
-    s = Settings(data_dir=tmp_path, api_key_cache_s=0, **settings)
+def _app(tmp_path: Path, database_url: str | None = None, **settings: Any) -> tuple[Settings, TestClient]:
+    s = Settings(**{"data_dir": tmp_path, "api_key_cache_s": 0, "DATABASE_URL": database_url, **settings})
     upgrade(s, quiet=True)
     return s, TestClient(create_app(s))
 
 
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database_url(request: pytest.FixtureRequest) -> str | None:
+    """None (the embedded SQLite) or a fresh PostgreSQL database: isolation, audit and the cap are
+    checked on both."""
+    if request.param == "postgresql":
+        url: str = request.getfixturevalue("fresh_postgres_url")
+        return url
+    return None
+
+
 @pytest.fixture
-def tenants(tmp_path: Path) -> Iterator[Tenants]:
-    settings, client = _app(tmp_path)
+def tenants(tmp_path: Path, database_url: str | None) -> Iterator[Tenants]:
+    settings, client = _app(tmp_path, database_url)
     with client:
         yield Tenants(settings, client)
 
@@ -97,7 +109,8 @@ def test_a_client_sees_and_cancels_only_its_own_jobs(tenants: Tenants) -> None:
     job = c.post("/v1/jobs", json=spine_payload(), headers=tenants.a).json()
     assert job["owner"] == "clinic-a"
     unknown = str(uuid.uuid4())
-    for method, suffix in (("GET", ""), ("POST", "/cancel"), ("GET", "/figure.png"), ("GET", "/figure.svg")):
+    for method, suffix in (("GET", ""), ("POST", "/cancel"), ("GET", "/figure.png"), ("GET", "/figure.svg"),
+                           ("GET", "/fhir")):  # fmt: skip
         theirs = c.request(method, f"/v1/jobs/{job['id']}{suffix}", headers=tenants.b)
         missing = c.request(method, f"/v1/jobs/{unknown}{suffix}", headers=tenants.b)
         assert theirs.status_code == missing.status_code == 404
@@ -123,13 +136,56 @@ def test_idempotency_keys_are_per_client(tenants: Tenants) -> None:
     assert again.json()["id"] == a.json()["id"] and again.headers["idempotent-replayed"] == "true"
 
 
+def test_a_revoked_key_is_trusted_for_the_cache_window_then_refused(tmp_path: Path) -> None:
+    """SPINE_API_KEY_CACHE_S: a verified key is trusted that long without a database read, so a key
+    revoked meanwhile still passes inside the window and is refused after it (README, "API keys")."""
+    window_s = 1.5
+    settings, client = _app(tmp_path, api_key_cache_s=window_s)
+    headers = {"Authorization": f"Bearer {make_key(settings, 'clinic-w')}"}
+    assert client.get("/v1/jobs", headers=headers).status_code == 200  # verified: cached from now
+    cached_at = time.monotonic()
+    with session_factory(settings)() as session:
+        assert [k.name for k in revoke(session, "clinic-w")] == ["clinic-w"]
+    inside = client.get("/v1/jobs", headers=headers).status_code
+    assert time.monotonic() - cached_at < window_s  # (else this machine was too slow to say anything)
+    assert inside == 200  # still trusted inside the window
+    time.sleep(max(0.0, window_s - (time.monotonic() - cached_at)) + 0.1)
+    assert client.get("/v1/jobs", headers=headers).status_code == 401  # refused once it has passed
+
+
+def test_one_idempotency_key_raced_by_two_submissions_makes_one_job(tmp_path: Path, database_url: str | None) -> None:
+    """Two POSTs with the same Idempotency-Key and body at the same moment (a client retrying while
+    its first request is still in flight): one job, the same id in both answers, one of them a replay."""
+    settings, app_client = _app(tmp_path, database_url)
+    headers = {"Authorization": f"Bearer {make_key(settings, 'clinic-i')}"}
+    for round_ in range(10):
+        key = f"race-{round_}"
+        barrier = threading.Barrier(2)
+        answers: list[Any] = [None, None]
+
+        def post(i: int, key: str = key, barrier: threading.Barrier = barrier, answers: list[Any] = answers) -> None:
+            with TestClient(app_client.app) as client:  # its own connection and thread
+                barrier.wait()
+                answers[i] = client.post("/v1/jobs", json=spine_payload(), headers={**headers, "Idempotency-Key": key})
+
+        threads = [threading.Thread(target=post, args=(i,)) for i in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        assert [a.status_code for a in answers] == [202, 202], [a.text for a in answers]
+        assert answers[0].json()["id"] == answers[1].json()["id"]
+        assert sorted(a.headers.get("idempotent-replayed", "false") for a in answers) == ["false", "true"]
+    with session_factory(settings)() as session:
+        stored = session.scalars(select(Job.idempotency_key).where(Job.owner == "clinic-i")).all()
+    assert sorted(str(k) for k in stored) == sorted(f"race-{i}" for i in range(10))  # one job per key, no more
+
+
 def test_a_revoked_key_is_refused(tmp_path: Path) -> None:
     settings, client = _app(tmp_path)
     key = make_key(settings, "clinic-r")
     headers = {"Authorization": f"Bearer {key}"}
     assert client.get("/v1/jobs", headers=headers).status_code == 200
-    from services.db.keys import revoke
-
     with session_factory(settings)() as session:
         assert [k.name for k in revoke(session, "clinic-r")] == ["clinic-r"]
     response = client.get("/v1/jobs", headers=headers)
@@ -211,8 +267,8 @@ def test_cors_is_off_unless_origins_are_configured(tmp_path: Path) -> None:
     assert "x-request-id" in simple.headers["access-control-expose-headers"].lower()
 
 
-def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path) -> None:
-    settings, client = _app(tmp_path, max_queued_per_client=3)
+def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path, database_url: str | None) -> None:
+    settings, client = _app(tmp_path, database_url, max_queued_per_client=3)
     a = {"Authorization": f"Bearer {make_key(settings, 'clinic-a')}"}
     for _ in range(3):
         assert client.post("/v1/jobs", json=spine_payload(), headers=a).status_code == 202
@@ -227,8 +283,6 @@ def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path) -> None:
     assert client.post("/v1/jobs/batch", json={"jobs": [spine_payload()] * 5}, headers=admin).status_code == 200
     job = client.get("/v1/jobs", headers=a).json()["jobs"][0]
     client.post(f"/v1/jobs/{job['id']}/cancel", headers=a)
-    import time
-
     time.sleep(1.1)  # the count is read again at most once a second
     assert client.post("/v1/jobs", json=spine_payload(), headers=a).status_code == 202
 

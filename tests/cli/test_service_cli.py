@@ -15,6 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
+from services.core.config import Settings
 from tests.conftest import spine_payload
 
 pytestmark = pytest.mark.integration
@@ -146,8 +147,6 @@ def test_readme_starts_with_make_run_then_make_test() -> None:
 
 
 def test_readme_documents_every_setting() -> None:
-    from services.core.config import Settings
-
     readme = (ROOT / "README.md").read_text()
     for name, info in Settings.model_fields.items():
         alias = info.validation_alias
@@ -201,3 +200,22 @@ def test_worker_supervisor_restarts_a_celery_worker_that_stopped_unasked(tmp_pat
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(10)
+
+
+def test_the_data_dir_is_one_place_whatever_the_working_directory(tmp_path: Path) -> None:
+    """A key made from one folder is seen from another (issue 11: it went to a second database)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("SPINE_DATA_DIR", "DATABASE_URL", "CELERY_BROKER_URL")}
+    env["XDG_DATA_HOME"] = str(tmp_path / "xdg")
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    spine = [sys.executable, "-m", "services.cli", "keys"]
+    made = subprocess.run([*spine, "create", "--name", "from-here"], cwd=here, env=env, capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    assert str(tmp_path / "xdg" / "spine" / "spine.db") in made.stdout  # it says where the key went
+    listed = subprocess.run([*spine, "list"], cwd=there, env=env, capture_output=True, text=True, timeout=120)
+    assert "from-here" in listed.stdout, listed.stdout + listed.stderr
+    assert not (here / ".spine").exists() and not (there / ".spine").exists()
+    relative = Settings.model_validate({"data_dir": "rel"}).data_dir
+    assert relative.is_absolute() and relative == Path.cwd() / "rel"  # made absolute once, at start

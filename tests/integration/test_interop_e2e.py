@@ -6,6 +6,7 @@ that must stay queued. Nothing is mocked."""
 from __future__ import annotations
 
 import base64
+import contextlib
 import csv
 import io
 import json
@@ -38,7 +39,7 @@ from spine_client import (
 )
 from spine_client import cli as client_cli
 from spine_engine.models import RegistrationResult
-from tests.conftest import spine_payload
+from tests.conftest import _postgres_database, _purge_queue, spine_payload
 from tests.interop_helpers import ApiOnly, FlakyProxy, Receiver, Rule, Served, free_port, wait_until
 
 pytestmark = pytest.mark.integration
@@ -58,19 +59,29 @@ def receiver() -> Iterator[Receiver]:
     r.close()
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory: pytest.TempPathFactory, receiver: Receiver) -> Iterator[Served]:
-    service = Served(
-        tmp_path_factory.mktemp("interop"),
-        SPINE_WEBHOOK_ALLOWED_URLS=receiver.url("/hooks"),
-        SPINE_WEBHOOK_SECRET=SECRET,
-        SPINE_WEBHOOK_RETRY_BASE_S="0.2",
-        SPINE_WEBHOOK_MAX_ATTEMPTS="3",
-        SPINE_RECONCILE_INTERVAL_S="1",
-        SPINE_WEBHOOK_SWEEP_AFTER_S="0.5",
-    )
-    yield service
-    service.stop()
+@pytest.fixture(scope="module", params=["embedded", "distributed"])
+def served(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory,
+           receiver: Receiver) -> Iterator[Served]:  # fmt: skip
+    """`spine serve` on the embedded default, then on PostgreSQL + Redis: the client, webhook and FHIR
+    tests run on both."""
+    env = {
+        "SPINE_WEBHOOK_ALLOWED_URLS": receiver.url("/hooks"),
+        "SPINE_WEBHOOK_SECRET": SECRET,
+        "SPINE_WEBHOOK_RETRY_BASE_S": "0.2",
+        "SPINE_WEBHOOK_MAX_ATTEMPTS": "3",
+        "SPINE_RECONCILE_INTERVAL_S": "1",
+        "SPINE_WEBHOOK_SWEEP_AFTER_S": "0.5",
+    }
+    with contextlib.ExitStack() as stack:
+        if request.param == "distributed":
+            redis_url: str = request.getfixturevalue("redis_url")
+            queue = f"spine-interop-{uuid.uuid4().hex[:8]}"
+            env.update(DATABASE_URL=stack.enter_context(_postgres_database("interop")), CELERY_BROKER_URL=redis_url,
+                       SPINE_QUEUE_NAME=queue, SPINE_SERVE_WORKER="true")  # fmt: skip
+            stack.callback(_purge_queue, redis_url, queue)
+        service = Served(tmp_path_factory.mktemp(f"interop-{request.param}"), **env)
+        stack.callback(service.stop)
+        yield service
 
 
 @pytest.fixture(scope="module")
@@ -273,6 +284,14 @@ def test_submit_dir_submits_waits_and_summarises(served: Served, tmp_path: Path)
     assert by_file["invalid.json"]["status"] == "rejected"
     assert by_file["invalid.json"]["problem_type"] == "validation-error"
     assert by_file["case3.json"]["status"] == "succeeded"
+
+    as_json = run_cli(served, "submit-dir", str(folder), "--summary", str(tmp_path / "third.csv"), "--no-progress",
+                      "--json")  # fmt: skip
+    assert as_json.returncode == 2, as_json.stderr
+    outcome = json.loads(as_json.stdout)  # the whole standard output is one JSON document
+    assert outcome["counts"] == {"rejected": 2, "succeeded": 6} and outcome["summary"] == str(tmp_path / "third.csv")
+    files = {f["file"]: f for f in outcome["files"]}
+    assert files["broken.json"]["problem_type"] == "malformed-json" and files["case5.json"]["job_id"]
 
 
 # ------------------------------------------------------------------ FHIR

@@ -79,3 +79,41 @@ def test_a_short_run_against_a_spawned_distributed_service(
 
         with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
             admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("fault", ["kill-worker", "restart-redis"])
+def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, postgres_store_url: str, redis_url: str,
+                                                fault: str) -> None:  # fmt: skip
+    """The bench's fault injection (issue 11): a worker killed by SIGKILL, or the bench's own Redis
+    restarted for 3 s, while jobs are in flight; every job ends once, within 30 s of the last
+    submission (the target of docs/reliability.md, "Recovery time under faults")."""
+    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadfault_{uuid.uuid4().hex[:8]}"
+    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
+    env = {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
+           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
+    out = tmp_path / "report.json"
+    cmd = [sys.executable, "-m", "tools.loadbench", "--spawn", "--url", f"http://127.0.0.1:{_free_port()}",
+           "--phases", "throughput", "--jobs", "400", "--concurrency", "8", "--warmup-seconds", "0",
+           "--recheck-seconds", "0.5", "--max-seconds", "150", "--log-dir", str(tmp_path / "logs"),
+           "--output", str(out), "--fault", fault, "--fault-at", "0.3",
+           *(["--own-redis"] if fault == "restart-redis" else [])]  # fmt: skip
+    try:
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+        run = json.loads(out.read_text())["throughput"]
+        in_flight = run["fault"]["in_flight_at_fault"]
+        assert in_flight["queued"] + in_flight["running"] > 0, run["fault"]  # the fault hit jobs in flight
+        if fault == "kill-worker":
+            assert run["fault"]["killed_pids"] >= 2  # the Celery process and its pool
+        assert run["jobs_submitted"] == 400 and run["statuses"] == {"succeeded": 400}
+        assert run["jobs_lost"] == 0 and run["jobs_with_two_outcomes"] == 0
+        assert run["last_submission_to_last_final_s"] <= 30, run
+    finally:
+        import psycopg
+
+        from tests.conftest import PG_ADMIN_URL, _purge_queue
+
+        _purge_queue(redis_url, queue)
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+            admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')

@@ -18,9 +18,8 @@ from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Pro
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.db import jobs as jobs_repo
 from services.db.deliveries import deliveries_json
-from services.db.jobs import MAX_BATCH_KEY_LENGTH
+from services.db.jobs import MAX_BATCH_KEY_LENGTH, job_json
 from services.db.runs import publish
-from services.db.views import job_json
 from services.webhooks.delivery import job_ended
 from spine_engine.errors import FieldError, InvalidInput
 
