@@ -1,6 +1,11 @@
 // The page's only network access: the service's own /v1 API, with the API key when one is set.
 import type { Job, JobPayload, Problem } from "./types";
 
+export interface JobPage {
+  jobs: Job[];
+  next_cursor: string | null;
+}
+
 const KEY_STORAGE = "spine.apiKey";
 
 export function loadApiKey(): string {
@@ -78,6 +83,13 @@ export class Api {
 
   async job(id: string): Promise<Job> {
     return this.json<Job>(await this.send("GET", `/v1/jobs/${encodeURIComponent(id)}`));
+  }
+
+  /** The caller's jobs, newest first; filters are sent only when non-empty. */
+  async jobs(filters: Record<string, string> = {}, limit = 50): Promise<JobPage> {
+    const q = new URLSearchParams({ limit: String(limit) });
+    for (const [k, v] of Object.entries(filters)) if (v.trim()) q.set(k, v.trim());
+    return this.json<JobPage>(await this.send("GET", `/v1/jobs?${q}`));
   }
 
   async cancel(id: string): Promise<Job> {

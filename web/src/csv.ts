@@ -65,23 +65,39 @@ export function landmarkCsv(pa: Landmark[], lateral: Landmark[]): string {
 }
 
 export const RESULT_CSV_COLUMNS = [
-  "level", "x_mm", "y_mm", "z_mm",
+  "level", "x_mm", "y_mm", "z_mm", "position_sd_x_mm", "position_sd_y_mm", "position_sd_z_mm",
   "d1_x", "d1_y", "d1_z", "d2_x", "d2_y", "d2_z", "d3_x", "d3_y", "d3_z",
   "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
-  "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "pa_residual_mm",
+  "sagittal_bending_deg", "frontal_bending_deg", "twist_deg", "axial_rotation_deg", "axial_rotation_sd_deg",
+  "pa_residual_mm", "model_estimate",
 ];
 
-/** One row per vertebra: pose (LPS mm, directors as rows), strains, angles and PA residual. */
+/** Columns that come from the model's prior when fit.unreliable names the quantity. */
+const MODEL_COLUMNS: Record<string, string[]> = {
+  depth: ["y_mm"], axial_rotation: ["axial_rotation_deg"], twist: ["u3_rad_per_mm", "twist_deg"], kyphosis: ["sagittal_bending_deg"],
+};
+
+const cell = (v: number | string | null | undefined): string => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
+
+/** One row per vertebra: pose (LPS mm, directors as rows) with SDs, strains, angles, PA residual and model marks. */
 export function resultCsv(result: RegistrationResult): string {
   const residual = new Map(result.fit.residuals.filter((r) => r.view === "pa").map((r) => [r.level, r.residual_mm]));
-  const cell = (v: number | null | undefined): string => (v === null || v === undefined ? "" : String(v));
+  const model = (result.fit.unreliable ?? []).flatMap((q) => MODEL_COLUMNS[q] ?? []).join(";");
   const rows = [RESULT_CSV_COLUMNS.join(",")];
   for (const v of result.vertebrae) {
     rows.push([
-      v.level, ...v.position, ...v.directors.flat(),
+      v.level, ...v.position, ...(v.position_sd_mm ?? [null, null, null]), ...v.directors.flat(),
       ...(v.u ?? [null, null, null]), ...(v.v ?? [null, null, null]),
-      v.pa_bending_deg, v.lateral_bending_deg, v.twist_deg, v.axial_rotation_deg, residual.get(v.level),
-    ].map((x) => (typeof x === "string" ? x : cell(x))).join(","));
+      v.sagittal_bending_deg ?? v.pa_bending_deg, v.frontal_bending_deg ?? v.lateral_bending_deg, v.twist_deg,
+      v.axial_rotation_deg, v.axial_rotation_sd_deg, residual.get(v.level), model,
+    ].map(cell).join(","));
   }
   return rows.join("\n") + "\n";
+}
+
+/** The measures as the page shows them: name, value with ±, whether it is a model estimate, and the note. */
+export function measuresCsv(rows: { name: string; value: string; model: boolean; note?: string }[]): string {
+  const out = ["measure,value,model_estimate,note"];
+  for (const r of rows) out.push([r.name, r.value, r.model ? "model estimate" : "", r.note ?? ""].map(cell).join(","));
+  return out.join("\n") + "\n";
 }

@@ -1,13 +1,16 @@
-// The page: landmarks (radiograph clicks, CSV or a JSON payload) + boundary conditions → POST
-// /v1/jobs → poll GET /v1/jobs/{id} → the reconstruction (3D, projections, tables, downloads).
+// The page: films (DICOM, PNG or JPEG) with their landmarks, a CSV or a JSON payload → POST
+// /v1/jobs → poll GET /v1/jobs/{id} → the reconstruction (3D, projections, measures with their
+// trust, report). #/jobs lists the caller's jobs; #/jobs/{id} reopens one after a reload.
 import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
-import { landmarkCsv, parseLandmarkCsv, resultCsv } from "./csv";
-import { Landmarker } from "./landmarker";
+import { capabilities, type Capabilities } from "./capabilities";
+import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
+import { sentences } from "./messages";
+import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
-import { drawProjections, type Backdrop } from "./projections";
-import { fillLegend, fillMeasures, fillStrains } from "./results";
-import { FINAL_STATUSES, type Job, type JobPayload, type Pose, type Problem, type Vec2, type Vec3, type ViewPayload } from "./types";
+import { drawProjections } from "./projections";
+import { fillLegend, fillLenke, fillMeasures, fillStrains, measureRows } from "./results";
+import { FINAL_STATUSES, type Job, type JobPayload, type Pose, type Problem, type Study, type Vec3, type ViewPayload } from "./types";
 import { SpineViewer } from "./viewer3d";
 
 const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
@@ -20,18 +23,20 @@ const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
 
 type Source = "image" | "csv" | "json";
 interface Draft {
-  source: Source;
+  source: Exclude<Source, "image">;
   pa: ViewPayload;
   lateral: ViewPayload | null;
-  /** Other top-level members of a pasted payload (options, …), sent back as they were. */
+  /** Other top-level members of a pasted payload (options, study, …), sent back as they were. */
   extras: Record<string, unknown>;
 }
 
+let source: Source = "image";
 let draft: Draft | null = null;
+let caps: Capabilities | null = null;
 let currentJob: Job | null = null;
-let jobBackdrop: Backdrop | null = null;
 let pollTimer: number | undefined;
 let viewer: SpineViewer | null = null;
+let figureUrl: string | null = null;
 
 const apiKeyInput = $<HTMLInputElement>("api-key");
 apiKeyInput.value = loadApiKey();
@@ -40,76 +45,49 @@ const api = new Api(() => apiKeyInput.value);
 
 // ------------------------------------------------------------------ tabs
 
-const tabs = [...document.querySelectorAll<HTMLButtonElement>("#source-tabs [role=tab]")];
-function selectTab(tab: HTMLButtonElement, focus = true): void {
-  for (const t of tabs) {
-    const selected = t === tab;
-    t.setAttribute("aria-selected", String(selected));
-    t.tabIndex = selected ? 0 : -1;
-    $(t.getAttribute("aria-controls") ?? "").hidden = !selected;
-  }
-  if (focus) tab.focus();
-}
-tabs.forEach((tab, i) => {
-  tab.addEventListener("click", () => selectTab(tab));
-  tab.addEventListener("keydown", (e) => {
-    const to = { ArrowRight: i + 1, ArrowLeft: i - 1, Home: 0, End: tabs.length - 1 }[e.key];
-    if (to === undefined) return;
-    e.preventDefault();
-    selectTab(tabs[(to + tabs.length) % tabs.length]);
+function tablist(listId: string, onSelect: (tab: HTMLButtonElement) => void = () => {}): (tab: HTMLButtonElement, focus?: boolean) => void {
+  const tabs = [...document.querySelectorAll<HTMLButtonElement>(`#${listId} [role=tab]`)];
+  const select = (tab: HTMLButtonElement, focus = true): void => {
+    for (const t of tabs) {
+      const selected = t === tab;
+      t.setAttribute("aria-selected", String(selected));
+      t.tabIndex = selected ? 0 : -1;
+      $(t.getAttribute("aria-controls") ?? "").hidden = !selected;
+    }
+    if (focus) tab.focus();
+    onSelect(tab);
+  };
+  tabs.forEach((tab, i) => {
+    tab.addEventListener("click", () => select(tab));
+    tab.addEventListener("keydown", (e) => {
+      const to = { ArrowRight: i + 1, ArrowLeft: i - 1, Home: 0, End: tabs.length - 1 }[e.key];
+      if (to === undefined) return;
+      e.preventDefault();
+      select(tabs[(to + tabs.length) % tabs.length]);
+    });
   });
-});
+  return select;
+}
+const selectSourceTab = tablist("source-tabs");
+const selectFilmTab = tablist("film-tabs");
 
-// ------------------------------------------------------------------ landmarks
+// ------------------------------------------------------------------ films
+
+const panels: Record<ViewName, FilmPanel> = {
+  pa: new FilmPanel("pa", $("film-pa"), () => filmsChanged()),
+  lateral: new FilmPanel("lateral", $("film-lateral"), () => filmsChanged()),
+};
+
+function filmsChanged(): void {
+  source = "image";
+  draftChanged();
+}
 
 const inputError = $("input-error");
 function showInputError(message: string | null): void {
   inputError.hidden = !message;
   inputError.textContent = message ?? "";
 }
-
-const pixelSpacing = $<HTMLInputElement>("pixel-spacing");
-const landmarker = new Landmarker($<HTMLCanvasElement>("image-canvas"), $("image-frame"), () => {
-  if (!landmarker.image) return;
-  const spacing = Number(pixelSpacing.value);
-  draft = {
-    source: "image",
-    pa: { units: "px", pixel_spacing: [spacing, spacing], landmarks: landmarker.landmarks },
-    lateral: null,
-    extras: {},
-  };
-  const next = landmarker.nextLevel;
-  const skipped = landmarker.skipped;
-  $("click-prompt").textContent = next
-    ? `Click the top endplate midpoint of ${next} (${landmarker.landmarks.length} placed${skipped.length ? `, skipped ${skipped.join(", ")}` : ""}).`
-    : `All levels done: ${landmarker.landmarks.length} landmarks placed${skipped.length ? `, skipped ${skipped.join(", ")}` : ""}.`;
-  draftChanged();
-});
-pixelSpacing.addEventListener("input", () => {
-  if (draft?.source === "image") {
-    const s = Number(pixelSpacing.value);
-    draft.pa.pixel_spacing = [s, s];
-    draftChanged();
-  }
-});
-$<HTMLInputElement>("image-file").addEventListener("change", async (e) => {
-  const file = (e.target as HTMLInputElement).files?.[0];
-  if (!file) return;
-  try {
-    showInputError(null);
-    await landmarker.load(file);
-    $("image-canvas").focus({ preventScroll: true });
-  } catch (error) {
-    showInputError(error instanceof Error ? error.message : String(error));
-  }
-});
-$("undo-landmark").addEventListener("click", () => landmarker.undo());
-$("skip-level").addEventListener("click", () => landmarker.skip());
-$("clear-landmarks").addEventListener("click", () => landmarker.clear());
-$<HTMLSelectElement>("image-zoom").addEventListener("change", (e) => {
-  const value = (e.target as HTMLSelectElement).value;
-  landmarker.setZoom(value === "fit" ? "fit" : Number(value));
-});
 
 async function readFile(input: HTMLInputElement, into: HTMLTextAreaElement): Promise<void> {
   const file = input.files?.[0];
@@ -119,23 +97,27 @@ const csvText = $<HTMLTextAreaElement>("csv-text");
 $<HTMLInputElement>("csv-file").addEventListener("change", (e) => void readFile(e.target as HTMLInputElement, csvText));
 $("use-csv").addEventListener("click", () => {
   const parsed = parseLandmarkCsv(csvText.value);
+  const units = $<HTMLSelectElement>("csv-units").value as "mm" | "px";
+  const spacing = Number($<HTMLInputElement>("csv-spacing").value);
+  if (!parsed.errors.length && units === "px" && !(spacing > 0)) parsed.errors.push("pixel coordinates need the pixel spacing (mm per pixel): enter it beside the units");
   if (parsed.errors.length) {
-    showInputError(`The CSV has ${parsed.errors.length} problem(s): ${parsed.errors.slice(0, 5).join("; ")}`);
+    showInputError(`The CSV has ${parsed.errors.length} problem${parsed.errors.length === 1 ? "" : "s"}: ${parsed.errors.slice(0, 5).join("; ")}.`);
     return;
   }
   showInputError(null);
-  const units = $<HTMLSelectElement>("csv-units").value as "mm" | "px";
-  const spacing = Number($<HTMLInputElement>("csv-spacing").value);
   const view = (landmarks: ViewPayload["landmarks"]): ViewPayload =>
     units === "px" ? { units, pixel_spacing: [spacing, spacing], landmarks } : { units, landmarks };
   draft = { source: "csv", pa: view(parsed.pa), lateral: parsed.lateral.length ? view(parsed.lateral) : null, extras: {} };
+  source = "csv";
   draftChanged();
 });
 
 const jsonText = $<HTMLTextAreaElement>("json-text");
 $<HTMLInputElement>("json-file").addEventListener("change", (e) => void readFile(e.target as HTMLInputElement, jsonText));
 $("load-sample").addEventListener("click", () => {
-  jsonText.value = JSON.stringify(samplePayload(), null, 2);
+  const sample = samplePayload();
+  delete sample.boundary; // the clinic's default: nothing assumed about T1 and L5
+  jsonText.value = JSON.stringify(sample, null, 2);
   useJson();
 });
 $("use-json").addEventListener("click", useJson);
@@ -145,46 +127,61 @@ function useJson(): void {
   try {
     value = JSON.parse(jsonText.value);
   } catch (error) {
-    showInputError(`The payload is not valid JSON: ${error instanceof Error ? error.message : String(error)}`);
+    showInputError(`The payload is not valid JSON: ${error instanceof Error ? error.message : String(error)}.`);
     return;
   }
   if (!value || typeof value !== "object" || Array.isArray(value)) {
-    showInputError("The payload must be a JSON object with pa and boundary.");
+    showInputError("The payload must be a JSON object with pa (and optionally lateral, boundary, study).");
     return;
   }
   const { pa, lateral, boundary, ...extras } = value as Record<string, unknown>;
   const landmarksOf = (v: unknown): boolean => !!v && typeof v === "object" && Array.isArray((v as ViewPayload).landmarks);
   if (!landmarksOf(pa)) {
-    showInputError("The payload needs pa.landmarks (a list of {level, point}).");
+    showInputError("The payload needs pa.landmarks: a list of {level, point} or {level, corners}.");
     return;
   }
   showInputError(null);
   draft = { source: "json", pa: pa as ViewPayload, lateral: landmarksOf(lateral) ? (lateral as ViewPayload) : null, extras };
+  source = "json";
+  applyBoundary(boundary);
+  draftChanged();
+}
+
+function applyBoundary(boundary: unknown): void {
   if (boundary && typeof boundary === "object") {
     const b = boundary as Record<string, Pose>;
     autoL5.checked = false;
     setBoundary({ T1: b.T1 ?? defaultBoundary().T1, L5: b.L5 ?? defaultBoundary().L5 });
+    setGiveBoundary(true);
+    $<HTMLDetailsElement>("boundary-details").open = true;
+  } else {
+    setGiveBoundary(false);
   }
-  setNoBoundary(boundary === undefined || boundary === null);
-  draftChanged();
+}
+
+/** The views of the payload: from the films, or from the CSV / JSON draft. */
+function views(): { pa: ViewPayload | null; lateral: ViewPayload | null } {
+  if (source !== "image") return { pa: draft?.pa ?? null, lateral: draft?.lateral ?? null };
+  const accepts = { acquisition: !!caps?.acquisition, calibration: !!caps?.calibration };
+  return { pa: panels.pa.payload(accepts), lateral: panels.lateral.payload(accepts) };
 }
 
 function draftChanged(): void {
+  const v = views();
   const summary = $("landmark-summary");
-  if (!draft) {
+  if (!v.pa && !v.lateral) {
     summary.textContent = "No landmarks yet.";
   } else {
-    const from = { image: "clicked on the radiograph", csv: "from the CSV", json: "from the payload" }[draft.source];
-    const units = draft.pa.units === "px" ? `px at ${draft.pa.pixel_spacing?.[1] ?? "?"} mm/px` : "mm";
-    const lat = draft.lateral ? `, ${draft.lateral.landmarks.length} lateral` : "";
-    summary.textContent = `${draft.pa.landmarks.length} PA landmark${draft.pa.landmarks.length === 1 ? "" : "s"}${lat} ${from} (${units}).`;
+    const from = { image: "placed on the films", csv: "from the CSV", json: "from the payload" }[source];
+    const count = (x: ViewPayload | null, name: string): string => (x ? `${x.landmarks.length} ${name} landmark${x.landmarks.length === 1 ? "" : "s"}` : "");
+    summary.textContent = `${[count(v.pa, "PA"), count(v.lateral, "lateral")].filter(Boolean).join(", ")} ${from}.`;
   }
-  $<HTMLButtonElement>("download-landmarks").disabled = !draft?.pa.landmarks.length;
+  $<HTMLButtonElement>("download-landmarks").disabled = !(v.pa?.landmarks.length || v.lateral?.landmarks.length);
   applyAutoL5();
   updatePreview();
 }
 
-// ------------------------------------------------------------------ boundary conditions
+// ------------------------------------------------------------------ boundary conditions (advanced)
 
 const boundaryFields = $("boundary-fields");
 const inputs: Record<"T1" | "L5", { position: HTMLInputElement[]; directors: HTMLInputElement[][] }> = {
@@ -206,22 +203,15 @@ for (const vertebra of ["T1", "L5"] as const) {
   legend.textContent = vertebra;
   const grid = document.createElement("div");
   grid.className = "pose-grid";
-  const head = ["", "x", "y", "z"].map((t) => {
+  const cell = (text: string, cls: string): HTMLSpanElement => {
     const s = document.createElement("span");
-    s.className = "pose-head";
-    s.textContent = t;
-    s.setAttribute("aria-hidden", "true");
-    return s;
-  });
-  grid.append(...head);
-  const rowLabel = (text: string): HTMLSpanElement => {
-    const s = document.createElement("span");
-    s.className = "pose-row";
+    s.className = cls;
     s.textContent = text;
     s.setAttribute("aria-hidden", "true");
     return s;
   };
-  grid.append(rowLabel("position (mm)"));
+  grid.append(...["", "x", "y", "z"].map((t) => cell(t, "pose-head")));
+  grid.append(cell("position (mm)", "pose-row"));
   for (const axis of ["x", "y", "z"]) {
     const input = numberInput(`${vertebra} position ${axis} (mm)`, `${vertebra}-position-${axis}`);
     if (vertebra === "L5") input.addEventListener("input", () => (autoL5.checked = false));
@@ -229,7 +219,7 @@ for (const vertebra of ["T1", "L5"] as const) {
     grid.append(input);
   }
   for (const d of ["d1", "d2", "d3"]) {
-    grid.append(rowLabel(d));
+    grid.append(cell(d, "pose-row"));
     const row: HTMLInputElement[] = [];
     for (const axis of ["x", "y", "z"]) {
       const input = numberInput(`${vertebra} director ${d} ${axis}`, `${vertebra}-${d}-${axis}`);
@@ -262,9 +252,10 @@ function readBoundary(): { T1: Pose; L5: Pose } {
 const autoL5 = $<HTMLInputElement>("auto-l5");
 const magnification = $<HTMLInputElement>("magnification");
 function applyAutoL5(): void {
-  if (!autoL5.checked || !draft) return;
+  const pa = views().pa;
+  if (!autoL5.checked || !pa) return;
   const b = readBoundary();
-  const l5 = l5FromLandmarks(draft.pa, b.T1.position, b.L5.position, Number(magnification.value));
+  const l5 = l5FromLandmarks(pa, b.T1.position, b.L5.position, Number(magnification.value));
   if (l5) l5.forEach((x, k) => (inputs.L5.position[k].value = String(x)));
 }
 autoL5.addEventListener("change", () => {
@@ -278,36 +269,101 @@ magnification.addEventListener("input", () => {
 $("reset-boundary").addEventListener("click", () => {
   setBoundary(defaultBoundary());
   autoL5.checked = true;
-  setNoBoundary(false);
   applyAutoL5();
   updatePreview();
 });
 
-// "T1 and L5 are not known": the payload goes without boundary, and the pose fields are disabled.
-const noBoundary = $<HTMLInputElement>("no-boundary");
-function setNoBoundary(on: boolean): void {
-  noBoundary.checked = on;
-  boundaryFields.querySelectorAll("fieldset").forEach((f) => (f.disabled = on));
-  autoL5.disabled = on;
-  magnification.disabled = on;
+// Poses are sent only when the user says so: the clinic's default assumes nothing about T1 and L5.
+const giveBoundary = $<HTMLInputElement>("give-boundary");
+function setGiveBoundary(on: boolean): void {
+  giveBoundary.checked = on;
+  boundaryFields.querySelectorAll("fieldset").forEach((f) => (f.disabled = !on));
+  autoL5.disabled = !on;
+  magnification.disabled = !on;
   updatePreview();
 }
-noBoundary.addEventListener("change", () => setNoBoundary(noBoundary.checked));
+giveBoundary.addEventListener("change", () => setGiveBoundary(giveBoundary.checked));
 
-// ------------------------------------------------------------------ payload, submit, poll
+// ------------------------------------------------------------------ payload, what is missing, submit, poll
+
+function studyFromFilms(): Study | null {
+  const pa = panels.pa.dicom?.study;
+  const lat = panels.lateral.dicom?.study;
+  const uid = pa?.study_instance_uid ?? lat?.study_instance_uid;
+  if (source !== "image" || !uid) return null;
+  const all: Record<string, string | undefined> = {
+    study_instance_uid: uid,
+    series_instance_uid: pa?.series_instance_uid ?? lat?.series_instance_uid,
+    pa_sop_instance_uid: pa?.sop_instance_uid,
+    lateral_sop_instance_uid: lat?.study_instance_uid === uid ? lat?.sop_instance_uid : undefined,
+    patient_id: pa?.patient_id ?? lat?.patient_id,
+    patient_name: pa?.patient_name ?? lat?.patient_name,
+    accession_number: pa?.accession_number ?? lat?.accession_number,
+    study_date: pa?.study_date ?? lat?.study_date,
+  };
+  const fields = caps?.studyFields ?? new Set(["study_instance_uid"]);
+  const study: Record<string, string> = {};
+  for (const [k, v] of Object.entries(all)) if (v && fields.has(k)) study[k] = v;
+  return study as unknown as Study;
+}
 
 function buildPayload(): JobPayload | null {
-  if (!draft) return null;
-  const payload: JobPayload = { ...draft.extras, pa: draft.pa };
-  if (!noBoundary.checked) payload.boundary = readBoundary();
-  if (draft.lateral) payload.lateral = draft.lateral;
+  const v = views();
+  if (!v.pa) return null;
+  const payload: JobPayload = { ...(source === "image" ? {} : draft?.extras), pa: v.pa };
+  if (v.lateral) payload.lateral = v.lateral;
+  if (giveBoundary.checked) payload.boundary = readBoundary();
+  const study = studyFromFilms();
+  if (study) payload.study = study;
   return payload;
+}
+
+/** What stops the input from being a valid job, in plain words (the service checks again). */
+function missing(): string[] {
+  const out: string[] = [];
+  const v = views();
+  if (source === "image") {
+    out.push(...panels.pa.problems(), ...panels.lateral.problems());
+    if (!panels.pa.hasFilm()) out.push("Open the PA film (DICOM, PNG or JPEG), or give the landmarks as a CSV or a payload.");
+  }
+  if (!v.pa) {
+    if (source !== "image" || panels.pa.hasFilm()) out.push("Place landmarks on the PA film: the PA view is required.");
+  } else {
+    const levels = new Set(v.pa.landmarks.map((l) => l.level));
+    const lacking = (["T1", "L5"] as const).filter((l) => !levels.has(l));
+    if (lacking.length && !v.pa.projection) out.push(`Place ${lacking.join(" and ")} on the PA film: the first and last vertebrae set the film's scale and place the spine.`);
+  }
+  if (giveBoundary.checked) {
+    const b = readBoundary();
+    const bad = (["T1", "L5"] as const).filter((k) => [...b[k].position, ...b[k].directors.flat()].some((x) => !Number.isFinite(x)));
+    if (bad.length) out.push(`Fill every number of the ${bad.join(" and ")} pose, or untick “Send these T1 and L5 poses”.`);
+  }
+  return out;
 }
 
 function updatePreview(): void {
   const payload = buildPayload();
-  // NaN (an empty or invalid field) is shown and sent as null, which the API names in its answer.
   $("payload-preview").textContent = payload ? JSON.stringify(payload, null, 2) : "Give landmarks first.";
+  const box = $("missing");
+  const list = missing();
+  box.replaceChildren();
+  if (list.length) {
+    const p = document.createElement("p");
+    p.textContent = "Before this can be sent:";
+    const ul = document.createElement("ul");
+    for (const m of list) {
+      const li = document.createElement("li");
+      li.textContent = m;
+      ul.append(li);
+    }
+    box.append(p, ul);
+  } else if (payload) {
+    const p = document.createElement("p");
+    p.className = "ready";
+    p.textContent = `Ready to send: ${payload.lateral ? "PA and lateral films" : "the PA film"}, ${payload.boundary ? "with the given T1 and L5 poses" : "no T1/L5 poses assumed"}.`;
+    box.append(p);
+  }
+  box.dataset.ready = String(!list.length && !!payload);
 }
 
 const statusLine = $("job-status");
@@ -315,48 +371,45 @@ const problemBox = $("problem");
 const submitButton = $<HTMLButtonElement>("submit");
 const cancelButton = $<HTMLButtonElement>("cancel-job");
 
-function showProblem(problem: Problem | null): void {
-  problemBox.hidden = !problem;
-  problemBox.replaceChildren();
+function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknown): void {
+  box.hidden = !problem;
+  box.replaceChildren();
   if (!problem) return;
-  const title = document.createElement("p");
-  title.className = "problem-title";
-  title.textContent = `${problem.title}${problem.status ? ` (HTTP ${problem.status})` : ""}`;
-  const detail = document.createElement("p");
-  detail.textContent = problem.detail;
-  problemBox.append(title, detail);
-  if (problem.errors?.length) {
-    const list = document.createElement("ul");
-    for (const e of problem.errors) {
-      const li = document.createElement("li");
-      const code = document.createElement("code");
-      code.textContent = e.path || "(body)";
-      li.append(code, `: ${e.msg}`);
-      list.append(li);
-    }
-    problemBox.append(list);
+  const { title, lines } = sentences(problem, payload);
+  const head = document.createElement("p");
+  head.className = "problem-title";
+  head.textContent = `${title}.`;
+  box.append(head);
+  const list = document.createElement("ul");
+  for (const line of lines) {
+    const li = document.createElement("li");
+    li.textContent = line;
+    list.append(li);
   }
+  box.append(list);
 }
 
 submitButton.addEventListener("click", async () => {
+  caps ??= await capabilities();
   const payload = buildPayload();
-  if (!payload) {
-    showProblem({ type: "about:blank", title: "No landmarks", status: 0, detail: "Give the landmarks first: click them on a radiograph, or use a CSV or a payload." });
+  const list = missing();
+  if (!payload || list.length) {
+    updatePreview();
+    showProblem(problemBox, { type: "about:blank", title: "Not ready", status: 0, detail: list.join(" ") || "Give the landmarks first." });
+    $("missing").focus?.();
     return;
   }
   window.clearTimeout(pollTimer);
-  showProblem(null);
+  showProblem(problemBox, null);
   submitButton.disabled = true;
   statusLine.textContent = "Submitting…";
   try {
     const job = await api.submit(payload);
-    jobBackdrop = draft?.source === "image" && landmarker.image
-      ? { url: landmarker.image.url, width: landmarker.image.width, height: landmarker.image.height, spacing: (draft.pa.pixel_spacing ?? [1, 1]) as Vec2 }
-      : null;
+    history.replaceState(null, "", `#/jobs/${job.id}`);
     track(job);
   } catch (error) {
     statusLine.textContent = "The job was not accepted.";
-    showProblem(error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+    showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) }, payload);
   } finally {
     submitButton.disabled = false;
   }
@@ -367,7 +420,7 @@ cancelButton.addEventListener("click", async () => {
   try {
     track(await api.cancel(currentJob.id));
   } catch (error) {
-    if (error instanceof ApiError) showProblem(error.problem);
+    if (error instanceof ApiError) showProblem(problemBox, error.problem);
   }
 });
 
@@ -376,15 +429,13 @@ function track(job: Job, started = Date.now(), failures = 0): void {
   const seconds = ((Date.now() - started) / 1000).toFixed(1);
   statusLine.dataset.status = job.status;
   const final = FINAL_STATUSES.has(job.status);
-  statusLine.textContent = final
-    ? `Job ${job.id} ${job.status}.`
-    : `Job ${job.id} is ${job.status} (${seconds} s)…`;
+  statusLine.textContent = final ? `Job ${job.id} ${job.status}.` : `Job ${job.id} is ${job.status} (${seconds} s)…`;
   cancelButton.hidden = final;
   if (job.status === "succeeded" && job.result) {
     showResult(job);
     return;
   }
-  if (job.status === "failed" && job.error) showProblem(job.error);
+  if (job.status === "failed" && job.error) showProblem(problemBox, job.error, job.payload);
   if (final) return;
   const delay = Date.now() - started < 30_000 ? 400 : 2000;
   pollTimer = window.setTimeout(async () => {
@@ -393,7 +444,7 @@ function track(job: Job, started = Date.now(), failures = 0): void {
     } catch (error) {
       if (failures >= 5) {
         statusLine.textContent = `Lost track of job ${job.id}.`;
-        if (error instanceof ApiError) showProblem(error.problem);
+        if (error instanceof ApiError) showProblem(problemBox, error.problem);
         return;
       }
       track(job, started, failures + 1);
@@ -401,7 +452,7 @@ function track(job: Job, started = Date.now(), failures = 0): void {
   }, delay);
 }
 
-// ------------------------------------------------------------------ result
+// ------------------------------------------------------------------ result and report
 
 function showResult(job: Job): void {
   const result = job.result;
@@ -411,14 +462,52 @@ function showResult(job: Job): void {
   viewer ??= new SpineViewer($("view3d"), $("view3d-orientation"));
   viewer.show(result);
   const payload = (job.payload ?? buildPayload()) as JobPayload;
-  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, jobBackdrop);
-  $("pa-caption").textContent = jobBackdrop ? " over the radiograph" : " (detector mm)";
+  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, null);
+  $("pa-caption").textContent = " (detector mm)";
   $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
   fillLegend($("legend"), result);
   fillMeasures($<HTMLTableElement>("measures"), job, result);
+  fillLenke($("lenke"), result);
   fillStrains($<HTMLTableElement>("strains"), result);
+  fillReportHead(job);
+  $<HTMLAnchorElement>("job-link").href = `#/jobs/${job.id}`;
   $("result").dataset.jobId = job.id;
+  void loadFigure(job.id);
 }
+
+function fillReportHead(job: Job): void {
+  const study = job.study ?? job.payload?.study ?? null;
+  const rows: [string, string][] = [
+    ["Patient", [study?.patient_name, study?.patient_id && `ID ${study.patient_id}`].filter(Boolean).join(", ") || "not given"],
+    ["Study", [study?.study_date, study?.accession_number && `accession ${study.accession_number}`, study?.study_instance_uid && `UID ${study.study_instance_uid}`].filter(Boolean).join(", ") || "not given"],
+    ["Job", `${job.id}, created ${new Date(job.created_at).toLocaleString()}${job.finished_at ? `, finished ${new Date(job.finished_at).toLocaleString()}` : ""}`],
+    ["Engine", `${job.result?.engine.version ?? job.engine_version ?? "?"}, profile ${job.result?.engine.profile ?? "?"}`],
+    ["Inputs", `${job.payload?.pa.landmarks.length ?? "?"} PA landmarks${job.payload?.lateral ? `, ${job.payload.lateral.landmarks.length} lateral` : ""}; T1 and L5 poses ${job.payload?.boundary ? "given" : "not given (estimated)"}`],
+  ];
+  $("report-meta").replaceChildren(...rows.flatMap(([k, v]) => {
+    const dt = document.createElement("dt");
+    dt.textContent = k;
+    const dd = document.createElement("dd");
+    dd.textContent = v;
+    return [dt, dd];
+  }));
+}
+
+async function loadFigure(id: string): Promise<void> {
+  const img = $<HTMLImageElement>("report-figure");
+  try {
+    const blob = await api.blob(`/v1/jobs/${id}/figure.png`);
+    if (figureUrl) URL.revokeObjectURL(figureUrl);
+    figureUrl = URL.createObjectURL(blob);
+    img.src = figureUrl;
+    await img.decode();
+    img.dataset.loaded = "true";
+  } catch {
+    img.dataset.loaded = "false";
+  }
+}
+
+$("print-report").addEventListener("click", () => window.print());
 
 function download(name: string, blob: Blob): void {
   const url = URL.createObjectURL(blob);
@@ -432,7 +521,8 @@ function download(name: string, blob: Blob): void {
 }
 
 $("download-landmarks").addEventListener("click", () => {
-  if (draft) download(`landmarks-${draft.pa.units ?? "mm"}.csv`, new Blob([landmarkCsv(draft.pa.landmarks, draft.lateral?.landmarks ?? [])], { type: "text/csv" }));
+  const v = views();
+  if (v.pa || v.lateral) download("landmarks.csv", new Blob([landmarkCsv(v.pa?.landmarks ?? [], v.lateral?.landmarks ?? [])], { type: "text/csv" }));
 });
 $("download-json").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}.json`, new Blob([JSON.stringify(currentJob.result, null, 2)], { type: "application/json" }));
@@ -440,13 +530,16 @@ $("download-json").addEventListener("click", () => {
 $("download-csv").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}.csv`, new Blob([resultCsv(currentJob.result)], { type: "text/csv" }));
 });
+$("download-measures").addEventListener("click", () => {
+  if (currentJob?.result) download(`spine-${currentJob.id}-measures.csv`, new Blob([measuresCsv(measureRows(currentJob, currentJob.result))], { type: "text/csv" }));
+});
 for (const fmt of ["png", "svg"] as const) {
   $(`download-${fmt}`).addEventListener("click", async () => {
     if (!currentJob) return;
     try {
       download(`spine-${currentJob.id}.${fmt}`, await api.blob(`/v1/jobs/${currentJob.id}/figure.${fmt}`));
     } catch (error) {
-      if (error instanceof ApiError) showProblem(error.problem);
+      if (error instanceof ApiError) showProblem(problemBox, error.problem);
     }
   });
 }
@@ -454,6 +547,107 @@ $("view-front").addEventListener("click", () => viewer?.setView("front"));
 $("view-side").addEventListener("click", () => viewer?.setView("side"));
 $("view-reset").addEventListener("click", () => viewer?.setView("reset"));
 
+// ------------------------------------------------------------------ jobs list and routes
+
+const jobsFilter = $<HTMLFormElement>("jobs-filter");
+jobsFilter.addEventListener("submit", (e) => {
+  e.preventDefault();
+  void showJobs();
+});
+
+async function showJobs(): Promise<void> {
+  caps ??= await capabilities();
+  const note = $("jobs-note");
+  const filters: Record<string, string> = {};
+  const ignored: string[] = [];
+  for (const input of jobsFilter.querySelectorAll<HTMLInputElement>("input")) {
+    if (!input.value.trim()) continue;
+    if (caps.jobFilters.has(input.name)) filters[input.name] = input.value;
+    else ignored.push(input.labels?.[0]?.textContent ?? input.name);
+  }
+  note.textContent = ignored.length ? `This service cannot filter by ${ignored.join(", ")} yet: showing all jobs.` : "";
+  showProblem($("jobs-problem"), null);
+  const body = $<HTMLTableElement>("jobs-table").tBodies[0];
+  try {
+    const page = await api.jobs(filters);
+    body.replaceChildren(...page.jobs.map(jobRow));
+    if (!page.jobs.length) note.textContent = `${note.textContent} No job yet.`.trim();
+  } catch (error) {
+    body.replaceChildren();
+    showProblem($("jobs-problem"), error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  }
+}
+
+function jobRow(job: Job): HTMLTableRowElement {
+  const tr = document.createElement("tr");
+  const cell = (content: string | Node): HTMLTableCellElement => {
+    const td = document.createElement("td");
+    td.append(content);
+    return td;
+  };
+  const link = document.createElement("a");
+  link.href = `#/jobs/${job.id}`;
+  link.textContent = job.id.slice(0, 8);
+  link.setAttribute("aria-label", `Open job ${job.id}`);
+  const s = job.study;
+  const major = job.result?.measures.cobb.find((c) => c.major);
+  tr.append(
+    cell(link),
+    cell(job.status),
+    cell(new Date(job.created_at).toLocaleString()),
+    cell([s?.patient_name, s?.patient_id].filter(Boolean).join(", ") || "—"),
+    cell([s?.accession_number, s?.study_instance_uid].filter(Boolean).join(" · ") || "—"),
+    cell(major ? `${major.angle_deg.toFixed(1)}°${major.angle_sd_deg != null ? ` ± ${major.angle_sd_deg.toFixed(1)}°` : ""} (${major.upper}–${major.lower})` : "—"),
+  );
+  return tr;
+}
+
+/** Reopen a job: its films' landmarks (from the stored payload) in the editors, its result. */
+async function openJob(id: string): Promise<void> {
+  if (currentJob?.id === id) return;
+  window.clearTimeout(pollTimer);
+  statusLine.textContent = `Opening job ${id}…`;
+  try {
+    const job = await api.job(id);
+    if (job.payload) {
+      const p = job.payload;
+      panels.pa.restore(p.pa);
+      if (p.lateral) panels.lateral.restore(p.lateral);
+      source = "image";
+      applyBoundary(p.boundary);
+      selectSourceTab($<HTMLButtonElement>("tab-image"), false);
+      draftChanged();
+    }
+    track(job);
+  } catch (error) {
+    statusLine.textContent = `Job ${id} could not be opened.`;
+    showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  }
+}
+
+function route(): void {
+  const hash = location.hash.replace(/^#/, "");
+  const jobsPage = hash === "/jobs";
+  $("page-jobs").hidden = !jobsPage;
+  $("page-job").hidden = jobsPage;
+  document.querySelectorAll<HTMLAnchorElement>(".site-nav a").forEach((a) => {
+    const here = a.getAttribute("href") === `#${hash}` || (a.getAttribute("href") === "#/" && !jobsPage && !hash.startsWith("/jobs/"));
+    if (here) a.setAttribute("aria-current", "page");
+    else a.removeAttribute("aria-current");
+  });
+  if (jobsPage) void showJobs();
+  const m = hash.match(/^\/jobs\/([0-9a-fA-F-]{36})$/);
+  if (m) void openJob(m[1]);
+}
+window.addEventListener("hashchange", route);
+
 setBoundary(defaultBoundary());
+setGiveBoundary(false);
+selectFilmTab($<HTMLButtonElement>("tab-film-pa"), false);
 draftChanged();
+void capabilities().then((c) => {
+  caps = c;
+  draftChanged();
+});
+route();
 document.body.dataset.ready = "true";

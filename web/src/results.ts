@@ -1,58 +1,176 @@
-// The result's tables (clinical measures, strains per vertebra) and the colour legend.
+// The result's tables (clinical measures, Lenke inputs, strains per vertebra) and the colour
+// legend. Every number with its trust: ± one SD where the result gives one, and a visible
+// "model estimate" mark on the quantities listed in fit.unreliable (they come from the model's
+// prior, not from the landmarks).
 import { bendingLimit, gradientCss } from "./colors";
-import type { Job, RegistrationResult } from "./types";
+import type { Job, RegistrationResult, VertebraResult } from "./types";
 
-const num = (x: number | null | undefined, digits = 1): string => (x === null || x === undefined ? "—" : x.toFixed(digits));
+export const MODEL_MARK = "model estimate";
 
-function row(th: string, td: string): HTMLTableRowElement {
-  const tr = document.createElement("tr");
-  const h = document.createElement("th");
-  h.scope = "row";
-  h.textContent = th;
+const num = (x: number | null | undefined, digits = 1): string => (x === null || x === undefined || !Number.isFinite(x) ? "—" : x.toFixed(digits));
+
+/** "12.3° ± 1.4°" with a SD, "12.3°" without. */
+export function withSd(value: number | null | undefined, sd: number | null | undefined, unit = "°", digits = 1): string {
+  const v = `${num(value, digits)}${unit}`;
+  return sd === null || sd === undefined || !Number.isFinite(sd) ? v : `${v} ± ${num(sd, digits)}${unit}`;
+}
+
+export function unreliable(result: RegistrationResult): Set<string> {
+  return new Set(result.fit.unreliable ?? []);
+}
+
+/** Frontal bending (the contract's new name, else the deprecated alias). */
+export const frontalBending = (v: VertebraResult): number | null => v.frontal_bending_deg ?? v.lateral_bending_deg;
+export const sagittalBending = (v: VertebraResult): number | null => v.sagittal_bending_deg ?? v.pa_bending_deg;
+
+function mark(): HTMLElement {
+  const s = document.createElement("span");
+  s.className = "model-mark";
+  s.textContent = MODEL_MARK;
+  s.title = "From the model's prior, not from the landmarks: do not read it as measured.";
+  return s;
+}
+
+export interface MeasureRow {
+  name: string;
+  value: string;
+  model: boolean;
+  note?: string;
+}
+
+/** The measures as rows of words (the page's table, the printed report and the CSV share them). */
+export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] {
+  const m = result.measures;
+  const u = unreliable(result);
+  const rows: MeasureRow[] = [];
+  const byLevel = new Map(result.vertebrae.map((v) => [v.level, v]));
+  if (!m.cobb.length) rows.push({ name: "Frontal curves", value: "none found", model: false });
+  for (const c of m.cobb) {
+    rows.push({
+      name: `${c.major ? "Major" : "Minor"} curve ${c.upper}–${c.lower}, Cobb angle`,
+      value: withSd(c.angle_deg, c.angle_sd_deg),
+      model: false,
+      note: `apex ${c.apex}, convex to the patient's ${c.convexity}`,
+    });
+    const rotation = c.apex_axial_rotation_deg;
+    const toward = rotation === 0 ? "" : (rotation > 0) === (c.convexity === "left") ? "toward the convexity" : "toward the concavity";
+    rows.push({
+      name: `Apex ${c.apex} axial rotation`,
+      value: withSd(rotation, byLevel.get(c.apex)?.axial_rotation_sd_deg),
+      model: u.has("axial_rotation"),
+      note: `the vertebral body turned ${toward || "straight ahead"} (positive: toward the patient's left, seen from above)`,
+    });
+    rows.push({
+      name: `Plane of maximum curvature ${c.upper}–${c.lower}`,
+      value: `${num(c.plane_of_max_curvature_deg)}° (Cobb ${num(c.max_curvature_deg)}° in it)`,
+      model: u.has("plane_of_max_curvature"),
+      note: "azimuth from the frontal plane, toward anterior",
+    });
+  }
+  if (m.aasce2019) rows.push({ name: `AASCE 2019 major angle ${m.aasce2019.upper}–${m.aasce2019.lower}`, value: `${num(m.aasce2019.angle_deg)}°`, model: false, note: "from the four corners" });
+  const kyph = u.has("kyphosis");
+  rows.push({ name: "Thoracic kyphosis T4–T12", value: withSd(m.thoracic_kyphosis_t4_t12_deg, m.thoracic_kyphosis_t4_t12_sd_deg), model: kyph, note: "positive: convex posteriorly" });
+  rows.push({ name: "Thoracic kyphosis T5–T12", value: withSd(m.thoracic_kyphosis_t5_t12_deg, m.thoracic_kyphosis_t5_t12_sd_deg), model: kyph, note: "positive: convex posteriorly" });
+  rows.push({ name: "Lumbar lordosis L1–L5", value: withSd(m.lumbar_lordosis_l1_l5_deg, m.lumbar_lordosis_l1_l5_sd_deg), model: u.has("lordosis"), note: "positive: convex anteriorly" });
+  const f = result.fit;
+  for (const view of ["pa", "lateral"] as const) {
+    const p = f[view];
+    if (!p) continue;
+    const source = p.scale_source ? `, ${({ given: "given in the payload", acquisition: "from the acquisition geometry", prior: "from the model's prior on magnification", estimated: "estimated from the landmarks" } as Record<string, string>)[p.scale_source] ?? p.scale_source}` : "";
+    const cal = p.pixel_spacing_calibration ? `; spacing calibration ${p.pixel_spacing_calibration}` : "";
+    rows.push({
+      name: `${view === "pa" ? "PA" : "Lateral"} film scale`,
+      value: `${num(p.scale, 3)}`,
+      model: u.has("scale") || p.scale_source === "prior",
+      note: `detector mm per patient mm${source}${p.model ? `, ${p.model.replace("_", " ")} projection` : ""}${p.rotation_deg !== undefined ? `, film rotated ${num(p.rotation_deg)}°` : ""}${cal}`,
+    });
+  }
+  if (u.has("depth")) rows.push({ name: "Depth (front–back position)", value: "from the model", model: true, note: "no lateral film constrains it" });
+  if (u.has("twist")) rows.push({ name: "Twist between vertebrae", value: "see the strains table", model: true });
+  rows.push({ name: "Mean PA registration error", value: `${num(f.mean_registration_error_mm, 2)} mm`, model: false });
+  rows.push({ name: "Fit", value: `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`, model: false });
+  const boundary = { given: "given (fixed)", soft: "given with an uncertainty", estimated: "not given: estimated from the landmarks and the model" }[f.boundary ?? "given"];
+  rows.push({ name: "T1 and L5 poses", value: boundary, model: false });
+  if (f.uncertainty_scale !== undefined) rows.push({ name: "Uncertainty calibration factor", value: num(f.uncertainty_scale, 2), model: false, note: "applied to the standard deviations" });
+  rows.push({ name: "Engine", value: `${result.engine.version}, profile ${result.engine.profile}`, model: false, note: `job ${job.id}` });
+  return rows;
+}
+
+function td(text: string, cls?: string): HTMLTableCellElement {
   const d = document.createElement("td");
-  d.textContent = td;
-  tr.append(h, d);
-  return tr;
+  d.textContent = text;
+  if (cls) d.className = cls;
+  return d;
 }
 
 export function fillMeasures(table: HTMLTableElement, job: Job, result: RegistrationResult): void {
-  const body = table.tBodies[0];
-  const m = result.measures;
-  const rows: HTMLTableRowElement[] = [];
-  if (!m.cobb.length) rows.push(row("Frontal curves", "none found"));
-  for (const c of m.cobb) {
-    rows.push(row(
-      `${c.major ? "Major" : "Minor"} curve ${c.upper}–${c.lower}`,
-      `Cobb ${num(c.angle_deg)}°, apex ${c.apex}, convex to the ${c.convexity}; apex axial rotation ${num(c.apex_axial_rotation_deg)}°; ` +
-        `plane of maximum curvature ${num(c.plane_of_max_curvature_deg)}° (${num(c.max_curvature_deg)}° in it)`,
-    ));
-  }
-  rows.push(row("Thoracic kyphosis T4–T12", `${num(m.thoracic_kyphosis_t4_t12_deg)}°`));
-  rows.push(row("Thoracic kyphosis T5–T12", `${num(m.thoracic_kyphosis_t5_t12_deg)}°`));
-  rows.push(row("Lumbar lordosis L1–L5", `${num(m.lumbar_lordosis_l1_l5_deg)}°`));
-  const f = result.fit;
-  rows.push(row("Mean PA registration error", `${num(f.mean_registration_error_mm, 2)} mm`));
-  rows.push(row("Fit", `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`));
-  if (f.boundary === "estimated") {
-    rows.push(row("T1 and L5", `estimated from the generic model and the landmarks; from the model only: ${(f.unreliable ?? []).join(", ") || "none"}`));
-  }
-  rows.push(row("Job", `${job.id} · engine ${result.engine.version}, profile ${result.engine.profile}`));
-  body.replaceChildren(...rows);
+  const rows = measureRows(job, result).map((r) => {
+    const tr = document.createElement("tr");
+    const th = document.createElement("th");
+    th.scope = "row";
+    th.textContent = r.name;
+    const value = td(r.value, "value");
+    if (r.model) {
+      tr.className = "is-model";
+      value.append(" ", mark());
+    }
+    tr.append(th, value, td(r.note ?? "", "note"));
+    return tr;
+  });
+  table.tBodies[0].replaceChildren(...rows);
 }
 
-const STRAIN_COLUMNS: [string, string][] = [
-  ["Level", ""], ["u1", "sagittal bending strain"], ["u2", "lateral bending strain"], ["u3", "twist strain"],
-  ["v1", "shear"], ["v2", "shear"], ["v3", "stretch"], ["Sagittal bending", "degrees"], ["Lateral bending", "degrees"],
-  ["Twist", "degrees"], ["Axial rotation", "degrees"], ["PA residual", "mm"],
+export function fillLenke(container: HTMLElement, result: RegistrationResult): void {
+  const l = result.measures.lenke;
+  container.replaceChildren();
+  if (!l) {
+    container.textContent = "This result carries no Lenke inputs.";
+    return;
+  }
+  const p = document.createElement("p");
+  p.append(mark(), " Inputs of the Lenke classification from the 3D model; side-bending films decide which curves are structural.");
+  const table = document.createElement("table");
+  table.className = "data";
+  const cap = table.createCaption();
+  cap.textContent = "Lenke inputs";
+  const head = table.createTHead().insertRow();
+  for (const h of ["Region", "Curve", "Apex", "Cobb", "Major", "≥ 25° (by magnitude)", "Kyphosis ≥ 20°"]) {
+    const th = document.createElement("th");
+    th.scope = "col";
+    th.textContent = h;
+    head.append(th);
+  }
+  const body = table.createTBody();
+  const region: Record<string, string> = { proximal_thoracic: "Proximal thoracic", main_thoracic: "Main thoracic", thoracolumbar_lumbar: "Thoracolumbar/lumbar" };
+  for (const c of l.curves) {
+    const tr = body.insertRow();
+    tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(c.apex), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"), td(c.structural_by_kyphosis ? "yes" : "no"));
+  }
+  const facts = document.createElement("p");
+  const modifier = { "-": "− (hypokyphotic, T5–T12 < 10°)", N: "N (normal, 10–40°)", "+": "+ (hyperkyphotic, > 40°)" }[l.sagittal_thoracic_modifier];
+  facts.textContent = `Sagittal thoracic modifier ${modifier}; kyphosis T2–T5 ${num(l.t2_t5_kyphosis_deg)}°, T5–T12 ${num(l.t5_t12_kyphosis_deg)}°, T10–L2 ${num(l.t10_l2_kyphosis_deg)}°.` +
+    (l.not_supported.length ? ` Not given by the reconstruction: ${l.not_supported.join("; ").replace(/_/g, " ")}.` : "");
+  container.append(p, table, facts);
+}
+
+const STRAIN_COLUMNS: [string, string, string | null][] = [
+  ["Level", "", null], ["u1", "sagittal bending strain", null], ["u2", "frontal bending strain", null], ["u3", "twist strain", "twist"],
+  ["v1", "shear", null], ["v2", "shear", null], ["v3", "stretch", null], ["Sagittal bending (°)", "", "kyphosis"], ["Frontal bending (°)", "", null],
+  ["Twist (°)", "", "twist"], ["Axial rotation (°)", "positive toward the patient's left", "axial_rotation"], ["Position SD (mm, x y z)", "", null], ["PA residual (mm)", "", null],
 ];
 
 export function fillStrains(table: HTMLTableElement, result: RegistrationResult): void {
+  const u = unreliable(result);
   const head = document.createElement("tr");
-  for (const [name, title] of STRAIN_COLUMNS) {
+  for (const [name, title, key] of STRAIN_COLUMNS) {
     const th = document.createElement("th");
     th.scope = "col";
     th.textContent = name;
     if (title) th.title = title;
+    if (key && u.has(key)) {
+      th.append(document.createElement("br"), mark());
+      th.classList.add("is-model");
+    }
     head.append(th);
   }
   table.tHead?.replaceChildren(head);
@@ -66,21 +184,19 @@ export function fillStrains(table: HTMLTableElement, result: RegistrationResult)
     const cells = [
       ...(v.u ?? [null, null, null]).map((x) => num(x === null ? null : x * 1e3, 2)),
       ...(v.v ?? [null, null, null]).map((x) => num(x, 3)),
-      num(v.pa_bending_deg), num(v.lateral_bending_deg), num(v.twist_deg), num(v.axial_rotation_deg),
+      num(sagittalBending(v)), num(frontalBending(v)), num(v.twist_deg),
+      withSd(v.axial_rotation_deg, v.axial_rotation_sd_deg, ""),
+      v.position_sd_mm ? v.position_sd_mm.map((x) => num(x, 1)).join(" ") : "—",
       num(residual.get(v.level), 2),
     ];
-    for (const text of cells) {
-      const td = document.createElement("td");
-      td.textContent = text;
-      tr.append(td);
-    }
+    for (const text of cells) tr.append(td(text));
     return tr;
   });
   table.tBodies[0].replaceChildren(...rows);
 }
 
 export function fillLegend(legend: HTMLElement, result: RegistrationResult): void {
-  const limit = bendingLimit(result.vertebrae.map((v) => v.lateral_bending_deg));
+  const limit = bendingLimit(result.vertebrae.map(frontalBending));
   const bar = document.createElement("div");
   bar.className = "legend-bar";
   bar.style.background = gradientCss();
@@ -95,7 +211,7 @@ export function fillLegend(legend: HTMLElement, result: RegistrationResult): voi
   const caption = document.createElement("p");
   caption.className = "help";
   caption.textContent =
-    `Vertebrae coloured by lateral bending u2·Δs of the segment below (blue −${limit.toFixed(1)}° to red +${limit.toFixed(1)}°; L5 grey). ` +
-    "Yellow dots: landmarks; red lines: residuals. 3D axes: red = patient left (x), green = posterior (y), blue = head (z).";
+    `Vertebrae coloured by frontal (coronal) bending u2·Δs of the segment below (blue −${limit.toFixed(1)}° to red +${limit.toFixed(1)}°; L5 grey). ` +
+    "Positions in patient coordinates LPS (mm): +x patient's left, +y posterior, +z head.";
   legend.replaceChildren(bar, labels, caption);
 }

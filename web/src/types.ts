@@ -15,6 +15,7 @@ export interface Landmark {
   /** Top endplate midpoint (column, row); or, instead, the body's four corners. */
   point?: Vec2 | null;
   corners?: [Vec2, Vec2, Vec2, Vec2] | null;
+  pedicles?: Vec2[] | null;
   [extra: string]: unknown;
 }
 
@@ -44,6 +45,7 @@ export interface JobPayload {
   lateral?: ViewPayload | null;
   boundary?: { T1: Pose; L5: Pose };
   options?: { profile?: string };
+  study?: Study | null;
   [extra: string]: unknown;
 }
 
@@ -55,8 +57,14 @@ export interface VertebraResult {
   v: Vec3 | null;
   pa_bending_deg: number | null;
   lateral_bending_deg: number | null;
+  /** New names (CONTRACT.md); pa_/lateral_bending_deg stay as deprecated aliases. */
+  sagittal_bending_deg?: number | null;
+  frontal_bending_deg?: number | null;
   twist_deg: number | null;
   axial_rotation_deg: number;
+  axial_rotation_sd_deg?: number | null;
+  /** 1 SD of the position relative to the centroid of the 17, mm. */
+  position_sd_mm?: Vec3 | null;
 }
 
 export interface CobbCurve {
@@ -69,12 +77,27 @@ export interface CobbCurve {
   apex_axial_rotation_deg: number;
   plane_of_max_curvature_deg: number;
   max_curvature_deg: number;
+  angle_sd_deg?: number | null;
+}
+
+export interface LenkeInputs {
+  model_estimate: true;
+  curves: { region: string; upper: Level; lower: Level; apex: Level; angle_deg: number; major: boolean; structural_by_magnitude: boolean; structural_by_kyphosis: boolean }[];
+  t2_t5_kyphosis_deg: number;
+  t5_t12_kyphosis_deg: number;
+  t10_l2_kyphosis_deg: number;
+  sagittal_thoracic_modifier: "-" | "N" | "+";
+  not_supported: string[];
 }
 
 export interface ViewProjection {
   scale: number;
   translation: Vec2;
   estimated: boolean;
+  model?: "weak_perspective" | "perspective";
+  rotation_deg?: number;
+  scale_source?: "given" | "acquisition" | "prior" | "estimated";
+  pixel_spacing_calibration?: string | null;
 }
 
 export interface RegistrationResult {
@@ -84,6 +107,11 @@ export interface RegistrationResult {
     thoracic_kyphosis_t4_t12_deg: number;
     thoracic_kyphosis_t5_t12_deg: number;
     lumbar_lordosis_l1_l5_deg: number;
+    thoracic_kyphosis_t4_t12_sd_deg?: number | null;
+    thoracic_kyphosis_t5_t12_sd_deg?: number | null;
+    lumbar_lordosis_l1_l5_sd_deg?: number | null;
+    aasce2019?: { angle_deg: number; upper: Level; lower: Level } | null;
+    lenke?: LenkeInputs | null;
   };
   fit: {
     residuals: { view: "pa" | "lateral"; level: Level; residual_mm: number }[];
@@ -95,8 +123,9 @@ export interface RegistrationResult {
     runtime_ms: number;
     pa: ViewProjection;
     lateral?: ViewProjection | null;
-    boundary?: "given" | "estimated";
+    boundary?: "given" | "soft" | "estimated";
     unreliable?: string[];
+    uncertainty_scale?: number;
   };
   engine: { version: string; profile: string };
 }
@@ -126,6 +155,18 @@ export interface Job {
   result: RegistrationResult | null;
   error: Problem | null;
   payload?: JobPayload | null;
+  study?: Study | null;
+}
+
+export interface Study {
+  study_instance_uid: string;
+  series_instance_uid?: string | null;
+  pa_sop_instance_uid?: string | null;
+  lateral_sop_instance_uid?: string | null;
+  patient_id?: string | null;
+  patient_name?: string | null;
+  accession_number?: string | null;
+  study_date?: string | null;
 }
 
 export function isLevel(value: string): value is Level {

@@ -1,0 +1,310 @@
+"""Shared pieces of the page's browser tests: a real `spine serve` (API + worker child, embedded
+SQLite) on 127.0.0.1, Debian's Chromium driven by Playwright, synthetic DX films made with pydicom
+(PS3.3 §A.26 Digital X-Ray Image, uncompressed explicit VR little endian), and axe-core (shipped
+by the pinned axe-playwright-python wheel) for the accessibility checks.
+
+Imported by the test modules (`from page_fixtures import ...`), so it needs no conftest of its own.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
+          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
+CHROMIUM_FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+    "--disable-component-update", "--no-first-run", "--disable-sync", "--disable-quic",
+]  # fmt: skip
+FILM_SIZE = (560, 900)  # columns, rows (px)
+PA_SPACING = 0.4  # Imager Pixel Spacing of the PA film, mm
+LATERAL_SPACING = 0.45  # calibrated Pixel Spacing of the lateral film, mm
+BODY_HALF_WIDTH = 24.0  # px
+BODY_HEIGHT = 22.0  # px
+
+
+def chromium_path() -> str | None:
+    for candidate in (os.environ.get("SPINE_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium")):
+        if candidate and os.access(candidate, os.X_OK):
+            return candidate
+    return None
+
+
+# ---------------------------------------------------------------- synthetic films
+
+
+def centreline(i: int, curve_px: float = 70.0) -> tuple[float, float, float]:
+    """Top endplate midpoint (column, row) of level i on the PA film and the tilt (rad) of its
+    endplate: an S-curve, thoracic to the right of the image, lumbar to the left."""
+    t = i / (len(LEVELS) - 1)
+    col = FILM_SIZE[0] / 2 + curve_px * math.sin(2 * math.pi * t) * 0.8
+    row = 60.0 + 740.0 * t
+    slope = curve_px * 0.8 * 2 * math.pi * math.cos(2 * math.pi * t) / 740.0  # d col / d row
+    return col, row, math.atan(slope)
+
+
+def pa_corners() -> list[list[tuple[float, float]]]:
+    """Four corners per level (top-left, top-right, bottom-left, bottom-right) of bodies tilted with the curve."""
+    out = []
+    for i in range(len(LEVELS)):
+        col, row, tilt = centreline(i)
+        across = (math.cos(tilt), -math.sin(tilt))  # along the endplate (image right)
+        down = (math.sin(tilt), math.cos(tilt))
+        tl = (col - BODY_HALF_WIDTH * across[0], row - BODY_HALF_WIDTH * across[1])
+        tr = (col + BODY_HALF_WIDTH * across[0], row + BODY_HALF_WIDTH * across[1])
+        bl = (tl[0] + BODY_HEIGHT * down[0], tl[1] + BODY_HEIGHT * down[1])
+        br = (tr[0] + BODY_HEIGHT * down[0], tr[1] + BODY_HEIGHT * down[1])
+        out.append([tl, tr, bl, br])
+    return out
+
+
+def lateral_points(first: str = "T4") -> list[tuple[str, float, float]]:
+    """Endplate midpoints of the lateral film from `first` to L5: kyphosis then lordosis."""
+    out = []
+    for i, level in enumerate(LEVELS):
+        if i < LEVELS.index(first):
+            continue
+        t = i / (len(LEVELS) - 1)
+        out.append((level, FILM_SIZE[0] / 2 - 40.0 * math.sin(2 * math.pi * t), 60.0 + 700.0 * t))
+    return out
+
+
+def film_pixels(bodies: list[list[tuple[float, float]]], monochrome1: bool) -> np.ndarray:
+    """12-bit film: soft tissue, and bright (dense) vertebral bodies; MONOCHROME1 stores them low."""
+    from PIL import Image, ImageDraw, ImageFilter
+
+    image = Image.new("L", FILM_SIZE, 20)
+    draw = ImageDraw.Draw(image)
+    draw.rectangle((FILM_SIZE[0] * 0.2, 0, FILM_SIZE[0] * 0.8, FILM_SIZE[1]), fill=60)
+    for tl, tr, bl, br in bodies:
+        draw.polygon([tl, tr, br, bl], fill=210)
+    grey = np.asarray(image.filter(ImageFilter.GaussianBlur(1.2)), dtype=np.float64)
+    density = (grey / 255.0 * 3000 + 500).astype(np.uint16)  # 12 bits stored
+    return (4095 - density).astype(np.uint16) if monochrome1 else density
+
+
+def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first_lateral: str = "T4") -> dict[str, Any]:
+    """A DX film with the attributes the page reads; returns them for the assertions."""
+    import pydicom
+    from pydicom.dataset import FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+
+    if view == "pa":
+        bodies = pa_corners()
+    else:
+        bodies = []
+        for _, col, row in lateral_points(first_lateral):
+            bodies.append([(col - 26, row), (col + 26, row), (col - 26, row + 22), (col + 26, row + 22)])
+    pixels = film_pixels(bodies, monochrome1)
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.1.1"  # Digital X-Ray Image Storage - For Presentation
+    meta.MediaStorageSOPInstanceUID = generate_uid()
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = pydicom.Dataset()
+    ds.file_meta = meta
+    ds.SOPClassUID = meta.MediaStorageSOPClassUID
+    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds.StudyInstanceUID = "1.2.826.0.1.3680043.8.498.1001"
+    ds.SeriesInstanceUID = "1.2.826.0.1.3680043.8.498.1002"
+    ds.Modality = "DX"
+    ds.PatientName = "DOE^JANE"
+    ds.PatientID = "PAT-0042"
+    ds.AccessionNumber = "ACC-7"
+    ds.StudyDate = "20261130"
+    ds.ViewPosition = "PA" if view == "pa" else "LL"
+    ds.PatientOrientation = ["L", "F"] if view == "pa" else ["A", "F"]
+    ds.Rows, ds.Columns = pixels.shape
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME1" if monochrome1 else "MONOCHROME2"
+    ds.BitsAllocated = 16
+    ds.BitsStored = 12
+    ds.HighBit = 11
+    ds.PixelRepresentation = 0
+    ds.WindowCenter = 2000
+    ds.WindowWidth = 3500
+    if view == "pa":
+        ds.ImagerPixelSpacing = [PA_SPACING, PA_SPACING]
+        ds.EstimatedRadiographicMagnificationFactor = 1.2
+        ds.DistanceSourceToDetector = 1800
+        ds.DistanceSourceToPatient = 1500
+    else:
+        ds.PixelSpacing = [LATERAL_SPACING, LATERAL_SPACING]
+        ds.ImagerPixelSpacing = [0.5, 0.5]
+        ds.PixelSpacingCalibrationType = "GEOMETRY"
+    ds.PixelData = pixels.tobytes()
+    ds.save_as(path, enforce_file_format=True)
+    return {"bodies": bodies, "pixels": pixels}
+
+
+def make_png(path: Path) -> None:
+    from PIL import Image
+
+    density = film_pixels(pa_corners(), monochrome1=False)
+    Image.fromarray((density / 16).astype(np.uint8)).save(path)
+
+
+# ---------------------------------------------------------------- service and browser
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+API_KEYS: dict[str, str] = {}
+
+
+@pytest.fixture(scope="module")
+def live_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """`spine serve` on a free port of 127.0.0.1: uvicorn API and its Celery worker child."""
+    data_dir = tmp_path_factory.mktemp("page-service")
+    port = free_port()
+    env = {
+        **os.environ,
+        "SPINE_DATA_DIR": str(data_dir),
+        "SPINE_QUEUE_NAME": f"spine-page-{uuid.uuid4().hex[:8]}",
+        "SPINE_WORKER_CONCURRENCY": "1",
+        "SPINE_LOG_LEVEL": "WARNING",
+    }
+    for key in ("DATABASE_URL", "CELERY_BROKER_URL", "SPINE_SERVE_WORKER"):
+        env.pop(key, None)
+    log_path = data_dir / "serve.log"
+    with log_path.open("wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "serve", "--host", "127.0.0.1", "--port", str(port)],
+            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"spine serve did not become ready:\n{log_path.read_text(errors='replace')[-4000:]}")
+            time.sleep(0.2)
+        printed = re.search(r"^(spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43})$", log_path.read_text(errors="replace"), re.M)
+        assert printed, f"spine serve printed no API key:\n{log_path.read_text(errors='replace')[-4000:]}"
+        API_KEYS[url] = printed.group(1)
+        yield url
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+@pytest.fixture(scope="module")
+def api_key(live_url: str) -> str:
+    return API_KEYS[live_url]
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    executable = chromium_path()
+    if executable is None:
+        pytest.skip("no Chromium executable ($SPINE_CHROMIUM, /usr/bin/chromium): `make browser` installs Debian's")
+    with sync_playwright() as pw:
+        chromium = pw.chromium.launch(executable_path=executable, headless=True, args=CHROMIUM_FLAGS)
+        try:
+            yield chromium
+        finally:
+            chromium.close()
+
+
+class PageWatch:
+    """Console errors, page errors and requests of one page."""
+
+    def __init__(self, page: Any, base: str):
+        self.errors: list[str] = []
+        self.foreign: list[str] = []
+        self.requests: list[Any] = []
+        page.on("console", lambda m: self.errors.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+        page.on("pageerror", lambda e: self.errors.append(f"page error: {e}"))
+
+        def on_request(request: Any) -> None:
+            self.requests.append(request)
+            if not request.url.startswith((base + "/", "blob:", "data:")):
+                self.foreign.append(request.url)
+
+        page.on("request", on_request)
+
+    def posted_jobs(self) -> list[Any]:
+        return [r for r in self.requests if r.method == "POST" and r.url.endswith("/v1/jobs")]
+
+
+def open_page(browser: Any, url: str, api_key: str | None, *, width: int = 1440, height: int = 1000) -> tuple[Any, Any, PageWatch]:
+    context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
+    page = context.new_page()
+    watch = PageWatch(page, url.split("/#")[0].rstrip("/"))
+    page.goto(url)
+    page.wait_for_selector("body[data-ready=true]")
+    if api_key:
+        page.fill("#api-key", api_key)
+    return context, page, watch
+
+
+def canvas_point(page: Any, view: str, col: float, row: float) -> tuple[float, float]:
+    """Page coordinates (CSS px) of an image point on a fitted film canvas (scrolled to the window's top)."""
+    page.evaluate("(view) => document.getElementById(view + '-canvas').scrollIntoView({block: 'start'})", view)
+    box = page.locator(f"#{view}-canvas").bounding_box()
+    assert box is not None
+    fitted = page.evaluate(
+        """([view, w, h]) => {
+            const c = document.getElementById(view + '-canvas').getBoundingClientRect();
+            const s = Math.min(c.width / w, c.height / h);
+            return [s, (c.width - w * s) / 2, (c.height - h * s) / 2];
+        }""",
+        [view, FILM_SIZE[0], FILM_SIZE[1]],
+    )
+    s, ox, oy = fitted
+    return box["x"] + ox + col * s, box["y"] + oy + row * s
+
+
+def canvas_grey(page: Any, view: str, x: float, y: float) -> int:
+    """Grey level of the film canvas at page point (x, y)."""
+    return int(page.evaluate(
+        """([view, x, y]) => {
+            const c = document.getElementById(view + '-canvas');
+            const r = c.getBoundingClientRect();
+            const k = c.width / r.width;
+            return c.getContext('2d').getImageData(Math.round((x - r.left) * k), Math.round((y - r.top) * k), 1, 1).data[0];
+        }""",
+        [view, x, y],
+    ))  # fmt: skip
+
+
+def run_axe(page: Any) -> list[dict[str, Any]]:
+    """axe-core (WCAG 2 A and AA rules) on the page as it is; returns the violations."""
+    script = resources.files("axe_playwright_python").joinpath("axe.min.js").read_text()
+    page.evaluate(script)
+    result = page.evaluate(
+        "async () => await axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa']}})"
+    )
+    return [{"id": v["id"], "help": v["help"], "nodes": [n["target"] for n in v["nodes"]][:5]} for v in result["violations"]]

@@ -1,0 +1,39 @@
+// What this service's API takes, read once from its own /openapi.json: optional payload members
+// and list filters that other releases add (acquisition, calibration, patient fields, job filters)
+// are sent only when the service declares them, so the page works against older and newer services.
+export interface Capabilities {
+  acquisition: boolean;
+  calibration: boolean;
+  studyFields: Set<string>;
+  jobFilters: Set<string>;
+  dicomRoutes: boolean;
+}
+
+const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false };
+
+let cached: Promise<Capabilities> | null = null;
+
+type Schema = { properties?: Record<string, unknown> };
+
+export function readCapabilities(spec: unknown): Capabilities {
+  const s = spec as { components?: { schemas?: Record<string, Schema> }; paths?: Record<string, Record<string, { parameters?: { name: string }[] }>> };
+  const schemas = s.components?.schemas ?? {};
+  const view = schemas.PAView?.properties ?? {};
+  const study = Object.keys(schemas.Study?.properties ?? {});
+  const list = s.paths?.["/v1/jobs"]?.get?.parameters ?? [];
+  return {
+    acquisition: "acquisition" in view,
+    calibration: "pixel_spacing_calibration" in view,
+    studyFields: study.length ? new Set(study) : NONE.studyFields,
+    jobFilters: new Set(list.map((p) => p.name).filter((n) => ["study_instance_uid", "accession_number", "patient_id"].includes(n))),
+    dicomRoutes: Object.keys(s.paths ?? {}).some((p) => p.startsWith("/v1/dicom")),
+  };
+}
+
+export function capabilities(): Promise<Capabilities> {
+  cached ??= fetch("/openapi.json", { cache: "no-store" })
+    .then((r) => (r.ok ? r.json() : null))
+    .then((spec) => (spec ? readCapabilities(spec) : NONE))
+    .catch(() => NONE);
+  return cached;
+}

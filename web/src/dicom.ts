@@ -1,0 +1,258 @@
+// A DICOM radiograph read in the browser with dicom-parser: pixels, window, spacing, geometry,
+// patient and study. Uncompressed syntaxes only (implicit and explicit VR little endian,
+// PS3.5 §A.1–A.2); a compressed or big-endian film is refused by name.
+import { parseDicom, type DataSet } from "dicom-parser";
+import type { Vec2 } from "./types";
+
+export type SpacingCalibration = "calibrated" | "projection" | "detector" | "unknown";
+
+export interface Spacing {
+  /** mm per pixel [row spacing, column spacing], as DICOM orders (0028,0030); null when unknown. */
+  value: Vec2 | null;
+  calibration: SpacingCalibration;
+  /** Where the value comes from and what it measures, in words. */
+  explanation: string;
+}
+
+export interface Acquisition {
+  magnification?: number;
+  distance_source_to_detector_mm?: number;
+  distance_source_to_patient_mm?: number;
+}
+
+export interface DicomStudy {
+  study_instance_uid?: string;
+  series_instance_uid?: string;
+  sop_instance_uid?: string;
+  patient_id?: string;
+  patient_name?: string;
+  accession_number?: string;
+  study_date?: string;
+}
+
+export interface DicomFilm {
+  width: number;
+  height: number;
+  /** Stored values after the modality LUT (Rescale Slope/Intercept, PS3.3 §C.11.1.1.2). */
+  pixels: Float32Array;
+  min: number;
+  max: number;
+  monochrome1: boolean;
+  photometric: string;
+  window: { center: number; width: number; fromHeader: boolean };
+  spacing: Spacing;
+  acquisition: Acquisition;
+  orientation: [string, string] | null;
+  orientationRaw: string | null;
+  study: DicomStudy;
+  modality: string | null;
+  viewPosition: string | null;
+  transferSyntax: string;
+}
+
+export const UNCOMPRESSED_SYNTAXES: Record<string, string> = {
+  "1.2.840.10008.1.2": "implicit VR little endian",
+  "1.2.840.10008.1.2.1": "explicit VR little endian",
+};
+
+export class DicomError extends Error {}
+
+const tags = {
+  transferSyntax: "x00020010",
+  rows: "x00280010",
+  columns: "x00280011",
+  bitsAllocated: "x00280100",
+  bitsStored: "x00280101",
+  pixelRepresentation: "x00280103",
+  samplesPerPixel: "x00280002",
+  photometric: "x00280004",
+  numberOfFrames: "x00280008",
+  slope: "x00281053",
+  intercept: "x00281052",
+  windowCenter: "x00281050",
+  windowWidth: "x00281051",
+  pixelSpacing: "x00280030",
+  imagerPixelSpacing: "x00181164",
+  calibrationType: "x00280a02",
+  calibrationDescription: "x00280a04",
+  ermf: "x00181114",
+  sid: "x00181110",
+  sod: "x00181111",
+  patientOrientation: "x00200020",
+  studyUid: "x0020000d",
+  seriesUid: "x0020000e",
+  sopUid: "x00080018",
+  patientId: "x00100020",
+  patientName: "x00100010",
+  accession: "x00080050",
+  studyDate: "x00080020",
+  modality: "x00080060",
+  viewPosition: "x00185101",
+  pixelData: "x7fe00010",
+};
+
+const text = (ds: DataSet, tag: string): string | undefined => {
+  const v = ds.string(tag);
+  return v === undefined || v.trim() === "" ? undefined : v.trim();
+};
+const decimal = (ds: DataSet, tag: string, index = 0): number | undefined => {
+  const v = ds.floatString(tag, index);
+  return v !== undefined && Number.isFinite(v) ? v : undefined;
+};
+const pair = (ds: DataSet, tag: string): Vec2 | null => {
+  const a = decimal(ds, tag, 0);
+  const b = decimal(ds, tag, 1);
+  return a !== undefined && b !== undefined && a > 0 && b > 0 ? [a, b] : null;
+};
+const close = (a: Vec2, b: Vec2): boolean => Math.abs(a[0] - b[0]) < 1e-6 && Math.abs(a[1] - b[1]) < 1e-6;
+const mm = (v: Vec2): string => (v[0] === v[1] ? `${v[0]} mm` : `${v[0]} × ${v[1]} mm (row × column)`);
+
+/**
+ * Which spacing gives millimetres, after PS3.3 §10.7.1.1 (Basic Pixel Spacing Calibration Macro)
+ * as Cornerstone3D and OHIF read it: Pixel Spacing (0028,0030) is in the patient plane when a
+ * Pixel Spacing Calibration Type (0028,0A02) is present or it differs from Imager Pixel Spacing
+ * (0018,1164) ("calibrated"); equal values are detector spacing ("projection"); Imager Pixel Spacing
+ * alone is at the detector ("detector"), magnified by ERMF (0018,1114) or SID/SOD.
+ */
+export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | null, calibrationType: string | undefined): Spacing {
+  if (pixelSpacing && (calibrationType || (imagerSpacing && !close(pixelSpacing, imagerSpacing)))) {
+    const why = calibrationType ? `calibration type ${calibrationType}` : `different from the Imager Pixel Spacing ${mm(imagerSpacing as Vec2)}`;
+    return { value: pixelSpacing, calibration: "calibrated", explanation: `Pixel Spacing ${mm(pixelSpacing)} in the patient plane (${why}).` };
+  }
+  if (pixelSpacing && imagerSpacing) {
+    return { value: pixelSpacing, calibration: "projection", explanation: `Pixel Spacing ${mm(pixelSpacing)} equals the Imager Pixel Spacing: millimetres at the detector, magnified.` };
+  }
+  if (imagerSpacing) {
+    return { value: imagerSpacing, calibration: "detector", explanation: `Imager Pixel Spacing ${mm(imagerSpacing)}: millimetres at the detector, magnified.` };
+  }
+  if (pixelSpacing) {
+    return { value: pixelSpacing, calibration: "unknown", explanation: `Pixel Spacing ${mm(pixelSpacing)} without Imager Pixel Spacing or calibration type: the plane it measures is not known.` };
+  }
+  return { value: null, calibration: "unknown", explanation: "The header gives no pixel spacing: enter it." };
+}
+
+/** Patient Orientation (0020,0020) as two single-letter directions, or null when it is not of that form. */
+export function readOrientation(raw: string | undefined): [string, string] | null {
+  if (!raw) return null;
+  const parts = raw.split("\\").map((p) => p.trim().toUpperCase());
+  if (parts.length !== 2 || !parts.every((p) => /^[LRAPHF]$/.test(p))) return null;
+  return [parts[0], parts[1]];
+}
+
+/** DICOM DA (YYYYMMDD) as ISO YYYY-MM-DD, or undefined. */
+export function isoDate(da: string | undefined): string | undefined {
+  const m = da?.match(/^(\d{4})(\d{2})(\d{2})$/);
+  return m ? `${m[1]}-${m[2]}-${m[3]}` : undefined;
+}
+
+/** PN with its ^ separators as spaces ("DOE^JANE" → "DOE JANE"). */
+export function personName(pn: string | undefined): string | undefined {
+  return pn?.split("=")[0].split("^").filter(Boolean).join(" ") || undefined;
+}
+
+export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
+  let ds: DataSet;
+  try {
+    ds = parseDicom(bytes);
+  } catch (error) {
+    const why = typeof error === "string" ? error : error instanceof Error ? error.message : String(error);
+    throw new DicomError(`${name} could not be read as DICOM (${why}).`);
+  }
+  const syntax = text(ds, tags.transferSyntax) ?? "1.2.840.10008.1.2";
+  if (!(syntax in UNCOMPRESSED_SYNTAXES)) {
+    throw new DicomError(
+      `${name} is stored with transfer syntax ${syntax}, which this page cannot decode: it reads uncompressed little-endian films only. Export the film uncompressed from the PACS, or as PNG.`,
+    );
+  }
+  const width = ds.uint16(tags.columns) ?? 0;
+  const height = ds.uint16(tags.rows) ?? 0;
+  const bits = ds.uint16(tags.bitsAllocated) ?? 16;
+  const samples = ds.uint16(tags.samplesPerPixel) ?? 1;
+  const photometric = text(ds, tags.photometric) ?? "MONOCHROME2";
+  const frames = ds.intString(tags.numberOfFrames) ?? 1;
+  const element = ds.elements[tags.pixelData];
+  if (!element || !width || !height) throw new DicomError(`${name} has no image (no Pixel Data, Rows or Columns).`);
+  if (samples !== 1 || !photometric.startsWith("MONOCHROME")) {
+    throw new DicomError(`${name} is a ${photometric} image; a radiograph is MONOCHROME1 or MONOCHROME2.`);
+  }
+  if (frames > 1) throw new DicomError(`${name} has ${frames} frames; open a single radiograph.`);
+  if (bits !== 8 && bits !== 16) throw new DicomError(`${name} has ${bits} bits per pixel; 8 or 16 are supported.`);
+  const count = width * height;
+  if (element.length < count * (bits / 8)) throw new DicomError(`${name}'s Pixel Data is shorter than Rows × Columns.`);
+  const signed = ds.uint16(tags.pixelRepresentation) === 1;
+  const buffer = ds.byteArray.buffer as ArrayBuffer;
+  const offset = ds.byteArray.byteOffset + element.dataOffset;
+  const raw = bits === 8
+    ? (signed ? new Int8Array(buffer, offset, count) : new Uint8Array(buffer, offset, count))
+    : new (signed ? Int16Array : Uint16Array)(buffer.slice(offset, offset + count * 2));
+  const bitsStored = ds.uint16(tags.bitsStored) ?? bits;
+  const slope = decimal(ds, tags.slope) ?? 1;
+  const intercept = decimal(ds, tags.intercept) ?? 0;
+  const pixels = new Float32Array(count);
+  const mask = bitsStored < bits && !signed ? (1 << bitsStored) - 1 : -1;
+  let min = Infinity;
+  let max = -Infinity;
+  for (let i = 0; i < count; i++) {
+    const stored = mask === -1 ? raw[i] : raw[i] & mask;
+    const v = stored * slope + intercept;
+    pixels[i] = v;
+    if (v < min) min = v;
+    if (v > max) max = v;
+  }
+  const center = decimal(ds, tags.windowCenter);
+  const widthW = decimal(ds, tags.windowWidth);
+  const window = center !== undefined && widthW !== undefined && widthW >= 1
+    ? { center, width: widthW, fromHeader: true }
+    : { center: (min + max) / 2, width: Math.max(1, max - min), fromHeader: false };
+  const acquisition: Acquisition = {};
+  const ermf = decimal(ds, tags.ermf);
+  const sid = decimal(ds, tags.sid);
+  const sod = decimal(ds, tags.sod);
+  if (ermf && ermf > 0) acquisition.magnification = ermf;
+  if (sid && sid > 0) acquisition.distance_source_to_detector_mm = sid;
+  if (sod && sod > 0 && (!sid || sod < sid)) acquisition.distance_source_to_patient_mm = sod;
+  const orientationRaw = text(ds, tags.patientOrientation) ?? null;
+  return {
+    width,
+    height,
+    pixels,
+    min,
+    max,
+    monochrome1: photometric === "MONOCHROME1",
+    photometric,
+    window,
+    spacing: readSpacing(pair(ds, tags.pixelSpacing), pair(ds, tags.imagerPixelSpacing), text(ds, tags.calibrationType)),
+    acquisition,
+    orientation: readOrientation(orientationRaw ?? undefined),
+    orientationRaw,
+    study: {
+      study_instance_uid: text(ds, tags.studyUid),
+      series_instance_uid: text(ds, tags.seriesUid),
+      sop_instance_uid: text(ds, tags.sopUid),
+      patient_id: text(ds, tags.patientId),
+      patient_name: personName(text(ds, tags.patientName)),
+      accession_number: text(ds, tags.accession),
+      study_date: isoDate(text(ds, tags.studyDate)),
+    },
+    modality: text(ds, tags.modality) ?? null,
+    viewPosition: text(ds, tags.viewPosition) ?? null,
+    transferSyntax: syntax,
+  };
+}
+
+/**
+ * 8-bit grey of a value through the linear VOI window of PS3.3 §C.11.2.1.2.1:
+ * y = ((x − (c − 0.5)) / (w − 1) + 0.5), clipped to [0, 1]; MONOCHROME1 inverted (white is low).
+ */
+export function windowToGrey(pixels: Float32Array, center: number, width: number, invert: boolean, out: Uint8ClampedArray): void {
+  const w = Math.max(1, width);
+  const lo = center - 0.5 - (w - 1) / 2;
+  const k = 255 / Math.max(1e-9, w - 1);
+  for (let i = 0, j = 0; i < pixels.length; i++, j += 4) {
+    let g = (pixels[i] - lo) * k;
+    g = g < 0 ? 0 : g > 255 ? 255 : g;
+    if (invert) g = 255 - g;
+    out[j] = out[j + 1] = out[j + 2] = g;
+    out[j + 3] = 255;
+  }
+}

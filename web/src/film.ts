@@ -1,0 +1,536 @@
+// One film (PA or lateral) and its landmarks: rendering with window/level, zoom and pan on a
+// full-size film, three click modes (top endplate midpoint, four corners, two pedicles), drag to
+// move a point, Delete to remove one, and the same by keyboard (arrows move a crosshair, Enter
+// places). Coordinates are image pixels (column, row).
+import { windowToGrey, type DicomFilm } from "./dicom";
+import { LEVELS, type Landmark, type Level, type Vec2 } from "./types";
+
+export type Mode = "point" | "corners" | "pedicles";
+export const MODE_PARTS: Record<Mode, number> = { point: 1, corners: 4, pedicles: 2 };
+export const CORNER_NAMES = ["top-left", "top-right", "bottom-left", "bottom-right"];
+export const PEDICLE_NAMES = ["image-left pedicle", "image-right pedicle"];
+
+/** A vertebra's marks on one film while they are being placed (corners and pedicles may be partial). */
+export interface Mark {
+  point?: Vec2;
+  corners?: Vec2[];
+  pedicles?: Vec2[];
+}
+
+interface Handle {
+  level: Level;
+  kind: Mode;
+  index: number;
+}
+
+export interface FilmSource {
+  name: string;
+  width: number;
+  height: number;
+  dicom: DicomFilm | null;
+  /** A PNG/JPEG element, when not DICOM. */
+  element: HTMLImageElement | null;
+}
+
+const HIT_PX = 9; // CSS px around a point that grab it
+const round1 = (x: number): number => Math.round(x * 10) / 10;
+
+export class FilmEditor {
+  source: FilmSource | null = null;
+  marks = new Map<Level, Mark>();
+  mode: Mode = "point";
+  level: Level = "T1";
+  selected: Handle | null = null;
+  cursor: Vec2 | null = null;
+  window = { center: 0, width: 1 };
+  invert = false;
+  /** CSS px per image px, and the image point at the canvas's top-left corner. */
+  private scale = 1;
+  private origin: Vec2 = [0, 0];
+  private fitted = true;
+  private raster: HTMLCanvasElement | null = null;
+  private extent: { width: number; height: number } | null = null;
+  private drag: { handle: Handle | null; start: Vec2; origin: Vec2; moved: boolean } | null = null;
+
+  constructor(
+    readonly canvas: HTMLCanvasElement,
+    private readonly onChange: (what: "marks" | "view" | "level") => void,
+  ) {
+    canvas.addEventListener("pointerdown", (e) => this.onDown(e));
+    canvas.addEventListener("pointermove", (e) => this.onMove(e));
+    canvas.addEventListener("pointerup", (e) => this.onUp(e));
+    canvas.addEventListener("pointerleave", () => {
+      if (!this.drag) this.draw();
+    });
+    canvas.addEventListener("wheel", (e) => this.onWheel(e), { passive: false });
+    canvas.addEventListener("keydown", (e) => this.onKey(e));
+    new ResizeObserver(() => this.layout()).observe(canvas);
+  }
+
+  // ---------------------------------------------------------------- the film
+
+  setSource(source: FilmSource): void {
+    this.source = source;
+    this.extent = { width: source.width, height: source.height };
+    if (source.dicom) {
+      this.window = { center: source.dicom.window.center, width: source.dicom.window.width };
+      this.invert = source.dicom.monochrome1;
+    }
+    this.raster = null;
+    this.render();
+    this.cursor = [source.width / 2, source.height * 0.1];
+    this.fit();
+  }
+
+  setWindow(center: number, width: number, invert: boolean): void {
+    this.window = { center, width: Math.max(1, width) };
+    this.invert = invert;
+    this.render();
+    this.draw();
+    this.onChange("view");
+  }
+
+  /** Re-draw the film's raster through the current window (DICOM) or from the image element. */
+  private render(): void {
+    const s = this.source;
+    if (!s) return;
+    const raster = this.raster ?? document.createElement("canvas");
+    raster.width = s.width;
+    raster.height = s.height;
+    const ctx = raster.getContext("2d");
+    if (!ctx) return;
+    if (s.dicom) {
+      const data = ctx.createImageData(s.width, s.height);
+      windowToGrey(s.dicom.pixels, this.window.center, this.window.width, this.invert, data.data);
+      ctx.putImageData(data, 0, 0);
+    } else if (s.element) {
+      ctx.drawImage(s.element, 0, 0);
+    }
+    this.raster = raster;
+  }
+
+  // ---------------------------------------------------------------- landmarks
+
+  /** Landmarks of the payload: complete point or corners, with pedicles when both are placed. */
+  landmarks(): Landmark[] {
+    const out: Landmark[] = [];
+    for (const level of LEVELS) {
+      const m = this.marks.get(level);
+      if (!m) continue;
+      const lm: Landmark = { level };
+      if (m.point) lm.point = m.point;
+      else if (m.corners?.length === 4) lm.corners = m.corners.map((p) => [...p]) as [Vec2, Vec2, Vec2, Vec2];
+      else continue;
+      if (m.pedicles?.length === 2) lm.pedicles = m.pedicles.map((p) => [...p]);
+      out.push(lm);
+    }
+    return out;
+  }
+
+  /** What is placed only in part, in words (e.g. "T3: 2 of 4 corners"). */
+  incomplete(): string[] {
+    const out: string[] = [];
+    for (const level of LEVELS) {
+      const m = this.marks.get(level);
+      if (!m) continue;
+      if (m.corners && m.corners.length < 4) out.push(`${level}: ${m.corners.length} of 4 corners placed`);
+      if (m.pedicles && m.pedicles.length < 2) out.push(`${level}: 1 of 2 pedicles placed`);
+      if (m.pedicles && !m.point && !(m.corners?.length === 4)) out.push(`${level}: pedicles without the endplate midpoint or corners`);
+    }
+    return out;
+  }
+
+  setLandmarks(landmarks: Landmark[], spacing?: Vec2 | null, units?: string): void {
+    // Reopened payloads in mm are shown in mm (1 "pixel" = 1 mm) unless a spacing brings them to px.
+    this.marks.clear();
+    const k = units === "mm" && spacing ? [1 / spacing[1], 1 / spacing[0]] : [1, 1];
+    const px = (p: Vec2): Vec2 => [round1(p[0] * k[0]), round1(p[1] * k[1])];
+    for (const lm of landmarks) {
+      const m: Mark = {};
+      if (lm.point) m.point = px(lm.point);
+      if (lm.corners) m.corners = lm.corners.map(px);
+      if (Array.isArray(lm.pedicles)) m.pedicles = (lm.pedicles as Vec2[]).map(px);
+      this.marks.set(lm.level, m);
+    }
+    if (!this.source) this.extent = this.landmarkExtent();
+    this.selected = null;
+    this.fit();
+    this.onChange("marks");
+  }
+
+  clear(): void {
+    this.marks.clear();
+    this.selected = null;
+    this.level = "T1";
+    this.draw();
+    this.onChange("marks");
+  }
+
+  setMode(mode: Mode): void {
+    this.mode = mode;
+    this.draw();
+    this.onChange("level");
+  }
+
+  setLevel(level: Level): void {
+    this.level = level;
+    this.draw();
+    this.onChange("level");
+  }
+
+  /** What the next click places, in words. */
+  nextPart(): string {
+    const m = this.marks.get(this.level);
+    if (this.mode === "point") return `the top endplate midpoint of ${this.level}`;
+    const list = this.mode === "corners" ? m?.corners : m?.pedicles;
+    const names = this.mode === "corners" ? CORNER_NAMES : PEDICLE_NAMES;
+    const i = list && list.length < names.length ? list.length : 0;
+    return `the ${names[i]}${this.mode === "corners" ? " corner" : ""} of ${this.level}`;
+  }
+
+  place(p: Vec2): void {
+    if (!this.extent) return;
+    const q: Vec2 = [round1(Math.min(this.extent.width, Math.max(0, p[0]))), round1(Math.min(this.extent.height, Math.max(0, p[1])))];
+    const m = this.marks.get(this.level) ?? {};
+    let done = false;
+    if (this.mode === "point") {
+      m.point = q;
+      delete m.corners;
+      done = true;
+      this.selected = { level: this.level, kind: "point", index: 0 };
+    } else {
+      const key = this.mode;
+      const full = MODE_PARTS[key];
+      const list = m[key] && m[key].length < full ? m[key] : [];
+      list.push(q);
+      m[key] = list;
+      if (key === "corners") delete m.point;
+      done = list.length === full;
+      this.selected = { level: this.level, kind: key, index: list.length - 1 };
+    }
+    this.marks.set(this.level, m);
+    if (done) {
+      const next = LEVELS.indexOf(this.level) + 1;
+      if (next < LEVELS.length) this.level = LEVELS[next];
+    }
+    this.draw();
+    this.onChange("marks");
+  }
+
+  /** Remove the selected point's mark (a point, a set of corners or the pedicles), else the current level's. */
+  removeSelected(): void {
+    const target = this.selected ?? { level: this.level, kind: this.mode, index: 0 };
+    const m = this.marks.get(target.level);
+    if (!m) return;
+    delete m[target.kind];
+    if (!m.point && !m.corners && !m.pedicles) this.marks.delete(target.level);
+    this.level = target.level;
+    this.selected = null;
+    this.draw();
+    this.onChange("marks");
+  }
+
+  private handles(): (Handle & { p: Vec2 })[] {
+    const out: (Handle & { p: Vec2 })[] = [];
+    for (const [level, m] of this.marks) {
+      for (const kind of ["point", "corners", "pedicles"] as const) {
+        const pts = kind === "point" ? (m.point ? [m.point] : []) : (m[kind] ?? []);
+        pts.forEach((p, index) => out.push({ level, kind, index, p }));
+      }
+    }
+    return out;
+  }
+
+  private pointOf(h: Handle): Vec2 | undefined {
+    const m = this.marks.get(h.level);
+    if (!m) return undefined;
+    return h.kind === "point" ? m.point : m[h.kind]?.[h.index];
+  }
+
+  private movePoint(h: Handle, p: Vec2): void {
+    const m = this.marks.get(h.level);
+    if (!m || !this.extent) return;
+    const q: Vec2 = [round1(Math.min(this.extent.width, Math.max(0, p[0]))), round1(Math.min(this.extent.height, Math.max(0, p[1])))];
+    if (h.kind === "point") m.point = q;
+    else if (m[h.kind]) m[h.kind]![h.index] = q;
+  }
+
+  // ---------------------------------------------------------------- view
+
+  fit(): void {
+    this.fitted = true;
+    this.layout();
+  }
+
+  zoomBy(factor: number, at?: Vec2): void {
+    if (!this.extent) return;
+    const c = at ?? this.centre();
+    const before = this.toScreen(c);
+    this.scale = Math.min(16, Math.max(0.02, this.scale * factor));
+    this.origin = [c[0] - before[0] / this.scale, c[1] - before[1] / this.scale];
+    this.fitted = false;
+    this.draw();
+    this.onChange("view");
+  }
+
+  get zoomPercent(): number {
+    return Math.round(this.scale * (window.devicePixelRatio || 1) * 100);
+  }
+
+  private centre(): Vec2 {
+    const r = this.canvas.getBoundingClientRect();
+    return [this.origin[0] + r.width / 2 / this.scale, this.origin[1] + r.height / 2 / this.scale];
+  }
+
+  private layout(): void {
+    const rect = this.canvas.getBoundingClientRect();
+    const ratio = window.devicePixelRatio || 1;
+    this.canvas.width = Math.max(1, Math.round(rect.width * ratio));
+    this.canvas.height = Math.max(1, Math.round(rect.height * ratio));
+    if (this.fitted && this.extent) {
+      this.scale = Math.min(rect.width / this.extent.width, rect.height / this.extent.height) || 1;
+      this.origin = [
+        -(rect.width / this.scale - this.extent.width) / 2,
+        -(rect.height / this.scale - this.extent.height) / 2,
+      ];
+    }
+    this.draw();
+  }
+
+  private landmarkExtent(): { width: number; height: number } | null {
+    const pts = this.handles().map((h) => h.p);
+    if (!pts.length) return null;
+    return { width: Math.max(...pts.map((p) => p[0])) * 1.15 + 20, height: Math.max(...pts.map((p) => p[1])) * 1.08 + 20 };
+  }
+
+  toImage(clientX: number, clientY: number): Vec2 {
+    const r = this.canvas.getBoundingClientRect();
+    return [this.origin[0] + (clientX - r.left) / this.scale, this.origin[1] + (clientY - r.top) / this.scale];
+  }
+
+  /** CSS px inside the canvas of an image point. */
+  toScreen(p: Vec2): Vec2 {
+    return [(p[0] - this.origin[0]) * this.scale, (p[1] - this.origin[1]) * this.scale];
+  }
+
+  private hit(clientX: number, clientY: number): Handle | null {
+    const r = this.canvas.getBoundingClientRect();
+    const x = clientX - r.left;
+    const y = clientY - r.top;
+    let best: Handle | null = null;
+    let bestD = HIT_PX;
+    for (const h of this.handles()) {
+      const s = this.toScreen(h.p);
+      const d = Math.hypot(s[0] - x, s[1] - y);
+      if (d < bestD) [best, bestD] = [h, d];
+    }
+    return best;
+  }
+
+  // ---------------------------------------------------------------- input
+
+  private onDown(e: PointerEvent): void {
+    if (!this.extent || e.button !== 0) return;
+    this.canvas.focus({ preventScroll: true });
+    this.canvas.setPointerCapture(e.pointerId);
+    const handle = this.hit(e.clientX, e.clientY);
+    if (handle) this.selected = handle;
+    this.drag = { handle, start: [e.clientX, e.clientY], origin: [...this.origin], moved: false };
+    this.draw();
+  }
+
+  private onMove(e: PointerEvent): void {
+    if (!this.extent) return;
+    this.cursor = this.toImage(e.clientX, e.clientY);
+    const d = this.drag;
+    if (d) {
+      const dx = e.clientX - d.start[0];
+      const dy = e.clientY - d.start[1];
+      if (Math.hypot(dx, dy) > 4) d.moved = true;
+      if (d.moved && d.handle) this.movePoint(d.handle, this.cursor);
+      else if (d.moved) {
+        this.origin = [d.origin[0] - dx / this.scale, d.origin[1] - dy / this.scale];
+        this.fitted = false;
+      }
+    }
+    this.draw();
+  }
+
+  private onUp(e: PointerEvent): void {
+    const d = this.drag;
+    this.drag = null;
+    if (!d || !this.extent) return;
+    if (d.moved && d.handle) this.onChange("marks");
+    else if (d.moved) this.onChange("view");
+    else if (!d.handle) this.place(this.toImage(e.clientX, e.clientY));
+    else this.draw();
+  }
+
+  private onWheel(e: WheelEvent): void {
+    if (!this.extent) return;
+    e.preventDefault();
+    this.zoomBy(e.deltaY < 0 ? 1.25 : 0.8, this.toImage(e.clientX, e.clientY));
+  }
+
+  /** Arrow step in image px: about one CSS px at fit, ten with Shift. */
+  step(shift: boolean): number {
+    const h = this.extent?.height ?? 400;
+    return Math.max(1, Math.round(h / 400)) * (shift ? 10 : 1);
+  }
+
+  private onKey(e: KeyboardEvent): void {
+    if (!this.extent) return;
+    const step = this.step(e.shiftKey);
+    const moves: Record<string, Vec2> = { ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, -step], ArrowDown: [0, step] };
+    const c = this.cursor ?? [this.extent.width / 2, this.extent.height / 2];
+    if (e.key in moves) {
+      const [dx, dy] = moves[e.key];
+      if (e.altKey && this.selected) {
+        const p = this.pointOf(this.selected);
+        if (p) this.movePoint(this.selected, [p[0] + dx, p[1] + dy]);
+        this.onChange("marks");
+      } else {
+        this.cursor = [Math.min(this.extent.width, Math.max(0, c[0] + dx)), Math.min(this.extent.height, Math.max(0, c[1] + dy))];
+        this.keepInView(this.cursor);
+      }
+      this.draw();
+    } else if (e.key === "Enter" || e.key === " ") {
+      this.place(c);
+    } else if (e.key === "Delete" || e.key === "Backspace") {
+      this.removeSelected();
+    } else if (e.key === "PageDown" || e.key === "]") {
+      this.setLevel(LEVELS[Math.min(LEVELS.length - 1, LEVELS.indexOf(this.level) + 1)]);
+    } else if (e.key === "PageUp" || e.key === "[") {
+      this.setLevel(LEVELS[Math.max(0, LEVELS.indexOf(this.level) - 1)]);
+    } else if (e.key === "+" || e.key === "=") {
+      this.zoomBy(1.25, c);
+    } else if (e.key === "-") {
+      this.zoomBy(0.8, c);
+    } else if (e.key === "0") {
+      this.fit();
+      this.onChange("view");
+    } else if (e.key === "Escape") {
+      this.selected = null;
+      this.draw();
+    } else {
+      return;
+    }
+    e.preventDefault();
+  }
+
+  private keepInView(p: Vec2): void {
+    const r = this.canvas.getBoundingClientRect();
+    const s = this.toScreen(p);
+    const margin = 30;
+    if (s[0] < margin || s[0] > r.width - margin || s[1] < margin || s[1] > r.height - margin) {
+      this.origin = [p[0] - r.width / 2 / this.scale, p[1] - r.height / 2 / this.scale];
+      this.fitted = false;
+    }
+  }
+
+  // ---------------------------------------------------------------- drawing
+
+  draw(): void {
+    const ctx = this.canvas.getContext("2d");
+    if (!ctx) return;
+    const ratio = this.canvas.width / Math.max(1, this.canvas.getBoundingClientRect().width);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.fillStyle = "#111";
+    ctx.fillRect(0, 0, this.canvas.width, this.canvas.height);
+    if (!this.extent) return;
+    const k = this.scale * ratio;
+    ctx.setTransform(k, 0, 0, k, -this.origin[0] * k, -this.origin[1] * k);
+    if (this.raster) {
+      ctx.imageSmoothingEnabled = this.scale < 2;
+      ctx.drawImage(this.raster, 0, 0);
+    } else {
+      ctx.fillStyle = "#2a2f36";
+      ctx.fillRect(0, 0, this.extent.width, this.extent.height);
+    }
+    ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+    ctx.lineWidth = 1.5;
+    ctx.font = "600 12px system-ui, sans-serif";
+    ctx.textBaseline = "middle";
+    const S = (p: Vec2): Vec2 => this.toScreen(p);
+    // the centreline through the midpoints
+    const mids = LEVELS.flatMap((lv) => {
+      const m = this.marks.get(lv);
+      const p = m?.point ?? (m?.corners && m.corners.length >= 2 ? [(m.corners[0][0] + m.corners[1][0]) / 2, (m.corners[0][1] + m.corners[1][1]) / 2] as Vec2 : null);
+      return p ? [S(p)] : [];
+    });
+    if (mids.length > 1) {
+      ctx.strokeStyle = "rgba(255, 208, 0, 0.7)";
+      ctx.beginPath();
+      mids.forEach((p, i) => (i ? ctx.lineTo(p[0], p[1]) : ctx.moveTo(p[0], p[1])));
+      ctx.stroke();
+    }
+    for (const [level, m] of this.marks) {
+      const current = level === this.level;
+      if (m.corners?.length) {
+        const c = m.corners.map(S);
+        ctx.strokeStyle = current ? "#00e5ff" : "#ffd000";
+        ctx.beginPath();
+        const order = [0, 1, 3, 2].filter((i) => i < c.length);
+        order.forEach((i, j) => (j ? ctx.lineTo(c[i][0], c[i][1]) : ctx.moveTo(c[i][0], c[i][1])));
+        if (c.length === 4) ctx.closePath();
+        ctx.stroke();
+        c.forEach((p, i) => this.dot(ctx, p, "#ffd000", this.isSelected(level, "corners", i)));
+        this.label(ctx, level, [Math.max(...c.map((p) => p[0])) + 8, c[0][1]]);
+      }
+      if (m.point) {
+        const p = S(m.point);
+        this.dot(ctx, p, "#ffd000", this.isSelected(level, "point", 0));
+        this.label(ctx, level, [p[0] + 9, p[1]]);
+      }
+      (m.pedicles ?? []).forEach((q, i) => {
+        const p = S(q);
+        this.dot(ctx, p, "#7CFC00", this.isSelected(level, "pedicles", i), true);
+      });
+    }
+    if (this.cursor) {
+      const [x, y] = S(this.cursor);
+      const r = 11;
+      ctx.strokeStyle = "#00e5ff";
+      ctx.lineWidth = 1.5;
+      ctx.beginPath();
+      ctx.moveTo(x - r, y);
+      ctx.lineTo(x + r, y);
+      ctx.moveTo(x, y - r);
+      ctx.lineTo(x, y + r);
+      ctx.stroke();
+      this.label(ctx, `${this.level} ${this.mode === "point" ? "midpoint" : this.nextPart().split(" of ")[0].replace("the ", "")}`, [x + r + 4, y - 10], "#00e5ff");
+    }
+  }
+
+  private isSelected(level: Level, kind: Mode, index: number): boolean {
+    const s = this.selected;
+    return !!s && s.level === level && s.kind === kind && s.index === index;
+  }
+
+  private dot(ctx: CanvasRenderingContext2D, p: Vec2, fill: string, selected: boolean, square = false): void {
+    ctx.fillStyle = fill;
+    ctx.strokeStyle = "#000";
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    if (square) ctx.rect(p[0] - 4, p[1] - 4, 8, 8);
+    else ctx.arc(p[0], p[1], 4.5, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.stroke();
+    if (selected) {
+      ctx.strokeStyle = "#ff4fd8";
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.arc(p[0], p[1], 8, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
+  }
+
+  private label(ctx: CanvasRenderingContext2D, text: string, at: Vec2, colour = "#ffd000"): void {
+    ctx.lineWidth = 3;
+    ctx.strokeStyle = "#000";
+    ctx.strokeText(text, at[0], at[1]);
+    ctx.fillStyle = colour;
+    ctx.fillText(text, at[0], at[1]);
+    ctx.lineWidth = 1.5;
+  }
+}

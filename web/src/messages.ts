@@ -1,0 +1,55 @@
+// Problems (RFC 9457 problem+json) in plain sentences: no JSON paths in code form, no Python reprs.
+import type { Problem } from "./types";
+
+const VIEW = { pa: "PA film", lateral: "lateral film" } as Record<string, string>;
+
+/** "pa.landmarks[3].corners" → "PA film, landmark 4, corners" (with the level when the payload names it). */
+export function placeOf(path: string, payload?: unknown): string {
+  if (!path || path === "(body)") return "the request";
+  const parts = path.split(".");
+  const words: string[] = [];
+  let node: unknown = payload;
+  for (const part of parts) {
+    const m = part.match(/^([^[]+)((?:\[\d+\])*)$/);
+    const key = m ? m[1] : part;
+    node = node && typeof node === "object" ? (node as Record<string, unknown>)[key] : undefined;
+    words.push(VIEW[key] ?? key.replace(/_/g, " "));
+    for (const idx of (m?.[2] ?? "").match(/\d+/g) ?? []) {
+      const item = Array.isArray(node) ? node[Number(idx)] : undefined;
+      node = item;
+      const level = item && typeof item === "object" ? (item as { level?: string }).level : undefined;
+      words.push(level ? level : `item ${Number(idx) + 1}`);
+    }
+  }
+  return words.join(", ");
+}
+
+/** A message without Python list/str reprs: ['L5', 'T1'] → L5 and T1; 'px' → "px". */
+export function plain(message: string): string {
+  return message
+    .replace(/\[((?:'[^']*'(?:,\s*)?)+)\]/g, (_, items: string) => {
+      const list = items.split(/,\s*/).map((s) => s.replace(/^'|'$/g, ""));
+      return list.length > 1 ? `${list.slice(0, -1).join(", ")} and ${list[list.length - 1]}` : list[0];
+    })
+    .replace(/'([^']*)'/g, "“$1”")
+    .replace(/^Value error, /, "")
+    .replace(/^Input should be/, "It should be");
+}
+
+/** The sentences of a problem: its detail, then one per offending field. */
+export function sentences(problem: Problem, payload?: unknown): { title: string; lines: string[] } {
+  const lines: string[] = [];
+  const errors = problem.errors ?? [];
+  if (problem.detail && !(errors.length && /validation|invalid/i.test(problem.detail))) lines.push(plain(problem.detail));
+  for (const e of errors) {
+    const msg = plain(e.msg);
+    lines.push(`${capital(placeOf(e.path, payload))}: ${msg}${/[.!?]$/.test(msg) ? "" : "."}`);
+  }
+  if (!lines.length) lines.push(problem.title);
+  const status = problem.status === 401 || problem.status === 403
+    ? "The service refused the API key"
+    : problem.status === 422 ? "The service cannot use this input" : problem.title;
+  return { title: status, lines };
+}
+
+const capital = (s: string): string => s.charAt(0).toUpperCase() + s.slice(1);

@@ -1,0 +1,310 @@
+// The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
+// the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
+// landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
+import { DicomError, parseFilm, type DicomFilm } from "./dicom";
+import { FilmEditor, type Mode } from "./film";
+import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
+
+export type ViewName = "pa" | "lateral";
+const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "Lateral film" };
+const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
+
+function el<K extends keyof HTMLElementTagNameMap>(tag: K, attrs: Record<string, string> = {}, text?: string): HTMLElementTagNameMap[K] {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+
+function labelled(id: string, label: string, input: HTMLElement, help?: string): HTMLElement {
+  const row = el("div", { class: "row" });
+  row.append(el("label", { for: id }, label), input);
+  if (help) {
+    input.setAttribute("aria-describedby", `${id}-help`);
+    row.append(el("span", { id: `${id}-help`, class: "help" }, help));
+  }
+  return row;
+}
+
+export class FilmPanel {
+  readonly editor: FilmEditor;
+  dicom: DicomFilm | null = null;
+  fileName: string | null = null;
+  private readonly spacing: HTMLInputElement;
+  private readonly header: HTMLElement;
+  private readonly wlCenter: HTMLInputElement;
+  private readonly wlWidth: HTMLInputElement;
+  private readonly invert: HTMLInputElement;
+  private readonly wlRow: HTMLElement;
+  private readonly levelSelect: HTMLSelectElement;
+  private readonly prompt: HTMLElement;
+  private readonly status: HTMLElement;
+  private readonly error: HTMLElement;
+  private readonly zoomOut: HTMLOutputElement;
+  /** Set when a job is reopened without its film: the spacing and units of its payload. */
+  reopened: ViewPayload | null = null;
+
+  constructor(readonly view: ViewName, container: HTMLElement, private readonly onChange: () => void) {
+    const id = (s: string): string => `${view}-${s}`;
+    const title = TITLES[view];
+    const file = el("input", { id: id("file"), type: "file", accept: ".dcm,application/dicom,image/png,image/jpeg,*/*" });
+    this.spacing = el("input", { id: id("spacing"), type: "number", min: "0.001", max: "10", step: "any", placeholder: "required" });
+    this.header = el("dl", { id: id("header"), class: "dicom-header" });
+    this.error = el("p", { id: id("error"), class: "error", role: "alert" });
+    this.error.hidden = true;
+    this.wlCenter = el("input", { id: id("wl-center"), type: "number", step: "any" });
+    this.wlWidth = el("input", { id: id("wl-width"), type: "number", step: "any", min: "1" });
+    this.invert = el("input", { id: id("wl-invert"), type: "checkbox" });
+    const wlAuto = el("button", { type: "button", id: id("wl-auto") }, "Full range");
+    const wlHeader = el("button", { type: "button", id: id("wl-header") }, "Header window");
+    this.wlRow = el("fieldset", { class: "wl" });
+    this.wlRow.append(
+      el("legend", {}, "Window / level"),
+      labelled(id("wl-center"), "Level (centre)", this.wlCenter),
+      labelled(id("wl-width"), "Window (width)", this.wlWidth),
+      (() => {
+        const r = el("div", { class: "row" });
+        r.append(this.invert, el("label", { for: id("wl-invert") }, "Invert (white is low)"), wlAuto, wlHeader);
+        return r;
+      })(),
+    );
+    this.wlRow.hidden = true;
+
+    const modes = el("fieldset", { class: "modes" });
+    modes.append(el("legend", {}, "Click mode"));
+    const modeNames: [Mode, string][] = [["point", "Endplate midpoint"], ["corners", "Four corners"], ["pedicles", "Pedicles"]];
+    for (const [mode, label] of modeNames) {
+      if (mode === "pedicles" && view !== "pa") continue; // the engine takes pedicles on the PA view only
+      const r = el("input", { type: "radio", name: id("mode"), id: id(`mode-${mode}`), value: mode });
+      if (mode === "point") r.setAttribute("checked", "");
+      r.addEventListener("change", () => this.editor.setMode(mode));
+      modes.append(r, el("label", { for: id(`mode-${mode}`), class: "inline" }, label));
+    }
+    this.levelSelect = el("select", { id: id("level") });
+    for (const lv of LEVELS) this.levelSelect.append(el("option", { value: lv }, lv));
+    this.levelSelect.addEventListener("change", () => this.editor.setLevel(this.levelSelect.value as Level));
+
+    const canvas = el("canvas", {
+      id: id("canvas"), tabindex: "0", role: "application", "aria-roledescription": "landmark editor",
+      "aria-label": `${title}: no film open`, "aria-describedby": id("keys"), class: "film-canvas",
+    });
+    this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${title.toLowerCase()} to start.`);
+    this.status = el("p", { id: id("status"), class: "summary", "aria-live": "polite" });
+    const keys = el("p", { id: id("keys"), class: "help" },
+      "Mouse: click places the next point, drag a point to move it, drag elsewhere to pan, wheel zooms. " +
+      "Keyboard: arrow keys move the crosshair (Shift: ten times faster), Enter places, Delete removes the selected mark, " +
+      "Alt+arrows move the selected point, [ and ] change level, + and − zoom, 0 fits the film.");
+    const buttons = el("div", { class: "button-row" });
+    const del = el("button", { type: "button", id: id("delete") }, "Delete selected");
+    const clear = el("button", { type: "button", id: id("clear") }, "Clear all");
+    const fit = el("button", { type: "button", id: id("fit") }, "Fit film");
+    const zin = el("button", { type: "button", id: id("zoom-in"), "aria-label": "Zoom in" }, "+");
+    const zout = el("button", { type: "button", id: id("zoom-out"), "aria-label": "Zoom out" }, "−");
+    this.zoomOut = el("output", { id: id("zoom"), "aria-live": "off" });
+    buttons.append(del, clear, fit, zout, zin, this.zoomOut);
+
+    const tools = el("div", { class: "film-tools" });
+    tools.append(modes, labelled(id("level"), "Level", this.levelSelect));
+    container.append(
+      labelled(id("file"), `${title} (DICOM, PNG or JPEG)`, file),
+      this.error,
+      this.header,
+      labelled(id("spacing"), "Pixel spacing (mm per pixel)", this.spacing,
+        "Read from the DICOM header when it has one; a PNG or JPEG does not carry it: enter it (e.g. from the PACS)."),
+      this.wlRow, tools, this.prompt, canvas, keys, buttons, this.status,
+    );
+
+    this.editor = new FilmEditor(canvas, (what) => {
+      if (what !== "view") this.levelSelect.value = this.editor.level;
+      this.update();
+      if (what === "marks") this.onChange();
+    });
+    file.addEventListener("change", () => void this.open(file.files?.[0]));
+    this.spacing.addEventListener("input", () => {
+      this.update();
+      this.onChange();
+    });
+    const applyWl = (): void => this.editor.setWindow(Number(this.wlCenter.value), Number(this.wlWidth.value), this.invert.checked);
+    for (const i of [this.wlCenter, this.wlWidth]) i.addEventListener("input", applyWl);
+    this.invert.addEventListener("change", applyWl);
+    wlAuto.addEventListener("click", () => {
+      if (!this.dicom) return;
+      this.wlCenter.value = String(round((this.dicom.min + this.dicom.max) / 2));
+      this.wlWidth.value = String(round(Math.max(1, this.dicom.max - this.dicom.min)));
+      applyWl();
+    });
+    wlHeader.addEventListener("click", () => {
+      if (!this.dicom) return;
+      this.wlCenter.value = String(round(this.dicom.window.center));
+      this.wlWidth.value = String(round(this.dicom.window.width));
+      applyWl();
+    });
+    del.addEventListener("click", () => this.editor.removeSelected());
+    clear.addEventListener("click", () => this.editor.clear());
+    fit.addEventListener("click", () => this.editor.fit());
+    zin.addEventListener("click", () => this.editor.zoomBy(1.25));
+    zout.addEventListener("click", () => this.editor.zoomBy(0.8));
+    this.update();
+  }
+
+  async open(file: File | undefined): Promise<void> {
+    if (!file) return;
+    this.showError(null);
+    const bytes = new Uint8Array(await file.arrayBuffer());
+    const isDicom = bytes.length > 132 && String.fromCharCode(...bytes.subarray(128, 132)) === "DICM";
+    try {
+      if (isDicom || /\.dcm$/i.test(file.name) || file.type === "application/dicom") {
+        const film = parseFilm(bytes, file.name);
+        this.dicom = film;
+        this.spacing.value = film.spacing.value ? String(film.spacing.value[1]) : "";
+        this.wlCenter.value = String(round(film.window.center));
+        this.wlWidth.value = String(round(film.window.width));
+        this.invert.checked = film.monochrome1;
+        this.wlRow.hidden = false;
+        this.editor.setSource({ name: file.name, width: film.width, height: film.height, dicom: film, element: null });
+        this.editor.canvas.setAttribute("aria-label",
+          `${TITLES[this.view]} ${file.name}: DICOM ${film.photometric}, ${film.width} by ${film.height} pixels.`);
+      } else if (/^image\/(png|jpeg)$/.test(file.type)) {
+        const url = URL.createObjectURL(file);
+        const element = new Image();
+        element.src = url;
+        try {
+          await element.decode();
+        } finally {
+          URL.revokeObjectURL(url);
+        }
+        this.dicom = null;
+        this.spacing.value = "";
+        this.wlRow.hidden = true;
+        this.editor.setSource({ name: file.name, width: element.naturalWidth, height: element.naturalHeight, dicom: null, element });
+        this.editor.canvas.setAttribute("aria-label",
+          `${TITLES[this.view]} ${file.name}: ${file.type === "image/png" ? "PNG" : "JPEG"}, ${element.naturalWidth} by ${element.naturalHeight} pixels.`);
+      } else {
+        throw new DicomError(`${file.name} is neither DICOM nor a PNG or JPEG image.`);
+      }
+      this.fileName = file.name;
+      this.reopened = null;
+      this.fillHeader();
+      this.update();
+      this.onChange();
+    } catch (error) {
+      this.showError(error instanceof Error ? error.message : `${file.name} could not be read.`);
+    }
+  }
+
+  private showError(message: string | null): void {
+    this.error.hidden = !message;
+    this.error.textContent = message ?? "";
+  }
+
+  private fillHeader(): void {
+    const d = this.dicom;
+    const rows: [string, string][] = [];
+    if (d) {
+      const s = d.study;
+      rows.push(["Patient", [s.patient_name, s.patient_id && `ID ${s.patient_id}`].filter(Boolean).join(", ") || "not given"]);
+      rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
+      rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
+      rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
+      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.`]);
+      rows.push(["Orientation", d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
+        : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`]);
+      const a = d.acquisition;
+      const geo = [
+        a.magnification && `magnification (ERMF) ${a.magnification}`,
+        a.distance_source_to_detector_mm && `SID ${a.distance_source_to_detector_mm} mm`,
+        a.distance_source_to_patient_mm && `SOD ${a.distance_source_to_patient_mm} mm`,
+      ].filter(Boolean);
+      rows.push(["Geometry", geo.length ? geo.join(", ") : "not given: the scale is estimated"]);
+    } else if (this.fileName) {
+      rows.push(["Image", `${this.fileName}: no header, so no spacing, patient or study`]);
+    }
+    this.header.replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
+  }
+
+  /** The spacing the user confirmed or typed, mm per pixel [row, column]; null when missing or invalid. */
+  pixelSpacing(): Vec2 | null {
+    const typed = Number(this.spacing.value);
+    if (this.spacing.value.trim() === "" || !(typed > 0) || typed > 10) return null;
+    const fromHeader = this.dicom?.spacing.value;
+    if (fromHeader && Math.abs(fromHeader[1] - typed) < 1e-9) return fromHeader;
+    return [typed, typed];
+  }
+
+  hasFilm(): boolean {
+    return !!this.editor.source || !!this.reopened;
+  }
+
+  orientation(): [string, string] {
+    return this.dicom?.orientation ?? (this.reopened?.patient_orientation as [string, string] | undefined) ?? DEFAULT_ORIENTATION[this.view];
+  }
+
+  /** The view of the payload, or null without landmarks. Optional members only when the service takes them. */
+  payload(accepts: { acquisition: boolean; calibration: boolean }): ViewPayload | null {
+    const landmarks = this.editor.landmarks();
+    if (!landmarks.length) return null;
+    if (this.reopened && !this.editor.source) {
+      return { ...this.reopened, landmarks: this.reopened.units === "mm" && this.reopened.pixel_spacing ? landmarks.map((lm) => toMm(lm, this.reopened!.pixel_spacing as Vec2)) : landmarks };
+    }
+    const view: ViewPayload = { units: "px", pixel_spacing: this.pixelSpacing(), patient_orientation: this.orientation(), landmarks };
+    const d = this.dicom;
+    if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
+    if (d && accepts.acquisition) {
+      // Millimetres already in the patient plane are not magnified again.
+      const acq = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      if (Object.keys(acq).length) view.acquisition = acq;
+    }
+    return view;
+  }
+
+  /** What stops this film's landmarks from making a valid job, in words. */
+  problems(): string[] {
+    const out: string[] = [];
+    const name = this.view === "pa" ? "PA" : "lateral";
+    const n = this.editor.landmarks().length;
+    if (this.editor.source && n && !this.pixelSpacing()) {
+      out.push(`Enter the pixel spacing of the ${name} film (mm per pixel, between 0.001 and 10): ${this.dicom ? "its header gives none" : "a PNG or JPEG does not carry it"}, and it is never guessed.`);
+    }
+    out.push(...this.editor.incomplete().map((s) => `${name} film, ${s}: finish or delete it.`));
+    return out;
+  }
+
+  restore(view: ViewPayload): void {
+    this.reopened = { ...view, landmarks: [] };
+    this.editor.setLandmarks(view.landmarks, view.pixel_spacing as Vec2 | null, view.units);
+    if (view.units === "px" && view.pixel_spacing) this.spacing.value = String(view.pixel_spacing[1]);
+    this.header.replaceChildren(el("dt", {}, "Film"), el("dd", {}, "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."));
+    this.update();
+  }
+
+  update(): void {
+    const ed = this.editor;
+    const placed = ed.landmarks();
+    this.zoomOut.value = ed.source || this.reopened ? `${ed.zoomPercent} %` : "";
+    if (!ed.source && !this.reopened) {
+      this.status.textContent = "";
+      return;
+    }
+    this.prompt.textContent = `Next: ${ed.nextPart()}.`;
+    const levels = placed.map((l) => l.level);
+    const kinds = [
+      placed.filter((l) => l.point).length && `${placed.filter((l) => l.point).length} midpoints`,
+      placed.filter((l) => l.corners).length && `${placed.filter((l) => l.corners).length} with four corners`,
+      placed.filter((l) => l.pedicles).length && `${placed.filter((l) => l.pedicles).length} with pedicles`,
+    ].filter(Boolean).join(", ");
+    this.status.textContent = placed.length
+      ? `${placed.length} vertebra${placed.length === 1 ? "" : "e"} on the ${this.view === "pa" ? "PA" : "lateral"} film (${levels[0]}–${levels[levels.length - 1]}): ${kinds}.`
+      : "No landmark yet.";
+  }
+}
+
+const round = (x: number): number => Math.round(x * 100) / 100;
+
+function toMm(lm: ViewPayload["landmarks"][number], spacing: Vec2): ViewPayload["landmarks"][number] {
+  const mm = (p: Vec2): Vec2 => [Math.round(p[0] * spacing[1] * 1000) / 1000, Math.round(p[1] * spacing[0] * 1000) / 1000];
+  const out: ViewPayload["landmarks"][number] = { level: lm.level };
+  if (lm.point) out.point = mm(lm.point);
+  if (lm.corners) out.corners = lm.corners.map(mm) as [Vec2, Vec2, Vec2, Vec2];
+  if (Array.isArray(lm.pedicles)) out.pedicles = (lm.pedicles as Vec2[]).map(mm);
+  return out;
+}
