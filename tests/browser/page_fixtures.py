@@ -104,7 +104,7 @@ def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first
     """A DX film with the attributes the page reads; returns them for the assertions."""
     import pydicom
     from pydicom.dataset import FileMetaDataset
-    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+    from pydicom.uid import UID, ExplicitVRLittleEndian, generate_uid
 
     if view == "pa":
         bodies = pa_corners()
@@ -114,7 +114,7 @@ def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first
             bodies.append([(col - 26, row), (col + 26, row), (col - 26, row + 22), (col + 26, row + 22)])
     pixels = film_pixels(bodies, monochrome1)
     meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.1.1"  # Digital X-Ray Image Storage - For Presentation
+    meta.MediaStorageSOPClassUID = UID("1.2.840.10008.5.1.4.1.1.1.1")  # Digital X-Ray Image Storage - For Presentation
     meta.MediaStorageSOPInstanceUID = generate_uid()
     meta.TransferSyntaxUID = ExplicitVRLittleEndian
     ds = pydicom.Dataset()
@@ -259,7 +259,9 @@ class PageWatch:
         return [r for r in self.requests if r.method == "POST" and r.url.endswith("/v1/jobs")]
 
 
-def open_page(browser: Any, url: str, api_key: str | None, *, width: int = 1440, height: int = 1000) -> tuple[Any, Any, PageWatch]:
+def open_page(
+    browser: Any, url: str, api_key: str | None, *, width: int = 1440, height: int = 1000
+) -> tuple[Any, Any, PageWatch]:
     context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
     page = context.new_page()
     watch = PageWatch(page, url.split("/#")[0].rstrip("/"))
@@ -287,14 +289,16 @@ def canvas_point(page: Any, view: str, col: float, row: float) -> tuple[float, f
     return box["x"] + ox + col * s, box["y"] + oy + row * s
 
 
-def canvas_grey(page: Any, view: str, x: float, y: float) -> int:
-    """Grey level of the film canvas at page point (x, y)."""
+def canvas_grey(page: Any, view: str, col: float, row: float) -> int:
+    """Grey level drawn on the film canvas at image point (col, row)."""
+    x, y = canvas_point(page, view, col, row)
     return int(page.evaluate(
         """([view, x, y]) => {
             const c = document.getElementById(view + '-canvas');
             const r = c.getBoundingClientRect();
             const k = c.width / r.width;
-            return c.getContext('2d').getImageData(Math.round((x - r.left) * k), Math.round((y - r.top) * k), 1, 1).data[0];
+            const [px, py] = [Math.round((x - r.left) * k), Math.round((y - r.top) * k)];
+            return c.getContext('2d').getImageData(px, py, 1, 1).data[0];
         }""",
         [view, x, y],
     ))  # fmt: skip
@@ -305,6 +309,9 @@ def run_axe(page: Any) -> list[dict[str, Any]]:
     script = resources.files("axe_playwright_python").joinpath("axe.min.js").read_text()
     page.evaluate(script)
     result = page.evaluate(
-        "async () => await axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa']}})"
+        "async () => await axe.run(document, {runOnly: {type: 'tag', "
+        "values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa']}})"
     )
-    return [{"id": v["id"], "help": v["help"], "nodes": [n["target"] for n in v["nodes"]][:5]} for v in result["violations"]]
+    return [
+        {"id": v["id"], "help": v["help"], "nodes": [n["target"] for n in v["nodes"]][:5]} for v in result["violations"]
+    ]

@@ -109,12 +109,18 @@ export function fillMeasures(table: HTMLTableElement, job: Job, result: Registra
     const th = document.createElement("th");
     th.scope = "row";
     th.textContent = r.name;
+    if (r.note) {
+      const note = document.createElement("span");
+      note.className = "note";
+      note.textContent = r.note;
+      th.append(note);
+    }
     const value = td(r.value, "value");
     if (r.model) {
       tr.className = "is-model";
       value.append(" ", mark());
     }
-    tr.append(th, value, td(r.note ?? "", "note"));
+    tr.append(th, value);
     return tr;
   });
   table.tBodies[0].replaceChildren(...rows);
