@@ -1,7 +1,7 @@
 // Builds the single page into services/api/static/, which the API serves at / (services/api/web.py).
 // build-info.json records a hash of the sources, so a Python test can tell a stale committed build.
 import { createHash } from "node:crypto";
-import { readdirSync, readFileSync, statSync } from "node:fs";
+import { copyFileSync, mkdirSync, readdirSync, readFileSync, statSync, writeFileSync } from "node:fs";
 import { join, relative, sep } from "node:path";
 import { fileURLToPath } from "node:url";
 import { defineConfig, type Plugin } from "vite";
@@ -43,10 +43,41 @@ function buildInfo(): Plugin {
   };
 }
 
+/**
+ * The API documentation pages' assets, served by the service itself (services/api/docs_ui.py),
+ * copied from the pinned npm packages with their licences: Swagger UI (swagger-ui-dist,
+ * Apache-2.0) and ReDoc (redoc's standalone bundle, MIT). No CDN.
+ */
+const DOCS_ASSETS: [string, string][] = [
+  ["swagger-ui-dist/swagger-ui-bundle.js", "swagger-ui-bundle.js"],
+  ["swagger-ui-dist/swagger-ui.css", "swagger-ui.css"],
+  ["swagger-ui-dist/LICENSE", "swagger-ui.LICENSE.txt"],
+  ["swagger-ui-dist/NOTICE", "swagger-ui.NOTICE.txt"],
+  ["redoc/bundles/redoc.standalone.js", "redoc.standalone.js"],
+  ["redoc/LICENSE", "redoc.LICENSE.txt"],
+];
+const SWAGGER_INIT = `// Starts Swagger UI on this service's /openapi.json (a file, so the page needs no inline script).
+window.ui = SwaggerUIBundle({ url: "/openapi.json", dom_id: "#swagger-ui", deepLinking: true });
+`;
+
+function docsAssets(): Plugin {
+  return {
+    name: "spine-docs-assets",
+    writeBundle(options) {
+      const out = join(options.dir ?? join(root, "../services/api/static"), "docs");
+      mkdirSync(out, { recursive: true });
+      for (const [from, to] of DOCS_ASSETS) copyFileSync(join(root, "node_modules", from), join(out, to));
+      writeFileSync(join(out, "swagger-init.js"), SWAGGER_INIT);
+      const versions = Object.fromEntries(["swagger-ui-dist", "redoc"].map((p) => [p, JSON.parse(readFileSync(join(root, "node_modules", p, "package.json"), "utf8")).version]));
+      writeFileSync(join(out, "versions.json"), JSON.stringify(versions, null, 2) + "\n");
+    },
+  };
+}
+
 export default defineConfig({
   root,
   base: "/",
-  plugins: [buildInfo()],
+  plugins: [buildInfo(), docsAssets()],
   build: {
     outDir: "../services/api/static",
     emptyOutDir: true,
