@@ -109,6 +109,12 @@ export class FilmEditor {
     this.raster = raster;
   }
 
+  /** The film's raster (window applied) as a PNG blob. */
+  rasterBlob(): Promise<Blob | null> {
+    const raster = this.raster;
+    return raster ? new Promise((resolve) => raster.toBlob((b) => resolve(b), "image/png")) : Promise.resolve(null);
+  }
+
   // ---------------------------------------------------------------- landmarks
 
   /** Landmarks of the payload: complete point or corners, with pedicles when both are placed. */

@@ -8,10 +8,10 @@ import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
-import { drawProjections } from "./projections";
+import { drawProjections, type Backdrop } from "./projections";
 import { fillLegend, fillLenke, fillMeasures, fillStrains, measureRows } from "./results";
 import { FINAL_STATUSES, type Job, type JobPayload, type Pose, type Problem, type Study, type Vec3, type ViewPayload } from "./types";
-import { SpineViewer } from "./viewer3d";
+import type { SpineViewer } from "./viewer3d";
 
 const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
   const node = document.getElementById(id);
@@ -37,6 +37,8 @@ let currentJob: Job | null = null;
 let pollTimer: number | undefined;
 let viewer: SpineViewer | null = null;
 let figureUrl: string | null = null;
+/** The PA film under the result's PA projection, when the job was sent from the films on this page. */
+let backdrop: Backdrop | null = null;
 
 const apiKeyInput = $<HTMLInputElement>("api-key");
 apiKeyInput.value = loadApiKey();
@@ -406,6 +408,8 @@ submitButton.addEventListener("click", async () => {
   try {
     const job = await api.submit(payload);
     history.replaceState(null, "", `#/jobs/${job.id}`);
+    if (backdrop) URL.revokeObjectURL(backdrop.url);
+    backdrop = source === "image" && !panels.pa.reopened ? await panels.pa.backdrop() : null;
     track(job);
   } catch (error) {
     statusLine.textContent = "The job was not accepted.";
@@ -459,11 +463,16 @@ function showResult(job: Job): void {
   if (!result) return;
   $("result-empty").hidden = true;
   $("result").hidden = false;
-  viewer ??= new SpineViewer($("view3d"), $("view3d-orientation"));
-  viewer.show(result);
+  // three.js is loaded with the first result only: the page's first render does not wait for it.
+  void import("./viewer3d").then(({ SpineViewer }) => {
+    viewer ??= new SpineViewer($("view3d"), $("view3d-orientation"));
+    viewer.show(result);
+    $("view3d").dataset.shown = job.id;
+  });
   const payload = (job.payload ?? buildPayload()) as JobPayload;
-  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, null);
-  $("pa-caption").textContent = " (detector mm)";
+  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
+  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, under);
+  $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
   $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
   fillLegend($("legend"), result);
   fillMeasures($<HTMLTableElement>("measures"), job, result);
@@ -609,6 +618,7 @@ async function openJob(id: string): Promise<void> {
   statusLine.textContent = `Opening job ${id}…`;
   try {
     const job = await api.job(id);
+    backdrop = null;
     if (job.payload) {
       const p = job.payload;
       panels.pa.restore(p.pa);

@@ -88,7 +88,7 @@ export class FilmPanel {
       id: id("canvas"), tabindex: "0", role: "application", "aria-roledescription": "landmark editor",
       "aria-label": `${title}: no film open`, "aria-describedby": id("keys"), class: "film-canvas",
     });
-    this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${title.toLowerCase()} to start.`);
+    this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${view === "pa" ? "PA" : "lateral"} film to start.`);
     this.status = el("p", { id: id("status"), class: "summary", "aria-live": "polite" });
     const keys = el("p", { id: id("keys"), class: "help" },
       "Mouse: click places the next point, drag a point to move it, drag elsewhere to pan, wheel zooms. " +
@@ -231,6 +231,14 @@ export class FilmPanel {
     return [typed, typed];
   }
 
+  /** The film as drawn now (window applied), for the result's PA projection; null without a film. */
+  async backdrop(): Promise<{ url: string; width: number; height: number; spacing: Vec2 } | null> {
+    const spacing = this.pixelSpacing();
+    const blob = await this.editor.rasterBlob();
+    const s = this.editor.source;
+    return blob && s && spacing ? { url: URL.createObjectURL(blob), width: s.width, height: s.height, spacing } : null;
+  }
+
   hasFilm(): boolean {
     return !!this.editor.source || !!this.reopened;
   }
@@ -294,7 +302,7 @@ export class FilmPanel {
     ].filter(Boolean).join(", ");
     this.status.textContent = placed.length
       ? `${placed.length} vertebra${placed.length === 1 ? "" : "e"} on the ${this.view === "pa" ? "PA" : "lateral"} film (${levels[0]}–${levels[levels.length - 1]}): ${kinds}.`
-      : "No landmark yet.";
+      : "No landmark on this film yet.";
   }
 }
 
