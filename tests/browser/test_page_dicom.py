@@ -217,12 +217,38 @@ def test_seventeen_corners_by_keyboard_on_a_monochrome1_film(
     inside = ((corners[8][0][0] + corners[8][3][0]) / 2, (corners[8][0][1] + corners[8][3][1]) / 2)
     assert canvas_grey(page, "pa", *inside) > canvas_grey(page, "pa", 20, 20) + 80  # bone white
 
+    # zoom (keys, buttons, wheel) and pan (drag on the film away from any point) on the full-size film
+    def view() -> list[float]:
+        return [float(x) for x in (page.get_attribute("#pa-canvas", "data-view") or "").split()]
+
+    fitted = view()
+    page.focus("#pa-canvas")
+    page.keyboard.press("+")
+    page.keyboard.press("+")
+    assert view()[0] == pytest.approx(fitted[0] * 1.25**2, rel=1e-3)
+    page.click("#pa-zoom-out")
+    assert view()[0] == pytest.approx(fitted[0] * 1.25, rel=1e-3)
+    x0, y0 = canvas_point(page, "pa", 40, 450)  # soft tissue, no landmark
+    page.mouse.move(x0, y0)
+    page.mouse.wheel(0, -100)
+    assert view()[0] > fitted[0] * 1.25
+    zoomed = view()
+    page.mouse.down()
+    page.mouse.move(x0 + 30, y0 + 60, steps=5)
+    page.mouse.up()
+    panned = view()
+    assert panned[0] == zoomed[0] and panned[1] == pytest.approx(zoomed[1] - 30 / zoomed[0], abs=0.2)
+    assert panned[2] == pytest.approx(zoomed[2] - 60 / zoomed[0], abs=0.2)
+    assert "No landmark on this film yet" in (page.text_content("#pa-status") or "")  # a pan places nothing
+    page.keyboard.press("0")
+    assert view() == fitted
+
     page.focus("#pa-mode-corners")
     page.keyboard.press("Space")
     assert page.is_checked("#pa-mode-corners")
     page.focus("#pa-canvas")
     step = max(1, round(FILM_SIZE[1] / 400))
-    cursor = [FILM_SIZE[0] / 2, FILM_SIZE[1] * 0.1]
+    cursor = [float(x) for x in (page.get_attribute("#pa-canvas", "data-cursor") or "").split()]
     for level in corners:
         for col, row in level:
             for axis, (minus, plus) in enumerate((("ArrowLeft", "ArrowRight"), ("ArrowUp", "ArrowDown"))):

@@ -444,6 +444,9 @@ export class FilmEditor {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, this.canvas.width, this.canvas.height);
     if (!this.extent) return;
+    // CSS px per image px and the image point at the top-left corner (read by the browser tests)
+    this.canvas.dataset.view = `${this.scale.toFixed(4)} ${this.origin[0].toFixed(1)} ${this.origin[1].toFixed(1)}`;
+    this.canvas.dataset.cursor = this.cursor ? `${this.cursor[0]} ${this.cursor[1]}` : "";
     const k = this.scale * ratio;
     ctx.setTransform(k, 0, 0, k, -this.origin[0] * k, -this.origin[1] * k);
     if (this.raster) {
