@@ -100,10 +100,21 @@ def film_pixels(bodies: list[list[tuple[float, float]]], monochrome1: bool) -> n
     return (4095 - density).astype(np.uint16) if monochrome1 else density
 
 
-def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first_lateral: str = "T4") -> dict[str, Any]:
-    """A DX film with the attributes the page reads; returns them for the assertions."""
+def make_dicom(
+    path: Path,
+    *,
+    view: str = "pa",
+    monochrome1: bool = False,
+    first_lateral: str = "T4",
+    spacing: dict[str, list[float]] | None = None,
+    transfer_syntax: str | None = None,
+) -> dict[str, Any]:
+    """A DX film with the attributes the page reads; returns them for the assertions. `spacing`
+    replaces the view's spacing attributes (keys PixelSpacing, ImagerPixelSpacing); an empty dict
+    leaves the film without any. `transfer_syntax` only labels the file (its pixels stay raw)."""
     import pydicom
     from pydicom.dataset import FileMetaDataset
+    from pydicom.encaps import encapsulate
     from pydicom.uid import UID, ExplicitVRLittleEndian, generate_uid
 
     if view == "pa":
@@ -139,7 +150,10 @@ def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first
     ds.PixelRepresentation = 0
     ds.WindowCenter = 2000
     ds.WindowWidth = 3500
-    if view == "pa":
+    if spacing is not None:
+        for keyword, value in spacing.items():
+            setattr(ds, keyword, value)
+    elif view == "pa":
         ds.ImagerPixelSpacing = [PA_SPACING, PA_SPACING]
         ds.EstimatedRadiographicMagnificationFactor = 1.2
         ds.DistanceSourceToDetector = 1800
@@ -150,6 +164,11 @@ def make_dicom(path: Path, *, view: str = "pa", monochrome1: bool = False, first
         ds.PixelSpacingCalibrationType = "GEOMETRY"
     ds.PixelData = pixels.tobytes()
     ds.save_as(path, enforce_file_format=True)
+    if transfer_syntax:
+        relabelled = pydicom.dcmread(path)
+        relabelled.file_meta.TransferSyntaxUID = UID(transfer_syntax)
+        relabelled.PixelData = encapsulate([pixels.tobytes()])  # one fragment: labelled, not really encoded
+        relabelled.save_as(path, enforce_file_format=True)
     return {"bodies": bodies, "pixels": pixels}
 
 
