@@ -330,10 +330,20 @@ function missing(): string[] {
   }
   if (!v.pa) {
     if (source !== "image" || panels.pa.hasFilm()) out.push("Place landmarks on the PA film: the PA view is required.");
+  } else if (caps?.acquisition) {
+    // The engine that takes any levels (issue 10): at least 2 on the PA film, 3 on a lateral one
+    // (spine_engine.validation.MIN_LEVELS_PA / MIN_LEVELS_LATERAL), none required by name.
+    if (v.pa.landmarks.length < 2 && !v.pa.projection) out.push("Place at least two vertebrae on the PA film: with one, the film's position of the spine is undetermined.");
+    const n = v.lateral?.landmarks.length ?? 0;
+    if (n > 0 && n < 3 && !v.lateral?.projection) out.push(`Place at least three vertebrae on the lateral film (${n} now), or clear it: fewer cannot fix its scale and turn.`);
   } else {
-    const levels = new Set(v.pa.landmarks.map((l) => l.level));
-    const lacking = (["T1", "L5"] as const).filter((l) => !levels.has(l));
-    if (lacking.length && !v.pa.projection) out.push(`Place ${lacking.join(" and ")} on the PA film: the first and last vertebrae set the film's scale and place the spine.`);
+    // This service's engine needs T1 and L5 on every film whose projection it estimates.
+    for (const [name, view] of [["PA", v.pa], ["lateral", v.lateral]] as const) {
+      if (!view || view.projection) continue;
+      const levels = new Set(view.landmarks.map((l) => l.level));
+      const lacking = (["T1", "L5"] as const).filter((l) => !levels.has(l));
+      if (lacking.length) out.push(`Place ${lacking.join(" and ")} on the ${name} film: this service needs the first and last vertebrae to set the film's scale and place the spine.`);
+    }
   }
   if (giveBoundary.checked) {
     const b = readBoundary();

@@ -3,7 +3,7 @@ import type { Problem } from "./types";
 
 const VIEW = { pa: "PA film", lateral: "lateral film" } as Record<string, string>;
 
-/** "pa.landmarks[3].corners" → "PA film, landmark 4, corners" (with the level when the payload names it). */
+/** "pa.landmarks[3].corners" → "PA film, landmark 4 (T4), corners" (with the level when the payload names it). */
 export function placeOf(path: string, payload?: unknown): string {
   if (!path || path === "(body)") return "the request";
   const parts = path.split(".");
@@ -13,12 +13,15 @@ export function placeOf(path: string, payload?: unknown): string {
     const m = part.match(/^([^[]+)((?:\[\d+\])*)$/);
     const key = m ? m[1] : part;
     node = node && typeof node === "object" ? (node as Record<string, unknown>)[key] : undefined;
-    words.push(VIEW[key] ?? key.replace(/_/g, " "));
-    for (const idx of (m?.[2] ?? "").match(/\d+/g) ?? []) {
+    const name = VIEW[key] ?? key.replace(/_/g, " ");
+    const indexes = (m?.[2] ?? "").match(/\d+/g) ?? [];
+    if (!indexes.length) words.push(name);
+    for (const idx of indexes) {
       const item = Array.isArray(node) ? node[Number(idx)] : undefined;
       node = item;
       const level = item && typeof item === "object" ? (item as { level?: string }).level : undefined;
-      words.push(level ? level : `item ${Number(idx) + 1}`);
+      // "landmarks[3]" → "landmark 4 (T5)"
+      words.push(`${name.replace(/s$/, "")} ${Number(idx) + 1}${typeof level === "string" ? ` (${level})` : ""}`);
     }
   }
   return words.join(", ");
