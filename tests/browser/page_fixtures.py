@@ -22,6 +22,7 @@ from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
 import numpy as np
@@ -283,7 +284,8 @@ def open_page(
 ) -> tuple[Any, Any, PageWatch]:
     context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
     page = context.new_page()
-    watch = PageWatch(page, url.split("/#")[0].rstrip("/"))
+    parts = urlsplit(url)
+    watch = PageWatch(page, f"{parts.scheme}://{parts.netloc}")
     page.goto(url)
     page.wait_for_selector("body[data-ready=true]")
     if api_key:
