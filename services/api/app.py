@@ -14,6 +14,7 @@ from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry
 
 from services.api.deps import reject_unknown_query
+from services.api.docs_ui import mount_docs
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
 from services.api.routes import dicom, fhir, figures, health, jobs
@@ -69,6 +70,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=DESCRIPTION,
         lifespan=lifespan,
         dependencies=[Depends(reject_unknown_query)],
+        docs_url=None,  # FastAPI's own pages load Swagger UI and ReDoc from a CDN: served by mount_docs instead
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.celery = make_celery(settings)
@@ -81,6 +84,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(figures.router)
     app.include_router(fhir.router)
     app.include_router(dicom.router)
+    mount_docs(app)
     mount_web(app)
     install_auth(app, settings)  # API keys on /v1, inside the metrics middleware: refusals are counted
     app.add_middleware(HTTPMetrics, registry=registry)

@@ -83,3 +83,17 @@ def test_the_committed_build_matches_the_sources() -> None:
     assert info["sources_sha256"] == sources_sha256(), (
         "services/api/static/ is stale: run `make web` and commit services/api/static/"
     )
+
+
+def test_the_service_serves_its_own_api_docs(api: TestClient) -> None:
+    """/docs and /redoc come from the service (issue #13): every script and style they load is one of
+    its own assets, so the pages work offline (FastAPI's defaults load both from a CDN)."""
+    for path in ("/docs", "/redoc"):
+        answer = api.get(path)
+        assert answer.status_code == 200, path
+        sources = re.findall(r'(?:src|href|spec-url)="([^"]+)"', answer.text)
+        assert sources, path
+        for source in sources:
+            assert source.startswith("/") and not source.startswith("//") or source == "data:,", (path, source)
+            if source.startswith("/docs/assets/"):
+                assert api.get(source).status_code == 200, source
