@@ -11,6 +11,7 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY spine_engine ./spine_engine
 COPY services ./services
+COPY spine_client ./spine_client
 COPY migrations ./migrations
 RUN pip install . \
     && useradd --create-home --uid 10001 spine \
