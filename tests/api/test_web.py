@@ -94,6 +94,6 @@ def test_the_service_serves_its_own_api_docs(api: TestClient) -> None:
         sources = re.findall(r'(?:src|href|spec-url)="([^"]+)"', answer.text)
         assert sources, path
         for source in sources:
-            assert source.startswith("/") and not source.startswith("//") or source == "data:,", (path, source)
+            assert (source.startswith("/") and not source.startswith("//")) or source == "data:,", (path, source)
             if source.startswith("/docs/assets/"):
                 assert api.get(source).status_code == 200, source
