@@ -186,7 +186,7 @@ def render_figure(
     levels = [v["level"] for v in vertebrae]
     positions = np.array([v["position"] for v in vertebrae], dtype=float)
     directors = np.array([v["directors"] for v in vertebrae], dtype=float)  # rows d1, d2, d3
-    bending = [v.get("lateral_bending_deg") for v in vertebrae]
+    bending = [v.get("frontal_bending_deg", v.get("lateral_bending_deg")) for v in vertebrae]
     norm = bending_norm(bending)
     cmap = colormaps[BENDING_CMAP]
     colours = np.array([cmap(norm(b)) if b is not None else (0.75, 0.75, 0.75, 1.0) for b in bending])

@@ -124,8 +124,18 @@ def build_view(
         translation=np.asarray(translation, dtype=float),
         weight=weight,
     )
+    if view.projection is not None:
+        scale_source = "given"
+    elif placed is not None and name == "pa":
+        scale_source = "prior"  # the generic spine's length (clinical.place_without_boundary)
+    else:
+        scale_source = "estimated"
     projection = ViewProjection(
-        scale=float(scale), translation=(float(translation[0]), float(translation[1])), estimated=estimated
+        scale=float(scale),
+        translation=(float(translation[0]), float(translation[1])),
+        estimated=estimated,
+        scale_source=scale_source,
+        pixel_spacing_calibration=view.pixel_spacing_calibration,
     )
     return data, projection
 
@@ -250,8 +260,8 @@ def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | 
                 directors=tuple(tuple(row) for row in out.rotations[i].T.tolist()),  # type: ignore[arg-type]
                 u=tuple(out.u[i].tolist()) if has_segment else None,
                 v=tuple(out.v[i].tolist()) if has_segment else None,
-                pa_bending_deg=float(angles[i, 0]) if has_segment else None,
-                lateral_bending_deg=float(angles[i, 1]) if has_segment else None,
+                sagittal_bending_deg=float(angles[i, 0]) if has_segment else None,
+                frontal_bending_deg=float(angles[i, 1]) if has_segment else None,
                 twist_deg=float(angles[i, 2]) if has_segment else None,
                 axial_rotation_deg=float(rotation[i]),
                 frontal_tilt_deg=float(tilt[i]),

@@ -14,7 +14,7 @@ from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register
 from spine_engine.synthetic import generate_spines
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 ALL = list(range(17))
 
 # Bounds set from measured values with a margin (docs/accuracy.md has the figures and commands).
