@@ -1,0 +1,402 @@
+"""Calibrated uncertainty of a registration: Laplace approximation at the fit's optimum.
+
+The fit minimises E(x) = ‖ρ(x)‖² (N·mm) over the parameter vector x (vertebra position
+increments δr_i in mm, rotation increments δθ_i in rad with R_i ← R_i exp(hat δθ_i), and any
+projection parameters). Read as a negative log posterior, exp(−E/(2τ)) with τ the *temperature*
+that turns the landmark rows into standard normal residuals: a landmark row √w (P r − p)/s
+whose image noise has SD σ (detector mm) has SD √w σ/s, so τ = w σ²/s² (N·mm; ``temperature``);
+rows already divided by their SD have τ = 1. The rod's elastic energy then acts as the prior at
+the same temperature. Around the optimum x̂ (Laplace):
+
+    Σ = c² τ H⁻¹,    H = JᵀJ (Gauss–Newton Hessian of E/2, J = ∂ρ/∂x at x̂),
+
+with c the calibrated ``uncertainty_scale`` (``calibration``): the rod's energy is not a true
+prior and the landmark noise not exactly Gaussian, so one factor, fitted on VerSe dev so that
+±1.96 SD covers 95 % of the truth (``spine bench clinic --split dev --calibrate-uncertainty``),
+takes up the misfit. Only variances of scalar functionals f(x) are needed, by the delta method:
+
+    Var f = c² τ gᵀ H⁻¹ g,   g = ∂f/∂x at x̂,
+
+computed for all functionals at once with one Cholesky factorisation of H and a triangular solve
+(``functional_variances``; banded storage when H is banded, the rod's normal matrix has
+half-bandwidth 11): Var f_k = ‖L⁻¹ g_k‖² with H = L Lᵀ.
+
+Functionals (``functional_gradients``; gradients analytic, checked against finite differences in
+tests/engine/test_uncertainty.py):
+
+* each coordinate of a position relative to the centroid of the 17, r_i − r̄ (mm): g has 1 − 1/N
+  on δr_i's column and −1/N on every other free vertebra's (the global translation, which the
+  data do not fix without boundary, drops out);
+* kyphosis T4–T12 = β_T4 − β_T12, T5–T12, lordosis L1–L5 = β_L5 − β_L1
+  (``measures.kyphosis_lordosis_deg``) and Cobb = |θ_upper − θ_lower| (``measures.frontal_tilt_deg``)
+  with β_i, θ_i the sagittal inclination and frontal tilt of the frame ``frames_from_centreline``
+  puts on the tangent t_i = r_{i+1} − r_{i−1}: functions of the positions, whose covariance the
+  landmarks determine (``functional_gradients`` says why not of the directors);
+* the axial rotation ψ = atan2(d2_x, −d2_y) of each director frame (``frames.axial_rotation_deg``):
+  for f = atan2(a·d_k, b·d_k) of director d_k = R e_k,
+  ∂f/∂δθ = e_k × (Rᵀ g_d),  g_d = ((b·d) a − (a·d) b) / ((a·d)² + (b·d)²)
+  (∂(R exp(hat δθ) e_k)/∂δθ = −R hat(e_k)); degrees.
+
+The delta method is conditional on the curve's end vertebrae (chosen by the tilt sequence) and
+linear: SDs of several degrees on an angle near a branch of atan2 are approximate.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg import LinAlgError, cho_factor, solve_triangular
+from scipy.linalg.lapack import dpbtrf, dtbtrs
+
+from ..levels import LEVEL_INDEX
+
+if TYPE_CHECKING:
+    from ..models import RegistrationResult
+    from .types import Solution
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "profiles" / "uncertainty_calibration.json"
+"""The calibrated scale c and its provenance (written by ``write_calibration``)."""
+
+_DEG = 180.0 / np.pi
+_EX, _EY, _EZ = np.eye(3)
+
+
+class PoseColumns(NamedTuple):
+    """Where each vertebra's pose increments sit in the parameter vector x: column of δr_i,k
+    (mm) and of δθ_i,k (rad, right perturbation R exp(hat δθ)), shape (N, 3); −1 for a pose
+    held fixed (the paper's exact boundary)."""
+
+    position: IntArray
+    rotation: IntArray
+
+
+class Uncertainty(NamedTuple):
+    """1 SD of the reported quantities (already multiplied by ``scale``)."""
+
+    position_sd_mm: FloatArray
+    """(N, 3) of each position coordinate relative to the centroid of the N vertebrae, mm."""
+    axial_rotation_sd_deg: FloatArray
+    """(N,) of each vertebra's axial rotation, degrees."""
+    kyphosis_t4_t12_sd_deg: float
+    kyphosis_t5_t12_sd_deg: float
+    lordosis_l1_l5_sd_deg: float
+    cobb_sd_deg: list[float]
+    """Of each Cobb curve given to ``laplace_uncertainty``, in order, degrees."""
+    scale: float
+    """The calibrated factor c that multiplied the Laplace SDs."""
+
+
+# ---------------------------------------------------------------- calibration file
+
+
+@lru_cache(maxsize=1)
+def _calibration(path: str) -> dict[str, Any]:
+    with open(path) as fh:
+        data: dict[str, Any] = json.load(fh)
+    return data
+
+
+def calibration(path: Path | None = None) -> tuple[float, dict[str, Any]]:
+    """(c, provenance) from ``profiles/uncertainty_calibration.json``; (1.0, {}) when the file is
+    absent (uncalibrated Laplace SDs)."""
+    file = path or CALIBRATION_FILE
+    if not file.is_file():
+        return 1.0, {}
+    data = _calibration(str(file))
+    return float(data["uncertainty_scale"]), dict(data.get("provenance", {}))
+
+
+def write_calibration(scale: float, provenance: dict[str, Any], path: Path | None = None) -> Path:
+    """Write c and its provenance as JSON; returns the path."""
+    if not (np.isfinite(scale) and scale > 0.0):
+        raise ValueError(f"uncertainty scale must be positive and finite, got {scale}")
+    file = path or CALIBRATION_FILE
+    file.write_text(json.dumps({"uncertainty_scale": scale, "provenance": provenance}, indent=2) + "\n")
+    _calibration.cache_clear()
+    return file
+
+
+# ---------------------------------------------------------------- temperature
+
+
+def temperature(weight: float, landmark_sd_mm: float, scale: float) -> float:
+    """τ = w σ² / s² (N·mm): the variance of a landmark row √w (P r − p)/s whose image point has
+    SD σ (detector mm) per coordinate on a view of magnification s (module docstring)."""
+    if not (weight > 0.0 and landmark_sd_mm > 0.0 and scale > 0.0):
+        raise ValueError(f"temperature needs positive weight, SD and scale, got {weight}, {landmark_sd_mm}, {scale}")
+    return float(weight * landmark_sd_mm**2 / scale**2)
+
+
+# ---------------------------------------------------------------- functionals
+
+
+def _director_angle_gradients(
+    rotations: FloatArray, k: int, a: FloatArray, b: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Angles f_i = atan2(a·d_k, b·d_k) (degrees) of every vertebra and ∂f_i/∂δθ_i (N, 3), deg/rad."""
+    d = rotations[:, :, k]
+    ya, xb = d @ a, d @ b
+    norm2 = ya * ya + xb * xb
+    g_d = (xb[:, None] * a - ya[:, None] * b) / norm2[:, None]
+    local = np.einsum("nji,nj->ni", rotations, g_d)  # Rᵀ g_d
+    e = np.eye(3)[k]
+    return np.degrees(np.arctan2(ya, xb)), _DEG * np.cross(e, local)
+
+
+def axial_rotation_gradients(rotations: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """ψ_i = atan2(d2_x, −d2_y) (``frames.axial_rotation_deg``) and ∂ψ_i/∂δθ_i, degrees."""
+    return _director_angle_gradients(rotations, 1, _EX, -_EY)
+
+
+def _tangent_angles(t: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Sagittal inclination β = atan2(t_y, −t_z) and frontal tilt θ = atan2(d1_z, d1_x) of the
+    director d1 ∝ e_x − (e_x·t̂) t̂ that ``frames.frames_from_centreline`` builds on a tangent t
+    (..., 3), degrees."""
+    u = t / np.linalg.norm(t, axis=-1, keepdims=True)
+    beta = np.arctan2(u[..., 1], -u[..., 2])
+    theta = np.arctan2(-u[..., 0] * u[..., 2], 1.0 - u[..., 0] ** 2)
+    return _DEG * beta, _DEG * theta
+
+
+def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """∂β_i/∂t_i and ∂θ_i/∂t_i (N, 3), degrees per mm, of the centreline tangents
+    t_i = r_{i+1} − r_{i−1} (one-sided at the ends, as ``frames.frames_from_centreline``), by
+    central differences in t with step 1e-6·|t| (both angles are smooth in t; error O(h²))."""
+    r = np.asarray(positions, dtype=float)
+    t = np.empty_like(r)
+    t[1:-1] = r[2:] - r[:-2]
+    t[0], t[-1] = r[1] - r[0], r[-1] - r[-2]
+    h = 1e-6 * np.linalg.norm(t, axis=1)
+    gb, gt = np.empty_like(t), np.empty_like(t)
+    for k in range(3):
+        step = np.zeros_like(t)
+        step[:, k] = h
+        bp, tp = _tangent_angles(t + step)
+        bm, tm = _tangent_angles(t - step)
+        gb[:, k] = (bp - bm) / (2 * h)
+        gt[:, k] = (tp - tm) / (2 * h)
+    return gb, gt
+
+
+class Functionals(NamedTuple):
+    """Gradient rows G (m, n_params) of the reported quantities, in this order: 3N centroid-
+    relative coordinates (vertebra-major), N axial rotations, kyphosis T4–T12, T5–T12, lordosis
+    L1–L5, then one row per Cobb curve."""
+
+    G: FloatArray
+    n_vertebrae: int
+    n_curves: int
+
+
+def _scatter(row: FloatArray, columns: IntArray, values: FloatArray) -> None:
+    free = columns >= 0
+    np.add.at(row, columns[free], values[free])
+
+
+def _tangent_neighbours(i: int, n: int) -> tuple[int, int]:
+    """(j+, j−) with t_i = r_{j+} − r_{j−}."""
+    return min(i + 1, n - 1), max(i - 1, 0)
+
+
+def functional_gradients(
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    columns: PoseColumns,
+    n_params: int,
+    curves: Sequence[tuple[str, str]] = (),
+) -> Functionals:
+    """Gradient rows of the reported quantities w.r.t. x (module docstring); ``curves``: the
+    (upper, lower) end levels of each Cobb curve.
+
+    Kyphosis, lordosis and Cobb angles are propagated through the centreline: β_i and θ_i of
+    the tangent t_i (``centreline_angle_gradients``), so that their SDs follow the positions'
+    covariance, which the landmarks determine. Their directors' own Laplace SDs are those of the
+    rod's prior: with the calibrated soft shear (G ≈ 0.9 MPa) a director may leave the tangent by
+    tens of degrees at the landmarks' temperature, far more than the reconstructions do (measured
+    in docs/accuracy.md, "The clinic's setting"). Axial rotation, which no point landmark sees,
+    keeps the directors' Laplace SD (∂ψ_i/∂δθ_i): large, as it should be, without pedicles.
+    """
+    r = np.asarray(positions, dtype=float)
+    R = np.asarray(rotations, dtype=float)
+    n = len(R)
+    pos, rot = np.asarray(columns.position), np.asarray(columns.rotation)
+    n_curves = len(curves)
+    G = np.zeros((4 * n + 3 + n_curves, n_params))
+    # positions relative to the centroid
+    free = pos >= 0
+    for k in range(3):
+        rows = 3 * np.arange(n) + k
+        cols = pos[:, k]
+        mask = free[:, k]
+        G[np.ix_(rows, cols[mask])] -= 1.0 / n
+        G[rows[mask], cols[mask]] += 1.0
+    # axial rotations
+    _, grad_psi = axial_rotation_gradients(R)
+    for i in range(n):
+        _scatter(G[3 * n + i], rot[i], grad_psi[i])
+    grad_beta, grad_theta = centreline_angle_gradients(r)
+
+    def add_angle(row: int, i: int, grad: FloatArray, sign: float) -> None:
+        up, down = _tangent_neighbours(i, n)
+        _scatter(G[row], pos[up], sign * grad[i])
+        _scatter(G[row], pos[down], -sign * grad[i])
+
+    # kyphosis / lordosis
+    row = 4 * n
+    for upper, lower, sign in (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0)):
+        add_angle(row, LEVEL_INDEX[upper], grad_beta, sign)
+        add_angle(row, LEVEL_INDEX[lower], grad_beta, -sign)
+        row += 1
+    # Cobb angles |θ_u − θ_l|
+    _, theta = _tangent_angles(np.stack([r[_tangent_neighbours(i, n)[0]] - r[_tangent_neighbours(i, n)[1]]
+                                         for i in range(n)]))
+    for upper, lower in curves:
+        iu, il = LEVEL_INDEX[upper], LEVEL_INDEX[lower]
+        sign = 1.0 if theta[iu] >= theta[il] else -1.0
+        add_angle(row, iu, grad_theta, sign)
+        add_angle(row, il, grad_theta, -sign)
+        row += 1
+    return Functionals(G, n, n_curves)
+
+
+# ---------------------------------------------------------------- variances
+
+
+def functional_variances(H: FloatArray, G: FloatArray, band: bool = False) -> FloatArray:
+    """gᵀ H⁻¹ g for every row g of G, by one Cholesky factorisation H = L Lᵀ: ‖L⁻¹ g‖².
+
+    ``band``: H given in LAPACK upper band storage (kd + 1, n) (``dpbtrf``); else dense (n, n).
+    A dense H that is only semi-definite (a direction the data and the prior leave free, e.g.
+    the global translation) gets a ridge of 1e-9 × its largest diagonal entry; functionals
+    blind to that direction (positions relative to the centroid) are not changed by it beyond
+    rounding.
+    """
+    if band:
+        u, info = dpbtrf(H, lower=0)
+        if info != 0:
+            raise LinAlgError(f"the curvature at the optimum is not positive definite (dpbtrf info {info})")
+        # H = Uᵀ U: g H⁻¹ g = ‖U⁻ᵀ g‖²
+        x, info = dtbtrs(u, np.ascontiguousarray(G.T), uplo="U", trans="T", diag="N")
+        if info != 0:
+            raise LinAlgError(f"band triangular solve failed (info {info})")
+        return np.asarray(np.einsum("ij,ij->j", x, x))
+    try:
+        c, _ = cho_factor(H, lower=True, check_finite=False)
+    except LinAlgError:
+        ridge = 1e-9 * float(np.max(np.diag(H)))
+        c, _ = cho_factor(H + ridge * np.eye(len(H)), lower=True, check_finite=False)
+    x = solve_triangular(c, G.T, lower=True, check_finite=False)
+    return np.asarray(np.einsum("ij,ij->j", x, x))
+
+
+def laplace_uncertainty(
+    jacobian: FloatArray | None,
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    columns: PoseColumns,
+    temperature_nmm: float | FloatArray,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    hessian: FloatArray | None = None,
+    band: bool = False,
+) -> Uncertainty:
+    """SDs of the reported quantities: c √(τ gᵀ H⁻¹ g) (module docstring).
+
+    Give either the Jacobian J (n_residuals, n_params) at the optimum (H = JᵀJ) or ``hessian``
+    (dense, or band storage with ``band``). ``temperature_nmm``: τ, one number, or one per
+    residual row (n_residuals,) with the Jacobian when rows have different noise: then
+    H = Σ_k J_kᵀ J_k / τ_k and the variance is gᵀ H⁻¹ g. ``scale``: c; default the calibrated
+    value (``calibration``).
+    """
+    tau = np.asarray(temperature_nmm, dtype=float)
+    if hessian is None:
+        if jacobian is None:
+            raise ValueError("give the Jacobian or the Hessian at the optimum")
+        Jw = jacobian if tau.ndim == 0 else jacobian / np.sqrt(tau)[:, None]
+        H = Jw.T @ Jw
+        n_params = jacobian.shape[1]
+        band = False
+    else:
+        if tau.ndim != 0:
+            raise ValueError("a per-row temperature needs the Jacobian, not the Hessian")
+        H = hessian
+        n_params = H.shape[1]
+    c = calibration()[0] if scale is None else float(scale)
+    f = functional_gradients(positions, rotations, columns, n_params, curves)
+    var = functional_variances(H, f.G, band=band) * (float(tau) if tau.ndim == 0 else 1.0)
+    sd = c * np.sqrt(np.maximum(var, 0.0))
+    n = f.n_vertebrae
+    return Uncertainty(
+        position_sd_mm=sd[: 3 * n].reshape(n, 3),
+        axial_rotation_sd_deg=sd[3 * n : 4 * n],
+        kyphosis_t4_t12_sd_deg=float(sd[4 * n]),
+        kyphosis_t5_t12_sd_deg=float(sd[4 * n + 1]),
+        lordosis_l1_l5_sd_deg=float(sd[4 * n + 2]),
+        cobb_sd_deg=[float(v) for v in sd[4 * n + 3 :]],
+        scale=c,
+    )
+
+
+AXIAL_ROTATION_SD_CAP_DEG = 180.0 / np.sqrt(3.0)
+"""Largest reported axial rotation SD, degrees: the SD of an angle spread uniformly over the
+circle (360°/√12 ≈ 103.9°). A Laplace SD beyond it (no pedicles: the rod's twist prior alone)
+only says "not determined"; the linearisation behind it does not hold that far."""
+
+
+def solution_uncertainty(
+    solution: Solution, curves: Sequence[tuple[str, str]] = (), scale: float | None = None
+) -> Uncertainty:
+    """``laplace_uncertainty`` of a solver's ``Solution``: whitened rows, so τ = κ/2 with κ its
+    ``energy_unit`` (cov ≈ (κ/2)(JᵀJ)⁻¹, ``fit.types.Solution``)."""
+    layout = solution.layout
+    return laplace_uncertainty(
+        solution.jacobian,
+        solution.positions,
+        solution.rotations,
+        PoseColumns(np.asarray(layout.position), np.asarray(layout.rotation)),
+        0.5 * float(solution.energy_unit),
+        curves,
+        scale,
+    )
+
+
+def attach_uncertainty(
+    result: RegistrationResult, solution: Solution, scale: float | None = None
+) -> RegistrationResult:
+    """``result`` with the SDs of its positions (relative to the centroid), axial rotations
+    (capped at ``AXIAL_ROTATION_SD_CAP_DEG``), kyphosis, lordosis and Cobb angles filled in, and
+    ``fit.uncertainty_scale`` = c (default: the calibrated value, ``calibration``)."""
+    curves = [(c.upper, c.lower) for c in result.measures.cobb]
+    u = solution_uncertainty(solution, curves, scale)
+    psi = np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG)
+    vertebrae = [
+        v.model_copy(
+            update={
+                "position_sd_mm": (float(sd[0]), float(sd[1]), float(sd[2])),
+                "axial_rotation_sd_deg": float(p),
+            }
+        )
+        for v, sd, p in zip(result.vertebrae, u.position_sd_mm, psi, strict=True)
+    ]
+    cobb = [
+        c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(result.measures.cobb, u.cobb_sd_deg, strict=True)
+    ]
+    measures = result.measures.model_copy(
+        update={
+            "cobb": cobb,
+            "thoracic_kyphosis_t4_t12_sd_deg": u.kyphosis_t4_t12_sd_deg,
+            "thoracic_kyphosis_t5_t12_sd_deg": u.kyphosis_t5_t12_sd_deg,
+            "lumbar_lordosis_l1_l5_sd_deg": u.lordosis_l1_l5_sd_deg,
+        }
+    )
+    fit = result.fit.model_copy(update={"uncertainty_scale": u.scale})
+    return result.model_copy(update={"vertebrae": vertebrae, "measures": measures, "fit": fit})

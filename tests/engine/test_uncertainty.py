@@ -1,0 +1,100 @@
+"""Calibrated uncertainty (issue #10, item 6): Laplace approximation at the fit's optimum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spine_engine.fit import uncertainty as unc
+from spine_engine.frames import axial_rotation_deg, frames_from_centreline
+from spine_engine.levels import N_LEVELS
+from spine_engine.measures import frontal_tilt_deg, kyphosis_lordosis_deg
+from spine_engine.rotations import exp_so3
+from spine_engine.synthetic import generate_spine
+
+
+def _all_free(n: int) -> unc.PoseColumns:
+    cols = np.arange(6 * n).reshape(n, 6)
+    return unc.PoseColumns(position=cols[:, :3], rotation=cols[:, 3:])
+
+
+def _values(r: np.ndarray, R: np.ndarray, curves: list[tuple[str, str]]) -> np.ndarray:
+    """The reported quantities by the engine's own functions: positions relative to the centroid,
+    the directors' axial rotation, and kyphosis, lordosis and Cobb angles of the centreline frames
+    (the functionals whose SDs ``uncertainty`` reports)."""
+    from spine_engine.levels import LEVEL_INDEX
+
+    rel = (r - r.mean(axis=0)).ravel()
+    frames = frames_from_centreline(r)
+    theta = frontal_tilt_deg(frames)
+    cobb = [abs(theta[LEVEL_INDEX[u]] - theta[LEVEL_INDEX[lo]]) for u, lo in curves]
+    return np.concatenate([rel, axial_rotation_deg(R), kyphosis_lordosis_deg(frames), cobb])
+
+
+def test_functional_gradients_match_finite_differences() -> None:
+    """Every gradient row against central differences of the engine's own functions under the
+    fit's perturbation (r + δr, R exp(hat δθ)); step 1e-5 mm / rad, tolerance 1e-4 relative to
+    the largest entry (truncation O(h²) ≈ 1e-10, rounding O(ε/h) ≈ 1e-11 relative, and the
+    gradients' own difference step of 1e-6·|t|)."""
+    spine = generate_spine(5, "double")
+    r, R = spine.positions, spine.rotations
+    curves = [("T5", "T11"), ("T11", "L4")]
+    cols = _all_free(N_LEVELS)
+    G = unc.functional_gradients(r, R, cols, 6 * N_LEVELS, curves).G
+    h = 1e-5
+    fd = np.zeros_like(G)
+    for i in range(N_LEVELS):
+        for k in range(3):
+            for block, col in ((0, cols.position[i, k]), (1, cols.rotation[i, k])):
+                plus: list[np.ndarray] = []
+                minus: list[np.ndarray] = []
+                for sign, out in ((1.0, plus), (-1.0, minus)):
+                    rp, Rp = r.copy(), R.copy()
+                    step = np.zeros(3)
+                    step[k] = sign * h
+                    if block == 0:
+                        rp[i] += step
+                    else:
+                        Rp[i] = R[i] @ exp_so3(step)
+                    out.append(_values(rp, Rp, curves))
+                fd[:, col] = (plus[0] - minus[0]) / (2 * h)
+    np.testing.assert_allclose(G, fd, atol=1e-4 * np.abs(fd).max())
+
+
+def test_fixed_poses_drop_out() -> None:
+    """A vertebra held fixed (column −1) has no column; a centroid-relative coordinate still
+    moves with −1/N when another vertebra moves."""
+    cols = _all_free(N_LEVELS)
+    pos, rot = cols.position.copy(), cols.rotation.copy()
+    pos[0] = rot[0] = -1
+    spine = generate_spine(1)
+    G = unc.functional_gradients(spine.positions, spine.rotations, unc.PoseColumns(pos, rot), 6 * N_LEVELS).G
+    assert not G[:, :6].any()
+    assert G[0, cols.position[1, 0]] == pytest.approx(-1.0 / N_LEVELS)
+
+
+def test_variances_dense_and_band_agree() -> None:
+    """gᵀH⁻¹g from the dense and the band Cholesky agree with a direct inverse."""
+    rng = np.random.default_rng(0)
+    n, kd = 30, 4
+    A = rng.normal(size=(n, n))
+    H = A @ A.T + n * np.eye(n)
+    H[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > kd] = 0.0
+    H += 2 * kd * np.eye(n)  # still positive definite after banding (diagonally dominant enough)
+    G = rng.normal(size=(5, n))
+    expected = np.einsum("ij,jk,ik->i", G, np.linalg.inv(H), G)
+    ab = np.zeros((kd + 1, n))
+    for off in range(kd + 1):
+        ab[kd - off, off:] = np.diagonal(H, off)
+    np.testing.assert_allclose(unc.functional_variances(H, G), expected, rtol=1e-10)
+    np.testing.assert_allclose(unc.functional_variances(ab, G, band=True), expected, rtol=1e-10)
+
+
+def test_temperature() -> None:
+    """τ = w σ²/s²: a row √w·e/s with e ~ N(0, σ²) has variance τ."""
+    rng = np.random.default_rng(1)
+    w, sd, s = 2000.0, 1.0, 1.125
+    rows = np.sqrt(w) * rng.normal(0.0, sd, 200_000) / s
+    assert rows.var() == pytest.approx(unc.temperature(w, sd, s), rel=0.01)
+    with pytest.raises(ValueError):
+        unc.temperature(0.0, 1.0, 1.0)
