@@ -271,14 +271,57 @@ def functional_gradients(
 # ---------------------------------------------------------------- variances
 
 
-def functional_variances(H: FloatArray, G: FloatArray, band: bool = False) -> FloatArray:
+KD = 11
+"""Half-bandwidth of the vertebra block of H: a segment couples two vertebrae of 6 unknowns."""
+
+
+@lru_cache(maxsize=8)
+def _band_index(n: int, kd: int) -> tuple[IntArray, IntArray, IntArray]:
+    """Rows, columns of a dense (n, n) matrix and flat positions in band storage (kd + 1, n) of
+    its upper band entries: ab[kd + i − j, j] = A[i, j] for 0 ≤ j − i ≤ kd."""
+    rows, cols, flat = [], [], []
+    for off in range(kd + 1):
+        j = np.arange(off, n)
+        rows.append(j - off)
+        cols.append(j)
+        flat.append((kd - off) * n + j)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(flat)
+
+
+def _bordered_variances(H: FloatArray, G: FloatArray, n_band: int, kd: int = KD) -> FloatArray:
+    """gᵀH⁻¹g for H = [[A, B], [Bᵀ, C]] with A (n_band × n_band) banded (half-bandwidth kd):
+    A = UᵀU (band Cholesky, ``dpbtrf``), W = U⁻ᵀB, S = C − WᵀW = VᵀV, and for each g = (g_A, g_p)
+    y_A = U⁻ᵀg_A, y_p = V⁻ᵀ(g_p − Wᵀy_A), gᵀH⁻¹g = ‖y_A‖² + ‖y_p‖² (H = LLᵀ, L = [[Uᵀ, 0], [Wᵀ, Vᵀ]])."""
+    rows, cols, flat = _band_index(n_band, kd)
+    ab = np.zeros((kd + 1) * n_band)
+    ab[flat] = H[rows, cols]
+    u, info = dpbtrf(ab.reshape(kd + 1, n_band), lower=0, overwrite_ab=1)
+    if info != 0:
+        raise LinAlgError(f"the curvature of the vertebra block is not positive definite (dpbtrf info {info})")
+    rhs = np.concatenate((G[:, :n_band].T, H[:n_band, n_band:]), axis=1)
+    y, info = dtbtrs(u, rhs, uplo="U", trans="T", diag="N", overwrite_b=1)
+    if info != 0:
+        raise LinAlgError(f"band triangular solve failed (info {info})")
+    m = len(G)
+    y_a, w = y[:, :m], y[:, m:]
+    var = np.einsum("ij,ij->j", y_a, y_a)
+    if H.shape[0] > n_band:
+        S = H[n_band:, n_band:] - w.T @ w
+        v, _ = cho_factor(S, lower=True, check_finite=False)
+        y_p = solve_triangular(v, G[:, n_band:].T - w.T @ y_a, lower=True, check_finite=False)
+        var += np.einsum("ij,ij->j", y_p, y_p)
+    return np.asarray(var)
+
+
+def functional_variances(H: FloatArray, G: FloatArray, band: bool = False, n_band: int | None = None) -> FloatArray:
     """gᵀ H⁻¹ g for every row g of G, by one Cholesky factorisation H = L Lᵀ: ‖L⁻¹ g‖².
 
-    ``band``: H given in LAPACK upper band storage (kd + 1, n) (``dpbtrf``); else dense (n, n).
-    A dense H that is only semi-definite (a direction the data and the prior leave free, e.g.
-    the global translation) gets a ridge of 1e-9 × its largest diagonal entry; functionals
-    blind to that direction (positions relative to the centroid) are not changed by it beyond
-    rounding.
+    ``band``: H given in LAPACK upper band storage (kd + 1, n) (``dpbtrf``). ``n_band``: H dense
+    with its first ``n_band`` unknowns (the vertebrae) banded with half-bandwidth ``KD`` and a
+    dense border (the projection parameters): the band Cholesky and Schur complement of
+    ``_bordered_variances``. Else dense Cholesky; a dense H that is only semi-definite (a direction
+    neither data nor prior fix) gets a ridge of 1e-9 × its largest diagonal entry, which changes the
+    variance of a functional blind to that direction only by rounding.
     """
     if band:
         u, info = dpbtrf(H, lower=0)
@@ -289,6 +332,11 @@ def functional_variances(H: FloatArray, G: FloatArray, band: bool = False) -> Fl
         if info != 0:
             raise LinAlgError(f"band triangular solve failed (info {info})")
         return np.asarray(np.einsum("ij,ij->j", x, x))
+    if n_band is not None and n_band > KD:
+        try:
+            return _bordered_variances(H, G, n_band)
+        except LinAlgError:
+            pass  # semi-definite: the dense path with a ridge
     try:
         c, _ = cho_factor(H, lower=True, check_finite=False)
     except LinAlgError:
@@ -308,6 +356,7 @@ def laplace_uncertainty(
     scale: float | None = None,
     hessian: FloatArray | None = None,
     band: bool = False,
+    n_band: int | None = None,
 ) -> Uncertainty:
     """SDs of the reported quantities: c √(τ gᵀ H⁻¹ g) (module docstring).
 
@@ -315,7 +364,8 @@ def laplace_uncertainty(
     (dense, or band storage with ``band``). ``temperature_nmm``: τ, one number, or one per
     residual row (n_residuals,) with the Jacobian when rows have different noise: then
     H = Σ_k J_kᵀ J_k / τ_k and the variance is gᵀ H⁻¹ g. ``scale``: c; default the calibrated
-    value (``calibration``).
+    value (``calibration``). ``n_band``: the number of vertebra unknowns, first in x, whose block
+    of H is banded (``functional_variances``).
     """
     tau = np.asarray(temperature_nmm, dtype=float)
     if hessian is None:
@@ -332,7 +382,7 @@ def laplace_uncertainty(
         n_params = H.shape[1]
     c = calibration()[0] if scale is None else float(scale)
     f = functional_gradients(positions, rotations, columns, n_params, curves)
-    var = functional_variances(H, f.G, band=band) * (float(tau) if tau.ndim == 0 else 1.0)
+    var = functional_variances(H, f.G, band=band, n_band=n_band) * (float(tau) if tau.ndim == 0 else 1.0)
     sd = c * np.sqrt(np.maximum(var, 0.0))
     n = f.n_vertebrae
     return Uncertainty(
@@ -366,6 +416,7 @@ def solution_uncertainty(
         0.5 * float(solution.energy_unit),
         curves,
         scale,
+        n_band=int(layout.n_vertebra_params),
     )
 
 

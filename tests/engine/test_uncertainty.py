@@ -90,6 +90,22 @@ def test_variances_dense_and_band_agree() -> None:
     np.testing.assert_allclose(unc.functional_variances(ab, G, band=True), expected, rtol=1e-10)
 
 
+def test_bordered_variances_agree_with_the_inverse() -> None:
+    """A banded vertebra block (half-bandwidth 11) with a dense border of 7 projection
+    parameters: band Cholesky + Schur complement equals a direct inverse."""
+    rng = np.random.default_rng(2)
+    nb, p = 60, 7
+    n = nb + p
+    J = rng.normal(size=(200, n))
+    far = np.abs(np.subtract.outer(np.arange(nb), np.arange(nb))) > unc.KD
+    H = J.T @ J
+    H[:nb, :nb][far] = 0.0
+    H[:nb, :nb] += 40.0 * np.eye(nb)
+    G = rng.normal(size=(9, n))
+    expected = np.einsum("ij,jk,ik->i", G, np.linalg.inv(H), G)
+    np.testing.assert_allclose(unc.functional_variances(H, G, n_band=nb), expected, rtol=1e-9)
+
+
 def test_temperature() -> None:
     """τ = w σ²/s²: a row √w·e/s with e ~ N(0, σ²) has variance τ."""
     rng = np.random.default_rng(1)
