@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .anatomy import Profile, rest_model
+from .fit import ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
 from .models import JobPayload, LateralView, PAView, Unreliable
@@ -41,7 +42,6 @@ from .observations import (
     transverse_director,
 )
 from .projection import image_axes
-from .registration import ViewData
 from .rotations import exp_so3
 from .tilt_prior import TiltPrior, predict_tilts_deg
 

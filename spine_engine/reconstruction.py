@@ -18,6 +18,8 @@ from . import __version__
 from .anatomy import Profile, RestModel, load_profile, rest_model
 from .clinical import landmark_arrays, observed_frontal_tilts, place_without_boundary, size_factor, with_observations
 from .errors import FieldError, FitFailed, InvalidInput
+from .fit import FitOutput, RegistrationProblem, RodParameters, Solution, ViewData, initial_configuration
+from .fit import solve as solve_fit
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
 from .measures import compute_measures, frontal_tilts
@@ -36,7 +38,6 @@ from .models import (
     ViewProjection,
 )
 from .projection import estimate_projection, image_axes
-from .registration import FitOutput, RodParameters, ViewData, fit, initial_configuration
 from .rod import strains
 from .rotations import rotation_between
 from .tilt_prior import load_tilt_prior
@@ -238,12 +239,19 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     )
 
 
-def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
-    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
+def solve_solution(problem: Problem, profile: Profile) -> tuple[Solution, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``problem``: the solver's
+    ``Solution`` (optimum, residuals, Jacobian and parameter layout for the Laplace approximation)."""
     rest = patient_rest_model(profile, problem)
     init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
-    out = fit(rod_parameters(rest), problem.views, problem.top, problem.bottom, init_r, init_R)
-    return out, rest
+    fit_problem = RegistrationProblem(rod_parameters(rest), problem.views, problem.top, problem.bottom)
+    return solve_fit(fit_problem, init_r, init_R), rest
+
+
+def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
+    solution, rest = solve_solution(problem, profile)
+    return solution.output, rest
 
 
 def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | None = None) -> list[VertebraResult]:

@@ -15,10 +15,10 @@ import numpy as np
 
 from ..anatomy import VERTEBRA_TABLE, load_profile
 from ..clinical import size_factor
+from ..fit import ViewData
 from ..levels import LEVELS, N_LEVELS
 from ..observations import pedicle_offsets_in_image_order
 from ..projection import image_axes, project
-from ..registration import ViewData
 from ..rod import strains
 
 PA_ORIENTATION = ("L", "F")
