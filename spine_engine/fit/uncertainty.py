@@ -63,11 +63,14 @@ if TYPE_CHECKING:
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
-CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "profiles" / "uncertainty_calibration.json"
-"""The calibrated scale c and its provenance (written by ``write_calibration``)."""
+CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "priors" / "uncertainty_calibration.json"
+"""The calibrated scale c and its provenance (written by ``write_calibration``). Beside the tilt
+prior in ``priors/`` rather than in ``profiles/``, whose every file is an elastic profile."""
 
 _DEG = 180.0 / np.pi
 _EX, _EY, _EZ = np.eye(3)
+_HAT_E = np.array([[[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]] for e in np.eye(3)])
+"""hat(e_k): hat(e_k) v = e_k × v."""
 
 
 class PoseColumns(NamedTuple):
@@ -148,8 +151,7 @@ def _director_angle_gradients(
     norm2 = ya * ya + xb * xb
     g_d = (xb[:, None] * a - ya[:, None] * b) / norm2[:, None]
     local = np.einsum("nji,nj->ni", rotations, g_d)  # Rᵀ g_d
-    e = np.eye(3)[k]
-    return np.degrees(np.arctan2(ya, xb)), _DEG * np.cross(e, local)
+    return np.degrees(np.arctan2(ya, xb)), _DEG * (local @ _HAT_E[k].T)  # e_k × local
 
 
 def axial_rotation_gradients(rotations: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -157,34 +159,33 @@ def axial_rotation_gradients(rotations: FloatArray) -> tuple[FloatArray, FloatAr
     return _director_angle_gradients(rotations, 1, _EX, -_EY)
 
 
-def _tangent_angles(t: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Sagittal inclination β = atan2(t_y, −t_z) and frontal tilt θ = atan2(d1_z, d1_x) of the
-    director d1 ∝ e_x − (e_x·t̂) t̂ that ``frames.frames_from_centreline`` builds on a tangent t
-    (..., 3), degrees."""
-    u = t / np.linalg.norm(t, axis=-1, keepdims=True)
-    beta = np.arctan2(u[..., 1], -u[..., 2])
-    theta = np.arctan2(-u[..., 0] * u[..., 2], 1.0 - u[..., 0] ** 2)
-    return _DEG * beta, _DEG * theta
+def _tangents(positions: FloatArray) -> FloatArray:
+    """t_i = r_{i+1} − r_{i−1}, one-sided at the ends (``frames.frames_from_centreline``)."""
+    t = np.empty_like(positions)
+    t[1:-1] = positions[2:] - positions[:-2]
+    t[0], t[-1] = positions[1] - positions[0], positions[-1] - positions[-2]
+    return t
 
 
-def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """∂β_i/∂t_i and ∂θ_i/∂t_i (N, 3), degrees per mm, of the centreline tangents
-    t_i = r_{i+1} − r_{i−1} (one-sided at the ends, as ``frames.frames_from_centreline``), by
-    central differences in t with step 1e-6·|t| (both angles are smooth in t; error O(h²))."""
-    r = np.asarray(positions, dtype=float)
-    t = np.empty_like(r)
-    t[1:-1] = r[2:] - r[:-2]
-    t[0], t[-1] = r[1] - r[0], r[-1] - r[-2]
-    h = 1e-6 * np.linalg.norm(t, axis=1)
-    gb, gt = np.empty_like(t), np.empty_like(t)
-    for k in range(3):
-        step = np.zeros_like(t)
-        step[:, k] = h
-        bp, tp = _tangent_angles(t + step)
-        bm, tm = _tangent_angles(t - step)
-        gb[:, k] = (bp - bm) / (2 * h)
-        gt[:, k] = (tp - tm) / (2 * h)
-    return gb, gt
+def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Frontal tilt θ_i (degrees) of the frame ``frames.frames_from_centreline`` builds on the
+    tangent t_i, and ∂β_i/∂t_i, ∂θ_i/∂t_i (N, 3) in degrees per mm, analytic:
+
+        β = atan2(t_y, −t_z):                ∂β/∂t = (0, −t_z, t_y) / (t_y² + t_z²);
+        θ = atan2(d1_z, d1_x), d1 ∝ |t|² e_x − t_x t = (t_y² + t_z², ·, −t_x t_z), so
+        θ = atan2(N, D), N = −t_x t_z, D = t_y² + t_z²:
+        ∂θ/∂t = (D ∇N − N ∇D) / (N² + D²),  ∇N = (−t_z, 0, −t_x),  ∇D = (0, 2 t_y, 2 t_z).
+    """
+    t = _tangents(np.asarray(positions, dtype=float))
+    x, y, z = t[:, 0], t[:, 1], t[:, 2]
+    D = y * y + z * z
+    N = -x * z
+    zero = np.zeros_like(x)
+    grad_beta = np.stack((zero, -z, y), axis=1) / D[:, None]
+    grad_N = np.stack((-z, zero, -x), axis=1)
+    grad_D = np.stack((zero, 2 * y, 2 * z), axis=1)
+    grad_theta = (D[:, None] * grad_N - N[:, None] * grad_D) / (N * N + D * D)[:, None]
+    return _DEG * np.arctan2(N, D), _DEG * grad_beta, _DEG * grad_theta
 
 
 class Functionals(NamedTuple):
@@ -197,14 +198,29 @@ class Functionals(NamedTuple):
     n_curves: int
 
 
-def _scatter(row: FloatArray, columns: IntArray, values: FloatArray) -> None:
-    free = columns >= 0
-    np.add.at(row, columns[free], values[free])
+@lru_cache(maxsize=16)
+def _static_rows(
+    n: int, n_params: int, pos_bytes: bytes, rot_bytes: bytes
+) -> tuple[FloatArray, IntArray, IntArray, npt.NDArray[np.bool_]]:
+    """What depends on the layout only: the 3N position rows (r_i,k − (1/N) Σ_j r_j,k, constant)
+    and the rows, columns and mask of the axial rotations' entries."""
+    pos = np.frombuffer(pos_bytes, dtype=np.intp).reshape(n, 3)
+    rot = np.frombuffer(rot_bytes, dtype=np.intp).reshape(n, 3)
+    base = np.zeros((3 * n, n_params))
+    for k in range(3):
+        free = pos[:, k] >= 0
+        rows = 3 * np.arange(n) + k
+        base[np.ix_(rows, pos[free, k])] = -1.0 / n
+        base[rows[free], pos[free, k]] += 1.0
+    free_rot = rot >= 0
+    rows_psi = np.broadcast_to((3 * n + np.arange(n))[:, None], rot.shape)[free_rot]
+    for a in (base, rows_psi, free_rot):
+        a.flags.writeable = False
+    return base, rows_psi, rot[free_rot], free_rot
 
 
-def _tangent_neighbours(i: int, n: int) -> tuple[int, int]:
-    """(j+, j−) with t_i = r_{j+} − r_{j−}."""
-    return min(i + 1, n - 1), max(i - 1, 0)
+_SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
+"""(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1."""
 
 
 def functional_gradients(
@@ -228,43 +244,33 @@ def functional_gradients(
     r = np.asarray(positions, dtype=float)
     R = np.asarray(rotations, dtype=float)
     n = len(R)
-    pos, rot = np.asarray(columns.position), np.asarray(columns.rotation)
+    pos = np.asarray(columns.position, dtype=np.intp)
+    rot = np.asarray(columns.rotation, dtype=np.intp)
     n_curves = len(curves)
+    base, psi_rows, psi_cols, psi_free = _static_rows(n, n_params, pos.tobytes(), rot.tobytes())
     G = np.zeros((4 * n + 3 + n_curves, n_params))
-    # positions relative to the centroid
-    free = pos >= 0
-    for k in range(3):
-        rows = 3 * np.arange(n) + k
-        cols = pos[:, k]
-        mask = free[:, k]
-        G[np.ix_(rows, cols[mask])] -= 1.0 / n
-        G[rows[mask], cols[mask]] += 1.0
-    # axial rotations
+    G[: 3 * n] = base
     _, grad_psi = axial_rotation_gradients(R)
-    for i in range(n):
-        _scatter(G[3 * n + i], rot[i], grad_psi[i])
-    grad_beta, grad_theta = centreline_angle_gradients(r)
-
-    def add_angle(row: int, i: int, grad: FloatArray, sign: float) -> None:
-        up, down = _tangent_neighbours(i, n)
-        _scatter(G[row], pos[up], sign * grad[i])
-        _scatter(G[row], pos[down], -sign * grad[i])
-
-    # kyphosis / lordosis
-    row = 4 * n
-    for upper, lower, sign in (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0)):
-        add_angle(row, LEVEL_INDEX[upper], grad_beta, sign)
-        add_angle(row, LEVEL_INDEX[lower], grad_beta, -sign)
-        row += 1
-    # Cobb angles |θ_u − θ_l|
-    _, theta = _tangent_angles(np.stack([r[_tangent_neighbours(i, n)[0]] - r[_tangent_neighbours(i, n)[1]]
-                                         for i in range(n)]))
-    for upper, lower in curves:
+    G[psi_rows, psi_cols] = grad_psi[psi_free]
+    # kyphosis, lordosis and Cobb angles: Σ ± ∂angle_i/∂t_i (δr_{i+1} − δr_{i−1}), one scatter
+    theta, grad_beta, grad_theta = centreline_angle_gradients(r)
+    up = np.minimum(np.arange(n) + 1, n - 1)
+    down = np.maximum(np.arange(n) - 1, 0)
+    terms: list[tuple[int, int, float, FloatArray]] = []
+    for row, (first, second, sign) in enumerate(_SAGITTAL, start=4 * n):
+        terms += [(row, LEVEL_INDEX[first], sign, grad_beta), (row, LEVEL_INDEX[second], -sign, grad_beta)]
+    for row, (upper, lower) in enumerate(curves, start=4 * n + 3):
         iu, il = LEVEL_INDEX[upper], LEVEL_INDEX[lower]
         sign = 1.0 if theta[iu] >= theta[il] else -1.0
-        add_angle(row, iu, grad_theta, sign)
-        add_angle(row, il, grad_theta, -sign)
-        row += 1
+        terms += [(row, iu, sign, grad_theta), (row, il, -sign, grad_theta)]
+    rows_t = np.array([t[0] for t in terms], dtype=np.intp)
+    vert = np.array([t[1] for t in terms], dtype=np.intp)
+    vals = np.array([t[2] * t[3][t[1]] for t in terms])  # (m, 3)
+    all_rows = np.repeat(rows_t, 6)
+    all_cols = np.concatenate((pos[up[vert]], pos[down[vert]]), axis=1).ravel()
+    all_vals = np.concatenate((vals, -vals), axis=1).ravel()
+    keep = all_cols >= 0
+    np.add.at(G, (all_rows[keep], all_cols[keep]), all_vals[keep])
     return Functionals(G, n, n_curves)
 
 
