@@ -27,13 +27,17 @@ Metrics per spine, then averaged (``summarise``):
   truth, bars the centroids: the global translation, which is not observable without boundary,
   is removed and nothing else (a scale error counts); ``scale_error_pct`` is
   100·(RMS|r − r̄| / RMS|t − t̄| − 1);
-* kyphosis T4–T12, T5–T12 and lordosis L1–L5: ``measures.compute_measures`` on the truth (its
-  frames) and the result's reported measures (the same function on the result's directors);
-  absolute errors; the major Cobb angle against the truth's frontal tilt difference between the
-  same end vertebrae (``measures.frontal_tilt_deg``);
+* kyphosis T4–T12, T5–T12, lordosis L1–L5 and the major Cobb angle computed the same way on truth
+  and result: ``measures.compute_measures`` on the positions with the frames
+  ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
+  centroids); the Cobb angle between the result's major curve's end vertebrae. Absolute errors.
+  The JSON also has the errors of the result's reported measures (its directors, which the rod's
+  shear lets leave the centreline's tangent) against the same truth (``reported_mae_deg``);
 * coverage of the 95 % intervals (±1.96 SD): per coordinate of every position relative to the
-  centroid (``position_sd_mm``), of each measure with an SD (kyphosis, lordosis, Cobb angles) and
-  of every vertebra's axial rotation; the fraction of truths inside. A result without SDs has no
+  centroid (``position_sd_mm``), of each measure with an SD (kyphosis, lordosis, every Cobb curve;
+  the value computed the same way as above, whose SD ``fit.uncertainty`` propagates; the JSON's
+  ``coverage_reported`` uses the reported values) and of every vertebra's axial rotation (the
+  directors' against the truth's); the fraction of truths inside. A result without SDs has no
   coverage (reported as null / "-").
 
 ``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
@@ -288,16 +292,20 @@ class Outcome:
     error: str = ""
     per_level_mm: FloatArray = field(default_factory=lambda: np.full(N_LEVELS, np.nan))
     scale_error_pct: float = float("nan")
-    kyphosis_t4_t12_error_deg: float = float("nan")
-    kyphosis_t5_t12_error_deg: float = float("nan")
-    lordosis_error_deg: float = float("nan")
-    cobb_error_deg: float = float("nan")
+    errors_deg: dict[str, float] = field(default_factory=dict)
+    """Signed error of each measure computed the same way on result and truth (the centreline
+    frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
+    reported_errors_deg: dict[str, float] = field(default_factory=dict)
+    """Signed error of the result's reported measure (its directors) against the same truth."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
     position_z: FloatArray | None = None
     """(17, 3) |error| / SD of each centroid-relative coordinate, or None without SDs."""
     measure_z: dict[str, list[float]] = field(default_factory=dict)
-    """Per measure name, |error| / SD of each item with an SD."""
+    """Per measure name, |error| / SD of each item with an SD (errors as ``errors_deg``; axial
+    rotation: the directors' ψ against the truth's)."""
+    reported_z: dict[str, list[float]] = field(default_factory=dict)
+    """The same with the reported measures' errors (``reported_errors_deg``)."""
 
 
 def _z(error: float, sd: float | None) -> float | None:
@@ -320,32 +328,38 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     out.per_level_mm = np.linalg.norm(diff, axis=1)
     rms_ratio = np.sqrt(np.mean(np.sum(dr**2, axis=1)) / np.mean(np.sum(dt_**2, axis=1)))
     out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
-    truth_m = compute_measures(t, truth.rotations)
+    # "computed the same way": the measures of the centreline frames of the positions, on both
+    truth_m = compute_measures(t, frames_from_centreline(t))
+    same_m = compute_measures(r, frames_from_centreline(r))
     m = result["measures"]
     pairs = {
         "kyphosis_t4_t12": ("thoracic_kyphosis_t4_t12_deg", "thoracic_kyphosis_t4_t12_sd_deg"),
         "kyphosis_t5_t12": ("thoracic_kyphosis_t5_t12_deg", "thoracic_kyphosis_t5_t12_sd_deg"),
         "lordosis_l1_l5": ("lumbar_lordosis_l1_l5_deg", "lumbar_lordosis_l1_l5_sd_deg"),
     }
-    errors = {}
     for name, (key, sd_key) in pairs.items():
-        errors[name] = float(m[key]) - float(getattr(truth_m, key))
-        z = _z(errors[name], m.get(sd_key))
-        if z is not None:
-            out.measure_z.setdefault(name, []).append(z)
-    out.kyphosis_t4_t12_error_deg = abs(errors["kyphosis_t4_t12"])
-    out.kyphosis_t5_t12_error_deg = abs(errors["kyphosis_t5_t12"])
-    out.lordosis_error_deg = abs(errors["lordosis_l1_l5"])
-    tilt = frontal_tilt_deg(truth.rotations)
+        error = float(getattr(same_m, key)) - float(getattr(truth_m, key))
+        out.errors_deg[name] = error
+        out.reported_errors_deg[name] = float(m[key]) - float(getattr(truth_m, key))
+        for z_store, e in ((out.measure_z, error), (out.reported_z, out.reported_errors_deg[name])):
+            z = _z(e, m.get(sd_key))
+            if z is not None:
+                z_store.setdefault(name, []).append(z)
+    tilt_truth = frontal_tilt_deg(frames_from_centreline(t))
+    tilt_same = frontal_tilt_deg(frames_from_centreline(r))
     index = {lv: i for i, lv in enumerate(LEVELS)}
     for curve in m["cobb"]:
-        truth_angle = abs(float(tilt[index[curve["upper"]]] - tilt[index[curve["lower"]]]))
-        error = float(curve["angle_deg"]) - truth_angle
+        iu, il = index[curve["upper"]], index[curve["lower"]]
+        truth_angle = abs(float(tilt_truth[iu] - tilt_truth[il]))
+        error = abs(float(tilt_same[iu] - tilt_same[il])) - truth_angle
+        reported = float(curve["angle_deg"]) - truth_angle
         if curve["major"]:
-            out.cobb_error_deg = abs(error)
-        z = _z(error, curve.get("angle_sd_deg"))
-        if z is not None:
-            out.measure_z.setdefault("cobb", []).append(z)
+            out.errors_deg["major_cobb"] = error
+            out.reported_errors_deg["major_cobb"] = reported
+        for z_store, e in ((out.measure_z, error), (out.reported_z, reported)):
+            z = _z(e, curve.get("angle_sd_deg"))
+            if z is not None:
+                z_store.setdefault("cobb", []).append(z)
     psi_truth = axial_rotation_deg(truth.rotations)
     psi = axial_rotation_deg(R)
     for i, v in enumerate(vertebrae):
@@ -432,10 +446,14 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
         "mean_3d_error_mm": float(per_level.mean()) if ok else None,
         "max_3d_error_mm": float(per_level.max()) if ok else None,
         "scale_error_abs_pct": _mean([abs(o.scale_error_pct) for o in ok]),
-        "kyphosis_t4_t12_mae_deg": _mean([o.kyphosis_t4_t12_error_deg for o in ok]),
-        "kyphosis_t5_t12_mae_deg": _mean([o.kyphosis_t5_t12_error_deg for o in ok]),
-        "lordosis_l1_l5_mae_deg": _mean([o.lordosis_error_deg for o in ok]),
-        "major_cobb_mae_deg": _mean([o.cobb_error_deg for o in ok]),
+        "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
+        "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
+        "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),
+        "major_cobb_mae_deg": _mean([abs(o.errors_deg.get("major_cobb", np.nan)) for o in ok]),
+        "reported_mae_deg": {
+            name: _mean([abs(o.reported_errors_deg.get(name, np.nan)) for o in ok])
+            for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb")
+        },
         "median_runtime_ms": float(np.median([o.runtime_ms for o in ok])) if ok else None,
         "per_level_mean_mm": dict(zip(LEVELS, per_level.mean(axis=0).round(3).tolist(), strict=True)) if ok else None,
         "coverage_positions": coverage(np.concatenate([z.ravel() for z in pos_z])) if pos_z else None,
@@ -448,6 +466,9 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
         z = [v for o in ok for v in o.measure_z.get(name, [])]
         row[f"coverage_{name}"] = coverage(z)
         row[f"coverage_{name}_n"] = len(z)
+    row["coverage_reported"] = {
+        name: coverage([v for o in ok for v in o.reported_z.get(name, [])]) for name in MEASURES[:4]
+    }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
     return row
