@@ -580,13 +580,6 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 # ---------------------------------------------------------------- uncertainty calibration
 
 
-def raw_position_z(outcomes: list[Outcome]) -> FloatArray:
-    """z = |error| / raw Laplace SD of every centroid-relative coordinate of ``outcomes`` (the
-    reported SD divided by the result's ``fit.uncertainty_scale``)."""
-    out = [o.position_z.ravel() * (o.uncertainty_scale or 1.0) for o in outcomes if o.ok and o.position_z is not None]
-    return np.concatenate(out) if out else np.empty(0)
-
-
 def calibrated_scale(z_by_case: dict[str, FloatArray], target: float = 0.95) -> float:
     """The scale c for which ±1.96·c·SD covers ``target`` of the pooled coordinates, each case
     weighing the same: c = Q(z)/1.96 with Q the weighted ``target`` quantile of z."""
@@ -598,6 +591,23 @@ def calibrated_scale(z_by_case: dict[str, FloatArray], target: float = 0.95) -> 
     order = np.argsort(z)
     cum = np.cumsum(w[order]) / w.sum()
     return float(z[order][np.searchsorted(cum, target)] / Z95)
+
+
+def _calibrate(
+    command: str, split: str, truths: list[Truth], cases: list[Case], noise_mm: float, seed: int, profile: str
+) -> dict[str, Any]:
+    """Calibrate and write the uncertainty constants (``uncertainty_calibration``); what to report."""
+    from ..fit.uncertainty import write_calibration
+    from . import uncertainty_calibration as uc
+
+    samples = uc.collect(truths, cases, noise_mm, seed, profile)
+    constants, diagnostics = uc.calibrate(samples)
+    record = constants._replace(
+        provenance=uc.provenance(command, split, len(truths), cases, noise_mm, seed, diagnostics)
+    )
+    path = write_calibration(record)
+    return {"uncertainty_scale": constants.uncertainty_scale, "prior_weight": constants.prior_weight,
+            "calibration_file": str(path), "calibration": diagnostics}
 
 
 # ---------------------------------------------------------------- command
@@ -634,44 +644,30 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.limit is not None:
         verse = verse[: args.limit]
+    command = "spine bench clinic " + " ".join(argv if argv is not None else sys.argv[1:])
+    calibrated: dict[str, Any] = {}
+    start = time.perf_counter()
+    if args.calibrate_uncertainty:
+        if args.split != "dev":
+            print("error: calibrate on the dev split only (--split dev); test is reported, never tuned on",
+                  file=sys.stderr)
+            return 2
+        calibrated = _calibrate(command, args.split, verse, cases, args.noise_mm, args.seed, args.profile)
     datasets = {f"verse-{args.split}": verse}
     if args.synthetic > 0 and not args.calibrate_uncertainty:
         datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)
-    start = time.perf_counter()
-    rows, outcomes = run(datasets, cases, args.noise_mm, args.seed, args.profile)
+    rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)
     elapsed = time.perf_counter() - start
     report: dict[str, Any] = {
-        "command": "spine bench clinic " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": command,
         "date": dt.date.today().isoformat(),
         "noise_mm": args.noise_mm,
         "seed": args.seed,
         "profile": args.profile,
         "seconds": round(elapsed, 1),
+        **calibrated,
         "rows": rows,
     }
-    if args.calibrate_uncertainty:
-        from ..fit.uncertainty import write_calibration
-
-        z_by_case = {key: raw_position_z(found) for (_, key), found in outcomes.items()}
-        scale = calibrated_scale(z_by_case)
-        report["uncertainty_scale"] = scale
-        report["calibration_file"] = str(
-            write_calibration(
-                scale,
-                {
-                    "method": "Laplace SDs of positions relative to the centroid; scale c with ±1.96·c·SD covering "
-                    "95 % of the pooled coordinates of every case, each case weighing the same",
-                    "command": report["command"],
-                    "training_set": f"VerSe {args.split} split ({len(verse)} spines), {args.split}.csv",
-                    "cases": {c.key: c.title for c in cases},
-                    "noise_mm": args.noise_mm,
-                    "seed": args.seed,
-                    "coordinates": {k: len(v) for k, v in z_by_case.items()},
-                    "raw_coverage": {k: coverage(v) for k, v in z_by_case.items()},
-                    "date": report["date"],
-                },
-            )
-        )
     stem = f"clinic-{args.split}"
     write_json(args.out / f"{stem}.json", report)
     plot(rows, args.out / f"{stem}.png")
@@ -684,8 +680,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.markdown:
             print()
             print(markdown_table(rows))
-        if "uncertainty_scale" in report:
-            print(f"uncertainty scale: {report['uncertainty_scale']:.4f} (written to {report['calibration_file']})")
+        if calibrated:
+            print(f"uncertainty_scale {calibrated['uncertainty_scale']:.4f}, prior_weight "
+                  f"{calibrated['prior_weight']:.4g} (written to {calibrated['calibration_file']})")
         print(f"wrote {args.out}/{stem}.json and .png ({elapsed:.1f} s)")
     return 0
 

@@ -8,12 +8,16 @@ whose image noise has SD σ (detector mm) has SD √w σ/s, so τ = w σ²/s² (
 rows already divided by their SD have τ = 1. The rod's elastic energy then acts as the prior at
 the same temperature. Around the optimum x̂ (Laplace):
 
-    Σ = c² τ H⁻¹,    H = JᵀJ (Gauss–Newton Hessian of E/2, J = ∂ρ/∂x at x̂),
+    Σ = c² τ H⁻¹,    H = J_dᵀJ_d + λ J_rodᵀJ_rod (Gauss–Newton Hessian of E/2 at λ = 1,
+                                                J = ∂ρ/∂x at x̂, J_rod the rod's rows),
 
-with c the calibrated ``uncertainty_scale`` (``calibration``): the rod's energy is not a true
-prior and the landmark noise not exactly Gaussian, so one factor, fitted on VerSe dev so that
-±1.96 SD covers 95 % of the truth (``spine bench clinic --split dev --calibrate-uncertainty``),
-takes up the misfit. Only variances of scalar functionals f(x) are needed, by the delta method:
+with two constants calibrated on VerSe dev (``calibration``, ``spine bench clinic --split dev
+--calibrate-uncertainty``): λ, the weight of the rod's energy read as a prior (the fit's balance
+of energy and landmarks was tuned for accuracy; as a prior at λ = 1 it lets a PA-only spine's
+depth vary by ten times its actual error), set so that the PA-only intervals cover 95 %; then c,
+the ``uncertainty_scale`` of the contract, one factor on every SD so that ±1.96 SD covers 95 % of
+the truth's coordinates pooled over the clinic's cases. Only variances of scalar functionals f(x)
+are needed, by the delta method:
 
     Var f = c² τ gᵀ H⁻¹ g,   g = ∂f/∂x at x̂,
 
@@ -101,29 +105,45 @@ class Uncertainty(NamedTuple):
 # ---------------------------------------------------------------- calibration file
 
 
+class Calibration(NamedTuple):
+    """The calibrated constants of the uncertainty model and their provenance."""
+
+    uncertainty_scale: float
+    """c: multiplies every Laplace SD (``FitReport.uncertainty_scale``)."""
+    prior_weight: float
+    """λ: weight of the rod's rows (its elastic energy, the prior) in the Laplace Hessian,
+    H = J_dataᵀJ_data + λ J_rodᵀJ_rod. The fit's balance of energy and landmarks was tuned for
+    accuracy, not as a population prior: at λ = 1 the PA-only depth SDs are ten times the errors
+    (docs/accuracy.md, "The clinic's setting")."""
+    provenance: dict[str, Any]
+
+
+UNCALIBRATED = Calibration(1.0, 1.0, {})
+
+
 @lru_cache(maxsize=1)
-def _calibration(path: str) -> dict[str, Any]:
+def _calibration(path: str) -> Calibration:
     with open(path) as fh:
         data: dict[str, Any] = json.load(fh)
-    return data
+    return Calibration(float(data["uncertainty_scale"]), float(data.get("prior_weight", 1.0)),
+                       dict(data.get("provenance", {})))
 
 
-def calibration(path: Path | None = None) -> tuple[float, dict[str, Any]]:
-    """(c, provenance) from ``profiles/uncertainty_calibration.json``; (1.0, {}) when the file is
-    absent (uncalibrated Laplace SDs)."""
+def calibration(path: Path | None = None) -> Calibration:
+    """The calibrated constants from ``priors/uncertainty_calibration.json`` (``CALIBRATION_FILE``);
+    ``UNCALIBRATED`` (c = λ = 1, the plain Laplace approximation) when the file is absent."""
     file = path or CALIBRATION_FILE
-    if not file.is_file():
-        return 1.0, {}
-    data = _calibration(str(file))
-    return float(data["uncertainty_scale"]), dict(data.get("provenance", {}))
+    return _calibration(str(file)) if file.is_file() else UNCALIBRATED
 
 
-def write_calibration(scale: float, provenance: dict[str, Any], path: Path | None = None) -> Path:
-    """Write c and its provenance as JSON; returns the path."""
-    if not (np.isfinite(scale) and scale > 0.0):
-        raise ValueError(f"uncertainty scale must be positive and finite, got {scale}")
+def write_calibration(constants: Calibration, path: Path | None = None) -> Path:
+    """Write the constants and their provenance as JSON; returns the path."""
+    for name in ("uncertainty_scale", "prior_weight"):
+        value = getattr(constants, name)
+        if not (np.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} must be positive and finite, got {value}")
     file = path or CALIBRATION_FILE
-    file.write_text(json.dumps({"uncertainty_scale": scale, "provenance": provenance}, indent=2) + "\n")
+    file.write_text(json.dumps(constants._asdict(), indent=2) + "\n")
     _calibration.cache_clear()
     return file
 
@@ -386,7 +406,7 @@ def laplace_uncertainty(
             raise ValueError("a per-row temperature needs the Jacobian, not the Hessian")
         H = hessian
         n_params = H.shape[1]
-    c = calibration()[0] if scale is None else float(scale)
+    c = calibration().uncertainty_scale if scale is None else float(scale)
     f = functional_gradients(positions, rotations, columns, n_params, curves)
     var = functional_variances(H, f.G, band=band, n_band=n_band) * (float(tau) if tau.ndim == 0 else 1.0)
     sd = c * np.sqrt(np.maximum(var, 0.0))
@@ -409,31 +429,41 @@ only says "not determined"; the linearisation behind it does not hold that far."
 
 
 def solution_uncertainty(
-    solution: Solution, curves: Sequence[tuple[str, str]] = (), scale: float | None = None
+    solution: Solution,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    prior_weight: float | None = None,
 ) -> Uncertainty:
     """``laplace_uncertainty`` of a solver's ``Solution``: whitened rows, so τ = κ/2 with κ its
-    ``energy_unit`` (cov ≈ (κ/2)(JᵀJ)⁻¹, ``fit.types.Solution``)."""
+    ``energy_unit`` (cov ≈ (κ/2)(JᵀJ)⁻¹, ``fit.types.Solution``), the rod's rows ("rod" in
+    ``row_kinds``) weighted by λ. ``scale`` c and ``prior_weight`` λ default to ``calibration``."""
+    constants = calibration()
+    lam = constants.prior_weight if prior_weight is None else float(prior_weight)
+    J = solution.jacobian
+    if lam != 1.0:
+        rod = np.fromiter((kind == "rod" for kind in solution.row_kinds), dtype=bool, count=len(J))
+        J = np.where(rod[:, None], np.sqrt(lam) * J, J)
     layout = solution.layout
     return laplace_uncertainty(
-        solution.jacobian,
+        J,
         solution.positions,
         solution.rotations,
         PoseColumns(np.asarray(layout.position), np.asarray(layout.rotation)),
         0.5 * float(solution.energy_unit),
         curves,
-        scale,
+        constants.uncertainty_scale if scale is None else scale,
         n_band=int(layout.n_vertebra_params),
     )
 
 
 def attach_uncertainty(
-    result: RegistrationResult, solution: Solution, scale: float | None = None
+    result: RegistrationResult, solution: Solution, scale: float | None = None, prior_weight: float | None = None
 ) -> RegistrationResult:
     """``result`` with the SDs of its positions (relative to the centroid), axial rotations
     (capped at ``AXIAL_ROTATION_SD_CAP_DEG``), kyphosis, lordosis and Cobb angles filled in, and
-    ``fit.uncertainty_scale`` = c (default: the calibrated value, ``calibration``)."""
+    ``fit.uncertainty_scale`` = c (c and λ default to the calibrated values, ``calibration``)."""
     curves = [(c.upper, c.lower) for c in result.measures.cobb]
-    u = solution_uncertainty(solution, curves, scale)
+    u = solution_uncertainty(solution, curves, scale, prior_weight)
     psi = np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG)
     vertebrae = [
         v.model_copy(
