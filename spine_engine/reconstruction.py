@@ -73,6 +73,11 @@ far beyond any landmark's pull)."""
 GAUGE_ROTATION_SD_DEG = 30.0
 """No boundary: T1's directors are held near their placement by a Gaussian of this SD (degrees): it
 fixes the rotations that a single view leaves (almost) free; two views determine them."""
+BEAMS = {"pa": np.array([0.0, -1.0, 0.0]), "lateral": np.array([1.0, 0.0, 0.0])}
+"""Beam direction (source → detector, LPS) of a perspective view: the PA film is a postero-anterior
+projection (beam toward the patient's anterior, −y) and the lateral film a left lateral (the patient's
+left side against the detector, beam toward +x), the scoliosis series' usual set-up. The image's
+display (its patient orientation) does not say from which side the beam came."""
 EXACT_SD = (1e-3, 1e-4)
 """A pose given without SDs in a soft boundary (the other pose has SDs): held within 1 µm and 0.1 mrad."""
 
@@ -169,7 +174,7 @@ def make_camera(
         assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
         sid, sod = acq.distance_source_to_detector_mm, acq.distance_source_to_patient_mm
         m0 = sid / sod
-        b = np.cross(e_c, e_r)
+        b = BEAMS[name]
         E = np.stack((e_c, e_r))
         if acq.central_ray is not None:
             c = np.asarray(acq.central_ray, dtype=float) * detector_spacing(view)
@@ -180,7 +185,7 @@ def make_camera(
             o_plane = np.zeros(2)
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
         o = E.T @ o_plane + b * mid_depth
-        camera = Camera("perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod)
+        camera = Camera("perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b)
         return camera, ViewSetup("perspective", "acquisition", spc)
     if acq is not None and acq.magnification is not None:
         values = np.array([acq.magnification, T0[0], T0[1], 0.0])
@@ -289,7 +294,7 @@ def build_problem(model: JobPayload, profile: Profile) -> Problem:
             initial = placed
         else:
             initial = _initial_weak_with_boundary(name, arrays, e_c, e_r, top, bottom)
-        beam = np.cross(e_c, e_r)
+        beam = BEAMS[name]
         if placement is not None and placement.centreline is not None:
             mid_depth = float(placement.centreline[mid] @ beam)
         else:

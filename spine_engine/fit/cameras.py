@@ -4,7 +4,7 @@ Weak perspective, parameters π = [s, T_c, T_r, ψ]:
     q = E r (E = [e_c; e_r]),  p = s Rot(ψ) q + T,
     ∂p/∂r = s Rot(ψ) E,  ∂p/∂s = Rot(ψ) q,  ∂p/∂T = I,  ∂p/∂ψ = s Rot'(ψ) q.
 Perspective (pinhole), π = [c_c, c_r, o_x, o_y, o_z, ψ]: with d = r − o, q = E d, z = b·d
-(b = e_c × e_r, the beam) and m = SID / (SOD + z),
+(b the beam, source → detector) and m = SID / (SOD + z),
     p = c + m Rot(ψ) q,
     ∂p/∂r = m Rot(ψ) E − (m² / SID) (Rot(ψ) q) bᵀ = −∂p/∂o,  ∂p/∂c = I,  ∂p/∂ψ = m Rot'(ψ) q,
 with Rot'(ψ) = dRot/dψ = [[−sin ψ, −cos ψ], [cos ψ, −sin ψ]]. The derivatives are checked against
@@ -56,7 +56,7 @@ def project(camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r
         d_params[:, 1, 2] = 1.0
         d_params[:, :, 3] = s * (q @ dRot.T)
         return Projected(points, d_r, d_params)
-    b = np.cross(E[0], E[1])
+    b = camera.beam_direction(E[0], E[1])
     d = r - pi[2:5]
     q = d @ E.T
     z = d @ b

@@ -294,7 +294,7 @@ class RegistrationProblem:
                 index = -1
             else:
                 view = self.views[k]
-                b_dir = np.cross(view.e_c, view.e_r)
+                b_dir = cam.beam_direction(view.e_c, view.e_r)
                 index = self.depth_reference
                 rho = np.array([half_k * float(b_dir @ (r[index] - cams[k][2:5])) / sd])
                 Jv[0, :3] = half_k * b_dir / sd

@@ -62,7 +62,7 @@ class Camera:
     weak perspective, parameters [s, T_c, T_r, ψ]:  p = s·Rot(ψ)·(e_c·r, e_r·r) + T;
     perspective (pinhole), parameters [c_c, c_r, o_x, o_y, o_z, ψ]:
         p = c + m(r)·Rot(ψ)·(e_c·(r − o), e_r·(r − o)),  m(r) = SID / (SOD + b·(r − o)),
-    with b = e_c × e_r the beam direction (source → detector), c the central ray's foot on the
+    with b the beam direction (source → detector; ``beam``), c the central ray's foot on the
     detector (detector mm) and o the point of the central ray at SOD from the source (patient mm).
     Rot(ψ) = [[cos ψ, −sin ψ], [sin ψ, cos ψ]] turns the film in its plane (rad).
     """
@@ -83,6 +83,14 @@ class Camera:
     """SD of the Gaussian prior on ψ when ψ is free ("a small in-plane rotation")."""
     depth_prior_sd_mm: float = 30.0
     """Perspective with o free: SD of b·(r_mid − o), the mid-spine vertebra's distance from the plane at SOD."""
+    beam: FloatArray | None = None
+    """Perspective: unit beam direction b (source → detector), LPS; None: e_c × e_r."""
+
+    def beam_direction(self, e_c: ArrayLike, e_r: ArrayLike) -> FloatArray:
+        """b: ``beam`` or e_c × e_r."""
+        if self.beam is not None:
+            return np.asarray(self.beam, dtype=float)
+        return np.cross(np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float))
 
     @property
     def names(self) -> tuple[str, ...]:
