@@ -315,21 +315,23 @@ class RegistrationProblem:
                 second[start : start + len(S)] = S
         return PointRows(rho_all, np.concatenate(parts_idx), np.concatenate(parts_Jv), np.concatenate(parts_Jb), second)
 
-    def evaluate(self, state: State) -> tuple[FloatArray, RodCache, PointRows]:
-        """ρ (layout in the module docstring), the rod cache and the non-rod rows (with Jacobians)."""
+    def evaluate(self, state: State, second_order: bool = False) -> tuple[FloatArray, RodCache, PointRows]:
+        """ρ (layout in the module docstring), the rod cache and the non-rod rows (with Jacobians and,
+        when ``second_order``, their θθ second-order terms)."""
         out = np.empty(self.n_residuals)
         cache = self.rod.evaluate(state.r, state.R, out)
-        rows = self.point_rows(state)
+        rows = self.point_rows(state, second_order)
         out[6 * (self.n - 1) :] = rows.rho
         return out, cache, rows
 
     # ------------------------------------------------------------------ derivatives
 
     def normal_equations(
-        self, state: State, res: FloatArray, cache: RodCache, second_order: bool
+        self, state: State, res: FloatArray, cache: RodCache, second_order: bool, rows: PointRows | None = None
     ) -> tuple[BorderedSystem, FloatArray | None, FloatArray]:
         """Gauss–Newton normal matrix JᵀJ (bordered), the band of Σ_k ρ_k ∇²ρ_k over the vertebrae (when
-        ``second_order``, else None) and the gradient Jᵀρ, over the unknowns."""
+        ``second_order``, else None) and the gradient Jᵀρ, over the unknowns. ``rows``: the non-rod rows
+        of ``state`` when already evaluated (with their second-order terms when ``second_order``)."""
         ns = self.n - 1
         layout = self._band_layout
         local = self.rod.local_jacobian(cache)
@@ -338,7 +340,8 @@ class RegistrationProblem:
         rho_rod = res[: 6 * ns].reshape(ns, 6)
         H = (JT @ J).reshape(ns, 144)[:, layout.upper]
         gloc = (JT @ rho_rod[:, :, None]).ravel()
-        rows = self.point_rows(state, second_order)
+        if rows is None or (second_order and rows.second is None):
+            rows = self.point_rows(state, second_order)
         ok = rows.vertebra >= 0
         idx = rows.vertebra[ok]
         Jv = rows.Jv[ok]
@@ -378,12 +381,11 @@ class RegistrationProblem:
         J_loc = self.rod.local_jacobian(cache).J
         ns = self.n - 1
         J = np.zeros((self.n_residuals, self._n_ext + self.n_border))
-        for i in range(ns):
-            J[6 * i : 6 * i + 6, 6 * i : 6 * i + 12] = J_loc[i]
+        seg = np.arange(ns)
+        J[(6 * seg[:, None, None] + np.arange(6)[None, :, None]), (6 * seg[:, None, None] + np.arange(12))] = J_loc
         start = 6 * ns
-        for k, j in enumerate(rows.vertebra):
-            if j >= 0:
-                J[start + k, 6 * j : 6 * j + 6] = rows.Jv[k]
+        k = np.flatnonzero(rows.vertebra >= 0)
+        J[(start + k)[:, None], 6 * rows.vertebra[k][:, None] + np.arange(6)] = rows.Jv[k]
         J[start:, self._n_ext :] = rows.Jb
         return np.concatenate((J[:, self._vslice], J[:, self._n_ext :]), axis=1)
 

@@ -67,7 +67,7 @@ def solve(
 ) -> Solution:
     """Minimise E from (positions, rotations) and the cameras' initial values (module docstring)."""
     state = problem.initial_state(positions, rotations)
-    res, cache, _ = problem.evaluate(state)
+    res, cache, rows = problem.evaluate(state)
     E = float(res @ res)
     lam = LAMBDA0
     nu = 2.0
@@ -77,7 +77,7 @@ def solve(
     converged = False
     newton = False
     while iterations < max_iterations:
-        system, ab_2, g = problem.normal_equations(state, res, cache, second_order=newton)
+        system, ab_2, g = problem.normal_equations(state, res, cache, second_order=newton, rows=rows)
         diag = np.concatenate((system.ab[KD], np.diag(system.C)))
         np.maximum(D, diag, out=D)
         Dd = np.where(D > 0.0, D, 1.0)
@@ -93,7 +93,7 @@ def solve(
                 predicted = float(lam * (h * Dd) @ h - h @ g)
                 final = lam <= LAMBDA_GN and (small or predicted <= FTOL * E + ETOL)
                 trial = problem.step(state, h)
-                res_t, cache_t, _ = problem.evaluate(trial)
+                res_t, cache_t, rows_t = problem.evaluate(trial, second_order=True)
                 E_t = float(res_t @ res_t)
                 if E_t < E:
                     newton = True
@@ -103,7 +103,7 @@ def solve(
                     accepted = True
                     iterations += 1
                     converged = final or (small and E - E_t <= FTOL * E + ETOL)
-                    state, res, cache, E = trial, res_t, cache_t, E_t
+                    state, res, cache, rows, E = trial, res_t, cache_t, rows_t, E_t
                     break
                 if final:
                     converged = True
