@@ -380,38 +380,34 @@ def laplace_uncertainty(
     positions: npt.ArrayLike,
     rotations: npt.ArrayLike,
     columns: PoseColumns,
-    temperature_nmm: float | FloatArray,
+    temperature_nmm: float,
     curves: Sequence[tuple[str, str]] = (),
     scale: float | None = None,
     hessian: FloatArray | None = None,
     band: bool = False,
     n_band: int | None = None,
+    row_weights: FloatArray | None = None,
 ) -> Uncertainty:
     """SDs of the reported quantities: c √(τ gᵀ H⁻¹ g) (module docstring).
 
-    Give either the Jacobian J (n_residuals, n_params) at the optimum (H = JᵀJ) or ``hessian``
-    (dense, or band storage with ``band``). ``temperature_nmm``: τ, one number, or one per
-    residual row (n_residuals,) with the Jacobian when rows have different noise: then
-    H = Σ_k J_kᵀ J_k / τ_k and the variance is gᵀ H⁻¹ g. ``scale``: c; default the calibrated
+    Give either the Jacobian J (n_residuals, n_params) at the optimum (H = JᵀJ, or
+    H = Σ_k w_k J_kᵀ J_k with ``row_weights`` w, e.g. λ on the rod's rows) or ``hessian`` (dense,
+    or band storage with ``band``). ``temperature_nmm``: τ. ``scale``: c; default the calibrated
     value (``calibration``). ``n_band``: the number of vertebra unknowns, first in x, whose block
     of H is banded (``functional_variances``).
     """
-    tau = np.asarray(temperature_nmm, dtype=float)
     if hessian is None:
         if jacobian is None:
             raise ValueError("give the Jacobian or the Hessian at the optimum")
-        Jw = jacobian if tau.ndim == 0 else jacobian / np.sqrt(tau)[:, None]
-        H = Jw.T @ Jw
+        H = (jacobian if row_weights is None else jacobian * row_weights[:, None]).T @ jacobian
         n_params = jacobian.shape[1]
         band = False
     else:
-        if tau.ndim != 0:
-            raise ValueError("a per-row temperature needs the Jacobian, not the Hessian")
         H = hessian
         n_params = H.shape[1]
     c = calibration().uncertainty_scale if scale is None else float(scale)
     f = functional_gradients(positions, rotations, columns, n_params, curves)
-    var = functional_variances(H, f.G, band=band, n_band=n_band) * (float(tau) if tau.ndim == 0 else 1.0)
+    var = functional_variances(H, f.G, band=band, n_band=n_band) * float(temperature_nmm)
     sd = c * np.sqrt(np.maximum(var, 0.0))
     n = f.n_vertebrae
     return Uncertainty(
@@ -431,6 +427,14 @@ circle (360°/√12 ≈ 103.9°). A Laplace SD beyond it (no pedicles: the rod's
 only says "not determined"; the linearisation behind it does not hold that far."""
 
 
+@lru_cache(maxsize=32)
+def _rod_rows(kinds: tuple[str, ...]) -> npt.NDArray[np.bool_]:
+    """Mask of the rod's rows ("rod" in ``Solution.row_kinds``)."""
+    mask = np.array([kind == "rod" for kind in kinds], dtype=bool)
+    mask.flags.writeable = False
+    return mask
+
+
 def solution_uncertainty(
     solution: Solution,
     curves: Sequence[tuple[str, str]] = (),
@@ -442,19 +446,19 @@ def solution_uncertainty(
     ``row_kinds``) weighted by λ. ``scale`` c and ``prior_weight`` λ default to ``calibration``."""
     constants = calibration()
     lam = constants.prior_weight if prior_weight is None else float(prior_weight)
-    J = solution.jacobian
+    weights = None
     if lam != 1.0:
-        rod = np.fromiter((kind == "rod" for kind in solution.row_kinds), dtype=bool, count=len(J))
-        J = np.where(rod[:, None], np.sqrt(lam) * J, J)
+        weights = np.where(_rod_rows(solution.row_kinds), lam, 1.0)
     layout = solution.layout
     return laplace_uncertainty(
-        J,
+        solution.jacobian,
         solution.positions,
         solution.rotations,
         PoseColumns(np.asarray(layout.position), np.asarray(layout.rotation)),
         0.5 * float(solution.energy_unit),
         curves,
         constants.uncertainty_scale if scale is None else scale,
+        row_weights=weights,
     )
 
 
