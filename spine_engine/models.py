@@ -263,7 +263,7 @@ class Pose(_Strict):
 
 
 class Boundary(_Strict):
-    """Boundary conditions: T1 and L5 fixed in position and orientation."""
+    """Boundary conditions: T1 and L5 poses, fixed exactly or (with SDs) held softly."""
 
     T1: Pose
     L5: Pose
@@ -317,8 +317,8 @@ class Study(_Strict):
 class JobPayload(_Strict):
     """The body a client posts to create a job, and the argument of ``spine_engine.register``.
 
-    Checks that span several fields (px units need pixel_spacing; without a projection a view
-    needs its T1 and L5 landmarks) live in ``spine_engine.validation.validate_payload``, so that
+    Checks that span several fields (px units need pixel_spacing; each view needs a minimum number
+    of landmarked levels, any levels) live in ``spine_engine.validation.validate_payload``, so that
     their errors name the field.
     """
 
@@ -326,8 +326,9 @@ class JobPayload(_Strict):
     lateral: LateralView | None = None
     boundary: Boundary | None = Field(
         None,
-        description="T1 and L5 poses. Optional: without them the spine is placed from the generic model and "
-        "the PA landmarks, and fit.unreliable lists the quantities that then come from the model only.",
+        description="T1 and L5 poses: exact, or soft when given with position_sd_mm and directors_sd_deg. "
+        "Optional: without them all 17 vertebrae are free (T1 is placed at the patient origin), and "
+        "fit.unreliable lists the quantities that then come from the model only.",
     )
     options: Options = Field(default_factory=Options)
     study: Study | None = Field(
