@@ -16,7 +16,6 @@ from typing import NamedTuple, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from .types import FloatArray
@@ -102,11 +101,13 @@ def solve_bordered(
     rhs[:, 1:] = B
     X = dpbtrs(c, rhs)[0]
     S = C - B.T @ X[:, 1:]
+    # S is p × p with p ≤ 12: numpy's Cholesky (no SciPy wrapper overhead) both tests definiteness
+    # and solves, L Lᵀ h_p = rhs by two small solves
     try:
-        factor = cho_factor(S, check_finite=False)
+        L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         return None
-    h_p = cho_solve(factor, B.T @ X[:, 0] - g[n:], check_finite=False)
+    h_p = np.linalg.solve(L.T, np.linalg.solve(L, B.T @ X[:, 0] - g[n:]))
     h = np.empty(n + p)
     h[:n] = -(X[:, 0] + X[:, 1:] @ h_p)
     h[n:] = h_p

@@ -13,6 +13,7 @@ finite differences in ``tests/engine/test_cameras.py``.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -33,7 +34,7 @@ class Projected(NamedTuple):
 
 
 def _rot(psi: float) -> tuple[FloatArray, FloatArray]:
-    c, s = np.cos(psi), np.sin(psi)
+    c, s = math.cos(psi), math.sin(psi)
     return np.array([[c, -s], [s, c]]), np.array([[-s, -c], [c, -s]])
 
 
@@ -41,7 +42,7 @@ def project(camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r
     """Project points r (k, 3) with the camera's parameters ``values`` (module docstring)."""
     pi = np.asarray(values, dtype=float)
     r = np.asarray(r, dtype=float).reshape(-1, 3)
-    E = np.stack((np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float)))
+    E = np.array((e_c, e_r), dtype=float)
     k = len(r)
     Rot, dRot = _rot(float(pi[-1]))
     if camera.kind == "weak":
@@ -49,7 +50,8 @@ def project(camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r
         q = r @ E.T
         u = q @ Rot.T
         points = s * u + pi[1:3]
-        d_r = np.broadcast_to(s * (Rot @ E), (k, 2, 3)).copy()
+        d_r = np.empty((k, 2, 3))
+        d_r[:] = s * (Rot @ E)
         d_params = np.zeros((k, 2, 4))
         d_params[:, :, 0] = u
         d_params[:, 0, 1] = 1.0

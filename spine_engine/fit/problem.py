@@ -47,6 +47,14 @@ class State(NamedTuple):
     cameras: tuple[FloatArray, ...]
 
 
+class _PointBins(NamedTuple):
+    ok: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    g: np.ndarray
+    b: np.ndarray
+
+
 class PointRows(NamedTuple):
     """The non-rod rows of one configuration: each touches vertebra ``index`` (−1: none)."""
 
@@ -153,6 +161,15 @@ class RegistrationProblem:
             self._lm_slices[view.name] = slice(start, start + k)
             start += k
         self.n_landmarks = start
+        self._lm_constants = [
+            (
+                np.asarray(view.indices, dtype=int),
+                np.asarray(view.points, dtype=float),
+                np.sqrt(float(view.weight)) / cam.reference_scale,
+            )
+            for view, cam in zip(self.views, self.cameras, strict=True)
+        ]
+        self._lm_rows_index = [np.repeat(idx, 2) for idx, _, _ in self._lm_constants]
         kinds += [f"offset:{name}" for name, sl in self.obs.offset_slices.items() for _ in range(sl.stop - sl.start)]
         kinds += [f"tilt:{name}" for name, sl in self.obs.tilt_slices.items() for _ in range(sl.stop - sl.start)]
         kinds += ["pose"] * (6 * len(self.pose_priors))
@@ -169,6 +186,7 @@ class RegistrationProblem:
         self._n_ext = 6 * n
         self._band_size = (KD + 1) * self._n_ext
         self._vslice = slice(6 * self.j0, 6 * self.j1)
+        self._bins_cache: tuple[np.ndarray, _PointBins] | None = None
 
     # ------------------------------------------------------------------ configuration
 
@@ -238,13 +256,12 @@ class RegistrationProblem:
         P = self.n_border
         parts_rho, parts_idx, parts_Jv, parts_Jb, parts_S = [], [], [], [], []
         # landmarks
-        for k, (view, cam) in enumerate(zip(self.views, self.cameras, strict=True)):
-            idx = np.asarray(view.indices, dtype=int)
+        for k, (idx, points, c) in enumerate(self._lm_constants):
             if not len(idx):
                 continue
+            view, cam = self.views[k], self.cameras[k]
             pr = project(cam, cams[k], r[idx], view.e_c, view.e_r)
-            c = np.sqrt(float(view.weight)) / cam.reference_scale
-            rho = (c * (pr.points - np.asarray(view.points, dtype=float))).ravel()
+            rho = (c * (pr.points - points)).ravel()
             Jv = np.zeros((2 * len(idx), 6))
             Jv[:, :3] = (c * pr.d_r).reshape(-1, 3)
             Jb = np.zeros((2 * len(idx), P))
@@ -253,7 +270,7 @@ class RegistrationProblem:
                     2 * len(idx), -1
                 )
             parts_rho.append(rho)
-            parts_idx.append(np.repeat(idx, 2))
+            parts_idx.append(self._lm_rows_index[k])
             parts_Jv.append(Jv)
             parts_Jb.append(Jb)
         off = self.obs.offset_rows(state, self, second_order)
@@ -342,38 +359,61 @@ class RegistrationProblem:
         gloc = (JT @ rho_rod[:, :, None]).ravel()
         if rows is None or (second_order and rows.second is None):
             rows = self.point_rows(state, second_order)
-        ok = rows.vertebra >= 0
-        idx = rows.vertebra[ok]
+        bins = self._point_bins(rows.vertebra)
+        ok = bins.ok
         Jv = rows.Jv[ok]
         rho_p = rows.rho[ok]
-        # point rows: 6×6 upper blocks at vertebra idx
+        # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
         gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
-        pbins = ((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel()
-        g_ext = accumulate(layout.gbins, gloc, self._n_ext)
-        g_ext += accumulate((6 * idx[:, None] + np.arange(6)).ravel(), (Jv * rho_p[:, None]).ravel(), self._n_ext)
+        g_ext = accumulate(
+            np.concatenate((layout.gbins, bins.g)), np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext
+        )
         if second_order:
             S = self.rod.second_order(cache, local, rho_rod).reshape(ns, 144)[:, layout.upper]
-            both = accumulate(layout.hbins, np.concatenate((H.ravel(), S.ravel())), 2 * self._band_size)
-            both = both.reshape(2, KD + 1, self._n_ext)
-            ab_gn, ab_2 = both[0], both[1]
             assert rows.second is not None
             second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
-            a3, b3 = UPPER3
-            sbins = ((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel()
-            ab_2 = ab_2 + accumulate(sbins, second.ravel(), self._band_size).reshape(KD + 1, self._n_ext)
+            both = accumulate(
+                np.concatenate((layout.hbins, bins.h, bins.s + self._band_size)),
+                np.concatenate((H.ravel(), S.ravel(), gn.ravel(), second.ravel())),
+                2 * self._band_size,
+            ).reshape(2, KD + 1, self._n_ext)
+            ab_gn, ab_2 = both[0], both[1]
         else:
-            ab_gn = accumulate(layout.hbins[: H.size], H.ravel(), self._band_size).reshape(KD + 1, self._n_ext)
+            ab_gn = accumulate(
+                np.concatenate((layout.hbins[: H.size], bins.h)),
+                np.concatenate((H.ravel(), gn.ravel())),
+                self._band_size,
+            ).reshape(KD + 1, self._n_ext)
             ab_2 = None
-        ab_gn = ab_gn + accumulate(pbins, gn.ravel(), self._band_size).reshape(KD + 1, self._n_ext)
         P = self.n_border
-        B_ext = np.zeros((self._n_ext, P))
         if P:
             contrib = Jv[:, :, None] * rows.Jb[ok][:, None, :]  # (k, 6, P)
-            np.add.at(B_ext, (6 * idx[:, None] + np.arange(6)), contrib)
+            B_ext = accumulate(bins.b, contrib.ravel(), self._n_ext * P).reshape(self._n_ext, P)
+        else:
+            B_ext = np.zeros((self._n_ext, 0))
         C = rows.Jb.T @ rows.Jb
         g = np.concatenate((g_ext[self._vslice], rows.Jb.T @ rows.rho))
         system = BorderedSystem(ab_gn[:, self._vslice], B_ext[self._vslice], C)
         return system, (None if ab_2 is None else ab_2[:, self._vslice]), g
+
+    def _point_bins(self, vertebra: np.ndarray) -> _PointBins:
+        """Scatter tables of the non-rod rows (their vertebrae are the same at every configuration)."""
+        cached = self._bins_cache
+        if cached is not None and (cached[0] is vertebra or np.array_equal(cached[0], vertebra)):
+            return cached[1]
+        ok = vertebra >= 0
+        idx = vertebra[ok]
+        a3, b3 = UPPER3
+        P = self.n_border
+        tables = _PointBins(
+            ok=ok,
+            h=((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel(),
+            s=((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel(),
+            g=(6 * idx[:, None] + np.arange(6)).ravel(),
+            b=((6 * idx[:, None] + np.arange(6))[:, :, None] * P + np.arange(P)).ravel(),
+        )
+        self._bins_cache = (vertebra, tables)
+        return tables
 
     def jacobian_state(self, state: State) -> FloatArray:
         """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``."""
