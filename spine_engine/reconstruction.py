@@ -381,12 +381,17 @@ def solve_solution(problem: Problem, profile: Profile) -> tuple[Solution, RestMo
     rest = patient_rest_model(profile, problem)
     init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
     exact = problem.boundary == "given"
+    # κ: a landmark row √w_v (P r − p)/s₀ with w_v = w·(σ_ref/σ)² and noise SD σ has variance
+    # w·σ_ref²/s₀² whatever σ, so E = κ(−log posterior) with κ = 2 w σ_ref²/s₀² (first view)
+    first = problem.views[0]
+    weight = profile.fit_weight_pa if first.name == "pa" else profile.fit_weight_lateral
     fit_problem = RegistrationProblem(
         rod_parameters(rest),
         problem.views,
         problem.top if exact else None,
         problem.bottom if exact else None,
         pose_priors=problem.pose_priors,
+        energy_unit=2.0 * weight * LANDMARK_SD_MM_DEFAULT**2 / first.scale**2,
     )
     return solve_fit(fit_problem, init_r, init_R), rest
 
