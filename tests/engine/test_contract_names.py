@@ -6,6 +6,7 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
+import numpy as np
 import pytest
 
 from spine_engine import register
@@ -84,3 +85,26 @@ def test_bad_new_fields_are_named(edit: Any, loc: str) -> None:
 
 def test_old_payloads_stay_valid() -> None:
     assert JobPayload.model_validate(spine_payload()).pa.acquisition is None
+
+
+def test_one_pixel_to_mm_conversion_for_head_up_images() -> None:
+    """The figure and the fit read a head-up image's corners the same way (issue #10, item 8): the
+    superior endplate is the bottom pair when rows run toward the head, in px × pixel spacing."""
+    from spine_engine.clinical import landmark_arrays
+    from spine_engine.figures import _detector_mm
+
+    payload = spine_payload()
+    payload["pa"].update(units="px", pixel_spacing=[0.2, 0.1], patient_orientation=["L", "H"])
+    for lm in payload["pa"]["landmarks"]:
+        col, row = lm.pop("point")
+        lm["corners"] = [[col - 10, 3000 - row - 5], [col + 10, 3000 - row - 5],
+                         [col - 10, 3000 - row + 5], [col + 10, 3000 - row + 5]]  # fmt: skip
+    model = validate_payload(payload)
+    fitted = landmark_arrays(model.pa).points
+    np.testing.assert_array_equal(_detector_mm(model.pa), fitted)
+    first = model.pa.landmarks[0].corners
+    assert first is not None
+    # rows toward the head: the image's bottom pair (larger rows) is the cranial, superior endplate;
+    # [row, column] spacing (0.2, 0.1) mm
+    expected = (0.5 * (first[2][0] + first[3][0]) * 0.1, 0.5 * (first[2][1] + first[3][1]) * 0.2)
+    assert tuple(fitted[0]) == pytest.approx(expected)
