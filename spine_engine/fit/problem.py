@@ -145,9 +145,9 @@ class RegistrationProblem:
         self.n_params = col
         position = np.full((n, 3), -1, dtype=np.intp)
         rotation = np.full((n, 3), -1, dtype=np.intp)
-        for j in range(self.j0, self.j1):
-            position[j] = 6 * (j - self.j0) + np.arange(3)
-            rotation[j] = 6 * (j - self.j0) + 3 + np.arange(3)
+        first_cols = 6 * np.arange(self.m)[:, None]
+        position[self.j0 : self.j1] = first_cols + np.arange(3)
+        rotation[self.j0 : self.j1] = first_cols + 3 + np.arange(3)
         self.layout = ParameterLayout(position, rotation, self.n_vertebra_params, view_cols, self.n_params)
 
         # Rows.
@@ -415,9 +415,10 @@ class RegistrationProblem:
         self._bins_cache = (vertebra, tables)
         return tables
 
-    def jacobian_state(self, state: State) -> FloatArray:
-        """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``."""
-        _, cache, rows = self.evaluate(state)
+    def jacobian_state(self, state: State, evaluated: tuple[RodCache, PointRows] | None = None) -> FloatArray:
+        """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``.
+        ``evaluated``: the rod cache and non-rod rows of ``state`` when already evaluated."""
+        cache, rows = self.evaluate(state)[1:] if evaluated is None else evaluated
         J_loc = self.rod.local_jacobian(cache).J
         ns = self.n - 1
         J = np.zeros((self.n_residuals, self._n_ext + self.n_border))

@@ -93,7 +93,8 @@ def solve(
                 predicted = float(lam * (h * Dd) @ h - h @ g)
                 final = lam <= LAMBDA_GN and (small or predicted <= FTOL * E + ETOL)
                 trial = problem.step(state, h)
-                res_t, cache_t, rows_t = problem.evaluate(trial, second_order=True)
+                # a final step's second-order terms are not needed (no normal equations follow)
+                res_t, cache_t, rows_t = problem.evaluate(trial, second_order=not final)
                 E_t = float(res_t @ res_t)
                 if E_t < E:
                     newton = True
@@ -118,7 +119,7 @@ def solve(
         if converged or not accepted:
             break
     out = problem.output(state, res, cache, iterations, converged)
-    J = problem.jacobian_state(state)
+    J = problem.jacobian_state(state, (cache, rows))
     x = np.zeros(problem.n_params)
     for cam, values, cols in zip(problem.cameras, state.cameras, problem._cam_cols, strict=True):
         x[cols] = values[cam.free]
