@@ -53,6 +53,12 @@ class _PointBins(NamedTuple):
     s: np.ndarray
     g: np.ndarray
     b: np.ndarray
+    g_all: np.ndarray
+    """The rod's gradient bins, then ``g``."""
+    h_gn: np.ndarray
+    """The rod's JᵀJ bins, then ``h``."""
+    h_both: np.ndarray
+    """The rod's JᵀJ and second-order bins, ``h``, then ``s`` in the second band."""
 
 
 class PointRows(NamedTuple):
@@ -365,22 +371,20 @@ class RegistrationProblem:
         rho_p = rows.rho[ok]
         # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
         gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
-        g_ext = accumulate(
-            np.concatenate((layout.gbins, bins.g)), np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext
-        )
+        g_ext = accumulate(bins.g_all, np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext)
         if second_order:
             S = self.rod.second_order(cache, local, rho_rod).reshape(ns, 144)[:, layout.upper]
             assert rows.second is not None
             second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
             both = accumulate(
-                np.concatenate((layout.hbins, bins.h, bins.s + self._band_size)),
+                bins.h_both,
                 np.concatenate((H.ravel(), S.ravel(), gn.ravel(), second.ravel())),
                 2 * self._band_size,
             ).reshape(2, KD + 1, self._n_ext)
             ab_gn, ab_2 = both[0], both[1]
         else:
             ab_gn = accumulate(
-                np.concatenate((layout.hbins[: H.size], bins.h)),
+                bins.h_gn,
                 np.concatenate((H.ravel(), gn.ravel())),
                 self._band_size,
             ).reshape(KD + 1, self._n_ext)
@@ -405,12 +409,20 @@ class RegistrationProblem:
         idx = vertebra[ok]
         a3, b3 = UPPER3
         P = self.n_border
+        h = ((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel()
+        s = ((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel()
+        g = (6 * idx[:, None] + np.arange(6)).ravel()
+        layout = self._band_layout
+        rod_h = layout.hbins[: len(layout.hbins) // 2]
         tables = _PointBins(
             ok=ok,
-            h=((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel(),
-            s=((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel(),
-            g=(6 * idx[:, None] + np.arange(6)).ravel(),
+            h=h,
+            s=s,
+            g=g,
             b=((6 * idx[:, None] + np.arange(6))[:, :, None] * P + np.arange(P)).ravel(),
+            g_all=np.concatenate((layout.gbins, g)),
+            h_gn=np.concatenate((rod_h, h)),
+            h_both=np.concatenate((layout.hbins, h, s + self._band_size)),
         )
         self._bins_cache = (vertebra, tables)
         return tables
