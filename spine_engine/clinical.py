@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .anatomy import Profile, rest_model
+from .fit import FloatArray, Pose, ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
 from .models import JobPayload, LateralView, PAView, Unreliable
@@ -41,12 +42,8 @@ from .observations import (
     transverse_director,
 )
 from .projection import image_axes
-from .registration import ViewData
 from .rotations import exp_so3
 from .tilt_prior import TiltPrior, predict_tilts_deg
-
-FloatArray = npt.NDArray[np.float64]
-Pose = tuple[FloatArray, FloatArray]
 
 _X = np.array([1.0, 0.0, 0.0])
 _Y = np.array([0.0, 1.0, 0.0])
@@ -73,15 +70,22 @@ class LandmarkArrays:
         return np.asarray(np.isfinite(self.pedicles[:, 0, 0]))
 
 
-def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
-    """Arrays of a validated view; px are multiplied by the DICOM pixel spacing [row, column]."""
-    _, e_r = image_axes(view.patient_orientation)
-    k = len(view.landmarks)
-    spacing = np.ones(2)
+def detector_spacing(view: PAView | LateralView) -> FloatArray:
+    """The one pixel-to-mm conversion: (column, row) mm per unit of the view's coordinates, i.e.
+    (1, 1) for mm and the DICOM (0028,0030) pixel spacing [row, column] swapped to (column, row) for px."""
     if view.units == "px":
         assert view.pixel_spacing is not None  # validate_payload guarantees it
         row_spacing, column_spacing = view.pixel_spacing
-        spacing = np.array([column_spacing, row_spacing])
+        return np.array([column_spacing, row_spacing], dtype=float)
+    return np.ones(2)
+
+
+def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
+    """Arrays of a validated view in detector mm (``detector_spacing``); a landmark given by its corners
+    counts as its superior endplate midpoint, which is the bottom pair on a head-up image (rows toward H)."""
+    _, e_r = image_axes(view.patient_orientation)
+    k = len(view.landmarks)
+    spacing = detector_spacing(view)
     indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=np.intp)
     corners = np.full((k, 4, 2), np.nan)
     pedicles = np.full((k, 2, 2), np.nan)
@@ -227,10 +231,22 @@ def observed_frontal_tilts(
 # ---------------------------------------------------------------- no boundary conditions
 
 
+PA_MAGNIFICATION_PRIOR = (1.125, 0.035)
+"""(mean, SD) of the PA view's magnification at the spine when neither its projection nor its
+acquisition says it: a full-spine PA at the usual source–image distance of about 1.8 m (72 inches)
+with the spine's mid-plane about 1.6 m from the source gives SID/SOD = 1800/1600 = 1.125 (the
+geometry of DESIGN.md's scoliosis series and of ``spine bench clinic``); the SD, 0.035, is a spine
+mid-plane 50 mm nearer or farther (patient thickness, position against the stand): 1.125·50/1600.
+A model estimate: fit.unreliable then lists "scale" and fit.pa.scale_source is "prior"."""
+
+
 @dataclass(frozen=True)
 class Placement:
-    """T1 and L5 poses placed without boundary conditions, the views' weak perspectives
-    (scale, translation) to use, and what then comes from the model only."""
+    """T1 and L5 poses placed without boundary conditions (the fit's initial ends), the views'
+    weak perspectives (scale, translation) to start from, and what then comes from the model only.
+
+    Gauge convention (no boundary): the patient origin is T1: the PA translation puts T1's in-plane
+    position at (0, 0) and T1's depth is 0."""
 
     top: Pose
     bottom: Pose
@@ -239,6 +255,8 @@ class Placement:
     pa_estimated: bool
     lateral_estimated: bool
     unreliable: list[Unreliable]
+    centreline: FloatArray | None = None
+    """(17, 3) the placed centreline, mm (initial positions of every level)."""
 
 
 def _turn_to_frontal_tilt(R: FloatArray, target_deg: float) -> FloatArray:
@@ -248,6 +266,35 @@ def _turn_to_frontal_tilt(R: FloatArray, target_deg: float) -> FloatArray:
     return np.asarray(exp_so3(np.radians(current - target_deg) * _Y) @ R)
 
 
+def _fill_along_generic(values: FloatArray, generic: FloatArray, arc: FloatArray) -> FloatArray:
+    """Every level's value (17, d) from the known ones (finite rows): linear in arc length between
+    known levels, and beyond the first / last known level the generic spine's offsets from it."""
+    out = values.copy()
+    known = np.flatnonzero(np.isfinite(values[:, 0]))
+    if len(known) == 0:
+        return generic.copy()
+    for axis in range(values.shape[1]):
+        out[:, axis] = np.interp(arc, arc[known], values[known, axis])
+    first, last = known[0], known[-1]
+    out[:first] = values[first] + (generic[:first] - generic[first])
+    out[last + 1 :] = values[last] + (generic[last + 1 :] - generic[last])
+    return out
+
+
+def _scale_prior(view: PAView | LateralView) -> tuple[float, bool]:
+    """(initial PA scale, whether it is the model's prior): the payload's projection, else the
+    acquisition's magnification, else ``PA_MAGNIFICATION_PRIOR``'s mean."""
+    if view.projection is not None:
+        return float(view.projection.scale), False
+    acq = view.acquisition
+    if acq is not None and acq.magnification is not None:
+        return float(acq.magnification), False
+    if acq is not None and acq.perspective:
+        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
+        return acq.distance_source_to_detector_mm / acq.distance_source_to_patient_mm, False
+    return PA_MAGNIFICATION_PRIOR[0], True
+
+
 def place_without_boundary(
     model: JobPayload,
     profile: Profile,
@@ -255,30 +302,31 @@ def place_without_boundary(
     lateral: LandmarkArrays | None,
     prior: TiltPrior | None,
 ) -> Placement:
-    """Estimate T1 and L5 poses and the views' projections from the generic spine and the landmarks
-    (module docstring). ``pa`` must have the T1 and L5 landmarks (``validate_payload`` checks)."""
+    """Estimate T1 and L5 poses and the views' projections from the generic spine and the landmarks,
+    any subset of levels on each view (module docstring). The fit then frees every vertebra and
+    estimates the projections; this is its starting point."""
     e_c, e_r = image_axes(model.pa.patient_orientation)
     normal = np.cross(e_c, e_r)
     generic = rest_model(profile).positions
-    if model.pa.projection is not None:
-        s = float(model.pa.projection.scale)
-        T = np.asarray(model.pa.projection.translation, dtype=float)
-        pa_estimated = False
-    else:
-        s = generic_arc_scale(profile, pa, e_c, e_r)
-        T = pa.points[0] - s * np.array([generic[0] @ e_c, generic[0] @ e_r])
-        pa_estimated = True
-    size = size_factor(profile, ViewData("pa", pa.indices, pa.points, e_c, e_r, s, T, 1.0))
+    s, from_prior = _scale_prior(model.pa)
+    pa_estimated = model.pa.projection is None
+    size = size_factor(profile, ViewData("pa", pa.indices, pa.points, e_c, e_r, s, np.zeros(2), 1.0))
     model_positions = generic * size
-
-    # in-plane coordinates: landmarks where given, generic arc-length interpolation between them
-    inplane = np.full((N_LEVELS, 2), np.nan)
-    inplane[pa.indices] = (pa.points - T) / s
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(model_positions, axis=0), axis=1))])
-    known = np.isfinite(inplane[:, 0])
-    for axis in range(2):
-        inplane[:, axis] = np.interp(arc, arc[known], inplane[known, axis])
-    depth = model_positions @ normal
+    generic_inplane = np.stack([model_positions @ e_c, model_positions @ e_r], axis=1)
+
+    # in-plane coordinates (patient mm, up to the translation): landmarks where given
+    scaled = np.full((N_LEVELS, 2), np.nan)
+    if model.pa.projection is not None:
+        T = np.asarray(model.pa.projection.translation, dtype=float)
+        scaled[pa.indices] = (pa.points - T) / s
+        inplane = _fill_along_generic(scaled, generic_inplane, arc)
+    else:
+        scaled[pa.indices] = pa.points / s
+        inplane = _fill_along_generic(scaled, generic_inplane, arc)
+        T = s * inplane[0]  # gauge: T1 in-plane at the origin
+        inplane = inplane - inplane[0]
+    depth = model_positions @ normal - float(model_positions[0] @ normal)
 
     lateral_projection: tuple[float, FloatArray] | None = None
     lateral_estimated = False
@@ -289,10 +337,19 @@ def place_without_boundary(
             sl = float(model.lateral.projection.scale)
             Tl = np.asarray(model.lateral.projection.translation, dtype=float)
         else:
-            sl = s
-            first = int(np.flatnonzero(lateral.indices == 0)[0])
-            Tl = lateral.points[first] - sl * np.array([centre[0] @ lc, centre[0] @ lr])
             lateral_estimated = True
+            acq = model.lateral.acquisition
+            rows_model = centre[lateral.indices] @ lr
+            if acq is not None and acq.magnification is not None:
+                sl = float(acq.magnification)
+            elif len(lateral.indices) >= 2 and np.ptp(rows_model) > 0:
+                # the axis both films share (the vertical): the lateral's rows against the model's
+                sl = float(np.polyfit(rows_model, lateral.points[:, 1], 1)[0])
+                sl = sl if sl > 0 else s
+            else:
+                sl = s
+            model_2d = np.stack([centre[lateral.indices] @ lc, rows_model], axis=1)
+            Tl = (lateral.points - sl * model_2d).mean(axis=0)
         lateral_projection = (sl, Tl)
         # depth along the normal of the PA view from the lateral columns (the axis both views share
         # is the vertical; the lateral column axis lc is the PA normal up to its sign)
@@ -316,10 +373,10 @@ def place_without_boundary(
             R = _turn_to_frontal_tilt(R, float(observed[i]))
         elif predicted is not None and np.isfinite(predicted[i]):
             R = _turn_to_frontal_tilt(R, float(predicted[i]))
-        ends.append((centreline[i], R))
+        ends.append(Pose(centreline[i], R))
 
     unreliable: list[Unreliable] = []
-    if pa_estimated:
+    if from_prior:
         unreliable.append("scale")
     depth_known = lateral is not None and len(lateral.indices) >= 2
     if not depth_known:
@@ -334,4 +391,5 @@ def place_without_boundary(
         pa_estimated=pa_estimated,
         lateral_estimated=lateral_estimated,
         unreliable=unreliable,
+        centreline=centreline,
     )

@@ -34,6 +34,7 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
+from .clinical import landmark_arrays
 from .levels import LEVELS
 from .models import JobPayload
 from .projection import image_axes, project
@@ -56,21 +57,10 @@ def bending_norm(values: Sequence[float | None]) -> Normalize:
     return Normalize(vmin=-limit, vmax=limit)
 
 
-def landmark_point(landmark: Any) -> tuple[float, float]:
-    """The landmark's top endplate midpoint: its point, or the middle of its two top corners."""
-    point = getattr(landmark, "point", None)
-    if point is not None:
-        return (float(point[0]), float(point[1]))
-    top_left, top_right = landmark.corners[0], landmark.corners[1]
-    return ((top_left[0] + top_right[0]) / 2, (top_left[1] + top_right[1]) / 2)
-
-
 def _detector_mm(view: Any) -> np.ndarray:
-    points = np.array([landmark_point(lm) for lm in view.landmarks], dtype=float).reshape(-1, 2)
-    if view.units == "px" and view.pixel_spacing is not None:
-        row_spacing, column_spacing = view.pixel_spacing
-        points = points * np.array([column_spacing, row_spacing])
-    return points
+    """The view's fitted points in detector mm, as the engine converts them (``clinical.landmark_arrays``:
+    px × pixel spacing; corners → the superior endplate midpoint, whichever way up the image is)."""
+    return landmark_arrays(view).points.reshape(-1, 2)
 
 
 def _segment_lengths(positions: np.ndarray) -> np.ndarray:
@@ -186,7 +176,7 @@ def render_figure(
     levels = [v["level"] for v in vertebrae]
     positions = np.array([v["position"] for v in vertebrae], dtype=float)
     directors = np.array([v["directors"] for v in vertebrae], dtype=float)  # rows d1, d2, d3
-    bending = [v.get("lateral_bending_deg") for v in vertebrae]
+    bending = [v.get("frontal_bending_deg", v.get("lateral_bending_deg")) for v in vertebrae]
     norm = bending_norm(bending)
     cmap = colormaps[BENDING_CMAP]
     colours = np.array([cmap(norm(b)) if b is not None else (0.75, 0.75, 0.75, 1.0) for b in bending])

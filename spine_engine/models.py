@@ -32,6 +32,8 @@ numbers only overflow the fit."""
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
 PositiveFactor = Annotated[float, Field(gt=0, le=1e3, allow_inf_nan=False)]
+DistanceMm = Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)]
+"""A positive distance in mm (source-to-detector and source-to-patient distances are 1–5 m)."""
 Vec2 = tuple[FiniteFloat, FiniteFloat]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -84,6 +86,57 @@ class Projection(_Strict):
     translation: Vec2 = Field(description="Translation T (column, row) in detector mm.")
 
 
+LANDMARK_SD_MM_DEFAULT = 1.0
+"""Default 1 SD of a clicked landmark per image coordinate, detector mm, when a view gives no
+``landmark_sd_mm``: the order of the inter-rater point-location errors of experts placing vertebral
+landmarks on AP and lateral radiographs (Jang, Kim, Ku, Lee, "Reliability Analysis of Vertebral
+Landmark Labelling on Lumbar Spine X-ray Images", Diagnostics 2023;13(8):1411,
+doi:10.3390/diagnostics13081411; 12 raters, 1000 image pairs) and the ~1 mm of the issue's
+benchmark noise (DESIGN.md, "The clinic's inputs")."""
+
+PixelSpacingCalibration = Literal["calibrated", "projection", "detector", "unknown"]
+
+
+class Acquisition(_Strict):
+    """How a radiograph was taken, when known (all optional). SID and SOD together give a pinhole
+    (perspective) projection; otherwise the view is fitted with a weak perspective."""
+
+    magnification: PositiveFactor | None = Field(
+        None,
+        description="Estimated radiographic magnification factor (DICOM (0018,1114) ERMF, dimensionless): "
+        "detector mm per patient mm at the spine. Fixes the view's scale instead of the model's prior.",
+    )
+    distance_source_to_detector_mm: DistanceMm | None = Field(
+        None,
+        description="Source-to-image distance SID, mm (DICOM (0018,1110)). With distance_source_to_patient_mm "
+        "the view is projected in perspective.",
+    )
+    distance_source_to_patient_mm: DistanceMm | None = Field(
+        None,
+        description="Source to the spine's mid-plane SOD, mm (DICOM (0018,1111) measures it to the isocentre / "
+        "patient; here it is taken as the distance to the plane through the spine). Must be below the SID.",
+    )
+    central_ray: Vec2 | None = Field(
+        None,
+        description="Where the central ray (the perpendicular from the source) meets the detector, image "
+        "(column, row) in the view's units. Estimated in the fit when absent.",
+    )
+
+    @model_validator(mode="after")
+    def _geometry(self) -> Acquisition:
+        sid, sod = self.distance_source_to_detector_mm, self.distance_source_to_patient_mm
+        if sid is not None and sod is not None and not sod < sid:
+            raise ValueError(
+                f"distance_source_to_patient_mm ({sod:g}) must be smaller than distance_source_to_detector_mm ({sid:g})"
+            )
+        return self
+
+    @property
+    def perspective(self) -> bool:
+        """True when SID and SOD are both given (pinhole projection)."""
+        return self.distance_source_to_detector_mm is not None and self.distance_source_to_patient_mm is not None
+
+
 class _View(_Strict):
     units: Literal["mm", "px"] = Field("mm", description="Units of the landmark coordinates.")
     pixel_spacing: tuple[
@@ -97,8 +150,23 @@ class _View(_Strict):
     landmarks: list[Landmark] = Field(max_length=MAX_LANDMARKS_PER_VIEW)
     projection: Projection | None = Field(
         None,
-        description="Known weak perspective of this view, in detector mm. When absent it is "
-        "estimated in closed form from the boundary vertebrae's landmarks.",
+        description="Known weak perspective of this view, in detector mm. When absent the scale, translation "
+        "and a small in-plane rotation are estimated jointly with the spine in the fit (docs/engine.md).",
+    )
+    acquisition: Acquisition | None = Field(
+        None, description="Acquisition geometry (magnification, SID, SOD, central ray) when known."
+    )
+    landmark_sd_mm: PositiveFactor | None = Field(
+        None,
+        description="1 SD of a landmark per image coordinate on this view, detector mm; weights the view's "
+        f"landmarks. Default (null): {LANDMARK_SD_MM_DEFAULT:g} mm (clinicians' landmark placement; "
+        "models.LANDMARK_SD_MM_DEFAULT cites the source).",
+    )
+    pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
+        None,
+        description="Which calibration gave the view's mm (filled by the DICOM layer: 'calibrated' (0028,0030) "
+        "after a calibration, 'projection' imager spacing corrected by ERMF, 'detector' (0018,1164) imager "
+        "pixel spacing, 'unknown'). Carried to fit.<view>.pixel_spacing_calibration; the engine does not use it.",
     )
 
     @field_validator("patient_orientation")
@@ -144,13 +212,40 @@ class LateralView(_View):
 
 
 class Pose(_Strict):
-    """Position (mm, LPS) and directors (rows d1, d2, d3) of a boundary vertebra."""
+    """Position (mm, LPS) and directors (rows d1, d2, d3) of a boundary vertebra; exact (the paper's
+    constraint) unless a standard deviation is given, then a soft (Gaussian) constraint."""
 
     position: Vec3
     directors: tuple[Vec3, Vec3, Vec3] = Field(
         description="Rows d1 (≈ patient left), d2 (≈ anterior), d3 (caudal tangent); "
         "orthonormal and right-handed within 1e-3."
     )
+    position_sd_mm: PositiveFactor | None = Field(
+        None,
+        description="1 SD of each position coordinate, mm (a pose measured by another means). Null: exact. "
+        "Give it together with directors_sd_deg (both null or both set).",
+    )
+    directors_sd_deg: PositiveFactor | None = Field(
+        None,
+        description="1 SD of the rotation about each axis, degrees. Null: exact. Give it together with "
+        "position_sd_mm.",
+    )
+
+    @model_validator(mode="after")
+    def _both_sds(self) -> Pose:
+        if (self.position_sd_mm is None) != (self.directors_sd_deg is None):
+            missing = "directors_sd_deg" if self.directors_sd_deg is None else "position_sd_mm"
+            raise PydanticCustomError(
+                "pose_sd_incomplete",
+                "a soft pose needs both position_sd_mm and directors_sd_deg ({missing} is missing)",
+                {"missing": missing},
+            )
+        return self
+
+    @property
+    def soft(self) -> bool:
+        """True when the pose is a soft constraint (both SDs given)."""
+        return self.position_sd_mm is not None
 
     @field_validator("directors")
     @classmethod
@@ -169,7 +264,7 @@ class Pose(_Strict):
 
 
 class Boundary(_Strict):
-    """Boundary conditions: T1 and L5 fixed in position and orientation."""
+    """Boundary conditions: T1 and L5 poses, fixed exactly or (with SDs) held softly."""
 
     T1: Pose
     L5: Pose
@@ -256,8 +351,8 @@ class Study(_Strict):
 class JobPayload(_Strict):
     """The body a client posts to create a job, and the argument of ``spine_engine.register``.
 
-    Checks that span several fields (px units need pixel_spacing; without a projection a view
-    needs its T1 and L5 landmarks) live in ``spine_engine.validation.validate_payload``, so that
+    Checks that span several fields (px units need pixel_spacing; each view needs a minimum number
+    of landmarked levels, any levels) live in ``spine_engine.validation.validate_payload``, so that
     their errors name the field.
     """
 
@@ -265,8 +360,9 @@ class JobPayload(_Strict):
     lateral: LateralView | None = None
     boundary: Boundary | None = Field(
         None,
-        description="T1 and L5 poses. Optional: without them the spine is placed from the generic model and "
-        "the PA landmarks, and fit.unreliable lists the quantities that then come from the model only.",
+        description="T1 and L5 poses: exact, or soft when given with position_sd_mm and directors_sd_deg. "
+        "Optional: without them all 17 vertebrae are free (T1 is placed at the patient origin), and "
+        "fit.unreliable lists the quantities that then come from the model only.",
     )
     options: Options = Field(default_factory=Options)
     study: Study | None = Field(
@@ -295,8 +391,22 @@ class VertebraResult(BaseModel):
     directors: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
     u: tuple[float, float, float] | None = Field(description="Angular strain (u1, u2, u3), rad/mm.")
     v: tuple[float, float, float] | None = Field(description="Shear v1, v2 and stretch v3.")
-    pa_bending_deg: float | None = Field(description="Sagittal (postero-anterior) bending u1·Δs, degrees.")
-    lateral_bending_deg: float | None = Field(description="Coronal (lateral) bending u2·Δs, degrees.")
+    sagittal_bending_deg: float | None = Field(
+        None, description="Sagittal bending u1·Δs (about d1, in the sagittal plane), degrees."
+    )
+    frontal_bending_deg: float | None = Field(
+        None, description="Frontal (coronal) bending u2·Δs (about d2, in the frontal plane), degrees."
+    )
+    pa_bending_deg: float | None = Field(
+        None,
+        description="Deprecated alias of sagittal_bending_deg (same value); removed in a later version.",
+        deprecated="use sagittal_bending_deg (same value)",
+    )
+    lateral_bending_deg: float | None = Field(
+        None,
+        description="Deprecated alias of frontal_bending_deg (same value); removed in a later version.",
+        deprecated="use frontal_bending_deg (same value)",
+    )
     twist_deg: float | None = Field(description="Twist u3·Δs about d3, degrees.")
     axial_rotation_deg: float = Field(
         description="Axial rotation in the transverse plane, degrees (docs/measures.md)."
@@ -307,6 +417,24 @@ class VertebraResult(BaseModel):
         "view, else the reconstructed d1 projected on the frontal plane (docs/measures.md).",
     )
     frontal_tilt_source: Literal["corners", "model"] | None = None
+    position_sd_mm: tuple[float, float, float] | None = Field(
+        None,
+        description="1 SD of the position (x, y, z), mm, relative to the centroid of the 17 positions (Laplace "
+        "approximation at the fit's optimum, times fit.uncertainty_scale). Null when not computed.",
+    )
+    axial_rotation_sd_deg: float | None = Field(
+        None, description="1 SD of axial_rotation_deg, degrees (as position_sd_mm). Null when not computed."
+    )
+
+    @model_validator(mode="after")
+    def _aliases(self) -> VertebraResult:
+        # The deprecated names carry the new names' values (either may be given on construction).
+        data = self.__dict__
+        for new, old in (("sagittal_bending_deg", "pa_bending_deg"), ("frontal_bending_deg", "lateral_bending_deg")):
+            if data[new] is None:
+                data[new] = data[old]
+            data[old] = data[new]
+        return self
 
 
 class CobbCurve(BaseModel):
@@ -316,6 +444,9 @@ class CobbCurve(BaseModel):
     lower: Level
     apex: Level
     angle_deg: float = Field(description="Frontal Cobb angle, degrees.")
+    angle_sd_deg: float | None = Field(
+        None, description="1 SD of angle_deg, degrees (Laplace approximation, calibrated). Null when not computed."
+    )
     major: bool = Field(description="True for the largest curve; exactly one when any curve exists.")
     convexity: Literal["left", "right"]
     apex_axial_rotation_deg: float
@@ -389,6 +520,15 @@ class Measures(BaseModel):
     thoracic_kyphosis_t4_t12_deg: float
     thoracic_kyphosis_t5_t12_deg: float
     lumbar_lordosis_l1_l5_deg: float
+    thoracic_kyphosis_t4_t12_sd_deg: float | None = Field(
+        None, description="1 SD of thoracic_kyphosis_t4_t12_deg, degrees (Laplace, calibrated); null when not computed."
+    )
+    thoracic_kyphosis_t5_t12_sd_deg: float | None = Field(
+        None, description="1 SD of thoracic_kyphosis_t5_t12_deg, degrees; null when not computed."
+    )
+    lumbar_lordosis_l1_l5_sd_deg: float | None = Field(
+        None, description="1 SD of lumbar_lordosis_l1_l5_deg, degrees; null when not computed."
+    )
     aasce2019: AasceMajorAngle | None = Field(
         None, description="The AASCE 2019 script's major angle; only when the PA view has corners on all 17 levels."
     )
@@ -421,9 +561,30 @@ Unreliable = Literal[
 
 
 class ViewProjection(BaseModel):
-    scale: float
-    translation: tuple[float, float]
-    estimated: bool = Field(description="True when estimated from the boundary vertebrae.")
+    """The projection of one view used by (or estimated in) the fit."""
+
+    scale: float = Field(
+        description="Magnification s, detector mm per patient mm (perspective: SID/SOD at the spine's mid-plane)."
+    )
+    translation: tuple[float, float] = Field(
+        description="Translation T (column, row), detector mm: the image of the patient origin (weak perspective) "
+        "or the central ray's foot on the detector (perspective)."
+    )
+    estimated: bool = Field(description="True when any of scale, translation or rotation was estimated.")
+    model: Literal["weak_perspective", "perspective"] = Field(
+        "weak_perspective",
+        description="weak_perspective p = s·Rot(ψ)(e_c·r, e_r·r) + T; perspective: pinhole from acquisition SID/SOD.",
+    )
+    rotation_deg: float = Field(0.0, description="In-plane film rotation ψ, degrees (estimated; 0 when given).")
+    scale_source: Literal["given", "acquisition", "prior", "estimated"] = Field(
+        "given",
+        description="Where s comes from: the payload's projection ('given'), the acquisition's magnification or "
+        "geometry ('acquisition'), the model's prior on magnification ('prior': fit.unreliable then lists "
+        "'scale'), or the fit with the other views ('estimated').",
+    )
+    pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
+        None, description="Carried from the payload's view (which calibration gave the mm)."
+    )
 
 
 class FitReport(BaseModel):
@@ -436,8 +597,10 @@ class FitReport(BaseModel):
     runtime_ms: float
     pa: ViewProjection
     lateral: ViewProjection | None = None
-    boundary: Literal["given", "estimated"] = Field(
-        "given", description="Whether T1 and L5 were given or placed from the generic model and the landmarks."
+    boundary: Literal["given", "soft", "estimated"] = Field(
+        "given",
+        description="T1 and L5: 'given' (exact, the paper's constraint), 'soft' (given with standard deviations) "
+        "or 'estimated' (no boundary: all 17 vertebrae free, gauge fixed as docs/engine.md says).",
     )
     unreliable: list[Unreliable] = Field(
         default_factory=list,
@@ -447,6 +610,11 @@ class FitReport(BaseModel):
     tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)
     pedicle_residuals: list[PedicleResidual] = Field(default_factory=list)
+    uncertainty_scale: float | None = Field(
+        None,
+        description="Calibrated factor applied to the Laplace standard deviations (calibrated on VerSe dev so "
+        "that ±1.96 SD covers 95 % of truth). Null when no uncertainty was computed.",
+    )
 
 
 class EngineInfo(BaseModel):

@@ -16,12 +16,37 @@ import numpy as np
 
 from . import __version__
 from .anatomy import Profile, RestModel, load_profile, rest_model
-from .clinical import landmark_arrays, observed_frontal_tilts, place_without_boundary, size_factor, with_observations
+from .clinical import (
+    PA_MAGNIFICATION_PRIOR,
+    LandmarkArrays,
+    detector_spacing,
+    landmark_arrays,
+    observed_frontal_tilts,
+    place_without_boundary,
+    size_factor,
+    with_observations,
+)
 from .errors import FieldError, FitFailed, InvalidInput
+from .fit import (
+    Camera,
+    FitOutput,
+    Pose,
+    PosePrior,
+    RegistrationProblem,
+    RodParameters,
+    Solution,
+    ViewData,
+    as_pose,
+    initial_configuration,
+    nearest_rotation,
+)
+from .fit import solve as solve_fit
+from .fit.uncertainty import attach_uncertainty
 from .frames import axial_rotation_deg
-from .levels import LEVEL_INDEX, LEVELS
+from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
 from .models import (
+    LANDMARK_SD_MM_DEFAULT,
     EngineInfo,
     FitReport,
     JobPayload,
@@ -36,11 +61,35 @@ from .models import (
     ViewProjection,
 )
 from .projection import estimate_projection, image_axes
-from .registration import FitOutput, RodParameters, ViewData, fit, initial_configuration
 from .rod import strains
 from .rotations import rotation_between
 from .tilt_prior import load_tilt_prior
 from .validation import validate_payload
+
+GAUGE_POSITION_SD_MM = 1000.0
+"""No boundary: T1's position is held at the patient origin by a Gaussian of this SD (mm): it fixes
+the translation that the estimated film translations leave free (a gauge, not information: 1 m is
+far beyond any landmark's pull)."""
+GAUGE_ROTATION_SD_DEG = 30.0
+"""No boundary: T1's directors are held near their placement by a Gaussian of this SD (degrees): it
+fixes the rotations that a single view leaves (almost) free; two views determine them."""
+BEAMS = {"pa": np.array([0.0, -1.0, 0.0]), "lateral": np.array([1.0, 0.0, 0.0])}
+"""Beam direction (source → detector, LPS) of a perspective view: the PA film is a postero-anterior
+projection (beam toward the patient's anterior, −y) and the lateral film a left lateral (the patient's
+left side against the detector, beam toward +x), the scoliosis series' usual set-up. The image's
+display (its patient orientation) does not say from which side the beam came."""
+EXACT_SD = (1e-3, 1e-4)
+"""A pose given without SDs in a soft boundary (the other pose has SDs): held within 1 µm and 0.1 mrad."""
+
+
+@dataclass(frozen=True)
+class ViewSetup:
+    """How one view's projection enters the fit, for the report."""
+
+    model: str
+    """"weak_perspective" or "perspective"."""
+    scale_source: str
+    pixel_spacing_calibration: str | None
 
 
 @dataclass(frozen=True)
@@ -49,8 +98,8 @@ class Problem:
 
     views: list[ViewData]
     projections: dict[str, ViewProjection]
-    top: tuple[np.ndarray, np.ndarray]
-    bottom: tuple[np.ndarray, np.ndarray]
+    top: Pose
+    bottom: Pose
     boundary_estimated: bool = False
     """True when T1 and L5 were placed from the generic model (no boundary in the payload)."""
     unreliable: list[Unreliable] = field(default_factory=list)
@@ -66,81 +115,151 @@ class Problem:
     """(17,) frontal tilt of the PA corner lines, NaN where a level has no corners (None: no corners)."""
     observed_endplate_tilt_deg: np.ndarray | None = None
     """(17, 2) superior and inferior endplate tilts from the PA corners, NaN where none."""
+    boundary: str = "given"
+    """"given" (T1 and L5 exact), "soft" (with SDs) or "estimated" (none: every vertebra free)."""
+    pose_priors: tuple[PosePrior, ...] = ()
+    """Soft poses and the gauge (all vertebrae free unless ``boundary`` is "given")."""
+    setups: dict[str, ViewSetup] = field(default_factory=dict)
 
 
-def _pose(pose: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Position (3,) and rotation matrix with the directors as columns, R = [d1 d2 d3]."""
-    return np.asarray(pose.position, dtype=float), np.asarray(pose.directors, dtype=float).T
+def _initial_weak_with_boundary(
+    name: str, arrays: LandmarkArrays, e_c: np.ndarray, e_r: np.ndarray, top: Pose, bottom: Pose
+) -> tuple[float, np.ndarray]:
+    """Starting scale and translation of a view from the boundary: the closed form
+    (``projection.estimate_projection``) on the T1 and L5 landmarks when both are given, else on the
+    landmarked levels against the T1→L5 chord interpolated by level."""
+    n = len(LEVELS)
+    ends = [np.flatnonzero(arrays.indices == 0), np.flatnonzero(arrays.indices == n - 1)]
+    try:
+        if len(ends[0]) and len(ends[1]):
+            return estimate_projection(
+                np.stack([top.position, bottom.position]), arrays.points[[ends[0][0], ends[1][0]]], e_c, e_r
+            )
+        t = arrays.indices / (n - 1.0)
+        chord = (1.0 - t)[:, None] * top.position + t[:, None] * bottom.position
+        return estimate_projection(chord, arrays.points, e_c, e_r)
+    except ValueError as exc:
+        raise InvalidInput([FieldError((name, "landmarks"), str(exc), "projection_not_estimable")]) from None
 
 
-def _orthonormalise(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation to R (polar decomposition): directors valid within 1e-3 become exact."""
-    U, _, Vt = np.linalg.svd(R)
-    return np.asarray(U @ Vt)
+def make_camera(
+    view: PAView | LateralView,
+    name: str,
+    initial: tuple[float, np.ndarray],
+    e_c: np.ndarray,
+    e_r: np.ndarray,
+    mid_depth: float,
+    scale_prior: bool,
+) -> tuple[Camera | None, ViewSetup]:
+    """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
+
+    * ``projection`` given: that weak perspective, fixed ("given");
+    * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
+      through o; c = the central ray when given (else estimated, o then moves along the beam only),
+      o estimated ("acquisition");
+    * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
+      "acquisition"), else estimated: on the PA with the prior ``clinical.PA_MAGNIFICATION_PRIOR``
+      when ``scale_prior`` ("prior"), else from the data ("estimated": the lateral's scale is tied to
+      the PA's by the vertical axis both films share).
+    The PA film's in-plane rotation ψ is 0 by convention (it defines the patient's frontal plane);
+    the lateral's is estimated (Gaussian prior, SD 2°).
+    """
+    spc = view.pixel_spacing_calibration
+    if view.projection is not None:
+        return None, ViewSetup("weak_perspective", "given", spc)
+    s0, T0 = float(initial[0]), np.asarray(initial[1], dtype=float)
+    rotate = name != "pa"
+    acq = view.acquisition
+    if acq is not None and acq.perspective:
+        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
+        sid, sod = acq.distance_source_to_detector_mm, acq.distance_source_to_patient_mm
+        m0 = sid / sod
+        b = BEAMS[name]
+        E = np.stack((e_c, e_r))
+        if acq.central_ray is not None:
+            c = np.asarray(acq.central_ray, dtype=float) * detector_spacing(view)
+            o_plane = (c - T0) / m0
+            free = np.array([False, False, True, True, True, rotate])
+        else:
+            c = T0.copy()
+            o_plane = np.zeros(2)
+            free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
+        o = E.T @ o_plane + b * mid_depth
+        camera = Camera("perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b)
+        return camera, ViewSetup("perspective", "acquisition", spc)
+    if acq is not None and acq.magnification is not None:
+        values = np.array([acq.magnification, T0[0], T0[1], 0.0])
+        return Camera("weak", values, np.array([False, True, True, rotate])), ViewSetup(
+            "weak_perspective", "acquisition", spc
+        )
+    prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
+    camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
+    return camera, ViewSetup("weak_perspective", "prior" if prior is not None else "estimated", spc)
 
 
-def _detector_mm(view: PAView | LateralView) -> np.ndarray:
-    """Landmarks as (column, row) in detector mm; px × DICOM pixel spacing [row, column]. A landmark
-    given by its corners counts as its superior endplate midpoint (``clinical.landmark_arrays``)."""
-    return landmark_arrays(view).points.reshape(-1, 2)
-
-
-def build_view(
+def _view_data(
     name: str,
     view: PAView | LateralView,
+    arrays: LandmarkArrays,
     weight: float,
-    top: tuple[np.ndarray, np.ndarray],
-    bottom: tuple[np.ndarray, np.ndarray],
-    placed: tuple[float, np.ndarray] | None = None,
-) -> tuple[ViewData, ViewProjection]:
-    """One view's landmarks in detector mm with its weak perspective (given, estimated from the
-    boundary, or ``placed``: the (scale, translation) of a spine placed without boundary)."""
+    camera: Camera | None,
+    initial: tuple[float, np.ndarray],
+) -> ViewData:
+    """The view's landmarks (detector mm) with its weight w·(σ_ref/σ)², σ its ``landmark_sd_mm``."""
     e_c, e_r = image_axes(view.patient_orientation)
-    indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=int)
-    points = _detector_mm(view)
-    if placed is not None:
-        scale, translation = placed[0], np.asarray(placed[1], dtype=float)
-        estimated = view.projection is None
-    elif view.projection is not None:
-        scale = float(view.projection.scale)
-        translation = np.asarray(view.projection.translation, dtype=float)  # detector mm
-        estimated = False
-    else:
-        ends = [int(np.flatnonzero(indices == 0)[0]), int(np.flatnonzero(indices == len(LEVELS) - 1)[0])]
-        try:
-            scale, translation = estimate_projection(
-                np.stack([top[0], bottom[0]]), points[ends], e_c, e_r
-            )
-        except ValueError as exc:
-            raise InvalidInput([FieldError((name, "landmarks"), str(exc), "projection_not_estimable")]) from None
-        estimated = True
-    data = ViewData(
+    scale = camera.reference_scale if camera is not None else float(initial[0])
+    sd = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+    return ViewData(
         name=name,
-        indices=indices,
-        points=points,
+        indices=np.asarray(arrays.indices, dtype=int),
+        points=arrays.points,
         e_c=e_c,
         e_r=e_r,
         scale=float(scale),
-        translation=np.asarray(translation, dtype=float),
-        weight=weight,
+        translation=np.asarray(initial[1], dtype=float),
+        weight=weight * (LANDMARK_SD_MM_DEFAULT / sd) ** 2,
+        camera=camera,
     )
-    projection = ViewProjection(
-        scale=float(scale), translation=(float(translation[0]), float(translation[1])), estimated=estimated
-    )
-    return data, projection
+
+
+def _pose_priors(model: JobPayload, top: Pose, boundary: str) -> tuple[PosePrior, ...]:
+    """The gauge (no boundary: T1 at the origin, ``GAUGE_POSITION_SD_MM``) or the soft poses."""
+    if boundary == "estimated":
+        gauge = PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, np.radians(GAUGE_ROTATION_SD_DEG))
+        return (gauge,)
+    if boundary != "soft":
+        return ()
+    assert model.boundary is not None
+    priors = []
+    for index, pose in ((0, model.boundary.T1), (len(LEVELS) - 1, model.boundary.L5)):
+        p = as_pose(pose)
+        if pose.position_sd_mm is None or pose.directors_sd_deg is None:
+            sd_r, sd_t = EXACT_SD
+        else:
+            sd_r, sd_t = float(pose.position_sd_mm), float(np.radians(pose.directors_sd_deg))
+        priors.append(PosePrior(index, Pose(p.position, nearest_rotation(p.rotation)), sd_r, sd_t))
+    return tuple(priors)
 
 
 def build_problem(model: JobPayload, profile: Profile) -> Problem:
-    """Arrays of a validated payload: views in detector mm, projections, fixed boundary poses,
-    and the clinical observations (corner tilts, pedicles, tilt prior; ``clinical``).
+    """Arrays of a validated payload: views in detector mm with their cameras, the boundary mode and
+    its pose priors, the initial end poses, and the clinical observations (corner tilts, pedicles,
+    tilt prior; ``clinical``).
 
-    Without ``boundary`` the T1 and L5 poses and the projections come from
-    ``clinical.place_without_boundary``."""
+    Without ``boundary`` every vertebra is free (gauge: ``GAUGE_POSITION_SD_MM``), starting from
+    ``clinical.place_without_boundary``; with a soft boundary every vertebra is free and T1 and L5
+    are held by Gaussians; with an exact one T1 and L5 are fixed (the paper)."""
     pa_arrays = landmark_arrays(model.pa)
     has_lateral = model.lateral is not None and bool(model.lateral.landmarks)
     lateral_arrays = landmark_arrays(model.lateral) if model.lateral is not None and has_lateral else None
     use_prior = model.options.tilt_prior if model.options.tilt_prior is not None else model.boundary is None
     prior = load_tilt_prior() if use_prior else None
+    if model.boundary is None:
+        boundary = "estimated"
+    elif model.boundary.T1.soft or model.boundary.L5.soft:
+        boundary = "soft"
+    else:
+        boundary = "given"
     placement = None
     if model.boundary is None:
         try:
@@ -149,44 +268,72 @@ def build_problem(model: JobPayload, profile: Profile) -> Problem:
             raise InvalidInput([FieldError(("pa", "landmarks"), str(exc), "spine_not_placeable")]) from None
         top, bottom = placement.top, placement.bottom
     else:
-        p1, R1 = _pose(model.boundary.T1)
-        p5, R5 = _pose(model.boundary.L5)
-        top, bottom = (p1, _orthonormalise(R1)), (p5, _orthonormalise(R5))
-    views, projections, sources, offsets = [], {}, {}, {}
-    pa, pa_projection = build_view(
-        "pa", model.pa, profile.fit_weight_pa, top, bottom, None if placement is None else placement.pa
-    )
-    size = size_factor(profile, pa)
-    pa, sources["pa"], offsets["pa"] = with_observations(pa, pa_arrays, size=size, prior=prior)
-    views.append(pa)
-    projections["pa"] = pa_projection
-    if model.lateral is not None and lateral_arrays is not None:
-        lateral, lateral_projection = build_view(
-            "lateral",
-            model.lateral,
-            profile.fit_weight_lateral,
-            top,
-            bottom,
-            None if placement is None else placement.lateral,
+        t1, l5 = as_pose(model.boundary.T1), as_pose(model.boundary.L5)
+        top = Pose(t1.position, nearest_rotation(t1.rotation))
+        bottom = Pose(l5.position, nearest_rotation(l5.rotation))
+    mid = len(LEVELS) // 2
+    views: list[ViewData] = []
+    projections: dict[str, ViewProjection] = {}
+    sources: dict[str, list[str]] = {}
+    offsets: dict[str, list[str]] = {}
+    setups: dict[str, ViewSetup] = {}
+    size = 1.0
+    for name, view, arrays, weight in (
+        ("pa", model.pa, pa_arrays, profile.fit_weight_pa),
+        ("lateral", model.lateral, lateral_arrays, profile.fit_weight_lateral),
+    ):
+        if view is None or arrays is None:
+            continue
+        e_c, e_r = image_axes(view.patient_orientation)
+        initial: tuple[float, np.ndarray]
+        if view.projection is not None:
+            initial = (float(view.projection.scale), np.asarray(view.projection.translation, dtype=float))
+        elif placement is not None:
+            placed = placement.pa if name == "pa" else placement.lateral
+            assert placed is not None
+            initial = placed
+        else:
+            initial = _initial_weak_with_boundary(name, arrays, e_c, e_r, top, bottom)
+        beam = BEAMS[name]
+        if placement is not None and placement.centreline is not None:
+            mid_depth = float(placement.centreline[mid] @ beam)
+        else:
+            mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
+        camera, setup = make_camera(view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given")
+        data = _view_data(name, view, arrays, weight, camera, initial)
+        if name == "pa":
+            size = size_factor(profile, data)
+        data, sources[name], offsets[name] = with_observations(
+            data, arrays, size=size, prior=prior if name == "pa" else None
         )
-        lateral, sources["lateral"], offsets["lateral"] = with_observations(
-            lateral, lateral_arrays, size=size, prior=None
+        views.append(data)
+        setups[name] = setup
+        projections[name] = ViewProjection(
+            scale=float(data.scale),
+            translation=(float(data.translation[0]), float(data.translation[1])),
+            estimated=camera is not None and bool(camera.free.any()),
+            model=setup.model,  # type: ignore[arg-type]
+            scale_source=setup.scale_source,  # type: ignore[arg-type]
+            pixel_spacing_calibration=setup.pixel_spacing_calibration,  # type: ignore[arg-type]
         )
-        views.append(lateral)
-        projections["lateral"] = lateral_projection
+    pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
+    unreliable = [] if placement is None else list(placement.unreliable)
     return Problem(
         views=views,
         projections=projections,
         top=top,
         bottom=bottom,
         boundary_estimated=placement is not None,
-        unreliable=[] if placement is None else placement.unreliable,
+        unreliable=unreliable,
         tilt_prior=prior is not None and "prior" in sources["pa"],
         tilt_sources=sources,
         offset_sources=offsets,
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
+        boundary=boundary,
+        pose_priors=_pose_priors(model, top, boundary),
+        setups=setups,
     )
 
 
@@ -228,12 +375,31 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     )
 
 
-def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
-    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
+def solve_solution(problem: Problem, profile: Profile) -> tuple[Solution, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``problem``: the solver's
+    ``Solution`` (optimum, residuals, Jacobian and parameter layout for the Laplace approximation)."""
     rest = patient_rest_model(profile, problem)
     init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
-    out = fit(rod_parameters(rest), problem.views, problem.top, problem.bottom, init_r, init_R)
-    return out, rest
+    exact = problem.boundary == "given"
+    # κ: a landmark row √w_v (P r − p)/s₀ with w_v = w·(σ_ref/σ)² and noise SD σ has variance
+    # w·σ_ref²/s₀² whatever σ, so E = κ(−log posterior) with κ = 2 w σ_ref²/s₀² (first view)
+    first = problem.views[0]
+    weight = profile.fit_weight_pa if first.name == "pa" else profile.fit_weight_lateral
+    fit_problem = RegistrationProblem(
+        rod_parameters(rest),
+        problem.views,
+        problem.top if exact else None,
+        problem.bottom if exact else None,
+        pose_priors=problem.pose_priors,
+        energy_unit=2.0 * weight * LANDMARK_SD_MM_DEFAULT**2 / first.scale**2,
+    )
+    return solve_fit(fit_problem, init_r, init_R), rest
+
+
+def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
+    solution, rest = solve_solution(problem, profile)
+    return solution.output, rest
 
 
 def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | None = None) -> list[VertebraResult]:
@@ -250,8 +416,8 @@ def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | 
                 directors=tuple(tuple(row) for row in out.rotations[i].T.tolist()),  # type: ignore[arg-type]
                 u=tuple(out.u[i].tolist()) if has_segment else None,
                 v=tuple(out.v[i].tolist()) if has_segment else None,
-                pa_bending_deg=float(angles[i, 0]) if has_segment else None,
-                lateral_bending_deg=float(angles[i, 1]) if has_segment else None,
+                sagittal_bending_deg=float(angles[i, 0]) if has_segment else None,
+                frontal_bending_deg=float(angles[i, 1]) if has_segment else None,
                 twist_deg=float(angles[i, 2]) if has_segment else None,
                 axial_rotation_deg=float(rotation[i]),
                 frontal_tilt_deg=float(tilt[i]),
@@ -259,6 +425,22 @@ def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | 
             )
         )
     return vertebrae
+
+
+def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProjection | None:
+    """The view's projection at the optimum: weak perspective s, T, ψ; perspective SID/SOD, c, ψ."""
+    given = problem.projections.get(name)
+    view = next((v for v in problem.views if v.name == name), None)
+    if given is None or view is None or view.camera is None or name not in out.cameras:
+        return given
+    values = out.cameras[name]
+    if view.camera.kind == "weak":
+        scale, translation = float(values[0]), (float(values[1]), float(values[2]))
+    else:
+        scale, translation = view.camera.reference_scale, (float(values[0]), float(values[1]))
+    return given.model_copy(
+        update={"scale": scale, "translation": translation, "rotation_deg": float(np.degrees(values[-1]))}
+    )
 
 
 def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitReport:
@@ -275,9 +457,9 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
         iterations=out.iterations,
         converged=out.converged,
         runtime_ms=runtime_ms,
-        pa=problem.projections["pa"],
-        lateral=problem.projections.get("lateral"),
-        boundary="estimated" if problem.boundary_estimated else "given",
+        pa=_projection_report(problem, out, "pa"),
+        lateral=_projection_report(problem, out, "lateral"),
+        boundary=problem.boundary,  # type: ignore[arg-type]
         unreliable=list(problem.unreliable),
         tilt_prior=problem.tilt_prior,
         tilt_residuals=[
@@ -307,7 +489,8 @@ def register_model(model: JobPayload) -> RegistrationResult:
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
             problem = build_problem(model, profile)
-            out, rest = solve(problem, profile)
+            solution, rest = solve_solution(problem, profile)
+            out = solution.output
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError) as exc:
         # A degenerate geometry (e.g. landmarks that no spine can have) breaks the numerics.
         raise FitFailed(f"the registration broke down numerically: {exc}") from None
@@ -320,7 +503,7 @@ def register_model(model: JobPayload) -> RegistrationResult:
         )
     if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
-    return RegistrationResult(
+    result = RegistrationResult(
         vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg),
         measures=compute_measures(
             out.positions,
@@ -331,6 +514,11 @@ def register_model(model: JobPayload) -> RegistrationResult:
         fit=_fit_report(problem, out, runtime_ms),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
+    try:
+        with np.errstate(over="raise", invalid="raise", divide="raise"):
+            return attach_uncertainty(result, solution)
+    except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
+        return result  # the SDs stay null when the curvature at the optimum is not usable
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

@@ -90,30 +90,48 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Field
     return errors
 
 
-def _view_errors(name: str, view: PAView | LateralView, has_boundary: bool) -> list[FieldError]:
-    """px units need a pixel spacing; the T1 and L5 landmarks are needed to estimate a view's
-    projection when none is given, and on the PA view to place the spine without a boundary."""
+MIN_LEVELS_PROJECTION_GIVEN = 1
+"""A view whose projection is given (and, for the PA, with T1 and L5 given exactly) needs one level."""
+MIN_LEVELS_PA = 2
+"""The PA view otherwise needs two levels: its translation (2 unknowns) and, with the magnification
+from the prior or the acquisition, the spine's extent along the film; below that the placement of
+the spine in the film is undetermined."""
+MIN_LEVELS_LATERAL = 3
+"""A lateral view with its projection estimated needs three levels: its scale and vertical
+translation are tied to the PA by the vertical axis both films share (two levels), and its in-plane
+rotation needs a third. With fewer, leave the lateral out (a lateral with no landmark is ignored)."""
+
+
+def minimum_levels(name: str, view: PAView | LateralView, exact_boundary: bool) -> int:
+    """The fewest landmarked levels the view needs (``MIN_LEVELS_*``); 0 for an empty lateral."""
+    if name != "pa" and not view.landmarks:
+        return 0
+    if view.projection is not None and (name != "pa" or exact_boundary):
+        return MIN_LEVELS_PROJECTION_GIVEN
+    return MIN_LEVELS_PA if name == "pa" else MIN_LEVELS_LATERAL
+
+
+def _view_errors(name: str, view: PAView | LateralView, exact_boundary: bool) -> list[FieldError]:
+    """px units need a pixel spacing; a view needs at least ``minimum_levels`` landmarked levels
+    (any levels: none is required on either view)."""
     errors = []
     if view.units == "px" and view.pixel_spacing is None:
         errors.append(
             FieldError((name, "pixel_spacing"), "pixel_spacing is required when units is 'px'", "missing")
         )
-    if view.projection is None:
-        needed_for = (
-            f"without {name}.projection the T1 and L5 landmarks are needed to estimate the scale and translation"
-        )
-    elif name == "pa" and not has_boundary:
-        needed_for = "without boundary conditions the PA view needs the T1 and L5 landmarks to place the spine"
-    else:
-        return errors
-    levels = {lm.level for lm in view.landmarks}
-    missing = [lv for lv in ("T1", "L5") if lv not in levels]
-    if missing:
+    need = minimum_levels(name, view, exact_boundary)
+    have = len({lm.level for lm in view.landmarks})
+    if have < need:
+        why = (
+            "to place the spine in the film" if name == "pa" else
+            "to estimate its scale, translation and rotation against the PA (or give lateral.projection, "
+            "or leave the lateral out)"
+        )  # fmt: skip
         errors.append(
             FieldError(
                 (name, "landmarks"),
-                f"the boundary vertebrae {missing} have no landmark: {needed_for}",
-                "boundary_landmarks_missing",
+                f"the {name} view has {have} landmarked level(s); at least {need} are needed {why}",
+                "too_few_landmarks",
             )
         )
     return errors
@@ -123,12 +141,11 @@ def validate_payload(payload: Any) -> JobPayload:
     """Validate ``payload`` against the contract; raise ``InvalidInput`` listing every bad field.
 
     Numbers must be finite, levels known and unique per view, directors orthonormal and
-    right-handed within 1e-3, ``px`` units need ``pixel_spacing``, and without a given
-    projection a view must have the T1 and L5 landmarks to estimate it. A landmark has exactly
+    right-handed within 1e-3, ``px`` units need ``pixel_spacing``, and each view needs at least
+    ``minimum_levels`` landmarked levels, any levels (``MIN_LEVELS_*``). A landmark has exactly
     one of ``point`` / ``corners`` (the error names the field: ``point`` when neither is given,
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
-    with columns L or R. Without ``boundary`` the PA view needs T1 and L5 landmarks. On an
-    upright view the landmarks must run head to feet in level order.
+    with columns L or R. On an upright view the landmarks must run head to feet in level order.
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -143,11 +160,11 @@ def validate_payload(payload: Any) -> JobPayload:
                 for e in exc.errors(include_url=False)
             ]
         ) from None
-    has_boundary = model.boundary is not None
-    errors = _view_errors("pa", model.pa, has_boundary) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
+    errors = _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
     errors += _order_errors("pa", model.pa, payload.get("pa"))
     if model.lateral is not None:
-        errors += _view_errors("lateral", model.lateral, has_boundary)
+        errors += _view_errors("lateral", model.lateral, exact)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
     if errors:

@@ -11,6 +11,8 @@ COMMANDS = {
     "perf": ("spine_engine.experiments.perf", "time single 17-landmark fits"),
     "calibrate": ("spine_engine.experiments.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
     "aasce": ("spine_engine.experiments.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
+    "noise-weight": ("spine_engine.experiments.noise_weight", "prior strength, noisy landmarks (VerSe dev)"),
+    "clinic": ("spine_engine.experiments.clinic", "the clinic's setting (issue #10): 3D error and interval coverage"),
 }
 
 

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import scipy
 
+from ..fit import RodParameters, ViewData, fit, initial_configuration
 from ..projection import image_axes, project
-from ..registration import RodParameters, ViewData, fit, initial_configuration
 from ..rod import strains
 
 

@@ -15,10 +15,10 @@ import numpy as np
 
 from ..anatomy import VERTEBRA_TABLE, load_profile
 from ..clinical import size_factor
+from ..fit import ViewData
 from ..levels import LEVELS, N_LEVELS
 from ..observations import pedicle_offsets_in_image_order
 from ..projection import image_axes, project
-from ..registration import ViewData
 from ..rod import strains
 
 PA_ORIENTATION = ("L", "F")
@@ -111,6 +111,12 @@ def pedicle_centres_3d(
     return positions[idx][:, None, :] + np.einsum("kij,kpj->kpi", rotations[idx], offsets)
 
 
+EXACT_LANDMARK_SD_MM = 0.17
+"""The SD a payload of exact (noise-free) simulated landmarks declares, mm: with the noise-calibrated
+weight (``profiles/default.json``, 60 N/mm at 1 mm) it gives them 60/0.17² ≈ 2000 N/mm, the weight the
+paper's setting (exact landmarks, T1 and L5 given) was calibrated with, so its benchmarks are unchanged."""
+
+
 def payload_from_truth(
     positions: np.ndarray,
     rotations: np.ndarray,
@@ -125,6 +131,7 @@ def payload_from_truth(
     pedicle_levels: list[int] | None = None,
     boundary: bool = True,
     projection: bool = False,
+    landmark_sd_mm: float | None = None,
 ) -> dict[str, Any]:
     """The job payload a client would send for this known spine.
 
@@ -132,10 +139,14 @@ def payload_from_truth(
     (``vertebra_corners_3d``) instead of a point; ``pedicle_levels``: PA pedicle centres
     (``pedicle_centres_3d``); boxes and pedicles are scaled by ``truth_size_factor``. Without
     ``boundary`` the payload has no T1 / L5 poses; ``projection`` sends the PA view's (s, T).
+    Each view says its landmarks' noise (``landmark_sd_mm``; default ``noise_mm``, or
+    ``EXACT_LANDMARK_SD_MM`` for exact landmarks), so that the fit weighs them as it should.
     """
+    sd = landmark_sd_mm if landmark_sd_mm is not None else (noise_mm if noise_mm > 0 else EXACT_LANDMARK_SD_MM)
     payload: dict[str, Any] = {
         "pa": _view(positions, pa_levels, PA_ORIENTATION, scale, translation, noise_mm, rng),
     }
+    payload["pa"]["landmark_sd_mm"] = sd
     if boundary:
         payload["boundary"] = {
             level: {"position": positions[i].tolist(), "directors": rotations[i].T.tolist()}
@@ -163,6 +174,7 @@ def payload_from_truth(
         payload["lateral"] = _view(
             positions, lateral_levels, LATERAL_ORIENTATION, scale, translation, noise_mm, rng
         )
+        payload["lateral"]["landmark_sd_mm"] = sd
     return payload
 
 

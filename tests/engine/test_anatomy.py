@@ -25,7 +25,7 @@ from spine_engine.errors import InvalidInput, UnknownProfile
 from spine_engine.levels import LEVELS
 from spine_engine.measures import compute_measures, frontal_tilt_deg
 
-VERSE_DEV = Path(__file__).parent / "data" / "verse_dev.csv"
+VERSE_DEV = Path(__file__).parents[1] / "data" / "verse_dev.csv"
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +114,7 @@ def test_literature_profile(profile: Profile) -> None:
     # the fit weight makes a 0.2 mm residual cost about one segment's bending energy
     ratio = profile.fit_weight_pa * 0.2**2 / typical_bending_energy_nmm(profile)
     assert 0.5 < ratio < 2.0
-    raw = json.loads((Path(__file__).parents[1] / "spine_engine" / "profiles" / "literature.json").read_text())
+    raw = json.loads((Path(__file__).parents[2] / "spine_engine" / "profiles" / "literature.json").read_text())
     assert set(raw) <= set(Profile.__dataclass_fields__)
 
 

@@ -14,7 +14,7 @@ from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register
 from spine_engine.synthetic import generate_spines
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 ALL = list(range(17))
 
 # Bounds set from measured values with a margin (docs/accuracy.md has the figures and commands).
@@ -67,7 +67,8 @@ def test_3d_result_invariant_to_image_scale_and_translation(spines: list[Any]) -
     a = register(payload_from_truth(s.positions, s.rotations, ALL, scale=1.0, translation=(0.0, 0.0)))
     b = register(payload_from_truth(s.positions, s.rotations, ALL, scale=2.7, translation=(-310.0, 845.0)))
     np.testing.assert_allclose(positions_of(a), positions_of(b), atol=1e-6)
-    assert b["fit"]["pa"]["scale"] == pytest.approx(2.7, rel=1e-9)
+    # the projection is estimated jointly with the spine (issue #10): the boundary and the landmarks fix it
+    assert b["fit"]["pa"]["scale"] == pytest.approx(2.7, rel=1e-4)
 
 
 def test_pixels_with_spacing_equal_millimetres(spines: list[Any]) -> None:

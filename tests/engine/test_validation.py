@@ -6,7 +6,7 @@ from typing import Any
 import pytest
 
 from spine_engine.errors import InvalidInput
-from spine_engine.validation import validate_payload
+from spine_engine.validation import MIN_LEVELS_LATERAL, MIN_LEVELS_PA, validate_payload
 
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
 
@@ -86,11 +86,41 @@ def test_directors_left_handed() -> None:
     assert path == "boundary.L5.directors" and "right-handed" in msg
 
 
-def test_boundary_landmark_missing_without_projection() -> None:
+def test_boundary_levels_are_not_required() -> None:
+    """Any subset of levels (issue #10, item 4): T1 and L5 need no landmark, on either view."""
     p = good()
-    del p["pa"]["landmarks"][2]
+    del p["pa"]["landmarks"][2]  # L5
+    validate_payload(p)
+    del p["boundary"]
+    del p["pa"]["landmarks"][0]  # T1
+    p["pa"]["landmarks"].append({"level": "L2", "point": [103.0, 420.0]})
+    validate_payload(p)
+
+
+@pytest.mark.parametrize("boundary", [True, False])
+def test_pa_below_the_minimum_is_refused_by_name(boundary: bool) -> None:
+    p = good()
+    if not boundary:
+        del p["boundary"]
+    p["pa"]["landmarks"] = p["pa"]["landmarks"][1:2]
+    assert MIN_LEVELS_PA == 2
     [(path, kind, msg)] = errors_of(p)
-    assert (path, kind) == ("pa.landmarks", "boundary_landmarks_missing") and "L5" in msg
+    assert (path, kind) == ("pa.landmarks", "too_few_landmarks") and "1 landmarked level" in msg
+
+
+def test_lateral_from_t4_down_and_its_minimum() -> None:
+    p = good()
+    del p["boundary"]
+    rows = {"T4": 120.0, "T8": 250.0, "L1": 380.0, "L5": 500.0}
+    p["lateral"] = {"landmarks": [{"level": lv, "point": [80.0, row]} for lv, row in rows.items()]}
+    validate_payload(p)  # no T1 on the lateral
+    p["lateral"]["landmarks"] = p["lateral"]["landmarks"][:MIN_LEVELS_LATERAL - 1]
+    [(path, kind, _)] = errors_of(p)
+    assert (path, kind) == ("lateral.landmarks", "too_few_landmarks")
+    p["lateral"]["projection"] = {"scale": 1.2, "translation": [0.0, 0.0]}
+    validate_payload(p)  # with its projection given one level is enough
+    p["lateral"] = {"landmarks": []}
+    validate_payload(p)  # an empty lateral is no lateral
 
 
 def test_boundary_landmarks_not_needed_with_projection() -> None:
@@ -173,12 +203,11 @@ def test_huge_coordinates_are_refused(bad: float) -> None:
     assert paths == {"pa.landmarks[1].point[0]", "boundary.L5.position[2]"}
 
 
-def test_no_boundary_needs_t1_and_l5_on_pa_even_with_a_projection() -> None:
+def test_no_boundary_pa_needs_two_levels_even_with_a_projection() -> None:
     p = good()
     del p["boundary"]
     p["pa"]["projection"] = {"scale": 1.1, "translation": [100.0, 50.0]}
     validate_payload(p)
-    del p["pa"]["landmarks"][0]  # T1
-    [(path, kind, msg)] = errors_of(p)
-    assert (path, kind) == ("pa.landmarks", "boundary_landmarks_missing")
-    assert "T1" in msg and "without boundary conditions" in msg
+    p["pa"]["landmarks"] = p["pa"]["landmarks"][:1]
+    [(path, kind, _)] = errors_of(p)
+    assert (path, kind) == ("pa.landmarks", "too_few_landmarks")

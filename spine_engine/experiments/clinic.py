@@ -1,0 +1,697 @@
+"""``spine bench clinic``: the engine in the clinic's setting (issue #10, item 9).
+
+Known spines are filmed by a simulated scoliosis series and reconstructed through the public
+entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would use it:
+
+* truth: the VerSe CT spines (``dev`` to tune, ``test`` to report; centroids, directors from
+  ``frames.frames_from_centreline``) and synthetic spines built geometrically by
+  ``spine_engine.synthetic`` (curve angles, kyphosis, lordosis and axial rotation drawn, never
+  made by the fit);
+* films (``simulate_series``): a PA and a lateral radiograph of the superior endplate midpoints
+  (the rod's nodes) with Gaussian landmark noise (SD ``noise_mm`` per coordinate, detector mm,
+  seeded; the same noise draw serves every case of one spine). Geometry, in the spirit of a full-
+  spine series (``SID_MM``, ``PA_SOD_MM``): the PA's magnification at the spine's mid-plane is
+  SID/SOD = 1800/1600 = 1.125; the lateral is 5–10 % more magnified (drawn), its film turned in
+  its plane by 0.5–2° (drawn sign and size) and both films offset (drawn). The central ray meets
+  the patient within ``CENTRAL_RAY_SPREAD_MM`` of the spine's centroid (drawn). PA beam posterior
+  → anterior (−y), lateral beam right → left (+x, the patient's left side at the detector);
+* cases (``CASES``): (a) uncalibrated PA + full lateral, weak perspective, nothing given; (b) the
+  same with the lateral from T4 down; (c) perspective films (pinhole: magnification SID/d with d
+  the source distance of each point) with ``acquisition`` giving SID, SOD and the central ray;
+  (d) the same films without ``acquisition``; (e) the PA film of (a) only; (f) the paper's case:
+  T1 and L5 given from the truth, both views' weak perspective given, films not turned.
+
+Metrics per spine, then averaged (``summarise``):
+
+* 3D error: mean over the 17 vertebrae of |(r_i − r̄) − (t_i − t̄)| (mm), r the result, t the
+  truth, bars the centroids: the global translation, which is not observable without boundary,
+  is removed and nothing else (a scale error counts); ``scale_error_pct`` is
+  100·(RMS|r − r̄| / RMS|t − t̄| − 1);
+* kyphosis T4–T12, T5–T12, lordosis L1–L5 and the major Cobb angle computed the same way on truth
+  and result: ``measures.compute_measures`` on the positions with the frames
+  ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
+  centroids); the Cobb angle between the result's major curve's end vertebrae. Absolute errors.
+  The JSON also has the errors of the result's reported measures (its directors, which the rod's
+  shear lets leave the centreline's tangent) against the same truth (``reported_mae_deg``);
+* coverage of the 95 % intervals (±1.96 SD): per coordinate of every position relative to the
+  centroid (``position_sd_mm``), of each measure with an SD (kyphosis, lordosis, every Cobb curve;
+  the value computed the same way as above, whose SD ``fit.uncertainty`` propagates; the JSON's
+  ``coverage_reported`` uses the reported values) and of every vertebra's axial rotation (the
+  directors' against the truth's); the fraction of truths inside. A result without SDs has no
+  coverage (reported as null / "-").
+
+``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
+pooled 95 % intervals of positions cover 95 % on dev (``fit.uncertainty``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import SpineEngineError
+from ..frames import axial_rotation_deg, frames_from_centreline
+from ..levels import LEVELS, N_LEVELS
+from ..measures import compute_measures, frontal_tilt_deg
+from ..models import JobPayload, LateralView, PAView
+from ..projection import image_axes
+from ..reconstruction import register
+from ..synthetic import generate_spines
+from .report import format_table, save_figure, shared_data_dir, subplots, write_json
+from .truth import read_verse
+
+FloatArray = npt.NDArray[np.float64]
+
+SID_MM = 1800.0
+"""Source–detector distance of the simulated films, mm: the usual full-spine distance of about
+1.8 m (72 inches) (brief of issue #10: "SID ≈ 1800 mm")."""
+PA_SOD_MM = 1600.0
+"""Source to the spine's mid-plane on the PA film, mm (brief: "SOD ≈ 1600 mm"); PA magnification
+at that plane SID/SOD = 1.125."""
+LATERAL_EXTRA_MAGNIFICATION = (1.05, 1.10)
+"""The lateral film's magnification over the PA's, drawn uniformly (issue #10: "5–10 % more")."""
+LATERAL_TURN_DEG = (0.5, 2.0)
+"""Size of the lateral film's in-plane rotation, drawn uniformly with a random sign ("slightly
+rotated"; a modelling choice)."""
+CENTRAL_RAY_SPREAD_MM = 20.0
+"""SD of the central ray's in-plane distance from the spine's centroid, per axis, mm ("near the
+spine's middle"; a modelling choice)."""
+FILM_OFFSET_MM = ((150.0, 250.0), (350.0, 550.0))
+"""Range of the image (column, row) of the central ray, detector mm: where the spine's middle
+lands on a 35 × 90 cm film (drawn uniformly; any offset is equivalent for the engine)."""
+Z95 = 1.959963984540054
+"""Two-sided 95 % quantile of the standard normal distribution."""
+
+PA_BEAM = np.array([0.0, -1.0, 0.0])
+"""PA film: the beam runs posterior → anterior (LPS −y)."""
+LATERAL_BEAM = np.array([1.0, 0.0, 0.0])
+"""Lateral film: the beam runs from the patient's right to left (LPS +x)."""
+PA_ORIENTATION = ("L", "F")
+LATERAL_ORIENTATION = ("A", "F")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One clinical setting of the benchmark."""
+
+    key: str
+    title: str
+    lateral_from: int | None = 0
+    """First level index on the lateral film (None: no lateral)."""
+    perspective: bool = False
+    """Films made by a point source (pinhole) rather than weak perspective."""
+    acquisition: bool = False
+    """The views' ``acquisition`` (SID, SOD, central ray) is in the payload."""
+    boundary: bool = False
+    """T1 and L5 poses are given from the truth (the paper's setting)."""
+    calibrated: bool = False
+    """Each view's weak perspective ``projection`` is given and the lateral film is not turned."""
+
+
+CASES: dict[str, Case] = {
+    c.key: c
+    for c in (
+        Case("a", "PA + full lateral, uncalibrated"),
+        Case("b", "PA + lateral T4-L5, uncalibrated", lateral_from=3),
+        Case("c", "perspective PA + lateral, geometry given", perspective=True, acquisition=True),
+        Case("d", "perspective PA + lateral, geometry unknown", perspective=True),
+        Case("e", "PA only, uncalibrated", lateral_from=None),
+        Case("f", "paper: T1/L5 given, calibrated PA + lateral", boundary=True, calibrated=True),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A known spine: positions (17, 3) mm LPS and rotations (17, 3, 3), directors as columns."""
+
+    spine_id: str
+    positions: FloatArray
+    rotations: FloatArray
+
+
+@dataclass(frozen=True)
+class Film:
+    """The geometry of one simulated radiograph (all lengths mm)."""
+
+    orientation: tuple[str, str]
+    beam: FloatArray
+    """Unit vector of the beam, source → detector, LPS."""
+    sod_mm: float
+    """Source to the plane through the spine's centroid normal to the beam."""
+    principal_point: FloatArray
+    """(3,) where the central ray crosses that plane, patient mm."""
+    central_ray: FloatArray
+    """(2,) image (column, row) of the central ray, detector mm."""
+    turn_deg: float
+    """In-plane rotation of the film, degrees."""
+    sid_mm: float = SID_MM
+
+    @property
+    def magnification(self) -> float:
+        """Magnification at the mid-plane, SID/SOD."""
+        return self.sid_mm / self.sod_mm
+
+    def image(self, points: FloatArray, perspective: bool) -> FloatArray:
+        """Image (column, row) in detector mm of points (k, 3).
+
+        With q = (e_c·(r − c), e_r·(r − c)) the in-plane coordinates from the principal point c:
+        p = Rot(γ) m q + p_c with m = SID / (SOD + b·(r − c)) (pinhole; b the beam) or the
+        constant SID/SOD (weak perspective), γ the film's turn and p_c the central ray's image.
+        """
+        e_c, e_r = image_axes(self.orientation)
+        rel = np.asarray(points, dtype=float) - self.principal_point
+        q = np.stack((rel @ e_c, rel @ e_r), axis=-1)
+        m = self.sid_mm / (self.sod_mm + rel @ self.beam) if perspective else np.full(len(rel), self.magnification)
+        g = np.radians(self.turn_deg)
+        rot = np.array([[np.cos(g), -np.sin(g)], [np.sin(g), np.cos(g)]])
+        return np.asarray((m[:, None] * q) @ rot.T + self.central_ray)
+
+    def weak_projection(self) -> tuple[float, tuple[float, float]]:
+        """(scale s, translation T) of this film as the engine's weak perspective p = s E r + T
+        (valid when the film is not turned): T = p_c − s E c."""
+        e_c, e_r = image_axes(self.orientation)
+        s = self.magnification
+        t = self.central_ray - s * np.array([self.principal_point @ e_c, self.principal_point @ e_r])
+        return s, (float(t[0]), float(t[1]))
+
+
+@dataclass(frozen=True)
+class Series:
+    """A simulated scoliosis series of one spine: both films and the landmark noise."""
+
+    truth: Truth
+    pa: Film
+    lateral: Film
+    pa_noise: FloatArray
+    """(17, 2) landmark noise of the PA film, detector mm."""
+    lateral_noise: FloatArray
+    """(17, 2) landmark noise of the lateral film, detector mm."""
+    noise_mm: float
+
+
+def _seed_of(spine_id: str) -> int:
+    return sum((i + 1) * ord(ch) for i, ch in enumerate(spine_id))
+
+
+def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
+    """Draw the series geometry and noise of one spine (module docstring), deterministic for
+    (seed, spine id)."""
+    rng = np.random.default_rng([seed, _seed_of(truth.spine_id)])
+    centre = truth.positions.mean(axis=0)
+    films = []
+    for orientation, beam, sod in (
+        (PA_ORIENTATION, PA_BEAM, PA_SOD_MM),
+        (LATERAL_ORIENTATION, LATERAL_BEAM, None),
+    ):
+        e_c, e_r = image_axes(orientation)
+        if sod is None:
+            ratio = rng.uniform(*LATERAL_EXTRA_MAGNIFICATION)
+            sod = SID_MM / (SID_MM / PA_SOD_MM * ratio)
+            turn = rng.uniform(*LATERAL_TURN_DEG) * rng.choice([-1.0, 1.0])
+        else:
+            turn = 0.0
+        offset = rng.normal(0.0, CENTRAL_RAY_SPREAD_MM, 2)
+        ray = np.array([rng.uniform(*FILM_OFFSET_MM[0]), rng.uniform(*FILM_OFFSET_MM[1])])
+        films.append(Film(orientation, beam, float(sod), centre + offset[0] * e_c + offset[1] * e_r, ray, float(turn)))
+    pa_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
+    lateral_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
+    return Series(truth, films[0], films[1], pa_noise, lateral_noise, noise_mm)
+
+
+def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -> bool:
+    """Whether this engine's payload model has ``field_name`` on a view (the contract of issue #10
+    lands in steps; the bench sends only what the engine knows)."""
+    return field_name in view.model_fields
+
+
+def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[int], case: Case) -> dict[str, Any]:
+    untilted = Film(film.orientation, film.beam, film.sod_mm, film.principal_point, film.central_ray, 0.0)
+    used = untilted if case.calibrated else film
+    points = used.image(series.truth.positions[levels], case.perspective) + noise[levels]
+    view: dict[str, Any] = {
+        "units": "mm",
+        "patient_orientation": list(film.orientation),
+        "landmarks": [
+            {"level": LEVELS[i], "point": [float(p[0]), float(p[1])]} for i, p in zip(levels, points, strict=True)
+        ],
+    }
+    if supports("landmark_sd_mm") and series.noise_mm > 0:
+        view["landmark_sd_mm"] = series.noise_mm
+    if case.calibrated:
+        s, t = used.weak_projection()
+        view["projection"] = {"scale": s, "translation": list(t)}
+    if case.acquisition:
+        view["acquisition"] = {
+            "distance_source_to_detector_mm": film.sid_mm,
+            "distance_source_to_patient_mm": film.sod_mm,
+            "central_ray": [float(film.central_ray[0]), float(film.central_ray[1])],
+        }
+    return view
+
+
+def build_payload(series: Series, case: Case) -> JobPayload:
+    """The ``JobPayload`` a clinic would send for this series in this case (validated by the
+    public model: a field this engine does not know yet fails here, and the case is reported as
+    refused)."""
+    payload: dict[str, Any] = {
+        "pa": _view_payload(series, series.pa, series.pa_noise, list(range(N_LEVELS)), case),
+    }
+    if case.lateral_from is not None:
+        levels = list(range(case.lateral_from, N_LEVELS))
+        payload["lateral"] = _view_payload(series, series.lateral, series.lateral_noise, levels, case)
+    if case.boundary:
+        t = series.truth
+        payload["boundary"] = {
+            lv: {"position": t.positions[i].tolist(), "directors": t.rotations[i].T.tolist()}
+            for lv, i in (("T1", 0), ("L5", N_LEVELS - 1))
+        }
+    return JobPayload.model_validate(payload)
+
+
+# ---------------------------------------------------------------- one reconstruction
+
+
+@dataclass
+class Outcome:
+    """The comparison of one reconstruction with its truth (``None`` fields: not reported)."""
+
+    spine_id: str
+    case: str
+    ok: bool
+    error: str = ""
+    per_level_mm: FloatArray = field(default_factory=lambda: np.full(N_LEVELS, np.nan))
+    scale_error_pct: float = float("nan")
+    errors_deg: dict[str, float] = field(default_factory=dict)
+    """Signed error of each measure computed the same way on result and truth (the centreline
+    frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
+    reported_errors_deg: dict[str, float] = field(default_factory=dict)
+    """Signed error of the result's reported measure (its directors) against the same truth."""
+    runtime_ms: float = float("nan")
+    uncertainty_scale: float | None = None
+    position_z: FloatArray | None = None
+    """(17, 3) |error| / SD of each centroid-relative coordinate, or None without SDs."""
+    position_sd: FloatArray | None = None
+    """(17, 3) the reported SDs, mm."""
+    measure_z: dict[str, list[float]] = field(default_factory=dict)
+    """Per measure name, |error| / SD of each item with an SD (errors as ``errors_deg``; axial
+    rotation: the directors' ψ against the truth's)."""
+    reported_z: dict[str, list[float]] = field(default_factory=dict)
+    """The same with the reported measures' errors (``reported_errors_deg``)."""
+
+
+def _z(error: float, sd: float | None) -> float | None:
+    if sd is None or not np.isfinite(sd):
+        return None
+    if sd <= 0.0:
+        return 0.0 if error == 0.0 else float("inf")
+    return abs(error) / sd
+
+
+def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) -> Outcome:
+    """Metrics of one ``register`` result against its truth (module docstring)."""
+    vertebrae = result["vertebrae"]
+    r = np.array([v["position"] for v in vertebrae], dtype=float)
+    R = np.array([np.asarray(v["directors"], dtype=float).T for v in vertebrae])
+    t = truth.positions
+    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
+    diff = dr - dt_
+    out = Outcome(spine_id=truth.spine_id, case=case, ok=True, runtime_ms=runtime_ms)
+    out.per_level_mm = np.linalg.norm(diff, axis=1)
+    rms_ratio = np.sqrt(np.mean(np.sum(dr**2, axis=1)) / np.mean(np.sum(dt_**2, axis=1)))
+    out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
+    # "computed the same way": the measures of the centreline frames of the positions, on both
+    truth_m = compute_measures(t, frames_from_centreline(t))
+    same_m = compute_measures(r, frames_from_centreline(r))
+    m = result["measures"]
+    pairs = {
+        "kyphosis_t4_t12": ("thoracic_kyphosis_t4_t12_deg", "thoracic_kyphosis_t4_t12_sd_deg"),
+        "kyphosis_t5_t12": ("thoracic_kyphosis_t5_t12_deg", "thoracic_kyphosis_t5_t12_sd_deg"),
+        "lordosis_l1_l5": ("lumbar_lordosis_l1_l5_deg", "lumbar_lordosis_l1_l5_sd_deg"),
+    }
+    for name, (key, sd_key) in pairs.items():
+        error = float(getattr(same_m, key)) - float(getattr(truth_m, key))
+        out.errors_deg[name] = error
+        out.reported_errors_deg[name] = float(m[key]) - float(getattr(truth_m, key))
+        for z_store, e in ((out.measure_z, error), (out.reported_z, out.reported_errors_deg[name])):
+            z = _z(e, m.get(sd_key))
+            if z is not None:
+                z_store.setdefault(name, []).append(z)
+    tilt_truth = frontal_tilt_deg(frames_from_centreline(t))
+    tilt_same = frontal_tilt_deg(frames_from_centreline(r))
+    index = {lv: i for i, lv in enumerate(LEVELS)}
+    for curve in m["cobb"]:
+        iu, il = index[curve["upper"]], index[curve["lower"]]
+        truth_angle = abs(float(tilt_truth[iu] - tilt_truth[il]))
+        error = abs(float(tilt_same[iu] - tilt_same[il])) - truth_angle
+        reported = float(curve["angle_deg"]) - truth_angle
+        if curve["major"]:
+            out.errors_deg["major_cobb"] = error
+            out.reported_errors_deg["major_cobb"] = reported
+        for z_store, e in ((out.measure_z, error), (out.reported_z, reported)):
+            z = _z(e, curve.get("angle_sd_deg"))
+            if z is not None:
+                z_store.setdefault("cobb", []).append(z)
+    psi_truth = axial_rotation_deg(truth.rotations)
+    psi = axial_rotation_deg(R)
+    for i, v in enumerate(vertebrae):
+        d = float((psi[i] - psi_truth[i] + 180.0) % 360.0 - 180.0)
+        z = _z(d, v.get("axial_rotation_sd_deg"))
+        if z is not None:
+            out.measure_z.setdefault("axial_rotation", []).append(z)
+    sds = [v.get("position_sd_mm") for v in vertebrae]
+    if all(s is not None for s in sds):
+        sd = np.asarray(sds, dtype=float)
+        out.position_sd = sd
+        safe = np.where(sd > 0, sd, 1.0)
+        out.position_z = np.where(sd > 0, np.abs(diff) / safe, np.where(diff == 0, 0.0, np.inf))
+    out.uncertainty_scale = result.get("fit", {}).get("uncertainty_scale")
+    return out
+
+
+Registrar = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+def run_one(series: Series, case: Case, profile: str = "default", registrar: Registrar = register) -> Outcome:
+    """Film, reconstruct (``registrar``, default ``spine_engine.register``) and compare one spine."""
+    try:
+        model = build_payload(series, case)
+    except ValueError as exc:  # pydantic's ValidationError: a field this engine does not know
+        first = str(exc).splitlines()
+        return Outcome(series.truth.spine_id, case.key, ok=False, error="payload: " + " ".join(first[:3])[:300])
+    payload = model.model_dump(mode="json", exclude_none=True)
+    payload.setdefault("options", {})["profile"] = profile
+    start = time.perf_counter()
+    try:
+        result = registrar(payload)
+    except SpineEngineError as exc:
+        return Outcome(series.truth.spine_id, case.key, ok=False, error=f"{type(exc).__name__}: {exc}"[:300])
+    return compare(result, series.truth, case.key, (time.perf_counter() - start) * 1e3)
+
+
+# ---------------------------------------------------------------- data sets and summaries
+
+
+def verse_truths(split: str, data: Path | None = None) -> list[Truth]:
+    """The VerSe spines of ``split`` with directors from the centreline."""
+    path = (data or shared_data_dir("verse")) / f"{split}.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"VerSe split not found at {path} (pass --data or set SPINE_SHARED_DATA)")
+    return [Truth(sid, pos, frames_from_centreline(pos)) for sid, pos in read_verse(path)]
+
+
+def synthetic_truths(n: int, seed: int) -> list[Truth]:
+    """``n`` synthetic spines of ``spine_engine.synthetic`` (geometric, with axial rotation)."""
+    return [
+        Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
+        for s in generate_spines(n, seed=seed)
+    ]
+
+
+def coverage(z: Sequence[float] | FloatArray, scale: float = 1.0) -> float | None:
+    """Fraction of items with |error| ≤ 1.96·scale·SD, from their z = |error|/SD."""
+    a = np.asarray(z, dtype=float).ravel()
+    return None if a.size == 0 else float(np.mean(a <= Z95 * scale))
+
+
+MEASURES = ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "cobb", "axial_rotation")
+
+
+def _mean(values: list[float]) -> float | None:
+    a = np.asarray(values, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else None
+
+
+def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, Any]:
+    """One row of the table: means over the spines reconstructed, and coverages (with their
+    item counts)."""
+    ok = [o for o in outcomes if o.ok]
+    per_level = np.array([o.per_level_mm for o in ok]) if ok else np.empty((0, N_LEVELS))
+    pos_z = [o.position_z for o in ok if o.position_z is not None]
+    row: dict[str, Any] = {
+        "dataset": dataset,
+        "case": case.key,
+        "title": case.title,
+        "spines": len(outcomes),
+        "reconstructed": len(ok),
+        "errors": sorted({o.error for o in outcomes if not o.ok})[:3],
+        "mean_3d_error_mm": float(per_level.mean()) if ok else None,
+        "max_3d_error_mm": float(per_level.max()) if ok else None,
+        "scale_error_abs_pct": _mean([abs(o.scale_error_pct) for o in ok]),
+        "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
+        "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
+        "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),
+        "major_cobb_mae_deg": _mean([abs(o.errors_deg.get("major_cobb", np.nan)) for o in ok]),
+        "reported_mae_deg": {
+            name: _mean([abs(o.reported_errors_deg.get(name, np.nan)) for o in ok])
+            for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb")
+        },
+        "median_runtime_ms": float(np.median([o.runtime_ms for o in ok])) if ok else None,
+        "per_level_mean_mm": dict(zip(LEVELS, per_level.mean(axis=0).round(3).tolist(), strict=True)) if ok else None,
+        "coverage_positions": coverage(np.concatenate([z.ravel() for z in pos_z])) if pos_z else None,
+        "coverage_positions_n": int(sum(z.size for z in pos_z)),
+    }
+    if pos_z:
+        stacked = np.stack(pos_z)
+        row["coverage_positions_xyz"] = [coverage(stacked[:, :, k]) for k in range(3)]
+        sds = np.stack([o.position_sd for o in ok if o.position_sd is not None])
+        row["median_position_sd_mm_xyz"] = np.median(sds, axis=(0, 1)).round(3).tolist()
+    for name in MEASURES:
+        z = [v for o in ok for v in o.measure_z.get(name, [])]
+        row[f"coverage_{name}"] = coverage(z)
+        row[f"coverage_{name}_n"] = len(z)
+    row["coverage_reported"] = {
+        name: coverage([v for o in ok for v in o.reported_z.get(name, [])]) for name in MEASURES[:4]
+    }
+    scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
+    row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
+    return row
+
+
+def run(
+    datasets: dict[str, list[Truth]],
+    cases: Sequence[Case],
+    noise_mm: float,
+    seed: int,
+    profile: str = "default",
+    registrar: Registrar = register,
+) -> tuple[list[dict[str, Any]], dict[tuple[str, str], list[Outcome]]]:
+    """Every case on every spine of every data set: summary rows and the outcomes behind them."""
+    rows, outcomes = [], {}
+    for name, truths in datasets.items():
+        series = [simulate_series(t, noise_mm, seed) for t in truths]
+        for case in cases:
+            found = [run_one(s, case, profile, registrar) for s in series]
+            outcomes[(name, case.key)] = found
+            rows.append(summarise(name, case, found))
+    return rows, outcomes
+
+
+# ---------------------------------------------------------------- output
+
+
+TABLE_COLUMNS = [
+    ("dataset", "data"),
+    ("case", "case"),
+    ("reconstructed", "ok"),
+    ("mean_3d_error_mm", "3D mm"),
+    ("scale_error_abs_pct", "|scale| %"),
+    ("kyphosis_t4_t12_mae_deg", "kyph°"),
+    ("lordosis_l1_l5_mae_deg", "lord°"),
+    ("major_cobb_mae_deg", "Cobb°"),
+    ("coverage_positions", "cov pos"),
+    ("coverage_kyphosis_t4_t12", "cov kyph"),
+    ("coverage_lordosis_l1_l5", "cov lord"),
+    ("coverage_cobb", "cov Cobb"),
+    ("coverage_axial_rotation", "cov rot"),
+]
+
+
+def _cell(value: Any) -> Any:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return round(value, 3)
+    return value
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The summary as an aligned plain-text table (``-``: not available), then the cases' titles
+    and the errors of refused cases."""
+    body = format_table([h for _, h in TABLE_COLUMNS], [[_cell(r[k]) for k, _ in TABLE_COLUMNS] for r in rows])
+    notes = [f"  ({c.key}) {c.title}" for c in CASES.values() if any(r["case"] == c.key for r in rows)]
+    refused = [f"  {r['dataset']} ({r['case']}): {e}" for r in rows for e in r["errors"]]
+    return "\n".join([body, "cases:", *notes, *(["refused or failed:", *refused] if refused else [])])
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """The summary as a markdown table for docs/accuracy.md."""
+    head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "kyphosis MAE (°)", "lordosis MAE (°)",
+            "major Cobb MAE (°)", "coverage positions", "kyphosis", "lordosis", "Cobb", "axial rotation"]
+    lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |"]
+    for r in rows:
+        cells = [r["dataset"], f"({r['case']}) {r['title']}", f"{r['reconstructed']}/{r['spines']}"]
+        for key in [k for k, _ in TABLE_COLUMNS[3:]]:
+            v = r[key]
+            if v is None:
+                cells.append("–")
+            elif key.startswith("coverage"):
+                cells.append(f"{100 * v:.1f} %")
+            else:
+                cells.append(f"{v:.2f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """Mean 3D error per case and data set (left) and coverage of the 95 % position intervals
+    with the 90–98 % target band (right)."""
+    fig, (ax1, ax2) = subplots(1, 2, figsize=(11, 4))
+    datasets = list(dict.fromkeys(r["dataset"] for r in rows))
+    keys = list(dict.fromkeys(r["case"] for r in rows))
+    width = 0.8 / max(len(datasets), 1)
+    for k, name in enumerate(datasets):
+        by_case = {r["case"]: r for r in rows if r["dataset"] == name}
+        x = np.arange(len(keys)) + (k - (len(datasets) - 1) / 2) * width
+        err = [by_case[c]["mean_3d_error_mm"] if by_case.get(c) and by_case[c]["mean_3d_error_mm"] is not None
+               else np.nan for c in keys]
+        cov = [100 * by_case[c]["coverage_positions"] if by_case.get(c) and by_case[c]["coverage_positions"] is not None
+               else np.nan for c in keys]
+        ax1.bar(x, err, width, label=name)
+        ax2.bar(x, cov, width, label=name)
+    for ax in (ax1, ax2):
+        ax.set_xticks(np.arange(len(keys)), [f"({c})" for c in keys])
+        ax.set_xlabel("case")
+    ax1.set_yscale("log")
+    ax1.set(ylabel="mean 3D error after removing translation (mm)", title="3D error, 1 mm landmark noise")
+    ax2.axhspan(90, 98, color="0.85", zorder=0, label="target 90–98 %")
+    ax2.axhline(95, color="0.4", lw=0.8)
+    ax2.set(ylabel="coverage of ±1.96 SD, positions (%)", ylim=(60, 100), title="calibrated 95 % intervals")
+    ax1.legend(fontsize=8)
+    ax2.legend(fontsize=8, loc="lower right")
+    save_figure(fig, path)
+
+
+# ---------------------------------------------------------------- uncertainty calibration
+
+
+def calibrated_scale(z_by_case: dict[str, FloatArray], target: float = 0.95) -> float:
+    """The scale c for which ±1.96·c·SD covers ``target`` of the pooled coordinates, each case
+    weighing the same: c = Q(z)/1.96 with Q the weighted ``target`` quantile of z."""
+    parts = [np.asarray(z, dtype=float) for z in z_by_case.values() if len(z)]
+    if not parts:
+        raise ValueError("no coordinates with an SD to calibrate on")
+    z = np.concatenate(parts)
+    w = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in parts])
+    order = np.argsort(z)
+    cum = np.cumsum(w[order]) / w.sum()
+    return float(z[order][np.searchsorted(cum, target)] / Z95)
+
+
+def _calibrate(
+    command: str, split: str, truths: list[Truth], cases: list[Case], noise_mm: float, seed: int, profile: str
+) -> dict[str, Any]:
+    """Calibrate and write the uncertainty constants (``uncertainty_calibration``); what to report."""
+    from ..fit.uncertainty import write_calibration
+    from . import uncertainty_calibration as uc
+
+    samples = uc.collect(truths, cases, noise_mm, seed, profile)
+    constants, diagnostics = uc.calibrate(samples)
+    record = constants._replace(
+        provenance=uc.provenance(command, split, len(truths), cases, noise_mm, seed, diagnostics)
+    )
+    path = write_calibration(record)
+    return {"uncertainty_scale": constants.uncertainty_scale, "prior_weight": constants.prior_weight,
+            "calibration_file": str(path), "calibration": diagnostics}
+
+
+# ---------------------------------------------------------------- command
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench clinic", description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="VerSe folder with dev.csv and test.csv")
+    parser.add_argument("--split", choices=["dev", "test"], default="test", help="VerSe split (default test)")
+    parser.add_argument("--synthetic", type=int, default=20, help="number of synthetic spines (0: none)")
+    parser.add_argument("--limit", type=int, default=None, help="use only the first N VerSe spines")
+    parser.add_argument("--cases", default="".join(CASES), help="case letters to run, e.g. ace (default all)")
+    parser.add_argument("--noise-mm", type=float, default=1.0, help="landmark noise SD, detector mm (default 1)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--profile", default="default")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
+    parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
+    parser.add_argument("--markdown", action="store_true", help="also print the markdown table")
+    parser.add_argument(
+        "--calibrate-uncertainty", action="store_true",
+        help="(dev) compute the uncertainty scale that makes 95 %% intervals cover 95 %% and write it",
+    )
+    args = parser.parse_args(argv)
+    unknown = [c for c in args.cases if c not in CASES]
+    if unknown:
+        print(f"error: unknown case(s) {unknown}; known: {list(CASES)}", file=sys.stderr)
+        return 2
+    cases = [CASES[c] for c in args.cases]
+    try:
+        verse = verse_truths(args.split, args.data)
+    except FileNotFoundError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.limit is not None:
+        verse = verse[: args.limit]
+    command = "spine bench clinic " + " ".join(argv if argv is not None else sys.argv[1:])
+    calibrated: dict[str, Any] = {}
+    start = time.perf_counter()
+    if args.calibrate_uncertainty:
+        if args.split != "dev":
+            print("error: calibrate on the dev split only (--split dev); test is reported, never tuned on",
+                  file=sys.stderr)
+            return 2
+        calibrated = _calibrate(command, args.split, verse, cases, args.noise_mm, args.seed, args.profile)
+    datasets = {f"verse-{args.split}": verse}
+    if args.synthetic > 0 and not args.calibrate_uncertainty:
+        datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)
+    rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)
+    elapsed = time.perf_counter() - start
+    report: dict[str, Any] = {
+        "command": command,
+        "date": dt.date.today().isoformat(),
+        "noise_mm": args.noise_mm,
+        "seed": args.seed,
+        "profile": args.profile,
+        "seconds": round(elapsed, 1),
+        **calibrated,
+        "rows": rows,
+    }
+    stem = f"clinic-{args.split}"
+    write_json(args.out / f"{stem}.json", report)
+    plot(rows, args.out / f"{stem}.png")
+    if args.plot:
+        plot(rows, args.plot)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(table(rows))
+        if args.markdown:
+            print()
+            print(markdown_table(rows))
+        if calibrated:
+            print(f"uncertainty_scale {calibrated['uncertainty_scale']:.4f}, prior_weight "
+                  f"{calibrated['prior_weight']:.4g} (written to {calibrated['calibration_file']})")
+        print(f"wrote {args.out}/{stem}.json and .png ({elapsed:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

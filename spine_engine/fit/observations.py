@@ -1,0 +1,201 @@
+"""Offset-point and tilt rows (``ViewData``): observations that touch one vertebra's pose.
+
+* an offset point (pedicle centre, inferior endplate midpoint) o fixed in vertebra j (body frame,
+  mm), one row: the image column of √w (P(r_j + R_j o) − c)/s₀ with P the view's camera:
+      ∂ρ/∂δr_j = g,  ∂ρ/∂δθ_j = o × (R_jᵀ g),  g = √w/s₀ ∂P_col/∂r,
+      ∇²_θθ ρ = ½(ω oᵀ + o ωᵀ) − (ω·o) I with ω = R_jᵀ g (exact for a weak perspective, whose g is
+      constant; the perspective's curvature in r is left out: a Gauss–Newton term);
+* a tilt, one row ρ = √w_m α (rad · √(N·mm)), α = atan2(ĉ × a, ĉ·a) the signed angle from the
+  observed unit direction ĉ to the projected director a = E R_j e (E = [e_c; e_r]):
+      ∂a/∂δθ_j = A with rows e × (R_jᵀ E_k), k = column, row;  ∂α/∂a = a⊥/|a|², a⊥ = (−a_row, a_col);
+      ∂ρ/∂δθ_j = √w_m Aᵀ a⊥/|a|²;
+      ∇²_θθ ρ = √w_m (Aᵀ H_a A + ½(ω eᵀ + e ωᵀ) − (ω·e) I), ω = R_jᵀ Eᵀ a⊥/|a|², and H_a the
+      Hessian of atan2(a_row, a_col): [[2xy, y² − x²], [y² − x², −2xy]]/|a|⁴, (x, y) = a.
+  The observed direction is taken in the film's frame (its in-plane rotation ψ, a degree or two, is
+  not applied to tilts).
+(With a right perturbation R exp(hat δθ), ∂(R exp(hat δθ) b)/∂δθ = −R hat(b) and the second
+derivative of cᵀR exp(hat δθ) b is ½(ω bᵀ + b ωᵀ) − (ω·b) I with ω = Rᵀc.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .cameras import project
+from .types import FloatArray, ViewData
+
+if TYPE_CHECKING:
+    from .problem import PointRows, RegistrationProblem, State
+
+
+def _shape(a: np.ndarray | None) -> tuple[int, ...]:
+    return () if a is None else tuple(np.shape(a))
+
+
+def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
+    """½(ω bᵀ + b ωᵀ) − (ω·b) I per row: the second derivative of cᵀR exp(hat δθ) b (ω = Rᵀc)."""
+    outer = omega[:, :, None] * b[:, None, :]
+    return 0.5 * (outer + np.swapaxes(outer, 1, 2)) - np.einsum("ij,ij->i", omega, b)[:, None, None] * np.eye(3)
+
+
+class Observations:
+    """The offset-point and tilt observations of every view, stacked (module docstring)."""
+
+    @staticmethod
+    def check_view(view: ViewData, n: int) -> None:
+        """Raise ValueError when the view's optional observations have inconsistent shapes."""
+        if view.n_offsets:
+            q = view.n_offsets
+            pi = np.asarray(view.offset_indices)
+            if pi.ndim != 1 or _shape(view.offset_vectors) != (q, 3) or _shape(view.offset_columns) != (q,):
+                raise ValueError(f"view {view.name!r}: offset indices (q,), vectors (q, 3) and columns (q,) expected")
+            if pi.min() < 0 or pi.max() >= n:
+                raise ValueError(f"view {view.name!r}: offset indices must lie in 0..{n - 1}")
+        if view.n_tilts:
+            m = view.n_tilts
+            ti = np.asarray(view.tilt_indices)
+            if ti.ndim != 1 or _shape(view.tilt_directions) != (m, 2) or _shape(view.tilt_weights) != (m,):
+                raise ValueError(f"view {view.name!r}: tilt indices (m,), directions (m, 2) and weights (m,) expected")
+            if ti.min() < 0 or ti.max() >= n:
+                raise ValueError(f"view {view.name!r}: tilt indices must lie in 0..{n - 1}")
+            if _shape(view.tilt_director) != (3,):
+                raise ValueError(f"view {view.name!r}: tilts need a tilt_director (3,)")
+            if np.any(np.linalg.norm(np.asarray(view.tilt_directions, dtype=float), axis=1) <= 0.0):
+                raise ValueError(f"view {view.name!r}: tilt directions must be non-zero")
+            if np.any(~(np.asarray(view.tilt_weights, dtype=float) >= 0.0)):
+                raise ValueError(f"view {view.name!r}: tilt weights must be non-negative")
+
+    def __init__(self, views: Sequence[ViewData]):
+        self.views = tuple(views)
+        self.offset_slices: dict[str, slice] = {}
+        self.tilt_slices: dict[str, slice] = {}
+        t_idx, t_e, t_E, t_c, t_sw = [], [], [], [], []
+        q0 = m0 = 0
+        for view in self.views:
+            if view.n_offsets:
+                self.offset_slices[view.name] = slice(q0, q0 + view.n_offsets)
+                q0 += view.n_offsets
+            if view.n_tilts:
+                m = view.n_tilts
+                E = np.stack((np.asarray(view.e_c, dtype=float), np.asarray(view.e_r, dtype=float)))
+                d = np.asarray(view.tilt_directions, dtype=float)
+                t_idx.append(np.asarray(view.tilt_indices, dtype=int))
+                t_e.append(np.broadcast_to(np.asarray(view.tilt_director, dtype=float), (m, 3)))
+                t_E.append(np.broadcast_to(E, (m, 2, 3)))
+                t_c.append(d / np.linalg.norm(d, axis=1)[:, None])
+                t_sw.append(np.sqrt(np.asarray(view.tilt_weights, dtype=float)))
+                self.tilt_slices[view.name] = slice(m0, m0 + m)
+                m0 += m
+        self.n_offsets = q0
+        self.n_tilts = m0
+        self._tilt_idx = np.concatenate(t_idx) if t_idx else np.zeros(0, dtype=int)
+        self._tilt_e = np.concatenate(t_e) if t_e else np.zeros((0, 3))
+        self._tilt_E = np.concatenate(t_E) if t_E else np.zeros((0, 2, 3))
+        self._tilt_c = np.concatenate(t_c) if t_c else np.zeros((0, 2))
+        self._tilt_sw = np.concatenate(t_sw) if t_sw else np.zeros(0)
+
+    # ------------------------------------------------------------------ offsets
+
+    def _offset_view(self, k: int, view: ViewData, state: State, problem: RegistrationProblem) -> tuple:
+        cam = problem.cameras[k]
+        j = np.asarray(view.offset_indices, dtype=int)
+        o = np.asarray(view.offset_vectors, dtype=float)
+        Rj = state.R[j]
+        X = state.r[j] + (Rj @ o[:, :, None])[:, :, 0]
+        pr = project(cam, state.cameras[k], X, view.e_c, view.e_r)
+        c = np.sqrt(float(view.weight)) / cam.reference_scale
+        diff = pr.points[:, 0] - np.asarray(view.offset_columns, dtype=float)
+        return cam, j, o, Rj, pr, c, diff
+
+    def offset_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
+        """Rows, Jacobians (and θθ second-order terms) of the offset points (module docstring)."""
+        from .problem import PointRows
+
+        if not self.n_offsets:
+            return None
+        P = problem.n_border
+        rho_l, idx_l, Jv_l, Jb_l, S_l = [], [], [], [], []
+        for k, view in enumerate(self.views):
+            if not view.n_offsets:
+                continue
+            cam, j, o, Rj, pr, c, diff = self._offset_view(k, view, state, problem)
+            g = c * pr.d_r[:, 0, :]
+            omega = np.einsum("nji,nj->ni", Rj, g)
+            rho = c * diff
+            Jv = np.concatenate((g, np.cross(o, omega)), axis=1)
+            Jb = np.zeros((len(j), P))
+            cols = problem._cam_cols[k]
+            if len(cols):
+                Jb[:, cols - problem.n_vertebra_params] = c * pr.d_params[:, 0, cam.free]
+            rho_l.append(rho)
+            idx_l.append(j)
+            Jv_l.append(Jv)
+            Jb_l.append(Jb)
+            if second_order:
+                S_l.append(rho[:, None, None] * rotational(omega, o))
+        return PointRows(
+            np.concatenate(rho_l),
+            np.concatenate(idx_l),
+            np.concatenate(Jv_l),
+            np.concatenate(Jb_l),
+            np.concatenate(S_l) if second_order else None,
+        )
+
+    # ------------------------------------------------------------------ tilts
+
+    def _tilt_projection(self, R: FloatArray) -> FloatArray:
+        """a = E R_j e (m, 2): the image direction of each observed vertebra's director."""
+        return (self._tilt_E @ (R[self._tilt_idx] @ self._tilt_e[:, :, None]))[:, :, 0]
+
+    def _tilt_angles(self, R: FloatArray) -> FloatArray:
+        a = self._tilt_projection(R)
+        c = self._tilt_c
+        return np.arctan2(c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0], np.einsum("ij,ij->i", c, a))
+
+    def tilt_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
+        """Rows, Jacobians (and θθ second-order terms) of the tilts (module docstring)."""
+        from .problem import PointRows
+
+        m = self.n_tilts
+        if not m:
+            return None
+        R = state.R
+        Rs = R[self._tilt_idx]
+        W = np.einsum("nji,nkj->nki", Rs, self._tilt_E)  # W[n, k] = R_jᵀ E_k
+        A = np.cross(self._tilt_e[:, None, :], W)
+        a = self._tilt_projection(R)
+        ga = np.stack((-a[:, 1], a[:, 0]), axis=1) / np.einsum("ij,ij->i", a, a)[:, None]
+        Jv = np.zeros((m, 6))
+        Jv[:, 3:] = self._tilt_sw[:, None] * np.einsum("nki,nk->ni", A, ga)
+        rho = self._tilt_sw * self._tilt_angles(R)
+        S = None
+        if second_order:
+            x, y = a[:, 0], a[:, 1]
+            r4 = np.einsum("ij,ij->i", a, a) ** 2
+            Ha = np.empty((m, 2, 2))
+            Ha[:, 0, 0] = 2.0 * x * y / r4
+            Ha[:, 1, 1] = -Ha[:, 0, 0]
+            Ha[:, 0, 1] = Ha[:, 1, 0] = (y * y - x * x) / r4
+            omega_t = np.einsum("nji,nkj,nk->ni", Rs, self._tilt_E, ga)
+            hess = np.swapaxes(A, 1, 2) @ Ha @ A + rotational(omega_t, self._tilt_e)
+            S = (rho * self._tilt_sw)[:, None, None] * hess
+        return PointRows(rho, self._tilt_idx, Jv, np.zeros((m, problem.n_border)), S)
+
+    # ------------------------------------------------------------------ report
+
+    def unweighted(
+        self, state: State, problem: RegistrationProblem
+    ) -> tuple[dict[str, FloatArray], dict[str, FloatArray]]:
+        """Per view, the offset points' signed column residuals (patient mm: detector mm / s₀) and the
+        tilts' signed angles (degrees); unweighted, so a zero weight does not hide them."""
+        offsets: dict[str, FloatArray] = {}
+        for k, view in enumerate(self.views):
+            if view.n_offsets:
+                cam, *_, diff = self._offset_view(k, view, state, problem)
+                offsets[view.name] = diff / cam.reference_scale
+        tilt = np.degrees(self._tilt_angles(state.R)) if self.n_tilts else np.zeros(0)
+        tilts = {name: tilt[sl].copy() for name, sl in self.tilt_slices.items()}
+        return offsets, tilts

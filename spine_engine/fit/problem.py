@@ -1,0 +1,499 @@
+"""The registration problem: the residual vector ρ of a configuration, its Jacobian and normal equations.
+
+E = ‖ρ‖² (N·mm), with rows in this order (``RegistrationProblem.row_kinds``):
+
+* rod: 6 per segment, E_I (``rod_rows``);
+* landmarks: 2 per landmark, √w (P(r_j) − p)/s₀ with P the view's camera (``cameras``), p the
+  landmark (detector mm) and s₀ the view's reference scale (so the rows are in patient mm ·√(N/mm));
+* offset points (pedicle centres, inferior endplate midpoints), one row each, the column of
+  √w (P(r_j + R_j o) − c)/s₀ (``observations``);
+* tilts, one row each, √w_m α (``observations``);
+* pose priors (soft boundary, the gauge): 6 rows each, √(κ/2) (r_j − r̄)/σ_r and
+  √(κ/2) vee(log(R̄ᵀR_j))/σ_θ;
+* camera priors: √(κ/2)(s − s̄)/σ_s on an estimated weak-perspective scale, √(κ/2) ψ/σ_ψ on an
+  estimated film rotation, √(κ/2) b·(r_mid − o)/σ_d on an estimated perspective centre's depth.
+
+Unknowns (``ParameterLayout``): vertebra j's δr_j (mm) and δθ_j (rad) — r_j + δr_j,
+R_j exp(hat δθ_j) — for the free vertebrae (all 17 without an exact boundary, else 1..N−2), then
+the estimated camera parameters (added). Every non-rod row touches at most one vertebra, so the
+vertebra block of JᵀJ stays banded (half-bandwidth 11) and the camera parameters form its border
+(``banded.solve_bordered``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..rotations import exp_so3, log_so3
+from .banded import KD, UPPER3, BorderedSystem, accumulate, band_layout, band_to_dense
+from .cameras import project
+from .observations import Observations
+from .rod_rows import RodCache, RodRows, jr_inverse
+from .types import Camera, FitOutput, FloatArray, ParameterLayout, Pose, PosePrior, RodParameters, ViewData, as_pose
+
+_A6, _B6 = np.triu_indices(6)
+_UPPER6 = _A6 * 6 + _B6
+
+
+class State(NamedTuple):
+    """A configuration: positions (N, 3), rotations (N, 3, 3) and each view's camera parameters."""
+
+    r: FloatArray
+    R: FloatArray
+    cameras: tuple[FloatArray, ...]
+
+
+class _PointBins(NamedTuple):
+    ok: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    g: np.ndarray
+    b: np.ndarray
+    g_all: np.ndarray
+    """The rod's gradient bins, then ``g``."""
+    h_gn: np.ndarray
+    """The rod's JᵀJ bins, then ``h``."""
+    h_both: np.ndarray
+    """The rod's JᵀJ and second-order bins, ``h``, then ``s`` in the second band."""
+
+
+class PointRows(NamedTuple):
+    """The non-rod rows of one configuration: each touches vertebra ``index`` (−1: none)."""
+
+    rho: FloatArray
+    """(k,) values."""
+    vertebra: np.ndarray
+    """(k,) vertebra of each row (−1 when it touches none)."""
+    Jv: FloatArray
+    """(k, 6) ∂ρ/∂[δr_j, δθ_j]."""
+    Jb: FloatArray
+    """(k, P) ∂ρ/∂(estimated camera parameters)."""
+    second: FloatArray | None
+    """(k, 3, 3) ρ ∇²_θθ ρ of each row (offsets and tilts; zero elsewhere), when asked for."""
+
+
+def _check_view(view: ViewData, n: int) -> None:
+    idx = np.asarray(view.indices)
+    pts = np.asarray(view.points)
+    if idx.ndim != 1 or pts.shape != (len(idx), 2):
+        raise ValueError(f"view {view.name!r}: indices (k,) and points (k, 2) expected, got {idx.shape}, {pts.shape}")
+    if len(idx) and (idx.min() < 0 or idx.max() >= n):
+        raise ValueError(f"view {view.name!r}: landmark indices must lie in 0..{n - 1}")
+    if not view.scale > 0.0:
+        raise ValueError(f"view {view.name!r}: scale must be positive, got {view.scale}")
+    if not view.weight >= 0.0:
+        raise ValueError(f"view {view.name!r}: weight must be non-negative, got {view.weight}")
+    Observations.check_view(view, n)
+
+
+class RegistrationProblem:
+    """Residual vector ρ, its analytic Jacobian and the normal equations, for fixed data (module docstring).
+
+    ``top`` and ``bottom`` given: T1 and L5 are held exactly (the paper). Both None: all N vertebrae are
+    free; ``pose_priors`` then hold soft poses and the gauge. ``energy_unit`` κ (N·mm) converts the
+    priors' −log densities into energy; default: 2 w σ²/s₀² of the first view with σ = 1 mm.
+    """
+
+    def __init__(
+        self,
+        params: RodParameters,
+        views: Sequence[ViewData],
+        top: Pose | tuple[ArrayLike, ArrayLike] | None,
+        bottom: Pose | tuple[ArrayLike, ArrayLike] | None,
+        pose_priors: Sequence[PosePrior] = (),
+        energy_unit: float | None = None,
+        depth_reference: int | None = None,
+    ):
+        self.rod = RodRows(params)
+        n = self.rod.n
+        for view in views:
+            _check_view(view, n)
+        names = [view.name for view in views]
+        if len(set(names)) != len(names):
+            raise ValueError(f"view names must be distinct, got {names}")
+        if (top is None) != (bottom is None):
+            raise ValueError("give both top and bottom (exact ends) or neither (all vertebrae free)")
+        self.n = n
+        self.views = tuple(views)
+        self.fixed_ends = top is not None
+        self.top = as_pose(top, "top") if top is not None else None
+        self.bottom = as_pose(bottom, "bottom") if bottom is not None else None
+        self.params = params
+        self.ds = self.rod.ds
+        self.j0, self.j1 = (1, n - 1) if self.fixed_ends else (0, n)
+        self.m = self.j1 - self.j0
+        self.n_vertebra_params = 6 * self.m
+        first = self.views[0] if self.views else None
+        self.energy_unit = (
+            float(energy_unit)
+            if energy_unit is not None
+            else (2.0 * first.weight / first.scale**2 if first is not None and first.weight > 0 else 1.0)
+        )
+        self.pose_priors = tuple(pose_priors)
+        self.depth_reference = (n - 1) // 2 if depth_reference is None else depth_reference
+
+        # Cameras and the border's columns.
+        self.cameras: tuple[Camera, ...] = tuple(view.get_camera() for view in self.views)
+        col = self.n_vertebra_params
+        self._cam_cols: list[np.ndarray] = []
+        view_cols: dict[str, dict[str, int]] = {}
+        for view, cam in zip(self.views, self.cameras, strict=True):
+            free = np.flatnonzero(cam.free)
+            cols = np.arange(col, col + len(free))
+            self._cam_cols.append(cols)
+            view_cols[view.name] = {cam.names[k]: int(c) for k, c in zip(free, cols, strict=True)}
+            col += len(free)
+        self.n_border = col - self.n_vertebra_params
+        self.n_params = col
+        position = np.full((n, 3), -1, dtype=np.intp)
+        rotation = np.full((n, 3), -1, dtype=np.intp)
+        first_cols = 6 * np.arange(self.m)[:, None]
+        position[self.j0 : self.j1] = first_cols + np.arange(3)
+        rotation[self.j0 : self.j1] = first_cols + 3 + np.arange(3)
+        self.layout = ParameterLayout(position, rotation, self.n_vertebra_params, view_cols, self.n_params)
+
+        # Rows.
+        self.obs = Observations(self.views)
+        kinds: list[str] = ["rod"] * (6 * (n - 1))
+        self._lm_slices: dict[str, slice] = {}
+        start = 0
+        for view in self.views:
+            k = len(view.indices)
+            kinds += [f"landmark:{view.name}"] * (2 * k)
+            self._lm_slices[view.name] = slice(start, start + k)
+            start += k
+        self.n_landmarks = start
+        self._lm_constants = [
+            (
+                np.asarray(view.indices, dtype=int),
+                np.asarray(view.points, dtype=float),
+                np.sqrt(float(view.weight)) / cam.reference_scale,
+            )
+            for view, cam in zip(self.views, self.cameras, strict=True)
+        ]
+        self._lm_rows_index = [np.repeat(idx, 2) for idx, _, _ in self._lm_constants]
+        kinds += [f"offset:{name}" for name, sl in self.obs.offset_slices.items() for _ in range(sl.stop - sl.start)]
+        kinds += [f"tilt:{name}" for name, sl in self.obs.tilt_slices.items() for _ in range(sl.stop - sl.start)]
+        kinds += ["pose"] * (6 * len(self.pose_priors))
+        self._camera_prior_rows = self._camera_priors()
+        kinds += ["camera"] * len(self._camera_prior_rows)
+        self.row_kinds = tuple(kinds)
+        self.n_residuals = len(kinds)
+        self.n_fit = 2 * self.n_landmarks
+        """Number of landmark rows (2 per landmark)."""
+        self.n_offsets = self.obs.n_offsets
+        self.n_tilts = self.obs.n_tilts
+        self.n_data_rows = self.n_fit + self.n_offsets + self.n_tilts
+        self._band_layout = band_layout(n)
+        self._n_ext = 6 * n
+        self._band_size = (KD + 1) * self._n_ext
+        self._vslice = slice(6 * self.j0, 6 * self.j1)
+        self._bins_cache: tuple[np.ndarray, _PointBins] | None = None
+
+    # ------------------------------------------------------------------ configuration
+
+    def initial_state(self, positions: ArrayLike, rotations: ArrayLike) -> State:
+        """A ``State`` from positions and rotations (ends reset to top and bottom when exact) and the
+        cameras' initial values."""
+        r = np.array(positions, dtype=float)
+        R = np.array(rotations, dtype=float)
+        if r.shape != (self.n, 3) or R.shape != (self.n, 3, 3):
+            raise ValueError(
+                f"expected positions ({self.n}, 3) and rotations ({self.n}, 3, 3), got {r.shape}, {R.shape}"
+            )
+        if self.top is not None and self.bottom is not None:
+            r[0], R[0] = self.top
+            r[-1], R[-1] = self.bottom
+        return State(r, R, tuple(np.array(cam.values, dtype=float) for cam in self.cameras))
+
+    def with_boundary(self, positions: ArrayLike, rotations: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Copies of (positions, rotations), with vertebrae 0 and N−1 set to top and bottom when exact."""
+        state = self.initial_state(positions, rotations)
+        return state.r, state.R
+
+    def retract(
+        self, positions: FloatArray, rotations: FloatArray, delta: ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """(positions, rotations) moved by the vertebra part of ``delta`` (copies; cameras unchanged)."""
+        cams = tuple(np.array(cam.values, dtype=float) for cam in self.cameras)
+        h = np.zeros(self.n_params)
+        h[: self.n_vertebra_params] = np.asarray(delta, dtype=float)[: self.n_vertebra_params]
+        moved = self.step(State(np.asarray(positions, dtype=float), np.asarray(rotations, dtype=float), cams), h)
+        return moved.r, moved.R
+
+    def step(self, state: State, delta: ArrayLike) -> State:
+        """New configuration r_j + δr_j, R_j exp(hat δθ_j) for the free vertebrae, cameras + their steps."""
+        h = np.asarray(delta, dtype=float)
+        d = h[: self.n_vertebra_params].reshape(self.m, 6)
+        r = state.r.copy()
+        R = state.R.copy()
+        r[self.j0 : self.j1] += d[:, :3]
+        R[self.j0 : self.j1] = state.R[self.j0 : self.j1] @ exp_so3(d[:, 3:])
+        cams = []
+        for cam, values, cols in zip(self.cameras, state.cameras, self._cam_cols, strict=True):
+            if len(cols):
+                values = values.copy()
+                values[np.flatnonzero(cam.free)] += h[cols]
+            cams.append(values)
+        return State(r, R, tuple(cams))
+
+    # ------------------------------------------------------------------ rows
+
+    def _camera_priors(self) -> list[tuple[int, int, float, float]]:
+        """(view number, parameter, mean, SD) of each Gaussian prior on an estimated camera parameter;
+        parameter −1 is the perspective depth row b·(r_mid − o)."""
+        rows: list[tuple[int, int, float, float]] = []
+        for k, cam in enumerate(self.cameras):
+            if cam.kind == "weak" and cam.free[0] and cam.scale_prior is not None:
+                rows.append((k, 0, cam.scale_prior[0], cam.scale_prior[1]))
+            if cam.free[-1]:
+                rows.append((k, len(cam.values) - 1, 0.0, cam.rotation_prior_sd_rad))
+            if cam.kind == "perspective" and cam.free[2:5].any():
+                rows.append((k, -1, 0.0, cam.depth_prior_sd_mm))
+        return rows
+
+    def point_rows(self, state: State, second_order: bool = False) -> PointRows:
+        """All non-rod rows with their Jacobians (module docstring)."""
+        r, R, cams = state
+        P = self.n_border
+        parts_rho, parts_idx, parts_Jv, parts_Jb, parts_S = [], [], [], [], []
+        # landmarks
+        for k, (idx, points, c) in enumerate(self._lm_constants):
+            if not len(idx):
+                continue
+            view, cam = self.views[k], self.cameras[k]
+            pr = project(cam, cams[k], r[idx], view.e_c, view.e_r)
+            rho = (c * (pr.points - points)).ravel()
+            Jv = np.zeros((2 * len(idx), 6))
+            Jv[:, :3] = (c * pr.d_r).reshape(-1, 3)
+            Jb = np.zeros((2 * len(idx), P))
+            if len(self._cam_cols[k]):
+                Jb[:, self._cam_cols[k] - self.n_vertebra_params] = (c * pr.d_params[:, :, cam.free]).reshape(
+                    2 * len(idx), -1
+                )
+            parts_rho.append(rho)
+            parts_idx.append(self._lm_rows_index[k])
+            parts_Jv.append(Jv)
+            parts_Jb.append(Jb)
+        off = self.obs.offset_rows(state, self, second_order)
+        tilt = self.obs.tilt_rows(state, self, second_order)
+        for part in (off, tilt):
+            if part is not None:
+                parts_rho.append(part.rho)
+                parts_idx.append(part.vertebra)
+                parts_Jv.append(part.Jv)
+                parts_Jb.append(part.Jb)
+                if second_order:
+                    assert part.second is not None
+                    parts_S.append((len(np.concatenate(parts_rho)) - len(part.rho), part.second))
+        # pose priors
+        half_k = np.sqrt(0.5 * self.energy_unit)
+        for prior in self.pose_priors:
+            j = prior.vertebra
+            a = half_k / prior.position_sd_mm
+            b = half_k / prior.rotation_sd_rad
+            phi = log_so3(prior.pose.rotation.T @ R[j])
+            rho = np.concatenate((a * (r[j] - prior.pose.position), b * phi))
+            Jv = np.zeros((6, 6))
+            Jv[:3, :3] = a * np.eye(3)
+            Jv[3:, 3:] = b * jr_inverse(phi[None])[0]
+            parts_rho.append(rho)
+            parts_idx.append(np.full(6, j))
+            parts_Jv.append(Jv)
+            parts_Jb.append(np.zeros((6, P)))
+        # camera priors
+        for k, p, mean, sd in self._camera_prior_rows:
+            cam = self.cameras[k]
+            Jv = np.zeros((1, 6))
+            Jb = np.zeros((1, P))
+            cols = dict(zip(np.flatnonzero(cam.free), self._cam_cols[k] - self.n_vertebra_params, strict=True))
+            if p >= 0:
+                rho = np.array([half_k * (cams[k][p] - mean) / sd])
+                Jb[0, cols[p]] = half_k / sd
+                index = -1
+            else:
+                view = self.views[k]
+                b_dir = cam.beam_direction(view.e_c, view.e_r)
+                index = self.depth_reference
+                rho = np.array([half_k * float(b_dir @ (r[index] - cams[k][2:5])) / sd])
+                Jv[0, :3] = half_k * b_dir / sd
+                for axis in range(3):
+                    if (2 + axis) in cols:
+                        Jb[0, cols[2 + axis]] = -half_k * b_dir[axis] / sd
+            parts_rho.append(rho)
+            parts_idx.append(np.array([index]))
+            parts_Jv.append(Jv)
+            parts_Jb.append(Jb)
+        if not parts_rho:
+            return PointRows(np.zeros(0), np.zeros(0, dtype=int), np.zeros((0, 6)), np.zeros((0, P)), None)
+        rho_all = np.concatenate(parts_rho)
+        second = None
+        if second_order:
+            second = np.zeros((len(rho_all), 3, 3))
+            for start, S in parts_S:
+                second[start : start + len(S)] = S
+        return PointRows(rho_all, np.concatenate(parts_idx), np.concatenate(parts_Jv), np.concatenate(parts_Jb), second)
+
+    def evaluate(self, state: State, second_order: bool = False) -> tuple[FloatArray, RodCache, PointRows]:
+        """ρ (layout in the module docstring), the rod cache and the non-rod rows (with Jacobians and,
+        when ``second_order``, their θθ second-order terms)."""
+        out = np.empty(self.n_residuals)
+        cache = self.rod.evaluate(state.r, state.R, out)
+        rows = self.point_rows(state, second_order)
+        out[6 * (self.n - 1) :] = rows.rho
+        return out, cache, rows
+
+    # ------------------------------------------------------------------ derivatives
+
+    def normal_equations(
+        self, state: State, res: FloatArray, cache: RodCache, second_order: bool, rows: PointRows | None = None
+    ) -> tuple[BorderedSystem, FloatArray | None, FloatArray]:
+        """Gauss–Newton normal matrix JᵀJ (bordered), the band of Σ_k ρ_k ∇²ρ_k over the vertebrae (when
+        ``second_order``, else None) and the gradient Jᵀρ, over the unknowns. ``rows``: the non-rod rows
+        of ``state`` when already evaluated (with their second-order terms when ``second_order``)."""
+        ns = self.n - 1
+        layout = self._band_layout
+        local = self.rod.local_jacobian(cache)
+        J = local.J
+        JT = np.swapaxes(J, 1, 2)
+        rho_rod = res[: 6 * ns].reshape(ns, 6)
+        H = (JT @ J).reshape(ns, 144)[:, layout.upper]
+        gloc = (JT @ rho_rod[:, :, None]).ravel()
+        if rows is None or (second_order and rows.second is None):
+            rows = self.point_rows(state, second_order)
+        bins = self._point_bins(rows.vertebra)
+        ok = bins.ok
+        Jv = rows.Jv[ok]
+        rho_p = rows.rho[ok]
+        # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
+        gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
+        g_ext = accumulate(bins.g_all, np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext)
+        if second_order:
+            S = self.rod.second_order(cache, local, rho_rod).reshape(ns, 144)[:, layout.upper]
+            assert rows.second is not None
+            second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
+            both = accumulate(
+                bins.h_both,
+                np.concatenate((H.ravel(), S.ravel(), gn.ravel(), second.ravel())),
+                2 * self._band_size,
+            ).reshape(2, KD + 1, self._n_ext)
+            ab_gn, ab_2 = both[0], both[1]
+        else:
+            ab_gn = accumulate(
+                bins.h_gn,
+                np.concatenate((H.ravel(), gn.ravel())),
+                self._band_size,
+            ).reshape(KD + 1, self._n_ext)
+            ab_2 = None
+        P = self.n_border
+        if P:
+            contrib = Jv[:, :, None] * rows.Jb[ok][:, None, :]  # (k, 6, P)
+            B_ext = accumulate(bins.b, contrib.ravel(), self._n_ext * P).reshape(self._n_ext, P)
+        else:
+            B_ext = np.zeros((self._n_ext, 0))
+        C = rows.Jb.T @ rows.Jb
+        g = np.concatenate((g_ext[self._vslice], rows.Jb.T @ rows.rho))
+        system = BorderedSystem(ab_gn[:, self._vslice], B_ext[self._vslice], C)
+        return system, (None if ab_2 is None else ab_2[:, self._vslice]), g
+
+    def _point_bins(self, vertebra: np.ndarray) -> _PointBins:
+        """Scatter tables of the non-rod rows (their vertebrae are the same at every configuration)."""
+        cached = self._bins_cache
+        if cached is not None and (cached[0] is vertebra or np.array_equal(cached[0], vertebra)):
+            return cached[1]
+        ok = vertebra >= 0
+        idx = vertebra[ok]
+        a3, b3 = UPPER3
+        P = self.n_border
+        h = ((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel()
+        s = ((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel()
+        g = (6 * idx[:, None] + np.arange(6)).ravel()
+        layout = self._band_layout
+        rod_h = layout.hbins[: len(layout.hbins) // 2]
+        tables = _PointBins(
+            ok=ok,
+            h=h,
+            s=s,
+            g=g,
+            b=((6 * idx[:, None] + np.arange(6))[:, :, None] * P + np.arange(P)).ravel(),
+            g_all=np.concatenate((layout.gbins, g)),
+            h_gn=np.concatenate((rod_h, h)),
+            h_both=np.concatenate((layout.hbins, h, s + self._band_size)),
+        )
+        self._bins_cache = (vertebra, tables)
+        return tables
+
+    def jacobian_state(self, state: State, evaluated: tuple[RodCache, PointRows] | None = None) -> FloatArray:
+        """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``.
+        ``evaluated``: the rod cache and non-rod rows of ``state`` when already evaluated."""
+        cache, rows = self.evaluate(state)[1:] if evaluated is None else evaluated
+        J_loc = self.rod.local_jacobian(cache).J
+        ns = self.n - 1
+        J = np.zeros((self.n_residuals, self._n_ext + self.n_border))
+        seg = np.arange(ns)
+        J[(6 * seg[:, None, None] + np.arange(6)[None, :, None]), (6 * seg[:, None, None] + np.arange(12))] = J_loc
+        start = 6 * ns
+        k = np.flatnonzero(rows.vertebra >= 0)
+        J[(start + k)[:, None], 6 * rows.vertebra[k][:, None] + np.arange(6)] = rows.Jv[k]
+        J[start:, self._n_ext :] = rows.Jb
+        return np.concatenate((J[:, self._vslice], J[:, self._n_ext :]), axis=1)
+
+    # ------------------------------------------------------------------ public conveniences
+
+    def residuals(self, positions: ArrayLike, rotations: ArrayLike) -> FloatArray:
+        """Residual vector ρ of a configuration (cameras at their initial values); E = ‖ρ‖² in N·mm."""
+        return self.evaluate(self.initial_state(positions, rotations))[0]
+
+    def jacobian(self, positions: ArrayLike, rotations: ArrayLike) -> FloatArray:
+        """Analytic Jacobian ∂ρ/∂x, dense, cameras at their initial values (columns as ``layout``)."""
+        return self.jacobian_state(self.initial_state(positions, rotations))
+
+    def gradient_and_hessian(
+        self, positions: ArrayLike, rotations: ArrayLike, second_order: bool = True
+    ) -> tuple[FloatArray, FloatArray]:
+        """(Jᵀρ, JᵀJ + Σ_k ρ_k ∇²ρ_k), dense; ½ the gradient and Hessian of E(retract(x, δ)) at δ = 0
+        (camera rows Gauss–Newton). Without ``second_order`` the matrix is the Gauss–Newton JᵀJ."""
+        state = self.initial_state(positions, rotations)
+        res, cache, _ = self.evaluate(state)
+        system, ab_2, g = self.normal_equations(state, res, cache, second_order)
+        H = system.dense()
+        if ab_2 is not None:
+            H[: self.n_vertebra_params, : self.n_vertebra_params] += band_to_dense(ab_2)
+        return g, H
+
+    def energy(self, positions: ArrayLike, rotations: ArrayLike) -> float:
+        """E = ‖ρ‖², N·mm."""
+        res = self.residuals(positions, rotations)
+        return float(res @ res)
+
+    def output(self, state: State, res: FloatArray, cache: RodCache, iterations: int, converged: bool) -> FitOutput:
+        """The ``FitOutput`` of a configuration: strains, energies, unweighted residuals per view."""
+        ns = self.n - 1
+        u, v = self.rod.strains(cache)
+        rod = res[: 6 * ns]
+        data = res[6 * ns : 6 * ns + self.n_data_rows]
+        distances: dict[str, FloatArray] = {}
+        for k, (view, cam) in enumerate(zip(self.views, self.cameras, strict=True)):
+            idx = np.asarray(view.indices, dtype=int)
+            pr = project(cam, state.cameras[k], state.r[idx], view.e_c, view.e_r)
+            diff = (pr.points - np.asarray(view.points, dtype=float)) / cam.reference_scale
+            distances[view.name] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        offsets, tilts = self.obs.unweighted(state, self)
+        return FitOutput(
+            positions=state.r,
+            rotations=state.R,
+            u=u,
+            v=v,
+            energy_fit=float(data @ data),
+            energy_internal=float(rod @ rod),
+            iterations=iterations,
+            converged=converged,
+            residuals_mm=distances,
+            offset_residuals_mm=offsets,
+            tilt_residuals_deg=tilts,
+            cameras={view.name: values for view, values in zip(self.views, state.cameras, strict=True)},
+        )

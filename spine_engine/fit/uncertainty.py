@@ -1,0 +1,495 @@
+"""Calibrated uncertainty of a registration: Laplace approximation at the fit's optimum.
+
+The fit minimises E(x) = ‖ρ(x)‖² (N·mm) over the parameter vector x (vertebra position
+increments δr_i in mm, rotation increments δθ_i in rad with R_i ← R_i exp(hat δθ_i), and any
+projection parameters). Read as a negative log posterior, exp(−E/(2τ)) with τ the *temperature*
+that turns the landmark rows into standard normal residuals: a landmark row √w (P r − p)/s
+whose image noise has SD σ (detector mm) has SD √w σ/s, so τ = w σ²/s² (N·mm; ``temperature``);
+rows already divided by their SD have τ = 1. The rod's elastic energy then acts as the prior at
+the same temperature. Around the optimum x̂ (Laplace):
+
+    Σ = c² τ H⁻¹,    H = J_dᵀJ_d + λ J_rodᵀJ_rod (Gauss–Newton Hessian of E/2 at λ = 1,
+                                                J = ∂ρ/∂x at x̂, J_rod the rod's rows),
+
+with two constants calibrated on VerSe dev (``calibration``, ``spine bench clinic --split dev
+--calibrate-uncertainty``): λ, the weight of the rod's energy read as a prior (the fit's balance
+of energy and landmarks was tuned for accuracy; as a prior at λ = 1 it lets a PA-only spine's
+depth vary by ten times its actual error), set so that the PA-only intervals cover 95 %; then c,
+the ``uncertainty_scale`` of the contract, one factor on every SD so that ±1.96 SD covers 95 % of
+the truth's coordinates pooled over the clinic's cases. Only variances of scalar functionals f(x)
+are needed, by the delta method:
+
+    Var f = c² τ gᵀ H⁻¹ g,   g = ∂f/∂x at x̂,
+
+computed for all functionals at once with one Cholesky factorisation of H and a triangular solve
+(``functional_variances``): Var f_k = ‖L⁻¹ g_k‖² with H = L Lᵀ. The vertebra block of H is banded
+(half-bandwidth 11) with a dense border of projection parameters, and ``functional_variances``
+has that bordered band solve (``n_band``); at N = 17 (H about 110 × 110) the dense Cholesky was
+as fast or faster when measured (0.8 against 1.2 ms for all 75 functionals on the loaded 2-core
+VM), so ``solution_uncertainty`` uses the dense one.
+
+Functionals (``functional_gradients``; gradients analytic, checked against finite differences in
+tests/engine/test_uncertainty.py):
+
+* each coordinate of a position relative to the centroid of the 17, r_i − r̄ (mm): g has 1 − 1/N
+  on δr_i's column and −1/N on every other free vertebra's (the global translation, which the
+  data do not fix without boundary, drops out);
+* kyphosis T4–T12 = β_T4 − β_T12, T5–T12, lordosis L1–L5 = β_L5 − β_L1
+  (``measures.kyphosis_lordosis_deg``) and Cobb = |θ_upper − θ_lower| (``measures.frontal_tilt_deg``)
+  with β_i, θ_i the sagittal inclination and frontal tilt of the frame ``frames_from_centreline``
+  puts on the tangent t_i = r_{i+1} − r_{i−1}: functions of the positions, whose covariance the
+  landmarks determine (``functional_gradients`` says why not of the directors);
+* the axial rotation ψ = atan2(d2_x, −d2_y) of each director frame (``frames.axial_rotation_deg``):
+  for f = atan2(a·d_k, b·d_k) of director d_k = R e_k,
+  ∂f/∂δθ = e_k × (Rᵀ g_d),  g_d = ((b·d) a − (a·d) b) / ((a·d)² + (b·d)²)
+  (∂(R exp(hat δθ) e_k)/∂δθ = −R hat(e_k)); degrees.
+
+The delta method is conditional on the curve's end vertebrae (chosen by the tilt sequence) and
+linear: SDs of several degrees on an angle near a branch of atan2 are approximate.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg import LinAlgError, cho_factor, solve_triangular
+from scipy.linalg.lapack import dpbtrf, dtbtrs
+
+from ..levels import LEVEL_INDEX
+
+if TYPE_CHECKING:
+    from ..models import RegistrationResult
+    from .types import Solution
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "priors" / "uncertainty_calibration.json"
+"""The calibrated scale c and its provenance (written by ``write_calibration``). Beside the tilt
+prior in ``priors/`` rather than in ``profiles/``, whose every file is an elastic profile."""
+
+_DEG = 180.0 / np.pi
+_EX, _EY, _EZ = np.eye(3)
+_HAT_E = np.array([[[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]] for e in np.eye(3)])
+"""hat(e_k): hat(e_k) v = e_k × v."""
+
+
+class PoseColumns(NamedTuple):
+    """Where each vertebra's pose increments sit in the parameter vector x: column of δr_i,k
+    (mm) and of δθ_i,k (rad, right perturbation R exp(hat δθ)), shape (N, 3); −1 for a pose
+    held fixed (the paper's exact boundary)."""
+
+    position: IntArray
+    rotation: IntArray
+
+
+class Uncertainty(NamedTuple):
+    """1 SD of the reported quantities (already multiplied by ``scale``)."""
+
+    position_sd_mm: FloatArray
+    """(N, 3) of each position coordinate relative to the centroid of the N vertebrae, mm."""
+    axial_rotation_sd_deg: FloatArray
+    """(N,) of each vertebra's axial rotation, degrees."""
+    kyphosis_t4_t12_sd_deg: float
+    kyphosis_t5_t12_sd_deg: float
+    lordosis_l1_l5_sd_deg: float
+    cobb_sd_deg: list[float]
+    """Of each Cobb curve given to ``laplace_uncertainty``, in order, degrees."""
+    scale: float
+    """The calibrated factor c that multiplied the Laplace SDs."""
+
+
+# ---------------------------------------------------------------- calibration file
+
+
+class Calibration(NamedTuple):
+    """The calibrated constants of the uncertainty model and their provenance."""
+
+    uncertainty_scale: float
+    """c: multiplies every Laplace SD (``FitReport.uncertainty_scale``)."""
+    prior_weight: float
+    """λ: weight of the rod's rows (its elastic energy, the prior) in the Laplace Hessian,
+    H = J_dataᵀJ_data + λ J_rodᵀJ_rod. The fit's balance of energy and landmarks was tuned for
+    accuracy, not as a population prior: at λ = 1 the PA-only depth SDs are ten times the errors
+    (docs/accuracy.md, "The clinic's setting")."""
+    provenance: dict[str, Any]
+
+
+UNCALIBRATED = Calibration(1.0, 1.0, {})
+
+
+@lru_cache(maxsize=1)
+def _calibration(path: str) -> Calibration:
+    with open(path) as fh:
+        data: dict[str, Any] = json.load(fh)
+    return Calibration(float(data["uncertainty_scale"]), float(data.get("prior_weight", 1.0)),
+                       dict(data.get("provenance", {})))
+
+
+def calibration(path: Path | None = None) -> Calibration:
+    """The calibrated constants from ``priors/uncertainty_calibration.json`` (``CALIBRATION_FILE``);
+    ``UNCALIBRATED`` (c = λ = 1, the plain Laplace approximation) when the file is absent."""
+    file = path or CALIBRATION_FILE
+    return _calibration(str(file)) if file.is_file() else UNCALIBRATED
+
+
+def write_calibration(constants: Calibration, path: Path | None = None) -> Path:
+    """Write the constants and their provenance as JSON; returns the path."""
+    for name in ("uncertainty_scale", "prior_weight"):
+        value = getattr(constants, name)
+        if not (np.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} must be positive and finite, got {value}")
+    file = path or CALIBRATION_FILE
+    file.write_text(json.dumps(constants._asdict(), indent=2) + "\n")
+    _calibration.cache_clear()
+    return file
+
+
+# ---------------------------------------------------------------- temperature
+
+
+def temperature(weight: float, landmark_sd_mm: float, scale: float) -> float:
+    """τ = w σ² / s² (N·mm): the variance of a landmark row √w (P r − p)/s whose image point has
+    SD σ (detector mm) per coordinate on a view of magnification s (module docstring)."""
+    if not (weight > 0.0 and landmark_sd_mm > 0.0 and scale > 0.0):
+        raise ValueError(f"temperature needs positive weight, SD and scale, got {weight}, {landmark_sd_mm}, {scale}")
+    return float(weight * landmark_sd_mm**2 / scale**2)
+
+
+# ---------------------------------------------------------------- functionals
+
+
+def _director_angle_gradients(
+    rotations: FloatArray, k: int, a: FloatArray, b: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Angles f_i = atan2(a·d_k, b·d_k) (degrees) of every vertebra and ∂f_i/∂δθ_i (N, 3), deg/rad."""
+    d = rotations[:, :, k]
+    ya, xb = d @ a, d @ b
+    norm2 = ya * ya + xb * xb
+    g_d = (xb[:, None] * a - ya[:, None] * b) / norm2[:, None]
+    local = np.einsum("nji,nj->ni", rotations, g_d)  # Rᵀ g_d
+    return np.degrees(np.arctan2(ya, xb)), _DEG * (local @ _HAT_E[k].T)  # e_k × local
+
+
+def axial_rotation_gradients(rotations: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """ψ_i = atan2(d2_x, −d2_y) (``frames.axial_rotation_deg``) and ∂ψ_i/∂δθ_i, degrees."""
+    return _director_angle_gradients(rotations, 1, _EX, -_EY)
+
+
+def _tangents(positions: FloatArray) -> FloatArray:
+    """t_i = r_{i+1} − r_{i−1}, one-sided at the ends (``frames.frames_from_centreline``)."""
+    t = np.empty_like(positions)
+    t[1:-1] = positions[2:] - positions[:-2]
+    t[0], t[-1] = positions[1] - positions[0], positions[-1] - positions[-2]
+    return t
+
+
+def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Frontal tilt θ_i (degrees) of the frame ``frames.frames_from_centreline`` builds on the
+    tangent t_i, and ∂β_i/∂t_i, ∂θ_i/∂t_i (N, 3) in degrees per mm, analytic:
+
+        β = atan2(t_y, −t_z):                ∂β/∂t = (0, −t_z, t_y) / (t_y² + t_z²);
+        θ = atan2(d1_z, d1_x), d1 ∝ |t|² e_x − t_x t = (t_y² + t_z², ·, −t_x t_z), so
+        θ = atan2(N, D), N = −t_x t_z, D = t_y² + t_z²:
+        ∂θ/∂t = (D ∇N − N ∇D) / (N² + D²),  ∇N = (−t_z, 0, −t_x),  ∇D = (0, 2 t_y, 2 t_z).
+    """
+    t = _tangents(np.asarray(positions, dtype=float))
+    x, y, z = t[:, 0], t[:, 1], t[:, 2]
+    D = y * y + z * z
+    N = -x * z
+    zero = np.zeros_like(x)
+    grad_beta = np.stack((zero, -z, y), axis=1) / D[:, None]
+    grad_N = np.stack((-z, zero, -x), axis=1)
+    grad_D = np.stack((zero, 2 * y, 2 * z), axis=1)
+    grad_theta = (D[:, None] * grad_N - N[:, None] * grad_D) / (N * N + D * D)[:, None]
+    return _DEG * np.arctan2(N, D), _DEG * grad_beta, _DEG * grad_theta
+
+
+class Functionals(NamedTuple):
+    """Gradient rows G (m, n_params) of the reported quantities, in this order: 3N centroid-
+    relative coordinates (vertebra-major), N axial rotations, kyphosis T4–T12, T5–T12, lordosis
+    L1–L5, then one row per Cobb curve."""
+
+    G: FloatArray
+    n_vertebrae: int
+    n_curves: int
+
+
+@lru_cache(maxsize=16)
+def _static_rows(
+    n: int, n_params: int, pos_bytes: bytes, rot_bytes: bytes
+) -> tuple[FloatArray, IntArray, IntArray, npt.NDArray[np.bool_]]:
+    """What depends on the layout only: the 3N position rows (r_i,k − (1/N) Σ_j r_j,k, constant)
+    and the rows, columns and mask of the axial rotations' entries."""
+    pos = np.frombuffer(pos_bytes, dtype=np.intp).reshape(n, 3)
+    rot = np.frombuffer(rot_bytes, dtype=np.intp).reshape(n, 3)
+    base = np.zeros((3 * n, n_params))
+    for k in range(3):
+        free = pos[:, k] >= 0
+        rows = 3 * np.arange(n) + k
+        base[np.ix_(rows, pos[free, k])] = -1.0 / n
+        base[rows[free], pos[free, k]] += 1.0
+    free_rot = rot >= 0
+    rows_psi = np.broadcast_to((3 * n + np.arange(n))[:, None], rot.shape)[free_rot]
+    for a in (base, rows_psi, free_rot):
+        a.flags.writeable = False
+    return base, rows_psi, rot[free_rot], free_rot
+
+
+_SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
+"""(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1."""
+
+
+def functional_gradients(
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    columns: PoseColumns,
+    n_params: int,
+    curves: Sequence[tuple[str, str]] = (),
+) -> Functionals:
+    """Gradient rows of the reported quantities w.r.t. x (module docstring); ``curves``: the
+    (upper, lower) end levels of each Cobb curve.
+
+    Kyphosis, lordosis and Cobb angles are propagated through the centreline: β_i and θ_i of
+    the tangent t_i (``centreline_angle_gradients``), so that their SDs follow the positions'
+    covariance, which the landmarks determine. Their directors' own Laplace SDs are those of the
+    rod's prior: with the calibrated soft shear (G ≈ 0.9 MPa) a director may leave the tangent by
+    tens of degrees at the landmarks' temperature, far more than the reconstructions do (measured
+    in docs/accuracy.md, "The clinic's setting"). Axial rotation, which no point landmark sees,
+    keeps the directors' Laplace SD (∂ψ_i/∂δθ_i): large, as it should be, without pedicles.
+    """
+    r = np.asarray(positions, dtype=float)
+    R = np.asarray(rotations, dtype=float)
+    n = len(R)
+    pos = np.asarray(columns.position, dtype=np.intp)
+    rot = np.asarray(columns.rotation, dtype=np.intp)
+    n_curves = len(curves)
+    base, psi_rows, psi_cols, psi_free = _static_rows(n, n_params, pos.tobytes(), rot.tobytes())
+    G = np.zeros((4 * n + 3 + n_curves, n_params))
+    G[: 3 * n] = base
+    _, grad_psi = axial_rotation_gradients(R)
+    G[psi_rows, psi_cols] = grad_psi[psi_free]
+    # kyphosis, lordosis and Cobb angles: Σ ± ∂angle_i/∂t_i (δr_{i+1} − δr_{i−1}), one scatter
+    theta, grad_beta, grad_theta = centreline_angle_gradients(r)
+    up = np.minimum(np.arange(n) + 1, n - 1)
+    down = np.maximum(np.arange(n) - 1, 0)
+    terms: list[tuple[int, int, float, FloatArray]] = []
+    for row, (first, second, sign) in enumerate(_SAGITTAL, start=4 * n):
+        terms += [(row, LEVEL_INDEX[first], sign, grad_beta), (row, LEVEL_INDEX[second], -sign, grad_beta)]
+    for row, (upper, lower) in enumerate(curves, start=4 * n + 3):
+        iu, il = LEVEL_INDEX[upper], LEVEL_INDEX[lower]
+        sign = 1.0 if theta[iu] >= theta[il] else -1.0
+        terms += [(row, iu, sign, grad_theta), (row, il, -sign, grad_theta)]
+    rows_t = np.array([t[0] for t in terms], dtype=np.intp)
+    vert = np.array([t[1] for t in terms], dtype=np.intp)
+    vals = np.array([t[2] * t[3][t[1]] for t in terms])  # (m, 3)
+    all_rows = np.repeat(rows_t, 6)
+    all_cols = np.concatenate((pos[up[vert]], pos[down[vert]]), axis=1).ravel()
+    all_vals = np.concatenate((vals, -vals), axis=1).ravel()
+    keep = all_cols >= 0
+    np.add.at(G, (all_rows[keep], all_cols[keep]), all_vals[keep])
+    return Functionals(G, n, n_curves)
+
+
+# ---------------------------------------------------------------- variances
+
+
+KD = 11
+"""Half-bandwidth of the vertebra block of H: a segment couples two vertebrae of 6 unknowns."""
+
+
+@lru_cache(maxsize=8)
+def _band_index(n: int, kd: int) -> tuple[IntArray, IntArray, IntArray]:
+    """Rows, columns of a dense (n, n) matrix and flat positions in band storage (kd + 1, n) of
+    its upper band entries: ab[kd + i − j, j] = A[i, j] for 0 ≤ j − i ≤ kd."""
+    rows, cols, flat = [], [], []
+    for off in range(kd + 1):
+        j = np.arange(off, n)
+        rows.append(j - off)
+        cols.append(j)
+        flat.append((kd - off) * n + j)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(flat)
+
+
+def _bordered_variances(H: FloatArray, G: FloatArray, n_band: int, kd: int = KD) -> FloatArray:
+    """gᵀH⁻¹g for H = [[A, B], [Bᵀ, C]] with A (n_band × n_band) banded (half-bandwidth kd):
+    A = UᵀU (band Cholesky, ``dpbtrf``), W = U⁻ᵀB, S = C − WᵀW = VᵀV, and for each g = (g_A, g_p)
+    y_A = U⁻ᵀg_A, y_p = V⁻ᵀ(g_p − Wᵀy_A), gᵀH⁻¹g = ‖y_A‖² + ‖y_p‖² (H = LLᵀ, L = [[Uᵀ, 0], [Wᵀ, Vᵀ]])."""
+    rows, cols, flat = _band_index(n_band, kd)
+    ab = np.zeros((kd + 1) * n_band)
+    ab[flat] = H[rows, cols]
+    u, info = dpbtrf(ab.reshape(kd + 1, n_band), lower=0, overwrite_ab=1)
+    if info != 0:
+        raise LinAlgError(f"the curvature of the vertebra block is not positive definite (dpbtrf info {info})")
+    rhs = np.concatenate((G[:, :n_band].T, H[:n_band, n_band:]), axis=1)
+    y, info = dtbtrs(u, rhs, uplo="U", trans="T", diag="N", overwrite_b=1)
+    if info != 0:
+        raise LinAlgError(f"band triangular solve failed (info {info})")
+    m = len(G)
+    y_a, w = y[:, :m], y[:, m:]
+    var = np.einsum("ij,ij->j", y_a, y_a)
+    if H.shape[0] > n_band:
+        S = H[n_band:, n_band:] - w.T @ w
+        v, _ = cho_factor(S, lower=True, check_finite=False)
+        y_p = solve_triangular(v, G[:, n_band:].T - w.T @ y_a, lower=True, check_finite=False)
+        var += np.einsum("ij,ij->j", y_p, y_p)
+    return np.asarray(var)
+
+
+def functional_variances(H: FloatArray, G: FloatArray, band: bool = False, n_band: int | None = None) -> FloatArray:
+    """gᵀ H⁻¹ g for every row g of G, by one Cholesky factorisation H = L Lᵀ: ‖L⁻¹ g‖².
+
+    ``band``: H given in LAPACK upper band storage (kd + 1, n) (``dpbtrf``). ``n_band``: H dense
+    with its first ``n_band`` unknowns (the vertebrae) banded with half-bandwidth ``KD`` and a
+    dense border (the projection parameters): the band Cholesky and Schur complement of
+    ``_bordered_variances``. Else dense Cholesky; a dense H that is only semi-definite (a direction
+    neither data nor prior fix) gets a ridge of 1e-9 × its largest diagonal entry, which changes the
+    variance of a functional blind to that direction only by rounding.
+    """
+    if band:
+        u, info = dpbtrf(H, lower=0)
+        if info != 0:
+            raise LinAlgError(f"the curvature at the optimum is not positive definite (dpbtrf info {info})")
+        # H = Uᵀ U: g H⁻¹ g = ‖U⁻ᵀ g‖²
+        x, info = dtbtrs(u, np.ascontiguousarray(G.T), uplo="U", trans="T", diag="N")
+        if info != 0:
+            raise LinAlgError(f"band triangular solve failed (info {info})")
+        return np.asarray(np.einsum("ij,ij->j", x, x))
+    if n_band is not None and n_band > KD:
+        try:
+            return _bordered_variances(H, G, n_band)
+        except LinAlgError:
+            pass  # semi-definite: the dense path with a ridge
+    try:
+        c, _ = cho_factor(H, lower=True, check_finite=False)
+    except LinAlgError:
+        ridge = 1e-9 * float(np.max(np.diag(H)))
+        c, _ = cho_factor(H + ridge * np.eye(len(H)), lower=True, check_finite=False)
+    x = solve_triangular(c, G.T, lower=True, check_finite=False)
+    return np.asarray(np.einsum("ij,ij->j", x, x))
+
+
+def laplace_uncertainty(
+    jacobian: FloatArray | None,
+    positions: npt.ArrayLike,
+    rotations: npt.ArrayLike,
+    columns: PoseColumns,
+    temperature_nmm: float,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    hessian: FloatArray | None = None,
+    band: bool = False,
+    n_band: int | None = None,
+    row_weights: FloatArray | None = None,
+) -> Uncertainty:
+    """SDs of the reported quantities: c √(τ gᵀ H⁻¹ g) (module docstring).
+
+    Give either the Jacobian J (n_residuals, n_params) at the optimum (H = JᵀJ, or
+    H = Σ_k w_k J_kᵀ J_k with ``row_weights`` w, e.g. λ on the rod's rows) or ``hessian`` (dense,
+    or band storage with ``band``). ``temperature_nmm``: τ. ``scale``: c; default the calibrated
+    value (``calibration``). ``n_band``: the number of vertebra unknowns, first in x, whose block
+    of H is banded (``functional_variances``).
+    """
+    if hessian is None:
+        if jacobian is None:
+            raise ValueError("give the Jacobian or the Hessian at the optimum")
+        H = (jacobian if row_weights is None else jacobian * row_weights[:, None]).T @ jacobian
+        n_params = jacobian.shape[1]
+        band = False
+    else:
+        H = hessian
+        n_params = H.shape[1]
+    c = calibration().uncertainty_scale if scale is None else float(scale)
+    f = functional_gradients(positions, rotations, columns, n_params, curves)
+    var = functional_variances(H, f.G, band=band, n_band=n_band) * float(temperature_nmm)
+    sd = c * np.sqrt(np.maximum(var, 0.0))
+    n = f.n_vertebrae
+    return Uncertainty(
+        position_sd_mm=sd[: 3 * n].reshape(n, 3),
+        axial_rotation_sd_deg=sd[3 * n : 4 * n],
+        kyphosis_t4_t12_sd_deg=float(sd[4 * n]),
+        kyphosis_t5_t12_sd_deg=float(sd[4 * n + 1]),
+        lordosis_l1_l5_sd_deg=float(sd[4 * n + 2]),
+        cobb_sd_deg=[float(v) for v in sd[4 * n + 3 :]],
+        scale=c,
+    )
+
+
+AXIAL_ROTATION_SD_CAP_DEG = 180.0 / np.sqrt(3.0)
+"""Largest reported axial rotation SD, degrees: the SD of an angle spread uniformly over the
+circle (360°/√12 ≈ 103.9°). A Laplace SD beyond it (no pedicles: the rod's twist prior alone)
+only says "not determined"; the linearisation behind it does not hold that far."""
+
+
+@lru_cache(maxsize=32)
+def _rod_rows(kinds: tuple[str, ...]) -> npt.NDArray[np.bool_]:
+    """Mask of the rod's rows ("rod" in ``Solution.row_kinds``)."""
+    mask = np.array([kind == "rod" for kind in kinds], dtype=bool)
+    mask.flags.writeable = False
+    return mask
+
+
+def solution_uncertainty(
+    solution: Solution,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    prior_weight: float | None = None,
+) -> Uncertainty:
+    """``laplace_uncertainty`` of a solver's ``Solution``: whitened rows, so τ = κ/2 with κ its
+    ``energy_unit`` (cov ≈ (κ/2)(JᵀJ)⁻¹, ``fit.types.Solution``), the rod's rows ("rod" in
+    ``row_kinds``) weighted by λ. ``scale`` c and ``prior_weight`` λ default to ``calibration``."""
+    constants = calibration()
+    lam = constants.prior_weight if prior_weight is None else float(prior_weight)
+    weights = None
+    if lam != 1.0:
+        weights = np.where(_rod_rows(solution.row_kinds), lam, 1.0)
+    layout = solution.layout
+    return laplace_uncertainty(
+        solution.jacobian,
+        solution.positions,
+        solution.rotations,
+        PoseColumns(np.asarray(layout.position), np.asarray(layout.rotation)),
+        0.5 * float(solution.energy_unit),
+        curves,
+        constants.uncertainty_scale if scale is None else scale,
+        row_weights=weights,
+    )
+
+
+def attach_uncertainty(
+    result: RegistrationResult, solution: Solution, scale: float | None = None, prior_weight: float | None = None
+) -> RegistrationResult:
+    """``result`` with the SDs of its positions (relative to the centroid), axial rotations
+    (capped at ``AXIAL_ROTATION_SD_CAP_DEG``), kyphosis, lordosis and Cobb angles filled in, and
+    ``fit.uncertainty_scale`` = c (c and λ default to the calibrated values, ``calibration``)."""
+    curves = [(c.upper, c.lower) for c in result.measures.cobb]
+    u = solution_uncertainty(solution, curves, scale, prior_weight)
+    psi = np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG)
+    vertebrae = [
+        v.model_copy(
+            update={
+                "position_sd_mm": (float(sd[0]), float(sd[1]), float(sd[2])),
+                "axial_rotation_sd_deg": float(p),
+            }
+        )
+        for v, sd, p in zip(result.vertebrae, u.position_sd_mm, psi, strict=True)
+    ]
+    cobb = [
+        c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(result.measures.cobb, u.cobb_sd_deg, strict=True)
+    ]
+    measures = result.measures.model_copy(
+        update={
+            "cobb": cobb,
+            "thoracic_kyphosis_t4_t12_sd_deg": u.kyphosis_t4_t12_sd_deg,
+            "thoracic_kyphosis_t5_t12_sd_deg": u.kyphosis_t5_t12_sd_deg,
+            "lumbar_lordosis_l1_l5_sd_deg": u.lordosis_l1_l5_sd_deg,
+        }
+    )
+    fit = result.fit.model_copy(update={"uncertainty_scale": u.scale})
+    return result.model_copy(update={"vertebrae": vertebrae, "measures": measures, "fit": fit})

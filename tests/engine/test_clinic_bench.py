@@ -1,0 +1,95 @@
+"""``spine bench clinic`` (issue #10, item 9): the simulated films and the command on a tiny case."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spine_engine.experiments import clinic
+from spine_engine.projection import image_axes, project
+
+VERSE = clinic.shared_data_dir("verse")
+needs_verse = pytest.mark.skipif(not (VERSE / "test.csv").is_file(), reason=f"VerSe data not found at {VERSE}")
+
+
+def _truth() -> clinic.Truth:
+    return clinic.synthetic_truths(1, seed=3)[0]
+
+
+def test_weak_film_is_the_engines_projection() -> None:
+    """An unturned weak-perspective film equals ``projection.project`` with the (s, T) the bench
+    sends as a calibrated view's ``projection``."""
+    series = clinic.simulate_series(_truth(), noise_mm=0.0, seed=1)
+    for film in (series.pa, dataclasses.replace(series.lateral, turn_deg=0.0)):
+        s, t = film.weak_projection()
+        e_c, e_r = image_axes(film.orientation)
+        expected = project(series.truth.positions, e_c, e_r, s, np.asarray(t))
+        np.testing.assert_allclose(film.image(series.truth.positions, perspective=False), expected, atol=1e-9)
+
+
+def test_perspective_film_is_a_pinhole() -> None:
+    """Each image point is where the ray from the source through the point meets the detector
+    plane (intersection computed here directly, not with the bench's magnification formula)."""
+    series = clinic.simulate_series(_truth(), noise_mm=0.0, seed=2)
+    for film in (series.pa, series.lateral):
+        e_c, e_r = image_axes(film.orientation)
+        source = film.principal_point - film.sod_mm * film.beam
+        foot = source + film.sid_mm * film.beam  # central ray on the detector
+        g = np.radians(film.turn_deg)
+        rot = np.array([[np.cos(g), -np.sin(g)], [np.sin(g), np.cos(g)]])
+        for point, got in zip(series.truth.positions, film.image(series.truth.positions, True), strict=True):
+            ray = point - source
+            hit = source + ray * (film.sid_mm / float(ray @ film.beam))
+            local = np.array([(hit - foot) @ e_c, (hit - foot) @ e_r])
+            np.testing.assert_allclose(got, rot @ local + film.central_ray, atol=1e-9)
+    # the lateral film is 5-10 % more magnified than the PA, and turned by 0.5-2 degrees
+    ratio = series.lateral.magnification / series.pa.magnification
+    assert clinic.LATERAL_EXTRA_MAGNIFICATION[0] <= ratio <= clinic.LATERAL_EXTRA_MAGNIFICATION[1]
+    assert clinic.LATERAL_TURN_DEG[0] <= abs(series.lateral.turn_deg) <= clinic.LATERAL_TURN_DEG[1]
+
+
+def test_payloads_use_the_public_model() -> None:
+    """(b) has no T1-T3 on the lateral; (e) no lateral; (f) boundary and projections; (c) the
+    acquisition geometry; no uncalibrated case carries a projection or a boundary."""
+    series = clinic.simulate_series(_truth(), noise_mm=1.0, seed=0)
+    b = clinic.build_payload(series, clinic.CASES["b"])
+    assert b.lateral is not None and b.lateral.landmarks[0].level == "T4"
+    assert b.boundary is None and b.pa.projection is None and b.lateral.projection is None
+    assert clinic.build_payload(series, clinic.CASES["e"]).lateral is None
+    f = clinic.build_payload(series, clinic.CASES["f"])
+    assert f.boundary is not None and f.pa.projection is not None
+    assert f.lateral is not None and f.lateral.projection is not None
+
+
+def test_calibrated_scale_and_coverage() -> None:
+    """For z = |N(0, 1)| / c the calibrated scale is 1/c, within the sampling error of the 95 %
+    quantile of 20,000 draws (SD of the coverage sqrt(0.95·0.05/20000) = 0.15 %; 3 SD in z is
+    about 0.01)."""
+    rng = np.random.default_rng(0)
+    z = np.abs(rng.normal(size=20000)) / 2.0
+    scale = clinic.calibrated_scale({"x": z[:10000], "y": z[10000:]})
+    assert scale == pytest.approx(0.5, abs=0.01)
+    cov = clinic.coverage(z, scale)
+    assert cov is not None and abs(cov - 0.95) < 0.005
+    assert clinic.coverage([]) is None
+
+
+@needs_verse
+def test_bench_runs_on_a_tiny_case(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two VerSe test spines and one synthetic spine, cases (a) and (f), JSON output, exit code 0.
+    Bound: the paper's case (f) at 1 mm noise gave 1.0 mm on four test spines (``spine bench clinic
+    --limit 4 --synthetic 4``); 2.5 mm leaves room for two spines and fails when the films and
+    the truth disagree (a wrong sign or scale gives tens of mm)."""
+    code = clinic.main(["--limit", "2", "--synthetic", "1", "--cases", "af", "--json", "--out", str(tmp_path)])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    rows = {(r["dataset"], r["case"]): r for r in report["rows"]}
+    assert set(rows) == {("verse-test", "a"), ("verse-test", "f"), ("synthetic", "a"), ("synthetic", "f")}
+    paper = rows[("verse-test", "f")]
+    assert paper["reconstructed"] == 2
+    assert paper["mean_3d_error_mm"] < 2.5
+    assert (tmp_path / "clinic-test.json").is_file() and (tmp_path / "clinic-test.png").is_file()
