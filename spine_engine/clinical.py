@@ -73,11 +73,29 @@ class LandmarkArrays:
 def detector_spacing(view: PAView | LateralView) -> FloatArray:
     """The one pixel-to-mm conversion: (column, row) mm per unit of the view's coordinates, i.e.
     (1, 1) for mm and the DICOM (0028,0030) pixel spacing [row, column] swapped to (column, row) for px."""
+    calibrated = calibrated_magnification(view)
+    factor = calibrated if calibrated is not None else 1.0
     if view.units == "px":
         assert view.pixel_spacing is not None  # validate_payload guarantees it
         row_spacing, column_spacing = view.pixel_spacing
-        return np.array([column_spacing, row_spacing], dtype=float)
-    return np.ones(2)
+        return factor * np.array([column_spacing, row_spacing], dtype=float)
+    return np.full(2, factor)
+
+
+def calibrated_magnification(view: PAView | LateralView) -> float | None:
+    """For a view whose mm are in the patient plane (``pixel_spacing_calibration`` 'calibrated', PS3.3
+    §10.7.1.1), the factor M that takes them to the detector (detector mm = M · patient mm): the
+    acquisition's ERMF (0018,1114), else SID/SOD, else 1 (the calibration already removed the
+    magnification, whose value is then unknown and not needed). None for detector-plane mm."""
+    if view.pixel_spacing_calibration != "calibrated":
+        return None
+    acq = view.acquisition
+    if acq is not None and acq.magnification is not None:
+        return float(acq.magnification)
+    if acq is not None and acq.perspective:
+        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
+        return acq.distance_source_to_detector_mm / acq.distance_source_to_patient_mm
+    return 1.0
 
 
 def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
@@ -292,6 +310,9 @@ def _scale_prior(view: PAView | LateralView) -> tuple[float, bool]:
     if acq is not None and acq.perspective:
         assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
         return acq.distance_source_to_detector_mm / acq.distance_source_to_patient_mm, False
+    calibrated = calibrated_magnification(view)
+    if calibrated is not None:
+        return calibrated, False
     return PA_MAGNIFICATION_PRIOR[0], True
 
 

@@ -164,9 +164,12 @@ class _View(_Strict):
     )
     pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
         None,
-        description="Which calibration gave the view's mm (filled by the DICOM layer: 'calibrated' (0028,0030) "
-        "after a calibration, 'projection' imager spacing corrected by ERMF, 'detector' (0018,1164) imager "
-        "pixel spacing, 'unknown'). Carried to fit.<view>.pixel_spacing_calibration; the engine does not use it.",
+        description="Which calibration gave the view's mm (filled by the DICOM layer, PS3.3 §10.7.1.1): "
+        "'calibrated' mm in the patient plane ((0028,0030) after a calibration, or imager spacing divided by the "
+        "ERMF or SID/SOD); 'projection' ((0028,0030) equal to (0018,1164)) and 'detector' ((0018,1164) only) mm at "
+        "the detector; 'unknown' or null: taken as detector mm. With 'calibrated' the engine multiplies the mm by "
+        "the acquisition's magnification (ERMF, else SID/SOD) to reach the detector, and without one it takes the "
+        "magnification as 1 (not the prior). Carried to fit.<view>.pixel_spacing_calibration.",
     )
 
     @field_validator("patient_orientation")

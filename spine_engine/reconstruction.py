@@ -19,6 +19,7 @@ from .anatomy import Profile, RestModel, load_profile, rest_model
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
+    calibrated_magnification,
     detector_spacing,
     landmark_arrays,
     observed_frontal_tilts,
@@ -187,8 +188,9 @@ def make_camera(
         o = E.T @ o_plane + b * mid_depth
         camera = Camera("perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b)
         return camera, ViewSetup("perspective", "acquisition", spc)
-    if acq is not None and acq.magnification is not None:
-        values = np.array([acq.magnification, T0[0], T0[1], 0.0])
+    known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
+    if known is not None:
+        values = np.array([known, T0[0], T0[1], 0.0])
         return Camera("weak", values, np.array([False, True, True, rotate])), ViewSetup(
             "weak_perspective", "acquisition", spc
         )
