@@ -142,6 +142,11 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     assert body_sent["pa"]["landmarks"][7]["pedicles"] and body_sent["pa"]["pixel_spacing"] == [PA_SPACING, PA_SPACING]
     assert body_sent["pa"]["patient_orientation"] == ["L", "F"]
     assert body_sent["study"]["study_instance_uid"] == "1.2.826.0.1.3680043.8.498.1001"
+    spec = httpx.get(f"{live_url}/openapi.json", timeout=10).json()
+    patient_fields = "patient_name" in spec["components"]["schemas"]["Study"]["properties"]
+    if patient_fields:  # the header's patient and study, in the payload's DICOM forms
+        assert body_sent["study"]["patient_name"] == "DOE^JANE" and body_sent["study"]["patient_id"] == "PAT-0042"
+        assert body_sent["study"]["accession_number"] == "ACC-7" and body_sent["study"]["study_date"] == "2026-11-30"
     if any_levels:
         assert [lm["level"] for lm in body_sent["lateral"]["landmarks"]] == LEVELS[3:]
         assert body_sent["lateral"]["patient_orientation"] == ["A", "F"]
@@ -169,6 +174,12 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     assert "toward the" in (measures.text_content() or "")  # axial rotation's sign in words
     assert page.locator("#lenke").text_content()
     page.locator("#result").screenshot(path=str(tmp_path / "result.png"))
+    if "/v1/jobs/{job_id}/sr.dcm" in spec["paths"]:
+        with page.expect_download() as info:
+            page.click("#download-sr")
+        assert Path(info.value.path()).read_bytes()[128:132] == b"DICM"
+    else:
+        assert page.is_hidden("#download-sr")
 
     # -- reopened from its URL after a reload: landmarks and result
     page.goto(f"{live_url}/#/jobs/{job_id}")
@@ -191,6 +202,7 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
         text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
         assert "Spine reconstruction report" in text and result["engine"]["version"] in text
         assert "Thoracic kyphosis T4–T12" in text
+        assert ("DOE JANE" in text) == patient_fields and ("ACC-7" in text) == patient_fields
         assert ("model estimate" in text) == bool(unreliable & {"kyphosis", "lordosis", "axial_rotation", "scale"})
     if shutil.which("pdftoppm"):
         subprocess.run(

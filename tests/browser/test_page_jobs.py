@@ -148,6 +148,20 @@ def test_jobs_list_links_and_plain_errors(browser: Any, live_url: str, api_key: 
     major = next(c for c in job["result"]["measures"]["cobb"] if c["major"])
     assert "succeeded" in text and "1.2.826.0.1.3680043.8.498.77" in text and f"{major['angle_deg']:.1f}°" in text
     page.screenshot(path=str(tmp_path / "jobs.png"))
+    spec = httpx.get(f"{live_url}/openapi.json", timeout=10).json()
+    filters = [p["name"] for p in spec["paths"]["/v1/jobs"]["get"]["parameters"]]
+    page.fill("#filter-study", "1.2.826.0.1.3680043.8.498.99")  # no job has this study
+    with page.expect_request(lambda r: "/v1/jobs?" in r.url) as listed:
+        page.click("#jobs-filter button")
+    if "study_instance_uid" in filters:
+        assert "study_instance_uid=1.2.826.0.1.3680043.8.498.99" in listed.value.url
+        page.locator("#jobs-note", has_text="No job matches.").wait_for()
+        assert page.locator("#jobs-table tbody tr").count() == 0
+    else:
+        assert "cannot filter by Study Instance UID" in (page.text_content("#jobs-note") or "")
+    page.fill("#filter-study", "")
+    page.click("#jobs-filter button")
+    row.wait_for()
     row.locator("a").click()
     page.wait_for_selector("#job-status[data-status=succeeded]")
     assert page.get_attribute("#result", "data-job-id") == job["id"]

@@ -295,7 +295,7 @@ def test_sample_payload_with_an_api_key(
     page.fill("#csv-text", "level,column,row\nT1,1,2\nT13,3,4\nT2,x,5\n")
     page.click("#use-csv")
     error = page.text_content("#input-error")
-    assert error is not None and "line 3: level \"T13\"" in error and "line 4: column and row" in error
+    assert error is not None and 'line 3: level "T13"' in error and "line 4: column and row" in error
     rows = ["level,column,row,view", "# endplate midpoints, detector mm"]
     rows += [f"{lv},{100 + i},{50 + 25 * i}" for i, lv in enumerate(LEVELS)] + ["T1,200,50,lateral"]
     page.fill("#csv-text", "\n".join(rows))

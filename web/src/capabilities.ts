@@ -7,9 +7,11 @@ export interface Capabilities {
   studyFields: Set<string>;
   jobFilters: Set<string>;
   dicomRoutes: boolean;
+  /** GET /v1/jobs/{id}/sr.dcm: the result as a DICOM SR. */
+  srExport: boolean;
 }
 
-const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false };
+const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false };
 
 let cached: Promise<Capabilities> | null = null;
 
@@ -27,6 +29,7 @@ export function readCapabilities(spec: unknown): Capabilities {
     studyFields: study.length ? new Set(study) : NONE.studyFields,
     jobFilters: new Set(list.map((p) => p.name).filter((n) => ["study_instance_uid", "accession_number", "patient_id"].includes(n))),
     dicomRoutes: Object.keys(s.paths ?? {}).some((p) => p.startsWith("/v1/dicom")),
+    srExport: "/v1/jobs/{job_id}/sr.dcm" in (s.paths ?? {}),
   };
 }
 

@@ -230,7 +230,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
       series_instance_uid: text(ds, tags.seriesUid),
       sop_instance_uid: text(ds, tags.sopUid),
       patient_id: text(ds, tags.patientId),
-      patient_name: personName(text(ds, tags.patientName)),
+      patient_name: text(ds, tags.patientName), // PN form (Family^Given…), as the payload takes it
       accession_number: text(ds, tags.accession),
       study_date: isoDate(text(ds, tags.studyDate)),
     },

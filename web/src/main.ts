@@ -5,6 +5,7 @@ import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
+import { personName } from "./dicom";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
@@ -491,13 +492,14 @@ function showResult(job: Job): void {
   fillReportHead(job);
   $<HTMLAnchorElement>("job-link").href = `#/jobs/${job.id}`;
   $("result").dataset.jobId = job.id;
+  $("download-sr").hidden = !caps?.srExport;
   void loadFigure(job.id);
 }
 
 function fillReportHead(job: Job): void {
   const study = job.study ?? job.payload?.study ?? null;
   const rows: [string, string][] = [
-    ["Patient", [study?.patient_name, study?.patient_id && `ID ${study.patient_id}`].filter(Boolean).join(", ") || "not given"],
+    ["Patient", [personName(study?.patient_name ?? undefined), study?.patient_id && `ID ${study.patient_id}`].filter(Boolean).join(", ") || "not given"],
     ["Study", [study?.study_date, study?.accession_number && `accession ${study.accession_number}`, study?.study_instance_uid && `UID ${study.study_instance_uid}`].filter(Boolean).join(", ") || "not given"],
     ["Job", `${job.id}, created ${new Date(job.created_at).toLocaleString()}${job.finished_at ? `, finished ${new Date(job.finished_at).toLocaleString()}` : ""}`],
     ["Engine", `${job.result?.engine.version ?? job.engine_version ?? "?"}, profile ${job.result?.engine.profile ?? "?"}`],
@@ -552,6 +554,14 @@ $("download-csv").addEventListener("click", () => {
 $("download-measures").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}-measures.csv`, new Blob([measuresCsv(measureRows(currentJob, currentJob.result))], { type: "text/csv" }));
 });
+$("download-sr").addEventListener("click", async () => {
+  if (!currentJob) return;
+  try {
+    download(`spine-${currentJob.id}-sr.dcm`, await api.blob(`/v1/jobs/${currentJob.id}/sr.dcm`));
+  } catch (error) {
+    if (error instanceof ApiError) showProblem(problemBox, error.problem);
+  }
+});
 for (const fmt of ["png", "svg"] as const) {
   $(`download-${fmt}`).addEventListener("click", async () => {
     if (!currentJob) return;
@@ -590,7 +600,7 @@ async function showJobs(): Promise<void> {
   try {
     const page = await api.jobs(filters);
     body.replaceChildren(...page.jobs.map(jobRow));
-    if (!page.jobs.length) note.textContent = `${note.textContent} No job yet.`.trim();
+    if (!page.jobs.length) note.textContent = `${note.textContent} No job matches.`.trim();
   } catch (error) {
     body.replaceChildren();
     showProblem($("jobs-problem"), error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
@@ -614,7 +624,7 @@ function jobRow(job: Job): HTMLTableRowElement {
     cell(link),
     cell(job.status),
     cell(new Date(job.created_at).toLocaleString()),
-    cell([s?.patient_name, s?.patient_id].filter(Boolean).join(", ") || "—"),
+    cell([personName(s?.patient_name ?? undefined), s?.patient_id].filter(Boolean).join(", ") || "—"),
     cell([s?.accession_number, s?.study_instance_uid].filter(Boolean).join(" · ") || "—"),
     cell(major ? `${major.angle_deg.toFixed(1)}°${major.angle_sd_deg != null ? ` ± ${major.angle_sd_deg.toFixed(1)}°` : ""} (${major.upper}–${major.lower})` : "—"),
   );

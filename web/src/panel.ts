@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, parseFilm, type DicomFilm } from "./dicom";
+import { DicomError, parseFilm, personName, type DicomFilm } from "./dicom";
 import { FilmEditor, type Mode } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
@@ -202,7 +202,7 @@ export class FilmPanel {
     const rows: [string, string][] = [];
     if (d) {
       const s = d.study;
-      rows.push(["Patient", [s.patient_name, s.patient_id && `ID ${s.patient_id}`].filter(Boolean).join(", ") || "not given"]);
+      rows.push(["Patient", [personName(s.patient_name), s.patient_id && `ID ${s.patient_id}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
