@@ -18,15 +18,12 @@ from page_fixtures import PageWatch, browser, free_port
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.docs_ui import DOCS_DIR, mount_docs
+from services.api.security import DOCS_POLICY
 
 pytestmark = pytest.mark.browser
 __all__ = ["browser"]
 
-# What services/api/security.py's DOCS_POLICY can become once the CDN pages are gone.
-STRICT_DOCS_POLICY = (
-    "default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
-    "font-src 'self'; connect-src 'self'; worker-src blob:; frame-ancestors 'none'; base-uri 'none'"
-)
+STRICT_DOCS_POLICY = DOCS_POLICY  # the policy the service sends on /docs and /redoc
 
 
 class Policy:
