@@ -48,7 +48,7 @@ def test_validation_problem_lists_every_field_with_its_json_path(api: TestClient
 
 
 def test_cross_field_validation_names_the_field(api: TestClient, payload: dict[str, Any]) -> None:
-    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][1:]  # no T1 landmark, no projection
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][:1]  # one level: below the PA's minimum of two
     problem = problem_of(api.post("/v1/jobs", json=payload))
     assert [e["path"] for e in problem["errors"]] == ["pa.landmarks"]
 
