@@ -15,7 +15,7 @@ The figure has four panels:
 - per-level angular strain u = (u1, u2, u3) and per-level v = (v1, v2, v3).
 
 Vertebrae are drawn as the projection of a box below their top endplate midpoint, spanned by
-d1 (PA) or d2 (lateral) and d3, and coloured by lateral bending (u2·Δs, degrees) on a diverging
+d1 (PA) or d2 (lateral) and d3, and coloured by frontal bending (u2·Δs, degrees) on a diverging
 map, as in Fig. 2 of Li et al. (CAIP 2009). L5 has no segment below it and is drawn grey.
 """
 
@@ -51,7 +51,7 @@ LATERAL_ORIENTATION = ("A", "F")
 
 
 def bending_norm(values: Sequence[float | None]) -> Normalize:
-    """Symmetric colour scale of the lateral bending angles (at least ±1°)."""
+    """Symmetric colour scale of the frontal bending angles (at least ±1°)."""
     finite = [abs(v) for v in values if v is not None]
     limit = max([1.0, *finite])
     return Normalize(vmin=-limit, vmax=limit)
@@ -142,23 +142,32 @@ def _strain_panel(ax: Axes, levels: list[str], values: np.ndarray, names: Sequen
     ax.legend(fontsize=6, frameon=False, ncols=3, loc="upper right")
 
 
+def _with_trust(value: float, sd: float | None, estimate: bool) -> str:
+    """'32.5° ± 2.1°', and ' (model estimate)' when the value comes from the model's prior (fit.unreliable)."""
+    text = f"{value:.1f}°" + (f" ± {sd:.1f}°" if sd is not None else "")
+    return text + (" (model estimate)" if estimate else "")
+
+
 def _summary(result: Mapping[str, Any]) -> str:
     measures = result.get("measures", {})
     fit = result.get("fit", {})
+    unreliable = set(fit.get("unreliable") or [])
     parts = []
     major = next((c for c in measures.get("cobb", []) if c.get("major")), None)
     if major:
-        parts.append(f"major Cobb {major['angle_deg']:.1f}° ({major['upper']}–{major['lower']}, "
-                     f"apex {major['apex']}, {major['convexity']})")  # fmt: skip
+        angle = _with_trust(major["angle_deg"], major.get("angle_sd_deg"), False)
+        where = f"{major['upper']}–{major['lower']}, apex {major['apex']}, {major['convexity']}"
+        parts.append(f"major Cobb {angle} ({where})")
     else:
         parts.append("no frontal curve")
-    if "thoracic_kyphosis_t4_t12_deg" in measures:
-        parts.append(f"kyphosis T4–T12 {measures['thoracic_kyphosis_t4_t12_deg']:.1f}°")
-    if "lumbar_lordosis_l1_l5_deg" in measures:
-        parts.append(f"lordosis L1–L5 {measures['lumbar_lordosis_l1_l5_deg']:.1f}°")
+    for key, name, flag in (("thoracic_kyphosis_t4_t12", "kyphosis T4–T12", "kyphosis"),
+                            ("lumbar_lordosis_l1_l5", "lordosis L1–L5", "lordosis")):  # fmt: skip
+        if f"{key}_deg" in measures:
+            value = _with_trust(measures[f"{key}_deg"], measures.get(f"{key}_sd_deg"), flag in unreliable)
+            parts.append(f"{name} {value}")
     if "mean_registration_error_mm" in fit:
         parts.append(f"mean PA residual {fit['mean_registration_error_mm']:.2f} mm")
-    return " · ".join(parts)
+    return parts[0] + "\n" + " · ".join(parts[1:])  # two lines: the title fits the figure's width
 
 
 def render_figure(
@@ -237,14 +246,14 @@ def render_figure(
         seg_levels = [v["level"] for v in seg]
         u = np.array([v["u"] for v in seg], dtype=float).reshape(-1, 3) * 1e3
         vv = np.array([v["v"] for v in seg], dtype=float).reshape(-1, 3)
-        _strain_panel(ax_u, seg_levels, u, ("u1 sagittal bending", "u2 lateral bending", "u3 twist"),
+        _strain_panel(ax_u, seg_levels, u, ("u1 sagittal bending", "u2 frontal bending", "u3 twist"),
                       "Angular strain u per segment", "u (10⁻³ rad/mm)")  # fmt: skip
         _strain_panel(ax_v, seg_levels, vv, ("v1 shear", "v2 shear", "v3 stretch"),
                       "Linear strain v per segment", "v (dimensionless)")  # fmt: skip
 
         bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=[ax_pa, ax_lat], location="bottom",
                            shrink=0.7, pad=0.02)  # fmt: skip
-        bar.set_label("lateral bending u2·Δs of the segment below (degrees); L5 grey", fontsize=8)
+        bar.set_label("frontal bending u2·Δs of the segment below (degrees); L5 grey", fontsize=8)
         bar.ax.tick_params(labelsize=7)
         fig.suptitle(f"Spine reconstruction ({len(levels)} vertebrae) — {_summary(result)}", fontsize=11)
 

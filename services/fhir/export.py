@@ -41,6 +41,12 @@ MODEL_ESTIMATE_NOTE = (
 )
 
 
+SD_COMPONENT = (
+    "Standard deviation of the value (1 SD from the fit's curvature, calibrated on held-out spines; "
+    "a 95 % interval is ±1.96 SD)"
+)
+
+
 def _deg(value: float) -> dict[str, Any]:
     return {"value": round(float(value), 2), "unit": "deg", "system": UCUM, "code": "deg"}
 
@@ -110,7 +116,10 @@ def observation_bundle(
     effective = (study or {}).get("study_date")
 
     def observation(key: str, name: str, value: float, *, notes: Sequence[str] = (),
-                    components: Sequence[dict[str, Any]] = (), estimate: bool = False) -> dict[str, Any]:  # fmt: skip
+                    components: Sequence[dict[str, Any]] = (), estimate: bool = False,
+                    sd: float | None = None) -> dict[str, Any]:  # fmt: skip
+        if sd is not None:
+            components = [*components, _component(SD_COMPONENT, valueQuantity=_deg(sd))]
         obs_id = str(uuid.uuid5(_NAMESPACE, f"{job_id}:{key}"))
         texts = [{"text": n} for n in notes] + ([{"text": MODEL_ESTIMATE_NOTE}] if estimate else []) + image_note
         body: dict[str, Any] = {
@@ -162,7 +171,7 @@ def observation_bundle(
         )
         observations.append(
             observation(f"cobb:{i}:{curve['upper']}-{curve['lower']}", f"Cobb angle, frontal plane, {kind}",
-                        curve["angle_deg"], notes=[note], components=components)
+                        curve["angle_deg"], notes=[note], components=components, sd=curve.get("angle_sd_deg"))
         )  # fmt: skip
     major = next((c for c in curves if c.get("major")), None)
     for key, name, field, flag in (
@@ -175,8 +184,11 @@ def observation_bundle(
         if measures.get(field) is not None:
             sign = "positive when convex posteriorly" if flag == "kyphosis" else "positive when convex anteriorly"
             observations.append(observation(key, name, measures[field], notes=[f"Sign: {sign}."],
-                                            estimate=flag in unreliable))  # fmt: skip
+                                            estimate=flag in unreliable,
+                                            sd=measures.get(field.replace("_deg", "_sd_deg"))))  # fmt: skip
     if major is not None:
+        apex = [v for v in result.get("vertebrae") or [] if v.get("level") == major["apex"]]
+        apex_sd = apex[0].get("axial_rotation_sd_deg") if apex else None
         observations.append(
             observation(
                 "apical-axial-rotation",
@@ -185,6 +197,7 @@ def observation_bundle(
                 notes=[f"Apex {major['apex']}; positive toward the patient's left (SRS sense, seen from above)."],
                 components=[_component("Apex vertebra", valueString=major["apex"])],
                 estimate="axial_rotation" in unreliable,
+                sd=apex_sd,
             )
         )
     bundle = {

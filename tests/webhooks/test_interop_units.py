@@ -277,3 +277,25 @@ def test_fhir_of_unknown_or_unfinished_jobs(api: TestClient) -> None:
     problem = problem_of(api.get(f"/v1/jobs/{job['id']}/fhir"))
     assert problem["status"] == 409 and problem["type"].endswith("/job-has-no-result")
     assert problem["job_status"] == "queued"
+
+
+def test_fhir_observations_carry_the_results_sd(result: dict[str, Any]) -> None:
+    """Each measure with an SD in the result has it as a component in degrees (issue #13: every number
+    with its trust), equal to the result's value."""
+    sds = copy.deepcopy(result)
+    sds["measures"]["thoracic_kyphosis_t4_t12_sd_deg"] = 2.5
+    sds["measures"]["thoracic_kyphosis_t5_t12_sd_deg"] = None
+    for curve in sds["measures"]["cobb"]:
+        curve["angle_sd_deg"] = 1.25
+    bundle = observation_bundle(uuid.uuid4(), sds, finished_at=datetime.now(UTC))
+    found: dict[str, float] = {}
+    for entry in bundle["entry"]:
+        obs = entry["resource"]
+        for component in obs.get("component", []):
+            if component["code"]["text"].startswith("Standard deviation"):
+                assert component["valueQuantity"]["unit"] == obs["valueQuantity"]["unit"]
+                found[obs["code"]["text"]] = component["valueQuantity"]["value"]
+    assert found["Thoracic kyphosis T4–T12 (sagittal Cobb angle)"] == 2.5
+    cobb = [v for k, v in found.items() if k.startswith("Cobb angle")]
+    assert cobb and all(v == 1.25 for v in cobb)
+    assert "Thoracic kyphosis T5–T12 (sagittal Cobb angle)" not in found  # no SD in the result: none invented
