@@ -8,11 +8,13 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from . import __version__
 from .anatomy import Profile, RestModel, load_profile, rest_model
@@ -484,8 +486,21 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
     )
 
 
+@functools.cache
+def _blas() -> ThreadpoolController:
+    return ThreadpoolController()
+
+
 def register_model(model: JobPayload) -> RegistrationResult:
-    """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge."""
+    """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
+
+    BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
+    threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
+    with _blas().limit(limits=1, user_api="blas"):
+        return _register_model(model)
+
+
+def _register_model(model: JobPayload) -> RegistrationResult:
     profile = load_profile(model.options.profile)
     start = time.perf_counter()
     try:
