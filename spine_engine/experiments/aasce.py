@@ -171,8 +171,21 @@ def plausible(rad: Radiograph) -> bool:
 # ---------------------------------------------------------------- reconstructions
 
 
+CASSETTE_HEIGHT_MM = 914.4
+"""Height of the long (14 × 36 in, 35 × 91 cm) cassette or detector of a full-spine radiograph."""
+
+
+def spacing_mm(rad: Radiograph) -> float:
+    """A nominal pixel spacing, mm per px: the image's height spread over a 36-inch full-spine film.
+    The data set gives no scale; with 1 mm per px the landmarks' 1 mm noise model (landmark_sd_mm)
+    would be a fraction of a pixel, and the fit would weigh them against the rod's prior as if the
+    spine were several metres long."""
+    return CASSETTE_HEIGHT_MM / rad.height_px
+
+
 def payload(rad: Radiograph, form: str, tilt_prior: bool | None = None) -> dict[str, Any]:
-    """A no-boundary payload in px (spacing [1, 1]) with corners or superior endplate midpoints."""
+    """A no-boundary payload in px (``spacing_mm``) with corners or superior endplate midpoints."""
+    spacing = spacing_mm(rad)
     landmarks = []
     for level, quad in zip(LEVELS, rad.corners, strict=True):
         if form == "corners":
@@ -180,14 +193,15 @@ def payload(rad: Radiograph, form: str, tilt_prior: bool | None = None) -> dict[
         else:
             landmarks.append({"level": level, "point": (0.5 * (quad[0] + quad[1])).tolist()})
     body: dict[str, Any] = {
-        "pa": {"units": "px", "pixel_spacing": [1.0, 1.0], "patient_orientation": list(PA), "landmarks": landmarks}
+        "pa": {"units": "px", "pixel_spacing": [spacing, spacing], "patient_orientation": list(PA),
+               "landmarks": landmarks}
     }
     if tilt_prior is not None:
         body["options"] = {"tilt_prior": tilt_prior}
     return body
 
 
-def model_axes(result: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+def model_axes(result: dict[str, Any], spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Axis vectors (17, 2) and endplate midpoints (34, 2) of a reconstruction, in image px: each
     vertebra's d1 projected, its node (superior endplate midpoint) projected, and the node + H·d3
     projected as the inferior midpoint (H the table's body height × the reconstruction's length
@@ -204,7 +218,7 @@ def model_axes(result: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     mids = np.empty((2 * N_LEVELS, 2))
     mids[0::2] = s * r @ E.T + T
     mids[1::2] = s * (r + heights[:, None] * R[:, :, 2]) @ E.T + T
-    return vectors, mids
+    return vectors, mids / spacing
 
 
 def line_axes(rad: Radiograph) -> tuple[np.ndarray, np.ndarray]:
@@ -262,18 +276,18 @@ def evaluate(rad: Radiograph) -> Outcome:
         major["corners"] = major_angle(a)
         major["corners_aasce"] = a["measures"]["aasce2019"]["angle_deg"]
         three["corners"] = three["script"]  # the corner lines are the script's own vectors
-        mv, mm = model_axes(a)
+        mv, mm = model_axes(a, spacing_mm(rad))
         tilt = frontal_tilt_deg(np.array([np.asarray(v["directors"]).T for v in a["vertebrae"]]))
         major["corners_model"] = float(tilt.max() - tilt.min())
         three["corners_model"] = aasce_angles(mv, mm, rad.height_px)
     b = run("midpoints", payload(rad, "midpoints"))
     if b is not None:
         major["midpoints"] = major_angle(b)
-        three["midpoints"] = aasce_angles(*model_axes(b), rad.height_px)
+        three["midpoints"] = aasce_angles(*model_axes(b, spacing_mm(rad)), rad.height_px)
     b0 = run("midpoints_no_prior", payload(rad, "midpoints", tilt_prior=False))
     if b0 is not None:
         major["midpoints_no_prior"] = major_angle(b0)
-        three["midpoints_no_prior"] = aasce_angles(*model_axes(b0), rad.height_px)
+        three["midpoints_no_prior"] = aasce_angles(*model_axes(b0, spacing_mm(rad)), rad.height_px)
     lv, lm = line_axes(rad)
     three["line"] = aasce_angles(lv, lm, rad.height_px)
     major["line"] = float(three["line"][0])
