@@ -51,7 +51,7 @@ from ..tilt_prior import (
 )
 from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 
-DATE = "2026-11-22"
+DATE = "2026-12-01"
 PA = ("L", "F")
 PLAUSIBLE_CHORD_DEG = 60.0
 """A radiograph whose superior endplate midpoints make a chord steeper than this (or going up) has
