@@ -183,9 +183,10 @@ def test_coverage_on_held_out_spines() -> None:
     """The calibrated 95 % intervals (constants fitted on VerSe dev only) cover the truth's
     centroid-relative coordinates of 8 held-out VerSe test spines in the issue's cases (a), (c)
     and (e) (uncalibrated PA + lateral, perspective with geometry, PA only; 1 mm noise), pooled:
-    n = 8 × 17 × 3 × 3 = 1224 coordinates. Band: 95 % ± 3 binomial SDs, √(0.95·0.05/1224) =
-    0.62 %, so [93.1 %, 96.9 %]. The coordinates of one spine are correlated, so the true spread
-    is wider than binomial; measured when written: 95.8 % (a 97.1, c 96.3, e 93.9 %)."""
+    n = 8 × 17 × 3 × 3 = 1224 coordinates. Band: issue #10's target, 90–98 %. A binomial band
+    (95 % ± 3 SD = [93.1, 96.9] %) is too narrow here: the 153 coordinates of one spine in one case
+    share its fit's errors, so the effective sample is nearer 8 spines × 3 cases than 1224; two
+    calibrations made the same day (with two tilt priors) measured 95.8 % and 97.4 %."""
     from spine_engine.experiments import clinic
 
     truths = clinic.verse_truths("test")[:8]
@@ -193,8 +194,7 @@ def test_coverage_on_held_out_spines() -> None:
     inside = sum(r["coverage_positions"] * r["coverage_positions_n"] for r in rows)
     n = sum(r["coverage_positions_n"] for r in rows)
     assert n == 1224
-    sd = np.sqrt(0.95 * 0.05 / n)
-    assert 0.95 - 3 * sd <= inside / n <= 0.95 + 3 * sd
+    assert 0.90 <= inside / n <= 0.98
 
 
 def test_calibration_file_round_trip(tmp_path: Path) -> None:
