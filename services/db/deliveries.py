@@ -7,13 +7,30 @@ from datetime import datetime
 from typing import Any
 
 from sqlalchemy import and_, exists, insert, select, update
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.db.models import WebhookDelivery, iso_utc
 
 
-def record(session: Session, **values: Any) -> None:
-    session.execute(insert(WebhookDelivery), [values])
+def claim(session: Session, **values: Any) -> int | None:
+    """Insert the row of one attempt of a message; None when that attempt already has a row.
+
+    The unique index on (message_id, attempt) makes this the one place where two deliveries of
+    the same attempt (a message published twice by a repeated cancel, a sweep, a redelivery
+    after a worker died) are told apart: only the first insert succeeds.
+    """
+    try:
+        with session.begin_nested():
+            row_id = session.scalar(insert(WebhookDelivery).values(**values).returning(WebhookDelivery.id))
+    except IntegrityError:
+        return None
+    return row_id
+
+
+def finish(session: Session, row_id: int, **values: Any) -> None:
+    """Write an attempt's outcome (status code, error, duration, next attempt) on its claimed row."""
+    session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(**values))
 
 
 def delivered(session: Session, message_id: str) -> bool:
@@ -25,12 +42,6 @@ def delivered(session: Session, message_id: str) -> bool:
             WebhookDelivery.status_code < 300,
         )
     )
-    return bool(session.scalar(query))
-
-
-def attempted(session: Session, message_id: str, attempt: int) -> bool:
-    """Whether attempt ``attempt`` of this message was already made (a second one is a duplicate)."""
-    query = select(exists().where(WebhookDelivery.message_id == message_id, WebhookDelivery.attempt == attempt))
     return bool(session.scalar(query))
 
 

@@ -244,6 +244,6 @@ class WebhookDelivery(Base):
 
     __table_args__ = (
         Index("ix_webhook_deliveries_job_id_id", "job_id", "id"),
-        Index("ix_webhook_deliveries_message_id", "message_id"),
+        Index("uq_webhook_deliveries_message_id_attempt", "message_id", "attempt", unique=True),
         Index("ix_webhook_deliveries_next_attempt_at", "next_attempt_at"),
     )

@@ -106,7 +106,8 @@ def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url:
            "url": url, "attempted_at": now}  # fmt: skip
     error = f"not published: {type(exc).__name__}; the reconciler publishes it again"
     try:
-        _record(settings, row, error=error, next_attempt_at=now)
+        with session_scope(settings) as session:  # a second failure for the same message finds the first row
+            store.claim(session, **row, status_code=None, error=error, duration_ms=None, next_attempt_at=now)
     except Exception as db_exc:  # the database is down too: nothing left to remember it by
         log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)
 
@@ -196,20 +197,28 @@ def _retry_after_s(value: str | None) -> float | None:
 
 
 def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float | None:
-    """Make attempt ``attempt`` of the job's webhook; return the delay before the next one, or None."""
+    """Make attempt ``attempt`` of the job's webhook; return the delay before the next one, or None.
+
+    The attempt's row is claimed before the request (``store.claim``): a second delivery of the
+    same attempt finds it and does nothing. Until the outcome is written, the row's
+    ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after it started),
+    so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
+    """
     mid = message_id(job_id, status)
+    attempted_at = utcnow()
     with session_scope(settings) as session:
         job = session.get(Job, job_id)
         url = job.callback_url if job is not None else None
         if job is None or not url or store.delivered(session, mid):
             return None
-        if store.attempted(session, mid, attempt):  # published twice (a repeated cancel, a sweep)
+        row_id = store.claim(
+            session, job_id=job_id, message_id=mid, event=f"job.{status}", attempt=attempt, url=url,
+            attempted_at=attempted_at, next_attempt_at=attempted_at + timedelta(seconds=settings.webhook_timeout_s),
+        )  # fmt: skip
+        if row_id is None:  # published twice (a repeated cancel, a sweep, a redelivery)
             return None
         body = webhook_body(job, status)
         key = secret_for(session, job.owner, settings)
-    attempted_at = utcnow()
-    row: dict[str, Any] = {"job_id": job_id, "message_id": mid, "event": f"job.{status}", "attempt": attempt,
-                           "url": url, "attempted_at": attempted_at}  # fmt: skip
     try:
         refused = destination_problem(url, allow_list(settings.webhook_allowed_urls))
     except WebhooksDisabled as exc:
@@ -217,7 +226,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
     if refused is None and key is None:
         refused = "no webhook signing secret is configured"
     if refused is not None:  # the operator changed the settings since the job was submitted
-        _record(settings, row, error=f"not sent: {refused}")
+        _finish(settings, row_id, error=f"not sent: {refused}")
         return None
     assert key is not None
     headers = signed_headers(key, mid, int(time.time()), body)
@@ -233,24 +242,24 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
     duration_ms = (time.perf_counter() - started) * 1000
     if status_code is not None and 200 <= status_code < 300:
-        _record(settings, row, status_code=status_code, duration_ms=duration_ms)
+        _finish(settings, row_id, status_code=status_code, duration_ms=duration_ms)
         return None
     if status_code is not None:
         error = f"HTTP {status_code}" + (" (redirects are not followed)" if 300 <= status_code < 400 else "")
     if status_code == 410 or attempt >= settings.webhook_max_attempts:
         final = "the receiver says the resource is gone" if status_code == 410 else "no attempt left"
-        _record(settings, row, status_code=status_code, duration_ms=duration_ms, error=f"{error}; {final}")
+        _finish(settings, row_id, status_code=status_code, duration_ms=duration_ms, error=f"{error}; {final}")
         return None
     delay = retry_delay(settings, attempt, retry_after)
-    _record(settings, row, status_code=status_code, duration_ms=duration_ms, error=error,
+    _finish(settings, row_id, status_code=status_code, duration_ms=duration_ms, error=error,
             next_attempt_at=attempted_at + timedelta(seconds=delay))  # fmt: skip
     return delay
 
 
-def _record(settings: Settings, row: dict[str, Any], **values: Any) -> None:
+def _finish(settings: Settings, row_id: int, **values: Any) -> None:
     with session_scope(settings) as session:
-        store.record(session, **{"status_code": None, "error": None, "duration_ms": None, "next_attempt_at": None,
-                                 **row, **values})  # fmt: skip
+        store.finish(session, row_id, **{"status_code": None, "error": None, "duration_ms": None,
+                                         "next_attempt_at": None, **values})  # fmt: skip
 
 
 def register_webhook_tasks(app: Celery, settings: Settings) -> None:

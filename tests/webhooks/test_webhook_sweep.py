@@ -1,23 +1,31 @@
 """The reconciler's webhook sweep, on real SQLite and PostgreSQL stores and a real broker: a webhook
 whose message could not be published when its job ended (a broker that refuses connections) is
-recorded as attempt 0 and published again once it is overdue; nothing is published twice."""
+recorded as attempt 0 and published again once it is overdue; nothing is published twice, and two
+deliveries of one attempt racing each other make one request."""
 
 from __future__ import annotations
 
+import threading
+import time
 import uuid
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from datetime import timedelta
 from typing import Any
 
 import pytest
+from pydantic import SecretStr
 from sqlalchemy import func, select, update
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery, queue_depth
+from services.db import deliveries as store
 from services.db import jobs as repo
 from services.db.engine import session_scope
 from services.db.models import WebhookDelivery, utcnow
 from services.webhooks import delivery
 from tests.conftest import spine_payload
+from tests.interop_helpers import Receiver
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
 URL = "http://127.0.0.1:9/hooks/sweep"
@@ -36,6 +44,13 @@ def cancelled_job_with_callback(settings: Settings) -> uuid.UUID:
         job, _ = repo.create_job(session, payload)
         repo.cancel_job(session, job.id)
     return job.id
+
+
+def record(settings: Settings, row: dict[str, Any], **values: Any) -> None:
+    """Store one finished attempt, as ``deliver_once`` leaves it."""
+    with session_scope(settings) as session:
+        full = {"status_code": None, "error": None, "duration_ms": None, "next_attempt_at": None, **row, **values}
+        assert store.claim(session, **full) is not None
 
 
 def rows(settings: Settings, job_id: uuid.UUID) -> list[WebhookDelivery]:
@@ -78,10 +93,10 @@ def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -
     now = utcnow()
     base = {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "url": URL, "attempted_at": now,
             "status_code": None, "duration_ms": None}  # fmt: skip
-    delivery._record(settings, {**base, "attempt": 1}, error="HTTP 500", next_attempt_at=now)
-    delivery._record(settings, {**base, "attempt": 2}, error="HTTP 503", next_attempt_at=now)
+    record(settings, {**base, "attempt": 1}, error="HTTP 500", next_attempt_at=now)
+    record(settings, {**base, "attempt": 2}, error="HTTP 503", next_attempt_at=now)
     old = cancelled_job_with_callback(settings)  # due two days ago: outside the sweep's window
-    delivery._record(settings, {**base, "job_id": old, "message_id": delivery.message_id(old, "cancelled"),
+    record(settings, {**base, "job_id": old, "message_id": delivery.message_id(old, "cancelled"),
                                 "attempt": 1}, error="HTTP 500", next_attempt_at=now - timedelta(days=2))  # fmt: skip
     wait_past(now, 0.1)
     broker = make_celery(settings)
@@ -89,7 +104,7 @@ def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -
     assert queue_depth(broker, settings.webhook_queue) == 1
     with session_scope(settings) as session:  # attempt 3 accepted: nothing is overdue any more
         session.execute(update(WebhookDelivery).where(WebhookDelivery.attempt == 2).values(next_attempt_at=now))
-    delivery._record(settings, {**base, "attempt": 3, "status_code": 204})
+    record(settings, {**base, "attempt": 3, "status_code": 204})
     assert delivery.sweep(settings, broker) == 0
 
 
@@ -97,7 +112,7 @@ def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -
 def test_a_repeated_attempt_is_dropped_before_any_request(db_settings: Settings) -> None:
     job_id = cancelled_job_with_callback(db_settings)
     mid = delivery.message_id(job_id, "cancelled")
-    delivery._record(db_settings, {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "attempt": 2,
+    record(db_settings, {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "attempt": 2,
                                    "url": URL, "attempted_at": utcnow()}, error="HTTP 500")  # fmt: skip
     assert delivery.deliver_once(db_settings, job_id, "cancelled", 2) is None
     with session_scope(db_settings) as session:
@@ -111,3 +126,45 @@ def wait_past(moment: Any, seconds: float) -> None:
 
     while utcnow() < moment + timedelta(seconds=seconds):
         time.sleep(0.02)
+
+
+@pytest.fixture()
+def slow_receiver() -> Iterator[Receiver]:
+    """A receiver that holds each request 0.3 s, so that two deliveries of one attempt overlap."""
+    receiver = Receiver()
+    handler = receiver.server.RequestHandlerClass
+    answer = handler.do_POST  # type: ignore[attr-defined]
+
+    def slow(self: Any) -> None:
+        time.sleep(0.3)
+        answer(self)
+
+    handler.do_POST = slow  # type: ignore[attr-defined]
+    yield receiver
+    receiver.close()
+
+
+@BACKENDS
+def test_two_deliveries_of_one_attempt_make_one_request(db_settings: Settings, slow_receiver: Receiver) -> None:
+    """The CI failure of 2026-12-01: attempt 2 of a message ran twice (its retry and a sweep), both
+    passed the check-then-insert, and the receiver got it twice. The claim is now an insert under a
+    unique index, so exactly one of the racing deliveries makes the request."""
+    url = slow_receiver.url(f"/hooks/{uuid.uuid4().hex}")
+    secret = SecretStr("whsec_" + "A" * 43 + "=")
+    settings = db_settings.model_copy(update={"webhook_allowed_urls": url, "webhook_secret": secret})
+    payload: dict[str, Any] = spine_payload()
+    payload["callback_url"] = url
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, payload)
+        repo.cancel_job(session, job.id)
+    start = threading.Barrier(2)
+
+    def deliver(_: int) -> float | None:
+        start.wait()
+        return delivery.deliver_once(settings, job.id, "cancelled", 2)
+
+    with ThreadPoolExecutor(2) as pool:
+        assert list(pool.map(deliver, range(2))) == [None, None]
+    assert [r.answered for r in slow_receiver.received] == [204]
+    [row] = rows(settings, job.id)
+    assert (row.attempt, row.status_code, row.error, row.next_attempt_at) == (2, 204, None, None)
