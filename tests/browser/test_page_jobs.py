@@ -176,6 +176,7 @@ def test_jobs_list_links_and_plain_errors(browser: Any, live_url: str, api_key: 
     with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/v1/jobs")) as posted:
         page.click("#submit")
     assert posted.value.status == 422
+    page.locator("#problem", has_text="The service cannot use this input").wait_for()  # rendered after the answer
     problem = page.text_content("#problem") or ""
     assert (
         "The service cannot use this input" in problem
