@@ -1,7 +1,5 @@
 """Fault-injection harness of the reliability tests (tests/integration/test_reliability.py).
 
-- ``OwnRedis``: a throwaway ``redis-server`` on a free port of 127.0.0.1 (``--save ""``: it keeps
-  nothing, so a restart loses every queued message), never the machine's shared Redis.
 - ``OwnPostgres``: a throwaway PostgreSQL cluster (``initdb`` + ``pg_ctl`` from
   /usr/lib/postgresql/*/bin, as the ``postgres`` user when run as root) on a free port, in a temp
   dir, so that stopping it never touches the server the rest of the suite uses.
@@ -70,52 +68,6 @@ def wait_until(predicate: Any, timeout: float, what: str, interval: float = 0.1)
 
 
 # ------------------------------------------------------------------ throwaway servers
-
-
-class OwnRedis:
-    """A redis-server of our own on a free loopback port, keeping nothing on disk."""
-
-    def __init__(self, workdir: Path):
-        self.workdir = workdir
-        self.port = free_port()
-        self.url = f"redis://127.0.0.1:{self.port}/0"
-        self.proc: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> None:
-        cmd = ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
-               "--dir", str(self.workdir), "--logfile", str(self.workdir / "redis.log")]  # fmt: skip
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-        wait_until(self.ping, 15, f"redis-server on port {self.port}")
-
-    def ping(self) -> bool:
-        import redis
-
-        try:
-            return bool(redis.Redis.from_url(self.url, socket_connect_timeout=0.5).ping())
-        except Exception:
-            return False
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()  # --save "": nothing is written, every queued message is gone
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.proc = None
-
-
-@contextlib.contextmanager
-def own_redis(workdir: Path) -> Iterator[OwnRedis]:
-    if shutil.which("redis-server") is None:
-        pytest.skip("redis-server is not installed: the Redis restart test needs its own server")
-    server = OwnRedis(workdir)
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
 
 
 class OwnPostgres:

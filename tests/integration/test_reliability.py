@@ -7,7 +7,8 @@ it ends with exactly one outcome (none lost, none with two outcomes). The figure
 docs/reliability.md reports them. Every wait is bounded; traffic goes only to 127.0.0.1.
 
 - kill -9 of a worker (its whole process group) in the middle of fits;
-- a restart of Redis (our own redis-server, keeping nothing) while jobs are queued;
+- (a restart of Redis while jobs are queued is tests/integration/test_loadbench.py's ``restart-redis``
+  fault: the load bench's own redis-server, with the 30 s recovery target);
 - PostgreSQL stopped for some seconds (our own throwaway cluster): 503 problems, never 500, nothing
   accepted that is not stored, recovery without help, workers retry and finish;
 - the same job messages delivered twice, concurrently: one run, one result each;
@@ -38,7 +39,6 @@ from tests.faults import (
     Load,
     outcome_figures,
     own_postgres,
-    own_redis,
     payload_in_logs,
     reliability_env,
     report,
@@ -214,56 +214,6 @@ def _mid_run(live: LiveService, cancels: dict[str, int]) -> int:
     with session_scope(live.settings) as s:
         rows = s.execute(select(Job.id, Job.started_at).where(Job.id.in_([uuid.UUID(i) for i in won]))).all()
     return sum(1 for _, started_at in rows if started_at is not None)
-
-
-def test_redis_restart_loses_no_queued_job(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """Our own redis-server (keeping nothing) restarted while jobs wait in it: the database still
-    holds them as queued, and the reconciler publishes them again."""
-    started = time.monotonic()
-    with own_redis(tmp_path) as redis_server, _postgres_database("redis_fault") as url:
-        service = LiveService(tmp_path, reliability_env(tmp_path, url, redis_server.url))
-        service.start_api()
-        service.start_worker()
-        load = Load(service, LOAD_RATE, max_s=60)
-        try:
-            ids = service.submit_batch(150)
-            load.start()
-            wait_until(lambda: service.count(ids, "succeeded") >= 10, 30, "the worker to be busy")
-            queued = service.count(ids, "queued")
-            fault_at = time.monotonic()
-            redis_server.stop()  # every queued message is gone with it
-            time.sleep(3)
-            redis_server.start()
-            fault_s = time.monotonic() - fault_at
-            time.sleep(3)
-            load.stop()
-            accepted = ids + load.accepted()
-            settle(service, accepted, timeout=120)
-            figures = outcome_figures(service, accepted)
-        finally:
-            load.stop()
-            service.stop()
-    report(
-        FaultFigures(
-            test="Redis restart",
-            fault=f"own redis-server (--save '') stopped for 3 s and started again, {queued} jobs queued in it",
-            jobs_submitted=figures["submitted"],
-            jobs_completed=figures["completed"],
-            jobs_lost=figures["lost"],
-            jobs_with_two_outcomes=figures["two_outcomes"],
-            load=f"150-job batch, then {LOAD_RATE:g} POST/s single jobs throughout",
-            answers_during_fault=load.statuses(fault_at, fault_at + fault_s),
-            fault_seconds=round(fault_s, 1),
-            test_seconds=round(time.monotonic() - started, 1),
-            notes=f"during the fault: {load.latency(fault_at, fault_at + fault_s)} (publishing waits for the "
-            "broker, then gives up: the job is stored and the reconciler publishes it)",
-        ),
-        capsys,
-    )
-    assert queued > 0  # the fault hit jobs in flight: their messages were in the Redis that was lost
-    assert figures["lost"] == 0 and figures["two_outcomes"] == 0, figures
-    assert figures["completed"] == len(accepted), figures
-    assert set(load.statuses()) == {"202"}, load.statuses()  # stored, so accepted: published later
 
 
 def test_postgres_outage_answers_503_and_recovers(tmp_path: Path, redis_url: str,
