@@ -10,12 +10,12 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
-from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
+from services.api.schemas import BatchEntry, BatchResponse, Job, Problem
 from services.core.problems import problem
 from services.db import jobs as jobs_repo
-from services.db.jobs import InsertHook, create_jobs_idempotent, entry_key, job_json
+from services.db.jobs import InsertHook, create_jobs_idempotent, entry_key
 from services.db.runs import publish
 
 
@@ -27,11 +27,12 @@ def batch_response(
     key: str,
     total: int,
     valid: list[tuple[int, dict[str, Any]]],
-    entries: list[dict[str, Any] | None],
+    entries: list[BatchEntry | None],
     on_insert: InsertHook | None = None,
     on_accepted: Callable[[int], None] | None = None,
-) -> Any:
-    """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones).
+) -> tuple[BatchResponse, bool]:
+    """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones), and
+    whether it only replayed jobs (then the answer carries ``Idempotent-Replayed: true``).
 
     ``on_insert(session, ids)`` runs in the inserting transaction; ``on_accepted(n)`` gets the number of
     jobs made (replays are not counted).
@@ -43,17 +44,17 @@ def batch_response(
         if isinstance(outcome, jobs_repo.IdempotencyConflict):
             detail = f"the Idempotency-Key {entry_key(key, i)!r} was used for job {outcome.job_id} with another body"
             p = problem("idempotency-conflict", detail, instance="/v1/jobs/batch", job=f"/v1/jobs/{outcome.job_id}")
-            entries[i] = {"index": i, "status": p["status"], "problem": p}
+            entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
             continue
         job, new = outcome
         if new:
             created.append(job.id)
         else:
             replayed += 1
-        entries[i] = {"index": i, "status": 202, "job": job_json(job)}
+        entries[i] = BatchEntry(index=i, status=202, job=Job.summary(job))
     if on_accepted is not None:
         on_accepted(len(created))
     publish(session, queue, created)
-    accepted = sum(1 for e in entries if e is not None and e["status"] == 202)
-    headers = {"Idempotent-Replayed": "true"} if replayed and not created else None
-    return JSONResponse({"accepted": accepted, "rejected": total - accepted, "results": entries}, headers=headers)
+    accepted = sum(1 for e in entries if e is not None and e.status == 202)
+    answer = BatchResponse(accepted=accepted, rejected=total - accepted, results=entries)
+    return answer, bool(replayed and not created)

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import uuid
-from datetime import datetime
+from collections.abc import Sequence
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.status import JobStatus
+from services.db.models import Job as JobRow
+from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.merge import DicomProvenance
 from services.dicom.store import DicomStoreAttempt
 from services.webhooks.schemas import WebhookDeliveryAttempt
@@ -40,15 +42,19 @@ class Problem(BaseModel):
     )
 
 
+# Built from the row by ``Job.summary`` (POST, the list, a batch, cancel) or ``Job.detail`` (GET by id).
+# A summary leaves the members only GET /v1/jobs/{id} has unset, and every route answering with jobs
+# declares ``response_model_exclude_unset=True``: an unset member is absent from the JSON, as is any
+# member of a stored result or error that the stored JSON lacks. (The docstring is the contract's text.)
 class Job(BaseModel):
     """A job and, once finished, its result or error."""
 
     id: uuid.UUID
     status: JobStatusName
     owner: str | None = Field(description="Owner of the job (API key's owner); null until keys exist.")
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
+    created_at: UtcTimestamp
+    started_at: UtcTimestamp | None
+    finished_at: UtcTimestamp | None
     attempts: int = Field(description="Runs started so far (a worker lost mid-fit counts one).")
     engine_version: str | None
     result: RegistrationResult | None = Field(description="The reconstruction, when succeeded.")
@@ -66,6 +72,40 @@ class Job(BaseModel):
     dicom_stores: list[DicomStoreAttempt] | None = Field(
         None, description="STOW-RS attempts of the job's SR and figure to the PACS; only in GET /v1/jobs/{id}."
     )
+
+    @classmethod
+    def summary(cls, row: JobRow) -> Job:
+        """The job without the members only GET /v1/jobs/{id} has (they stay unset)."""
+        return cls(**_members(row))
+
+    @classmethod
+    def detail(cls, row: JobRow, deliveries: Sequence[WebhookDelivery]) -> Job:
+        """The job as GET /v1/jobs/{id} answers it: with the payload, DICOM provenance, STOW-RS and
+        webhook delivery attempts (``deliveries``: the rows of ``services.db.deliveries.deliveries``)."""
+        return cls(
+            **_members(row),
+            payload=row.payload,
+            dicom=row.dicom,
+            dicom_stores=row.dicom_stores or [],
+            deliveries=[WebhookDeliveryAttempt.model_validate(d, from_attributes=True) for d in deliveries],
+        )
+
+
+def _members(row: JobRow) -> dict[str, Any]:
+    """The members of every job view, from the row's columns (validated by the ``Job`` they build)."""
+    return {
+        "id": row.id,
+        "status": row.status,
+        "owner": row.owner,
+        "created_at": row.created_at,
+        "started_at": row.started_at,
+        "finished_at": row.finished_at,
+        "attempts": row.attempts,
+        "engine_version": row.engine_version,
+        "result": row.result,
+        "error": row.error,
+        "study": row.payload.get("study") if isinstance(row.payload, dict) else None,
+    }
 
 
 class JobPage(BaseModel):

@@ -10,7 +10,7 @@ from sqlalchemy import and_, exists, insert, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from services.db.models import WebhookDelivery, iso_utc
+from services.db.models import WebhookDelivery
 
 
 def claim(session: Session, **values: Any) -> int | None:
@@ -77,22 +77,7 @@ def postpone(session: Session, row_id: int, until: datetime) -> None:
     session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(next_attempt_at=until))
 
 
-def deliveries_json(session: Session, job_id: uuid.UUID) -> list[dict[str, Any]]:
-    """The job's delivery attempts, oldest first, as the ``deliveries`` member of a job."""
-    rows = session.scalars(
-        select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
-    )
-    return [
-        {
-            "event": row.event,
-            "message_id": row.message_id,
-            "attempt": row.attempt,
-            "url": row.url,
-            "attempted_at": iso_utc(row.attempted_at),
-            "status_code": row.status_code,
-            "error": row.error,
-            "duration_ms": row.duration_ms,
-            "next_attempt_at": iso_utc(row.next_attempt_at) if row.next_attempt_at else None,
-        }
-        for row in rows
-    ]
+def deliveries(session: Session, job_id: uuid.UUID) -> list[WebhookDelivery]:
+    """The job's delivery attempts, oldest first (the ``deliveries`` member of a job)."""
+    query = select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+    return list(session.scalars(query))

@@ -1,6 +1,6 @@
 """Jobs as clients see them: create (idempotent, single and batch), read, list, cancel, and the
-job's JSON view (``job_json``: the API's ``Job`` model, built directly from the row, the hot path
-skips re-validation; also the data of webhook bodies).
+job's JSON view of webhook bodies (``job_json``; the API answers with its ``Job`` model, built from
+the row, and tests/api/test_response_models.py checks that the two write the same JSON).
 
 The cancel is a conditional UPDATE (``WHERE status IN (queued, running)``), so it never gives a
 job a second outcome; runs (claim, finish, reconcile) are in ``services.db.runs``.
@@ -332,9 +332,10 @@ def _ts(value: datetime | None) -> str | None:
     return iso_utc(value) if value is not None else None
 
 
-def job_json(job: Job, *, with_payload: bool = False) -> dict[str, Any]:
-    """A job as the JSON of the ``Job`` model, built directly (the hot path skips re-validation)."""
-    body: dict[str, Any] = {
+def job_json(job: Job) -> dict[str, Any]:
+    """A job as the ``data`` of a webhook body: the JSON of the API's ``Job.summary`` (a webhook is
+    sent from layers below the API, which cannot import its model)."""
+    return {
         "id": str(job.id),
         "status": job.status,
         "owner": job.owner,
@@ -347,8 +348,3 @@ def job_json(job: Job, *, with_payload: bool = False) -> dict[str, Any]:
         "error": job.error,
         "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
     }
-    if with_payload:
-        body["payload"] = job.payload
-        body["dicom"] = job.dicom
-        body["dicom_stores"] = job.dicom_stores or []
-    return body

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import uuid
 from datetime import UTC, datetime
-from typing import Any
+from typing import Annotated, Any
 
+from pydantic import PlainSerializer, WithJsonSchema
 from sqlalchemy import (
     JSON,
     BigInteger,
@@ -79,6 +80,15 @@ def iso_utc(value: datetime) -> str:
     """A timestamp as every job view writes it (job, lists, deliveries, webhook bodies): UTC, always
     with microseconds, ``Z`` for the zone, e.g. ``2026-12-01T16:42:47.123456Z`` (RFC 3339)."""
     return value.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+UtcTimestamp = Annotated[
+    datetime,
+    PlainSerializer(iso_utc, return_type=str, when_used="json"),
+    WithJsonSchema({"type": "string", "format": "date-time"}),
+]
+"""A datetime member of a response model, written to JSON as ``iso_utc`` writes it (pydantic's own
+form drops a zero fraction); its schema stays a plain ``date-time``."""
 
 
 class Base(DeclarativeBase):

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-
 from pydantic import BaseModel, Field
+
+from services.db.models import UtcTimestamp
 
 
 class WebhookDeliveryAttempt(BaseModel):
@@ -18,8 +18,8 @@ class WebhookDeliveryAttempt(BaseModel):
         "SPINE_WEBHOOK_SWEEP_AFTER_S past)."
     )
     url: str
-    attempted_at: datetime
+    attempted_at: UtcTimestamp
     status_code: int | None = Field(description="The receiver's HTTP status; null when no answer came.")
     error: str | None = Field(description="Why the attempt failed or was not made; null on success (2xx).")
     duration_ms: float | None
-    next_attempt_at: datetime | None = Field(description="When the next attempt is due; null when none follows.")
+    next_attempt_at: UtcTimestamp | None = Field(description="When the next attempt is due; null when none follows.")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
@@ -18,8 +16,8 @@ router = APIRouter(tags=["operations"])
 
 
 @router.get("/healthz", response_model=Health, summary="The process is alive")
-def healthz() -> dict[str, Any]:
-    return {"status": "ok", "checks": {}}
+def healthz() -> Health:
+    return Health(status="ok", checks={})
 
 
 @router.get(
@@ -28,7 +26,7 @@ def healthz() -> dict[str, Any]:
     summary="The database and the broker are reachable",
     responses={503: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}}},
 )
-def readyz(request: Request, session: SessionDep, queue: QueueDep) -> JSONResponse:
+def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | JSONResponse:
     checks: dict[str, str] = {}
     try:
         session.execute(text("SELECT 1"))
@@ -41,7 +39,7 @@ def readyz(request: Request, session: SessionDep, queue: QueueDep) -> JSONRespon
     except Exception as exc:
         checks["broker"] = f"unreachable: {type(exc).__name__}"
     if all(v == "ok" for v in checks.values()):
-        return JSONResponse({"status": "ready", "checks": checks})
+        return Health(status="ready", checks=checks)
     down = ", ".join(k for k, v in checks.items() if v != "ok")
     body = problem("service-unavailable", f"not ready: {down} unreachable", instance=request.url.path, checks=checks)
     return JSONResponse(body, status_code=503, media_type=PROBLEM_MEDIA_TYPE, headers={"Retry-After": "5"})

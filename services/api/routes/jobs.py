@@ -6,7 +6,7 @@ import uuid
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Query, Request
+from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import JSONResponse
 
 from services.api import job_reads
@@ -14,11 +14,11 @@ from services.api.admission import admit
 from services.api.batch import batch_response
 from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
-from services.api.schemas import BatchResponse, Job, JobPage, JobStatusName, Problem
+from services.api.schemas import BatchEntry, BatchResponse, Job, JobPage, JobStatusName, Problem
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.db import jobs as jobs_repo
-from services.db.deliveries import deliveries_json
-from services.db.jobs import MAX_BATCH_KEY_LENGTH, job_json
+from services.db.deliveries import deliveries
+from services.db.jobs import MAX_BATCH_KEY_LENGTH
 from services.db.runs import publish
 from services.webhooks.delivery import job_ended
 from spine_engine.errors import FieldError, InvalidInput
@@ -51,6 +51,7 @@ def _location(job_id: uuid.UUID | str) -> str:
     "",
     status_code=202,
     response_model=Job,
+    response_model_exclude_unset=True,
     summary="Submit a registration job",
     description="Validates the payload fully, stores a queued job and enqueues it. "
     "With an Idempotency-Key, the same key and body return the same job; another body is a 409.",
@@ -59,12 +60,13 @@ def _location(job_id: uuid.UUID | str) -> str:
 )
 def submit_job(
     body: JobBody,
+    response: Response,
     session: SessionDep,
     queue: QueueDep,
     access: AccessDep,
     settings: SettingsDep,
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
-) -> JSONResponse:
+) -> Job:
     try:
         admit(body, settings, session, access.owner)
     except InvalidInput as exc:
@@ -86,15 +88,16 @@ def submit_job(
         publish(session, queue, [job.id])
     else:
         access.record(session, "read", [job.id])
-    headers = {"Location": _location(job.id)}
+    response.headers["Location"] = _location(job.id)
     if not created:
-        headers["Idempotent-Replayed"] = "true"
-    return JSONResponse(job_json(job), status_code=202, headers=headers)
+        response.headers["Idempotent-Replayed"] = "true"
+    return Job.summary(job)
 
 
 @router.post(
     "/batch",
     response_model=BatchResponse,
+    response_model_exclude_unset=True,
     summary="Submit up to 1,000 jobs at once",
     description="Each payload is validated on its own; the answer has one entry per payload, "
     "in order: the created job (status 202) or the problem with it.",
@@ -103,12 +106,13 @@ def submit_job(
 )
 def submit_batch(
     body: BatchBody,
+    response: Response,
     session: SessionDep,
     queue: QueueDep,
     access: AccessDep,
     settings: SettingsDep,
     idempotency_key: Annotated[str | None, Header(max_length=MAX_BATCH_KEY_LENGTH)] = None,
-) -> JSONResponse:
+) -> BatchResponse:
     if not isinstance(body, dict) or not isinstance(body.get("jobs"), list):
         raise ProblemError(
             validation_problem([FieldError(("jobs",), "the body must be an object with a list 'jobs'", "list_type")])
@@ -122,7 +126,7 @@ def submit_batch(
                 limit=settings.batch_max_jobs,
             )
         )
-    entries: list[dict[str, Any] | None] = [None] * len(payloads)
+    entries: list[BatchEntry | None] = [None] * len(payloads)
     valid: list[tuple[int, dict[str, Any]]] = []
     for i, payload in enumerate(payloads):
         try:
@@ -131,19 +135,22 @@ def submit_batch(
         except InvalidInput as exc:
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
             p = validation_problem(errors, instance="/v1/jobs/batch")
-            entries[i] = {"index": i, "status": p["status"], "problem": p}
+            entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
     access.admit(session, len(valid))
     if idempotency_key is not None:
-        return batch_response(session, queue, owner=access.owner, key=idempotency_key, total=len(payloads), valid=valid,
-                              entries=entries, on_insert=access.created,
-                              on_accepted=access.accepted)  # fmt: skip
+        answer, replayed_only = batch_response(session, queue, owner=access.owner, key=idempotency_key,
+                                               total=len(payloads), valid=valid, entries=entries,
+                                               on_insert=access.created, on_accepted=access.accepted)  # fmt: skip
+        if replayed_only:
+            response.headers["Idempotent-Replayed"] = "true"
+        return answer
     jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=access.owner,
                                  on_insert=access.created) if valid else []  # fmt: skip
     access.accepted(len(jobs))
     publish(session, queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
-        entries[i] = {"index": i, "status": 202, "job": job_json(job)}
-    return JSONResponse({"accepted": len(jobs), "rejected": len(payloads) - len(jobs), "results": entries})
+        entries[i] = BatchEntry(index=i, status=202, job=Job.summary(job))
+    return BatchResponse(accepted=len(jobs), rejected=len(payloads) - len(jobs), results=entries)
 
 
 @router.api_route("/batch", methods=["GET", "PUT", "PATCH", "DELETE"], include_in_schema=False)
@@ -156,6 +163,7 @@ async def batch_other_methods(request: Request) -> JSONResponse:
 @router.get(
     "",
     response_model=JobPage,
+    response_model_exclude_unset=True,
     summary="List jobs, newest first",
     description="Filter by status (repeatable), creation time and the DICOM study (Study Instance UID, accession "
     "number, patient ID: the caller's own jobs only); page with the returned cursor.",
@@ -176,7 +184,7 @@ def list_jobs(
         str | None, Query(max_length=16, description="Jobs of this Accession Number (0008,0050).")
     ] = None,
     patient_id: Annotated[str | None, Query(max_length=64, description="Jobs of this Patient ID (0010,0020).")] = None,
-) -> JSONResponse:
+) -> JobPage:
     def utc(value: datetime | None) -> datetime | None:
         return value.replace(tzinfo=UTC) if value is not None and value.tzinfo is None else value
 
@@ -196,21 +204,25 @@ def list_jobs(
     except jobs_repo.BadCursor as exc:
         raise ProblemError(validation_problem([FieldError(("query", "cursor"), str(exc), "cursor")])) from None
     access.record(session, "list", [j.id for j in jobs])
-    return JSONResponse({"jobs": [job_json(j) for j in jobs], "next_cursor": next_cursor})
+    return JobPage(jobs=[Job.summary(j) for j in jobs], next_cursor=next_cursor)
 
 
-@router.get("/{job_id}", response_model=Job, summary="Read a job", responses=_problems(404, 422))
-def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> JSONResponse:
+@router.get(
+    "/{job_id}",
+    response_model=Job,
+    response_model_exclude_unset=True,
+    summary="Read a job",
+    responses=_problems(404, 422),
+)
+def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Job:
     job = job_reads.read_job(session, job_id, access)
-    body = job_json(job, with_payload=True)
-    has_callback = job.callback_url is not None
-    body["deliveries"] = deliveries_json(session, job.id) if has_callback else []
-    return JSONResponse(body)
+    return Job.detail(job, deliveries(session, job.id) if job.callback_url is not None else [])
 
 
 @router.post(
     "/{job_id}/cancel",
     response_model=Job,
+    response_model_exclude_unset=True,
     summary="Cancel a queued or running job",
     description="The job ends cancelled and is never run again; cancelling a cancelled job is a no-op. "
     "A job that already succeeded or failed is a 409.",
@@ -218,7 +230,7 @@ def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> JSONR
 )
 def cancel_job(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, queue: QueueDep, settings: SettingsDep
-) -> JSONResponse:
+) -> Job:
     try:
         job, cancelled_now = jobs_repo.cancel_job(session, job_id, owner=access.owner)
     except jobs_repo.JobNotFound:
@@ -231,4 +243,4 @@ def cancel_job(
     url = job.callback_url
     if url and cancelled_now:  # a repeated cancel sends no second webhook
         job_ended(settings, job.id, "cancelled", url=url, celery=queue)
-    return JSONResponse(job_json(job))
+    return Job.summary(job)
