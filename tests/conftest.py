@@ -20,15 +20,18 @@ import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
+from io import StringIO
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import pytest
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
-from services.core.config import Settings
+from services.cli import main as spine_main
+from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
@@ -334,3 +337,20 @@ def dumps(payload: Any) -> bytes:
 
 
 Wait = Callable[..., dict[str, Any]]
+
+
+def spine_cli(*args: str, data_dir: Path) -> subprocess.CompletedProcess[str]:
+    """``spine <args>`` on the embedded store of ``data_dir``, run by the CLI's own ``main`` in this
+    process: the code a shell runs, without a second interpreter's imports (about 2 s each)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
+    env["SPINE_DATA_DIR"] = str(data_dir)
+    out, err = StringIO(), StringIO()
+    with mock.patch.dict(os.environ, env, clear=True), redirect_stdout(out), redirect_stderr(err):
+        get_settings.cache_clear()
+        try:
+            code = spine_main(list(args))
+        except SystemExit as exc:  # argparse refusing the arguments
+            code = exc.code if isinstance(exc.code, int) else 1
+        finally:
+            get_settings.cache_clear()
+    return subprocess.CompletedProcess(["spine", *args], code, out.getvalue(), err.getvalue())

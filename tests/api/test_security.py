@@ -7,10 +7,7 @@ import hashlib
 import io
 import json
 import logging
-import os
 import re
-import subprocess
-import sys
 import threading
 import time
 import uuid
@@ -31,7 +28,7 @@ from services.db.engine import session_factory
 from services.db.keys import audit_trail, revoke
 from services.db.migrate import upgrade
 from services.db.models import ApiKey, Job
-from tests.conftest import make_key, problem_of, spine_payload
+from tests.conftest import make_key, problem_of, spine_cli, spine_payload
 
 KEY_LINE = re.compile(r"^spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43}$")
 
@@ -287,28 +284,21 @@ def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path, database_ur
     assert client.post("/v1/jobs", json=spine_payload(), headers=a).status_code == 202
 
 
-def _spine(*args: str, data_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
-    env["SPINE_DATA_DIR"] = str(data_dir)
-    return subprocess.run([sys.executable, "-m", "services.cli", *args], env=env, capture_output=True, text=True,
-                          timeout=120)  # fmt: skip
-
-
 def test_spine_keys_create_list_revoke(tmp_path: Path) -> None:
-    created = _spine("keys", "create", "--name", "clinic-x", "--role", "client", data_dir=tmp_path)
+    created = spine_cli("keys", "create", "--name", "clinic-x", "--role", "client", data_dir=tmp_path)
     assert created.returncode == 0, created.stderr
     key = created.stdout.strip().splitlines()[-1]
     assert KEY_LINE.match(key), created.stdout
     key_id = key.split("_")[1]
-    admin = _spine("keys", "create", "--name", "ops", "--role", "admin", data_dir=tmp_path)
-    listed = _spine("keys", "list", data_dir=tmp_path)
+    admin = spine_cli("keys", "create", "--name", "ops", "--role", "admin", data_dir=tmp_path)
+    listed = spine_cli("keys", "list", data_dir=tmp_path)
     assert key_id in listed.stdout and "clinic-x" in listed.stdout and "admin" in listed.stdout
     assert key not in listed.stdout and admin.stdout.strip().splitlines()[-1] not in listed.stdout
-    assert _spine("keys", "create", "--name", "bad name!", data_dir=tmp_path).returncode == 2
-    by_id = _spine("keys", "revoke", key_id, data_dir=tmp_path)
+    assert spine_cli("keys", "create", "--name", "bad name!", data_dir=tmp_path).returncode == 2
+    by_id = spine_cli("keys", "revoke", key_id, data_dir=tmp_path)
     assert by_id.returncode == 0 and key_id in by_id.stdout
-    assert _spine("keys", "revoke", key_id, data_dir=tmp_path).returncode == 1  # already revoked
-    assert _spine("keys", "revoke", "ops", data_dir=tmp_path).returncode == 0  # by name
+    assert spine_cli("keys", "revoke", key_id, data_dir=tmp_path).returncode == 1  # already revoked
+    assert spine_cli("keys", "revoke", "ops", data_dir=tmp_path).returncode == 0  # by name
     settings = Settings(data_dir=tmp_path, api_key_cache_s=0)
     client = TestClient(create_app(settings))
     assert client.get("/v1/jobs", headers={"Authorization": f"Bearer {key}"}).status_code == 401

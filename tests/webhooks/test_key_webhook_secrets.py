@@ -6,10 +6,7 @@ worker) with no service-wide SPINE_WEBHOOK_SECRET and a webhook receiver on 127.
 
 from __future__ import annotations
 
-import os
 import re
-import subprocess
-import sys
 import uuid
 from collections.abc import Iterator
 
@@ -21,7 +18,7 @@ from services.core.config import Settings
 from services.db.engine import get_engine
 from services.db.migrate import downgrade, upgrade
 from spine_client import SpineClient
-from tests.conftest import spine_payload
+from tests.conftest import spine_cli, spine_payload
 from tests.interop_helpers import Received, Receiver, Served, wait_until
 
 SECRET_LINE = r"^whsec_[A-Za-z0-9+/]{43}=$"
@@ -44,10 +41,7 @@ def served(tmp_path_factory: pytest.TempPathFactory, receiver: Receiver) -> Iter
 
 def keys(served: Served, *args: str) -> list[str]:
     """`spine keys <args>` on the served database; its output lines."""
-    env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
-    env["SPINE_DATA_DIR"] = str(served.data_dir)
-    done = subprocess.run([sys.executable, "-m", "services.cli", "keys", *args], env=env, capture_output=True,
-                          text=True, timeout=60)  # fmt: skip
+    done = spine_cli("keys", *args, data_dir=served.data_dir)
     assert done.returncode == 0, done.stderr
     return done.stdout.strip().splitlines()
 
