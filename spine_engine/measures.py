@@ -25,8 +25,6 @@ TILT_HYSTERESIS_DEG = 5.0
 the intra-observer error of manual Cobb measurement, about ±5° (Morrissy et al., J Bone Joint
 Surg Am 1990;72:320–327, report a 95 % confidence interval of roughly this size; value rounded)."""
 
-_AXIS_Z = np.array([0.0, 0.0, 1.0])
-
 
 def frontal_tilt_deg(rotations: npt.ArrayLike) -> FloatArray:
     """Frontal tilt θ_i = atan2(d1_z, d1_x) of each vertebra: the angle of d1 projected on the
@@ -216,15 +214,22 @@ def _plane_tilt_deg(R: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
     atan2(w·z, w·h).
     """
     phi = np.radians(np.asarray(phi_deg, dtype=float))
-    c, s = np.cos(phi), np.sin(phi)
-    h = np.stack([c, -s, np.zeros_like(c)], axis=-1)
+    return _plane_tilt_cs_deg(R, np.cos(phi), np.sin(phi))
+
+
+def _plane_tilt_cs_deg(R: FloatArray, c: FloatArray, s: FloatArray) -> FloatArray:
+    """``_plane_tilt_deg`` from cos φ and sin φ, in closed form: with a = h·d3 = c d3x − s d3y,
+    w·z = −a d3z (h has no z) and w·h = |h|² − a² (no 3-vectors per φ: this runs on the grids of
+    ``plane_of_max_curvature``)."""
     d3 = R[:, 2]
-    w = h - np.outer(h @ d3, d3)
-    return np.degrees(np.arctan2(w @ _AXIS_Z, np.sum(w * h, axis=-1)))
+    a = c * d3[0] - s * d3[1]
+    return np.degrees(np.arctan2(-a * d3[2], c * c + s * s - a * a))
 
 
 def _plane_cobb_deg(R_upper: FloatArray, R_lower: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
-    diff = _plane_tilt_deg(R_upper, phi_deg) - _plane_tilt_deg(R_lower, phi_deg)
+    phi = np.radians(np.asarray(phi_deg, dtype=float))
+    c, s = np.cos(phi), np.sin(phi)
+    diff = _plane_tilt_cs_deg(R_upper, c, s) - _plane_tilt_cs_deg(R_lower, c, s)
     return np.abs((diff + 180.0) % 360.0 - 180.0)
 
 

@@ -4,10 +4,16 @@ Each iteration solves (H + λD) h = −Jᵀρ (``banded.solve_bordered``). The f
 Gauss–Newton H = JᵀJ (at the initial configuration the large residuals make the second-order terms
 misleading); later ones add the rod's and observations' second-order terms Σ_k ρ_k ∇²ρ_k over the
 vertebrae (the exact Hessian of E/2 in the chart δ ↦ (r + δr, R exp(hat δθ)) when the cameras are
-fixed; their rows stay Gauss–Newton), falling back to Gauss–Newton at the same λ when that matrix
-is not positive definite or its step does not lower E. D is the running maximum of diag(JᵀJ); λ
-starts at 1e-8 and follows Nielsen's rule (× max(0.1, 1 − (2ϱ − 1)³) on success, × 2, 4, 8, … on
-failure), with ϱ the ratio of actual to predicted decrease. A trial step is accepted when it lowers E.
+fixed; their rows stay Gauss–Newton), falling back to Gauss–Newton at the same λ when its step does
+not lower E. When that matrix is not positive definite at λ (negative curvature: a saddle or a ridge
+of E nearby), two steps are tried and the one giving the lower E is taken: Gauss–Newton's at λ and
+Newton's at the least damping λ' = max(10λ, SHIFT_MIN)·10^k that makes it definite. Gauss–Newton
+alone cannot see negative curvature: from near a weak saddle its steps grow by a few per cent per
+iteration (100 iterations were not enough on AASCE radiographs, docs/accuracy.md), and from a point
+with a near-zero gradient it stops there, "converged" on the saddle. D is the running maximum of
+diag(JᵀJ); λ starts at 1e-8 and follows Nielsen's rule (× max(0.1, 1 − (2ϱ − 1)³) on success, × 2,
+4, 8, … on failure), with ϱ the ratio of actual to predicted decrease at the damping of the step
+taken. A trial step is accepted when it lowers E.
 
 Convergence (with λ ≤ 1e-3, so that the step is not a damped one):
   * the step moves every position by ≤ XTOL_MM = 1e-6 mm, every rotation by ≤ XTOL_RAD = 1e-8 rad
@@ -25,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .banded import KD, band_to_dense, solve_bordered
+from .banded import KD, BorderedSystem, band_to_dense, solve_bordered
 from .problem import RegistrationProblem, State
 from .types import Solution
 
@@ -47,6 +53,8 @@ LAMBDA_GN = 1e-3
 """Damping below which a step is a Gauss–Newton step, for the stationarity test."""
 LAMBDA_MAX = 1e12
 """Damping at which the search gives up on decreasing E further."""
+SHIFT_MIN = 1e-12
+"""Smallest damping tried to make an indefinite Newton matrix definite (then × 10 until it is)."""
 
 
 def _small(problem: RegistrationProblem, state: State, h: np.ndarray) -> bool:
@@ -60,6 +68,33 @@ def _small(problem: RegistrationProblem, state: State, h: np.ndarray) -> bool:
         if np.any(np.abs(h[problem.n_vertebra_params :]) > XTOL_CAMERA * np.maximum(1.0, np.abs(values))):
             return False
     return True
+
+
+def _damped_step(
+    ab: np.ndarray, system: BorderedSystem, g: np.ndarray, lam: float, Dd: np.ndarray, nv: int
+) -> np.ndarray | None:
+    """The step solving (H + λD) h = −g, H = [[ab, B], [Bᵀ, C]]; None when not positive definite."""
+    A = ab.copy()
+    A[KD] += lam * Dd[:nv]
+    return solve_bordered(A, system.B, system.C + np.diag(lam * Dd[nv:]), g)
+
+
+class _Trial:
+    """A trial step h taken with damping λ: its predicted decrease, the convergence tests, the
+    trial state and its evaluation (without second-order terms when the step would be final)."""
+
+    def __init__(
+        self, problem: RegistrationProblem, state: State, h: np.ndarray, lam: float, Dd: np.ndarray,
+        g: np.ndarray, E: float,
+    ):
+        self.lam = lam
+        self.small = _small(problem, state, h)
+        self.predicted = float(lam * (h * Dd) @ h - h @ g)
+        self.final = lam <= LAMBDA_GN and (self.small or self.predicted <= FTOL * E + ETOL)
+        self.state = problem.step(state, h)
+        # a final step's second-order terms are not needed (no normal equations follow)
+        self.res, self.cache, self.rows = problem.evaluate(self.state, second_order=not self.final)
+        self.E = float(self.res @ self.res)
 
 
 def solve(
@@ -84,29 +119,35 @@ def solve(
         ab = system.ab if ab_2 is None else system.ab + ab_2
         accepted = False
         while lam <= LAMBDA_MAX:
-            A = ab.copy()
-            A[KD] += lam * Dd[:nv]
-            C = system.C + np.diag(lam * Dd[nv:])
-            h = solve_bordered(A, system.B, C, g)
-            if h is not None:
-                small = _small(problem, state, h)
-                predicted = float(lam * (h * Dd) @ h - h @ g)
-                final = lam <= LAMBDA_GN and (small or predicted <= FTOL * E + ETOL)
-                trial = problem.step(state, h)
-                # a final step's second-order terms are not needed (no normal equations follow)
-                res_t, cache_t, rows_t = problem.evaluate(trial, second_order=not final)
-                E_t = float(res_t @ res_t)
-                if E_t < E:
+            h = _damped_step(ab, system, g, lam, Dd, nv)
+            trials = [] if h is None else [_Trial(problem, state, h, lam, Dd, g, E)]
+            if h is None and ab is not system.ab:
+                # Newton's matrix is not positive definite at this damping (a saddle or a ridge of E
+                # nearby): its step with the least damping that makes it definite, and Gauss–Newton's
+                # at this damping, both tried; the lower energy wins.
+                lam_n = lam
+                while h is None and lam_n < LAMBDA_MAX:
+                    lam_n = max(10.0 * lam_n, SHIFT_MIN)
+                    h = _damped_step(ab, system, g, lam_n, Dd, nv)
+                if h is not None:
+                    trials.append(_Trial(problem, state, h, lam_n, Dd, g, E))
+                ab = system.ab
+                h = _damped_step(ab, system, g, lam, Dd, nv)
+                if h is not None:
+                    trials.append(_Trial(problem, state, h, lam, Dd, g, E))
+            if trials:
+                best = min(trials, key=lambda t: t.E)
+                if best.E < E:
                     newton = True
-                    rho = (E - E_t) / predicted if predicted > 0.0 else 1.0
-                    lam *= max(LAMBDA_DOWN, 1.0 - (2.0 * rho - 1.0) ** 3)
+                    rho = (E - best.E) / best.predicted if best.predicted > 0.0 else 1.0
+                    lam = best.lam * max(LAMBDA_DOWN, 1.0 - (2.0 * rho - 1.0) ** 3)
                     nu = 2.0
                     accepted = True
                     iterations += 1
-                    converged = final or (small and E - E_t <= FTOL * E + ETOL)
-                    state, res, cache, rows, E = trial, res_t, cache_t, rows_t, E_t
+                    converged = best.final or (best.small and E - best.E <= FTOL * E + ETOL)
+                    state, res, cache, rows, E = best.state, best.res, best.cache, best.rows, best.E
                     break
-                if final:
+                if trials[-1].final:
                     converged = True
                     break
             if ab is not system.ab:
