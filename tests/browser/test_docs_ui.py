@@ -14,14 +14,13 @@ import pytest
 import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from page_fixtures import PageWatch, browser, free_port
+from page_fixtures import PageWatch, free_port
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.docs_ui import DOCS_DIR, mount_docs
 from services.api.security import DOCS_POLICY
 
 pytestmark = pytest.mark.browser
-__all__ = ["browser"]
 
 STRICT_DOCS_POLICY = DOCS_POLICY  # the policy the service sends on /docs and /redoc
 

@@ -10,10 +10,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import LEVELS, api_key, browser, live_url, open_page
+from page_fixtures import LEVELS, open_page
 
 pytestmark = pytest.mark.browser
-__all__ = ["api_key", "browser", "live_url"]
 
 
 def _centre(box: dict[str, float] | None) -> tuple[float, float]:

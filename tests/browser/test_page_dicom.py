@@ -22,19 +22,15 @@ from page_fixtures import (
     FILM_SIZE,
     LEVELS,
     PA_SPACING,
-    api_key,
-    browser,
     canvas_grey,
     canvas_point,
     lateral_points,
-    live_url,
     make_dicom,
     open_page,
     pa_corners,
 )
 
 pytestmark = pytest.mark.browser
-__all__ = ["api_key", "browser", "live_url"]  # fixtures used by name
 
 
 def _service_takes_lateral_subsets(url: str) -> bool:

@@ -9,10 +9,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import api_key, browser, canvas_point, centreline, live_url, make_dicom, open_page
+from page_fixtures import canvas_point, centreline, make_dicom, open_page
 
 pytestmark = pytest.mark.browser
-__all__ = ["api_key", "browser", "live_url"]
 
 
 @pytest.mark.parametrize(

@@ -16,11 +16,8 @@ import httpx
 import pytest
 from page_fixtures import (
     LEVELS,
-    api_key,
-    browser,
     canvas_point,
     centreline,
-    live_url,
     make_dicom,
     make_png,
     open_page,
@@ -28,7 +25,6 @@ from page_fixtures import (
 )
 
 pytestmark = pytest.mark.browser
-__all__ = ["api_key", "browser", "live_url"]
 
 
 def _run_job(url: str, key: str, payload: dict[str, Any]) -> dict[str, Any]:

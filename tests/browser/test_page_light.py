@@ -10,12 +10,11 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import api_key, browser, live_url, open_page
+from page_fixtures import open_page
 
 from services.api.web import STATIC_DIR
 
 pytestmark = pytest.mark.browser
-__all__ = ["api_key", "browser", "live_url"]
 
 # Budget of the first render's assets (HTML + CSS + JS, gzip): the page's own choice, recorded in
 # docs/web.md; it holds the page without three.js, which is loaded with the first result.
