@@ -33,6 +33,10 @@ from typing import Any
 
 import httpx
 
+from services.core.config import Settings
+from services.db.engine import session_scope
+from services.db.keys import create_key, revoke
+from services.db.migrate import upgrade
 from tools.loadbench import check_loopback
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
@@ -243,7 +247,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-KEY_LINE = re.compile(r"^(spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43})$", re.M)
 
 
 @contextmanager
@@ -254,16 +257,12 @@ def spawned() -> Iterator[tuple[str, Keys]]:
     env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
     env.update(SPINE_DATA_DIR=str(data_dir), SPINE_LOG_LEVEL="WARNING", SPINE_SERVE_WORKER="false")
     spine = [sys.executable, "-m", "services.cli"]
-
-    def key(name: str) -> str:
-        out = subprocess.run([*spine, "keys", "create", "--name", name], env=env, capture_output=True, text=True,
-                             check=True, timeout=120)  # fmt: skip
-        match = KEY_LINE.search(out.stdout.strip().splitlines()[-1])
-        assert match, out.stdout
-        return match.group(1)
-
-    client, other, revoked = key("bad-input-client"), key("another-client"), key("revoked-client")
-    subprocess.run([*spine, "keys", "revoke", "revoked-client"], env=env, capture_output=True, check=True, timeout=120)
+    settings = Settings(data_dir=data_dir)
+    upgrade(settings, quiet=True)
+    with session_scope(settings) as session:  # the store `spine keys create|revoke` writes to
+        client, other, revoked = (create_key(session, name)[1]
+                                  for name in ("bad-input-client", "another-client", "revoked-client"))  # fmt: skip
+        revoke(session, "revoked-client")
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     log = (data_dir / "serve.log").open("wb")
