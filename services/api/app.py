@@ -13,6 +13,7 @@ from fastapi import Depends, FastAPI
 from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry
 
+from services.api.artifacts import ArtifactCache
 from services.api.deps import reject_unknown_query
 from services.api.docs_ui import mount_docs
 from services.api.errors import install_error_handlers
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.celery = make_celery(settings)
+    app.state.artifact_cache = ArtifactCache(int(settings.artifact_cache_mb * 1024 * 1024))
     registry = CollectorRegistry()
     registry.register(JobStateCollector(settings, app.state.celery))
     app.state.registry = registry

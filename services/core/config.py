@@ -163,6 +163,15 @@ class Settings(BaseSettings):
         "as the job ended, or was lost with the broker) is published again by the reconciler.",
     )
 
+    # Built artifacts of succeeded jobs (services/api/artifacts.py): figures, SR, Secondary Capture, FHIR.
+    artifact_cache_mb: float = Field(
+        64.0,
+        ge=0,
+        description="Bytes (in MiB) of built artifacts of succeeded jobs (figure.png|svg, sr.dcm, figure.dcm, "
+        "fhir) each API process keeps, least recently used first out, so that a second GET does not build "
+        "them again; 0: no cache (an If-None-Match that matches still answers 304 without building).",
+    )
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:

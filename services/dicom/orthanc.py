@@ -56,9 +56,12 @@ def orthanc_missing() -> str | None:
     return None
 
 
-def start_orthanc(folder: Path, extra: dict[str, Any] | None = None) -> tuple[subprocess.Popen[bytes], OrthancServer]:
-    """Start Orthanc on a free loopback port with storage under ``folder``; wait until it answers."""
-    port = free_port()
+def start_orthanc(
+    folder: Path, extra: dict[str, Any] | None = None, *, port: int | None = None
+) -> tuple[subprocess.Popen[bytes], OrthancServer]:
+    """Start Orthanc on ``port`` (default: a free loopback port) with storage under ``folder``; wait until
+    it answers. Started again on the same ``folder``, it serves what it stored before."""
+    port = port or free_port()
     username, password = "spine", "spine-test-password"
     config = {
         "Name": "spine-test",

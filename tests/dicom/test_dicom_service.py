@@ -3,14 +3,17 @@ subprocess): a radiograph stored in Orthanc, a job posted with px landmarks and 
 UIDs succeeds with the header's spacing (the same 3D result as with the spacing typed in), what was
 read is on the job, the SR and the figure land in the study (QIDO finds them), the job is found by
 study, accession and patient (only the caller's), FHIR has the subject and date; a missing instance
-fails the job with its own problem type. And the list filters alone, on the embedded database."""
+fails the job with its own problem type; a PACS that stays down fails the job after its attempts, and
+one that comes back on its port gets the handed-back jobs done. And the list filters alone, on the
+embedded database."""
 
 from __future__ import annotations
 
 import io
 import json
+import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -186,6 +189,68 @@ def test_pacs_down_retries_then_fails_the_job(
     assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
     assert "did not answer" in job["error"]["detail"]
     assert "back to the queue" in service.worker_log()
+
+
+def _wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"not within {timeout:g} s: {what}"
+        time.sleep(0.1)
+
+
+def test_a_pacs_that_comes_back_gets_the_job_done(
+    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
+) -> None:
+    """By-reference jobs submitted while nothing listens on the PACS's port are handed back to the queue;
+    the PACS then comes back on that very port, holding the referenced instance, and the jobs succeed
+    with the header's spacing: none lost, each try counted (attempts = hand-backs + 1)."""
+    from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
+
+    reason = orthanc_missing()
+    if reason:
+        pytest.skip(reason)
+    folder = tmp_path_factory.mktemp("pacs-back")
+    image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200)
+    proc, before = start_orthanc(folder)  # the PACS before its outage: it receives the image, then stops
+    try:
+        with _pacs(before) as pacs:
+            pacs.store([image])
+    finally:
+        stop_orthanc(proc)
+
+    port = free_port()  # nothing listens there until the PACS comes back
+    data_dir = tmp_path_factory.mktemp("dicom-back")
+    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
+                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{port}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
+                      SPINE_DICOMWEB_USERNAME=before.username, SPINE_DICOMWEB_PASSWORD=before.password,
+                      SPINE_MAX_ATTEMPTS="5")  # fmt: skip
+    # 5 attempts: hand-backs after 2, 4, 8 and 16 s leave 30 s for the PACS to come back (it takes ~1 s)
+    service = Service("dicom-back", env, data_dir)
+    service.start_worker()
+    back: subprocess.Popen[bytes] | None = None
+    try:
+        payload = spine_payload(spacing_mm=SPACING)
+        payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
+        job_ids = [service.submit(payload)["id"] for _ in range(2)]
+        _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
+                    "every job handed back to the queue while the PACS is down")  # fmt: skip
+        assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
+        back, server = start_orthanc(folder, port=port)
+        assert server.dicomweb_url == env["SPINE_DICOMWEB_URL"]
+        done = [service.wait(j, timeout=120) for j in job_ids]
+    finally:
+        service.stop_worker()
+        if back is not None:
+            stop_orthanc(back)
+    log = service.worker_log()
+    for job in done:
+        assert job["status"] == "succeeded", (job.get("error"), log[-3000:])
+        handed_back = log.count(f"job {job['id']} back to the queue")
+        assert handed_back >= 1 and job["attempts"] == handed_back + 1, (handed_back, job["attempts"])
+        read = {r["field"]: r for r in job["dicom"]["pa"]["read"]}
+        assert read["pa.pixel_spacing"]["value"] == [SPACING, SPACING] and read["pa.pixel_spacing"]["used"]
+        assert job["dicom"]["pa"]["source"] == "dicomweb"
+    assert done[0]["result"]["measures"]["cobb"] == done[1]["result"]["measures"]["cobb"]
 
 
 def test_python_client_and_cli_get_the_sr(

@@ -1,4 +1,6 @@
-"""/v1/jobs/{id}/fhir: a succeeded job's clinical measures as a FHIR R4 Bundle of Observations."""
+"""/v1/jobs/{id}/fhir: a succeeded job's clinical measures as a FHIR R4 Bundle of Observations, with a
+strong ``ETag`` (RFC 9110 §8.8.3), 304 on a matching ``If-None-Match`` (§13.1.2, §15.4.5), and the bytes
+kept in the app's ``ArtifactCache`` (``services/api/artifacts.py``)."""
 
 from __future__ import annotations
 
@@ -9,10 +11,15 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import Response
 
+from services.api.artifacts import (
+    CONDITIONAL,
+    ArtifactCacheDep,
+    IfNoneMatchDep,
+    artifact_response,
+    artifact_responses,
+)
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
-from services.api.schemas import Problem
-from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.db.models import utcnow
 from services.dicom.merge import apply_reads
 from services.fhir.export import observation_bundle
@@ -29,7 +36,7 @@ DESCRIPTION = (
     "With a `study` in the payload, each Observation's `derivedFrom` names the ImagingStudy by its DICOM Study "
     "Instance UID; with its patient ID (typed in or read from the image header), `subject` is the Patient by "
     "identifier, and with its study date, `effectiveDateTime` is that date. 404 for an unknown job; 409 "
-    "(`job-has-no-result`) unless the job succeeded."
+    "(`job-has-no-result`) unless the job succeeded." + CONDITIONAL
 )
 
 
@@ -38,17 +45,19 @@ DESCRIPTION = (
     response_class=Response,
     summary="A succeeded job's measures as a FHIR R4 Bundle",
     description=DESCRIPTION,
-    responses={
-        200: {
-            "content": {FHIR_MEDIA_TYPE: {"schema": {"type": "object", "description": "FHIR R4 Bundle (collection)"}}},
-            "description": "The Bundle.",
-        },
-        **{s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in (404, 409, 422)},
-    },
+    responses=artifact_responses(
+        FHIR_MEDIA_TYPE, "The Bundle.", {"type": "object", "description": "FHIR R4 Bundle (collection)"}
+    ),
 )
-def job_fhir(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
+def job_fhir(
+    job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
+) -> Response:
     job, result = read_succeeded_job(session, job_id, access, "FHIR export")
-    payload: Any = job.payload
-    study = apply_reads(payload, job.dicom).get("study") if isinstance(payload, dict) else None
-    bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)
-    return Response(json.dumps(bundle, ensure_ascii=False), media_type=FHIR_MEDIA_TYPE)
+
+    def build() -> bytes:
+        payload: Any = job.payload
+        study = apply_reads(payload, job.dicom).get("study") if isinstance(payload, dict) else None
+        bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)
+        return json.dumps(bundle, ensure_ascii=False).encode()
+
+    return artifact_response("fhir", job, if_none_match, cache, build, FHIR_MEDIA_TYPE)

@@ -1,19 +1,26 @@
-"""/v1/jobs/{id}/figure.png and figure.svg: the reconstruction drawn by ``spine_engine.figures``."""
+"""/v1/jobs/{id}/figure.png and figure.svg: the reconstruction drawn by ``spine_engine.figures``, with a
+strong ``ETag`` (RFC 9110 §8.8.3), 304 on a matching ``If-None-Match`` (§13.1.2, §15.4.5) before any
+drawing, and the bytes kept in the app's ``ArtifactCache`` (``services/api/artifacts.py``)."""
 
 from __future__ import annotations
 
 import uuid
-from typing import Any
 
 from fastapi import APIRouter
 from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
 from services.api.access import Access
+from services.api.artifacts import (
+    CONDITIONAL,
+    ArtifactCache,
+    ArtifactCacheDep,
+    IfNoneMatchDep,
+    artifact_response,
+    artifact_responses,
+)
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
-from services.api.schemas import Problem
-from services.core.problems import PROBLEM_MEDIA_TYPE
 from spine_engine.figures import MEDIA_TYPES, FigureFormat, render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["figures"])
@@ -22,24 +29,18 @@ DESCRIPTION = (
     "PA and lateral views of the reconstruction with the landmarks and their residuals, vertebrae "
     "coloured by lateral bending (u2·Δs), and per-level plots of the strains u and v. "
     "404 for an unknown job; 409 (`job-has-no-result`) while the job is queued or running, or when "
-    "it failed or was cancelled."
+    "it failed or was cancelled." + CONDITIONAL
 )
 
 
-def _responses(fmt: str) -> dict[int | str, dict[str, Any]]:
-    problems: dict[int | str, dict[str, Any]] = {
-        s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in (404, 409, 422)
-    }
-    ok: dict[int | str, dict[str, Any]] = {
-        200: {"content": {MEDIA_TYPES[fmt]: {}}, "description": f"The figure as {fmt.upper()}."}
-    }
-    return ok | problems
-
-
-def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, access: Access) -> Response:
+def _figure(
+    job_id: uuid.UUID, fmt: FigureFormat, session: Session, access: Access, if_none_match: str | None,
+    cache: ArtifactCache,
+) -> Response:  # fmt: skip
     job, result = read_succeeded_job(session, job_id, access, "figure")
-    body = render_figure(result, job.payload, fmt)  # a sync route: this runs in the thread pool
-    return Response(body, media_type=MEDIA_TYPES[fmt], headers={"Cache-Control": "private, max-age=3600"})
+    # a sync route: rendering runs in the thread pool, and only when the client's copy is not current
+    return artifact_response("figure.png" if fmt == "png" else "figure.svg", job, if_none_match, cache,
+                             lambda: render_figure(result, job.payload, fmt), MEDIA_TYPES[fmt])  # fmt: skip
 
 
 @router.get(
@@ -47,10 +48,12 @@ def _figure(job_id: uuid.UUID, fmt: FigureFormat, session: Session, access: Acce
     response_class=Response,
     summary="Figure of a succeeded job's reconstruction (PNG)",
     description=DESCRIPTION,
-    responses=_responses("png"),
+    responses=artifact_responses(MEDIA_TYPES["png"], "The figure as PNG."),
 )
-def figure_png(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
-    return _figure(job_id, "png", session, access)
+def figure_png(
+    job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
+) -> Response:
+    return _figure(job_id, "png", session, access, if_none_match, cache)
 
 
 @router.get(
@@ -58,7 +61,9 @@ def figure_png(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Res
     response_class=Response,
     summary="Figure of a succeeded job's reconstruction (SVG)",
     description=DESCRIPTION,
-    responses=_responses("svg"),
+    responses=artifact_responses(MEDIA_TYPES["svg"], "The figure as SVG."),
 )
-def figure_svg(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Response:
-    return _figure(job_id, "svg", session, access)
+def figure_svg(
+    job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
+) -> Response:
+    return _figure(job_id, "svg", session, access, if_none_match, cache)
