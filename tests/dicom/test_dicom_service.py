@@ -19,7 +19,6 @@ from typing import Any
 
 import pydicom
 import pytest
-from conftest import Service, make_key, service_env  # tests/conftest.py (the root conftest)
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
@@ -27,6 +26,7 @@ from services.core.config import Settings
 from services.db.migrate import upgrade
 from services.dicom import synthetic
 from services.dicom.dicomweb import DicomwebConfig, Pacs
+from tests.conftest import Service, make_key, service_env
 
 from .conftest import OrthancServer, spine_payload
 
