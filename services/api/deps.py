@@ -129,10 +129,17 @@ async def read_json(request: Request, limit: int) -> Any:
     instance = request.url.path
     content_type = request.headers.get("content-type", "")
     if not _is_json(content_type):
+        detail = f"the body must be sent as application/json, not {content_type or 'without a content type'!r}"
+        if content_type.split(";", 1)[0].strip().lower() == "application/dicom":
+            detail += (
+                ": a radiograph is not a job; send the landmarks as JSON and name the film by its UIDs "
+                "(study.study_instance_uid and study.pa_sop_instance_uid: the service reads its header from "
+                "the PACS), or let the client read the header locally (spine submit --pa-dicom FILE)"
+            )
         raise ProblemError(
             problem(
                 "unsupported-media-type",
-                f"the body must be sent as application/json, not {content_type or 'without a content type'!r}",
+                detail,
                 instance=instance,
                 errors=[{"path": "", "loc": [], "msg": "content type must be application/json",
                          "type": "content_type"}],

@@ -69,6 +69,19 @@ def test_wrong_content_type_is_a_415_problem(api: TestClient, content_type: str 
     assert problem_of(response)["type"] == PROBLEM_BASE + "unsupported-media-type"
 
 
+def test_a_dicom_body_is_a_415_that_says_how_to_send_a_film(api: TestClient) -> None:
+    """Issue #12's first try: a radiograph posted as the job. Refused, with the two ways that work."""
+    from services.dicom import synthetic
+    from services.dicom.results import part10
+
+    film = part10(synthetic.radiograph(rows=64, columns=48, imager_pixel_spacing=(0.2, 0.2)))
+    response = api.post("/v1/jobs", content=film, headers={"content-type": "application/dicom"})
+    assert response.status_code == 415
+    detail = problem_of(response)["detail"]
+    assert "study.pa_sop_instance_uid" in detail and "spine submit --pa-dicom" in detail
+    assert api.get("/v1/jobs").json()["jobs"] == []  # nothing stored
+
+
 def test_problem_json_content_type_is_accepted(api: TestClient, payload: Any) -> None:
     response = api.post(
         "/v1/jobs", content=json.dumps(payload), headers={"content-type": "application/json; charset=utf-8"}
