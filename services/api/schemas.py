@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.core.status import JobStatus
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
+from services.dicom.dicomweb import StudyImage
 from services.dicom.merge import DicomProvenance
 from services.dicom.store import DicomStoreAttempt
 from services.webhooks.schemas import WebhookDeliveryAttempt
@@ -136,3 +137,18 @@ class BatchResponse(BaseModel):
 class Health(BaseModel):
     status: str
     checks: dict[str, str] = Field(default_factory=dict)
+
+
+class PacsStatus(BaseModel):
+    """Whether the service is connected to a PACS (``SPINE_DICOMWEB_URL``): the page shows "Open from the
+    PACS" only then."""
+
+    configured: bool = Field(description="True when SPINE_DICOMWEB_URL is set (reachability is not checked).")
+
+
+class PacsStudyImages(BaseModel):
+    study_instance_uid: str
+    images: list[StudyImage] = Field(
+        description="The study's images (DX, CR and other radiograph modalities, and any instance with Rows and "
+        "Columns; no SR or other non-image), sorted by series number then instance number."
+    )

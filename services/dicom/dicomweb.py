@@ -17,9 +17,12 @@ from typing import Any
 
 import requests
 from dicomweb_client.api import DICOMwebClient
+from pydantic import BaseModel, ConfigDict, Field
+from pydicom.datadict import tag_for_keyword
 from pydicom.dataset import Dataset
+from pydicom.uid import ExplicitVRLittleEndian
 
-from .errors import InstanceNotFound, PacsUnavailable, StoreRefused
+from .errors import InstanceNotFound, PacsUnavailable, StoreRefused, StudyNotFound, TransferSyntaxUnavailable
 from .header import RadiographHeader, check_uid, read_header
 
 DEFAULT_TIMEOUT_S = 10.0
@@ -30,6 +33,63 @@ hung PACS into a retry without holding a worker long."""
 SERIES_INSTANCE_UID = "0020000E"
 SOP_INSTANCE_UID = "00080018"
 FAILED_SOP_SEQUENCE = "FailedSOPSequence"
+
+IMAGE_FIELDS = ("SeriesInstanceUID", "SOPInstanceUID", "SOPClassUID", "Modality", "ViewPosition",
+                "ImageLaterality", "Rows", "Columns", "SeriesDescription", "SeriesNumber", "InstanceNumber",
+                "PatientID", "PatientName", "StudyDate", "AccessionNumber")  # fmt: skip
+"""What QIDO-RS is asked to include (``includefield``) for each instance of a study listed to open one."""
+RADIOGRAPH_MODALITIES = frozenset({"DX", "CR", "DR", "RG", "MG", "RF", "XA", "IO", "PX"})
+"""Projection-radiograph modalities (PS3.3 §C.7.3.1.1.1); an instance of another modality is listed only
+when it has Rows and Columns (an image: a Secondary Capture, say), never an SR, KO or PR."""
+
+
+class StudyImage(BaseModel):
+    """One image of a study as QIDO-RS lists it (an attribute the PACS did not return is null)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    series_instance_uid: str
+    sop_instance_uid: str
+    sop_class_uid: str | None
+    modality: str | None
+    view_position: str | None = Field(description="View Position (0018,5101), e.g. PA, AP, LL, RL.")
+    image_laterality: str | None
+    rows: int | None
+    columns: int | None
+    series_description: str | None
+    series_number: int | None
+    instance_number: int | None
+    patient_id: str | None
+    patient_name: str | None = Field(description="Patient's Name, its alphabetic form (e.g. Doe^Jane).")
+    study_date: str | None = Field(description="Study Date as DICOM DA (YYYYMMDD).")
+    accession_number: str | None
+
+    @classmethod
+    def from_json(cls, item: dict[str, Any]) -> StudyImage | None:
+        """The image of one QIDO-RS result (DICOM JSON, PS3.18 §F.2), or None when it is not an image."""
+        values = {keyword: _json_value(item, keyword) for keyword in IMAGE_FIELDS}
+        series, sop = values["SeriesInstanceUID"], values["SOPInstanceUID"]
+        if not series or not sop:
+            return None
+        rows, columns = _int(values["Rows"]), _int(values["Columns"])
+        modality = _str(values["Modality"])
+        if modality not in RADIOGRAPH_MODALITIES and not (rows and columns):
+            return None
+        return cls(series_instance_uid=str(series), sop_instance_uid=str(sop),
+                   sop_class_uid=_str(values["SOPClassUID"]), modality=modality,
+                   view_position=_str(values["ViewPosition"]),
+                   image_laterality=_str(values["ImageLaterality"]), rows=rows, columns=columns,
+                   series_description=_str(values["SeriesDescription"]), series_number=_int(values["SeriesNumber"]),
+                   instance_number=_int(values["InstanceNumber"]), patient_id=_str(values["PatientID"]),
+                   patient_name=_str(values["PatientName"]), study_date=_str(values["StudyDate"]),
+                   accession_number=_str(values["AccessionNumber"]))  # fmt: skip
+
+    def sort_key(self) -> tuple[int, str, int, str]:
+        """Series by number (then UID), then instances by number (then UID); unnumbered ones last."""
+        big = 1 << 62
+        series = self.series_number if self.series_number is not None else big
+        instance = self.instance_number if self.instance_number is not None else big
+        return (series, self.series_instance_uid, instance, self.sop_instance_uid)
 
 
 @dataclass(frozen=True)
@@ -137,6 +197,50 @@ class Pacs:
             return list(self.client.search_for_instances(study_instance_uid=study_instance_uid,
                                                          search_filters=dict(filters) or None))  # fmt: skip
 
+    def study_images(self, study_instance_uid: str) -> list[StudyImage]:
+        """The images of a study (QIDO-RS instances with ``includefield``), sorted by series then
+        instance number. ``StudyNotFound`` when the PACS lists no instance of the study."""
+        check_uid(study_instance_uid, "StudyInstanceUID")
+        uids = {"StudyInstanceUID": study_instance_uid}
+        try:
+            with self._errors("the study's instances", uids):
+                found = self.client.search_for_instances(study_instance_uid=study_instance_uid,
+                                                         fields=list(IMAGE_FIELDS), get_remaining=True)  # fmt: skip
+        except InstanceNotFound:
+            found = []
+        if not found:
+            raise StudyNotFound(f"the PACS at {self.config.url} has no instance of study {study_instance_uid}",
+                                uids=uids)  # fmt: skip
+        images = [image for item in found if (image := StudyImage.from_json(item)) is not None]
+        return sorted(images, key=StudyImage.sort_key)
+
+    def retrieve_explicit_le(self, study_instance_uid: str, series_instance_uid: str, sop_instance_uid: str) -> Dataset:
+        """The instance (WADO-RS, PS3.18 §10.4) in Explicit VR Little Endian, the PACS transcoding it
+        when stored otherwise (Accept: ``application/dicom; transfer-syntax=1.2.840.10008.1.2.1``).
+        ``TransferSyntaxUnavailable`` when the PACS cannot (406) or answers in another syntax."""
+        uids = {"StudyInstanceUID": check_uid(study_instance_uid, "StudyInstanceUID"),
+                "SeriesInstanceUID": check_uid(series_instance_uid, "SeriesInstanceUID"),
+                "SOPInstanceUID": check_uid(sop_instance_uid, "SOPInstanceUID")}  # fmt: skip
+        try:
+            with self._errors("the instance", uids):
+                accept = (("application/dicom", ExplicitVRLittleEndian),)
+                ds = self.client.retrieve_instance(study_instance_uid, series_instance_uid, sop_instance_uid,
+                                                   media_types=accept)  # fmt: skip
+        except PacsUnavailable as exc:
+            if exc.status in (406, 415):
+                raise TransferSyntaxUnavailable(
+                    f"the PACS at {self.config.url} cannot send {_uids_text(uids)} in Explicit VR Little Endian "
+                    f"(HTTP {exc.status}): it is stored compressed and the PACS does not transcode it"
+                ) from None
+            raise
+        syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+        if syntax != ExplicitVRLittleEndian:
+            raise TransferSyntaxUnavailable(
+                f"the PACS at {self.config.url} sent {_uids_text(uids)} in transfer syntax {syntax}, not Explicit VR "
+                f"Little Endian ({ExplicitVRLittleEndian}) as asked: the page reads uncompressed images only"
+            )
+        return ds
+
     def store(self, datasets: Sequence[Dataset]) -> StoreOutcome:
         """STOW-RS the datasets (one request). Raises ``StoreRefused`` when the PACS refuses any."""
         uids = {"SOPInstanceUID": ", ".join(str(ds.SOPInstanceUID) for ds in datasets)}
@@ -159,3 +263,28 @@ class Pacs:
 
 def _uids_text(uids: dict[str, str]) -> str:
     return ", ".join(f"{k} {v}" for k, v in uids.items())
+
+
+def _json_value(item: dict[str, Any], keyword: str) -> Any:
+    """The first value of ``keyword`` in a DICOM JSON object (a person name's alphabetic form), or None."""
+    tag = tag_for_keyword(keyword)
+    element = item.get(f"{tag:08X}") if tag is not None else None
+    values = (element or {}).get("Value") or []
+    if not values:
+        return None
+    value = values[0]
+    if isinstance(value, dict):
+        return value.get("Alphabetic")
+    return value
+
+
+def _str(value: Any) -> str | None:
+    text = str(value).strip() if value is not None else ""
+    return text or None
+
+
+def _int(value: Any) -> int | None:
+    try:
+        return int(value) if value is not None else None
+    except (TypeError, ValueError):
+        return None

@@ -93,6 +93,19 @@ class InstanceNotFound(DicomwebError):
         self.uids = dict(uids or {})
 
 
+class StudyNotFound(InstanceNotFound):
+    """The PACS answered but holds no image of the study asked for (QIDO-RS found no instance)."""
+
+    problem = "dicomweb-study-not-found"
+
+
+class TransferSyntaxUnavailable(DicomwebError):
+    """The PACS holds the instance but would not send it in the transfer syntax asked for (it cannot
+    transcode it, PS3.18 §8.7.3.5: 406 Not Acceptable, or it answered another one)."""
+
+    problem = "dicomweb-transfer-syntax-unavailable"
+
+
 class StoreRefused(DicomwebError):
     """STOW-RS answered but refused (some of) the instances (PS3.18 §10.5.3: 409 or a Failed SOP Sequence)."""
 

@@ -7,12 +7,14 @@ server is off: DICOMweb is the only way in.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import socket
 import subprocess
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -110,6 +112,16 @@ def start_orthanc(
             raise RuntimeError(f"Orthanc did not answer within {ORTHANC_START_TIMEOUT_S:g} s: "
                                f"{log.read_text(errors='replace')[-2000:]}")  # fmt: skip
         time.sleep(0.1)
+
+
+@contextlib.contextmanager
+def running_orthanc(folder: Path, extra: dict[str, Any] | None = None) -> Iterator[OrthancServer]:
+    """``start_orthanc`` for the duration of the block, then ``stop_orthanc``."""
+    proc, server = start_orthanc(folder, extra)
+    try:
+        yield server
+    finally:
+        stop_orthanc(proc)
 
 
 def stop_orthanc(proc: subprocess.Popen[bytes]) -> None:

@@ -11,8 +11,15 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
+import signal
 import socket
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -179,6 +186,69 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+@dataclass
+class Serve:
+    """One `spine serve` subprocess: its URL and the API key it printed at first start."""
+
+    proc: subprocess.Popen[bytes]
+    url: str
+    api_key: str
+    log: Path
+
+
+def start_serve(data_dir: Path, **extra_env: str) -> Serve:
+    """`spine serve` (uvicorn API and its Celery worker child, embedded SQLite in `data_dir`) on a free
+    port of 127.0.0.1 with `extra_env`; waits for /readyz and reads the API key it prints."""
+    import httpx
+
+    port = free_port()
+    env = {
+        **os.environ,
+        "SPINE_DATA_DIR": str(data_dir),
+        "SPINE_QUEUE_NAME": f"spine-page-{uuid.uuid4().hex[:8]}",
+        "SPINE_WORKER_CONCURRENCY": "1",
+        "SPINE_LOG_LEVEL": "WARNING",
+    }
+    for key in ("DATABASE_URL", "CELERY_BROKER_URL", "SPINE_SERVE_WORKER"):
+        env.pop(key, None)
+    env.update(extra_env)
+    log_path = data_dir / "serve.log"
+    with log_path.open("wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "serve", "--host", "127.0.0.1", "--port", str(port)],
+            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"spine serve did not become ready:\n{log_path.read_text(errors='replace')[-4000:]}")
+            time.sleep(0.2)
+        printed = re.search(r"^(spine_[0-9a-f]{12}_[A-Za-z0-9_-]{43})$", log_path.read_text(errors="replace"), re.M)
+        assert printed, f"spine serve printed no API key:\n{log_path.read_text(errors='replace')[-4000:]}"
+    except BaseException:
+        stop_serve(proc)
+        raise
+    return Serve(proc, url, printed.group(1), log_path)
+
+
+def stop_serve(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM to `spine serve` (it stops its worker child), SIGKILL to its process group after 30 s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
 
 
 class PageWatch:

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from services.dicom.orthanc import OrthancServer, free_port, orthanc_missing, start_orthanc, stop_orthanc
+from services.dicom.orthanc import OrthancServer, free_port, orthanc_missing, running_orthanc
 
 __all__ = ["LEVELS", "OrthancServer", "free_port", "orthanc", "spine_payload"]
 
@@ -27,11 +27,8 @@ def orthanc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[OrthancServer]
     reason = orthanc_missing()
     if reason:
         pytest.skip(reason)
-    proc, server = start_orthanc(tmp_path_factory.mktemp("orthanc"))
-    try:
+    with running_orthanc(tmp_path_factory.mktemp("orthanc")) as server:
         yield server
-    finally:
-        stop_orthanc(proc)
 
 
 def spine_payload(

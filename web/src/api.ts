@@ -1,5 +1,5 @@
 // The page's only network access: the service's own /v1 API, with the API key when one is set.
-import type { Job, JobPayload, Problem } from "./types";
+import type { Job, JobPayload, PacsStatus, PacsStudyImages, Problem } from "./types";
 
 export interface JobPage {
   jobs: Job[];
@@ -46,11 +46,13 @@ export class Api {
     return headers;
   }
 
-  private async send(method: string, path: string, body?: unknown): Promise<Response> {
+  private async send(method: string, path: string, body?: unknown, accept?: string): Promise<Response> {
+    const extra: Record<string, string> = body === undefined ? {} : { "Content-Type": "application/json" };
+    if (accept) extra.Accept = accept;
     try {
       return await fetch(path, {
         method,
-        headers: this.headers(body === undefined ? {} : { "Content-Type": "application/json" }),
+        headers: this.headers(extra),
         body: body === undefined ? undefined : JSON.stringify(body),
         cache: "no-store",
       });
@@ -96,9 +98,19 @@ export class Api {
     return this.json<Job>(await this.send("POST", `/v1/jobs/${encodeURIComponent(id)}/cancel`));
   }
 
-  /** A binary resource (the figures), as a Blob. */
-  async blob(path: string): Promise<Blob> {
-    const response = await this.send("GET", path);
+  /** Whether the service is connected to a PACS (GET /v1/pacs). */
+  async pacsStatus(): Promise<PacsStatus> {
+    return this.json<PacsStatus>(await this.send("GET", "/v1/pacs"));
+  }
+
+  /** The images of a study in the service's PACS (QIDO-RS through the service). */
+  async pacsImages(studyInstanceUid: string): Promise<PacsStudyImages> {
+    return this.json<PacsStudyImages>(await this.send("GET", `/v1/pacs/studies/${encodeURIComponent(studyInstanceUid)}/images`));
+  }
+
+  /** A binary resource (the figures, a DICOM file from the PACS), as a Blob. */
+  async blob(path: string, accept?: string): Promise<Blob> {
+    const response = await this.send("GET", path, undefined, accept);
     if (!response.ok) await this.json(response);
     return response.blob();
   }

@@ -9,9 +9,11 @@ export interface Capabilities {
   dicomRoutes: boolean;
   /** GET /v1/jobs/{id}/sr.dcm: the result as a DICOM SR. */
   srExport: boolean;
+  /** GET /v1/pacs and its study routes: "Open from the PACS" (shown only when /v1/pacs says a PACS is configured). */
+  pacsRoutes: boolean;
 }
 
-const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false };
+const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false, pacsRoutes: false };
 
 let cached: Promise<Capabilities> | null = null;
 
@@ -30,6 +32,7 @@ export function readCapabilities(spec: unknown): Capabilities {
     jobFilters: new Set(list.map((p) => p.name).filter((n) => ["study_instance_uid", "accession_number", "patient_id"].includes(n))),
     dicomRoutes: Object.keys(s.paths ?? {}).some((p) => p.startsWith("/v1/dicom")),
     srExport: "/v1/jobs/{job_id}/sr.dcm" in (s.paths ?? {}),
+    pacsRoutes: "/v1/pacs/studies/{study_instance_uid}/images" in (s.paths ?? {}),
   };
 }
 

@@ -6,6 +6,7 @@ import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
+import { PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
@@ -80,6 +81,19 @@ const panels: Record<ViewName, FilmPanel> = {
   pa: new FilmPanel("pa", $("film-pa"), () => filmsChanged()),
   lateral: new FilmPanel("lateral", $("film-lateral"), () => filmsChanged()),
 };
+
+const pacs = new PacsOpener({
+  api,
+  open: async (view, file) => {
+    selectFilmTab($<HTMLButtonElement>(`tab-film-${view}`), false);
+    await panels[view].open(file);
+  },
+});
+let pacsCheck: number | undefined;
+apiKeyInput.addEventListener("input", () => {
+  window.clearTimeout(pacsCheck);
+  pacsCheck = window.setTimeout(() => void pacs.refresh(caps?.pacsRoutes ?? false), 300);
+});
 
 function filmsChanged(): void {
   source = "image";
@@ -678,6 +692,7 @@ draftChanged();
 void capabilities().then((c) => {
   caps = c;
   draftChanged();
+  if (apiKeyInput.value.trim()) void pacs.refresh(c.pacsRoutes);
 });
 route();
 document.body.dataset.ready = "true";

@@ -172,3 +172,32 @@ export interface Study {
 export function isLevel(value: string): value is Level {
   return (LEVELS as readonly string[]).includes(value);
 }
+
+/** GET /v1/pacs */
+export interface PacsStatus {
+  configured: boolean;
+}
+
+/** One image of a study in the PACS (GET /v1/pacs/studies/{study}/images); null when the PACS did not say. */
+export interface PacsImage {
+  series_instance_uid: string;
+  sop_instance_uid: string;
+  sop_class_uid: string | null;
+  modality: string | null;
+  view_position: string | null;
+  image_laterality: string | null;
+  rows: number | null;
+  columns: number | null;
+  series_description: string | null;
+  series_number: number | null;
+  instance_number: number | null;
+  patient_id: string | null;
+  patient_name: string | null;
+  study_date: string | null;
+  accession_number: string | null;
+}
+
+export interface PacsStudyImages {
+  study_instance_uid: string;
+  images: PacsImage[];
+}

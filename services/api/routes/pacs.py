@@ -1,0 +1,129 @@
+"""/v1/pacs: open a study from the PACS the service is connected to (``SPINE_DICOMWEB_URL``).
+
+``GET /v1/pacs`` says whether a PACS is configured; ``…/studies/{study}/images`` lists a study's images
+(QIDO-RS, PS3.18 §10.6); ``…/studies/{study}/series/{series}/instances/{sop}`` returns one image as a
+DICOM Part 10 file in Explicit VR Little Endian (WADO-RS, §10.4, the PACS transcoding it), the only
+encoding the page decodes. Every request needs an API key. Browsing the PACS touches no job, so there
+is no audit row (the audit trail is per job): the access log line (request id, key id, path with the
+UIDs) records who opened what, and the job posted from the page is audited as any other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Path
+from fastapi.responses import Response
+
+from services.api.deps import AccessDep, SettingsDep
+from services.api.errors import ProblemError
+from services.api.schemas import PacsStatus, PacsStudyImages, Problem
+from services.core.config import Settings
+from services.core.problems import PROBLEM_MEDIA_TYPE, problem
+from services.dicom.dicomweb import Pacs
+from services.dicom.errors import (
+    InstanceNotFound,
+    PacsUnavailable,
+    StudyNotFound,
+    TransferSyntaxUnavailable,
+)
+from services.dicom.results import part10
+from services.dicom.store import dicomweb_config
+
+router = APIRouter(prefix="/v1/pacs", tags=["dicom"])
+DICOM = "application/dicom"
+RETRY_AFTER_S = 10
+"""Retry-After of a 503 when the PACS did not answer (s)."""
+
+UID_PATTERN = r"^(0|[1-9][0-9]*)(\.(0|[1-9][0-9]*))*$"
+Uid = Annotated[
+    str,
+    Path(
+        pattern=UID_PATTERN,
+        max_length=64,
+        description="A DICOM UID (PS3.5 §9.1): digits in dot-separated components without leading zeros, "
+        "at most 64 characters.",
+    ),
+]
+
+
+def _problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
+
+
+NOT_CONFIGURED = (
+    "404 `dicomweb-not-configured` when the service has no PACS (SPINE_DICOMWEB_URL unset); 503 "
+    "`dicomweb-unavailable` (with Retry-After) when the PACS does not answer, times out, or refuses the "
+    "service's credentials; 422 for a path parameter that is not a DICOM UID."
+)
+
+
+@contextmanager
+def _pacs(settings: Settings) -> Iterator[Pacs]:
+    """The configured PACS, its errors turned into problems."""
+    config = dicomweb_config(settings)
+    if config is None:
+        raise ProblemError(problem("dicomweb-not-configured",
+                                   "the service is not connected to a PACS: set SPINE_DICOMWEB_URL"))  # fmt: skip
+    try:
+        with Pacs(config) as pacs:
+            yield pacs
+    except StudyNotFound as exc:
+        raise ProblemError(problem("dicomweb-study-not-found", exc.message, uids=exc.uids)) from None
+    except InstanceNotFound as exc:
+        raise ProblemError(problem("dicomweb-instance-not-found", exc.message, status=404, uids=exc.uids)) from None
+    except TransferSyntaxUnavailable as exc:
+        raise ProblemError(problem("dicomweb-transfer-syntax-unavailable", exc.message)) from None
+    except PacsUnavailable as exc:
+        raise ProblemError(problem("dicomweb-unavailable", exc.message),
+                           headers={"Retry-After": str(RETRY_AFTER_S)}) from None  # fmt: skip
+
+
+@router.get(
+    "",
+    response_model=PacsStatus,
+    summary="Whether the service is connected to a PACS",
+    description="`configured` is true when SPINE_DICOMWEB_URL is set; the PACS is not contacted.",
+)
+def pacs_status(settings: SettingsDep, access: AccessDep) -> PacsStatus:
+    return PacsStatus(configured=dicomweb_config(settings) is not None)
+
+
+@router.get(
+    "/studies/{study_instance_uid}/images",
+    response_model=PacsStudyImages,
+    summary="The images of a study in the PACS",
+    description="QIDO-RS search of the study's instances with their series, SOP class, modality, view position, "
+    "laterality, size, series description and the patient and study identifiers; only images (radiograph "
+    "modalities, or any instance with Rows and Columns), sorted by series then instance number. 404 "
+    "`dicomweb-study-not-found` when the PACS lists no instance of the study. " + NOT_CONFIGURED,
+    responses=_problems(404, 422, 503),
+)
+def study_images(study_instance_uid: Uid, settings: SettingsDep, access: AccessDep) -> PacsStudyImages:
+    with _pacs(settings) as pacs:
+        images = pacs.study_images(study_instance_uid)
+    return PacsStudyImages(study_instance_uid=study_instance_uid, images=images)
+
+
+@router.get(
+    "/studies/{study_instance_uid}/series/{series_instance_uid}/instances/{sop_instance_uid}",
+    response_class=Response,
+    summary="One image from the PACS as a DICOM file (Explicit VR Little Endian)",
+    description="WADO-RS retrieve of the instance asking for transfer syntax 1.2.840.10008.1.2.1 (the PACS "
+    "transcodes a compressed image), returned as a DICOM Part 10 file: what the page opens like a file from "
+    "disk. 404 `dicomweb-instance-not-found` when the PACS does not hold it; 502 "
+    "`dicomweb-transfer-syntax-unavailable` when the PACS cannot send it uncompressed. " + NOT_CONFIGURED,
+    responses={
+        200: {"content": {DICOM: {}}, "description": "The image as a DICOM Part 10 file, Explicit VR Little Endian."},
+        **_problems(404, 422, 502, 503),
+    },
+)
+def study_instance(
+    study_instance_uid: Uid, series_instance_uid: Uid, sop_instance_uid: Uid, settings: SettingsDep, access: AccessDep
+) -> Response:
+    with _pacs(settings) as pacs:
+        ds = pacs.retrieve_explicit_le(study_instance_uid, series_instance_uid, sop_instance_uid)
+    headers = {"Content-Disposition": f'attachment; filename="{sop_instance_uid}.dcm"'}
+    return Response(part10(ds), media_type=DICOM, headers=headers)
