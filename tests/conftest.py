@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -33,6 +32,7 @@ from services.api.app import create_app
 from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
+from tools.processes import stop_processes
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
 REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
@@ -185,13 +185,7 @@ class Service:
         if self.worker is None:
             return
         proc, self.worker = self.worker, None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        stop_processes([proc], grace_s=20)
 
     def worker_log(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""

@@ -48,6 +48,7 @@ from services.db.engine import dispose_engines, session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job, JobMeasures
 from tests.conftest import _settings_kwargs, make_key, spine_payload
+from tools.processes import stop_processes
 
 FINAL = {"succeeded", "failed", "cancelled"}
 JOB_EVENT = re.compile(r"^job ([0-9a-f-]{36}) (succeeded|failed|skipped|superseded)\b")
@@ -212,17 +213,7 @@ class LiveService:
         proc.wait(10)
 
     def stop(self) -> None:
-        procs = [p for p in [self.api, *self.workers] if p is not None]
-        for proc in procs:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in procs:
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        stop_processes([p for p in [self.api, *self.workers] if p is not None], grace_s=20)
 
     def client(self, timeout: float = 10) -> httpx.Client:
         return httpx.Client(base_url=self.base_url, timeout=timeout,

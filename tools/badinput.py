@@ -19,7 +19,6 @@ import json
 import math
 import os
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -38,6 +37,7 @@ from services.db.engine import session_scope
 from services.db.keys import create_key, revoke
 from services.db.migrate import upgrade
 from tools.loadbench import check_loopback
+from tools.processes import stop_processes
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -283,12 +283,7 @@ def spawned() -> Iterator[tuple[str, Keys]]:
         assert made.status_code == 202, made.text
         yield url, Keys(client=client, revoked=revoked, other_job=made.json()["id"])
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop_processes([proc])
         log.close()
 
 

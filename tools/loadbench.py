@@ -46,6 +46,8 @@ from urllib.parse import urlparse
 
 import httpx
 
+from tools.processes import stop_processes
+
 FINAL = {"succeeded", "failed", "cancelled"}
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -488,25 +490,13 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
         except httpx.HTTPError:
             pass
         time.sleep(0.5)
-    stop(procs)
+    stop_processes(procs)
     raise SystemExit("the spawned service did not become ready; see " + str(log_dir))
 
 
 def _start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
     with log.open("wb") as out:
         return subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-    for proc in procs:
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -559,7 +549,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
         finally:
-            stop(procs)
+            stop_processes(procs)
     finally:
         if args.own_redis_server is not None:
             args.own_redis_server.stop()

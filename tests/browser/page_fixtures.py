@@ -13,7 +13,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -26,6 +25,8 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
+
+from tools.processes import stop_processes
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -242,13 +243,7 @@ def start_serve(data_dir: Path, **extra_env: str) -> Serve:
 
 def stop_serve(proc: subprocess.Popen[bytes]) -> None:
     """SIGTERM to `spine serve` (it stops its worker child), SIGKILL to its process group after 30 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    stop_processes([proc])
 
 
 class PageWatch:
