@@ -39,8 +39,7 @@ from fastapi import Depends, Header, Request
 from fastapi.responses import Response
 
 import spine_engine
-from services.api.schemas import Problem
-from services.core.problems import PROBLEM_MEDIA_TYPE
+from services.api.schemas import problem_responses
 from services.db.models import Job
 
 ArtifactKind = Literal["figure.png", "figure.svg", "sr.dcm", "figure.dcm", "fhir"]
@@ -255,5 +254,5 @@ def artifact_responses(
             "description": "Not Modified (RFC 9110 §15.4.5): `If-None-Match` matched the artifact's `ETag`; no body.",
             "headers": {"ETag": ETAG_HEADER},
         },
-        **{s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in (404, 409, 422)},
+        **problem_responses(404, 409, 422),
     }

@@ -8,6 +8,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.core.status import JobStatus
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
@@ -41,6 +42,11 @@ class Problem(BaseModel):
     errors: list[FieldProblem] | None = Field(
         None, description="Validation problems: every offending field with its JSON path."
     )
+
+
+def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """A route's OpenAPI ``responses`` for these statuses: each a ``Problem`` as application/problem+json."""
+    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
 
 
 # Built from the row by ``Job.summary`` (POST, the list, a batch, cancel) or ``Job.detail`` (GET by id).

@@ -8,7 +8,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from sqlalchemy import text
 
 from services.api.deps import QueueDep, SessionDep
-from services.api.schemas import Health, Problem
+from services.api.schemas import Health, problem_responses
 from services.core.jobqueue import ping_broker
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
 
@@ -24,7 +24,7 @@ def healthz() -> Health:
     "/readyz",
     response_model=Health,
     summary="The database and the broker are reachable",
-    responses={503: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}}},
+    responses=problem_responses(503),
 )
 def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | JSONResponse:
     checks: dict[str, str] = {}

@@ -14,7 +14,15 @@ from services.api.admission import admit
 from services.api.batch import batch_response
 from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
 from services.api.errors import ProblemError
-from services.api.schemas import BatchEntry, BatchResponse, Job, JobPage, JobStatusName, Problem
+from services.api.schemas import (
+    BatchEntry,
+    BatchResponse,
+    Job,
+    JobPage,
+    JobStatusName,
+    Problem,
+    problem_responses,
+)
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from services.db import jobs as jobs_repo
 from services.db.deliveries import deliveries
@@ -39,10 +47,6 @@ BATCH_BODY = {
 }
 
 
-def _problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
-
-
 def _location(job_id: uuid.UUID | str) -> str:
     return f"/v1/jobs/{job_id}"
 
@@ -56,7 +60,7 @@ def _location(job_id: uuid.UUID | str) -> str:
     description="Validates the payload fully, stores a queued job and enqueues it. "
     "With an Idempotency-Key, the same key and body return the same job; another body is a 409.",
     openapi_extra=PAYLOAD_BODY,
-    responses=_problems(400, 409, 413, 415, 422, 503),
+    responses=problem_responses(400, 409, 413, 415, 422, 503),
 )
 def submit_job(
     body: JobBody,
@@ -102,7 +106,7 @@ def submit_job(
     description="Each payload is validated on its own; the answer has one entry per payload, "
     "in order: the created job (status 202) or the problem with it.",
     openapi_extra=BATCH_BODY,
-    responses=_problems(400, 413, 415, 422),
+    responses=problem_responses(400, 413, 415, 422),
 )
 def submit_batch(
     body: BatchBody,
@@ -167,7 +171,7 @@ async def batch_other_methods(request: Request) -> JSONResponse:
     summary="List jobs, newest first",
     description="Filter by status (repeatable), creation time and the DICOM study (Study Instance UID, accession "
     "number, patient ID: the caller's own jobs only); page with the returned cursor.",
-    responses=_problems(422),
+    responses=problem_responses(422),
 )
 def list_jobs(
     session: SessionDep,
@@ -212,7 +216,7 @@ def list_jobs(
     response_model=Job,
     response_model_exclude_unset=True,
     summary="Read a job",
-    responses=_problems(404, 422),
+    responses=problem_responses(404, 422),
 )
 def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Job:
     job = job_reads.read_job(session, job_id, access)
@@ -226,7 +230,7 @@ def read_job(job_id: uuid.UUID, session: SessionDep, access: AccessDep) -> Job:
     summary="Cancel a queued or running job",
     description="The job ends cancelled and is never run again; cancelling a cancelled job is a no-op. "
     "A job that already succeeded or failed is a 409.",
-    responses=_problems(404, 409, 422),
+    responses=problem_responses(404, 409, 422),
 )
 def cancel_job(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, queue: QueueDep, settings: SettingsDep

@@ -12,16 +12,16 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Path
 from fastapi.responses import Response
 
 from services.api.deps import AccessDep, SettingsDep
 from services.api.errors import ProblemError
-from services.api.schemas import PacsStatus, PacsStudyImages, Problem
+from services.api.schemas import PacsStatus, PacsStudyImages, problem_responses
 from services.core.config import Settings
-from services.core.problems import PROBLEM_MEDIA_TYPE, problem
+from services.core.problems import problem
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import (
     InstanceNotFound,
@@ -47,10 +47,6 @@ Uid = Annotated[
         "at most 64 characters.",
     ),
 ]
-
-
-def _problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
 
 
 NOT_CONFIGURED = (
@@ -99,7 +95,7 @@ def pacs_status(settings: SettingsDep, access: AccessDep) -> PacsStatus:
     "laterality, size, series description and the patient and study identifiers; only images (radiograph "
     "modalities, or any instance with Rows and Columns), sorted by series then instance number. 404 "
     "`dicomweb-study-not-found` when the PACS lists no instance of the study. " + NOT_CONFIGURED,
-    responses=_problems(404, 422, 503),
+    responses=problem_responses(404, 422, 503),
 )
 def study_images(study_instance_uid: Uid, settings: SettingsDep, access: AccessDep) -> PacsStudyImages:
     with _pacs(settings) as pacs:
@@ -117,7 +113,7 @@ def study_images(study_instance_uid: Uid, settings: SettingsDep, access: AccessD
     "`dicomweb-transfer-syntax-unavailable` when the PACS cannot send it uncompressed. " + NOT_CONFIGURED,
     responses={
         200: {"content": {DICOM: {}}, "description": "The image as a DICOM Part 10 file, Explicit VR Little Endian."},
-        **_problems(404, 422, 502, 503),
+        **problem_responses(404, 422, 502, 503),
     },
 )
 def study_instance(
