@@ -27,6 +27,12 @@ Metrics per spine, then averaged (``summarise``):
   truth, bars the centroids: the global translation, which is not observable without boundary,
   is removed and nothing else (a scale error counts); ``scale_error_pct`` is
   100·(RMS|r − r̄| / RMS|t − t̄| − 1);
+* shape error (diagnostic): the same mean after also removing the best rotation (Kabsch,
+  ``scipy.spatial.transform.Rotation.align_vectors``), and that rotation's component about the
+  patient's left–right axis (``sagittal_lean_deg``, the whole spine leaning forward or back). Without
+  boundary and calibration the lean is a near gauge: the lateral film's in-plane rotation ψ turns its
+  image exactly as a lean of the spine does, so only the PA film (through the heights' small
+  dependence on depth) and ψ's prior fix it;
 * kyphosis T4–T12, T5–T12, lordosis L1–L5 and the major Cobb angle computed the same way on truth
   and result: ``measures.compute_measures`` on the positions with the frames
   ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
@@ -58,6 +64,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial.transform import Rotation
 
 from ..errors import SpineEngineError
 from ..frames import axial_rotation_deg, frames_from_centreline
@@ -292,6 +299,10 @@ class Outcome:
     error: str = ""
     per_level_mm: FloatArray = field(default_factory=lambda: np.full(N_LEVELS, np.nan))
     scale_error_pct: float = float("nan")
+    shape_error_mm: float = float("nan")
+    """Mean 3D error after removing the best rigid motion (translation and rotation), mm."""
+    sagittal_lean_deg: float = float("nan")
+    """That rotation's component about the left–right axis (x, LPS), degrees."""
     errors_deg: dict[str, float] = field(default_factory=dict)
     """Signed error of each measure computed the same way on result and truth (the centreline
     frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
@@ -330,6 +341,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     out.per_level_mm = np.linalg.norm(diff, axis=1)
     rms_ratio = np.sqrt(np.mean(np.sum(dr**2, axis=1)) / np.mean(np.sum(dt_**2, axis=1)))
     out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
+    out.shape_error_mm, out.sagittal_lean_deg = rigid_difference(r, t)
     # "computed the same way": the measures of the centreline frames of the positions, on both
     truth_m = compute_measures(t, frames_from_centreline(t))
     same_m = compute_measures(r, frames_from_centreline(r))
@@ -377,6 +389,15 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
         out.position_z = np.where(sd > 0, np.abs(diff) / safe, np.where(diff == 0, 0.0, np.inf))
     out.uncertainty_scale = result.get("fit", {}).get("uncertainty_scale")
     return out
+
+
+def rigid_difference(r: FloatArray, t: FloatArray) -> tuple[float, float]:
+    """(mean |Q(r_i − r̄) − (t_i − t̄)| in mm, Q's rotation about the x axis in degrees) with Q the
+    rotation that best aligns the centred result r on the centred truth t (least squares, Kabsch).
+    The angle is the x component of Q's rotation vector: how far the result leans forward or back."""
+    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
+    turn, _ = Rotation.align_vectors(dt_, dr)
+    return float(np.mean(np.linalg.norm(turn.apply(dr) - dt_, axis=1))), float(turn.as_rotvec(degrees=True)[0])
 
 
 Registrar = Callable[[dict[str, Any]], dict[str, Any]]
@@ -449,6 +470,8 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
         "mean_3d_error_mm": float(per_level.mean()) if ok else None,
         "max_3d_error_mm": float(per_level.max()) if ok else None,
         "scale_error_abs_pct": _mean([abs(o.scale_error_pct) for o in ok]),
+        "shape_error_mm": _mean([o.shape_error_mm for o in ok]),
+        "sagittal_lean_rms_deg": float(np.sqrt(np.mean([o.sagittal_lean_deg**2 for o in ok]))) if ok else None,
         "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
         "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
         "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),
@@ -507,6 +530,8 @@ TABLE_COLUMNS = [
     ("reconstructed", "ok"),
     ("mean_3d_error_mm", "3D mm"),
     ("scale_error_abs_pct", "|scale| %"),
+    ("shape_error_mm", "shape mm"),
+    ("sagittal_lean_rms_deg", "lean°"),
     ("kyphosis_t4_t12_mae_deg", "kyph°"),
     ("lordosis_l1_l5_mae_deg", "lord°"),
     ("major_cobb_mae_deg", "Cobb°"),
@@ -537,7 +562,8 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table for docs/accuracy.md."""
-    head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "kyphosis MAE (°)", "lordosis MAE (°)",
+    head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "lean RMS (°)",
+            "kyphosis MAE (°)", "lordosis MAE (°)",
             "major Cobb MAE (°)", "coverage positions", "kyphosis", "lordosis", "Cobb", "axial rotation"]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |"]
     for r in rows:
