@@ -35,6 +35,7 @@ from sqlalchemy.orm import Session
 
 from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
+from services.db.engine import SerializedJSON
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from services.db.results import measures_row, strain_rows
 from spine_engine.models import RegistrationResult
@@ -185,7 +186,7 @@ def finish_job(
         "attempt": claim.attempt,
         "status": status.value,
         "now": utcnow(),
-        "result": result.model_dump(mode="json") if result is not None else None,
+        "result": SerializedJSON(result.model_dump_json()) if result is not None else None,
         "error": error,
         "engine_version": engine_version,
     }

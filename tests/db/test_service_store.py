@@ -77,12 +77,15 @@ def test_claim_is_conditional_so_a_second_delivery_does_nothing(db_settings: Set
         second = runs.claim_job(s, job_id, "1.0")
     assert first is not None and first.attempt == 1 and first.payload == spine_payload()
     assert second is None
+    result = result_like()
     with session_scope(db_settings) as s:
-        assert runs.finish_job(s, first, result=result_like(), engine_version="9.9.9")
+        assert runs.finish_job(s, first, result=result, engine_version="9.9.9")
     with session_scope(db_settings) as s:
         assert not runs.finish_job(s, first, error=LOST)  # a finished job keeps its one outcome
     job = status_of(db_settings, job_id)
     assert (job.status, job.attempts, job.engine_version, job.error) == ("succeeded", 1, "9.9.9", None)
+    # stored from pydantic's own JSON text (SerializedJSON): the same document as the model's JSON values
+    assert job.result == result.model_dump(mode="json")
     assert job.started_at is not None and job.finished_at is not None and job.finished_at >= job.started_at
 
 
