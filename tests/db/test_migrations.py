@@ -84,3 +84,22 @@ def test_every_revision_goes_down_and_up(empty_db: Settings) -> None:
         assert set(inspect(engine).get_table_names()) <= {"alembic_version"}
     finally:
         engine.dispose()
+
+
+def test_results_are_compressed_with_lz4_where_the_server_has_it(fresh_postgres_url: str, tmp_path: Path) -> None:
+    """Revision 0009: jobs.result uses LZ4 on a PostgreSQL built with it, the default again after
+    its downgrade (``attcompression``: 'l' LZ4, '' the server's default)."""
+    settings = Settings(DATABASE_URL=fresh_postgres_url, data_dir=tmp_path)
+    upgrade(settings, quiet=True)
+    engine = create_engine(settings.sqlalchemy_url)
+    query = "SELECT attcompression FROM pg_attribute WHERE attrelid = 'jobs'::regclass AND attname = 'result'"
+    has_lz4 = "SELECT 'lz4' = ANY(enumvals) FROM pg_settings WHERE name = 'default_toast_compression'"
+    try:
+        with engine.connect() as conn:
+            lz4 = bool(conn.exec_driver_sql(has_lz4).scalar())
+            assert conn.exec_driver_sql(query).scalar() == ("l" if lz4 else "")
+        downgrade(settings, "0008_webhook_attempt_unique")
+        with engine.connect() as conn:
+            assert conn.exec_driver_sql(query).scalar() == ""
+    finally:
+        engine.dispose()
