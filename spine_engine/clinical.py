@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from .anatomy import Profile, rest_model
+from .anatomy import Profile, rest_shape_unit
 from .fit import FloatArray, Pose, ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
@@ -142,7 +142,7 @@ def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e
 def generic_arc_scale(profile: Profile, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> float:
     """(length of the landmarks' polyline, detector mm) / (length of the generic spine's projection
     through the same levels, mm): the scale s that makes the patient as long as the generic spine."""
-    generic = rest_model(profile).positions[arrays.indices]
+    generic = rest_shape_unit(profile)[1][arrays.indices]
     generic_2d = np.stack([generic @ e_c, generic @ e_r], axis=1)
     image = float(np.linalg.norm(np.diff(arrays.points, axis=0), axis=1).sum())
     model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
@@ -156,7 +156,7 @@ def size_factor(profile: Profile, view: ViewData) -> float:
     generic spine's frontal projection through the same levels (1 with fewer than 2 landmarks)."""
     if len(view.indices) < 2:
         return 1.0
-    generic = rest_model(profile).positions[view.indices]
+    generic = rest_shape_unit(profile)[1][view.indices]
     generic_2d = np.stack([generic @ view.e_c, generic @ view.e_r], axis=1)
     patient = float(np.linalg.norm(np.diff(np.asarray(view.points) / view.scale, axis=0), axis=1).sum())
     model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
@@ -328,7 +328,7 @@ def place_without_boundary(
     estimates the projections; this is its starting point."""
     e_c, e_r = image_axes(model.pa.patient_orientation)
     normal = np.cross(e_c, e_r)
-    generic = rest_model(profile).positions
+    generic = rest_shape_unit(profile)[1]
     s, from_prior = _scale_prior(model.pa)
     pa_estimated = model.pa.projection is None
     size = size_factor(profile, ViewData("pa", pa.indices, pa.points, e_c, e_r, s, np.zeros(2), 1.0))

@@ -17,7 +17,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from . import __version__
-from .anatomy import Profile, RestModel, load_profile, rest_model
+from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -367,11 +367,9 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     the boundary), then scaled so that its projection on the PA view is as long as the PA
     landmarks' polyline. Strains do not depend on the turn; the scale sets the rest lengths.
     """
-    generic = rest_model(profile)
-    turn = rotation_between(
-        generic.positions[-1] - generic.positions[0], problem.bottom[0] - problem.top[0]
-    )
-    turned = generic.positions @ turn.T
+    generic = rest_shape_unit(profile)[1]
+    turn = rotation_between(generic[-1] - generic[0], problem.bottom[0] - problem.top[0])
+    turned = generic @ turn.T
     scale = projected_arc_scale(turned, problem.views[0])
     scaled = rest_model(profile, length_scale=scale)
     return dataclasses.replace(
