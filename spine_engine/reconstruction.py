@@ -44,7 +44,7 @@ from .fit import (
     nearest_rotation,
 )
 from .fit import solve as solve_fit
-from .fit.uncertainty import attach_uncertainty
+from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
@@ -54,6 +54,7 @@ from .models import (
     FitReport,
     JobPayload,
     LateralView,
+    Measures,
     PAView,
     PedicleResidual,
     RegistrationResult,
@@ -404,29 +405,52 @@ def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
     return solution.output, rest
 
 
-def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | None = None) -> list[VertebraResult]:
-    angles = np.degrees(out.u * rest.ds[:, None])
-    rotation = axial_rotation_deg(out.rotations)
+def _vertebrae(
+    out: FitOutput,
+    rest: RestModel,
+    observed_tilt_deg: np.ndarray | None = None,
+    uncertainty: Uncertainty | None = None,
+) -> list[VertebraResult]:
+    """The 17 vertebra results: pose, strains u, v of the segment below (rad/mm, none for L5), its
+    bending and twist angles u·Δs (degrees), axial rotation, frontal tilt and, with ``uncertainty``
+    (``fit.uncertainty.reported_uncertainty``), the SDs of position and axial rotation."""
+    n = len(LEVELS)
+    angles = np.degrees(out.u * rest.ds[:, None]).tolist()
     tilt, from_corners = frontal_tilts(out.rotations, observed_tilt_deg)
-    vertebrae = []
-    for i, level in enumerate(LEVELS):
-        has_segment = i < len(LEVELS) - 1
-        vertebrae.append(
-            VertebraResult(
-                level=level,  # type: ignore[arg-type]
-                position=tuple(out.positions[i].tolist()),
-                directors=tuple(tuple(row) for row in out.rotations[i].T.tolist()),  # type: ignore[arg-type]
-                u=tuple(out.u[i].tolist()) if has_segment else None,
-                v=tuple(out.v[i].tolist()) if has_segment else None,
-                sagittal_bending_deg=float(angles[i, 0]) if has_segment else None,
-                frontal_bending_deg=float(angles[i, 1]) if has_segment else None,
-                twist_deg=float(angles[i, 2]) if has_segment else None,
-                axial_rotation_deg=float(rotation[i]),
-                frontal_tilt_deg=float(tilt[i]),
-                frontal_tilt_source="corners" if from_corners[i] else "model",
-            )
+    u, v = out.u.tolist(), out.v.tolist()
+    segment: list[tuple[Any, Any, Any]] = [(u[i], v[i], angles[i]) for i in range(n - 1)]
+    segment.append((None, None, (None, None, None)))
+    position_sd: list[Any] = [None] * n if uncertainty is None else uncertainty.position_sd_mm.tolist()
+    rotation_sd: list[Any] = [None] * n if uncertainty is None else uncertainty.axial_rotation_sd_deg.tolist()
+    return [
+        VertebraResult(
+            level=level,  # type: ignore[arg-type]
+            position=position,
+            directors=directors,
+            u=u_i,
+            v=v_i,
+            sagittal_bending_deg=angle[0],
+            frontal_bending_deg=angle[1],
+            twist_deg=angle[2],
+            axial_rotation_deg=rotation,
+            frontal_tilt_deg=tilt_i,
+            frontal_tilt_source="corners" if corners else "model",
+            position_sd_mm=pos_sd,
+            axial_rotation_sd_deg=rot_sd,
         )
-    return vertebrae
+        for level, position, directors, (u_i, v_i, angle), rotation, tilt_i, corners, pos_sd, rot_sd in zip(
+            LEVELS,
+            out.positions.tolist(),
+            np.swapaxes(out.rotations, 1, 2).tolist(),
+            segment,
+            axial_rotation_deg(out.rotations).tolist(),
+            tilt.tolist(),
+            from_corners.tolist(),
+            position_sd,
+            rotation_sd,
+            strict=True,
+        )
+    ]
 
 
 def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProjection | None:
@@ -445,7 +469,9 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
-def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitReport:
+def _fit_report(
+    problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
+) -> FitReport:
     residuals = [
         Residual(view=view.name, level=LEVELS[idx], residual_mm=float(res))  # type: ignore[arg-type]
         for view in problem.views
@@ -481,6 +507,7 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
             )
             if src in ("image_left", "image_right")
         ],
+        uncertainty_scale=uncertainty_scale,
     )
 
 
@@ -518,22 +545,41 @@ def _register_model(model: JobPayload) -> RegistrationResult:
         )
     if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
-    result = RegistrationResult(
-        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg),
-        measures=compute_measures(
-            out.positions,
-            out.rotations,
-            observed_tilt_deg=problem.observed_tilt_deg,
-            observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
-        ),
-        fit=_fit_report(problem, out, runtime_ms),
-        engine=EngineInfo(version=__version__, profile=profile.name),
+    measures = compute_measures(
+        out.positions,
+        out.rotations,
+        observed_tilt_deg=problem.observed_tilt_deg,
+        observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
     )
+    uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            return attach_uncertainty(result, solution)
+            uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
-        return result  # the SDs stay null when the curvature at the optimum is not usable
+        uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
+    return RegistrationResult(
+        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
+        measures=measures if uncertainty is None else _measures_with_sds(measures, uncertainty),
+        fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
+        engine=EngineInfo(version=__version__, profile=profile.name),
+    )
+
+
+def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures:
+    """``measures`` with the SDs of kyphosis, lordosis and each Cobb angle (in the order of
+    ``measures.cobb``, as given to ``reported_uncertainty``) filled in."""
+    cobb = [
+        c.model_copy(update={"angle_sd_deg": sd})
+        for c, sd in zip(measures.cobb, uncertainty.cobb_sd_deg, strict=True)
+    ]
+    return measures.model_copy(
+        update={
+            "cobb": cobb,
+            "thoracic_kyphosis_t4_t12_sd_deg": uncertainty.kyphosis_t4_t12_sd_deg,
+            "thoracic_kyphosis_t5_t12_sd_deg": uncertainty.kyphosis_t5_t12_sd_deg,
+            "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
+        }
+    )
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

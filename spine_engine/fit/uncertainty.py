@@ -59,12 +59,11 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import LinAlgError, cho_factor, solve_triangular
-from scipy.linalg.lapack import dpbtrf, dtbtrs
+from scipy.linalg.lapack import dpbtrf, dpotrf, dtbtrs, dtrtrs
 
 from ..levels import LEVEL_INDEX
 
 if TYPE_CHECKING:
-    from ..models import RegistrationResult
     from .types import Solution
 
 FloatArray = npt.NDArray[np.float64]
@@ -367,12 +366,23 @@ def functional_variances(H: FloatArray, G: FloatArray, band: bool = False, n_ban
         except LinAlgError:
             pass  # semi-definite: the dense path with a ridge
     try:
-        c, _ = cho_factor(H, lower=True, check_finite=False)
+        c = _cholesky_lower(H)
     except LinAlgError:
         ridge = 1e-9 * float(np.max(np.diag(H)))
-        c, _ = cho_factor(H + ridge * np.eye(len(H)), lower=True, check_finite=False)
-    x = solve_triangular(c, G.T, lower=True, check_finite=False)
+        c = _cholesky_lower(H + ridge * np.eye(len(H)))
+    x, info = dtrtrs(c, G.T, lower=1)
+    if info != 0:
+        raise LinAlgError(f"triangular solve failed (dtrtrs info {info})")
     return np.asarray(np.einsum("ij,ij->j", x, x))
+
+
+def _cholesky_lower(H: FloatArray) -> FloatArray:
+    """L of H = L Lᵀ (LAPACK ``dpotrf``, what ``scipy.linalg.cho_factor(lower=True)`` calls, without
+    its checks: H is the solver's float array); LinAlgError when H is not positive definite."""
+    c, info = dpotrf(H, lower=1, clean=0)
+    if info != 0:
+        raise LinAlgError(f"the curvature at the optimum is not positive definite (dpotrf info {info})")
+    return np.asarray(c)
 
 
 def laplace_uncertainty(
@@ -462,34 +472,14 @@ def solution_uncertainty(
     )
 
 
-def attach_uncertainty(
-    result: RegistrationResult, solution: Solution, scale: float | None = None, prior_weight: float | None = None
-) -> RegistrationResult:
-    """``result`` with the SDs of its positions (relative to the centroid), axial rotations
-    (capped at ``AXIAL_ROTATION_SD_CAP_DEG``), kyphosis, lordosis and Cobb angles filled in, and
-    ``fit.uncertainty_scale`` = c (c and λ default to the calibrated values, ``calibration``)."""
-    curves = [(c.upper, c.lower) for c in result.measures.cobb]
+def reported_uncertainty(
+    solution: Solution,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    prior_weight: float | None = None,
+) -> Uncertainty:
+    """The SDs a result reports: ``solution_uncertainty`` (c and λ default to the calibrated
+    values, ``calibration``) with the axial rotation SDs capped at ``AXIAL_ROTATION_SD_CAP_DEG``;
+    ``curves``: the (upper, lower) end levels of the result's Cobb curves, in order."""
     u = solution_uncertainty(solution, curves, scale, prior_weight)
-    psi = np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG)
-    vertebrae = [
-        v.model_copy(
-            update={
-                "position_sd_mm": (float(sd[0]), float(sd[1]), float(sd[2])),
-                "axial_rotation_sd_deg": float(p),
-            }
-        )
-        for v, sd, p in zip(result.vertebrae, u.position_sd_mm, psi, strict=True)
-    ]
-    cobb = [
-        c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(result.measures.cobb, u.cobb_sd_deg, strict=True)
-    ]
-    measures = result.measures.model_copy(
-        update={
-            "cobb": cobb,
-            "thoracic_kyphosis_t4_t12_sd_deg": u.kyphosis_t4_t12_sd_deg,
-            "thoracic_kyphosis_t5_t12_sd_deg": u.kyphosis_t5_t12_sd_deg,
-            "lumbar_lordosis_l1_l5_sd_deg": u.lordosis_l1_l5_sd_deg,
-        }
-    )
-    fit = result.fit.model_copy(update={"uncertainty_scale": u.scale})
-    return result.model_copy(update={"vertebrae": vertebrae, "measures": measures, "fit": fit})
+    return u._replace(axial_rotation_sd_deg=np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG))
