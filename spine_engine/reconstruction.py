@@ -7,6 +7,7 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import time
@@ -516,12 +517,22 @@ def _blas() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
+    """BLAS held to one thread for a call: nothing to do when every BLAS library already runs one
+    (``OPENBLAS_NUM_THREADS=1``, as the service and the benchmarks run), else threadpoolctl's
+    limit, which costs about 20 µs a call to set and restore."""
+    blas = _blas()
+    if all(lib.num_threads == 1 for lib in blas.lib_controllers if lib.user_api == "blas"):
+        return contextlib.nullcontext()
+    return blas.limit(limits=1, user_api="blas")
+
+
 def register_model(model: JobPayload) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
 
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
-    with _blas().limit(limits=1, user_api="blas"):
+    with _one_blas_thread():
         return _register_model(model)
 
 
