@@ -222,13 +222,15 @@ class Functionals(NamedTuple):
 
 @lru_cache(maxsize=16)
 def _static_rows(
-    n: int, n_params: int, pos_bytes: bytes, rot_bytes: bytes
+    n: int, n_params: int, n_rows: int, pos_bytes: bytes, rot_bytes: bytes
 ) -> tuple[FloatArray, IntArray, IntArray, npt.NDArray[np.bool_]]:
-    """What depends on the layout only: the 3N position rows (r_i,k − (1/N) Σ_j r_j,k, constant)
-    and the rows, columns and mask of the axial rotations' entries."""
+    """What depends on the layout only: G's template (n_rows, n_params), zero but for the 3N
+    position rows (r_i,k − (1/N) Σ_j r_j,k, constant), and the rows, columns and mask of the axial
+    rotations' entries."""
     pos = np.frombuffer(pos_bytes, dtype=np.intp).reshape(n, 3)
     rot = np.frombuffer(rot_bytes, dtype=np.intp).reshape(n, 3)
-    base = np.zeros((3 * n, n_params))
+    template = np.zeros((n_rows, n_params))
+    base = template[: 3 * n]
     for k in range(3):
         free = pos[:, k] >= 0
         rows = 3 * np.arange(n) + k
@@ -236,13 +238,25 @@ def _static_rows(
         base[rows[free], pos[free, k]] += 1.0
     free_rot = rot >= 0
     rows_psi = np.broadcast_to((3 * n + np.arange(n))[:, None], rot.shape)[free_rot]
-    for a in (base, rows_psi, free_rot):
+    for a in (template, rows_psi, free_rot):
         a.flags.writeable = False
-    return base, rows_psi, rot[free_rot], free_rot
+    return template, rows_psi, rot[free_rot], free_rot
 
 
 _SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
 """(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1."""
+
+
+@lru_cache(maxsize=4)
+def _sagittal_terms(n: int) -> tuple[IntArray, IntArray, FloatArray]:
+    """Row of G, vertebra and sign of each β term of kyphosis and lordosis (``_SAGITTAL``), in
+    order: rows 4N, 4N + 1, 4N + 2, two terms each (first +sign, second −sign)."""
+    rows = np.repeat(np.arange(4 * n, 4 * n + len(_SAGITTAL)), 2)
+    vert = np.array([LEVEL_INDEX[level] for first, second, _ in _SAGITTAL for level in (first, second)], dtype=np.intp)
+    sign = np.array([s for _, _, sign in _SAGITTAL for s in (sign, -sign)])
+    for a in (rows, vert, sign):
+        a.flags.writeable = False
+    return rows, vert, sign
 
 
 def functional_gradients(
@@ -269,27 +283,27 @@ def functional_gradients(
     pos = np.asarray(columns.position, dtype=np.intp)
     rot = np.asarray(columns.rotation, dtype=np.intp)
     n_curves = len(curves)
-    base, psi_rows, psi_cols, psi_free = _static_rows(n, n_params, pos.tobytes(), rot.tobytes())
-    G = np.zeros((4 * n + 3 + n_curves, n_params))
-    G[: 3 * n] = base
+    template, psi_rows, psi_cols, psi_free = _static_rows(
+        n, n_params, 4 * n + 3 + n_curves, pos.tobytes(), rot.tobytes()
+    )
+    G = template.copy()
     _, grad_psi = axial_rotation_gradients(R)
     G[psi_rows, psi_cols] = grad_psi[psi_free]
     # kyphosis, lordosis and Cobb angles: Σ ± ∂angle_i/∂t_i (δr_{i+1} − δr_{i−1}), one scatter
     theta, grad_beta, grad_theta = centreline_angle_gradients(r)
-    up = np.minimum(np.arange(n) + 1, n - 1)
-    down = np.maximum(np.arange(n) - 1, 0)
-    terms: list[tuple[int, int, float, FloatArray]] = []
-    for row, (first, second, sign) in enumerate(_SAGITTAL, start=4 * n):
-        terms += [(row, LEVEL_INDEX[first], sign, grad_beta), (row, LEVEL_INDEX[second], -sign, grad_beta)]
-    for row, (upper, lower) in enumerate(curves, start=4 * n + 3):
-        iu, il = LEVEL_INDEX[upper], LEVEL_INDEX[lower]
-        sign = 1.0 if theta[iu] >= theta[il] else -1.0
-        terms += [(row, iu, sign, grad_theta), (row, il, -sign, grad_theta)]
-    rows_t = np.array([t[0] for t in terms], dtype=np.intp)
-    vert = np.array([t[1] for t in terms], dtype=np.intp)
-    vals = np.array([t[2] * t[3][t[1]] for t in terms])  # (m, 3)
+    rows_s, vert_s, sign_s = _sagittal_terms(n)
+    rows_c = np.repeat(np.arange(4 * n + 3, 4 * n + 3 + n_curves), 2)
+    vert_c = np.array([LEVEL_INDEX[level] for curve in curves for level in curve], dtype=np.intp)
+    up_c, low_c = vert_c[0::2], vert_c[1::2]
+    sign_c = np.where(theta[up_c] >= theta[low_c], 1.0, -1.0)
+    rows_t = np.concatenate((rows_s, rows_c))
+    vert = np.concatenate((vert_s, vert_c))
+    signs_c = np.stack((sign_c, -sign_c), axis=1).reshape(-1, 1)
+    vals = np.concatenate((sign_s[:, None] * grad_beta[vert_s], signs_c * grad_theta[vert_c]))  # (m, 3)
+    up = np.minimum(vert + 1, n - 1)
+    down = np.maximum(vert - 1, 0)
     all_rows = np.repeat(rows_t, 6)
-    all_cols = np.concatenate((pos[up[vert]], pos[down[vert]]), axis=1).ravel()
+    all_cols = np.concatenate((pos[up], pos[down]), axis=1).ravel()
     all_vals = np.concatenate((vals, -vals), axis=1).ravel()
     keep = all_cols >= 0
     np.add.at(G, (all_rows[keep], all_cols[keep]), all_vals[keep])
