@@ -48,6 +48,8 @@ from .tilt_prior import TiltPrior, predict_tilts_deg
 _X = np.array([1.0, 0.0, 0.0])
 _Y = np.array([0.0, 1.0, 0.0])
 _Z = np.array([0.0, 0.0, 1.0])
+_NAN_POINTS = {1: (np.nan, np.nan), 2: ((np.nan, np.nan),) * 2, 4: ((np.nan, np.nan),) * 4}
+"""m image points (column, row) of NaN: a landmark without point, pedicles (2) or corners (4)."""
 
 
 @dataclass(frozen=True)
@@ -102,20 +104,17 @@ def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
     """Arrays of a validated view in detector mm (``detector_spacing``); a landmark given by its corners
     counts as its superior endplate midpoint, which is the bottom pair on a head-up image (rows toward H)."""
     _, e_r = image_axes(view.patient_orientation)
-    k = len(view.landmarks)
+    landmarks = view.landmarks
+    k = len(landmarks)
     spacing = detector_spacing(view)
-    indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=np.intp)
-    corners = np.full((k, 4, 2), np.nan)
-    pedicles = np.full((k, 2, 2), np.nan)
-    points = np.full((k, 2), np.nan)
-    for i, lm in enumerate(view.landmarks):
-        if lm.corners is not None:
-            corners[i] = np.asarray(lm.corners, dtype=float) * spacing
-        else:
-            assert lm.point is not None  # Landmark guarantees exactly one of point / corners
-            points[i] = np.asarray(lm.point, dtype=float) * spacing
-        if lm.pedicles is not None:
-            pedicles[i] = np.asarray(lm.pedicles, dtype=float) * spacing
+    indices = np.array([LEVEL_INDEX[lm.level] for lm in landmarks], dtype=np.intp)
+    # NaN where a landmark has none: NaN · spacing stays NaN
+    points = np.array([_NAN_POINTS[1] if lm.point is None else lm.point for lm in landmarks], dtype=float)
+    corners = np.array([_NAN_POINTS[4] if lm.corners is None else lm.corners for lm in landmarks], dtype=float)
+    pedicles = np.array([_NAN_POINTS[2] if lm.pedicles is None else lm.pedicles for lm in landmarks], dtype=float)
+    points = points.reshape(k, 2) * spacing
+    corners = corners.reshape(k, 4, 2) * spacing
+    pedicles = pedicles.reshape(k, 2, 2) * spacing
     with_corners = np.isfinite(corners[:, 0, 0])
     if with_corners.any():
         points[with_corners] = corner_geometry(corners[with_corners], e_r).superior_midpoint
