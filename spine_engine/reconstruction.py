@@ -27,6 +27,7 @@ from .clinical import (
     landmark_arrays,
     observed_frontal_tilts,
     place_without_boundary,
+    polyline_length,
     size_factor,
     with_observations,
 )
@@ -357,8 +358,8 @@ def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
     counted; with T1 and L5 alone it compares the projected chords.
     """
     rest_2d = np.stack([rest_positions[view.indices] @ view.e_c, rest_positions[view.indices] @ view.e_r], axis=1)
-    rest_arc = float(np.linalg.norm(np.diff(rest_2d, axis=0), axis=1).sum())
-    image_arc = float(np.linalg.norm(np.diff(view.points / view.scale, axis=0), axis=1).sum())
+    rest_arc = polyline_length(rest_2d)
+    image_arc = polyline_length(view.points / view.scale)
     return image_arc / rest_arc
 
 

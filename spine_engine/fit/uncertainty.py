@@ -202,10 +202,12 @@ def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, Float
     x, y, z = t[:, 0], t[:, 1], t[:, 2]
     D = y * y + z * z
     N = -x * z
-    zero = np.zeros_like(x)
-    grad_beta = np.stack((zero, -z, y), axis=1) / D[:, None]
-    grad_N = np.stack((-z, zero, -x), axis=1)
-    grad_D = np.stack((zero, 2 * y, 2 * z), axis=1)
+    grads = np.zeros((3, len(t), 3))  # rows of ∂β/∂t (before / D), ∇N, ∇D
+    grad_beta, grad_N, grad_D = grads
+    grad_beta[:, 1], grad_beta[:, 2] = -z, y
+    grad_N[:, 0], grad_N[:, 2] = -z, -x
+    grad_D[:, 1], grad_D[:, 2] = 2 * y, 2 * z
+    grad_beta = grad_beta / D[:, None]
     grad_theta = (D[:, None] * grad_N - N[:, None] * grad_D) / (N * N + D * D)[:, None]
     return _DEG * np.arctan2(N, D), _DEG * grad_beta, _DEG * grad_theta
 
