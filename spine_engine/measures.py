@@ -312,9 +312,11 @@ def regional_kyphosis_deg(rotations: npt.ArrayLike, upper: str, lower: str) -> f
 
 def lenke_inputs(cobb: list[CobbCurve], rotations: npt.ArrayLike) -> LenkeInputs:
     """The Lenke classification inputs a reconstruction supports (model estimates)."""
-    t2_t5 = regional_kyphosis_deg(rotations, "T2", "T5")
-    t5_t12 = regional_kyphosis_deg(rotations, "T5", "T12")
-    t10_l2 = regional_kyphosis_deg(rotations, "T10", "L2")
+    beta = sagittal_inclination_deg(rotations)
+    t2_t5, t5_t12, t10_l2 = (
+        float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])  # regional_kyphosis_deg, β computed once
+        for upper, lower in (("T2", "T5"), ("T5", "T12"), ("T10", "L2"))
+    )
     curves = []
     for region, (first, last) in LENKE_REGIONS.items():
         inside = [c for c in cobb if LEVEL_INDEX[first] <= LEVEL_INDEX[c.apex] <= LEVEL_INDEX[last]]
