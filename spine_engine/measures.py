@@ -256,9 +256,9 @@ _MAX_CURVATURE_OFFSETS = tuple(
 )
 """Offsets (degrees) of the three grids of ``plane_of_max_curvature`` around the best point so far:
 ±90° by 1°, ±1° by 0.01°, ±0.01° by 1e-4°."""
-_MAX_CURVATURE_FIRST = (90.0 + _MAX_CURVATURE_OFFSETS[0], *_trig_grid(90.0 + _MAX_CURVATURE_OFFSETS[0]))
-"""The first grid (0°–180°, around 90°) and its ``_trig_grid``, the same for every curve."""
-for _array in (*_MAX_CURVATURE_OFFSETS, *_MAX_CURVATURE_FIRST):
+_MAX_CURVATURE_FIRST_TRIG = _trig_grid(90.0 + _MAX_CURVATURE_OFFSETS[0])
+"""``_trig_grid`` of the first grid (0°–180°, around 90°), the same for every curve."""
+for _array in (*_MAX_CURVATURE_OFFSETS, *_MAX_CURVATURE_FIRST_TRIG):
     _array.setflags(write=False)
 
 
@@ -273,11 +273,10 @@ def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tu
     1e-4°), all vectorised (both end vertebrae at once; the first grid's trigonometry precomputed).
     """
     d3 = np.stack((np.asarray(R_upper, dtype=float)[:, 2], np.asarray(R_lower, dtype=float)[:, 2]))
-    grid, c, s, h2 = _MAX_CURVATURE_FIRST
-    for level in range(3):
-        if level:
-            grid = best + _MAX_CURVATURE_OFFSETS[level]
-            c, s, h2 = _trig_grid(grid)
+    best = 90.0
+    for level, offsets in enumerate(_MAX_CURVATURE_OFFSETS):
+        grid = best + offsets
+        c, s, h2 = _MAX_CURVATURE_FIRST_TRIG if level == 0 else _trig_grid(grid)
         values = _plane_cobb_cs_deg(d3, c, s, h2)
         k = int(np.argmax(values))
         best, value = float(grid[k]), float(values[k])
