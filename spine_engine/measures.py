@@ -8,6 +8,7 @@ Every angle here is in degrees.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Literal, cast
 
@@ -117,7 +118,7 @@ def _apex(positions: FloatArray, upper: int, lower: int, tilt: FloatArray) -> tu
     """
     xz = positions[:, [0, 2]]
     chord = xz[lower] - xz[upper]
-    length = float(np.linalg.norm(chord))
+    length = math.sqrt(float(chord @ chord))  # |chord|, as np.linalg.norm computes it
     inner = np.arange(upper + 1, lower)
     if length > 0 and len(inner):
         c = chord / length
@@ -382,10 +383,10 @@ def compute_measures(
     R = np.asarray(rotations, dtype=float)
     if p.shape != (N_LEVELS, 3) or R.shape != (N_LEVELS, 3, 3):
         raise ValueError(f"expected positions (17,3) and rotations (17,3,3), got {p.shape} and {R.shape}")
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+    if not (np.isfinite(p).all() and np.isfinite(R).all()):
         raise ValueError("positions and rotations must be finite")
     tilt, observed = frontal_tilts(R, observed_tilt_deg)
-    endplates = np.stack([tilt, tilt], axis=1)
+    endplates = tilt[:, None].repeat(2, axis=1)  # (17, 2): both endplates at the vertebra's tilt
     if observed_endplate_tilt_deg is not None:
         given = np.asarray(observed_endplate_tilt_deg, dtype=float).reshape(N_LEVELS, 2)
         endplates = np.where(np.isfinite(given), given, endplates)

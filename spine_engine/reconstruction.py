@@ -212,9 +212,11 @@ def _view_data(
     weight: float,
     camera: Camera | None,
     initial: tuple[float, np.ndarray],
+    axes: tuple[np.ndarray, np.ndarray],
 ) -> ViewData:
-    """The view's landmarks (detector mm) with its weight w·(σ_ref/σ)², σ its ``landmark_sd_mm``."""
-    e_c, e_r = image_axes(view.patient_orientation)
+    """The view's landmarks (detector mm) with its weight w·(σ_ref/σ)², σ its ``landmark_sd_mm``;
+    ``axes``: its image axes (e_c, e_r) (``projection.image_axes``)."""
+    e_c, e_r = axes
     scale = camera.reference_scale if camera is not None else float(initial[0])
     sd = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
     return ViewData(
@@ -308,7 +310,7 @@ def build_problem(model: JobPayload, profile: Profile) -> Problem:
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given")
-        data = _view_data(name, view, arrays, weight, camera, initial)
+        data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":
             size = size_factor(profile, data)
         data, sources[name], offsets[name] = with_observations(
