@@ -224,15 +224,13 @@ class Functionals(NamedTuple):
 
 @lru_cache(maxsize=16)
 def _static_rows(
-    n: int, n_params: int, n_rows: int, pos_bytes: bytes, rot_bytes: bytes
+    n: int, n_params: int, pos_bytes: bytes, rot_bytes: bytes
 ) -> tuple[FloatArray, IntArray, IntArray, npt.NDArray[np.bool_]]:
-    """What depends on the layout only: G's template (n_rows, n_params), zero but for the 3N
-    position rows (r_i,k − (1/N) Σ_j r_j,k, constant), and the rows, columns and mask of the axial
-    rotations' entries."""
+    """What depends on the layout only: the 3N position rows (r_i,k − (1/N) Σ_j r_j,k, constant)
+    and the rows, columns and mask of the axial rotations' entries."""
     pos = np.frombuffer(pos_bytes, dtype=np.intp).reshape(n, 3)
     rot = np.frombuffer(rot_bytes, dtype=np.intp).reshape(n, 3)
-    template = np.zeros((n_rows, n_params))
-    base = template[: 3 * n]
+    base = np.zeros((3 * n, n_params))
     for k in range(3):
         free = pos[:, k] >= 0
         rows = 3 * np.arange(n) + k
@@ -240,9 +238,9 @@ def _static_rows(
         base[rows[free], pos[free, k]] += 1.0
     free_rot = rot >= 0
     rows_psi = np.broadcast_to((3 * n + np.arange(n))[:, None], rot.shape)[free_rot]
-    for a in (template, rows_psi, free_rot):
+    for a in (base, rows_psi, free_rot):
         a.flags.writeable = False
-    return template, rows_psi, rot[free_rot], free_rot
+    return base, rows_psi, rot[free_rot], free_rot
 
 
 _SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
@@ -285,10 +283,9 @@ def functional_gradients(
     pos = np.asarray(columns.position, dtype=np.intp)
     rot = np.asarray(columns.rotation, dtype=np.intp)
     n_curves = len(curves)
-    template, psi_rows, psi_cols, psi_free = _static_rows(
-        n, n_params, 4 * n + 3 + n_curves, pos.tobytes(), rot.tobytes()
-    )
-    G = template.copy()
+    base, psi_rows, psi_cols, psi_free = _static_rows(n, n_params, pos.tobytes(), rot.tobytes())
+    G = np.zeros((4 * n + 3 + n_curves, n_params))
+    G[: 3 * n] = base
     _, grad_psi = axial_rotation_gradients(R)
     G[psi_rows, psi_cols] = grad_psi[psi_free]
     # kyphosis, lordosis and Cobb angles: Σ ± ∂angle_i/∂t_i (δr_{i+1} − δr_{i−1}), one scatter
