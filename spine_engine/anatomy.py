@@ -119,19 +119,31 @@ _I_T4, _I_T12, _I_L1 = LEVELS.index("T4"), LEVELS.index("T12"), LEVELS.index("L1
 # ---------------------------------------------------------------- geometry
 
 
+def _table_column(k: int) -> FloatArray:
+    """Column k of ``VERTEBRA_TABLE`` (0 height, 1 endplate width, 2 depth) over the levels (17,), mm."""
+    return np.array([VERTEBRA_TABLE[lv][k] for lv in LEVELS])
+
+
+_HEIGHT_SUM_MM = 0.5 * (_table_column(0)[:-1] + _table_column(0)[1:]) + np.asarray(DISC_HEIGHT_MM)
+"""(H_j + H_{j+1})/2 + disc_j (16,), mm: the rest lengths at length scale 1 (``rest_segment_lengths``)."""
+_WIDTH_SUM_MM = _table_column(1)[:-1] + _table_column(1)[1:]
+"""w_j + w_{j+1} (16,), mm: endplate widths of each segment's two vertebrae (``segment_semi_axes``)."""
+_DEPTH_SUM_MM = _table_column(2)[:-1] + _table_column(2)[1:]
+"""d_j + d_{j+1} (16,), mm: endplate depths of each segment's two vertebrae (``segment_semi_axes``)."""
+for _table in (_HEIGHT_SUM_MM, _WIDTH_SUM_MM, _DEPTH_SUM_MM):
+    _table.setflags(write=False)
+
+
 def rest_segment_lengths(length_scale: float = 1.0) -> FloatArray:
     """Rest lengths Δs_j = (H_j + H_{j+1})/2 + disc_j between consecutive vertebral-body centres,
     mm (16,), times ``length_scale``."""
-    h = np.array([VERTEBRA_TABLE[lv][0] for lv in LEVELS])
-    return length_scale * (0.5 * (h[:-1] + h[1:]) + np.asarray(DISC_HEIGHT_MM))
+    return length_scale * _HEIGHT_SUM_MM
 
 
 def segment_semi_axes(length_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
     """Semi-axes (a along d1, b along d2) of each segment's elliptical section, mm (16,) each:
     half the mean endplate width and depth of its two vertebrae, times ``length_scale``."""
-    w = np.array([VERTEBRA_TABLE[lv][1] for lv in LEVELS])
-    d = np.array([VERTEBRA_TABLE[lv][2] for lv in LEVELS])
-    return length_scale * 0.25 * (w[:-1] + w[1:]), length_scale * 0.25 * (d[:-1] + d[1:])
+    return length_scale * 0.25 * _WIDTH_SUM_MM, length_scale * 0.25 * _DEPTH_SUM_MM
 
 
 def section_properties(a: npt.ArrayLike, b: npt.ArrayLike) -> dict[str, FloatArray]:
@@ -303,6 +315,11 @@ class RestModel:
     length_scale: float
 
 
+_UNIT_SEGMENT_LENGTHS = rest_segment_lengths(1.0)
+"""Rest lengths at length scale 1 (16,), mm (read-only)."""
+_UNIT_SEGMENT_LENGTHS.setflags(write=False)
+
+
 @functools.lru_cache(maxsize=1)
 def _normal_profile_unit() -> tuple[FloatArray, FloatArray]:
     """Positions and rotations of the normal sagittal profile at length scale 1, whose kyphosis and
@@ -345,19 +362,24 @@ def _calibrated_shape_unit(
     return ds, positions, rotations
 
 
+def rest_shape_unit(profile: Profile) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Segment lengths (16,) mm, positions (17, 3) mm and rotations (17, 3, 3) of the profile's
+    rest shape at length scale 1 (read-only, computed once per shape): the normal sagittal profile,
+    or the profile's calibrated ``rest_shape``. ``rest_model(profile)`` has these positions."""
+    if profile.rest_shape is None:
+        return (_UNIT_SEGMENT_LENGTHS, *_normal_profile_unit())
+    return _calibrated_shape_unit(
+        tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
+    )
+
+
 def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
     """The rest model of the generic spine for ``profile``; ``length_scale`` multiplies every
     length (segment lengths, positions and section semi-axes, so A ∝ scale², I, J ∝ scale⁴)."""
     if not (np.isfinite(length_scale) and length_scale > 0):
         raise ValueError(f"length_scale must be finite and > 0, got {length_scale}")
-    if profile.rest_shape is None:
-        ds = rest_segment_lengths(length_scale)
-        unit_positions, rotations = _normal_profile_unit()
-    else:
-        unit_ds, unit_positions, rotations = _calibrated_shape_unit(
-            tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
-        )
-        ds = unit_ds * length_scale
+    unit_ds, unit_positions, rotations = rest_shape_unit(profile)
+    ds = rest_segment_lengths(length_scale) if profile.rest_shape is None else unit_ds * length_scale
     positions = unit_positions * length_scale
     sec = section_properties(*segment_semi_axes(length_scale))
     Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient

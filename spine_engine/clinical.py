@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from .anatomy import Profile, rest_model
+from .anatomy import Profile, rest_shape_unit
 from .fit import FloatArray, Pose, ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
@@ -48,6 +48,8 @@ from .tilt_prior import TiltPrior, predict_tilts_deg
 _X = np.array([1.0, 0.0, 0.0])
 _Y = np.array([0.0, 1.0, 0.0])
 _Z = np.array([0.0, 0.0, 1.0])
+_NAN_POINTS = {1: (np.nan, np.nan), 2: ((np.nan, np.nan),) * 2, 4: ((np.nan, np.nan),) * 4}
+"""m image points (column, row) of NaN: a landmark without point, pedicles (2) or corners (4)."""
 
 
 @dataclass(frozen=True)
@@ -98,24 +100,28 @@ def calibrated_magnification(view: PAView | LateralView) -> float | None:
     return 1.0
 
 
+def _optional_points(values: list[tuple[tuple[float, float], ...] | None], m: int) -> FloatArray:
+    """(k, m, 2) image points of an optional landmark field (corners m = 4, pedicles m = 2), NaN
+    where a landmark has none."""
+    if all(v is None for v in values):
+        return np.full((len(values), m, 2), np.nan)
+    filled = [_NAN_POINTS[m] if v is None else v for v in values]
+    return np.array(filled, dtype=float).reshape(len(values), m, 2)
+
+
 def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
     """Arrays of a validated view in detector mm (``detector_spacing``); a landmark given by its corners
     counts as its superior endplate midpoint, which is the bottom pair on a head-up image (rows toward H)."""
     _, e_r = image_axes(view.patient_orientation)
-    k = len(view.landmarks)
+    landmarks = view.landmarks
+    k = len(landmarks)
     spacing = detector_spacing(view)
-    indices = np.array([LEVEL_INDEX[lm.level] for lm in view.landmarks], dtype=np.intp)
-    corners = np.full((k, 4, 2), np.nan)
-    pedicles = np.full((k, 2, 2), np.nan)
-    points = np.full((k, 2), np.nan)
-    for i, lm in enumerate(view.landmarks):
-        if lm.corners is not None:
-            corners[i] = np.asarray(lm.corners, dtype=float) * spacing
-        else:
-            assert lm.point is not None  # Landmark guarantees exactly one of point / corners
-            points[i] = np.asarray(lm.point, dtype=float) * spacing
-        if lm.pedicles is not None:
-            pedicles[i] = np.asarray(lm.pedicles, dtype=float) * spacing
+    indices = np.array([LEVEL_INDEX[lm.level] for lm in landmarks], dtype=np.intp)
+    # NaN where a landmark has none (NaN · spacing stays NaN)
+    points = np.array([_NAN_POINTS[1] if lm.point is None else lm.point for lm in landmarks], dtype=float)
+    points = points.reshape(k, 2) * spacing
+    corners = _optional_points([lm.corners for lm in landmarks], 4) * spacing
+    pedicles = _optional_points([lm.pedicles for lm in landmarks], 2) * spacing
     with_corners = np.isfinite(corners[:, 0, 0])
     if with_corners.any():
         points[with_corners] = corner_geometry(corners[with_corners], e_r).superior_midpoint
@@ -139,13 +145,20 @@ def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e
     return predict_tilts_deg(prior, chords_by_level(arrays, e_c, e_r))
 
 
+def polyline_length(points: FloatArray) -> float:
+    """Σ_k |p_{k+1} − p_k| of points (k, d), in their units: the segment norms as
+    ``np.linalg.norm(·, axis=1)`` computes them (√ of the row sums of squares), without its overhead."""
+    d = np.diff(points, axis=0)
+    return float(np.sqrt((d * d).sum(axis=1)).sum())
+
+
 def generic_arc_scale(profile: Profile, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> float:
     """(length of the landmarks' polyline, detector mm) / (length of the generic spine's projection
     through the same levels, mm): the scale s that makes the patient as long as the generic spine."""
-    generic = rest_model(profile).positions[arrays.indices]
+    generic = rest_shape_unit(profile)[1][arrays.indices]
     generic_2d = np.stack([generic @ e_c, generic @ e_r], axis=1)
-    image = float(np.linalg.norm(np.diff(arrays.points, axis=0), axis=1).sum())
-    model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
+    image = polyline_length(arrays.points)
+    model = polyline_length(generic_2d)
     if not (image > 0.0 and model > 0.0):
         raise ValueError("the landmarks do not span a length: cannot estimate the scale")
     return image / model
@@ -156,10 +169,10 @@ def size_factor(profile: Profile, view: ViewData) -> float:
     generic spine's frontal projection through the same levels (1 with fewer than 2 landmarks)."""
     if len(view.indices) < 2:
         return 1.0
-    generic = rest_model(profile).positions[view.indices]
+    generic = rest_shape_unit(profile)[1][view.indices]
     generic_2d = np.stack([generic @ view.e_c, generic @ view.e_r], axis=1)
-    patient = float(np.linalg.norm(np.diff(np.asarray(view.points) / view.scale, axis=0), axis=1).sum())
-    model = float(np.linalg.norm(np.diff(generic_2d, axis=0), axis=1).sum())
+    patient = polyline_length(np.asarray(view.points) / view.scale)
+    model = polyline_length(generic_2d)
     return patient / model if patient > 0.0 and model > 0.0 else 1.0
 
 
@@ -328,7 +341,7 @@ def place_without_boundary(
     estimates the projections; this is its starting point."""
     e_c, e_r = image_axes(model.pa.patient_orientation)
     normal = np.cross(e_c, e_r)
-    generic = rest_model(profile).positions
+    generic = rest_shape_unit(profile)[1]
     s, from_prior = _scale_prior(model.pa)
     pa_estimated = model.pa.projection is None
     size = size_factor(profile, ViewData("pa", pa.indices, pa.points, e_c, e_r, s, np.zeros(2), 1.0))

@@ -8,6 +8,7 @@ Every angle here is in degrees.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Literal, cast
 
@@ -117,7 +118,7 @@ def _apex(positions: FloatArray, upper: int, lower: int, tilt: FloatArray) -> tu
     """
     xz = positions[:, [0, 2]]
     chord = xz[lower] - xz[upper]
-    length = float(np.linalg.norm(chord))
+    length = math.sqrt(float(chord @ chord))  # |chord|, as np.linalg.norm computes it
     inner = np.arange(upper + 1, lower)
     if length > 0 and len(inner):
         c = chord / length
@@ -221,16 +222,45 @@ def _plane_tilt_cs_deg(R: FloatArray, c: FloatArray, s: FloatArray) -> FloatArra
     """``_plane_tilt_deg`` from cos φ and sin φ, in closed form: with a = h·d3 = c d3x − s d3y,
     w·z = −a d3z (h has no z) and w·h = |h|² − a² (no 3-vectors per φ: this runs on the grids of
     ``plane_of_max_curvature``)."""
-    d3 = R[:, 2]
-    a = c * d3[0] - s * d3[1]
-    return np.degrees(np.arctan2(-a * d3[2], c * c + s * s - a * a))
+    return _plane_tilts_deg(R[None, :, 2], c, s, c * c + s * s)[0]
+
+
+def _plane_tilts_deg(d3: FloatArray, c: FloatArray, s: FloatArray, h2: FloatArray) -> FloatArray:
+    """``_plane_tilt_cs_deg`` of several vertebrae at once: d3 (k, 3) their caudal directors,
+    c, s (m,) cos φ and sin φ of the grid, h2 = c² + s² (m,); returns (k, m) degrees."""
+    a = c * d3[:, 0:1] - s * d3[:, 1:2]
+    return np.degrees(np.arctan2(-a * d3[:, 2:3], h2 - a * a))
 
 
 def _plane_cobb_deg(R_upper: FloatArray, R_lower: FloatArray, phi_deg: npt.ArrayLike) -> FloatArray:
     phi = np.radians(np.asarray(phi_deg, dtype=float))
     c, s = np.cos(phi), np.sin(phi)
-    diff = _plane_tilt_cs_deg(R_upper, c, s) - _plane_tilt_cs_deg(R_lower, c, s)
-    return np.abs((diff + 180.0) % 360.0 - 180.0)
+    return _plane_cobb_cs_deg(np.stack((R_upper[:, 2], R_lower[:, 2])), c, s, c * c + s * s)
+
+
+def _plane_cobb_cs_deg(d3: FloatArray, c: FloatArray, s: FloatArray, h2: FloatArray) -> FloatArray:
+    """Cobb(φ) = |tilt_U(φ) − tilt_L(φ)| wrapped to [0°, 180°] on a grid given by c = cos φ,
+    s = sin φ and h2 = c² + s² (m,); d3 (2, 3): the caudal directors of the upper and lower end."""
+    tilt = _plane_tilts_deg(d3, c, s, h2)
+    return np.abs((tilt[0] - tilt[1] + 180.0) % 360.0 - 180.0)
+
+
+def _trig_grid(grid: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """cos φ, sin φ and cos² φ + sin² φ of a grid of φ in degrees."""
+    phi = np.radians(grid)
+    c, s = np.cos(phi), np.sin(phi)
+    return c, s, c * c + s * s
+
+
+_MAX_CURVATURE_OFFSETS = tuple(
+    np.arange(-step, step + fine / 2, fine) for step, fine in ((90.0, 1.0), (1.0, 1e-2), (1e-2, 1e-4))
+)
+"""Offsets (degrees) of the three grids of ``plane_of_max_curvature`` around the best point so far:
+±90° by 1°, ±1° by 0.01°, ±0.01° by 1e-4°."""
+_MAX_CURVATURE_FIRST_TRIG = _trig_grid(90.0 + _MAX_CURVATURE_OFFSETS[0])
+"""``_trig_grid`` of the first grid (0°–180°, around 90°), the same for every curve."""
+for _array in (*_MAX_CURVATURE_OFFSETS, *_MAX_CURVATURE_FIRST_TRIG):
+    _array.setflags(write=False)
 
 
 def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tuple[float, float]:
@@ -241,16 +271,16 @@ def plane_of_max_curvature(R_upper: npt.ArrayLike, R_lower: npt.ArrayLike) -> tu
     frontal plane (Cobb(0) is the frontal Cobb angle when the end vertebrae have no axial
     rotation), φ = 90° the sagittal plane. It turns with the spine: rotating the whole spine by −α
     about +z moves φ* by +α. A 1° grid, then two finer grids around the best point (0.01°, then
-    1e-4°), all vectorised.
+    1e-4°), all vectorised (both end vertebrae at once; the first grid's trigonometry precomputed).
     """
-    Ru = np.asarray(R_upper, dtype=float)
-    Rl = np.asarray(R_lower, dtype=float)
-    best, step = 90.0, 90.0
-    for fine_step in (1.0, 1e-2, 1e-4):
-        grid = best + np.arange(-step, step + fine_step / 2, fine_step)
-        values = _plane_cobb_deg(Ru, Rl, grid)
+    d3 = np.stack((np.asarray(R_upper, dtype=float)[:, 2], np.asarray(R_lower, dtype=float)[:, 2]))
+    best = 90.0
+    for level, offsets in enumerate(_MAX_CURVATURE_OFFSETS):
+        grid = best + offsets
+        c, s, h2 = _MAX_CURVATURE_FIRST_TRIG if level == 0 else _trig_grid(grid)
+        values = _plane_cobb_cs_deg(d3, c, s, h2)
         k = int(np.argmax(values))
-        best, value, step = float(grid[k]), float(values[k]), fine_step
+        best, value = float(grid[k]), float(values[k])
     phi = best % 180.0
     if phi > 180.0 - 1e-3:
         phi = 0.0
@@ -282,9 +312,11 @@ def regional_kyphosis_deg(rotations: npt.ArrayLike, upper: str, lower: str) -> f
 
 def lenke_inputs(cobb: list[CobbCurve], rotations: npt.ArrayLike) -> LenkeInputs:
     """The Lenke classification inputs a reconstruction supports (model estimates)."""
-    t2_t5 = regional_kyphosis_deg(rotations, "T2", "T5")
-    t5_t12 = regional_kyphosis_deg(rotations, "T5", "T12")
-    t10_l2 = regional_kyphosis_deg(rotations, "T10", "L2")
+    beta = sagittal_inclination_deg(rotations)
+    t2_t5, t5_t12, t10_l2 = (
+        float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])  # regional_kyphosis_deg, β computed once
+        for upper, lower in (("T2", "T5"), ("T5", "T12"), ("T10", "L2"))
+    )
     curves = []
     for region, (first, last) in LENKE_REGIONS.items():
         inside = [c for c in cobb if LEVEL_INDEX[first] <= LEVEL_INDEX[c.apex] <= LEVEL_INDEX[last]]
@@ -351,10 +383,10 @@ def compute_measures(
     R = np.asarray(rotations, dtype=float)
     if p.shape != (N_LEVELS, 3) or R.shape != (N_LEVELS, 3, 3):
         raise ValueError(f"expected positions (17,3) and rotations (17,3,3), got {p.shape} and {R.shape}")
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+    if not (np.isfinite(p).all() and np.isfinite(R).all()):
         raise ValueError("positions and rotations must be finite")
     tilt, observed = frontal_tilts(R, observed_tilt_deg)
-    endplates = np.stack([tilt, tilt], axis=1)
+    endplates = tilt[:, None].repeat(2, axis=1)  # (17, 2): both endplates at the vertebra's tilt
     if observed_endplate_tilt_deg is not None:
         given = np.asarray(observed_endplate_tilt_deg, dtype=float).reshape(N_LEVELS, 2)
         endplates = np.where(np.isfinite(given), given, endplates)

@@ -7,6 +7,7 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import time
@@ -14,10 +15,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
 from . import __version__
-from .anatomy import Profile, RestModel, load_profile, rest_model
+from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -26,6 +28,7 @@ from .clinical import (
     landmark_arrays,
     observed_frontal_tilts,
     place_without_boundary,
+    polyline_length,
     size_factor,
     with_observations,
 )
@@ -44,7 +47,7 @@ from .fit import (
     nearest_rotation,
 )
 from .fit import solve as solve_fit
-from .fit.uncertainty import attach_uncertainty
+from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
@@ -54,6 +57,7 @@ from .models import (
     FitReport,
     JobPayload,
     LateralView,
+    Measures,
     PAView,
     PedicleResidual,
     RegistrationResult,
@@ -208,9 +212,11 @@ def _view_data(
     weight: float,
     camera: Camera | None,
     initial: tuple[float, np.ndarray],
+    axes: tuple[np.ndarray, np.ndarray],
 ) -> ViewData:
-    """The view's landmarks (detector mm) with its weight w·(σ_ref/σ)², σ its ``landmark_sd_mm``."""
-    e_c, e_r = image_axes(view.patient_orientation)
+    """The view's landmarks (detector mm) with its weight w·(σ_ref/σ)², σ its ``landmark_sd_mm``;
+    ``axes``: its image axes (e_c, e_r) (``projection.image_axes``)."""
+    e_c, e_r = axes
     scale = camera.reference_scale if camera is not None else float(initial[0])
     sd = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
     return ViewData(
@@ -304,7 +310,7 @@ def build_problem(model: JobPayload, profile: Profile) -> Problem:
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given")
-        data = _view_data(name, view, arrays, weight, camera, initial)
+        data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":
             size = size_factor(profile, data)
         data, sources[name], offsets[name] = with_observations(
@@ -355,8 +361,8 @@ def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
     counted; with T1 and L5 alone it compares the projected chords.
     """
     rest_2d = np.stack([rest_positions[view.indices] @ view.e_c, rest_positions[view.indices] @ view.e_r], axis=1)
-    rest_arc = float(np.linalg.norm(np.diff(rest_2d, axis=0), axis=1).sum())
-    image_arc = float(np.linalg.norm(np.diff(view.points / view.scale, axis=0), axis=1).sum())
+    rest_arc = polyline_length(rest_2d)
+    image_arc = polyline_length(view.points / view.scale)
     return image_arc / rest_arc
 
 
@@ -367,11 +373,9 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     the boundary), then scaled so that its projection on the PA view is as long as the PA
     landmarks' polyline. Strains do not depend on the turn; the scale sets the rest lengths.
     """
-    generic = rest_model(profile)
-    turn = rotation_between(
-        generic.positions[-1] - generic.positions[0], problem.bottom[0] - problem.top[0]
-    )
-    turned = generic.positions @ turn.T
+    generic = rest_shape_unit(profile)[1]
+    turn = rotation_between(generic[-1] - generic[0], problem.bottom[0] - problem.top[0])
+    turned = generic @ turn.T
     scale = projected_arc_scale(turned, problem.views[0])
     scaled = rest_model(profile, length_scale=scale)
     return dataclasses.replace(
@@ -406,29 +410,60 @@ def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
     return solution.output, rest
 
 
-def _vertebrae(out: FitOutput, rest: RestModel, observed_tilt_deg: np.ndarray | None = None) -> list[VertebraResult]:
-    angles = np.degrees(out.u * rest.ds[:, None])
-    rotation = axial_rotation_deg(out.rotations)
+_VERTEBRA_LIST = TypeAdapter(list[VertebraResult])
+"""Validates the 17 vertebra results in one call (cheaper than 17 model constructions)."""
+_RESIDUAL_LIST = TypeAdapter(list[Residual])
+"""Validates the landmark residual rows in one call."""
+
+
+def _vertebrae(
+    out: FitOutput,
+    rest: RestModel,
+    observed_tilt_deg: np.ndarray | None = None,
+    uncertainty: Uncertainty | None = None,
+) -> list[VertebraResult]:
+    """The 17 vertebra results: pose, strains u, v of the segment below (rad/mm, none for L5), its
+    bending and twist angles u·Δs (degrees), axial rotation, frontal tilt and, with ``uncertainty``
+    (``fit.uncertainty.reported_uncertainty``), the SDs of position and axial rotation."""
+    n = len(LEVELS)
+    angles = np.degrees(out.u * rest.ds[:, None]).tolist()
     tilt, from_corners = frontal_tilts(out.rotations, observed_tilt_deg)
-    vertebrae = []
-    for i, level in enumerate(LEVELS):
-        has_segment = i < len(LEVELS) - 1
-        vertebrae.append(
-            VertebraResult(
-                level=level,  # type: ignore[arg-type]
-                position=tuple(out.positions[i].tolist()),
-                directors=tuple(tuple(row) for row in out.rotations[i].T.tolist()),  # type: ignore[arg-type]
-                u=tuple(out.u[i].tolist()) if has_segment else None,
-                v=tuple(out.v[i].tolist()) if has_segment else None,
-                sagittal_bending_deg=float(angles[i, 0]) if has_segment else None,
-                frontal_bending_deg=float(angles[i, 1]) if has_segment else None,
-                twist_deg=float(angles[i, 2]) if has_segment else None,
-                axial_rotation_deg=float(rotation[i]),
-                frontal_tilt_deg=float(tilt[i]),
-                frontal_tilt_source="corners" if from_corners[i] else "model",
+    u, v = out.u.tolist(), out.v.tolist()
+    segment: list[tuple[Any, Any, Any]] = [(u[i], v[i], angles[i]) for i in range(n - 1)]
+    segment.append((None, None, (None, None, None)))
+    position_sd: list[Any] = [None] * n if uncertainty is None else uncertainty.position_sd_mm.tolist()
+    rotation_sd: list[Any] = [None] * n if uncertainty is None else uncertainty.axial_rotation_sd_deg.tolist()
+    return _VERTEBRA_LIST.validate_python(
+        [
+            {
+                "level": level,
+                "position": position,
+                "directors": directors,
+                "u": u_i,
+                "v": v_i,
+                "sagittal_bending_deg": angle[0],
+                "frontal_bending_deg": angle[1],
+                "twist_deg": angle[2],
+                "axial_rotation_deg": rotation,
+                "frontal_tilt_deg": tilt_i,
+                "frontal_tilt_source": "corners" if corners else "model",
+                "position_sd_mm": pos_sd,
+                "axial_rotation_sd_deg": rot_sd,
+            }
+            for level, position, directors, (u_i, v_i, angle), rotation, tilt_i, corners, pos_sd, rot_sd in zip(
+                LEVELS,
+                out.positions.tolist(),
+                np.swapaxes(out.rotations, 1, 2).tolist(),
+                segment,
+                axial_rotation_deg(out.rotations).tolist(),
+                tilt.tolist(),
+                from_corners.tolist(),
+                position_sd,
+                rotation_sd,
+                strict=True,
             )
-        )
-    return vertebrae
+        ]
+    )
 
 
 def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProjection | None:
@@ -447,12 +482,16 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
-def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitReport:
-    residuals = [
-        Residual(view=view.name, level=LEVELS[idx], residual_mm=float(res))  # type: ignore[arg-type]
-        for view in problem.views
-        for idx, res in zip(view.indices, out.residuals_mm[view.name], strict=True)
-    ]
+def _fit_report(
+    problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
+) -> FitReport:
+    residuals = _RESIDUAL_LIST.validate_python(
+        [
+            {"view": view.name, "level": LEVELS[idx], "residual_mm": res}
+            for view in problem.views
+            for idx, res in zip(view.indices.tolist(), out.residuals_mm[view.name].tolist(), strict=True)
+        ]
+    )
     return FitReport(
         residuals=residuals,
         mean_registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
@@ -483,6 +522,7 @@ def _fit_report(problem: Problem, out: FitOutput, runtime_ms: float) -> FitRepor
             )
             if src in ("image_left", "image_right")
         ],
+        uncertainty_scale=uncertainty_scale,
     )
 
 
@@ -491,12 +531,22 @@ def _blas() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
+    """BLAS held to one thread for a call: nothing to do when every BLAS library already runs one
+    (``OPENBLAS_NUM_THREADS=1``, as the service and the benchmarks run), else threadpoolctl's
+    limit, which costs about 20 µs a call to set and restore."""
+    blas = _blas()
+    if all(lib.num_threads == 1 for lib in blas.lib_controllers if lib.user_api == "blas"):
+        return contextlib.nullcontext()
+    return blas.limit(limits=1, user_api="blas")
+
+
 def register_model(model: JobPayload) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
 
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
-    with _blas().limit(limits=1, user_api="blas"):
+    with _one_blas_thread():
         return _register_model(model)
 
 
@@ -520,22 +570,41 @@ def _register_model(model: JobPayload) -> RegistrationResult:
         )
     if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
-    result = RegistrationResult(
-        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg),
-        measures=compute_measures(
-            out.positions,
-            out.rotations,
-            observed_tilt_deg=problem.observed_tilt_deg,
-            observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
-        ),
-        fit=_fit_report(problem, out, runtime_ms),
-        engine=EngineInfo(version=__version__, profile=profile.name),
+    measures = compute_measures(
+        out.positions,
+        out.rotations,
+        observed_tilt_deg=problem.observed_tilt_deg,
+        observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
     )
+    uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            return attach_uncertainty(result, solution)
+            uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
-        return result  # the SDs stay null when the curvature at the optimum is not usable
+        uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
+    return RegistrationResult(
+        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
+        measures=measures if uncertainty is None else _measures_with_sds(measures, uncertainty),
+        fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
+        engine=EngineInfo(version=__version__, profile=profile.name),
+    )
+
+
+def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures:
+    """``measures`` with the SDs of kyphosis, lordosis and each Cobb angle (in the order of
+    ``measures.cobb``, as given to ``reported_uncertainty``) filled in."""
+    cobb = [
+        c.model_copy(update={"angle_sd_deg": sd})
+        for c, sd in zip(measures.cobb, uncertainty.cobb_sd_deg, strict=True)
+    ]
+    return measures.model_copy(
+        update={
+            "cobb": cobb,
+            "thoracic_kyphosis_t4_t12_sd_deg": uncertainty.kyphosis_t4_t12_sd_deg,
+            "thoracic_kyphosis_t5_t12_sd_deg": uncertainty.kyphosis_t5_t12_sd_deg,
+            "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
+        }
+    )
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

@@ -10,10 +10,15 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from ..rotations import rotation_between, slerp
 from .banded import UPPER3, accumulate
+from .problem import _check_view
 from .types import FloatArray, Pose, ViewData, as_pose
 
 DATA_WEIGHT = 1e6
 """Weight of the landmarks against the smoothing of the displacements."""
+_KD = 5
+"""Half-bandwidth of the displacement system over the extended index 3·vertebra + k."""
+_BAND_ROW = _KD + UPPER3[0] - UPPER3[1]
+"""Band-storage row of each upper entry (a, b), a ≤ b, of a landmark's 3×3 block (``UPPER3``)."""
 
 
 def inplane_targets(view: ViewData) -> FloatArray:
@@ -57,8 +62,6 @@ def initial_configuration(
     n = len(p)
     if n < 3 or p.shape != (n, 3) or Q.shape != (n, 3, 3):
         raise ValueError(f"expected rest positions (N, 3) and rotations (N, 3, 3) with N ≥ 3, got {p.shape}, {Q.shape}")
-    from .problem import _check_view
-
     for view in views:
         _check_view(view, n)
     r_top, R_top = as_pose(top, "top")
@@ -77,18 +80,19 @@ def initial_configuration(
 
     # Band system (upper storage, half-bandwidth 5) over the extended index 3·vertebra + k; the
     # ends' rows and columns are sliced off before solving.
-    kd = 5
+    kd = _KD
     n_ext = 3 * n
     a, b = UPPER3
     rows, cols, vals, rhs_bins, rhs_vals = [], [], [], [], []
     for view in views:
         idx = np.asarray(view.indices, dtype=int)
-        E = np.stack((np.asarray(view.e_c, dtype=float), np.asarray(view.e_r, dtype=float)))
+        m = len(idx)
+        E = np.array((view.e_c, view.e_r), dtype=float)
         wE = DATA_WEIGHT * max(float(view.weight), 1e-12) * E
         target = inplane_targets(view)
-        rows.append(np.tile(kd + a - b, len(idx)))
+        rows.append(np.broadcast_to(_BAND_ROW, (m, len(_BAND_ROW))).ravel())
         cols.append((3 * idx[:, None] + b).ravel())
-        vals.append(np.tile((E.T @ wE)[a, b], len(idx)))
+        vals.append(np.broadcast_to((E.T @ wE)[a, b], (m, len(a))).ravel())
         rhs_bins.append((3 * idx[:, None] + np.arange(3)).ravel())
         rhs_vals.append(((target - r[idx] @ E.T) @ wE).ravel())
     seg = r[1:] - r[:-1]

@@ -59,12 +59,11 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import LinAlgError, cho_factor, solve_triangular
-from scipy.linalg.lapack import dpbtrf, dtbtrs
+from scipy.linalg.lapack import dpbtrf, dpotrf, dtbtrs, dtrtrs
 
 from ..levels import LEVEL_INDEX
 
 if TYPE_CHECKING:
-    from ..models import RegistrationResult
     from .types import Solution
 
 FloatArray = npt.NDArray[np.float64]
@@ -203,10 +202,12 @@ def centreline_angle_gradients(positions: FloatArray) -> tuple[FloatArray, Float
     x, y, z = t[:, 0], t[:, 1], t[:, 2]
     D = y * y + z * z
     N = -x * z
-    zero = np.zeros_like(x)
-    grad_beta = np.stack((zero, -z, y), axis=1) / D[:, None]
-    grad_N = np.stack((-z, zero, -x), axis=1)
-    grad_D = np.stack((zero, 2 * y, 2 * z), axis=1)
+    grads = np.zeros((3, len(t), 3))  # rows of ∂β/∂t (before / D), ∇N, ∇D
+    grad_beta, grad_N, grad_D = grads
+    grad_beta[:, 1], grad_beta[:, 2] = -z, y
+    grad_N[:, 0], grad_N[:, 2] = -z, -x
+    grad_D[:, 1], grad_D[:, 2] = 2 * y, 2 * z
+    grad_beta = grad_beta / D[:, None]
     grad_theta = (D[:, None] * grad_N - N[:, None] * grad_D) / (N * N + D * D)[:, None]
     return _DEG * np.arctan2(N, D), _DEG * grad_beta, _DEG * grad_theta
 
@@ -246,6 +247,18 @@ _SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
 """(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1."""
 
 
+@lru_cache(maxsize=4)
+def _sagittal_terms(n: int) -> tuple[IntArray, IntArray, FloatArray]:
+    """Row of G, vertebra and sign of each β term of kyphosis and lordosis (``_SAGITTAL``), in
+    order: rows 4N, 4N + 1, 4N + 2, two terms each (first +sign, second −sign)."""
+    rows = np.repeat(np.arange(4 * n, 4 * n + len(_SAGITTAL)), 2)
+    vert = np.array([LEVEL_INDEX[level] for first, second, _ in _SAGITTAL for level in (first, second)], dtype=np.intp)
+    sign = np.array([s for _, _, sign in _SAGITTAL for s in (sign, -sign)])
+    for a in (rows, vert, sign):
+        a.flags.writeable = False
+    return rows, vert, sign
+
+
 def functional_gradients(
     positions: npt.ArrayLike,
     rotations: npt.ArrayLike,
@@ -277,20 +290,19 @@ def functional_gradients(
     G[psi_rows, psi_cols] = grad_psi[psi_free]
     # kyphosis, lordosis and Cobb angles: Σ ± ∂angle_i/∂t_i (δr_{i+1} − δr_{i−1}), one scatter
     theta, grad_beta, grad_theta = centreline_angle_gradients(r)
-    up = np.minimum(np.arange(n) + 1, n - 1)
-    down = np.maximum(np.arange(n) - 1, 0)
-    terms: list[tuple[int, int, float, FloatArray]] = []
-    for row, (first, second, sign) in enumerate(_SAGITTAL, start=4 * n):
-        terms += [(row, LEVEL_INDEX[first], sign, grad_beta), (row, LEVEL_INDEX[second], -sign, grad_beta)]
-    for row, (upper, lower) in enumerate(curves, start=4 * n + 3):
-        iu, il = LEVEL_INDEX[upper], LEVEL_INDEX[lower]
-        sign = 1.0 if theta[iu] >= theta[il] else -1.0
-        terms += [(row, iu, sign, grad_theta), (row, il, -sign, grad_theta)]
-    rows_t = np.array([t[0] for t in terms], dtype=np.intp)
-    vert = np.array([t[1] for t in terms], dtype=np.intp)
-    vals = np.array([t[2] * t[3][t[1]] for t in terms])  # (m, 3)
+    rows_s, vert_s, sign_s = _sagittal_terms(n)
+    rows_c = np.repeat(np.arange(4 * n + 3, 4 * n + 3 + n_curves), 2)
+    vert_c = np.array([LEVEL_INDEX[level] for curve in curves for level in curve], dtype=np.intp)
+    up_c, low_c = vert_c[0::2], vert_c[1::2]
+    sign_c = np.where(theta[up_c] >= theta[low_c], 1.0, -1.0)
+    rows_t = np.concatenate((rows_s, rows_c))
+    vert = np.concatenate((vert_s, vert_c))
+    signs_c = np.stack((sign_c, -sign_c), axis=1).reshape(-1, 1)
+    vals = np.concatenate((sign_s[:, None] * grad_beta[vert_s], signs_c * grad_theta[vert_c]))  # (m, 3)
+    up = np.minimum(vert + 1, n - 1)
+    down = np.maximum(vert - 1, 0)
     all_rows = np.repeat(rows_t, 6)
-    all_cols = np.concatenate((pos[up[vert]], pos[down[vert]]), axis=1).ravel()
+    all_cols = np.concatenate((pos[up], pos[down]), axis=1).ravel()
     all_vals = np.concatenate((vals, -vals), axis=1).ravel()
     keep = all_cols >= 0
     np.add.at(G, (all_rows[keep], all_cols[keep]), all_vals[keep])
@@ -367,12 +379,23 @@ def functional_variances(H: FloatArray, G: FloatArray, band: bool = False, n_ban
         except LinAlgError:
             pass  # semi-definite: the dense path with a ridge
     try:
-        c, _ = cho_factor(H, lower=True, check_finite=False)
+        c = _cholesky_lower(H)
     except LinAlgError:
         ridge = 1e-9 * float(np.max(np.diag(H)))
-        c, _ = cho_factor(H + ridge * np.eye(len(H)), lower=True, check_finite=False)
-    x = solve_triangular(c, G.T, lower=True, check_finite=False)
+        c = _cholesky_lower(H + ridge * np.eye(len(H)))
+    x, info = dtrtrs(c, G.T, lower=1)
+    if info != 0:
+        raise LinAlgError(f"triangular solve failed (dtrtrs info {info})")
     return np.asarray(np.einsum("ij,ij->j", x, x))
+
+
+def _cholesky_lower(H: FloatArray) -> FloatArray:
+    """L of H = L Lᵀ (LAPACK ``dpotrf``, what ``scipy.linalg.cho_factor(lower=True)`` calls, without
+    its checks: H is the solver's float array); LinAlgError when H is not positive definite."""
+    c, info = dpotrf(H, lower=1, clean=0)
+    if info != 0:
+        raise LinAlgError(f"the curvature at the optimum is not positive definite (dpotrf info {info})")
+    return np.asarray(c)
 
 
 def laplace_uncertainty(
@@ -462,34 +485,14 @@ def solution_uncertainty(
     )
 
 
-def attach_uncertainty(
-    result: RegistrationResult, solution: Solution, scale: float | None = None, prior_weight: float | None = None
-) -> RegistrationResult:
-    """``result`` with the SDs of its positions (relative to the centroid), axial rotations
-    (capped at ``AXIAL_ROTATION_SD_CAP_DEG``), kyphosis, lordosis and Cobb angles filled in, and
-    ``fit.uncertainty_scale`` = c (c and λ default to the calibrated values, ``calibration``)."""
-    curves = [(c.upper, c.lower) for c in result.measures.cobb]
+def reported_uncertainty(
+    solution: Solution,
+    curves: Sequence[tuple[str, str]] = (),
+    scale: float | None = None,
+    prior_weight: float | None = None,
+) -> Uncertainty:
+    """The SDs a result reports: ``solution_uncertainty`` (c and λ default to the calibrated
+    values, ``calibration``) with the axial rotation SDs capped at ``AXIAL_ROTATION_SD_CAP_DEG``;
+    ``curves``: the (upper, lower) end levels of the result's Cobb curves, in order."""
     u = solution_uncertainty(solution, curves, scale, prior_weight)
-    psi = np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG)
-    vertebrae = [
-        v.model_copy(
-            update={
-                "position_sd_mm": (float(sd[0]), float(sd[1]), float(sd[2])),
-                "axial_rotation_sd_deg": float(p),
-            }
-        )
-        for v, sd, p in zip(result.vertebrae, u.position_sd_mm, psi, strict=True)
-    ]
-    cobb = [
-        c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(result.measures.cobb, u.cobb_sd_deg, strict=True)
-    ]
-    measures = result.measures.model_copy(
-        update={
-            "cobb": cobb,
-            "thoracic_kyphosis_t4_t12_sd_deg": u.kyphosis_t4_t12_sd_deg,
-            "thoracic_kyphosis_t5_t12_sd_deg": u.kyphosis_t5_t12_sd_deg,
-            "lumbar_lordosis_l1_l5_sd_deg": u.lordosis_l1_l5_sd_deg,
-        }
-    )
-    fit = result.fit.model_copy(update={"uncertainty_scale": u.scale})
-    return result.model_copy(update={"vertebrae": vertebrae, "measures": measures, "fit": fit})
+    return u._replace(axial_rotation_sd_deg=np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG))
