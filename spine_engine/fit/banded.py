@@ -16,7 +16,7 @@ from typing import NamedTuple, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.lapack import dpbtrf, dpbtrs
+from scipy.linalg.lapack import dpbtrf, dpbtrs, dpotrf, dpotrs
 
 from .types import FloatArray
 
@@ -101,13 +101,12 @@ def solve_bordered(
     rhs[:, 1:] = B
     X = dpbtrs(c, rhs)[0]
     S = C - B.T @ X[:, 1:]
-    # S is p × p with p ≤ 12: numpy's Cholesky (no SciPy wrapper overhead) both tests definiteness
-    # and solves, L Lᵀ h_p = rhs by two small solves
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
+    # S is p × p with p ≤ 12: LAPACK's dense Cholesky (dpotrf, info > 0 when not definite) and
+    # its solve L Lᵀ h_p = rhs (dpotrs), called directly (no wrapper or exception overhead)
+    L, info = dpotrf(S, lower=1, overwrite_a=1)
+    if info != 0:
         return None
-    h_p = np.linalg.solve(L.T, np.linalg.solve(L, B.T @ X[:, 0] - g[n:]))
+    h_p = dpotrs(L, B.T @ X[:, 0] - g[n:], lower=1)[0]
     h = np.empty(n + p)
     h[:n] = -(X[:, 0] + X[:, 1:] @ h_p)
     h[n:] = h_p
