@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from ..rotations import hat, log_so3
 from .types import FloatArray, RodParameters
@@ -39,24 +40,147 @@ class LocalJacobian(NamedTuple):
     dp: FloatArray
 
 
-def jr_inv_coefficients(theta2: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """d(θ) = 1/θ² − cot(θ/2)/(2θ) of J_r⁻¹ = I + ½Φ + dΦ², and d'(θ)/θ; Taylor series below θ = 0.1."""
-    theta = np.sqrt(theta2)
-    small = theta < 0.1
-    t = np.where(small, 1.0, theta)
+@njit(cache=True)
+def _jr_inv_pair(theta2: float) -> tuple[float, float]:
+    """(d, d'/θ) of one angle (``jr_inv_coefficients``)."""
+    t = np.sqrt(theta2)
+    if t < 0.1:  # Taylor series
+        d = 1.0 / 12.0 + theta2 * (1.0 / 720.0 + theta2 * (1.0 / 30240.0 + theta2 / 1209600.0))
+        dp = 1.0 / 360.0 + theta2 * (1.0 / 7560.0 + theta2 * (1.0 / 201600.0 + theta2 / 5987520.0))
+        return d, dp
     t2 = t * t
     cot = 1.0 / np.tan(0.5 * t)
-    d = np.where(
-        small,
-        1.0 / 12.0 + theta2 * (1.0 / 720.0 + theta2 * (1.0 / 30240.0 + theta2 / 1209600.0)),
-        1.0 / t2 - 0.5 * cot / t,
-    )
-    dp = np.where(
-        small,
-        1.0 / 360.0 + theta2 * (1.0 / 7560.0 + theta2 * (1.0 / 201600.0 + theta2 / 5987520.0)),
-        (-2.0 / t2 + 0.5 * cot / t + 0.25 * (1.0 + cot * cot)) / t2,
-    )
+    return 1.0 / t2 - 0.5 * cot / t, (-2.0 / t2 + 0.5 * cot / t + 0.25 * (1.0 + cot * cot)) / t2
+
+
+@njit(cache=True)
+def jr_inv_coefficients(theta2: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """d(θ) = 1/θ² − cot(θ/2)/(2θ) of J_r⁻¹ = I + ½Φ + dΦ², and d'(θ)/θ (1/rad⁴), for θ² (k,) in rad²;
+    Taylor series below θ = 0.1."""
+    d = np.empty_like(theta2)
+    dp = np.empty_like(theta2)
+    for i in range(len(theta2)):
+        d[i], dp[i] = _jr_inv_pair(theta2[i])
     return d, dp
+
+
+@njit(cache=True)
+def _local_jacobian_kernel(
+    Rt: FloatArray, phi: FloatArray, v: FloatArray, au: FloatArray, cv: FloatArray, cv_ds: FloatArray,
+    J: FloatArray, Jr_inv: FloatArray, Jl_inv: FloatArray, theta2: FloatArray, d: FloatArray, dp: FloatArray,
+) -> None:
+    """Per segment i (``RodRows.local_jacobian``): θ² = φ·φ, (d, d'/θ), J_r⁻¹ = S + ½Φ and
+    J_l⁻¹ = S − ½Φ with S = (1 − dθ²) I + d φφᵀ, and the blocks of J (rows u then v) over
+    [r_i, θ_i, r_{i+1}, θ_{i+1}]: −a J_l⁻¹, a J_r⁻¹ (a = √(Δs α/2)/Δs, rad⁻¹·√(N·mm)), ∓c R_iᵀ/Δs
+    and c hat(v_i) (c = √(Δs β/2)); the other entries of J are left as they are (zero)."""
+    for i in range(phi.shape[0]):
+        p0, p1, p2 = phi[i, 0], phi[i, 1], phi[i, 2]
+        t2 = p0 * p0 + p1 * p1 + p2 * p2
+        di, dpi = _jr_inv_pair(t2)
+        theta2[i], d[i], dp[i] = t2, di, dpi
+        for a in range(3):
+            for b in range(3):
+                Jr_inv[i, a, b] = di * phi[i, a] * phi[i, b]
+            Jr_inv[i, a, a] += 1.0 - di * t2
+        Jl_inv[i] = Jr_inv[i]
+        h0, h1, h2 = 0.5 * p0, 0.5 * p1, 0.5 * p2
+        Jr_inv[i, 0, 1] -= h2
+        Jr_inv[i, 0, 2] += h1
+        Jr_inv[i, 1, 0] += h2
+        Jr_inv[i, 1, 2] -= h0
+        Jr_inv[i, 2, 0] -= h1
+        Jr_inv[i, 2, 1] += h0
+        Jl_inv[i, 0, 1] += h2
+        Jl_inv[i, 0, 2] -= h1
+        Jl_inv[i, 1, 0] -= h2
+        Jl_inv[i, 1, 2] += h0
+        Jl_inv[i, 2, 0] += h1
+        Jl_inv[i, 2, 1] -= h0
+        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        for a in range(3):
+            ua, cda = au[i, a], cv_ds[i, a]
+            for b in range(3):
+                J[i, a, 3 + b] = -ua * Jl_inv[i, a, b]
+                J[i, a, 9 + b] = ua * Jr_inv[i, a, b]
+                J[i, 3 + a, b] = -cda * Rt[i, a, b]
+                J[i, 3 + a, 6 + b] = cda * Rt[i, a, b]
+        J[i, 3, 3], J[i, 3, 4], J[i, 3, 5] = 0.0, -cv[i, 0] * v2, cv[i, 0] * v1
+        J[i, 4, 3], J[i, 4, 4], J[i, 4, 5] = cv[i, 1] * v2, 0.0, -cv[i, 1] * v0
+        J[i, 5, 3], J[i, 5, 4], J[i, 5, 5] = -cv[i, 2] * v1, cv[i, 2] * v0, 0.0
+
+
+@njit(cache=True)
+def _hat_into(out: FloatArray, w0: float, w1: float, w2: float, sign: float) -> None:
+    """out += sign · hat(w) for a 3×3 ``out``."""
+    out[0, 1] -= sign * w2
+    out[0, 2] += sign * w1
+    out[1, 0] += sign * w2
+    out[1, 2] -= sign * w0
+    out[2, 0] -= sign * w1
+    out[2, 1] += sign * w0
+
+
+@njit(cache=True)
+def _second_order_kernel(
+    Rt: FloatArray, phi: FloatArray, v: FloatArray, Jr_inv: FloatArray, Jl_inv: FloatArray,
+    theta2: FloatArray, d: FloatArray, dp: FloatArray, rho: FloatArray,
+    au: FloatArray, cv: FloatArray, inv_ds: FloatArray, S: FloatArray,
+) -> None:
+    """The upper blocks of Σ_k ρ_k ∇²ρ_k per segment into S (N−1, 12, 12) (``RodRows.second_order``
+    gives the formulas); the other entries of S are left as they are (zero)."""
+    lam = np.empty(3)
+    mu = np.empty(3)
+    P2l = np.empty(3)
+    Kp = np.empty((3, 3))
+    Km = np.empty((3, 3))
+    for i in range(phi.shape[0]):
+        for a in range(3):
+            lam[a] = rho[i, a] * au[i, a]
+            mu[a] = rho[i, 3 + a] * cv[i, a]
+        pl = phi[i, 0] * lam[0] + phi[i, 1] * lam[1] + phi[i, 2] * lam[2]
+        mv = mu[0] * v[i, 0] + mu[1] * v[i, 1] + mu[2] * v[i, 2]
+        di, dpi, t2 = d[i], dp[i], theta2[i]
+        for a in range(3):
+            P2l[a] = phi[i, a] * pl - t2 * lam[a]
+        for a in range(3):
+            for b in range(3):
+                Kp[a, b] = dpi * (P2l[a] * phi[i, b]) + di * (phi[i, a] * lam[b] - 2.0 * lam[a] * phi[i, b])
+            Kp[a, a] += di * pl
+        Km[:, :] = Kp
+        _hat_into(Kp, 0.5 * lam[0], 0.5 * lam[1], 0.5 * lam[2], 1.0)
+        _hat_into(Km, 0.5 * lam[0], 0.5 * lam[1], 0.5 * lam[2], -1.0)
+        # J_l⁻ᵀλ = J_r⁻¹λ and J_r⁻ᵀλ = J_l⁻¹λ
+        jr0 = Jr_inv[i, 0, 0] * lam[0] + Jr_inv[i, 0, 1] * lam[1] + Jr_inv[i, 0, 2] * lam[2]
+        jr1 = Jr_inv[i, 1, 0] * lam[0] + Jr_inv[i, 1, 1] * lam[1] + Jr_inv[i, 1, 2] * lam[2]
+        jr2 = Jr_inv[i, 2, 0] * lam[0] + Jr_inv[i, 2, 1] * lam[1] + Jr_inv[i, 2, 2] * lam[2]
+        jl0 = Jl_inv[i, 0, 0] * lam[0] + Jl_inv[i, 0, 1] * lam[1] + Jl_inv[i, 0, 2] * lam[2]
+        jl1 = Jl_inv[i, 1, 0] * lam[0] + Jl_inv[i, 1, 1] * lam[1] + Jl_inv[i, 1, 2] * lam[2]
+        jl2 = Jl_inv[i, 2, 0] * lam[0] + Jl_inv[i, 2, 1] * lam[1] + Jl_inv[i, 2, 2] * lam[2]
+        Sii = S[i, 3:6, 3:6]
+        Sjj = S[i, 9:12, 9:12]
+        Sij = S[i, 3:6, 9:12]
+        for a in range(3):
+            for b in range(3):
+                tt = 0.0
+                pp = 0.0
+                pm = 0.0
+                for c in range(3):
+                    tt += Km[a, c] * Jl_inv[i, c, b]
+                    pp += Kp[a, c] * Jr_inv[i, c, b]
+                    pm += Kp[b, c] * Jl_inv[i, c, a]
+                Sii[a, b] = tt + 0.5 * (mu[a] * v[i, b] + v[i, a] * mu[b])
+                Sjj[a, b] = pp
+                Sij[a, b] = -pm
+            Sii[a, a] -= mv
+        _hat_into(Sii, 0.5 * jr0, 0.5 * jr1, 0.5 * jr2, 1.0)
+        _hat_into(Sjj, 0.5 * jl0, 0.5 * jl1, 0.5 * jl2, -1.0)
+        # C = hat(μ) R_iᵀ/Δs: θ_i r_{i+1}, and −Cᵀ: r_i θ_i
+        for b in range(3):
+            c0 = (mu[1] * Rt[i, 2, b] - mu[2] * Rt[i, 1, b]) * inv_ds[i, 0]
+            c1 = (mu[2] * Rt[i, 0, b] - mu[0] * Rt[i, 2, b]) * inv_ds[i, 0]
+            c2 = (mu[0] * Rt[i, 1, b] - mu[1] * Rt[i, 0, b]) * inv_ds[i, 0]
+            S[i, 3, 6 + b], S[i, 4, 6 + b], S[i, 5, 6 + b] = c0, c1, c2
+            S[i, b, 3], S[i, b, 4], S[i, b, 5] = -c0, -c1, -c2
 
 
 def jr_inverse(phi: FloatArray) -> FloatArray:
@@ -118,25 +242,18 @@ class RodRows:
         return RodCache(Rt, phi, v)
 
     def local_jacobian(self, cache: RodCache) -> LocalJacobian:
-        """Fill the per-segment Jacobians (N−1, 6, 12) over [r_i, θ_i, r_{i+1}, θ_{i+1}]."""
+        """Fill the per-segment Jacobians (N−1, 6, 12) over [r_i, θ_i, r_{i+1}, θ_{i+1}] (module
+        docstring), with J_r⁻¹ = S + ½Φ and J_l⁻¹ = S − ½Φ = J_r⁻ᵀ, S = I + dΦ² = (1 − dθ²) I + d φφᵀ
+        (one compiled pass over the segments)."""
         Rt, phi, v = cache
-        theta2 = np.einsum("ij,ij->i", phi, phi)
-        d, dp = jr_inv_coefficients(theta2)
-        half_P = hat(0.5 * phi)
-        # J_r⁻¹ = S + ½Φ and J_l⁻¹ = S − ½Φ = J_r⁻ᵀ, with S = I + dΦ² = (1 − dθ²) I + d φφᵀ.
-        S = d[:, None, None] * (phi[:, :, None] * phi[:, None, :])
-        S.reshape(-1, 9)[:, ::4] += (1.0 - d * theta2)[:, None]
-        Jr_inv = S + half_P
-        Jl_inv = S - half_P
-        J = self._Jloc
-        au = self._au[:, :, None]
-        np.multiply(-au, Jl_inv, out=J[:, :3, 3:6])
-        np.multiply(au, Jr_inv, out=J[:, :3, 9:12])
-        cvds = self._cv_ds[:, :, None]
-        np.multiply(-cvds, Rt, out=J[:, 3:, 0:3])
-        np.multiply(cvds, Rt, out=J[:, 3:, 6:9])
-        np.multiply(self._cv[:, :, None], hat(v), out=J[:, 3:, 3:6])
-        return LocalJacobian(J, Jr_inv, Jl_inv, theta2, d, dp)
+        ns = len(phi)
+        Jr_inv = np.empty((ns, 3, 3))
+        Jl_inv = np.empty((ns, 3, 3))
+        theta2 = np.empty(ns)
+        d = np.empty(ns)
+        dp = np.empty(ns)
+        _local_jacobian_kernel(Rt, phi, v, self._au, self._cv, self._cv_ds, self._Jloc, Jr_inv, Jl_inv, theta2, d, dp)
+        return LocalJacobian(self._Jloc, Jr_inv, Jl_inv, theta2, d, dp)
 
     def second_order(self, cache: RodCache, local: LocalJacobian, rho: FloatArray) -> FloatArray:
         """Σ_k ρ_k ∇²ρ_k per segment (N−1, 12, 12), upper blocks only (the rest is never read).
@@ -146,32 +263,10 @@ class RodRows:
             θ_{i+1} θ_i: −K₊ J_l⁻¹;
         with μ = ρ_v ⊙ √(Δs β/2): θ_i θ_i += ½(μvᵀ + vμᵀ) − (μ·v) I, θ_i r_{i±1} = ±hat(μ) R_iᵀ/Δs.
         """
-        Rt, phi, v = cache
         _, Jr_inv, Jl_inv, theta2, d, dp = local
-        lam = rho[:, :3] * self._au
-        mu = rho[:, 3:] * self._cv
-        pl = np.einsum("ij,ij->i", phi, lam)
-        P2l = phi * pl[:, None] - theta2[:, None] * lam
-        common = dp[:, None, None] * (P2l[:, :, None] * phi[:, None, :]) + d[:, None, None] * (
-            phi[:, :, None] * lam[:, None, :] - 2.0 * lam[:, :, None] * phi[:, None, :]
-        )
-        common.reshape(-1, 9)[:, ::4] += (d * pl)[:, None]
-        half_L = hat(0.5 * lam)
-        K_plus = common + half_L
-        K_minus = common - half_L
+        Rt, phi, v = cache
         S = self._Sloc
-        # J_l⁻ᵀλ = J_r⁻¹λ and J_r⁻ᵀλ = J_l⁻¹λ.
-        Jr_l = (Jr_inv @ lam[:, :, None])[:, :, 0]
-        Jl_l = (Jl_inv @ lam[:, :, None])[:, :, 0]
-        mv = mu[:, :, None] * v[:, None, :]
-        tt = K_minus @ Jl_inv + hat(0.5 * Jr_l) + 0.5 * (mv + np.swapaxes(mv, 1, 2))
-        tt.reshape(-1, 9)[:, ::4] -= np.einsum("ij,ij->i", mu, v)[:, None]
-        S[:, 3:6, 3:6] = tt
-        np.subtract(K_plus @ Jr_inv, hat(0.5 * Jl_l), out=S[:, 9:12, 9:12])
-        np.negative(np.swapaxes(K_plus @ Jl_inv, 1, 2), out=S[:, 3:6, 9:12])
-        C = (hat(mu) @ Rt) * self._inv_ds[:, :, None]
-        S[:, 3:6, 6:9] = C
-        np.negative(np.swapaxes(C, 1, 2), out=S[:, 0:3, 3:6])
+        _second_order_kernel(Rt, phi, v, Jr_inv, Jl_inv, theta2, d, dp, rho, self._au, self._cv, self._inv_ds, S)
         return S
 
     def strains(self, cache: RodCache) -> tuple[FloatArray, FloatArray]:
