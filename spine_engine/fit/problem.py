@@ -356,13 +356,9 @@ class RegistrationProblem:
         ``second_order``, else None) and the gradient Jᵀρ, over the unknowns. ``rows``: the non-rod rows
         of ``state`` when already evaluated (with their second-order terms when ``second_order``)."""
         ns = self.n - 1
-        layout = self._band_layout
-        local = self.rod.local_jacobian(cache)
-        J = local.J
-        JT = np.swapaxes(J, 1, 2)
-        rho_rod = res[: 6 * ns].reshape(ns, 6)
-        H = (JT @ J).reshape(ns, 144)[:, layout.upper]
-        gloc = (JT @ rho_rod[:, :, None]).ravel()
+        rod = self.rod.normal_blocks(cache, res[: 6 * ns].reshape(ns, 6), second_order)
+        H = rod.H
+        gloc = rod.g.ravel()
         if rows is None or (second_order and rows.second is None):
             rows = self.point_rows(state, second_order)
         bins = self._point_bins(rows.vertebra)
@@ -373,8 +369,8 @@ class RegistrationProblem:
         gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
         g_ext = accumulate(bins.g_all, np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext)
         if second_order:
-            S = self.rod.second_order(cache, local, rho_rod).reshape(ns, 144)[:, layout.upper]
-            assert rows.second is not None
+            S = rod.S
+            assert S is not None and rows.second is not None
             second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
             both = accumulate(
                 bins.h_both,

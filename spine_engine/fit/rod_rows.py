@@ -192,6 +192,57 @@ def jr_inverse(phi: FloatArray) -> FloatArray:
     return S + hat(0.5 * phi)
 
 
+_UPPER12_A, _UPPER12_B = np.triu_indices(12)
+"""Row and column of each upper-triangle entry of a 12×12 block, in ``banded.band_layout`` order."""
+
+
+@njit(cache=True)
+def _normal_blocks_kernel(
+    Rt: FloatArray, phi: FloatArray, v: FloatArray, rho: FloatArray,
+    au: FloatArray, cv: FloatArray, cv_ds: FloatArray, inv_ds: FloatArray,
+    upper_a: np.ndarray, upper_b: np.ndarray, second_order: bool,
+    J: FloatArray, S: FloatArray, H: FloatArray, g: FloatArray, S_upper: FloatArray,
+) -> None:
+    """Per segment: J (``_local_jacobian_kernel``), the upper triangle of JᵀJ into H (N−1, 78), Jᵀρ into
+    g (N−1, 12) and, when ``second_order``, the upper triangle of Σ_k ρ_k ∇²ρ_k (``_second_order_kernel``,
+    through the 12×12 buffer S) into S_upper (N−1, 78); one compiled call per normal-equation assembly."""
+    ns = phi.shape[0]
+    Jr_inv = np.empty((ns, 3, 3))
+    Jl_inv = np.empty((ns, 3, 3))
+    theta2 = np.empty(ns)
+    d = np.empty(ns)
+    dp = np.empty(ns)
+    _local_jacobian_kernel(Rt, phi, v, au, cv, cv_ds, J, Jr_inv, Jl_inv, theta2, d, dp)
+    for i in range(ns):
+        for k in range(len(upper_a)):
+            a, b = upper_a[k], upper_b[k]
+            acc = 0.0
+            for r in range(6):
+                acc += J[i, r, a] * J[i, r, b]
+            H[i, k] = acc
+        for a in range(12):
+            acc = 0.0
+            for r in range(6):
+                acc += J[i, r, a] * rho[i, r]
+            g[i, a] = acc
+    if second_order:
+        _second_order_kernel(Rt, phi, v, Jr_inv, Jl_inv, theta2, d, dp, rho, au, cv, inv_ds, S)
+        for i in range(ns):
+            for k in range(len(upper_a)):
+                S_upper[i, k] = S[i, upper_a[k], upper_b[k]]
+
+
+class RodNormal(NamedTuple):
+    """The rod's share of the normal equations, per segment over [r_i, θ_i, r_{i+1}, θ_{i+1}]."""
+
+    H: FloatArray
+    """(N−1, 78) upper triangle of J_iᵀJ_i (rows of ``np.triu_indices(12)``), N·mm/mm² and the like."""
+    g: FloatArray
+    """(N−1, 12) J_iᵀρ_i."""
+    S: FloatArray | None
+    """(N−1, 78) upper triangle of Σ_k ρ_k ∇²ρ_k over the segment's rows, when asked for."""
+
+
 def check_params(params: RodParameters) -> int:
     """Number of vertebrae N; raises ValueError on inconsistent shapes or negative stiffness."""
     ds = np.asarray(params.ds)
@@ -268,6 +319,21 @@ class RodRows:
         S = self._Sloc
         _second_order_kernel(Rt, phi, v, Jr_inv, Jl_inv, theta2, d, dp, rho, self._au, self._cv, self._inv_ds, S)
         return S
+
+    def normal_blocks(self, cache: RodCache, rho: FloatArray, second_order: bool) -> RodNormal:
+        """J_iᵀJ_i, J_iᵀρ_i and (when ``second_order``) Σ_k ρ_k ∇²ρ_k of every segment, upper triangles
+        (``RodNormal``), for the rows ρ (N−1, 6) of ``cache``'s configuration: ``local_jacobian`` and
+        ``second_order`` and their products in one compiled pass."""
+        Rt, phi, v = cache
+        ns = len(phi)
+        H = np.empty((ns, len(_UPPER12_A)))
+        g = np.empty((ns, 12))
+        S_upper = np.empty((ns, len(_UPPER12_A))) if second_order else np.empty((0, 0))
+        _normal_blocks_kernel(
+            Rt, phi, v, rho, self._au, self._cv, self._cv_ds, self._inv_ds, _UPPER12_A, _UPPER12_B, second_order,
+            self._Jloc, self._Sloc, H, g, S_upper,
+        )
+        return RodNormal(H, g, S_upper if second_order else None)
 
     def strains(self, cache: RodCache) -> tuple[FloatArray, FloatArray]:
         """(u, v) of the configuration, rad/mm and dimensionless."""

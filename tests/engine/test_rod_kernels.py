@@ -115,3 +115,36 @@ def test_jr_inv_coefficients_on_both_sides_of_the_taylor_switch():
     np.testing.assert_allclose(dp, dp_ref, rtol=1e-8)
     phi = np.random.default_rng(3).normal(0.0, 0.7, (6, 3))
     np.testing.assert_allclose(jr_inverse(phi), right_jacobian_inv(phi), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("second_order", [False, True])
+def test_normal_blocks_are_the_upper_products_of_the_local_jacobian(second_order):
+    rng = np.random.default_rng(11)
+    ds = rng.uniform(15.0, 35.0, N - 1)
+    params = RodParameters(
+        ds=ds,
+        u0=rng.normal(0.0, 0.003, (N - 1, 3)),
+        v0=np.column_stack((rng.normal(0.0, 0.02, (N - 1, 2)), np.ones(N - 1))),
+        alpha=rng.uniform(1e5, 1e6, (N - 1, 3)),
+        beta=rng.uniform(1e2, 1e3, (N - 1, 3)),
+    )
+    rod = RodRows(params)
+    R = exp_so3(rng.normal(0.0, 0.2, (N, 3)))
+    r = np.cumsum(rng.normal(0.0, 20.0, (N, 3)), axis=0)
+    res = np.empty(6 * (N - 1))
+    cache = rod.evaluate(r, R, res)
+    rho = res.reshape(N - 1, 6)
+    blocks = rod.normal_blocks(cache, rho, second_order)
+    local = rod.local_jacobian(cache)
+    J = local.J.copy()
+    a, b = np.triu_indices(12)
+    JTJ = np.swapaxes(J, 1, 2) @ J
+    np.testing.assert_allclose(blocks.H, JTJ[:, a, b], rtol=1e-13, atol=1e-13 * np.abs(JTJ).max())
+    g = (np.swapaxes(J, 1, 2) @ rho[:, :, None])[:, :, 0]
+    np.testing.assert_allclose(blocks.g, g, rtol=1e-13, atol=1e-13 * np.abs(g).max())
+    if second_order:
+        S = rod.second_order(cache, local, rho)
+        assert blocks.S is not None
+        np.testing.assert_array_equal(blocks.S, S[:, a, b])
+    else:
+        assert blocks.S is None
