@@ -49,6 +49,8 @@ class State(NamedTuple):
 
 class _PointBins(NamedTuple):
     ok: np.ndarray
+    all_ok: bool
+    """Every row touches a vertebra (``ok`` selects them all)."""
     h: np.ndarray
     s: np.ndarray
     g: np.ndarray
@@ -148,6 +150,10 @@ class RegistrationProblem:
             view_cols[view.name] = {cam.names[k]: int(c) for k, c in zip(free, cols, strict=True)}
             col += len(free)
         self.n_border = col - self.n_vertebra_params
+        self._cam_free = [np.flatnonzero(cam.free) for cam in self.cameras]
+        """Each camera's estimated parameters (positions in its ``values``)."""
+        self._cam_border = [cols - self.n_vertebra_params for cols in self._cam_cols]
+        """Their columns in the border (0..n_border−1)."""
         self.n_params = col
         position = np.full((n, 3), -1, dtype=np.intp)
         rotation = np.full((n, 3), -1, dtype=np.intp)
@@ -180,6 +186,7 @@ class RegistrationProblem:
         kinds += [f"tilt:{name}" for name, sl in self.obs.tilt_slices.items() for _ in range(sl.stop - sl.start)]
         kinds += ["pose"] * (6 * len(self.pose_priors))
         self._camera_prior_rows = self._camera_priors()
+        self._point_vertebra = self._point_rows_vertebra()
         kinds += ["camera"] * len(self._camera_prior_rows)
         self.row_kinds = tuple(kinds)
         self.n_residuals = len(kinds)
@@ -234,10 +241,10 @@ class RegistrationProblem:
         r[self.j0 : self.j1] += d[:, :3]
         R[self.j0 : self.j1] = state.R[self.j0 : self.j1] @ exp_so3(d[:, 3:])
         cams = []
-        for cam, values, cols in zip(self.cameras, state.cameras, self._cam_cols, strict=True):
+        for free, values, cols in zip(self._cam_free, state.cameras, self._cam_cols, strict=True):
             if len(cols):
                 values = values.copy()
-                values[np.flatnonzero(cam.free)] += h[cols]
+                values[free] += h[cols]
             cams.append(values)
         return State(r, R, tuple(cams))
 
@@ -257,39 +264,37 @@ class RegistrationProblem:
         return rows
 
     def point_rows(self, state: State, second_order: bool = False) -> PointRows:
-        """All non-rod rows with their Jacobians (module docstring)."""
+        """All non-rod rows with their Jacobians (module docstring), written into arrays of the final size."""
         r, R, cams = state
-        P = self.n_border
-        parts_rho, parts_idx, parts_Jv, parts_Jb, parts_S = [], [], [], [], []
+        n_rows = len(self._point_vertebra)
+        rho_all = np.empty(n_rows)
+        Jv_all = np.zeros((n_rows, 6))
+        Jb_all = np.zeros((n_rows, self.n_border))
+        second = np.zeros((n_rows, 3, 3)) if second_order else None
+        start = 0
         # landmarks
         for k, (idx, points, c) in enumerate(self._lm_constants):
             if not len(idx):
                 continue
             view, cam = self.views[k], self.cameras[k]
             pr = project(cam, cams[k], r[idx], view.e_c, view.e_r)
-            rho = (c * (pr.points - points)).ravel()
-            Jv = np.zeros((2 * len(idx), 6))
-            Jv[:, :3] = (c * pr.d_r).reshape(-1, 3)
-            Jb = np.zeros((2 * len(idx), P))
+            stop = start + 2 * len(idx)
+            rows = slice(start, stop)
+            rho_all[rows] = (c * (pr.points - points)).ravel()
+            Jv_all[rows, :3] = (c * pr.d_r).reshape(-1, 3)
             if len(self._cam_cols[k]):
-                Jb[:, self._cam_cols[k] - self.n_vertebra_params] = (c * pr.d_params[:, :, cam.free]).reshape(
-                    2 * len(idx), -1
-                )
-            parts_rho.append(rho)
-            parts_idx.append(self._lm_rows_index[k])
-            parts_Jv.append(Jv)
-            parts_Jb.append(Jb)
-        off = self.obs.offset_rows(state, self, second_order)
-        tilt = self.obs.tilt_rows(state, self, second_order)
-        for part in (off, tilt):
+                Jb_all[rows, self._cam_border[k]] = (c * pr.d_params[:, :, cam.free]).reshape(2 * len(idx), -1)
+            start = stop
+        for part in (self.obs.offset_rows(state, self, second_order), self.obs.tilt_rows(state, self, second_order)):
             if part is not None:
-                parts_rho.append(part.rho)
-                parts_idx.append(part.vertebra)
-                parts_Jv.append(part.Jv)
-                parts_Jb.append(part.Jb)
-                if second_order:
+                rows = slice(start, start + len(part.rho))
+                rho_all[rows] = part.rho
+                Jv_all[rows] = part.Jv
+                Jb_all[rows] = part.Jb
+                if second is not None:
                     assert part.second is not None
-                    parts_S.append((len(np.concatenate(parts_rho)) - len(part.rho), part.second))
+                    second[rows] = part.second
+                start = rows.stop
         # pose priors
         half_k = np.sqrt(0.5 * self.energy_unit)
         for prior in self.pose_priors:
@@ -297,46 +302,40 @@ class RegistrationProblem:
             a = half_k / prior.position_sd_mm
             b = half_k / prior.rotation_sd_rad
             phi = log_so3(prior.pose.rotation.T @ R[j])
-            rho = np.concatenate((a * (r[j] - prior.pose.position), b * phi))
-            Jv = np.zeros((6, 6))
-            Jv[:3, :3] = a * np.eye(3)
-            Jv[3:, 3:] = b * jr_inverse(phi[None])[0]
-            parts_rho.append(rho)
-            parts_idx.append(np.full(6, j))
-            parts_Jv.append(Jv)
-            parts_Jb.append(np.zeros((6, P)))
+            rho_all[start : start + 3] = a * (r[j] - prior.pose.position)
+            rho_all[start + 3 : start + 6] = b * phi
+            Jv_all[start : start + 3, :3] = a * np.eye(3)
+            Jv_all[start + 3 : start + 6, 3:] = b * jr_inverse(phi[None])[0]
+            start += 6
         # camera priors
         for k, p, mean, sd in self._camera_prior_rows:
             cam = self.cameras[k]
-            Jv = np.zeros((1, 6))
-            Jb = np.zeros((1, P))
-            cols = dict(zip(np.flatnonzero(cam.free), self._cam_cols[k] - self.n_vertebra_params, strict=True))
+            cols = dict(zip(self._cam_free[k], self._cam_border[k], strict=True))
             if p >= 0:
-                rho = np.array([half_k * (cams[k][p] - mean) / sd])
-                Jb[0, cols[p]] = half_k / sd
-                index = -1
+                rho_all[start] = half_k * (cams[k][p] - mean) / sd
+                Jb_all[start, cols[p]] = half_k / sd
             else:
                 view = self.views[k]
                 b_dir = cam.beam_direction(view.e_c, view.e_r)
-                index = self.depth_reference
-                rho = np.array([half_k * float(b_dir @ (r[index] - cams[k][2:5])) / sd])
-                Jv[0, :3] = half_k * b_dir / sd
+                rho_all[start] = half_k * float(b_dir @ (r[self.depth_reference] - cams[k][2:5])) / sd
+                Jv_all[start, :3] = half_k * b_dir / sd
                 for axis in range(3):
                     if (2 + axis) in cols:
-                        Jb[0, cols[2 + axis]] = -half_k * b_dir[axis] / sd
-            parts_rho.append(rho)
-            parts_idx.append(np.array([index]))
-            parts_Jv.append(Jv)
-            parts_Jb.append(Jb)
-        if not parts_rho:
-            return PointRows(np.zeros(0), np.zeros(0, dtype=int), np.zeros((0, 6)), np.zeros((0, P)), None)
-        rho_all = np.concatenate(parts_rho)
-        second = None
-        if second_order:
-            second = np.zeros((len(rho_all), 3, 3))
-            for start, S in parts_S:
-                second[start : start + len(S)] = S
-        return PointRows(rho_all, np.concatenate(parts_idx), np.concatenate(parts_Jv), np.concatenate(parts_Jb), second)
+                        Jb_all[start, cols[2 + axis]] = -half_k * b_dir[axis] / sd
+            start += 1
+        return PointRows(rho_all, self._point_vertebra, Jv_all, Jb_all, second)
+
+    def _point_rows_vertebra(self) -> np.ndarray:
+        """The vertebra of each non-rod row (−1: none), in ``point_rows`` order; fixed for the problem."""
+        parts = [np.repeat(idx, 2) for idx, _, _ in self._lm_constants]
+        parts += [np.asarray(v.offset_indices, dtype=np.intp) for v in self.views if v.n_offsets]
+        parts.append(np.asarray(self.obs.tilt_indices, dtype=np.intp))
+        parts += [np.full(6, prior.vertebra, dtype=np.intp) for prior in self.pose_priors]
+        depth = self.depth_reference
+        parts += [np.array([-1 if p >= 0 else depth], dtype=np.intp) for _, p, _, _ in self._camera_prior_rows]
+        vertebra = np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)
+        vertebra.flags.writeable = False
+        return vertebra
 
     def evaluate(self, state: State, second_order: bool = False) -> tuple[FloatArray, RodCache, PointRows]:
         """ρ (layout in the module docstring), the rod cache and the non-rod rows (with Jacobians and,
@@ -362,7 +361,7 @@ class RegistrationProblem:
         if rows is None or (second_order and rows.second is None):
             rows = self.point_rows(state, second_order)
         bins = self._point_bins(rows.vertebra)
-        ok = bins.ok
+        ok = slice(None) if bins.all_ok else bins.ok
         Jv = rows.Jv[ok]
         rho_p = rows.rho[ok]
         # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
@@ -412,6 +411,7 @@ class RegistrationProblem:
         rod_h = layout.hbins[: len(layout.hbins) // 2]
         tables = _PointBins(
             ok=ok,
+            all_ok=bool(ok.all()),
             h=h,
             s=s,
             g=g,
