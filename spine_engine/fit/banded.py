@@ -11,7 +11,6 @@ with one band Cholesky factorisation of A (dpbtrf) and 1 + p band solves (dpbtrs
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import NamedTuple, cast
 
 import numpy as np
@@ -29,31 +28,6 @@ UPPER3 = np.triu_indices(3)
 def accumulate(bins: NDArray[np.intp], weights: FloatArray, minlength: int) -> FloatArray:
     """Sum of ``weights`` per bin (numpy's bincount, typed as the float array it returns)."""
     return cast(FloatArray, np.bincount(bins, weights, minlength=minlength))
-
-
-class BandLayout(NamedTuple):
-    """Index tables of the per-segment 12×12 blocks in band storage, for N vertebrae."""
-
-    upper: NDArray[np.intp]
-    """Flat positions of the upper-triangle entries in a 12×12 block."""
-    hbins: NDArray[np.intp]
-    """Their bins in two stacked band matrices (KD + 1, 6N) (Gauss–Newton part, then second-order part)."""
-    gbins: NDArray[np.intp]
-    """Bins of the 12 gradient entries of each segment in a vector of 6N."""
-
-
-@lru_cache(maxsize=8)
-def band_layout(n: int) -> BandLayout:
-    """``BandLayout`` for N = n vertebrae (extended index 6·vertebra + k, fixed ends included)."""
-    n_ext = 6 * n
-    a, b = np.triu_indices(12)
-    seg = np.arange(n - 1)[:, None]
-    bins = ((KD + a - b) * n_ext + 6 * seg + b).ravel()
-    hbins = np.concatenate((bins, bins + (KD + 1) * n_ext))
-    gbins = (6 * seg + np.arange(12)).ravel()
-    for table in (hbins, gbins):
-        table.flags.writeable = False
-    return BandLayout(a * 12 + b, hbins, gbins)
 
 
 def band_to_dense(ab: FloatArray) -> FloatArray:

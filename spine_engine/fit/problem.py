@@ -26,17 +26,65 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from ..rotations import exp_so3, log_so3
-from .banded import KD, UPPER3, BorderedSystem, accumulate, band_layout, band_to_dense
+from .banded import KD, BorderedSystem, band_to_dense
 from .cameras import project
 from .observations import Observations
 from .rod_rows import RodCache, RodRows, jr_inverse
 from .types import Camera, FitOutput, FloatArray, ParameterLayout, Pose, PosePrior, RodParameters, ViewData, as_pose
 
-_A6, _B6 = np.triu_indices(6)
-_UPPER6 = _A6 * 6 + _B6
+
+@njit(cache=True)
+def _assemble_normal(
+    H: FloatArray, g_rod: FloatArray, S_rod: FloatArray, Jv: FloatArray, rho: FloatArray, Jb: FloatArray,
+    second: FloatArray, vertebra: np.ndarray, second_order: bool,
+    ab: FloatArray, ab_2: FloatArray, g_ext: FloatArray, B_ext: FloatArray,
+) -> None:
+    """Add every row's share to the normal equations over the extended unknowns (6 per vertebra, fixed
+    ends included), in upper band storage ab[KD + i − j, j] (``banded``):
+
+    * segment i (columns 6i … 6i + 11): the upper triangle of J_iᵀJ_i (``H``, N−1 × 78 in
+      ``np.triu_indices(12)`` order) into ab, J_iᵀρ_i (``g_rod``) into g_ext and, when
+      ``second_order``, its Σρ∇²ρ (``S_rod``, same order) into ab_2;
+    * non-rod row k at vertebra j = vertebra[k] ≥ 0 (columns 6j … 6j + 5): J_kᵀJ_k (upper) into ab,
+      J_k ρ_k into g_ext, J_kᵀ Jb_k into the border B_ext (6N × P) and, when ``second_order``, the upper
+      triangle of its θθ term ``second[k]`` into ab_2; rows with j < 0 touch no vertebra.
+    """
+    kd = ab.shape[0] - 1
+    for i in range(H.shape[0]):
+        c0 = 6 * i
+        k = 0
+        for a in range(12):
+            g_ext[c0 + a] += g_rod[i, a]
+            for b in range(a, 12):
+                ab[kd + a - b, c0 + b] += H[i, k]
+                if second_order:
+                    ab_2[kd + a - b, c0 + b] += S_rod[i, k]
+                k += 1
+    P = Jb.shape[1]
+    for k in range(len(rho)):
+        j = vertebra[k]
+        if j < 0:
+            continue
+        c0 = 6 * j
+        for a in range(6):
+            ja = Jv[k, a]
+            g_ext[c0 + a] += ja * rho[k]
+            for b in range(a, 6):
+                ab[kd + a - b, c0 + b] += ja * Jv[k, b]
+            for p in range(P):
+                B_ext[c0 + a, p] += ja * Jb[k, p]
+        if second_order:
+            for a in range(3):
+                for b in range(a, 3):
+                    ab_2[kd + a - b, c0 + 3 + b] += second[k, a, b]
+
+
+_NO_SECOND = np.zeros((0, 3, 3))
+"""Stand-in for absent second-order terms (the assembly kernel takes arrays only)."""
 
 
 class State(NamedTuple):
@@ -45,22 +93,6 @@ class State(NamedTuple):
     r: FloatArray
     R: FloatArray
     cameras: tuple[FloatArray, ...]
-
-
-class _PointBins(NamedTuple):
-    ok: np.ndarray
-    all_ok: bool
-    """Every row touches a vertebra (``ok`` selects them all)."""
-    h: np.ndarray
-    s: np.ndarray
-    g: np.ndarray
-    b: np.ndarray
-    g_all: np.ndarray
-    """The rod's gradient bins, then ``g``."""
-    h_gn: np.ndarray
-    """The rod's JᵀJ bins, then ``h``."""
-    h_both: np.ndarray
-    """The rod's JᵀJ and second-order bins, ``h``, then ``s`` in the second band."""
 
 
 class PointRows(NamedTuple):
@@ -195,11 +227,8 @@ class RegistrationProblem:
         self.n_offsets = self.obs.n_offsets
         self.n_tilts = self.obs.n_tilts
         self.n_data_rows = self.n_fit + self.n_offsets + self.n_tilts
-        self._band_layout = band_layout(n)
         self._n_ext = 6 * n
-        self._band_size = (KD + 1) * self._n_ext
         self._vslice = slice(6 * self.j0, 6 * self.j1)
-        self._bins_cache: tuple[np.ndarray, _PointBins] | None = None
 
     # ------------------------------------------------------------------ configuration
 
@@ -356,72 +385,22 @@ class RegistrationProblem:
         of ``state`` when already evaluated (with their second-order terms when ``second_order``)."""
         ns = self.n - 1
         rod = self.rod.normal_blocks(cache, res[: 6 * ns].reshape(ns, 6), second_order)
-        H = rod.H
-        gloc = rod.g.ravel()
         if rows is None or (second_order and rows.second is None):
             rows = self.point_rows(state, second_order)
-        bins = self._point_bins(rows.vertebra)
-        ok = slice(None) if bins.all_ok else bins.ok
-        Jv = rows.Jv[ok]
-        rho_p = rows.rho[ok]
-        # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
-        gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
-        g_ext = accumulate(bins.g_all, np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext)
-        if second_order:
-            S = rod.S
-            assert S is not None and rows.second is not None
-            second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
-            both = accumulate(
-                bins.h_both,
-                np.concatenate((H.ravel(), S.ravel(), gn.ravel(), second.ravel())),
-                2 * self._band_size,
-            ).reshape(2, KD + 1, self._n_ext)
-            ab_gn, ab_2 = both[0], both[1]
-        else:
-            ab_gn = accumulate(
-                bins.h_gn,
-                np.concatenate((H.ravel(), gn.ravel())),
-                self._band_size,
-            ).reshape(KD + 1, self._n_ext)
-            ab_2 = None
         P = self.n_border
-        if P:
-            contrib = Jv[:, :, None] * rows.Jb[ok][:, None, :]  # (k, 6, P)
-            B_ext = accumulate(bins.b, contrib.ravel(), self._n_ext * P).reshape(self._n_ext, P)
-        else:
-            B_ext = np.zeros((self._n_ext, 0))
+        ab_gn = np.zeros((KD + 1, self._n_ext))
+        ab_2 = np.zeros((KD + 1, self._n_ext)) if second_order else None
+        g_ext = np.zeros(self._n_ext)
+        B_ext = np.zeros((self._n_ext, P))
+        _assemble_normal(
+            rod.H, rod.g, rod.S if rod.S is not None else rod.H, rows.Jv, rows.rho, rows.Jb,
+            rows.second if rows.second is not None else _NO_SECOND, rows.vertebra, second_order,
+            ab_gn, ab_gn if ab_2 is None else ab_2, g_ext, B_ext,
+        )
         C = rows.Jb.T @ rows.Jb
         g = np.concatenate((g_ext[self._vslice], rows.Jb.T @ rows.rho))
         system = BorderedSystem(ab_gn[:, self._vslice], B_ext[self._vslice], C)
         return system, (None if ab_2 is None else ab_2[:, self._vslice]), g
-
-    def _point_bins(self, vertebra: np.ndarray) -> _PointBins:
-        """Scatter tables of the non-rod rows (their vertebrae are the same at every configuration)."""
-        cached = self._bins_cache
-        if cached is not None and (cached[0] is vertebra or np.array_equal(cached[0], vertebra)):
-            return cached[1]
-        ok = vertebra >= 0
-        idx = vertebra[ok]
-        a3, b3 = UPPER3
-        P = self.n_border
-        h = ((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel()
-        s = ((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel()
-        g = (6 * idx[:, None] + np.arange(6)).ravel()
-        layout = self._band_layout
-        rod_h = layout.hbins[: len(layout.hbins) // 2]
-        tables = _PointBins(
-            ok=ok,
-            all_ok=bool(ok.all()),
-            h=h,
-            s=s,
-            g=g,
-            b=((6 * idx[:, None] + np.arange(6))[:, :, None] * P + np.arange(P)).ravel(),
-            g_all=np.concatenate((layout.gbins, g)),
-            h_gn=np.concatenate((rod_h, h)),
-            h_both=np.concatenate((layout.hbins, h, s + self._band_size)),
-        )
-        self._bins_cache = (vertebra, tables)
-        return tables
 
     def jacobian_state(self, state: State, evaluated: tuple[RodCache, PointRows] | None = None) -> FloatArray:
         """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``.

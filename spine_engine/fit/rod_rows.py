@@ -193,7 +193,7 @@ def jr_inverse(phi: FloatArray) -> FloatArray:
 
 
 _UPPER12_A, _UPPER12_B = np.triu_indices(12)
-"""Row and column of each upper-triangle entry of a 12×12 block, in ``banded.band_layout`` order."""
+"""Row and column of each upper-triangle entry of a 12×12 block (row by row, as ``problem`` assembles them)."""
 
 
 @njit(cache=True)
