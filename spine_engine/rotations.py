@@ -11,6 +11,8 @@ with J_l(φ) = J_r(−φ) = J_r(φ)ᵀ.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
@@ -60,9 +62,9 @@ def _exp_kernel(phi: FloatArray, out: FloatArray) -> None:
     """exp of each row of phi (k, 3) into out (k, 3, 3) (``exp_so3``)."""
     for n in range(phi.shape[0]):
         p0, p1, p2 = phi[n, 0], phi[n, 1], phi[n, 2]
-        h = 0.5 * np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-        half_sigma = 0.5 * (np.sin(h) / h if h > 0.0 else 1.0)
-        w, x, y, z = np.cos(h), half_sigma * p0, half_sigma * p1, half_sigma * p2
+        h = 0.5 * math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        half_sigma = 0.5 * (math.sin(h) / h if h > 0.0 else 1.0)
+        w, x, y, z = math.cos(h), half_sigma * p0, half_sigma * p1, half_sigma * p2
         ww, xx, yy, zz = w * w, x * x, y * y, z * z
         out[n, 0, 0] = ww + xx - yy - zz
         out[n, 0, 1] = 2.0 * (x * y - w * z)

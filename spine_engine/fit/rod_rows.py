@@ -9,6 +9,7 @@ v_i = R_iᵀ (r_{i+1} − r_i)/Δs_i, six rows √(Δs_i α_i/2)(u_i − u0_i) t
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -43,13 +44,13 @@ class LocalJacobian(NamedTuple):
 @njit(cache=True)
 def _jr_inv_pair(theta2: float) -> tuple[float, float]:
     """(d, d'/θ) of one angle (``jr_inv_coefficients``)."""
-    t = np.sqrt(theta2)
+    t = math.sqrt(theta2)
     if t < 0.1:  # Taylor series
         d = 1.0 / 12.0 + theta2 * (1.0 / 720.0 + theta2 * (1.0 / 30240.0 + theta2 / 1209600.0))
         dp = 1.0 / 360.0 + theta2 * (1.0 / 7560.0 + theta2 * (1.0 / 201600.0 + theta2 / 5987520.0))
         return d, dp
     t2 = t * t
-    cot = 1.0 / np.tan(0.5 * t)
+    cot = 1.0 / math.tan(0.5 * t)
     return 1.0 / t2 - 0.5 * cot / t, (-2.0 / t2 + 0.5 * cot / t + 0.25 * (1.0 + cot * cot)) / t2
 
 
@@ -82,7 +83,8 @@ def _local_jacobian_kernel(
             for b in range(3):
                 Jr_inv[i, a, b] = di * phi[i, a] * phi[i, b]
             Jr_inv[i, a, a] += 1.0 - di * t2
-        Jl_inv[i] = Jr_inv[i]
+            for b in range(3):
+                Jl_inv[i, a, b] = Jr_inv[i, a, b]
         h0, h1, h2 = 0.5 * p0, 0.5 * p1, 0.5 * p2
         Jr_inv[i, 0, 1] -= h2
         Jr_inv[i, 0, 2] += h1
@@ -110,14 +112,12 @@ def _local_jacobian_kernel(
 
 
 @njit(cache=True)
-def _hat_into(out: FloatArray, w0: float, w1: float, w2: float, sign: float) -> None:
-    """out += sign · hat(w) for a 3×3 ``out``."""
-    out[0, 1] -= sign * w2
-    out[0, 2] += sign * w1
-    out[1, 0] += sign * w2
-    out[1, 2] -= sign * w0
-    out[2, 0] -= sign * w1
-    out[2, 1] += sign * w0
+def _hat_entry(w: FloatArray, a: int, b: int) -> float:
+    """hat(w)[a, b] = −ε_abk w_k: 0 on the diagonal, hat(w) = [[0, −w3, w2], [w3, 0, −w1], [−w2, w1, 0]]."""
+    if a == b:
+        return 0.0
+    k = 3 - a - b
+    return w[k] if (b - a) % 3 == 2 else -w[k]
 
 
 @njit(cache=True)
@@ -131,6 +131,8 @@ def _second_order_kernel(
     lam = np.empty(3)
     mu = np.empty(3)
     P2l = np.empty(3)
+    jr = np.empty(3)
+    jl = np.empty(3)
     Kp = np.empty((3, 3))
     Km = np.empty((3, 3))
     for i in range(phi.shape[0]):
@@ -144,21 +146,16 @@ def _second_order_kernel(
             P2l[a] = phi[i, a] * pl - t2 * lam[a]
         for a in range(3):
             for b in range(3):
-                Kp[a, b] = dpi * (P2l[a] * phi[i, b]) + di * (phi[i, a] * lam[b] - 2.0 * lam[a] * phi[i, b])
-            Kp[a, a] += di * pl
-        Km[:, :] = Kp
-        _hat_into(Kp, 0.5 * lam[0], 0.5 * lam[1], 0.5 * lam[2], 1.0)
-        _hat_into(Km, 0.5 * lam[0], 0.5 * lam[1], 0.5 * lam[2], -1.0)
+                common = dpi * (P2l[a] * phi[i, b]) + di * (phi[i, a] * lam[b] - 2.0 * lam[a] * phi[i, b])
+                if a == b:
+                    common += di * pl
+                half_l = 0.5 * _hat_entry(lam, a, b)
+                Kp[a, b] = common + half_l
+                Km[a, b] = common - half_l
         # J_l⁻ᵀλ = J_r⁻¹λ and J_r⁻ᵀλ = J_l⁻¹λ
-        jr0 = Jr_inv[i, 0, 0] * lam[0] + Jr_inv[i, 0, 1] * lam[1] + Jr_inv[i, 0, 2] * lam[2]
-        jr1 = Jr_inv[i, 1, 0] * lam[0] + Jr_inv[i, 1, 1] * lam[1] + Jr_inv[i, 1, 2] * lam[2]
-        jr2 = Jr_inv[i, 2, 0] * lam[0] + Jr_inv[i, 2, 1] * lam[1] + Jr_inv[i, 2, 2] * lam[2]
-        jl0 = Jl_inv[i, 0, 0] * lam[0] + Jl_inv[i, 0, 1] * lam[1] + Jl_inv[i, 0, 2] * lam[2]
-        jl1 = Jl_inv[i, 1, 0] * lam[0] + Jl_inv[i, 1, 1] * lam[1] + Jl_inv[i, 1, 2] * lam[2]
-        jl2 = Jl_inv[i, 2, 0] * lam[0] + Jl_inv[i, 2, 1] * lam[1] + Jl_inv[i, 2, 2] * lam[2]
-        Sii = S[i, 3:6, 3:6]
-        Sjj = S[i, 9:12, 9:12]
-        Sij = S[i, 3:6, 9:12]
+        for a in range(3):
+            jr[a] = Jr_inv[i, a, 0] * lam[0] + Jr_inv[i, a, 1] * lam[1] + Jr_inv[i, a, 2] * lam[2]
+            jl[a] = Jl_inv[i, a, 0] * lam[0] + Jl_inv[i, a, 1] * lam[1] + Jl_inv[i, a, 2] * lam[2]
         for a in range(3):
             for b in range(3):
                 tt = 0.0
@@ -168,12 +165,12 @@ def _second_order_kernel(
                     tt += Km[a, c] * Jl_inv[i, c, b]
                     pp += Kp[a, c] * Jr_inv[i, c, b]
                     pm += Kp[b, c] * Jl_inv[i, c, a]
-                Sii[a, b] = tt + 0.5 * (mu[a] * v[i, b] + v[i, a] * mu[b])
-                Sjj[a, b] = pp
-                Sij[a, b] = -pm
-            Sii[a, a] -= mv
-        _hat_into(Sii, 0.5 * jr0, 0.5 * jr1, 0.5 * jr2, 1.0)
-        _hat_into(Sjj, 0.5 * jl0, 0.5 * jl1, 0.5 * jl2, -1.0)
+                tt += 0.5 * _hat_entry(jr, a, b) + 0.5 * (mu[a] * v[i, b] + v[i, a] * mu[b])
+                if a == b:
+                    tt -= mv
+                S[i, 3 + a, 3 + b] = tt
+                S[i, 9 + a, 9 + b] = pp - 0.5 * _hat_entry(jl, a, b)
+                S[i, 3 + a, 9 + b] = -pm
         # C = hat(μ) R_iᵀ/Δs: θ_i r_{i+1}, and −Cᵀ: r_i θ_i
         for b in range(3):
             c0 = (mu[1] * Rt[i, 2, b] - mu[2] * Rt[i, 1, b]) * inv_ds[i, 0]
