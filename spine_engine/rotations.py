@@ -11,7 +11,10 @@ with J_l(φ) = J_r(−φ) = J_r(φ)ᵀ.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
@@ -54,45 +57,41 @@ def _angle(phi: FloatArray) -> FloatArray:
     return np.sqrt(np.einsum("...i,...i->...", phi, phi))
 
 
-def _quaternion_to_matrix_table() -> FloatArray:
-    # R.reshape(9) = C @ (q qᵀ).reshape(16) for a unit quaternion q = (w, x, y, z).
-    w, x, y, z = range(4)
-    terms: list[list[tuple[float, int, int]]] = [
-        [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)],
-        [(2, x, y), (-2, w, z)],
-        [(2, x, z), (2, w, y)],
-        [(2, x, y), (2, w, z)],
-        [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)],
-        [(2, y, z), (-2, w, x)],
-        [(2, x, z), (-2, w, y)],
-        [(2, y, z), (2, w, x)],
-        [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)],
-    ]
-    C = np.zeros((9, 16))
-    for k, entry in enumerate(terms):
-        for coef, a, b in entry:
-            C[k, 4 * a + b] += coef
-    return C
-
-
-_QUAT_TO_R = _quaternion_to_matrix_table()
+@njit(cache=True)
+def _exp_kernel(phi: FloatArray, out: FloatArray) -> None:
+    """exp of each row of phi (k, 3) into out (k, 3, 3) (``exp_so3``)."""
+    for n in range(phi.shape[0]):
+        p0, p1, p2 = phi[n, 0], phi[n, 1], phi[n, 2]
+        h = 0.5 * math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        half_sigma = 0.5 * (math.sin(h) / h if h > 0.0 else 1.0)
+        w, x, y, z = math.cos(h), half_sigma * p0, half_sigma * p1, half_sigma * p2
+        ww, xx, yy, zz = w * w, x * x, y * y, z * z
+        out[n, 0, 0] = ww + xx - yy - zz
+        out[n, 0, 1] = 2.0 * (x * y - w * z)
+        out[n, 0, 2] = 2.0 * (x * z + w * y)
+        out[n, 1, 0] = 2.0 * (x * y + w * z)
+        out[n, 1, 1] = ww - xx + yy - zz
+        out[n, 1, 2] = 2.0 * (y * z - w * x)
+        out[n, 2, 0] = 2.0 * (x * z - w * y)
+        out[n, 2, 1] = 2.0 * (y * z + w * x)
+        out[n, 2, 2] = ww - xx - yy + zz
 
 
 def exp_so3(phi: ArrayLike) -> FloatArray:
     """Rodrigues' formula exp(Φ) = cos θ I + (sin θ/θ) Φ + ((1 − cos θ)/θ²) φφᵀ, shape (..., 3) → (..., 3, 3).
 
-    Evaluated through the unit quaternion q = (cos(θ/2), sin(θ/2) φ/θ) with sin(θ/2)/θ computed
-    as a ratio that has no cancellation at any θ > 0 (and ½ at θ = 0), so it is exact for small
-    angles without a Taylor branch; R is the quadratic form of q (one product with a table).
+    Evaluated through the unit quaternion q = (w, x, y, z) = (cos(θ/2), sin(θ/2) φ/θ) with sin(θ/2)/θ
+    computed as a ratio that has no cancellation at any θ > 0 (and ½ at θ = 0), so it is exact for
+    small angles without a Taylor branch; R is the quadratic form of q,
+        R = [[w²+x²−y²−z², 2(xy−wz), 2(xz+wy)], [2(xy+wz), w²−x²+y²−z², 2(yz−wx)],
+             [2(xz−wy), 2(yz+wx), w²−x²−y²+z²]]
+    (one compiled loop over the stack).
     """
     phi = np.asarray(phi, dtype=float)
-    h = 0.5 * _angle(phi)
-    sigma = np.divide(np.sin(h), h, out=np.ones_like(h), where=h > 0.0)
-    q = np.empty((*phi.shape[:-1], 4))
-    q[..., 0] = np.cos(h)
-    np.multiply((0.5 * sigma)[..., None], phi, out=q[..., 1:])
-    qq = (q[..., :, None] * q[..., None, :]).reshape(*phi.shape[:-1], 16)
-    return (qq @ _QUAT_TO_R.T).reshape(*phi.shape[:-1], 3, 3)
+    flat = np.ascontiguousarray(phi.reshape(-1, 3))
+    out = np.empty((len(flat), 3, 3))
+    _exp_kernel(flat, out)
+    return out.reshape(*phi.shape[:-1], 3, 3)
 
 
 def log_so3(R: ArrayLike) -> FloatArray:

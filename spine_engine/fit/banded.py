@@ -11,12 +11,11 @@ with one band Cholesky factorisation of A (dpbtrf) and 1 + p band solves (dpbtrs
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import NamedTuple, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.lapack import dpbtrf, dpbtrs
+from scipy.linalg.lapack import dpbtrf, dpbtrs, dpotrf, dpotrs
 
 from .types import FloatArray
 
@@ -29,31 +28,6 @@ UPPER3 = np.triu_indices(3)
 def accumulate(bins: NDArray[np.intp], weights: FloatArray, minlength: int) -> FloatArray:
     """Sum of ``weights`` per bin (numpy's bincount, typed as the float array it returns)."""
     return cast(FloatArray, np.bincount(bins, weights, minlength=minlength))
-
-
-class BandLayout(NamedTuple):
-    """Index tables of the per-segment 12×12 blocks in band storage, for N vertebrae."""
-
-    upper: NDArray[np.intp]
-    """Flat positions of the upper-triangle entries in a 12×12 block."""
-    hbins: NDArray[np.intp]
-    """Their bins in two stacked band matrices (KD + 1, 6N) (Gauss–Newton part, then second-order part)."""
-    gbins: NDArray[np.intp]
-    """Bins of the 12 gradient entries of each segment in a vector of 6N."""
-
-
-@lru_cache(maxsize=8)
-def band_layout(n: int) -> BandLayout:
-    """``BandLayout`` for N = n vertebrae (extended index 6·vertebra + k, fixed ends included)."""
-    n_ext = 6 * n
-    a, b = np.triu_indices(12)
-    seg = np.arange(n - 1)[:, None]
-    bins = ((KD + a - b) * n_ext + 6 * seg + b).ravel()
-    hbins = np.concatenate((bins, bins + (KD + 1) * n_ext))
-    gbins = (6 * seg + np.arange(12)).ravel()
-    for table in (hbins, gbins):
-        table.flags.writeable = False
-    return BandLayout(a * 12 + b, hbins, gbins)
 
 
 def band_to_dense(ab: FloatArray) -> FloatArray:
@@ -101,13 +75,12 @@ def solve_bordered(
     rhs[:, 1:] = B
     X = dpbtrs(c, rhs)[0]
     S = C - B.T @ X[:, 1:]
-    # S is p × p with p ≤ 12: numpy's Cholesky (no SciPy wrapper overhead) both tests definiteness
-    # and solves, L Lᵀ h_p = rhs by two small solves
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
+    # S is p × p with p ≤ 12: LAPACK's dense Cholesky (dpotrf, info > 0 when not definite) and
+    # its solve L Lᵀ h_p = rhs (dpotrs), called directly (no wrapper or exception overhead)
+    L, info = dpotrf(S, lower=1, overwrite_a=1)
+    if info != 0:
         return None
-    h_p = np.linalg.solve(L.T, np.linalg.solve(L, B.T @ X[:, 0] - g[n:]))
+    h_p = dpotrs(L, B.T @ X[:, 0] - g[n:], lower=1)[0]
     h = np.empty(n + p)
     h[:n] = -(X[:, 0] + X[:, 1:] @ h_p)
     h[n:] = h_p

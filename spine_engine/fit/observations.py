@@ -97,6 +97,11 @@ class Observations:
         self._tilt_c = np.concatenate(t_c) if t_c else np.zeros((0, 2))
         self._tilt_sw = np.concatenate(t_sw) if t_sw else np.zeros(0)
 
+    @property
+    def tilt_indices(self) -> np.ndarray:
+        """(m,) vertebra of each tilt row, all views stacked."""
+        return self._tilt_idx
+
     # ------------------------------------------------------------------ offsets
 
     def _offset_view(self, k: int, view: ViewData, state: State, problem: RegistrationProblem) -> tuple:

@@ -26,17 +26,65 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from ..rotations import exp_so3, log_so3
-from .banded import KD, UPPER3, BorderedSystem, accumulate, band_layout, band_to_dense
+from .banded import KD, BorderedSystem, band_to_dense
 from .cameras import project
 from .observations import Observations
 from .rod_rows import RodCache, RodRows, jr_inverse
 from .types import Camera, FitOutput, FloatArray, ParameterLayout, Pose, PosePrior, RodParameters, ViewData, as_pose
 
-_A6, _B6 = np.triu_indices(6)
-_UPPER6 = _A6 * 6 + _B6
+
+@njit(cache=True)
+def _assemble_normal(
+    H: FloatArray, g_rod: FloatArray, S_rod: FloatArray, Jv: FloatArray, rho: FloatArray, Jb: FloatArray,
+    second: FloatArray, vertebra: np.ndarray, second_order: bool,
+    ab: FloatArray, ab_2: FloatArray, g_ext: FloatArray, B_ext: FloatArray,
+) -> None:
+    """Add every row's share to the normal equations over the extended unknowns (6 per vertebra, fixed
+    ends included), in upper band storage ab[KD + i − j, j] (``banded``):
+
+    * segment i (columns 6i … 6i + 11): the upper triangle of J_iᵀJ_i (``H``, N−1 × 78 in
+      ``np.triu_indices(12)`` order) into ab, J_iᵀρ_i (``g_rod``) into g_ext and, when
+      ``second_order``, its Σρ∇²ρ (``S_rod``, same order) into ab_2;
+    * non-rod row k at vertebra j = vertebra[k] ≥ 0 (columns 6j … 6j + 5): J_kᵀJ_k (upper) into ab,
+      J_k ρ_k into g_ext, J_kᵀ Jb_k into the border B_ext (6N × P) and, when ``second_order``, the upper
+      triangle of its θθ term ``second[k]`` into ab_2; rows with j < 0 touch no vertebra.
+    """
+    kd = ab.shape[0] - 1
+    for i in range(H.shape[0]):
+        c0 = 6 * i
+        k = 0
+        for a in range(12):
+            g_ext[c0 + a] += g_rod[i, a]
+            for b in range(a, 12):
+                ab[kd + a - b, c0 + b] += H[i, k]
+                if second_order:
+                    ab_2[kd + a - b, c0 + b] += S_rod[i, k]
+                k += 1
+    P = Jb.shape[1]
+    for k in range(len(rho)):
+        j = vertebra[k]
+        if j < 0:
+            continue
+        c0 = 6 * j
+        for a in range(6):
+            ja = Jv[k, a]
+            g_ext[c0 + a] += ja * rho[k]
+            for b in range(a, 6):
+                ab[kd + a - b, c0 + b] += ja * Jv[k, b]
+            for p in range(P):
+                B_ext[c0 + a, p] += ja * Jb[k, p]
+        if second_order:
+            for a in range(3):
+                for b in range(a, 3):
+                    ab_2[kd + a - b, c0 + 3 + b] += second[k, a, b]
+
+
+_NO_SECOND = np.zeros((0, 3, 3))
+"""Stand-in for absent second-order terms (the assembly kernel takes arrays only)."""
 
 
 class State(NamedTuple):
@@ -45,20 +93,6 @@ class State(NamedTuple):
     r: FloatArray
     R: FloatArray
     cameras: tuple[FloatArray, ...]
-
-
-class _PointBins(NamedTuple):
-    ok: np.ndarray
-    h: np.ndarray
-    s: np.ndarray
-    g: np.ndarray
-    b: np.ndarray
-    g_all: np.ndarray
-    """The rod's gradient bins, then ``g``."""
-    h_gn: np.ndarray
-    """The rod's JᵀJ bins, then ``h``."""
-    h_both: np.ndarray
-    """The rod's JᵀJ and second-order bins, ``h``, then ``s`` in the second band."""
 
 
 class PointRows(NamedTuple):
@@ -148,6 +182,10 @@ class RegistrationProblem:
             view_cols[view.name] = {cam.names[k]: int(c) for k, c in zip(free, cols, strict=True)}
             col += len(free)
         self.n_border = col - self.n_vertebra_params
+        self._cam_free = [np.flatnonzero(cam.free) for cam in self.cameras]
+        """Each camera's estimated parameters (positions in its ``values``)."""
+        self._cam_border = [cols - self.n_vertebra_params for cols in self._cam_cols]
+        """Their columns in the border (0..n_border−1)."""
         self.n_params = col
         position = np.full((n, 3), -1, dtype=np.intp)
         rotation = np.full((n, 3), -1, dtype=np.intp)
@@ -180,6 +218,7 @@ class RegistrationProblem:
         kinds += [f"tilt:{name}" for name, sl in self.obs.tilt_slices.items() for _ in range(sl.stop - sl.start)]
         kinds += ["pose"] * (6 * len(self.pose_priors))
         self._camera_prior_rows = self._camera_priors()
+        self._point_vertebra = self._point_rows_vertebra()
         kinds += ["camera"] * len(self._camera_prior_rows)
         self.row_kinds = tuple(kinds)
         self.n_residuals = len(kinds)
@@ -188,11 +227,8 @@ class RegistrationProblem:
         self.n_offsets = self.obs.n_offsets
         self.n_tilts = self.obs.n_tilts
         self.n_data_rows = self.n_fit + self.n_offsets + self.n_tilts
-        self._band_layout = band_layout(n)
         self._n_ext = 6 * n
-        self._band_size = (KD + 1) * self._n_ext
         self._vslice = slice(6 * self.j0, 6 * self.j1)
-        self._bins_cache: tuple[np.ndarray, _PointBins] | None = None
 
     # ------------------------------------------------------------------ configuration
 
@@ -234,10 +270,10 @@ class RegistrationProblem:
         r[self.j0 : self.j1] += d[:, :3]
         R[self.j0 : self.j1] = state.R[self.j0 : self.j1] @ exp_so3(d[:, 3:])
         cams = []
-        for cam, values, cols in zip(self.cameras, state.cameras, self._cam_cols, strict=True):
+        for free, values, cols in zip(self._cam_free, state.cameras, self._cam_cols, strict=True):
             if len(cols):
                 values = values.copy()
-                values[np.flatnonzero(cam.free)] += h[cols]
+                values[free] += h[cols]
             cams.append(values)
         return State(r, R, tuple(cams))
 
@@ -257,39 +293,37 @@ class RegistrationProblem:
         return rows
 
     def point_rows(self, state: State, second_order: bool = False) -> PointRows:
-        """All non-rod rows with their Jacobians (module docstring)."""
+        """All non-rod rows with their Jacobians (module docstring), written into arrays of the final size."""
         r, R, cams = state
-        P = self.n_border
-        parts_rho, parts_idx, parts_Jv, parts_Jb, parts_S = [], [], [], [], []
+        n_rows = len(self._point_vertebra)
+        rho_all = np.empty(n_rows)
+        Jv_all = np.zeros((n_rows, 6))
+        Jb_all = np.zeros((n_rows, self.n_border))
+        second = np.zeros((n_rows, 3, 3)) if second_order else None
+        start = 0
         # landmarks
         for k, (idx, points, c) in enumerate(self._lm_constants):
             if not len(idx):
                 continue
             view, cam = self.views[k], self.cameras[k]
             pr = project(cam, cams[k], r[idx], view.e_c, view.e_r)
-            rho = (c * (pr.points - points)).ravel()
-            Jv = np.zeros((2 * len(idx), 6))
-            Jv[:, :3] = (c * pr.d_r).reshape(-1, 3)
-            Jb = np.zeros((2 * len(idx), P))
+            stop = start + 2 * len(idx)
+            rows = slice(start, stop)
+            rho_all[rows] = (c * (pr.points - points)).ravel()
+            Jv_all[rows, :3] = (c * pr.d_r).reshape(-1, 3)
             if len(self._cam_cols[k]):
-                Jb[:, self._cam_cols[k] - self.n_vertebra_params] = (c * pr.d_params[:, :, cam.free]).reshape(
-                    2 * len(idx), -1
-                )
-            parts_rho.append(rho)
-            parts_idx.append(self._lm_rows_index[k])
-            parts_Jv.append(Jv)
-            parts_Jb.append(Jb)
-        off = self.obs.offset_rows(state, self, second_order)
-        tilt = self.obs.tilt_rows(state, self, second_order)
-        for part in (off, tilt):
+                Jb_all[rows, self._cam_border[k]] = (c * pr.d_params[:, :, cam.free]).reshape(2 * len(idx), -1)
+            start = stop
+        for part in (self.obs.offset_rows(state, self, second_order), self.obs.tilt_rows(state, self, second_order)):
             if part is not None:
-                parts_rho.append(part.rho)
-                parts_idx.append(part.vertebra)
-                parts_Jv.append(part.Jv)
-                parts_Jb.append(part.Jb)
-                if second_order:
+                rows = slice(start, start + len(part.rho))
+                rho_all[rows] = part.rho
+                Jv_all[rows] = part.Jv
+                Jb_all[rows] = part.Jb
+                if second is not None:
                     assert part.second is not None
-                    parts_S.append((len(np.concatenate(parts_rho)) - len(part.rho), part.second))
+                    second[rows] = part.second
+                start = rows.stop
         # pose priors
         half_k = np.sqrt(0.5 * self.energy_unit)
         for prior in self.pose_priors:
@@ -297,46 +331,40 @@ class RegistrationProblem:
             a = half_k / prior.position_sd_mm
             b = half_k / prior.rotation_sd_rad
             phi = log_so3(prior.pose.rotation.T @ R[j])
-            rho = np.concatenate((a * (r[j] - prior.pose.position), b * phi))
-            Jv = np.zeros((6, 6))
-            Jv[:3, :3] = a * np.eye(3)
-            Jv[3:, 3:] = b * jr_inverse(phi[None])[0]
-            parts_rho.append(rho)
-            parts_idx.append(np.full(6, j))
-            parts_Jv.append(Jv)
-            parts_Jb.append(np.zeros((6, P)))
+            rho_all[start : start + 3] = a * (r[j] - prior.pose.position)
+            rho_all[start + 3 : start + 6] = b * phi
+            Jv_all[start : start + 3, :3] = a * np.eye(3)
+            Jv_all[start + 3 : start + 6, 3:] = b * jr_inverse(phi[None])[0]
+            start += 6
         # camera priors
         for k, p, mean, sd in self._camera_prior_rows:
             cam = self.cameras[k]
-            Jv = np.zeros((1, 6))
-            Jb = np.zeros((1, P))
-            cols = dict(zip(np.flatnonzero(cam.free), self._cam_cols[k] - self.n_vertebra_params, strict=True))
+            cols = dict(zip(self._cam_free[k], self._cam_border[k], strict=True))
             if p >= 0:
-                rho = np.array([half_k * (cams[k][p] - mean) / sd])
-                Jb[0, cols[p]] = half_k / sd
-                index = -1
+                rho_all[start] = half_k * (cams[k][p] - mean) / sd
+                Jb_all[start, cols[p]] = half_k / sd
             else:
                 view = self.views[k]
                 b_dir = cam.beam_direction(view.e_c, view.e_r)
-                index = self.depth_reference
-                rho = np.array([half_k * float(b_dir @ (r[index] - cams[k][2:5])) / sd])
-                Jv[0, :3] = half_k * b_dir / sd
+                rho_all[start] = half_k * float(b_dir @ (r[self.depth_reference] - cams[k][2:5])) / sd
+                Jv_all[start, :3] = half_k * b_dir / sd
                 for axis in range(3):
                     if (2 + axis) in cols:
-                        Jb[0, cols[2 + axis]] = -half_k * b_dir[axis] / sd
-            parts_rho.append(rho)
-            parts_idx.append(np.array([index]))
-            parts_Jv.append(Jv)
-            parts_Jb.append(Jb)
-        if not parts_rho:
-            return PointRows(np.zeros(0), np.zeros(0, dtype=int), np.zeros((0, 6)), np.zeros((0, P)), None)
-        rho_all = np.concatenate(parts_rho)
-        second = None
-        if second_order:
-            second = np.zeros((len(rho_all), 3, 3))
-            for start, S in parts_S:
-                second[start : start + len(S)] = S
-        return PointRows(rho_all, np.concatenate(parts_idx), np.concatenate(parts_Jv), np.concatenate(parts_Jb), second)
+                        Jb_all[start, cols[2 + axis]] = -half_k * b_dir[axis] / sd
+            start += 1
+        return PointRows(rho_all, self._point_vertebra, Jv_all, Jb_all, second)
+
+    def _point_rows_vertebra(self) -> np.ndarray:
+        """The vertebra of each non-rod row (−1: none), in ``point_rows`` order; fixed for the problem."""
+        parts = [np.repeat(idx, 2) for idx, _, _ in self._lm_constants]
+        parts += [np.asarray(v.offset_indices, dtype=np.intp) for v in self.views if v.n_offsets]
+        parts.append(np.asarray(self.obs.tilt_indices, dtype=np.intp))
+        parts += [np.full(6, prior.vertebra, dtype=np.intp) for prior in self.pose_priors]
+        depth = self.depth_reference
+        parts += [np.array([-1 if p >= 0 else depth], dtype=np.intp) for _, p, _, _ in self._camera_prior_rows]
+        vertebra = np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)
+        vertebra.flags.writeable = False
+        return vertebra
 
     def evaluate(self, state: State, second_order: bool = False) -> tuple[FloatArray, RodCache, PointRows]:
         """ρ (layout in the module docstring), the rod cache and the non-rod rows (with Jacobians and,
@@ -356,76 +384,23 @@ class RegistrationProblem:
         ``second_order``, else None) and the gradient Jᵀρ, over the unknowns. ``rows``: the non-rod rows
         of ``state`` when already evaluated (with their second-order terms when ``second_order``)."""
         ns = self.n - 1
-        layout = self._band_layout
-        local = self.rod.local_jacobian(cache)
-        J = local.J
-        JT = np.swapaxes(J, 1, 2)
-        rho_rod = res[: 6 * ns].reshape(ns, 6)
-        H = (JT @ J).reshape(ns, 144)[:, layout.upper]
-        gloc = (JT @ rho_rod[:, :, None]).ravel()
+        rod = self.rod.normal_blocks(cache, res[: 6 * ns].reshape(ns, 6), second_order)
         if rows is None or (second_order and rows.second is None):
             rows = self.point_rows(state, second_order)
-        bins = self._point_bins(rows.vertebra)
-        ok = bins.ok
-        Jv = rows.Jv[ok]
-        rho_p = rows.rho[ok]
-        # point rows: 6×6 upper blocks at their vertebra; one scatter for every band entry
-        gn = (Jv[:, :, None] * Jv[:, None, :]).reshape(-1, 36)[:, _UPPER6]
-        g_ext = accumulate(bins.g_all, np.concatenate((gloc, (Jv * rho_p[:, None]).ravel())), self._n_ext)
-        if second_order:
-            S = self.rod.second_order(cache, local, rho_rod).reshape(ns, 144)[:, layout.upper]
-            assert rows.second is not None
-            second = rows.second[ok].reshape(-1, 9)[:, UPPER3[0] * 3 + UPPER3[1]]
-            both = accumulate(
-                bins.h_both,
-                np.concatenate((H.ravel(), S.ravel(), gn.ravel(), second.ravel())),
-                2 * self._band_size,
-            ).reshape(2, KD + 1, self._n_ext)
-            ab_gn, ab_2 = both[0], both[1]
-        else:
-            ab_gn = accumulate(
-                bins.h_gn,
-                np.concatenate((H.ravel(), gn.ravel())),
-                self._band_size,
-            ).reshape(KD + 1, self._n_ext)
-            ab_2 = None
         P = self.n_border
-        if P:
-            contrib = Jv[:, :, None] * rows.Jb[ok][:, None, :]  # (k, 6, P)
-            B_ext = accumulate(bins.b, contrib.ravel(), self._n_ext * P).reshape(self._n_ext, P)
-        else:
-            B_ext = np.zeros((self._n_ext, 0))
+        ab_gn = np.zeros((KD + 1, self._n_ext))
+        ab_2 = np.zeros((KD + 1, self._n_ext)) if second_order else None
+        g_ext = np.zeros(self._n_ext)
+        B_ext = np.zeros((self._n_ext, P))
+        _assemble_normal(
+            rod.H, rod.g, rod.S if rod.S is not None else rod.H, rows.Jv, rows.rho, rows.Jb,
+            rows.second if rows.second is not None else _NO_SECOND, rows.vertebra, second_order,
+            ab_gn, ab_gn if ab_2 is None else ab_2, g_ext, B_ext,
+        )
         C = rows.Jb.T @ rows.Jb
         g = np.concatenate((g_ext[self._vslice], rows.Jb.T @ rows.rho))
         system = BorderedSystem(ab_gn[:, self._vslice], B_ext[self._vslice], C)
         return system, (None if ab_2 is None else ab_2[:, self._vslice]), g
-
-    def _point_bins(self, vertebra: np.ndarray) -> _PointBins:
-        """Scatter tables of the non-rod rows (their vertebrae are the same at every configuration)."""
-        cached = self._bins_cache
-        if cached is not None and (cached[0] is vertebra or np.array_equal(cached[0], vertebra)):
-            return cached[1]
-        ok = vertebra >= 0
-        idx = vertebra[ok]
-        a3, b3 = UPPER3
-        P = self.n_border
-        h = ((KD + _A6 - _B6) * self._n_ext + 6 * idx[:, None] + _B6).ravel()
-        s = ((KD + a3 - b3) * self._n_ext + 6 * idx[:, None] + 3 + b3).ravel()
-        g = (6 * idx[:, None] + np.arange(6)).ravel()
-        layout = self._band_layout
-        rod_h = layout.hbins[: len(layout.hbins) // 2]
-        tables = _PointBins(
-            ok=ok,
-            h=h,
-            s=s,
-            g=g,
-            b=((6 * idx[:, None] + np.arange(6))[:, :, None] * P + np.arange(P)).ravel(),
-            g_all=np.concatenate((layout.gbins, g)),
-            h_gn=np.concatenate((rod_h, h)),
-            h_both=np.concatenate((layout.hbins, h, s + self._band_size)),
-        )
-        self._bins_cache = (vertebra, tables)
-        return tables
 
     def jacobian_state(self, state: State, evaluated: tuple[RodCache, PointRows] | None = None) -> FloatArray:
         """Analytic Jacobian ∂ρ/∂x at ``state``, dense (n_residuals, n_params); columns as ``layout``.

@@ -76,7 +76,9 @@ def _damped_step(
     """The step solving (H + λD) h = −g, H = [[ab, B], [Bᵀ, C]]; None when not positive definite."""
     A = ab.copy()
     A[KD] += lam * Dd[:nv]
-    return solve_bordered(A, system.B, system.C + np.diag(lam * Dd[nv:]), g)
+    C = system.C.copy()
+    C.flat[:: len(C) + 1] += lam * Dd[nv:]
+    return solve_bordered(A, system.B, C, g)
 
 
 class _Trial:
