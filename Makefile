@@ -10,6 +10,8 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@# the engine's numba kernels compiled once into their on-disk cache (3-4 s), not on a first job
+	$(BIN)/python -c "from spine_engine.experiments.perf import warm_up; print(f'engine kernels compiled in {warm_up():.1f} s')"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -137,6 +137,16 @@ def build_problem(lateral: bool = False, seed: int = 0, weight: float = 10.0) ->
     )
 
 
+def warm_up() -> float:
+    """Compile the engine's numba kernels (``fit.rod_rows``, ``fit.problem``, ``rotations``) into
+    their on-disk cache by one fit of the benchmark problem with both views; returns the seconds it
+    took (3–4 s on a cold cache on this project's VM, a fraction of a second once cached).
+    ``make install`` runs it, so that no service process pays the compilation on its first job."""
+    start = time.perf_counter()
+    run(repeats=1, lateral=True, warmup=0)
+    return time.perf_counter() - start
+
+
 def _stats(samples_ms: list[float]) -> dict[str, float]:
     a = np.asarray(samples_ms)
     return {
