@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from spine_engine.fit import RodParameters
-from spine_engine.fit.rod_rows import RodRows, jr_inv_coefficients, jr_inverse
+from spine_engine.fit.rod_rows import RodCache, RodRows, jr_inv_coefficients, jr_inverse
+from spine_engine.fit.types import FloatArray
 from spine_engine.rotations import exp_so3, hat, right_jacobian_inv
 
 N = 17
@@ -77,12 +78,12 @@ def _reference(rod: RodRows, Rt, phi, v, rho):
     return J, Jr_inv, Jl_inv, d, dp, Sec
 
 
-@pytest.mark.parametrize("angle_scale", [0.01, 0.08, 0.3, 1.5])
-def test_kernels_match_the_array_formulas(angle_scale):
-    rng = np.random.default_rng(int(angle_scale * 100))
-    ds = rng.uniform(15.0, 35.0, N - 1)
+def _random_rod(seed: int, angle_scale: float) -> tuple[RodRows, RodCache, FloatArray]:
+    """A rod of random rest strains and stiffnesses at a random configuration (rotations of about
+    ``angle_scale`` rad): the rows, their evaluation cache and the residuals."""
+    rng = np.random.default_rng(seed)
     params = RodParameters(
-        ds=ds,
+        ds=rng.uniform(15.0, 35.0, N - 1),
         u0=rng.normal(0.0, 0.003, (N - 1, 3)),
         v0=np.column_stack((rng.normal(0.0, 0.02, (N - 1, 2)), np.ones(N - 1))),
         alpha=rng.uniform(1e5, 1e6, (N - 1, 3)),
@@ -93,6 +94,12 @@ def test_kernels_match_the_array_formulas(angle_scale):
     r = np.cumsum(rng.normal(0.0, 20.0, (N, 3)), axis=0)
     res = np.empty(6 * (N - 1))
     cache = rod.evaluate(r, R, res)
+    return rod, cache, res
+
+
+@pytest.mark.parametrize("angle_scale", [0.01, 0.08, 0.3, 1.5])
+def test_kernels_match_the_array_formulas(angle_scale):
+    rod, cache, res = _random_rod(int(angle_scale * 100), angle_scale)
     rho = res.reshape(N - 1, 6)
     J, Jr_inv, Jl_inv, d, dp, Sec = _reference(rod, cache.Rt, cache.phi, cache.v, rho)
     local = rod.local_jacobian(cache)
@@ -119,20 +126,7 @@ def test_jr_inv_coefficients_on_both_sides_of_the_taylor_switch():
 
 @pytest.mark.parametrize("second_order", [False, True])
 def test_normal_blocks_are_the_upper_products_of_the_local_jacobian(second_order):
-    rng = np.random.default_rng(11)
-    ds = rng.uniform(15.0, 35.0, N - 1)
-    params = RodParameters(
-        ds=ds,
-        u0=rng.normal(0.0, 0.003, (N - 1, 3)),
-        v0=np.column_stack((rng.normal(0.0, 0.02, (N - 1, 2)), np.ones(N - 1))),
-        alpha=rng.uniform(1e5, 1e6, (N - 1, 3)),
-        beta=rng.uniform(1e2, 1e3, (N - 1, 3)),
-    )
-    rod = RodRows(params)
-    R = exp_so3(rng.normal(0.0, 0.2, (N, 3)))
-    r = np.cumsum(rng.normal(0.0, 20.0, (N, 3)), axis=0)
-    res = np.empty(6 * (N - 1))
-    cache = rod.evaluate(r, R, res)
+    rod, cache, res = _random_rod(11, 0.2)
     rho = res.reshape(N - 1, 6)
     blocks = rod.normal_blocks(cache, rho, second_order)
     local = rod.local_jacobian(cache)
