@@ -33,7 +33,6 @@ from services.core.config import Settings
 from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_depth
 from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, store_retry
-from services.core.status import JobStatus
 from services.db import runs, stats
 from services.db.engine import session_scope, worker_session
 from services.dicom import store as dicom_store
@@ -229,7 +228,7 @@ def missing_messages(session: Session, app: Celery, settings: Settings) -> int |
         depth = queue_depth(app, settings.queue_name)
     except Exception:
         return None
-    return max(0, stats.count_by_status(session)[JobStatus.queued.value] - depth)
+    return max(0, stats.count_all_queued(session) - depth)
 
 
 def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:

@@ -16,7 +16,7 @@ from sqlalchemy import inspect, select, text, update
 
 from services.core.config import Settings
 from services.db import jobs as repo
-from services.db import runs
+from services.db import runs, stats
 from services.db.engine import get_engine, session_scope, worker_session
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
@@ -330,3 +330,18 @@ def test_a_run_without_a_lease_is_taken_back_after_the_running_timeout(db_settin
     assert _reconcile(db_settings).requeue == []
     _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
     assert _reconcile(db_settings).requeue == [job_id]
+
+
+@BACKENDS
+def test_the_reconcilers_queued_count_equals_the_count_by_status(db_settings: Settings) -> None:
+    """``stats.count_all_queued`` (the reconciler's broker check, read through the status index)
+    counts what the full count by status counts: here 3 jobs stored, one claimed, one cancelled."""
+    with session_scope(db_settings) as s:
+        before = stats.count_all_queued(s)  # the store database is shared by this module's tests
+    ids = [new_job(db_settings) for _ in range(3)]
+    with session_scope(db_settings) as s:
+        assert runs.claim_job(s, ids[0], "1.0") is not None
+    with session_scope(db_settings) as s:
+        repo.cancel_job(s, ids[1])
+    with session_scope(db_settings) as s:
+        assert stats.count_all_queued(s) == before + 1 == stats.count_by_status(s)["queued"]
