@@ -32,6 +32,7 @@ from services.api.app import create_app
 from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
+from services.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
 from tools.processes import stop_processes
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
@@ -127,6 +128,17 @@ def fresh_postgres_url() -> Iterator[str]:
     """An empty PostgreSQL database of its own, for one test (e.g. of the migrations)."""
     with _postgres_database("fresh") as url:
         yield url
+
+
+@pytest.fixture(scope="session")
+def orthanc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[OrthancServer]:
+    """One throwaway Orthanc (DICOMweb) on a free loopback port for the session's DICOM and page tests;
+    each test stores studies of its own UIDs."""
+    reason = orthanc_missing()
+    if reason:
+        pytest.skip(reason)
+    with running_orthanc(tmp_path_factory.mktemp("orthanc")) as server:
+        yield server
 
 
 @pytest.fixture(scope="session")

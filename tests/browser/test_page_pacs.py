@@ -29,18 +29,9 @@ from page_fixtures import (
 from pydicom.uid import generate_uid
 
 from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
+from services.dicom.orthanc import OrthancServer
 
 pytestmark = pytest.mark.browser
-
-
-@pytest.fixture(scope="module")
-def orthanc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[OrthancServer]:
-    reason = orthanc_missing()
-    if reason:
-        pytest.skip(reason)
-    with running_orthanc(tmp_path_factory.mktemp("page-orthanc")) as server:
-        yield server
 
 
 @pytest.fixture(scope="module")

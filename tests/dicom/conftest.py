@@ -1,34 +1,22 @@
-"""Fixtures of the DICOM tests: a throwaway Orthanc with its DICOMweb plugin (``services.dicom.orthanc``:
-Debian's ``orthanc`` and ``orthanc-dicomweb``, storage in a temporary folder, a free loopback port,
-stopped by its PID), and payloads. When Orthanc or the plugin is missing the tests that need it are
-skipped, saying why (CI counts skips as failures). ``dcmtk`` (dsrdump) and ``dicom3tools`` (dciodvfy)
-check the SR.
+"""Payloads of the DICOM tests. Their throwaway Orthanc with its DICOMweb plugin is the session
+fixture ``orthanc`` of ``tests/conftest.py`` (``services.dicom.orthanc``: Debian's ``orthanc`` and
+``orthanc-dicomweb``, storage in a temporary folder, a free loopback port, stopped by its PID), shared
+with the page tests. When Orthanc or the plugin is missing the tests that need it are skipped, saying
+why (CI counts skips as failures). ``dcmtk`` (dsrdump) and ``dicom3tools`` (dciodvfy) check the SR.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import Any
 
-import pytest
+from services.dicom.orthanc import OrthancServer, free_port
 
-from services.dicom.orthanc import OrthancServer, free_port, orthanc_missing, running_orthanc
-
-__all__ = ["LEVELS", "OrthancServer", "free_port", "orthanc", "spine_payload"]
+__all__ = ["LEVELS", "OrthancServer", "free_port", "spine_payload"]
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
-
-
-@pytest.fixture(scope="session")
-def orthanc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[OrthancServer]:
-    reason = orthanc_missing()
-    if reason:
-        pytest.skip(reason)
-    with running_orthanc(tmp_path_factory.mktemp("orthanc")) as server:
-        yield server
 
 
 def spine_payload(

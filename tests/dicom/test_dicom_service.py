@@ -26,6 +26,7 @@ from services.core.config import Settings
 from services.db.migrate import upgrade
 from services.dicom import synthetic
 from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tests.conftest import Service, make_key, service_env
 
 from .conftest import OrthancServer, spine_payload
@@ -204,8 +205,6 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
     """By-reference jobs submitted while nothing listens on the PACS's port are handed back to the queue;
     the PACS then comes back on that very port, holding the referenced instance, and the jobs succeed
     with the header's spacing: none lost, each try counted (attempts = hand-backs + 1)."""
-    from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
-
     reason = orthanc_missing()
     if reason:
         pytest.skip(reason)
