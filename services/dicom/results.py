@@ -22,6 +22,9 @@ from pydicom.dataset import Dataset
 from .sc import build_sc
 from .sr import SourceImage, StudyIdentity, build_sr
 
+PART10_MEDIA_TYPE = "application/dicom"
+"""Media type of a DICOM Part 10 file (RFC 3240; PS3.18 §8.7.3, DICOM media types)."""
+
 
 def part10(ds: Dataset) -> bytes:
     """A dataset as a DICOM Part 10 file (PS3.10 §7.1)."""

@@ -25,11 +25,10 @@ from services.api.artifacts import (
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.dicom.merge import apply_reads, engine_payload
-from services.dicom.results import job_figure_sc, job_sr
+from services.dicom.results import PART10_MEDIA_TYPE, job_figure_sc, job_sr
 from spine_engine.figures import render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["dicom"])
-DICOM = "application/dicom"
 
 
 @router.get(
@@ -41,7 +40,7 @@ DICOM = "application/dicom"
     "the SR, each with its SD and whether it is measured or model-based, the landmarks as SCOORD on the source "
     "image when known, and the algorithm's name, version and profile. In a new series of the job's study. "
     "404 for an unknown job; 409 while it has no result." + CONDITIONAL,
-    responses=artifact_responses(DICOM, "The SR as a DICOM Part 10 file."),
+    responses=artifact_responses(PART10_MEDIA_TYPE, "The SR as a DICOM Part 10 file."),
 )
 def sr_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
@@ -52,7 +51,7 @@ def sr_dcm(
         return job_sr(job.id, apply_reads(job.payload, job.dicom), result, job.dicom, job.finished_at)
 
     headers = {"Content-Disposition": f'attachment; filename="{job_id}-sr.dcm"'}
-    return artifact_response("sr.dcm", job, if_none_match, cache, build, DICOM, headers)
+    return artifact_response("sr.dcm", job, if_none_match, cache, build, PART10_MEDIA_TYPE, headers)
 
 
 @router.get(
@@ -61,7 +60,7 @@ def sr_dcm(
     summary="A succeeded job's figure as a DICOM Secondary Capture",
     description="The figure of figure.png as an RGB Secondary Capture in a new series of the job's study. "
     "404 for an unknown job; 409 while it has no result." + CONDITIONAL,
-    responses=artifact_responses(DICOM, "The figure as a DICOM Part 10 file."),
+    responses=artifact_responses(PART10_MEDIA_TYPE, "The figure as a DICOM Part 10 file."),
 )
 def figure_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
@@ -73,4 +72,4 @@ def figure_dcm(
         return job_figure_sc(job.id, payload, render_figure(result, engine_payload(payload)), job.finished_at)
 
     headers = {"Content-Disposition": f'attachment; filename="{job_id}-figure.dcm"'}
-    return artifact_response("figure.dcm", job, if_none_match, cache, build, DICOM, headers)
+    return artifact_response("figure.dcm", job, if_none_match, cache, build, PART10_MEDIA_TYPE, headers)

@@ -29,11 +29,10 @@ from services.dicom.errors import (
     StudyNotFound,
     TransferSyntaxUnavailable,
 )
-from services.dicom.results import part10
+from services.dicom.results import PART10_MEDIA_TYPE, part10
 from services.dicom.store import dicomweb_config
 
 router = APIRouter(prefix="/v1/pacs", tags=["dicom"])
-DICOM = "application/dicom"
 RETRY_AFTER_S = 10
 """Retry-After of a 503 when the PACS did not answer (s)."""
 
@@ -112,7 +111,10 @@ def study_images(study_instance_uid: Uid, settings: SettingsDep, access: AccessD
     "disk. 404 `dicomweb-instance-not-found` when the PACS does not hold it; 502 "
     "`dicomweb-transfer-syntax-unavailable` when the PACS cannot send it uncompressed. " + NOT_CONFIGURED,
     responses={
-        200: {"content": {DICOM: {}}, "description": "The image as a DICOM Part 10 file, Explicit VR Little Endian."},
+        200: {
+            "content": {PART10_MEDIA_TYPE: {}},
+            "description": "The image as a DICOM Part 10 file, Explicit VR Little Endian.",
+        },
         **problem_responses(404, 422, 502, 503),
     },
 )
@@ -122,4 +124,4 @@ def study_instance(
     with _pacs(settings) as pacs:
         ds = pacs.retrieve_explicit_le(study_instance_uid, series_instance_uid, sop_instance_uid)
     headers = {"Content-Disposition": f'attachment; filename="{sop_instance_uid}.dcm"'}
-    return Response(part10(ds), media_type=DICOM, headers=headers)
+    return Response(part10(ds), media_type=PART10_MEDIA_TYPE, headers=headers)
