@@ -192,6 +192,9 @@ class Fault:
     started: bool = False
     task: asyncio.Future[None] | None = None
     report: dict[str, Any] = field(default_factory=dict)
+    cpu_s_of_killed: dict[str, float] = field(default_factory=dict)
+    """CPU seconds, by role, of the processes the fault killed, read just before: a dead process
+    leaves ``/proc`` with its time, which the phase's CPU figures must still count."""
 
     async def inject(self, client: httpx.AsyncClient) -> None:
         self.report["in_flight_at_fault"] = await jobs_in_flight(client)
@@ -199,12 +202,15 @@ class Fault:
         if self.kind == "kill-worker":
             assert self.worker is not None
             killed = worker_pids(self.worker.pid)
+            self.cpu_s_of_killed["worker"] = cpu_seconds_of(killed)
             for pid in killed:  # the Celery process and its pool: the supervisor starts it again
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGKILL)
             self.report["killed_pids"] = len(killed)
         elif self.kind == "restart-redis":
             assert self.redis is not None
+            if self.redis.proc is not None:
+                self.cpu_s_of_killed["redis"] = cpu_seconds_of([self.redis.proc.pid])
             self.redis.stop()
             await asyncio.sleep(self.seconds)
             self.redis.start()
@@ -339,23 +345,35 @@ def cpu_seconds_by_role() -> dict[str, float]:
     proc = Path("/proc")
     if not proc.is_dir():
         return {}
-    tick = os.sysconf("SC_CLK_TCK")
     totals = {role: 0.0 for role, _ in ROLES}
     for entry in proc.iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
             cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            stat = (entry / "stat").read_text()
         except OSError:
             continue
         role = next((r for r, marker in ROLES if marker in cmdline), None)
         if role is not None:
-            fields = stat[stat.rfind(")") + 2 :].split()
-            totals[role] += (int(fields[11]) + int(fields[12])) / tick
+            totals[role] += cpu_seconds_of([int(entry.name)])
     mine = os.times()
     totals["load generator"] = mine.user + mine.system
     return totals
+
+
+def cpu_seconds_of(pids: Sequence[int]) -> float:
+    """CPU time (user + system, s) used so far by these processes (``/proc/<pid>/stat`` fields 14
+    and 15, in clock ticks); a process already gone counts 0."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in pids:
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(")") + 2 :].split()
+        total += (int(fields[11]) + int(fields[12])) / tick
+    return total
 
 
 def cpu_ms_per_job(before: dict[str, float], after: dict[str, float], jobs: int) -> dict[str, float]:
@@ -383,10 +401,10 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             load_before = os.getloadavg()
             cpu_before = cpu_seconds_by_role()
             since = datetime.now().astimezone()
+            fault: Fault | None = None
             if phase_name == "latency":
                 phase = await fixed_rate(client, args.rate, args.rate_seconds)
             else:
-                fault = None
                 if args.fault != "none":
                     worker = args.worker_procs[0] if args.worker_procs else None
                     fault = Fault(args.fault, int(args.jobs * args.fault_at), args.fault_seconds, worker=worker,
@@ -394,6 +412,8 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
                 phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline, fault)
             await wait_final(client, since, deadline)
             cpu_after = cpu_seconds_by_role()  # before the read-back, which is not the service's load
+            for role, seconds in fault.cpu_s_of_killed.items() if fault is not None else ():
+                cpu_after[role] += seconds
             first = await read_back(client, since)
             await asyncio.sleep(args.recheck_seconds)
             second = await read_back(client, since)

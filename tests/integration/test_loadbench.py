@@ -35,6 +35,23 @@ def test_cpu_reading_counts_the_load_generator_itself() -> None:
     assert second["load generator"] > first["load generator"]
 
 
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="no /proc on this machine: CPU by process is not read")
+def test_the_cpu_of_a_process_is_read_before_it_is_killed() -> None:
+    """A fault's killed processes leave /proc with their CPU time: the bench reads it just before the
+    kill (``Fault.cpu_s_of_killed``), else a worker killed early made the phase's worker CPU negative."""
+    burner = subprocess.Popen([sys.executable, "-c", "import time\nt = time.process_time()\n"
+                               "while time.process_time() - t < 0.2: pass\ntime.sleep(60)"])  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30
+        while loadbench.cpu_seconds_of([burner.pid]) < 0.2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert loadbench.cpu_seconds_of([burner.pid, os.getpid()]) >= 0.2
+    finally:
+        burner.kill()
+        burner.wait()
+    assert loadbench.cpu_seconds_of([burner.pid]) == 0.0
+
+
 def test_exit_status_flags_lost_jobs_and_two_outcomes() -> None:
     fine = {"jobs_lost": 0, "jobs_with_two_outcomes": 0}
     assert loadbench.exit_code({"throughput": fine}) == 0
