@@ -6,9 +6,10 @@ It registers the job task and the reconciler, which Celery beat (embedded in the
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
-from celery.signals import worker_process_init
+from celery.signals import worker_init, worker_process_init
 
 from services.core.config import get_settings
 from services.core.jobqueue import RECONCILE, make_celery
@@ -16,7 +17,9 @@ from services.db.engine import dispose_engines
 from services.dicom.store import register_dicom_tasks
 from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
+from spine_engine.experiments.perf import warm_up
 
+log = logging.getLogger(__name__)
 settings = get_settings()
 app = make_celery(settings)
 tasks.register_tasks(app, settings)
@@ -31,3 +34,10 @@ app.conf.beat_schedule = {
 def _fresh_connections(**_: Any) -> None:
     # A forked pool process must not share its parent's database connections.
     dispose_engines()
+
+
+@worker_init.connect
+def _load_engine_kernels(**_: Any) -> None:
+    # In the main process, before the pool forks: each pool process inherits the engine's compiled
+    # kernels (about 0.4 s here) instead of loading them from the disk cache on its first job.
+    log.info("engine kernels loaded in %.2f s", warm_up())
