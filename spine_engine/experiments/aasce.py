@@ -18,7 +18,9 @@ angles (per radiograph Σ|a − b| / Σ(a + b) × 100, averaged), the latter wit
 rules for the two minor angles (``aasce_angles``) applied to each method's vertebra axes.
 Pixels are taken as square (pixel spacing [1, 1]: the data has no mm scale; angles do not depend
 on it). ``--calibrate`` fits the tilt prior on ``training`` (never on ``test``) and writes it.
-The data is read from its folder and never copied into the repository.
+``--cv`` compares variants of the prior (chord window, end-vertebra weighting, weight fraction) by
+k-fold cross-validation on ``training`` of the major angle through the reconstruction; it changes
+nothing. The data is read from its folder and never copied into the repository.
 """
 
 from __future__ import annotations
@@ -26,12 +28,16 @@ from __future__ import annotations
 import argparse
 import csv
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 
+from .. import reconstruction as reconstruction_module
 from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
 from ..errors import FitFailed, InvalidInput
 from ..levels import LEVELS, N_LEVELS
@@ -44,6 +50,7 @@ from ..tilt_prior import (
     PRIORS_DIR,
     WINDOW,
     TiltPrior,
+    chord_windows,
     fit_coefficients,
     load_tilt_prior,
     predict_tilts_deg,
@@ -455,6 +462,139 @@ def evaluate_midpoints(rad: Radiograph) -> float:
         return float("nan")
 
 
+# ---------------------------------------------------------------- cross-validation of variants (training only)
+
+
+@dataclass(frozen=True)
+class PriorVariant:
+    """A candidate tilt prior: its chord window (offsets from chord i, clipped to 0..15 as the shipped
+    prior's; ``range(-16, 16)`` gives every vertebra all 16 chords), the extra least-squares weight
+    of the two end vertebrae of each training spine's major curve (its most and least tilted
+    vertebrae: the Cobb angle depends only on them), the ridge, and the weight fractions to try."""
+
+    name: str
+    window: tuple[int, ...]
+    end_weight: float
+    fractions: tuple[float, ...]
+    ridge: float = 1e-3
+
+
+CV_VARIANTS = (
+    PriorVariant("shipped: window -2..+1", WINDOW, 0.0, (1.0, 3.0, 10.0, 30.0, 100.0)),
+    PriorVariant("window -3..+2", tuple(range(-3, 3)), 0.0, (3.0, 10.0)),
+    PriorVariant("window -3..+2, ends x4", tuple(range(-3, 3)), 3.0, (3.0, 10.0)),
+    PriorVariant("window -4..+3, ends x4", tuple(range(-4, 4)), 3.0, (3.0, 10.0)),
+    PriorVariant("all 16 chords", tuple(range(-16, 16)), 0.0, (3.0, 10.0)),
+    PriorVariant("all 16 chords, ends x4", tuple(range(-16, 16)), 3.0, (3.0, 10.0)),
+)
+"""Variants compared by ``--cv``. "ends x4": the end vertebrae weigh 1 + 3 in the fit (3 chosen among
+0, 1, 3, 10, 30 by the prior's own major-angle MAE in 5-fold CV on ``training``)."""
+
+
+def fit_weighted(
+    tilts_deg: np.ndarray, chord_deg: np.ndarray, window: tuple[int, ...], ridge: float, weights: np.ndarray
+) -> np.ndarray:
+    """``tilt_prior.fit_coefficients`` with a weight per spine and vertebra (n, 17): per vertebra i,
+    min_c Σ_n w_ni (X_n c − θ_ni)² + λ‖c‖² subject to 1ᵀc = 1 (KKT system as there)."""
+    idx = chord_windows(window)
+    k = len(window)
+    coefficients = np.empty((N_LEVELS, k))
+    for i in range(N_LEVELS):
+        X = chord_deg[:, idx[i]]
+        w = weights[:, i]
+        kkt = np.zeros((k + 1, k + 1))
+        kkt[:k, :k] = X.T @ (w[:, None] * X) + ridge * np.eye(k)
+        kkt[:k, k] = kkt[k, :k] = 1.0
+        rhs = np.concatenate([X.T @ (w * tilts_deg[:, i]), [1.0]])
+        coefficients[i] = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:k]
+    return coefficients
+
+
+def end_weights(tilts_deg: np.ndarray, end_weight: float) -> np.ndarray:
+    """1 for every vertebra, 1 + ``end_weight`` for each spine's most and least tilted vertebra."""
+    w = np.ones_like(tilts_deg)
+    rows = np.arange(len(tilts_deg))
+    w[rows, np.argmax(tilts_deg, axis=1)] += end_weight
+    w[rows, np.argmin(tilts_deg, axis=1)] += end_weight
+    return w
+
+
+@contextmanager
+def prior_in_use(prior: TiltPrior) -> Iterator[None]:
+    """``register`` uses ``prior`` instead of the shipped one (experiments only; nothing is written)."""
+    with mock.patch.object(reconstruction_module, "load_tilt_prior", lambda name=DEFAULT_PRIOR: prior):
+        yield
+
+
+def cross_validate(
+    data: Path, variants: tuple[PriorVariant, ...], seeds: tuple[int, ...], folds: int, out_dir: Path
+) -> list[dict[str, Any]]:
+    """k-fold CV on ``training`` only: per seed, radiographs drawn into ``folds`` folds; each fold's
+    prior is fitted on the other folds' plausible radiographs (as ``calibrate``) and every in-order
+    radiograph of the fold is reconstructed from its midpoints with it. Major-angle MAE and bias over
+    the in-order radiographs (refused ones excluded, failed fits counted) and over the plausible ones."""
+    rads = read_split(data / "training")
+    e_c, e_r = image_axes(PA)
+    tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in rads])
+    chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in rads])
+    truth = np.array([r.angles[0] for r in rads])
+    fit_on = np.array([plausible(r) and r.angles[0] < 90.0 for r in rads])
+    scored = np.flatnonzero([in_order(r) for r in rads])
+    rows: list[dict[str, Any]] = []
+    for variant in variants:
+        for seed in seeds:
+            fold = np.random.default_rng(seed).integers(0, folds, len(rads))
+            coefficients = []
+            for f in range(folds):
+                train = (fold != f) & fit_on
+                w = end_weights(tilts[train], variant.end_weight)
+                coefficients.append(fit_weighted(tilts[train], chords[train], variant.window, variant.ridge, w))
+            for fraction in variant.fractions:
+                major = np.full(len(rads), np.nan)
+                for i in scored:
+                    prior = TiltPrior("cv", variant.window, coefficients[fold[i]], fraction)
+                    with prior_in_use(prior):
+                        major[i] = evaluate_midpoints(rads[i])
+                err = major - truth
+                row: dict[str, Any] = {
+                    "variant": variant.name,
+                    "weight_fraction": fraction,
+                    "seed": seed,
+                    "folds": folds,
+                    "radiographs": int(np.isfinite(err[scored]).sum()),
+                    "failed": int(np.isnan(err[scored]).sum()),
+                    "major_mae_deg": float(np.nanmean(np.abs(err[scored]))),
+                    "major_bias_deg": float(np.nanmean(err[scored])),
+                    "plausible_major_mae_deg": float(np.nanmean(np.abs(err[fit_on]))),
+                }
+                rows.append(row)
+                print(
+                    f"{variant.name:26s} fraction {fraction:5g} seed {seed} ({folds}-fold): major MAE "
+                    f"{row['major_mae_deg']:.3f}° bias {row['major_bias_deg']:+.3f}° failed {row['failed']} "
+                    f"(plausible: {row['plausible_major_mae_deg']:.3f}°)",
+                    flush=True,
+                )
+    summary: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    for row in rows:
+        summary.setdefault((row["variant"], row["weight_fraction"]), []).append(row)
+    columns = ["variant", "fraction", "MAE mean over seeds", "bias", "plausible MAE", "failed"]
+    table = [
+        [
+            name,
+            f"{fraction:g}",
+            float(np.mean([r["major_mae_deg"] for r in group])),
+            float(np.mean([r["major_bias_deg"] for r in group])),
+            float(np.mean([r["plausible_major_mae_deg"] for r in group])),
+            sum(r["failed"] for r in group),
+        ]
+        for (name, fraction), group in summary.items()
+    ]
+    print(f"\nAASCE 2019 training, {folds}-fold CV, seeds {list(seeds)}, major angle through register():")
+    print(format_table(columns, table))
+    write_json(out_dir / "aasce-cv.json", {"data": str(data / "training"), "date": DATE, "rows": rows})
+    return rows
+
+
 # ---------------------------------------------------------------- command
 
 
@@ -463,15 +603,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=None, help="AASCE 2019 folder with training/ and test/")
     parser.add_argument("--split", choices=["training", "test"], default="test")
     parser.add_argument("--calibrate", action="store_true", help="fit the tilt prior on training and write it")
+    parser.add_argument(
+        "--cv", action="store_true", help="compare variants of the prior by k-fold CV on training (writes nothing)"
+    )
+    parser.add_argument("--folds", type=int, default=5, help="folds of --cv")
+    parser.add_argument("--seeds", default="0,1,2", help="fold draws of --cv, comma-separated")
     parser.add_argument("--limit", type=int, default=None, help="only the first N radiographs (quick runs)")
     parser.add_argument("--out", type=Path, default=Path("bench-out/aasce"))
     parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
     args = parser.parse_args(argv)
     data = args.data or default_data_dir()
-    if not (data / args.split / "landmarks_px_from_mat.csv").is_file():
+    if not (data / ("training" if args.cv else args.split) / "landmarks_px_from_mat.csv").is_file():
         print(f"error: AASCE 2019 data not found at {data} (pass --data or set SPINE_SHARED_DATA)")
         return 2
     start = time.perf_counter()
+    if args.cv:
+        seeds = tuple(int(v) for v in args.seeds.split(","))
+        cross_validate(data, CV_VARIANTS, seeds, args.folds, args.out)
+        print(f"wrote {args.out}/aasce-cv.json in {time.perf_counter() - start:.0f} s")
+        return 0
     if args.calibrate:
         calibrate(data, args.out, WEIGHT_FRACTIONS, args.limit)
     rads = read_split(data / args.split)[: args.limit]
