@@ -1,10 +1,19 @@
-"""The cross-validation helpers of ``spine bench aasce --cv`` on made-up numbers (no AASCE data)."""
+"""The tilt prior's windows and blend, and the helpers of ``spine bench aasce --cv``, on made-up
+numbers (no AASCE data)."""
 
 import numpy as np
 
 from spine_engine import reconstruction
 from spine_engine.experiments.aasce import end_weights, fit_weighted, prior_in_use
-from spine_engine.tilt_prior import WINDOW, TiltPrior, fit_coefficients, load_tilt_prior
+from spine_engine.tilt_prior import (
+    WINDOW,
+    TiltPrior,
+    chord_windows,
+    fit_coefficients,
+    load_tilt_prior,
+    predict_tilts_deg,
+    toward_chord_normal,
+)
 
 RNG = np.random.default_rng(11)
 
@@ -38,3 +47,22 @@ def test_prior_in_use_replaces_the_shipped_prior_only_inside() -> None:
     with prior_in_use(other):
         assert reconstruction.load_tilt_prior() is other
     assert reconstruction.load_tilt_prior() is shipped
+
+
+def test_shifted_windows_use_distinct_chords_inside_the_spine() -> None:
+    idx = chord_windows(tuple(range(-3, 3)), "shifted")
+    assert idx.shape == (17, 6) and idx.min() == 0 and idx.max() == 15
+    assert all(len(set(row)) == 6 for row in idx)
+    np.testing.assert_array_equal(idx[8], np.arange(5, 11))  # inside the spine: as the clipped window
+    np.testing.assert_array_equal(idx[8], chord_windows(tuple(range(-3, 3)))[8])
+
+
+def test_full_blend_is_the_chord_normal_tilt() -> None:
+    window = tuple(range(-3, 3))
+    _, chords = _made_up(5)
+    coefficients = toward_chord_normal(np.full((17, 6), 1.0 / 6.0), window, "shifted", 1.0)
+    prior = TiltPrior("normal", window, coefficients, 1.0, {}, "shifted")
+    normal = np.concatenate([chords[:, :1], 0.5 * (chords[:, :-1] + chords[:, 1:]), chords[:, -1:]], axis=1)
+    np.testing.assert_allclose(predict_tilts_deg(prior, chords), normal, atol=1e-12)
+    half = toward_chord_normal(np.full((17, 6), 1.0 / 6.0), window, "shifted", 0.3)
+    np.testing.assert_allclose(half.sum(axis=1), 1.0, atol=1e-12)
