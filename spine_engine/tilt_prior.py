@@ -6,7 +6,7 @@ midpoint) is not perpendicular to the local chord of the midpoints, and the Cobb
 chord-perpendicular model misses by about 12–14° on AASCE 2019 (docs/accuracy.md). The prior
 predicts each vertebra's frontal tilt from the frontal angles of the chords near it,
 
-    θ̂_i = Σ_k c_ik φ_clip(i+k),   k ∈ ``WINDOW`` = (−2, −1, 0, +1),   Σ_k c_ik = 1,
+    θ̂_i = Σ_k c_ik φ_clip(i+k),   k ∈ the prior's window,   Σ_k c_ik = 1,
 
 with φ_j the angle of the chord from landmark j to j + 1 (``observations.chord_angles_deg``,
 degrees) and indices clipped to the chords that exist (0..15); with ``placement`` "shifted" the
@@ -38,7 +38,9 @@ FloatArray = npt.NDArray[np.float64]
 PRIORS_DIR = Path(__file__).resolve().parent / "priors"
 DEFAULT_PRIOR = "tilt_aasce2019"
 WINDOW: tuple[int, ...] = (-2, -1, 0, 1)
-"""Chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1)."""
+"""Default window: chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1).
+The prior shipped until 2026-12-01 used it; the shipped prior's own window (since 2026-12-02
+−3..+2, "shifted") is in its JSON."""
 
 
 @dataclass(frozen=True)

@@ -534,7 +534,7 @@ class PriorVariant:
 
 
 CV_VARIANTS = (
-    PriorVariant("shipped: window -2..+1", WINDOW, 0.0, (1.0, 3.0, 10.0, 30.0, 100.0)),
+    PriorVariant("2026-12-01 prior: -2..+1", WINDOW, 0.0, (1.0, 3.0, 10.0, 30.0, 100.0)),
     PriorVariant("window -3..+2", tuple(range(-3, 3)), 0.0, (3.0, 10.0)),
     PriorVariant("window -3..+2, ends x4", tuple(range(-3, 3)), 3.0, (3.0, 10.0)),
     PriorVariant("window -4..+3, ends x4", tuple(range(-4, 4)), 3.0, (3.0, 10.0)),
