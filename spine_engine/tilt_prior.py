@@ -6,15 +6,18 @@ midpoint) is not perpendicular to the local chord of the midpoints, and the Cobb
 chord-perpendicular model misses by about 12–14° on AASCE 2019 (docs/accuracy.md). The prior
 predicts each vertebra's frontal tilt from the frontal angles of the chords near it,
 
-    θ̂_i = Σ_k c_ik φ_clip(i+k),   k ∈ ``WINDOW`` = (−2, −1, 0, +1),   Σ_k c_ik = 1,
+    θ̂_i = Σ_k c_ik φ_clip(i+k),   k ∈ the prior's window,   Σ_k c_ik = 1,
 
 with φ_j the angle of the chord from landmark j to j + 1 (``observations.chord_angles_deg``,
-degrees) and indices clipped to the chords that exist (0..15). Σ c = 1 makes the prediction turn
-with the image; no intercept keeps it mirror-symmetric (a left curve is a mirrored right one).
-The coefficients are constrained least squares on the ``training`` split of AASCE 2019 only,
-written by ``spine bench aasce --calibrate`` (``spine_engine/priors/tilt_aasce2019.json``, with
-its provenance). In the registration each predicted tilt is a soft tilt observation
-(``registration.ViewData``), weighted ``weight_fraction`` × the weight of a tilt from corners.
+degrees) and indices clipped to the chords that exist (0..15); with ``placement`` "shifted" the
+window (contiguous) is instead moved inside 0..15 at the ends, so that every vertebra uses as many
+distinct chords. Σ c = 1 makes the prediction turn with the image; no intercept keeps it
+mirror-symmetric (a left curve is a mirrored right one). The coefficients are constrained least
+squares on the ``training`` split of AASCE 2019 only, possibly blended toward the chord-normal
+tilt (``toward_chord_normal``), written by ``spine bench aasce --calibrate``
+(``spine_engine/priors/tilt_aasce2019.json``, with its provenance). In the registration each
+predicted tilt is a soft tilt observation (``registration.ViewData``), weighted
+``weight_fraction`` × the weight of a tilt from corners.
 """
 
 from __future__ import annotations
@@ -35,7 +38,9 @@ FloatArray = npt.NDArray[np.float64]
 PRIORS_DIR = Path(__file__).resolve().parent / "priors"
 DEFAULT_PRIOR = "tilt_aasce2019"
 WINDOW: tuple[int, ...] = (-2, -1, 0, 1)
-"""Chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1)."""
+"""Default window: chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1).
+The prior shipped until 2026-12-01 used it; the shipped prior's own window (since 2026-12-02
+−3..+2, "shifted") is in its JSON."""
 
 
 @dataclass(frozen=True)
@@ -48,23 +53,36 @@ class TiltPrior:
     coefficients: FloatArray
     weight_fraction: float
     provenance: dict[str, Any] = field(default_factory=dict)
+    placement: str = "clipped"
+    """How the window meets the ends of the spine: "clipped" or "shifted" (``chord_windows``)."""
 
 
-def chord_windows(window: tuple[int, ...] = WINDOW) -> npt.NDArray[np.intp]:
-    """Chord indices (17, len(window)) feeding each vertebra: i + k clipped to 0..15."""
-    return np.clip(np.arange(N_LEVELS)[:, None] + np.asarray(window)[None, :], 0, N_LEVELS - 2)
+def chord_windows(window: tuple[int, ...] = WINDOW, placement: str = "clipped") -> npt.NDArray[np.intp]:
+    """Chord indices (17, len(window)) feeding each vertebra: i + k clipped to 0..15 ("clipped"), or
+    the contiguous window moved inside 0..15 where it would stick out ("shifted")."""
+    offsets = np.asarray(window)
+    if placement == "clipped":
+        return np.clip(np.arange(N_LEVELS)[:, None] + offsets[None, :], 0, N_LEVELS - 2)
+    if placement != "shifted" or not np.array_equal(offsets, np.arange(offsets[0], offsets[0] + len(offsets))):
+        raise ValueError(f"tilt prior: unknown placement {placement!r} or window {window} not contiguous")
+    start = np.clip(np.arange(N_LEVELS) + offsets[0], 0, N_LEVELS - 1 - len(offsets))
+    return start[:, None] + np.arange(len(offsets))[None, :]
 
 
 def predict_tilts_deg(prior: TiltPrior, chord_deg: npt.ArrayLike) -> FloatArray:
     """Predicted frontal tilt (degrees) of each vertebra (..., 17) from the 16 chord angles (..., 16);
     NaN where a needed chord is missing (NaN in ``chord_deg``)."""
     phi = np.asarray(chord_deg, dtype=float)
-    features = phi[..., chord_windows(prior.window)]
+    features = phi[..., chord_windows(prior.window, prior.placement)]
     return np.einsum("...ik,ik->...i", features, prior.coefficients)
 
 
 def fit_coefficients(
-    tilts_deg: npt.ArrayLike, chord_deg: npt.ArrayLike, window: tuple[int, ...] = WINDOW, ridge: float = 1e-3
+    tilts_deg: npt.ArrayLike,
+    chord_deg: npt.ArrayLike,
+    window: tuple[int, ...] = WINDOW,
+    ridge: float = 1e-3,
+    placement: str = "clipped",
 ) -> FloatArray:
     """Least-squares coefficients (17, len(window)) with Σ_k c_ik = 1, per vertebra i:
 
@@ -74,7 +92,7 @@ def fit_coefficients(
     solved from its KKT system [XᵀX + λI, 1; 1ᵀ, 0] [c; μ] = [Xᵀθ; 1]. tilts (n, 17), chords (n, 16)."""
     T = np.asarray(tilts_deg, dtype=float)
     P = np.asarray(chord_deg, dtype=float)
-    idx = chord_windows(window)
+    idx = chord_windows(window, placement)
     k = len(window)
     coefficients = np.empty((N_LEVELS, k))
     for i in range(N_LEVELS):
@@ -87,10 +105,28 @@ def fit_coefficients(
     return coefficients
 
 
+def toward_chord_normal(
+    coefficients: npt.ArrayLike, window: tuple[int, ...], placement: str, blend: float
+) -> FloatArray:
+    """(1 − β) c + β c⊥: the coefficients blended with weight β = ``blend`` toward the chord-normal
+    tilt c⊥, the mean of the chords on either side of the vertebra (0.5 φ_{i−1} + 0.5 φ_i, one-sided
+    at T1 and L5: each vertebra perpendicular to the local line of its midpoints). Σ c stays 1."""
+    idx = chord_windows(window, placement)
+    normal = np.zeros(idx.shape)
+    for i in range(N_LEVELS):
+        for j in (max(i - 1, 0), min(i, N_LEVELS - 2)):
+            where = np.flatnonzero(idx[i] == j)
+            if not len(where):
+                raise ValueError(f"tilt prior: window {window} ({placement}) does not hold chord {j} of vertebra {i}")
+            normal[i, where[0]] += 0.5
+    return (1.0 - blend) * np.asarray(coefficients, dtype=float) + blend * normal
+
+
 def save_tilt_prior(prior: TiltPrior, path: Path) -> None:
     data = {
         "name": prior.name,
         "window": list(prior.window),
+        "placement": prior.placement,
         "coefficients": np.round(prior.coefficients, 6).tolist(),
         "weight_fraction": prior.weight_fraction,
         "provenance": prior.provenance,
@@ -108,4 +144,11 @@ def load_tilt_prior(name: str = DEFAULT_PRIOR) -> TiltPrior:
     if coefficients.shape != (N_LEVELS, len(window)):
         raise ValueError(f"tilt prior {name!r}: coefficients must be (17, {len(window)}), got {coefficients.shape}")
     coefficients.setflags(write=False)
-    return TiltPrior(data["name"], window, coefficients, float(data["weight_fraction"]), data.get("provenance", {}))
+    return TiltPrior(
+        data["name"],
+        window,
+        coefficients,
+        float(data["weight_fraction"]),
+        data.get("provenance", {}),
+        data.get("placement", "clipped"),
+    )

@@ -134,8 +134,14 @@ def _series_payloads() -> tuple[dict[str, object], dict[str, object]]:
 def test_lateral_rows_only_lower_the_variances() -> None:
     """At one optimum, the Laplace SDs with the lateral film's rows are never larger than with
     the PA rows alone (fewer rows: a smaller H in the Loewner order, so a larger gᵀH⁻¹g for every
-    g), and the depth (y) of every vertebra is at least twice as certain (measured with the
-    calibrated prior weight: 4.2 times or more)."""
+    g), and the depth (y) of every vertebra is at least twice as certain (measured: 11.5 times or
+    more with the calibrated prior weight of 2026-12-02, 7.1 with that of 2026-12-01).
+
+    Without its rows the lateral film's scale and translation have no curvature at all: H is
+    singular, and ``functional_variances`` would add its ridge (1e-9 × the largest diagonal entry)
+    to every direction, which lowers the PA-only SDs (x by up to 1.8 % with the 2026-12-02 prior
+    weight, enough to break the inequality). One unit row on each of those columns, which no other
+    row touches, makes H definite without changing any other variance."""
     from spine_engine.anatomy import load_profile
     from spine_engine.reconstruction import build_problem, solve_solution
     from spine_engine.validation import validate_payload
@@ -144,8 +150,12 @@ def test_lateral_rows_only_lower_the_variances() -> None:
     solution, _ = solve_solution(build_problem(validate_payload(_series_payloads()[0]), profile), profile)
     lateral = np.array([kind.endswith(":lateral") for kind in solution.row_kinds])
     assert lateral.any()
+    jacobian = solution.jacobian[~lateral]
+    unseen = np.flatnonzero(~jacobian.any(axis=0))  # the lateral film's s, T_c, T_r
+    assert len(unseen) == 3
+    pins = np.eye(jacobian.shape[1])[unseen]
     kinds = tuple(k for k, lat in zip(solution.row_kinds, lateral, strict=True) if not lat)
-    pa_only = solution._replace(jacobian=solution.jacobian[~lateral], row_kinds=kinds)
+    pa_only = solution._replace(jacobian=np.vstack([jacobian, pins]), row_kinds=kinds + ("camera",) * len(unseen))
     both = unc.solution_uncertainty(solution, scale=1.0)
     one = unc.solution_uncertainty(pa_only, scale=1.0)
     assert np.all(both.position_sd_mm <= one.position_sd_mm * (1 + 1e-9))
@@ -156,9 +166,10 @@ def test_lateral_rows_only_lower_the_variances() -> None:
 def test_two_views_are_more_certain_than_one() -> None:
     """The same spine's vertebrae: with the lateral film every vertebra's depth (y, which the PA
     film does not see) is at least twice as certain as from the PA film alone (measured: 8 times
-    or more), and no coordinate is more than 10 % less certain (the two fits' optima and
-    estimated scales differ, so their curvatures do; measured: none less certain; with an
-    earlier prior strength x was up to 5 % less). The result carries the calibrated scale."""
+    or more; 13 with the constants of 2026-12-02), and no coordinate is more than 10 % less
+    certain (the two fits' optima and estimated scales differ, so their curvatures do; measured:
+    none less certain; with the constants of 2026-12-02 one 0.02 % less; with an earlier prior
+    strength x was up to 5 % less). The result carries the calibrated scale."""
     from spine_engine import register
 
     both, pa_only = (register(p) for p in _series_payloads())
@@ -186,7 +197,8 @@ def test_coverage_on_held_out_spines() -> None:
     n = 8 × 17 × 3 × 3 = 1224 coordinates. Band: issue #10's target, 90–98 %. A binomial band
     (95 % ± 3 SD = [93.1, 96.9] %) is too narrow here: the 153 coordinates of one spine in one case
     share its fit's errors, so the effective sample is nearer 8 spines × 3 cases than 1224; two
-    calibrations made the same day (with two tilt priors) measured 95.8 % and 97.4 %."""
+    calibrations made the same day (with two tilt priors) measured 95.8 % and 97.4 %, the one of
+    2026-12-02 (with the tilt prior refitted that day) 97.8 %."""
     from spine_engine.experiments import clinic
 
     truths = clinic.verse_truths("test")[:8]
@@ -215,7 +227,8 @@ def test_sds_follow_the_declared_landmark_sd() -> None:
     """The same films (the paper's case f: T1/L5 given, two calibrated views, where the landmarks
     decide) declared with landmark_sd_mm 0.5 instead of 1: the position SDs shrink to between 0.45
     and 0.7 of theirs (half for the landmarks' part; the rod's prior does not shrink; measured
-    0.50–0.58). Before the energy unit was made independent of σ they stayed the same."""
+    0.50–0.58; 0.50–0.52 with the constants of 2026-12-02). Before the energy unit was made
+    independent of σ they stayed the same."""
     from spine_engine import register
     from spine_engine.experiments import clinic
 
