@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             stop_processes([worker])
             with app.connection_for_write() as conn:
                 client = conn.default_channel.client
-                client.delete(queue, *client.keys(f"{queue}*"))
+                client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
         worker_ms, pg_ms = worker_cpu * 1000 / args.n, pg_cpu * 1000 / args.n
         print(f"{args.n} jobs through Celery ({args.concurrency} pool processes, {args.payload} payload): "
               f"worker CPU {worker_ms:.2f} ms/job, PostgreSQL backends {pg_ms:.2f} ms/job, "
