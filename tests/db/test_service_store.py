@@ -134,8 +134,8 @@ def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
 
 
 @BACKENDS
-def test_worker_sessions_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
-    """The worker's sessions: each statement commits alone; a failed run stores no measures."""
+def test_worker_connections_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
+    """The worker's connections: each statement commits alone; a failed run stores no measures."""
     ok, bad = new_job(db_settings), new_job(db_settings)
     with worker_connection(db_settings, durable=False) as s:
         if s.dialect.name == "postgresql":  # the claim does not wait for the WAL flush
