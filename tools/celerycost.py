@@ -86,13 +86,13 @@ def main(argv: list[str] | None = None) -> int:
             server = Server(settings, APPLICATION_NAME)
             pids = [worker.pid, *worker_pids(worker.pid)]
             by_pid = {pid: _process_cpu_s([pid]) for pid in pids}
-            worker_cpu, (pg_cpu, _) = _process_cpu_s(pids), server.reading()
+            worker_cpu, pg_cpu = _process_cpu_s(pids), server.reading()
             started = time.perf_counter()
             enqueue(app, ids[WARMUP:])
             _wait_final(settings, 0, 600)
             wall_s = time.perf_counter() - started
             by_pid = {pid: _process_cpu_s([pid]) - cpu for pid, cpu in by_pid.items()}
-            worker_cpu, pg_cpu = _process_cpu_s(pids) - worker_cpu, server.reading()[0] - pg_cpu
+            worker_cpu, pg_cpu = _process_cpu_s(pids) - worker_cpu, server.reading() - pg_cpu
         finally:
             stop_processes([worker])
             with app.connection_for_write() as conn:
@@ -102,8 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.n} jobs through Celery ({args.concurrency} pool processes, {args.payload} payload): "
               f"worker CPU {worker_ms:.2f} ms/job, PostgreSQL backends {pg_ms:.2f} ms/job, "
               f"{args.n / wall_s:.1f} jobs/s wall")  # fmt: skip
-        print("  by process (supervisor, Celery main, pool…), ms/job: "
-              + ", ".join(f"{cpu * 1000 / args.n:.2f}" for cpu in by_pid.values()))
+        print(
+            "  by process (supervisor, Celery main, pool…), ms/job: "
+            + ", ".join(f"{cpu * 1000 / args.n:.2f}" for cpu in by_pid.values())
+        )
         if not args.no_in_process:
             inproc = measure(settings, args.n, make_payload)
             print(f"in process (no Celery): worker CPU {inproc['worker_ms']:.2f} ms/job "

@@ -3,12 +3,13 @@ CPU time from ``getrusage``, and the fit alone (``spine_engine.register`` of the
 times) for comparison. On a fresh embedded SQLite database, or with ``--database-url`` on a
 database given (PostgreSQL: an empty database, migrated here).
 
-It also counts the SQL statements the worker sent per job (SQLAlchemy's ``before_cursor_execute``),
-and on PostgreSQL the transactions the server counted (``pg_stat_database``) and the CPU time of
-the server processes that served them (``/proc/<pid>/stat`` of this database's backends).
+It also counts the SQL statements the worker sent per job (SQLAlchemy's ``before_cursor_execute``)
+and on PostgreSQL the CPU time of the server processes that ran them (``/proc/<pid>/stat`` of this
+database's backends).
 
-``python -m tools.workercost [N] [--database-url URL] [--payload hops|loadbench]``
-(``loadbench``: the load bench's payloads, ``tools.loadbench.payload(i)``, whose curve varies by job)
+``python -m tools.workercost [N] [--database-url URL] [--payload hops|loadbench] [--without-fit]``
+(``loadbench``: the load bench's payloads, ``tools.loadbench.payload(i)``, whose curve varies by
+job; ``--without-fit``: the claim, the validation and the finish only, with one fixed result)
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ import os
 import resource
 import tempfile
 import time
+import uuid
 from collections.abc import Callable
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +31,12 @@ from sqlalchemy.pool import NullPool
 import spine_engine
 from services.core.config import Settings
 from services.db import jobs as jobs_repo
-from services.db.engine import session_scope
+from services.db import runs
+from services.db.engine import session_scope, worker_connection
 from services.db.migrate import upgrade
 from services.worker.tasks import execute_job
+from spine_engine.reconstruction import register_model
+from spine_engine.validation import validate_payload
 from tools import hops, loadbench
 
 WARMUP = 20
@@ -60,7 +66,8 @@ def _process_cpu_s(pids: list[int]) -> float:
 
 
 class Server:
-    """What PostgreSQL did for this process: its backends' CPU and the database's transactions."""
+    """The CPU time of the PostgreSQL backends serving this database (all but the reading's own, or
+    only those of ``application_name``)."""
 
     def __init__(self, settings: Settings, application_name: str | None = None):
         # its own connection, outside the pools the worker uses (whose backends it measures)
@@ -68,12 +75,10 @@ class Server:
         self.application_name = application_name
         self.postgres = self.engine.dialect.name == "postgresql"
 
-    def reading(self) -> tuple[float, int]:
-        """(CPU s of this database's other backends, or only those of ``application_name``; transactions
-        committed or rolled back so far)."""
+    def reading(self) -> float:
+        """CPU s so far of the backends (0 on SQLite)."""
         if not self.postgres:
-            return 0.0, 0
-        time.sleep(1.2)  # backends publish their transaction counts at most once a second
+            return 0.0
         with self.engine.connect() as conn:
             pids = conn.execute(
                 text(
@@ -82,49 +87,65 @@ class Server:
                 ),
                 {"name": self.application_name},
             ).scalars()
-            conn.execute(text("SELECT pg_stat_clear_snapshot()"))
-            xacts = conn.execute(
-                text("SELECT xact_commit + xact_rollback FROM pg_stat_database WHERE datname = current_database()")
-            ).scalar_one()
-            cpu = _process_cpu_s(list(pids))
-            conn.rollback()
-        return cpu, int(xacts)
+            return _process_cpu_s(list(pids))
 
 
-def measure(settings: Settings, n: int, make_payload: Callable[[int], dict[str, Any]]) -> dict[str, Any]:
-    """Worker CPU ms per job, wall ms per job, register() CPU ms per call, statements, transactions
-    and PostgreSQL CPU ms per job, outcomes."""
+def run_without_fit(settings: Settings) -> Callable[[uuid.UUID], str]:
+    """``execute_job`` without its fit: the claim, the payload's validation and the finish with
+    one fixed result (the fit of the load bench's first payload), on the worker's connections."""
+    result = register_model(validate_payload(loadbench.payload(0)))
+
+    def run(job_id: uuid.UUID) -> str:
+        with worker_connection(settings, durable=False) as connection:
+            claim = runs.claim_job(connection, job_id, result.engine.version, timedelta(seconds=settings.lease_s))
+        if claim is None:
+            return "skipped"
+        validate_payload(claim.payload)
+        with worker_connection(settings) as connection:
+            stored = runs.finish_job(connection, claim, result=result, engine_version=result.engine.version)
+        return "succeeded" if stored else "superseded"
+
+    return run
+
+
+def measure(
+    settings: Settings, n: int, make_payload: Callable[[int], dict[str, Any]], fit: bool = True
+) -> dict[str, Any]:
+    """Worker CPU ms per job, wall ms per job, register() CPU ms per call (None without the fit), SQL
+    statements and PostgreSQL backends' CPU ms per job (None on SQLite), outcomes."""
     upgrade(settings, quiet=True)
     with session_scope(settings) as session:
         ids = [jobs_repo.create_job(session, make_payload(i))[0].id for i in range(n + WARMUP)]
+    run = (lambda job_id: execute_job(settings, job_id)) if fit else run_without_fit(settings)
     for job_id in ids[:WARMUP]:
-        execute_job(settings, job_id)
+        run(job_id)
     statements = [0]
 
     def count(*_: Any) -> None:
         statements[0] += 1
 
     server = Server(settings)
-    pg_cpu, xacts = server.reading()
+    pg_cpu = server.reading()
     event.listen(Engine, "before_cursor_execute", count)
     cpu, started = _cpu_s(), time.perf_counter()
     try:
-        outcomes = {execute_job(settings, job_id) for job_id in ids[WARMUP:]}
+        outcomes = {run(job_id) for job_id in ids[WARMUP:]}
         worker_ms, wall_ms = (_cpu_s() - cpu) * 1000 / n, (time.perf_counter() - started) * 1000 / n
     finally:
         event.remove(Engine, "before_cursor_execute", count)
-    pg_cpu_after, xacts_after = server.reading()
-    fit_payload, cpu = make_payload(WARMUP), _cpu_s()
-    for _ in range(n):
-        spine_engine.register(fit_payload)
+    pg_cpu = server.reading() - pg_cpu
+    fit_ms = None
+    if fit:
+        fit_payload, cpu = make_payload(WARMUP), _cpu_s()
+        for _ in range(n):
+            spine_engine.register(fit_payload)
+        fit_ms = (_cpu_s() - cpu) * 1000 / n
     return {
         "worker_ms": worker_ms,
         "wall_ms": wall_ms,
-        "fit_ms": (_cpu_s() - cpu) * 1000 / n,
+        "fit_ms": fit_ms,
         "statements": statements[0] / n,
-        # minus the two readings' own transactions (pg_stat_clear_snapshot's and the count's)
-        "transactions": (xacts_after - xacts - 2) / n if server.postgres else None,
-        "postgres_ms": (pg_cpu_after - pg_cpu) * 1000 / n if server.postgres else None,
+        "postgres_ms": pg_cpu * 1000 / n if server.postgres else None,
         "outcomes": outcomes,
     }
 
@@ -134,17 +155,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("n", type=int, nargs="?", default=300)
     parser.add_argument("--database-url", default=None, help="e.g. postgresql+psycopg://postgres@127.0.0.1/empty_db")
     parser.add_argument("--payload", choices=sorted(PAYLOADS), default="hops")
+    parser.add_argument("--without-fit", action="store_true",
+                        help="claim, validation and finish only (one fixed result), no register()")  # fmt: skip
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings(data_dir=Path(tmp), database_url=args.database_url)
-        m = measure(settings, args.n, PAYLOADS[args.payload])
-    server = ""
-    if m["postgres_ms"] is not None:
-        server = f"; PostgreSQL {m['transactions']:.2f} transactions/job, {m['postgres_ms']:.2f} ms CPU/job"
+        m = measure(settings, args.n, PAYLOADS[args.payload], fit=not args.without_fit)
+    fit = (
+        ""
+        if m["fit_ms"] is None
+        else (f"; register() alone {m['fit_ms']:.2f} ms CPU/call, the rest {m['worker_ms'] - m['fit_ms']:.2f} ms/job")
+    )
+    server = "" if m["postgres_ms"] is None else f", PostgreSQL backends {m['postgres_ms']:.2f} ms CPU/job"
     print(
-        f"{args.n} jobs {sorted(m['outcomes'])} ({args.payload} payload): CPU {m['worker_ms']:.2f} ms/job, "
-        f"wall {m['wall_ms']:.2f} ms/job; register() alone {m['fit_ms']:.2f} ms CPU/call, "
-        f"the rest {m['worker_ms'] - m['fit_ms']:.2f} ms/job; {m['statements']:.2f} SQL statements/job{server}"
+        f"{args.n} jobs {sorted(m['outcomes'])} ({args.payload} payload{', without the fit' * args.without_fit}): "
+        f"CPU {m['worker_ms']:.2f} ms/job, wall {m['wall_ms']:.2f} ms/job{fit}; "
+        f"{m['statements']:.2f} SQL statements/job{server}"
     )
     return 0
 
