@@ -3,26 +3,47 @@ CPU time from ``getrusage``, and the fit alone (``spine_engine.register`` of the
 times) for comparison. On a fresh embedded SQLite database, or with ``--database-url`` on a
 database given (PostgreSQL: an empty database, migrated here).
 
-``python -m tools.workercost [N] [--database-url URL]``
+It also counts the SQL statements the worker sent per job (SQLAlchemy's ``before_cursor_execute``)
+and on PostgreSQL the CPU time of the server processes that ran them (``/proc/<pid>/stat`` of this
+database's backends).
+
+``python -m tools.workercost [N] [--database-url URL] [--payload hops|loadbench] [--without-fit]``
+(``loadbench``: the load bench's payloads, ``tools.loadbench.payload(i)``, whose curve varies by
+job; ``--without-fit``: the claim, the validation and the finish only, with one fixed result)
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import tempfile
 import time
+import uuid
+from collections.abc import Callable
+from datetime import timedelta
 from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.pool import NullPool
 
 import spine_engine
 from services.core.config import Settings
 from services.db import jobs as jobs_repo
-from services.db.engine import session_scope
+from services.db import runs
+from services.db.engine import session_scope, worker_connection
 from services.db.migrate import upgrade
 from services.worker.tasks import execute_job
-from tools.hops import payload
+from spine_engine.reconstruction import register_model
+from spine_engine.validation import validate_payload
+from tools import hops, loadbench
 
 WARMUP = 20
+PAYLOADS: dict[str, Callable[[int], dict[str, Any]]] = {
+    "hops": lambda _i: hops.payload(),
+    "loadbench": loadbench.payload,
+}
 
 
 def _cpu_s() -> float:
@@ -30,33 +51,126 @@ def _cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def measure(settings: Settings, n: int) -> tuple[float, float, float, set[str]]:
-    """(worker CPU ms per job, wall ms per job, register() CPU ms per call, outcomes)."""
+def _process_cpu_s(pids: list[int]) -> float:
+    """User + system CPU time (s) of the processes ``pids`` so far (those that exist)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in pids:
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(")") + 2 :].split()
+        total += (int(fields[11]) + int(fields[12])) / tick
+    return total
+
+
+class Server:
+    """The CPU time of the PostgreSQL backends serving this database (all but the reading's own, or
+    only those of ``application_name``)."""
+
+    def __init__(self, settings: Settings, application_name: str | None = None):
+        # its own connection, outside the pools the worker uses (whose backends it measures)
+        self.engine = create_engine(settings.sqlalchemy_url, poolclass=NullPool)
+        self.application_name = application_name
+        self.postgres = self.engine.dialect.name == "postgresql"
+
+    def reading(self) -> float:
+        """CPU s so far of the backends (0 on SQLite)."""
+        if not self.postgres:
+            return 0.0
+        with self.engine.connect() as conn:
+            pids = conn.execute(
+                text(
+                    "SELECT pid FROM pg_stat_activity WHERE datname = current_database() AND pid <> pg_backend_pid()"
+                    " AND (CAST(:name AS text) IS NULL OR application_name = :name)"
+                ),
+                {"name": self.application_name},
+            ).scalars()
+            return _process_cpu_s(list(pids))
+
+
+def run_without_fit(settings: Settings) -> Callable[[uuid.UUID], str]:
+    """``execute_job`` without its fit: the claim, the payload's validation and the finish with
+    one fixed result (the fit of the load bench's first payload), on the worker's connections."""
+    result = register_model(validate_payload(loadbench.payload(0)))
+
+    def run(job_id: uuid.UUID) -> str:
+        with worker_connection(settings, durable=False) as connection:
+            claim = runs.claim_job(connection, job_id, result.engine.version, timedelta(seconds=settings.lease_s))
+        if claim is None:
+            return "skipped"
+        validate_payload(claim.payload)
+        with worker_connection(settings) as connection:
+            stored = runs.finish_job(connection, claim, result=result, engine_version=result.engine.version)
+        return "succeeded" if stored else "superseded"
+
+    return run
+
+
+def measure(
+    settings: Settings, n: int, make_payload: Callable[[int], dict[str, Any]], fit: bool = True
+) -> dict[str, Any]:
+    """Worker CPU ms per job, wall ms per job, register() CPU ms per call (None without the fit), SQL
+    statements and PostgreSQL backends' CPU ms per job (None on SQLite), outcomes."""
     upgrade(settings, quiet=True)
     with session_scope(settings) as session:
-        ids = [jobs_repo.create_job(session, payload())[0].id for _ in range(n + WARMUP)]
+        ids = [jobs_repo.create_job(session, make_payload(i))[0].id for i in range(n + WARMUP)]
+    run = (lambda job_id: execute_job(settings, job_id)) if fit else run_without_fit(settings)
     for job_id in ids[:WARMUP]:
-        execute_job(settings, job_id)
+        run(job_id)
+    statements = [0]
+
+    def count(*_: Any) -> None:
+        statements[0] += 1
+
+    server = Server(settings)
+    pg_cpu = server.reading()
+    event.listen(Engine, "before_cursor_execute", count)
     cpu, started = _cpu_s(), time.perf_counter()
-    outcomes = {execute_job(settings, job_id) for job_id in ids[WARMUP:]}
-    worker_ms, wall_ms = (_cpu_s() - cpu) * 1000 / n, (time.perf_counter() - started) * 1000 / n
-    fit_payload, cpu = payload(), _cpu_s()
-    for _ in range(n):
-        spine_engine.register(fit_payload)
-    return worker_ms, wall_ms, (_cpu_s() - cpu) * 1000 / n, outcomes
+    try:
+        outcomes = {run(job_id) for job_id in ids[WARMUP:]}
+        worker_ms, wall_ms = (_cpu_s() - cpu) * 1000 / n, (time.perf_counter() - started) * 1000 / n
+    finally:
+        event.remove(Engine, "before_cursor_execute", count)
+    pg_cpu = server.reading() - pg_cpu
+    fit_ms = None
+    if fit:
+        fit_payload, cpu = make_payload(WARMUP), _cpu_s()
+        for _ in range(n):
+            spine_engine.register(fit_payload)
+        fit_ms = (_cpu_s() - cpu) * 1000 / n
+    return {
+        "worker_ms": worker_ms,
+        "wall_ms": wall_ms,
+        "fit_ms": fit_ms,
+        "statements": statements[0] / n,
+        "postgres_ms": pg_cpu * 1000 / n if server.postgres else None,
+        "outcomes": outcomes,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("n", type=int, nargs="?", default=300)
     parser.add_argument("--database-url", default=None, help="e.g. postgresql+psycopg://postgres@127.0.0.1/empty_db")
+    parser.add_argument("--payload", choices=sorted(PAYLOADS), default="hops")
+    parser.add_argument("--without-fit", action="store_true",
+                        help="claim, validation and finish only (one fixed result), no register()")  # fmt: skip
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings(data_dir=Path(tmp), database_url=args.database_url)
-        worker_ms, wall_ms, fit_ms, outcomes = measure(settings, args.n)
+        m = measure(settings, args.n, PAYLOADS[args.payload], fit=not args.without_fit)
+    fit = (
+        ""
+        if m["fit_ms"] is None
+        else (f"; register() alone {m['fit_ms']:.2f} ms CPU/call, the rest {m['worker_ms'] - m['fit_ms']:.2f} ms/job")
+    )
+    server = "" if m["postgres_ms"] is None else f", PostgreSQL backends {m['postgres_ms']:.2f} ms CPU/job"
     print(
-        f"{args.n} jobs {sorted(outcomes)}: CPU {worker_ms:.2f} ms/job, wall {wall_ms:.2f} ms/job; "
-        f"register() alone {fit_ms:.2f} ms CPU/call, the rest {worker_ms - fit_ms:.2f} ms/job"
+        f"{args.n} jobs {sorted(m['outcomes'])} ({args.payload} payload{', without the fit' * args.without_fit}): "
+        f"CPU {m['worker_ms']:.2f} ms/job, wall {m['wall_ms']:.2f} ms/job{fit}; "
+        f"{m['statements']:.2f} SQL statements/job{server}"
     )
     return 0
 

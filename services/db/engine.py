@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
 from services.core.config import Settings
@@ -101,41 +101,43 @@ def session_scope(settings: Settings) -> Iterator[Session]:
         yield session
 
 
-_WORKER_SESSIONS: dict[tuple[str, int, bool], sessionmaker[Session]] = {}
+_WORKER_ENGINES: dict[tuple[str, int, bool], Engine] = {}
 
 
-def _worker_sessionmaker(settings: Settings, durable: bool) -> sessionmaker[Session]:
+def _worker_engine(settings: Settings, durable: bool) -> Engine:
+    """The engine of ``worker_connection``: on PostgreSQL one of its own per kind (durable or not),
+    in autocommit from its creation (no isolation level set and reset at every checkout); on SQLite
+    the main engine."""
     key = (settings.sqlalchemy_url, os.getpid(), durable)
     with _LOCK:
-        if key in _WORKER_SESSIONS:
-            return _WORKER_SESSIONS[key]
+        if key in _WORKER_ENGINES:
+            return _WORKER_ENGINES[key]
     engine = get_engine(settings)
     if engine.dialect.name == "postgresql":
-        if durable:
-            engine = engine.execution_options(isolation_level="AUTOCOMMIT")  # type: ignore[assignment]
-        else:
-            engine = create_db_engine(
-                settings.sqlalchemy_url,
-                pool_size=2,
-                isolation_level="AUTOCOMMIT",
-                connect_args={"options": "-c synchronous_commit=off"},
-            )
-    made = sessionmaker(engine, expire_on_commit=False)
+        # the claim's commit does not wait for the WAL flush (synchronous_commit=off); the finish's does
+        options: dict[str, Any] = {} if durable else {"connect_args": {"options": "-c synchronous_commit=off"}}
+        engine = create_db_engine(settings.sqlalchemy_url, pool_size=2, isolation_level="AUTOCOMMIT", **options)
     with _LOCK:
-        return _WORKER_SESSIONS.setdefault(key, made)
+        return _WORKER_ENGINES.setdefault(key, engine)
 
 
 @contextmanager
-def worker_session(settings: Settings, *, durable: bool = True) -> Iterator[Session]:
-    """A session for the worker's one-statement state changes (claim, finish).
+def worker_connection(settings: Settings, *, durable: bool = True) -> Iterator[Connection]:
+    """A connection for the worker's one-statement state changes (claim, finish, lease renewals):
+    a SQLAlchemy Core connection, no ORM session (the worker runs prebuilt Core statements only).
 
     On PostgreSQL each statement commits by itself (no BEGIN/COMMIT round trips), and with
     ``durable=False`` its commit does not wait for the WAL flush (``synchronous_commit=off``; a
-    crash of the server may lose the last such commits, never corrupt anything). On SQLite it is
-    ``session_scope``: a transaction around the statements.
+    crash of the server may lose the last such commits, never corrupt anything). On SQLite it is a
+    transaction around the statements, committed at the end, rolled back on an error.
     """
-    with _scope(_worker_sessionmaker(settings, durable)) as session:
-        yield session
+    with _worker_engine(settings, durable).connect() as connection:
+        try:
+            yield connection
+            connection.commit()
+        except BaseException:
+            connection.rollback()
+            raise
 
 
 def dispose_engines() -> None:
@@ -144,8 +146,7 @@ def dispose_engines() -> None:
         for key, (engine, _) in list(_ENGINES.items()):
             engine.dispose(close=key[1] == os.getpid())
             del _ENGINES[key]
-        for wkey, made in list(_WORKER_SESSIONS.items()):
-            bound = made.kw["bind"]
-            if bound.dialect.name == "postgresql" and not wkey[2]:
-                bound.dispose(close=wkey[1] == os.getpid())
-            del _WORKER_SESSIONS[wkey]
+        for wkey, worker_engine in list(_WORKER_ENGINES.items()):
+            if worker_engine.dialect.name == "postgresql":  # its own engine (on SQLite, the main one)
+                worker_engine.dispose(close=wkey[1] == os.getpid())
+            del _WORKER_ENGINES[wkey]

@@ -15,9 +15,11 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, cast
 
+import pydantic_core
 from celery import Celery
 from sqlalchemy import (
     Boolean,
+    Connection,
     CursorResult,
     Table,
     and_,
@@ -30,7 +32,7 @@ from sqlalchemy import (
     true,
     update,
 )
-from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.dialects.postgresql import JSON
 from sqlalchemy.orm import Session
 
 from services.core.jobqueue import enqueue
@@ -104,8 +106,10 @@ def _finish_one_statement() -> Any:
 
     ``WITH done AS (UPDATE jobs … RETURNING id), m AS (INSERT INTO job_measures SELECT … FROM done
     WHERE :with_measures), s AS (INSERT INTO vertebra_strains SELECT done.id, r.* FROM done,
-    jsonb_to_recordset(:strains) AS r(level text, u1 float8, …)) SELECT count(*) FROM done``:
+    json_to_recordset(:strains) AS r(level text, u1 float8, …)) SELECT count(*) FROM done``:
     nothing is inserted when the fenced update matched no row, and all of it commits together.
+    The strains go as one ``json`` document (``json_to_recordset`` reads the text once; ``jsonb``
+    would build a binary document first).
     """
     done = _FINISH.returning(_JOBS.c.id).cte("done")
     measures = insert(_MEASURES).from_select(
@@ -115,7 +119,7 @@ def _finish_one_statement() -> Any:
         ),
     )
     record = (
-        func.jsonb_to_recordset(bindparam("strains", type_=JSONB()))
+        func.json_to_recordset(bindparam("strains", type_=JSON()))
         .table_valued(*[column(c.name, c.type) for c in _STRAIN_COLUMNS])
         .render_derived(with_types=True)
     )
@@ -130,14 +134,22 @@ _FINISH_ONE_STATEMENT = _finish_one_statement()
 # Statements are built once and executed on Core tables with bound parameters: the worker's
 # per-job cost stays in the database, not in statement construction.
 
+Db = Session | Connection
+"""Where the run functions execute: the worker's Core connection (``services.db.engine.
+worker_connection``) or an ORM session (the reconciler, the tests)."""
+
+
+def _dialect_name(db: Db) -> str:
+    return db.dialect.name if isinstance(db, Connection) else db.get_bind().dialect.name
+
 
 def claim_job(
-    session: Session, job_id: uuid.UUID, engine_version: str | None, lease: timedelta = timedelta(seconds=10)
+    session: Db, job_id: uuid.UUID, engine_version: str | None, lease: timedelta = timedelta(seconds=10)
 ) -> Claim | None:
     """queued → running, attempts + 1, leased for ``lease``; None when the job is not queued
     (duplicate, cancelled…).
 
-    One statement. The worker runs it on a session of ``services.db.engine.worker_session(settings,
+    One statement. The worker runs it on ``services.db.engine.worker_connection(settings,
     durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
     crashes and loses the claim, the job is simply queued again, and the run's final update,
     fenced on running and this attempt, stores nothing.
@@ -151,7 +163,7 @@ def claim_job(
     return Claim(job_id, row.attempts, row.payload, row.created_at, row.callback_url)
 
 
-def renew_leases(session: Session, claims: Sequence[Claim], lease: timedelta) -> list[Claim]:
+def renew_leases(session: Db, claims: Sequence[Claim], lease: timedelta) -> list[Claim]:
     """Extend the lease of each claimed run to now + ``lease``; return the runs that still own
     their job (a run whose job was cancelled or taken back by the reconciler is not renewed)."""
     until = utcnow() + lease
@@ -167,7 +179,7 @@ def renew_leases(session: Session, claims: Sequence[Claim], lease: timedelta) ->
 
 
 def finish_job(
-    session: Session,
+    session: Db,
     claim: Claim,
     *,
     result: RegistrationResult | None = None,
@@ -192,10 +204,12 @@ def finish_job(
     }
     measures = measures_row(result) if result is not None else None
     strains = strain_rows(result) if result is not None else []
-    if session.get_bind().dialect.name == "postgresql":
+    if _dialect_name(session) == "postgresql":
+        # the strains' JSON written by pydantic-core (Rust): 30 µs, against 100-170 µs for json.dumps
+        document = SerializedJSON(pydantic_core.to_json(strains).decode())
         stored = session.execute(
             _FINISH_ONE_STATEMENT,
-            {**params, **(measures or _NO_MEASURES), "with_measures": measures is not None, "strains": strains},
+            {**params, **(measures or _NO_MEASURES), "with_measures": measures is not None, "strains": document},
         ).scalar_one()
         session.commit()
         return bool(stored)
@@ -318,7 +332,7 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
     return sent
 
 
-def release_claim(session: Session, claim: Claim) -> bool:
+def release_claim(session: Db, claim: Claim) -> bool:
     """running → queued for this run (fenced by attempt), to run again later: a dependency of the run
     (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds the tries."""
     done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
@@ -330,7 +344,7 @@ def release_claim(session: Session, claim: Claim) -> bool:
     return done.rowcount == 1
 
 
-def record_dicom(session: Session, claim: Claim, provenance: dict[str, Any], study: dict[str, Any]) -> bool:
+def record_dicom(session: Db, claim: Claim, provenance: dict[str, Any], study: dict[str, Any]) -> bool:
     """Store what the DICOM layer read for this run (``jobs.dicom``) and the study's identifiers it
     completed (the list filters' columns), fenced by attempt."""
     values: dict[str, Any] = {"dicom": provenance}

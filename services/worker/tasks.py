@@ -34,7 +34,7 @@ from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_dept
 from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, store_retry
 from services.db import runs, stats
-from services.db.engine import session_scope, worker_session
+from services.db.engine import session_scope, worker_connection
 from services.dicom import store as dicom_store
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import DicomError, PacsUnavailable
@@ -102,7 +102,7 @@ class LeaseKeeper:
         due = self.due(time.monotonic())
         if not due:
             return 0
-        with worker_session(self.settings) as session:
+        with worker_connection(self.settings) as session:
             kept = runs.renew_leases(session, due, self.lease)
         lost = {c.job_id for c in due} - {c.job_id for c in kept}
         for job_id in lost:
@@ -152,7 +152,7 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
             resolved, provenance = resolve_by_reference(payload, pacs)
     except PacsUnavailable as exc:
         if claim.attempt < settings.max_attempts:
-            with worker_session(settings) as session:
+            with worker_connection(settings) as session:
                 runs.release_claim(session, claim)
             raise RunLater(dicom_store.retry_delay_s(claim.attempt)) from None
         detail = f"{exc}; {claim.attempt} attempts (SPINE_MAX_ATTEMPTS)"
@@ -160,15 +160,28 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
     except DicomError as exc:
         return payload, problem(exc.problem, str(exc), instance=instance, **dicom_store.as_problem_fields(exc))
     if provenance is not None:
-        with worker_session(settings) as session:
+        with worker_connection(settings) as session:
             runs.record_dicom(session, claim, provenance.model_dump(mode="json"), resolved.get("study") or {})
     return engine_payload(resolved), None
+
+
+@store_retry
+def _store(
+    settings: Settings,
+    claim: runs.Claim,
+    result: RegistrationResult | None,
+    error: dict[str, Any] | None,
+    engine_version: str | None,
+) -> bool:
+    """The run's outcome stored (``runs.finish_job``), retried in place on a transient fault."""
+    with worker_connection(settings) as connection:
+        return runs.finish_job(connection, claim, result=result, error=error, engine_version=engine_version)
 
 
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     """Claim (with a lease), run and finish one job; return what happened (for logs and tests).
     Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable)."""
-    with worker_session(settings, durable=False) as session:
+    with worker_connection(settings, durable=False) as session:
         claim = runs.claim_job(session, job_id, _engine_version(), timedelta(seconds=settings.lease_s))
     if claim is None:
         return "skipped"
@@ -183,13 +196,7 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     finally:
         keeper.release(claim)
     engine_version = result.engine.version if result is not None else None
-
-    @store_retry
-    def store() -> bool:
-        with worker_session(settings) as session:
-            return runs.finish_job(session, claim, result=result, error=error, engine_version=engine_version)
-
-    stored = store()
+    stored = _store(settings, claim, result, error, engine_version)
     if not stored:
         return "superseded"
     status = "succeeded" if error is None else "failed"

@@ -17,7 +17,7 @@ from sqlalchemy import inspect, select, text, update
 from services.core.config import Settings
 from services.db import jobs as repo
 from services.db import runs, stats
-from services.db.engine import get_engine, session_scope, worker_session
+from services.db.engine import get_engine, session_scope, worker_connection
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from spine_engine.models import RegistrationResult
@@ -134,16 +134,16 @@ def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
 
 
 @BACKENDS
-def test_worker_sessions_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
-    """The worker's sessions: each statement commits alone; a failed run stores no measures."""
+def test_worker_connections_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
+    """The worker's connections: each statement commits alone; a failed run stores no measures."""
     ok, bad = new_job(db_settings), new_job(db_settings)
-    with worker_session(db_settings, durable=False) as s:
-        if s.get_bind().dialect.name == "postgresql":  # the claim does not wait for the WAL flush
+    with worker_connection(db_settings, durable=False) as s:
+        if s.dialect.name == "postgresql":  # the claim does not wait for the WAL flush
             assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "off"
         claims = [runs.claim_job(s, job_id, "1.0") for job_id in (ok, bad)]
     assert all(c is not None for c in claims)
-    with worker_session(db_settings) as s:
-        if s.get_bind().dialect.name == "postgresql":
+    with worker_connection(db_settings) as s:
+        if s.dialect.name == "postgresql":
             assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "on"
         assert runs.finish_job(s, claims[0], result=result_like(41.0))  # type: ignore[arg-type]
         assert runs.finish_job(s, claims[1], error=LOST)  # type: ignore[arg-type]

@@ -1,0 +1,118 @@
+"""The worker's CPU cost per job through Celery, and Celery's share of it (docs/performance.md).
+
+Starts a real ``spine worker`` (supervisor, Celery main process and its prefork pool, as the load
+bench does, without beat) on the database and broker given, stores N jobs, publishes their
+messages at once and waits until every job is final; reports the CPU time (user + system, from
+``/proc``) of the worker's processes and of this database's PostgreSQL backends per job. Then runs
+the same number of jobs in this process with ``execute_job`` (no Celery, as ``tools.workercost``):
+the difference is what Celery (and the pool's processes) add per job.
+
+``python -m tools.celerycost [N] --database-url postgresql+psycopg://…/empty_db
+--broker-url redis://127.0.0.1:6379/5 [--concurrency 2] [--payload loadbench|hops]``
+
+The queue is a fresh name (``celerycost-…``), deleted at the end; the database should be empty.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+from sqlalchemy import func, select
+
+from services.core.config import Settings
+from services.core.jobqueue import enqueue, make_celery
+from services.db import jobs as jobs_repo
+from services.db.engine import session_scope
+from services.db.migrate import upgrade
+from services.db.models import Job
+from tools.loadbench import ensure_database, worker_pids
+from tools.processes import stop_processes
+from tools.workercost import PAYLOADS, Server, _process_cpu_s, measure
+
+WARMUP = 40
+APPLICATION_NAME = "spine-celerycost-worker"
+
+
+def _unfinished(settings: Settings) -> int:
+    with session_scope(settings) as session:
+        return int(session.execute(select(func.count()).where(Job.status.in_(("queued", "running")))).scalar_one())
+
+
+def _wait_final(settings: Settings, left: int, timeout_s: float) -> None:
+    """Until at most ``left`` jobs of the database are queued or running."""
+    deadline = time.monotonic() + timeout_s
+    while _unfinished(settings) > left:
+        if time.monotonic() > deadline:
+            raise SystemExit(f"jobs not final after {timeout_s:.0f} s")
+        time.sleep(0.2)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("n", type=int, nargs="?", default=1000)
+    parser.add_argument("--database-url", required=True, help="an empty PostgreSQL database (created if missing)")
+    parser.add_argument("--broker-url", required=True, help="e.g. redis://127.0.0.1:6379/5")
+    parser.add_argument("--concurrency", type=int, default=2, help="pool processes of the worker")
+    parser.add_argument("--payload", choices=sorted(PAYLOADS), default="loadbench")
+    parser.add_argument("--no-in-process", action="store_true", help="skip the in-process comparison")
+    args = parser.parse_args(argv)
+    make_payload = PAYLOADS[args.payload]
+    queue = f"celerycost-{uuid.uuid4().hex[:8]}"
+    ensure_database(args.database_url)
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings(data_dir=Path(tmp), database_url=args.database_url, CELERY_BROKER_URL=args.broker_url,
+                            queue_name=queue)  # fmt: skip
+        upgrade(settings, quiet=True)
+        with session_scope(settings) as session:
+            ids = [jobs_repo.create_job(session, make_payload(i))[0].id for i in range(args.n + WARMUP)]
+        env = {**os.environ, "DATABASE_URL": args.database_url, "CELERY_BROKER_URL": args.broker_url,
+               "SPINE_QUEUE_NAME": queue, "SPINE_DATA_DIR": tmp,
+               "PGAPPNAME": APPLICATION_NAME}  # libpq's default application_name: the worker's backends  # fmt: skip
+        cmd = [sys.executable, "-m", "services.cli", "worker", "--concurrency", str(args.concurrency),
+               "--loglevel", "WARNING", "--no-beat"]  # fmt: skip
+        app = make_celery(settings)
+        with (Path(tmp) / "worker.log").open("wb") as log:
+            worker = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            enqueue(app, ids[:WARMUP])
+            _wait_final(settings, args.n, 120)
+            server = Server(settings, APPLICATION_NAME)
+            pids = [worker.pid, *worker_pids(worker.pid)]
+            by_pid = {pid: _process_cpu_s([pid]) for pid in pids}
+            worker_cpu, pg_cpu = _process_cpu_s(pids), server.reading()
+            started = time.perf_counter()
+            enqueue(app, ids[WARMUP:])
+            _wait_final(settings, 0, 600)
+            wall_s = time.perf_counter() - started
+            by_pid = {pid: _process_cpu_s([pid]) - cpu for pid, cpu in by_pid.items()}
+            worker_cpu, pg_cpu = _process_cpu_s(pids) - worker_cpu, server.reading() - pg_cpu
+        finally:
+            stop_processes([worker])
+            with app.connection_for_write() as conn:
+                client = conn.default_channel.client
+                client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
+        worker_ms, pg_ms = worker_cpu * 1000 / args.n, pg_cpu * 1000 / args.n
+        print(f"{args.n} jobs through Celery ({args.concurrency} pool processes, {args.payload} payload): "
+              f"worker CPU {worker_ms:.2f} ms/job, PostgreSQL backends {pg_ms:.2f} ms/job, "
+              f"{args.n / wall_s:.1f} jobs/s wall")  # fmt: skip
+        print(
+            "  by process (supervisor, Celery main, pool…), ms/job: "
+            + ", ".join(f"{cpu * 1000 / args.n:.2f}" for cpu in by_pid.values())
+        )
+        if not args.no_in_process:
+            inproc = measure(settings, args.n, make_payload)
+            print(f"in process (no Celery): worker CPU {inproc['worker_ms']:.2f} ms/job "
+                  f"(register() {inproc['fit_ms']:.2f}), PostgreSQL backends {inproc['postgres_ms']:.2f} ms/job; "
+                  f"Celery's share {worker_ms - inproc['worker_ms']:.2f} ms/job")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
