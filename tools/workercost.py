@@ -15,7 +15,6 @@ job; ``--without-fit``: the claim, the validation and the finish only, with one 
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import tempfile
 import time
@@ -51,20 +50,6 @@ def _cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _process_cpu_s(pids: list[int]) -> float:
-    """User + system CPU time (s) of the processes ``pids`` so far (those that exist)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0.0
-    for pid in pids:
-        try:
-            stat = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rfind(")") + 2 :].split()
-        total += (int(fields[11]) + int(fields[12])) / tick
-    return total
-
-
 class Server:
     """The CPU time of the PostgreSQL backends serving this database (all but the reading's own, or
     only those of ``application_name``)."""
@@ -87,7 +72,7 @@ class Server:
                 ),
                 {"name": self.application_name},
             ).scalars()
-            return _process_cpu_s(list(pids))
+            return loadbench.cpu_seconds_of(list(pids))
 
 
 def run_without_fit(settings: Settings) -> Callable[[uuid.UUID], str]:
