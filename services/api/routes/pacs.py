@@ -23,12 +23,7 @@ from services.api.schemas import PacsStatus, PacsStudyImages, problem_responses
 from services.core.config import Settings
 from services.core.problems import problem
 from services.dicom.dicomweb import Pacs
-from services.dicom.errors import (
-    InstanceNotFound,
-    PacsUnavailable,
-    StudyNotFound,
-    TransferSyntaxUnavailable,
-)
+from services.dicom.errors import InstanceNotFound, PacsUnavailable, TransferSyntaxUnavailable
 from services.dicom.results import PART10_MEDIA_TYPE, part10
 from services.dicom.store import dicomweb_config
 
@@ -57,7 +52,7 @@ NOT_CONFIGURED = (
 
 @contextmanager
 def _pacs(settings: Settings) -> Iterator[Pacs]:
-    """The configured PACS, its errors turned into problems."""
+    """The configured PACS, its errors turned into the problems their types name (``DicomError.problem``)."""
     config = dicomweb_config(settings)
     if config is None:
         raise ProblemError(problem("dicomweb-not-configured",
@@ -65,15 +60,13 @@ def _pacs(settings: Settings) -> Iterator[Pacs]:
     try:
         with Pacs(config) as pacs:
             yield pacs
-    except StudyNotFound as exc:
-        raise ProblemError(problem("dicomweb-study-not-found", exc.message, uids=exc.uids)) from None
-    except InstanceNotFound as exc:
-        raise ProblemError(problem("dicomweb-instance-not-found", exc.message, status=404, uids=exc.uids)) from None
+    except InstanceNotFound as exc:  # StudyNotFound too
+        # an image asked for by its path is a 404 here, where a job naming it fails with 422
+        raise ProblemError(problem(exc.problem, exc.message, status=404, uids=exc.uids)) from None
     except TransferSyntaxUnavailable as exc:
-        raise ProblemError(problem("dicomweb-transfer-syntax-unavailable", exc.message)) from None
+        raise ProblemError(problem(exc.problem, exc.message)) from None
     except PacsUnavailable as exc:
-        raise ProblemError(problem("dicomweb-unavailable", exc.message),
-                           headers={"Retry-After": str(RETRY_AFTER_S)}) from None  # fmt: skip
+        raise ProblemError(problem(exc.problem, exc.message), headers={"Retry-After": str(RETRY_AFTER_S)}) from None
 
 
 @router.get(
