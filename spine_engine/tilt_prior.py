@@ -84,24 +84,28 @@ def fit_coefficients(
     window: tuple[int, ...] = WINDOW,
     ridge: float = 1e-3,
     placement: str = "clipped",
+    weights: npt.ArrayLike | None = None,
 ) -> FloatArray:
     """Least-squares coefficients (17, len(window)) with Σ_k c_ik = 1, per vertebra i:
 
-        min_c ‖X_i c − θ_i‖² + λ‖c‖²  subject to 1ᵀc = 1
+        min_c Σ_n w_ni (X_n c − θ_ni)² + λ‖c‖²  subject to 1ᵀc = 1
 
-    (X_i the chord angles of the window, θ_i the observed tilts, over the n training spines),
-    solved from its KKT system [XᵀX + λI, 1; 1ᵀ, 0] [c; μ] = [Xᵀθ; 1]. tilts (n, 17), chords (n, 16)."""
+    (X_n the chord angles of the window in training spine n, θ_ni its observed tilt, w_ni its weight,
+    1 without ``weights``), solved from its KKT system [XᵀWX + λI, 1; 1ᵀ, 0] [c; μ] = [XᵀWθ; 1].
+    tilts (n, 17), chords (n, 16), weights (n, 17)."""
     T = np.asarray(tilts_deg, dtype=float)
     P = np.asarray(chord_deg, dtype=float)
+    W = None if weights is None else np.asarray(weights, dtype=float)
     idx = chord_windows(window, placement)
     k = len(window)
     coefficients = np.empty((N_LEVELS, k))
     for i in range(N_LEVELS):
         X = P[:, idx[i]]
+        WX = X if W is None else W[:, i, None] * X
         kkt = np.zeros((k + 1, k + 1))
-        kkt[:k, :k] = X.T @ X + ridge * np.eye(k)
+        kkt[:k, :k] = WX.T @ X + ridge * np.eye(k)
         kkt[:k, k] = kkt[k, :k] = 1.0
-        rhs = np.concatenate([X.T @ T[:, i], [1.0]])
+        rhs = np.concatenate([WX.T @ T[:, i], [1.0]])
         coefficients[i] = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:k]
     return coefficients
 

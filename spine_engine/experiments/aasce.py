@@ -50,7 +50,6 @@ from ..tilt_prior import (
     PRIORS_DIR,
     WINDOW,
     TiltPrior,
-    chord_windows,
     fit_coefficients,
     load_tilt_prior,
     predict_tilts_deg,
@@ -547,30 +546,6 @@ CV_VARIANTS = (
 0, 1, 3, 10, 30 by the prior's own major-angle MAE in 5-fold CV on ``training``)."""
 
 
-def fit_weighted(
-    tilts_deg: np.ndarray,
-    chord_deg: np.ndarray,
-    window: tuple[int, ...],
-    ridge: float,
-    weights: np.ndarray,
-    placement: str = "clipped",
-) -> np.ndarray:
-    """``tilt_prior.fit_coefficients`` with a weight per spine and vertebra (n, 17): per vertebra i,
-    min_c Σ_n w_ni (X_n c − θ_ni)² + λ‖c‖² subject to 1ᵀc = 1 (KKT system as there)."""
-    idx = chord_windows(window, placement)
-    k = len(window)
-    coefficients = np.empty((N_LEVELS, k))
-    for i in range(N_LEVELS):
-        X = chord_deg[:, idx[i]]
-        w = weights[:, i]
-        kkt = np.zeros((k + 1, k + 1))
-        kkt[:k, :k] = X.T @ (w[:, None] * X) + ridge * np.eye(k)
-        kkt[:k, k] = kkt[k, :k] = 1.0
-        rhs = np.concatenate([X.T @ (w * tilts_deg[:, i]), [1.0]])
-        coefficients[i] = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:k]
-    return coefficients
-
-
 def end_weights(tilts_deg: np.ndarray, end_weight: float) -> np.ndarray:
     """1 for every vertebra, 1 + ``end_weight`` for each spine's most and least tilted vertebra."""
     w = np.ones_like(tilts_deg)
@@ -608,8 +583,8 @@ def cross_validate(
             coefficients = []
             for f in range(folds):
                 train = (fold != f) & fit_on
-                w = end_weights(tilts[train], variant.end_weight)
-                fitted = fit_weighted(tilts[train], chords[train], variant.window, variant.ridge, w, variant.placement)
+                fitted = fit_coefficients(tilts[train], chords[train], variant.window, variant.ridge, variant.placement,
+                                          weights=end_weights(tilts[train], variant.end_weight))  # fmt: skip
                 blend = variant.blend
                 if blend is None:
                     blend, _ = choose_blend(

@@ -4,7 +4,7 @@ numbers (no AASCE data)."""
 import numpy as np
 
 from spine_engine import reconstruction
-from spine_engine.experiments.aasce import end_weights, fit_weighted, prior_in_use
+from spine_engine.experiments.aasce import end_weights, prior_in_use
 from spine_engine.tilt_prior import (
     WINDOW,
     TiltPrior,
@@ -26,13 +26,13 @@ def _made_up(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
 
 def test_unit_weights_give_the_shipped_fit() -> None:
     tilts, chords = _made_up()
-    weighted = fit_weighted(tilts, chords, WINDOW, 1e-3, np.ones_like(tilts))
+    weighted = fit_coefficients(tilts, chords, WINDOW, 1e-3, weights=np.ones_like(tilts))
     np.testing.assert_allclose(weighted, fit_coefficients(tilts, chords), atol=1e-10)
 
 
 def test_weighted_fit_keeps_the_sum_of_coefficients() -> None:
     tilts, chords = _made_up()
-    coefficients = fit_weighted(tilts, chords, tuple(range(-16, 16)), 1e-3, end_weights(tilts, 3.0))
+    coefficients = fit_coefficients(tilts, chords, tuple(range(-16, 16)), 1e-3, weights=end_weights(tilts, 3.0))
     np.testing.assert_allclose(coefficients.sum(axis=1), 1.0, atol=1e-9)
 
 
