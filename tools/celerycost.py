@@ -32,9 +32,9 @@ from services.db import jobs as jobs_repo
 from services.db.engine import session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job
-from tools.loadbench import ensure_database, worker_pids
+from tools.loadbench import cpu_seconds_of, ensure_database, worker_pids
 from tools.processes import stop_processes
-from tools.workercost import PAYLOADS, Server, _process_cpu_s, measure
+from tools.workercost import PAYLOADS, Server, measure
 
 WARMUP = 40
 APPLICATION_NAME = "spine-celerycost-worker"
@@ -85,14 +85,14 @@ def main(argv: list[str] | None = None) -> int:
             _wait_final(settings, args.n, 120)
             server = Server(settings, APPLICATION_NAME)
             pids = [worker.pid, *worker_pids(worker.pid)]
-            by_pid = {pid: _process_cpu_s([pid]) for pid in pids}
-            worker_cpu, pg_cpu = _process_cpu_s(pids), server.reading()
+            by_pid = {pid: cpu_seconds_of([pid]) for pid in pids}
+            worker_cpu, pg_cpu = cpu_seconds_of(pids), server.reading()
             started = time.perf_counter()
             enqueue(app, ids[WARMUP:])
             _wait_final(settings, 0, 600)
             wall_s = time.perf_counter() - started
-            by_pid = {pid: _process_cpu_s([pid]) - cpu for pid, cpu in by_pid.items()}
-            worker_cpu, pg_cpu = _process_cpu_s(pids) - worker_cpu, server.reading() - pg_cpu
+            by_pid = {pid: cpu_seconds_of([pid]) - cpu for pid, cpu in by_pid.items()}
+            worker_cpu, pg_cpu = cpu_seconds_of(pids) - worker_cpu, server.reading() - pg_cpu
         finally:
             stop_processes([worker])
             with app.connection_for_write() as conn:
