@@ -284,10 +284,11 @@ def distributed_service(
 
 
 def _purge_queue(url: str, queue: str) -> None:
+    """Delete a test queue's keys from Redis: the queue, its priority lists and kombu's binding keys."""
     import redis
 
     client = redis.Redis.from_url(url)
-    client.delete(queue, *client.keys(f"{queue}*"))
+    client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
 
 
 @pytest.fixture(params=["embedded", "distributed"])

@@ -17,15 +17,9 @@ from tests.conftest import _purge_queue
 
 @pytest.fixture
 def queue(redis_url: str) -> Iterator[str]:
-    import redis
-
     name = f"test-broker-{uuid.uuid4().hex[:8]}"
     yield name
     _purge_queue(redis_url, name)
-    client = redis.Redis.from_url(redis_url)
-    bindings = client.keys(f"_kombu.binding*.{name}*")
-    if bindings:
-        client.delete(*bindings)
 
 
 def _settings(tmp_path: Path, broker_url: str, queue: str) -> Settings:
