@@ -37,7 +37,7 @@ from services.db.engine import session_scope
 from services.db.keys import create_key, revoke
 from services.db.migrate import upgrade
 from tools.loadbench import check_loopback
-from tools.processes import stop_processes
+from tools.processes import run_tool, stop_processes
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -309,4 +309,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main, "badinput")

@@ -33,7 +33,7 @@ from services.db.engine import session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job
 from tools.loadbench import cpu_seconds_of, ensure_database, worker_pids
-from tools.processes import stop_processes
+from tools.processes import run_tool, stop_processes
 from tools.workercost import PAYLOADS, Server, measure
 
 WARMUP = 40
@@ -115,4 +115,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_tool(main, "celerycost")

@@ -46,7 +46,7 @@ from urllib.parse import urlparse
 
 import httpx
 
-from tools.processes import stop_processes
+from tools.processes import run_tool, stop_processes
 
 FINAL = {"succeeded", "failed", "cancelled"}
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
@@ -475,7 +475,9 @@ def ensure_database(url: str) -> None:
             conn.execute(f'CREATE DATABASE "{target.database}"')
 
 
-def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[bytes]]:
+def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[bytes]]) -> None:
+    """Start the API and the workers, appending each process to ``procs`` as it starts (so that the
+    caller stops them whenever this is interrupted), and wait until the API is ready."""
     env = dict(os.environ)
     if "DATABASE_URL" not in env or "CELERY_BROKER_URL" not in env:
         raise SystemExit("--spawn measures the distributed service: set DATABASE_URL and CELERY_BROKER_URL")
@@ -487,7 +489,6 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
                                  check=True, capture_output=True, text=True)  # fmt: skip
         args.api_key = created.stdout.strip().splitlines()[-1]
     port = urlparse(args.url).port or 80
-    procs = []
     log_dir.mkdir(parents=True, exist_ok=True)
     api_cmd = [*spine, "serve", "--no-worker", "--host", "127.0.0.1", "--port", str(port),
                "--workers", str(args.api_processes)]  # fmt: skip
@@ -506,11 +507,10 @@ def spawn(args: argparse.Namespace, log_dir: Path) -> list[subprocess.Popen[byte
         try:
             if httpx.get(args.url + "/readyz", timeout=2).status_code == 200:
                 time.sleep(3)  # let the workers connect
-                return procs
+                return
         except httpx.HTTPError:
             pass
         time.sleep(0.5)
-    stop_processes(procs)
     raise SystemExit("the spawned service did not become ready; see " + str(log_dir))
 
 
@@ -564,9 +564,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.own_redis_server = OwnRedis(args.log_dir)
         args.own_redis_server.start()
         os.environ["CELERY_BROKER_URL"] = args.own_redis_server.url
+    procs: list[subprocess.Popen[bytes]] = []
     try:
-        procs = spawn(args, args.log_dir) if args.spawn else []
         try:
+            if args.spawn:
+                spawn(args, args.log_dir, procs)
             report = asyncio.run(asyncio.wait_for(run(args), timeout=args.max_seconds + 120))
         finally:
             stop_processes(procs)
@@ -589,4 +591,4 @@ def exit_code(report: dict[str, Any]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main, "loadbench")

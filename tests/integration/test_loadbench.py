@@ -3,8 +3,10 @@ against a spawned distributed service (PostgreSQL + Redis + a `spine worker`).""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -12,6 +14,7 @@ import time
 import uuid
 from pathlib import Path
 
+import httpx
 import pytest
 
 from tools import loadbench
@@ -111,3 +114,111 @@ def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, postgres_store_u
         _purge_queue(redis_url, queue)
         with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
             admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
+
+
+def _session_members(session_ids: set[int]) -> set[int]:
+    """Live processes whose session is one of ``session_ids`` (the bench starts each service process
+    in its own session, so a session holds that process and its children: a worker's pool)."""
+    members = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[3]) in session_ids:
+            members.add(int(entry.name))
+    return members
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_interrupts_a_pending_asyncio_gather(stop_signal: signal.Signals) -> None:
+    """``run_tool``: SIGTERM or SIGINT raises KeyboardInterrupt out of ``asyncio.run`` even
+    while a ``gather`` is pending (the load bench's phases), so the tool's ``finally`` runs. Without
+    it SIGTERM kills the process at once, and SIGINT only cancels the main task (seen absorbed)."""
+    script = f"""
+import asyncio, os, signal
+from tools.processes import run_tool
+async def phase():
+    asyncio.get_running_loop().call_later(0.2, os.kill, os.getpid(), signal.{stop_signal.name})
+    await asyncio.gather(*(asyncio.sleep(30) for _ in range(3)))
+def main():
+    try:
+        asyncio.run(phase())
+    finally:
+        print("finally ran")
+    return 0
+run_tool(main, "tool")
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=20)
+    assert (done.returncode, done.stdout.strip()) == (130, "finally ran"), done.stderr
+    assert f"tool: stopped by {stop_signal.name}" in done.stderr
+
+
+@pytest.mark.integration
+def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, postgres_store_url: str,
+                                                         redis_url: str) -> None:  # fmt: skip
+    """SIGTERM (a QA script's timeout) in the middle of a phase: the bench exits with 130 and stops
+    the API and the worker with its pool. Before, they kept running after the bench had gone."""
+    stop_signal = signal.SIGTERM
+    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadstop_{uuid.uuid4().hex[:8]}"
+    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
+    env = {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
+           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
+    url = f"http://127.0.0.1:{_free_port()}"
+    cmd = [sys.executable, "-m", "tools.loadbench", "--spawn", "--url", url, "--phases", "latency",
+           "--rate", "5", "--rate-seconds", "600", "--warmup-seconds", "0", "--max-seconds", "700",
+           "--log-dir", str(tmp_path / "logs")]  # fmt: skip
+    sessions: set[int] = set()
+    bench = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and len(sessions) < 2:  # the API and the worker
+            time.sleep(0.5)
+            sessions = {int(p.name) for p in Path("/proc").glob("[0-9]*")
+                        if _parent_of(int(p.name)) == bench.pid}  # fmt: skip
+        assert len(sessions) == 2, "the bench did not start the API and a worker"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not _ready(url):
+            time.sleep(0.5)
+        time.sleep(5)  # past the bench's 3 s wait for the workers: the phase runs, POSTs in flight
+        started = _session_members(sessions)
+        assert len(started) >= 3, started  # API, the worker's main process and at least one pool process
+        bench.send_signal(stop_signal)
+        _, err = bench.communicate(timeout=60)
+        assert bench.returncode == 130, err[-2000:]
+        assert "stopped by" in err
+        deadline = time.monotonic() + 10  # a pool process may end just after its parent
+        while _session_members(sessions) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = {pid: Path(f"/proc/{pid}/cmdline").read_bytes() for pid in _session_members(sessions)}
+        assert left == {}
+    finally:
+        if bench.poll() is None:
+            bench.kill()
+            bench.wait()
+        for pid in _session_members(sessions):  # what a failed stop left behind
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        import psycopg
+
+        from tests.conftest import PG_ADMIN_URL, _purge_queue
+
+        _purge_queue(redis_url, queue)
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+            admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
+
+
+def _ready(url: str) -> bool:
+    try:
+        return httpx.get(url + "/readyz", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+def _parent_of(pid: int) -> int:
+    try:
+        return int((Path(f"/proc/{pid}/stat")).read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return 0
