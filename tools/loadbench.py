@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
+import aiohttp
 import httpx
 
 from tools.processes import run_tool, stop_processes
@@ -97,38 +98,44 @@ class Phase:
     submitted_by: float = 0.0
 
 
-async def post_one(client: httpx.AsyncClient, phase: Phase, i: int) -> None:
+CLIENT_ERRORS = (aiohttp.ClientError, asyncio.TimeoutError)
+"""What a request of the load generator can fail with (refused, reset, timed out)."""
+
+
+async def post_one(client: aiohttp.ClientSession, phase: Phase, i: int) -> None:
     sent = time.time()
     t0 = time.perf_counter()
     try:
-        response = await client.post("/v1/jobs", json=payload(i))
-    except httpx.HTTPError:
+        async with client.post("/v1/jobs", json=payload(i)) as response:
+            body = await response.json() if response.status == 202 else None
+    except CLIENT_ERRORS:
         phase.errors += 1
         return
     phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
-    if response.status_code == 202:
-        phase.sent_at[response.json()["id"]] = sent
+    if body is not None:
+        phase.sent_at[body["id"]] = sent
     else:
         phase.errors += 1
 
 
-async def post_batch(client: httpx.AsyncClient, phase: Phase, start: int, size: int) -> None:
+async def post_batch(client: aiohttp.ClientSession, phase: Phase, start: int, size: int) -> None:
     sent = time.time()
     t0 = time.perf_counter()
     try:
-        response = await client.post("/v1/jobs/batch", json={"jobs": [payload(start + k) for k in range(size)]})
-    except httpx.HTTPError:
+        async with client.post("/v1/jobs/batch", json={"jobs": [payload(start + k) for k in range(size)]}) as response:
+            body = await response.json() if response.status == 200 else {}
+    except CLIENT_ERRORS:
         phase.errors += size
         return
     phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
-    for entry in response.json().get("results", []) if response.status_code == 200 else []:
+    for entry in body.get("results", []):
         if entry.get("job"):
             phase.sent_at[entry["job"]["id"]] = sent
         else:
             phase.errors += 1
 
 
-async def fixed_rate(client: httpx.AsyncClient, rate: float, seconds: float) -> Phase:
+async def fixed_rate(client: aiohttp.ClientSession, rate: float, seconds: float) -> Phase:
     phase = Phase("latency", started=time.time())
     count = int(rate * seconds)
     t0 = time.perf_counter()
@@ -144,7 +151,7 @@ async def fixed_rate(client: httpx.AsyncClient, rate: float, seconds: float) -> 
 
 
 async def flood(
-    client: httpx.AsyncClient, jobs: int, concurrency: int, batch: int, deadline: float, fault: Fault | None = None
+    client: aiohttp.ClientSession, jobs: int, concurrency: int, batch: int, deadline: float, fault: Fault | None = None
 ) -> Phase:
     phase = Phase("throughput", started=time.time())
     next_index = 0
@@ -170,10 +177,15 @@ async def flood(
     return phase
 
 
-async def jobs_in_flight(client: httpx.AsyncClient) -> dict[str, int]:
+async def get_text(client: aiohttp.ClientSession, path: str) -> str:
+    async with client.get(path) as response:
+        return await response.text()
+
+
+async def jobs_in_flight(client: aiohttp.ClientSession) -> dict[str, int]:
     """Queued and running jobs now, from the API's /metrics (``spine_jobs{status=...}``)."""
     counts = {"queued": 0, "running": 0}
-    for line in (await client.get("/metrics")).text.splitlines():
+    for line in (await get_text(client, "/metrics")).splitlines():
         for status in counts:
             if line.startswith(f'spine_jobs{{status="{status}"}}'):
                 counts[status] = int(float(line.rsplit(" ", 1)[1]))
@@ -196,7 +208,7 @@ class Fault:
     """CPU seconds, by role, of the processes the fault killed, read just before: a dead process
     leaves ``/proc`` with its time, which the phase's CPU figures must still count."""
 
-    async def inject(self, client: httpx.AsyncClient) -> None:
+    async def inject(self, client: aiohttp.ClientSession) -> None:
         self.report["in_flight_at_fault"] = await jobs_in_flight(client)
         self.report["at"] = time.time()
         if self.kind == "kill-worker":
@@ -271,26 +283,25 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-async def wait_final(client: httpx.AsyncClient, since: datetime, deadline: float) -> None:
-    params: list[tuple[str, str | int | float | bool | None]] = [
-        ("status", "queued"), ("status", "running"), ("created_after", since.isoformat()), ("limit", "1"),
-    ]  # fmt: skip
+async def wait_final(client: aiohttp.ClientSession, since: datetime, deadline: float) -> None:
+    params = [("status", "queued"), ("status", "running"), ("created_after", since.isoformat()), ("limit", "1")]
     while time.monotonic() < deadline:
-        response = await client.get("/v1/jobs", params=params)
-        if response.status_code == 200 and not response.json()["jobs"]:
-            return
+        async with client.get("/v1/jobs", params=params) as response:
+            if response.status == 200 and not (await response.json())["jobs"]:
+                return
         await asyncio.sleep(1.0)
 
 
-async def read_back(client: httpx.AsyncClient, since: datetime) -> dict[str, tuple[str, str | None, str | None]]:
+async def read_back(client: aiohttp.ClientSession, since: datetime) -> dict[str, tuple[str, str | None, str | None]]:
     """id -> (status, started_at, finished_at) of every job created since ``since``."""
     seen: dict[str, tuple[str, str | None, str | None]] = {}
     cursor = None
     while True:
-        params: dict[str, Any] = {"created_after": since.isoformat(), "limit": 500}
+        params: dict[str, str | int] = {"created_after": since.isoformat(), "limit": 500}
         if cursor:
             params["cursor"] = cursor
-        page = (await client.get("/v1/jobs", params=params, timeout=60)).json()
+        async with client.get("/v1/jobs", params=params, timeout=aiohttp.ClientTimeout(total=60)) as response:
+            page = await response.json()
         for job in page["jobs"]:
             seen[job["id"]] = (job["status"], job["started_at"], job["finished_at"])
         cursor = page["next_cursor"]
@@ -389,10 +400,12 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     deadline = time.monotonic() + args.max_seconds
     # Open loop: enough connections that a slow answer never makes the next request wait for one.
     pool = max(args.concurrency, int(args.rate)) + 4
-    limits = httpx.Limits(max_connections=pool, max_keepalive_connections=pool)
     report: dict[str, Any] = {"url": args.url}
     headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
-    async with httpx.AsyncClient(base_url=args.url, timeout=30, limits=limits, headers=headers) as client:
+    # aiohttp, not httpx: the generator shares the service's cores, and httpx took about 3 times its
+    # CPU per POST (4.3-4.5 against 1.2-1.5 ms here, docs/performance.md, 2026-12-02).
+    async with aiohttp.ClientSession(base_url=args.url, timeout=aiohttp.ClientTimeout(total=30), headers=headers,
+                                     connector=aiohttp.TCPConnector(limit=pool)) as client:  # fmt: skip
         if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
             warm = await fixed_rate(client, args.rate, args.warmup_seconds)
             await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
@@ -429,9 +442,9 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     return report
 
 
-async def server_histogram(client: httpx.AsyncClient) -> dict[float, float]:
+async def server_histogram(client: aiohttp.ClientSession) -> dict[float, float]:
     """Cumulative bucket counts of the API's own POST /v1/jobs and /batch timings (from /metrics)."""
-    text = (await client.get("/metrics")).text
+    text = await get_text(client, "/metrics")
     buckets: dict[float, float] = {}
     for line in text.splitlines():
         if line.startswith("spine_http_request_duration_seconds_bucket") and 'method="POST"' in line:
