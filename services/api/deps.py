@@ -124,6 +124,11 @@ def _is_json(content_type: str) -> bool:
     return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
 
 
+def _too_large(limit: int, instance: str) -> ProblemError:
+    return ProblemError(problem("payload-too-large", f"the body is larger than {limit} bytes", instance=instance,
+                                limit=limit))  # fmt: skip
+
+
 async def read_json(request: Request, limit: int) -> Any:
     """The request body as JSON: 415 if not JSON, 413 over ``limit`` bytes, 400 if malformed."""
     instance = request.url.path
@@ -146,15 +151,14 @@ async def read_json(request: Request, limit: int) -> Any:
             )
         )  # fmt: skip
     declared = request.headers.get("content-length")
-    too_large = problem("payload-too-large", f"the body is larger than {limit} bytes", instance=instance, limit=limit)
     if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise ProblemError(too_large)
+        raise _too_large(limit, instance)
     chunks: list[bytes] = []
     size = 0
     async for chunk in request.stream():
         size += len(chunk)
         if size > limit:
-            raise ProblemError(too_large)
+            raise _too_large(limit, instance)
         chunks.append(chunk)
     raw = b"".join(chunks)
     try:
