@@ -24,9 +24,12 @@ are needed, by the delta method:
 computed for all functionals at once with one Cholesky factorisation of H and a triangular solve
 (``functional_variances``): Var f_k = ‖L⁻¹ g_k‖² with H = L Lᵀ. The vertebra block of H is banded
 (half-bandwidth 11) with a dense border of projection parameters, and ``functional_variances``
-has that bordered band solve (``n_band``); at N = 17 (H about 110 × 110) the dense Cholesky was
-as fast or faster when measured (0.8 against 1.2 ms for all 75 functionals on the loaded 2-core
-VM), so ``solution_uncertainty`` uses the dense one.
+has that bordered band solve (``n_band``); at N = 17 (H 93 × 93 to 109 × 109) the dense
+Cholesky is the cheaper: 0.83 against 1.50 million instructions per call for the ~71 functionals
+(valgrind callgrind, deterministic, 2026-12-02, docs/performance.md: LAPACK's band triangular
+solve ``dtbtrs`` takes the right-hand sides one at a time, and gathering the band costs more than
+the band factorisation saves), so ``solution_uncertainty`` uses the dense one. H itself is summed
+over the nonzero entries of each row of J only (``weighted_gram``).
 
 Functionals (``functional_gradients``; gradients analytic, checked against finite differences in
 tests/engine/test_uncertainty.py):
