@@ -109,6 +109,24 @@ def test_bordered_variances_agree_with_the_inverse() -> None:
     np.testing.assert_allclose(unc.functional_variances(H, G, n_band=nb), expected, rtol=1e-9)
 
 
+def test_weighted_gram_equals_the_dense_product() -> None:
+    """Σ_k w_k J_kᵀJ_k over each row's nonzero entries (``weighted_gram``) equals (J * w)ᵀ J for a
+    sparse J like the fit's (rows touching two blocks of 12 columns and a border of 3), to rounding;
+    an empty row and a fully dense one included."""
+    rng = np.random.default_rng(3)
+    m, n = 60, 45
+    J = np.zeros((m, n))
+    for k in range(m - 2):
+        start = 6 * rng.integers(0, (n - 3) // 6 - 1)
+        J[k, start : start + 12] = rng.normal(size=12) * (rng.random(12) > 0.2)
+        J[k, n - 3 :] = rng.normal(size=3) * (rng.random() > 0.5)
+    J[-1] = rng.normal(size=n)
+    w = rng.uniform(0.1, 2.0, m)
+    H = unc.weighted_gram(J, w)
+    np.testing.assert_allclose(H, (J * w[:, None]).T @ J, rtol=1e-13, atol=1e-13 * np.abs(H).max())
+    assert np.array_equal(H, H.T)
+
+
 def test_temperature() -> None:
     """τ = w σ²/s²: a row √w·e/s with e ~ N(0, σ²) has variance τ."""
     rng = np.random.default_rng(1)
