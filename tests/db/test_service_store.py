@@ -415,3 +415,10 @@ def test_the_partial_indexes_still_serve_their_queries(db_settings: Settings) ->
             condition = next(line for line in plan.splitlines() if "Index Cond" in line)
             assert "COALESCE(owner" in condition and "idempotency_key" in condition, plan
 
+
+@pytest.mark.parametrize("db_settings", ["postgresql"], indirect=True)
+def test_a_batch_of_jobs_is_one_insert_statement_on_postgresql(db_settings: Settings) -> None:
+    """``create_jobs`` of 100 payloads sends one multi-row INSERT (insertmanyvalues), not 100."""
+    sent = _statements(db_settings, lambda s: repo.create_jobs(s, [spine_payload()] * 100, owner="c"))
+    inserts = [(sql, p) for sql, p in sent if sql.lstrip().startswith("INSERT INTO jobs")]
+    assert len(inserts) == 1 and isinstance(inserts[0][1], dict), [sql[:80] for sql, _ in sent]
