@@ -5,11 +5,14 @@ database given (PostgreSQL: an empty database, migrated here).
 
 It also counts the SQL statements the worker sent per job (SQLAlchemy's ``before_cursor_execute``)
 and on PostgreSQL the CPU time of the server processes that ran them (``/proc/<pid>/stat`` of this
-database's backends).
+database's backends). The jobs are stored first as POST /v1/jobs/batch stores them (``create_jobs``
+of 100 payloads and their audit rows, one transaction), and that insert's CPU is given too: this
+process's and, on PostgreSQL, the backends'.
 
-``python -m tools.workercost [N] [--database-url URL] [--payload hops|loadbench] [--without-fit]``
-(``loadbench``: the load bench's payloads, ``tools.loadbench.payload(i)``, whose curve varies by
-job; ``--without-fit``: the claim, the validation and the finish only, with one fixed result)
+``python -m tools.workercost [N] [--database-url URL] [--payload hops|loadbench] [--without-fit]
+[--insert-only]`` (``loadbench``: the load bench's payloads, ``tools.loadbench.payload(i)``, whose
+curve varies by job; ``--without-fit``: the claim, the validation and the finish only, with one
+fixed result; ``--insert-only``: the insert of N jobs and nothing else)
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from services.core.config import Settings
 from services.db import jobs as jobs_repo
 from services.db import runs
 from services.db.engine import session_scope, worker_connection
+from services.db.keys import Caller, audit
 from services.db.migrate import upgrade
 from services.worker.tasks import execute_job
 from spine_engine.reconstruction import register_model
@@ -39,6 +43,8 @@ from spine_engine.validation import validate_payload
 from tools import hops, loadbench
 
 WARMUP = 20
+BATCH = 100
+"""Payloads per insert, as the load bench's batches."""
 PAYLOADS: dict[str, Callable[[int], dict[str, Any]]] = {
     "hops": lambda _i: hops.payload(),
     "loadbench": loadbench.payload,
@@ -93,14 +99,40 @@ def run_without_fit(settings: Settings) -> Callable[[uuid.UUID], str]:
     return run
 
 
+def insert_jobs(settings: Settings, payloads: list[dict[str, Any]]) -> list[uuid.UUID]:
+    """Store the payloads as queued jobs of one client as the batch endpoint does (``create_jobs``
+    of ``BATCH`` at a time with their ``create`` audit rows, one transaction each)."""
+    caller = Caller(key_id="workercost", name="workercost", role="client")
+    ids: list[uuid.UUID] = []
+    for start in range(0, len(payloads), BATCH):
+        with session_scope(settings) as session:
+            jobs = jobs_repo.create_jobs(
+                session,
+                payloads[start : start + BATCH],
+                owner=caller.owner,
+                on_insert=lambda s, job_ids: audit(s, caller, "create", job_ids, None),
+            )
+        ids.extend(job.id for job in jobs)
+    return ids
+
+
 def measure(
-    settings: Settings, n: int, make_payload: Callable[[int], dict[str, Any]], fit: bool = True
+    settings: Settings, n: int, make_payload: Callable[[int], dict[str, Any]], fit: bool = True,
+    insert_only: bool = False,
 ) -> dict[str, Any]:
     """Worker CPU ms per job, wall ms per job, register() CPU ms per call (None without the fit), SQL
-    statements and PostgreSQL backends' CPU ms per job (None on SQLite), outcomes."""
+    statements and PostgreSQL backends' CPU ms per job (None on SQLite), outcomes; the insert's CPU
+    ms per job, this process's and the backends' (None on SQLite)."""
     upgrade(settings, quiet=True)
-    with session_scope(settings) as session:
-        ids = [jobs_repo.create_job(session, make_payload(i))[0].id for i in range(n + WARMUP)]
+    server = Server(settings)
+    payloads = [make_payload(i) for i in range(n + WARMUP)]
+    insert_jobs(settings, payloads[:BATCH])  # warm-up: connections, statement caches (not run)
+    pg_cpu, cpu = server.reading(), _cpu_s()
+    ids = insert_jobs(settings, payloads)
+    insert_ms, insert_pg_ms = (_cpu_s() - cpu) * 1000 / len(ids), (server.reading() - pg_cpu) * 1000 / len(ids)
+    inserted = {"insert_ms": insert_ms, "insert_postgres_ms": insert_pg_ms if server.postgres else None}
+    if insert_only:
+        return inserted
     run = (lambda job_id: execute_job(settings, job_id)) if fit else run_without_fit(settings)
     for job_id in ids[:WARMUP]:
         run(job_id)
@@ -109,7 +141,6 @@ def measure(
     def count(*_: Any) -> None:
         statements[0] += 1
 
-    server = Server(settings)
     pg_cpu = server.reading()
     event.listen(Engine, "before_cursor_execute", count)
     cpu, started = _cpu_s(), time.perf_counter()
@@ -132,6 +163,7 @@ def measure(
         "statements": statements[0] / n,
         "postgres_ms": pg_cpu * 1000 / n if server.postgres else None,
         "outcomes": outcomes,
+        **inserted,
     }
 
 
@@ -142,10 +174,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--payload", choices=sorted(PAYLOADS), default="hops")
     parser.add_argument("--without-fit", action="store_true",
                         help="claim, validation and finish only (one fixed result), no register()")  # fmt: skip
+    parser.add_argument("--insert-only", action="store_true", help="the insert of N jobs only, no run")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings(data_dir=Path(tmp), database_url=args.database_url)
-        m = measure(settings, args.n, PAYLOADS[args.payload], fit=not args.without_fit)
+        m = measure(settings, args.n, PAYLOADS[args.payload], fit=not args.without_fit, insert_only=args.insert_only)
+    pg_insert = m["insert_postgres_ms"]
+    insert = "" if pg_insert is None else f", PostgreSQL backends {pg_insert:.2f} ms CPU/job"
+    inserted = f"the insert (batches of {BATCH} with audit rows): CPU {m['insert_ms']:.2f} ms/job{insert}"
+    if args.insert_only:
+        print(f"{args.n} jobs ({args.payload} payload) {inserted}")
+        return 0
     fit = (
         ""
         if m["fit_ms"] is None
@@ -155,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{args.n} jobs {sorted(m['outcomes'])} ({args.payload} payload{', without the fit' * args.without_fit}): "
         f"CPU {m['worker_ms']:.2f} ms/job, wall {m['wall_ms']:.2f} ms/job{fit}; "
-        f"{m['statements']:.2f} SQL statements/job{server}"
+        f"{m['statements']:.2f} SQL statements/job{server}; "
+        f"{inserted}"
     )
     return 0
 

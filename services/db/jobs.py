@@ -22,9 +22,12 @@ from datetime import datetime
 from typing import Any
 
 from sqlalchemy import (
+    ColumnElement,
     CursorResult,
     and_,
+    func,
     insert,
+    literal_column,
     or_,
     select,
     update,
@@ -144,9 +147,18 @@ def _detached(values: dict[str, Any]) -> Job:
     return Job(**row)
 
 
+def _owner_match(owner: str | None) -> ColumnElement[bool]:
+    """The jobs of ``owner`` (None: the admin's, owner NULL), written twice: as the unique index
+    ``uq_jobs_owner_idempotency_key`` keys them (``coalesce(owner, '')``), so that a lookup by key is
+    a search of that index, not a scan of all of it (``owner = :owner`` alone cannot use the index's
+    first column: 4 ms and 700 pages at 300,000 jobs), and exactly (an owner named ``''``). The
+    ``''`` is a literal, as in the index's expression: a bound parameter there would not match it."""
+    exact = Job.owner.is_(None) if owner is None else Job.owner == owner
+    return and_(func.coalesce(Job.owner, literal_column("''")) == (owner or ""), exact)
+
+
 def _by_idempotency_key(session: Session, owner: str | None, key: str) -> Job | None:
-    owner_match = Job.owner.is_(None) if owner is None else Job.owner == owner
-    return session.scalars(select(Job).where(owner_match, Job.idempotency_key == key)).first()
+    return session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key == key)).first()
 
 
 def _replay(existing: Job, digest: str | None) -> tuple[Job, bool]:
@@ -277,8 +289,7 @@ def create_jobs_idempotent(
 ) -> list[Outcome]:
     """Store the (index, payload) pairs under ``key#index``; replay those already stored."""
     keys = [entry_key(key, i) for i, _ in payloads]
-    owner_match = Job.owner.is_(None) if owner is None else Job.owner == owner
-    stored = session.scalars(select(Job).where(owner_match, Job.idempotency_key.in_(keys)))
+    stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys)))
     existing = {j.idempotency_key: j for j in stored}
     now = utcnow()
     outcomes: list[Outcome | None] = []

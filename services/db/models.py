@@ -91,6 +91,13 @@ UtcTimestamp = Annotated[
 form drops a zero fraction); its schema stays a plain ``date-time``."""
 
 
+def _where_not_null(column: str) -> dict[str, Any]:
+    """The keyword arguments of a partial ``Index`` over the rows whose ``column`` is not NULL, on
+    PostgreSQL and on SQLite."""
+    predicate = f"{column} IS NOT NULL"
+    return {"postgresql_where": text(predicate), "sqlite_where": text(predicate)}
+
+
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
 
@@ -133,25 +140,35 @@ class Job(Base):
         Index("ix_jobs_created_at_id", "created_at", "id"),
         Index("ix_jobs_status_created_at_id", "status", "created_at", "id"),
         Index("ix_jobs_owner_created_at_id", "owner", "created_at", "id"),
-        Index("ix_jobs_finished_at", "finished_at"),
+        # Partial indexes (migration 0010): a row version whose column is NULL gets no entry, so the
+        # API's insert and the worker's claim skip them (the claim and the finish change status, so
+        # they are not HOT updates and add an entry to every index whose predicate the new version
+        # meets: PostgreSQL 15 docs, 73.7 Heap-Only Tuples). Every query that uses one compares its
+        # column with a strict operator (=, <, >=), which implies IS NOT NULL: the planner still uses
+        # it (PostgreSQL 15 docs, 11.8 Partial Indexes; SQLite, Partial Indexes 2.2).
+        Index("ix_jobs_finished_at", "finished_at", **_where_not_null("finished_at")),
         # The per-client cap on queued jobs counts these (services/api/access.py): queued jobs only.
         Index("ix_jobs_owner_queued", "owner", postgresql_where=text("status = 'queued'"),
               sqlite_where=text("status = 'queued'")),
         # GET /v1/jobs?study_instance_uid=|accession_number=|patient_id= within an owner, newest first.
-        Index("ix_jobs_owner_study_instance_uid", "owner", "study_instance_uid", "created_at"),
-        Index("ix_jobs_owner_accession_number", "owner", "accession_number", "created_at"),
-        Index("ix_jobs_owner_patient_id", "owner", "patient_id", "created_at"),
-        Index("ix_jobs_dicom_store_due_at", "dicom_store_due_at"),
+        Index("ix_jobs_owner_study_instance_uid", "owner", "study_instance_uid", "created_at",
+              **_where_not_null("study_instance_uid")),
+        Index("ix_jobs_owner_accession_number", "owner", "accession_number", "created_at",
+              **_where_not_null("accession_number")),
+        Index("ix_jobs_owner_patient_id", "owner", "patient_id", "created_at", **_where_not_null("patient_id")),
+        Index("ix_jobs_dicom_store_due_at", "dicom_store_due_at", **_where_not_null("dicom_store_due_at")),
         # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
         Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
               sqlite_where=text("status = 'running'")),
+        # Unique per owner; jobs without a key have no entry (NULLs never conflict in a unique index).
         Index(
             "uq_jobs_owner_idempotency_key",
             func.coalesce(owner, ""),  # type: ignore[arg-type]
             idempotency_key,  # type: ignore[arg-type]
             unique=True,
+            **_where_not_null("idempotency_key"),
         ),
-    )
+    )  # fmt: skip
 
 
 class JobMeasures(Base):

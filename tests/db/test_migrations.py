@@ -12,7 +12,7 @@ import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import create_engine, inspect
+from sqlalchemy import Engine, create_engine, inspect
 
 from services.core.config import Settings
 from services.db.migrate import alembic_config, downgrade, upgrade
@@ -101,5 +101,43 @@ def test_results_are_compressed_with_lz4_where_the_server_has_it(fresh_postgres_
         downgrade(settings, "0008_webhook_attempt_unique")
         with engine.connect() as conn:
             assert conn.exec_driver_sql(query).scalar() == ""
+    finally:
+        engine.dispose()
+
+
+def _predicates(engine: Engine) -> dict[str, str | None]:
+    """Index name -> its WHERE text (None: not partial) of every index of ``jobs``, from the catalog
+    (SQLite cannot reflect the expression index, so its ``CREATE INDEX`` text is read instead)."""
+    with engine.connect() as conn:
+        if engine.dialect.name == "sqlite":
+            query = "SELECT name, sql FROM sqlite_master WHERE type = 'index' AND tbl_name = 'jobs'"
+            rows = conn.exec_driver_sql(query)
+        else:
+            rows = conn.exec_driver_sql("SELECT indexname, indexdef FROM pg_indexes WHERE tablename = 'jobs'")
+        found = {name: sql for name, sql in rows if sql is not None}  # SQLite's automatic indexes have none
+    return {name: sql.split(" WHERE ", 1)[1] if " WHERE " in sql else None for name, sql in found.items()}
+
+
+def test_the_partial_indexes_of_the_models_are_partial_in_the_database(empty_db: Settings) -> None:
+    """compare_metadata does not compare index predicates: the migrated ``jobs`` indexes have a WHERE
+    exactly where the models give one, naming the same column (revision 0010), and lose the new ones
+    when it goes down."""
+    dialect = "sqlite" if empty_db.sqlalchemy_url.startswith("sqlite") else "postgresql"
+    models = {
+        str(ix.name): ix.dialect_options[dialect]["where"] for ix in Base.metadata.tables["jobs"].indexes
+    }
+    upgrade(empty_db, quiet=True)
+    engine = create_engine(empty_db.sqlalchemy_url)
+    try:
+        found = _predicates(engine)
+        assert {n for n, w in found.items() if w is not None} == {n for n, w in models.items() if w is not None}
+        for name, where in models.items():
+            if where is not None:
+                column = str(where).split()[0]
+                assert column in str(found[name]), (name, found[name])
+        assert "idempotency_key IS NOT NULL" in str(found["uq_jobs_owner_idempotency_key"])
+        downgrade(empty_db, "0009_result_lz4")
+        partial = {n for n, w in _predicates(engine).items() if w is not None}
+        assert partial == {"ix_jobs_owner_queued", "ix_jobs_running_lease"}
     finally:
         engine.dispose()

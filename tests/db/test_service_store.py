@@ -8,16 +8,18 @@ from __future__ import annotations
 import copy
 import functools
 import uuid
+from collections.abc import Callable
 from datetime import timedelta
 from typing import Any
 
 import pytest
-from sqlalchemy import inspect, select, text, update
+from sqlalchemy import event, inspect, select, text, update
+from sqlalchemy.orm import Session
 
 from services.core.config import Settings
 from services.db import jobs as repo
 from services.db import runs, stats
-from services.db.engine import get_engine, session_scope, worker_connection
+from services.db.engine import PSYCOPG_CACHED_PARAMS, get_engine, session_scope, worker_connection
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from spine_engine.models import RegistrationResult
@@ -345,3 +347,80 @@ def test_the_reconcilers_queued_count_equals_the_count_by_status(db_settings: Se
         repo.cancel_job(s, ids[1])
     with session_scope(db_settings) as s:
         assert stats.count_all_queued(s) == before + 1 == stats.count_by_status(s)["queued"]
+
+
+def _statements(settings: Settings, call: Callable[[Session], object]) -> list[tuple[str, Any]]:
+    """The (SQL, parameters) of every statement ``call`` sent, in a session rolled back after."""
+    sent: list[tuple[str, Any]] = []
+
+    def record(_conn: Any, _cursor: Any, statement: str, parameters: Any, _context: Any, _many: bool) -> None:
+        sent.append((statement, parameters))
+
+    engine = get_engine(settings)
+    event.listen(engine, "before_cursor_execute", record)
+    try:
+        with Session(engine) as session:
+            call(session)
+            session.rollback()
+    finally:
+        event.remove(engine, "before_cursor_execute", record)
+    return sent
+
+
+def _served_by(settings: Settings, index: str, statement: str, parameters: Any) -> str:
+    """The plan of a SELECT on ``jobs`` when ``index`` is the only index the planner may take (the
+    test tables are nearly empty, so left alone it would take any): on SQLite the statement with
+    ``INDEXED BY`` (an error when the index cannot serve it); on PostgreSQL with the table's other
+    indexes dropped in a transaction rolled back after, and sequential scans priced out."""
+    with get_engine(settings).connect() as conn:
+        if conn.dialect.name == "sqlite":
+            forced = statement.replace("FROM jobs", f"FROM jobs INDEXED BY {index}", 1)
+            rows = conn.exec_driver_sql("EXPLAIN QUERY PLAN " + forced, parameters).all()
+            return "\n".join(str(row[-1]) for row in rows)
+        with conn.begin() as transaction:
+            others = conn.exec_driver_sql(
+                "SELECT indexname FROM pg_indexes WHERE tablename = 'jobs' AND indexname NOT IN (%(keep)s, 'pk_jobs')",
+                {"keep": index},
+            ).scalars().all()
+            for name in others:
+                conn.exec_driver_sql(f"DROP INDEX {name}")
+            conn.exec_driver_sql("SET LOCAL enable_seqscan = off")
+            plan = "\n".join(r[0] for r in conn.exec_driver_sql("EXPLAIN " + statement, parameters).all())
+            transaction.rollback()
+        return plan
+
+
+@BACKENDS
+def test_the_partial_indexes_still_serve_their_queries(db_settings: Settings) -> None:
+    """Migration 0010 made six indexes of ``jobs`` partial (column IS NOT NULL): each query that used
+    one still does (its strict comparison implies the predicate), on SQLite and PostgreSQL."""
+    since = utcnow() - timedelta(minutes=5)
+    queries: dict[str, Callable[[Session], object]] = {
+        "ix_jobs_owner_study_instance_uid": lambda s: repo.list_jobs(s, owner="c", study_instance_uid="1.2.3"),
+        "ix_jobs_owner_accession_number": lambda s: repo.list_jobs(s, owner="c", accession_number="A1"),
+        "ix_jobs_owner_patient_id": lambda s: repo.list_jobs(s, owner="c", patient_id="P1"),
+        "ix_jobs_finished_at": lambda s: stats.recent_durations(s, since),
+        # services/dicom/store.sweep's query
+        "ix_jobs_dicom_store_due_at": lambda s: s.execute(
+            select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < utcnow()).limit(100)
+        ).all(),
+        "uq_jobs_owner_idempotency_key": lambda s: repo.create_job(s, spine_payload(), owner="c", idempotency_key="k"),
+    }
+    for index, call in queries.items():
+        statement, parameters = _statements(db_settings, call)[0]
+        assert statement.lstrip().startswith("SELECT"), statement
+        plan = _served_by(db_settings, index, statement, parameters)
+        assert index in plan, (index, plan)
+        if index == "uq_jobs_owner_idempotency_key" and "Index Cond" in plan:  # PostgreSQL: searched by both keys
+            condition = next(line for line in plan.splitlines() if "Index Cond" in line)
+            assert "COALESCE(owner" in condition and "idempotency_key" in condition, plan
+
+
+@pytest.mark.parametrize("db_settings", ["postgresql"], indirect=True)
+def test_a_batch_of_jobs_is_a_few_multi_row_inserts_on_postgresql(db_settings: Settings) -> None:
+    """``create_jobs`` of 100 payloads sends multi-row INSERTs (insertmanyvalues), not 100, each small
+    enough for psycopg to cache its conversion (at most 50 parameters, 4,096 bytes)."""
+    sent = _statements(db_settings, lambda s: repo.create_jobs(s, [spine_payload()] * 100, owner="c"))
+    inserts = [(sql, p) for sql, p in sent if sql.lstrip().startswith("INSERT INTO jobs")]
+    assert 1 < len(inserts) <= 20, [sql[:80] for sql, _ in sent]
+    assert all(isinstance(p, dict) and len(p) <= PSYCOPG_CACHED_PARAMS and len(sql) <= 4096 for sql, p in inserts)
