@@ -148,7 +148,8 @@ def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e
 def polyline_length(points: FloatArray) -> float:
     """Σ_k |p_{k+1} − p_k| of points (k, d), in their units: the segment norms as
     ``np.linalg.norm(·, axis=1)`` computes them (√ of the row sums of squares), without its overhead."""
-    d = np.diff(points, axis=0)
+    points = np.asarray(points)
+    d = points[1:] - points[:-1]  # np.diff(points, axis=0), without its wrapper
     return float(np.sqrt((d * d).sum(axis=1)).sum())
 
 
