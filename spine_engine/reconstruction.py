@@ -139,7 +139,7 @@ def _initial_weak_with_boundary(
     try:
         if len(ends[0]) and len(ends[1]):
             return estimate_projection(
-                np.stack([top.position, bottom.position]), arrays.points[[ends[0][0], ends[1][0]]], e_c, e_r
+                np.array((top.position, bottom.position)), arrays.points[[ends[0][0], ends[1][0]]], e_c, e_r
             )
         t = arrays.indices / (n - 1.0)
         chord = (1.0 - t)[:, None] * top.position + t[:, None] * bottom.position
@@ -496,7 +496,8 @@ def _fit_report(
     )
     return FitReport(
         residuals=residuals,
-        mean_registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
+        # np.mean's arithmetic (add.reduce, then ÷ k) without its wrapper
+        mean_registration_error_mm=float(np.add.reduce(out.residuals_mm["pa"]) / len(out.residuals_mm["pa"])),
         energy_fit=out.energy_fit,
         energy_internal=out.energy_internal,
         iterations=out.iterations,

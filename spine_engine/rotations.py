@@ -211,5 +211,5 @@ def slerp(R0: ArrayLike, R1: ArrayLike, t: ArrayLike) -> FloatArray:
     R0 = np.asarray(R0, dtype=float)
     R1 = np.asarray(R1, dtype=float)
     t = np.asarray(t, dtype=float)
-    phi = log_so3(np.swapaxes(R0, -1, -2) @ R1)
+    phi = log_so3(R0.swapaxes(-1, -2) @ R1)
     return R0 @ exp_so3(t[..., None] * phi)

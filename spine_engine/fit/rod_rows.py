@@ -284,7 +284,7 @@ class RodRows:
     def evaluate(self, r: FloatArray, R: FloatArray, out: FloatArray) -> RodCache:
         """Write the 6(N−1) rod rows into ``out``."""
         ns = self.n - 1
-        Rt = np.swapaxes(R[:-1], 1, 2)
+        Rt = R[:-1].swapaxes(1, 2)
         phi = log_so3(Rt @ R[1:])
         v = (Rt @ (r[1:] - r[:-1])[:, :, None])[:, :, 0] * self._inv_ds
         rod = out[: 6 * ns].reshape(ns, 6)
