@@ -369,15 +369,30 @@ def _calibrated_shape_unit(
     return ds, positions, rotations
 
 
+RestShapeKey = tuple[tuple[float, ...], tuple[float, ...]] | None
+"""What a profile's rest shape depends on, hashable: None for the normal sagittal profile, else the
+calibrated shape's (17 inclinations in degrees, 16 length fractions)."""
+
+
+def rest_shape_key(profile: Profile) -> RestShapeKey:
+    """The ``RestShapeKey`` of ``profile`` (``Profile`` itself holds dicts and is not hashable)."""
+    if profile.rest_shape is None:
+        return None
+    return tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
+
+
+def rest_shape_unit_of(key: RestShapeKey) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``rest_shape_unit`` of any profile whose ``rest_shape_key`` is ``key`` (the same read-only arrays)."""
+    if key is None:
+        return (_UNIT_SEGMENT_LENGTHS, *_normal_profile_unit())
+    return _calibrated_shape_unit(*key)
+
+
 def rest_shape_unit(profile: Profile) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Segment lengths (16,) mm, positions (17, 3) mm and rotations (17, 3, 3) of the profile's
     rest shape at length scale 1 (read-only, computed once per shape): the normal sagittal profile,
     or the profile's calibrated ``rest_shape``. ``rest_model(profile)`` has these positions."""
-    if profile.rest_shape is None:
-        return (_UNIT_SEGMENT_LENGTHS, *_normal_profile_unit())
-    return _calibrated_shape_unit(
-        tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
-    )
+    return rest_shape_unit_of(rest_shape_key(profile))
 
 
 def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:

@@ -4,8 +4,12 @@ normalisation in ``rotation_between`` gives the bits of ``np.linalg.norm``."""
 import numpy as np
 import pytest
 
+from spine_engine.anatomy import list_profiles, load_profile, rest_shape_unit
+from spine_engine.clinical import polyline_length, size_factor
+from spine_engine.fit import ViewData
 from spine_engine.fit.banded import UPPER3
 from spine_engine.fit.initial import _BAND_ROW, _band_bins
+from spine_engine.projection import image_axes
 from spine_engine.rotations import hat, rotation_between
 
 
@@ -55,3 +59,21 @@ def test_rotation_between_normalises_with_the_bits_of_linalg_norm():
     a, b = a[cos > -0.85], b[cos > -0.85]
     assert np.array_equal(rotation_between(a, b), _reference_rotation_between(a, b))
     assert np.array_equal(rotation_between(a[0], b[0]), _reference_rotation_between(a[0], b[0]))
+
+
+@pytest.mark.parametrize("name", list_profiles())
+def test_size_factor_matches_the_uncached_formula(name: str):
+    """``size_factor`` with the generic spine's projected length cached per rest shape, levels and
+    axes gives the bits of the per-call computation, for every shipped profile and two layouts."""
+    profile = load_profile(name)
+    rng = np.random.default_rng(5)
+    for orientation in (("L", "F"), ("A", "F")):
+        e_c, e_r = image_axes(orientation)
+        for indices in (np.arange(17), np.array([0, 3, 7, 11, 16])):
+            points = rng.normal(size=(len(indices), 2)) * 40.0
+            view = ViewData("pa", indices, points, e_c, e_r, 0.87, np.zeros(2), 1.0)
+            generic = rest_shape_unit(profile)[1][indices]
+            model = polyline_length(np.stack([generic @ e_c, generic @ e_r], axis=1))
+            expected = polyline_length(points / 0.87) / model
+            assert size_factor(profile, view) == expected
+            assert size_factor(profile, view) == expected  # from the cache
