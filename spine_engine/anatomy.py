@@ -151,11 +151,14 @@ def section_properties(a: npt.ArrayLike, b: npt.ArrayLike) -> dict[str, FloatArr
     A = πab (mm²), I1 = πab³/4 about d1, I2 = πa³b/4 about d2, J = πa³b³/(a² + b²) (mm⁴)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    # the shared factors πa, b³ and πa³ once each, in the order the formulas multiply them
+    pi_a, b3 = np.pi * a, b**3
+    pi_a3 = np.pi * a**3
     return {
-        "A": np.pi * a * b,
-        "I1": np.pi * a * b**3 / 4.0,
-        "I2": np.pi * a**3 * b / 4.0,
-        "J": np.pi * a**3 * b**3 / (a**2 + b**2),
+        "A": pi_a * b,
+        "I1": pi_a * b3 / 4.0,
+        "I2": pi_a3 * b / 4.0,
+        "J": pi_a3 * b3 / (a**2 + b**2),
     }
 
 
@@ -272,10 +275,14 @@ def profile_from_dict(data: dict[str, Any]) -> Profile:
 
 def load_profile(name: str = "default") -> Profile:
     """The shipped profile ``spine_engine/profiles/<name>.json``; UnknownProfile if there is none.
-    Read once per process (``save_profile`` forgets what was read)."""
-    if not _PROFILE_NAME.match(name) or not (PROFILES_DIR / f"{name}.json").is_file():
+    Read once per process (``save_profile`` forgets what was read): a profile already read costs
+    no file-system call; a missing one is looked for again on every call (failures are not cached)."""
+    if not _PROFILE_NAME.match(name):
         raise UnknownProfile(name, list_profiles())
-    return _read_profile(name)
+    try:
+        return _read_profile(name)
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+        raise UnknownProfile(name, list_profiles()) from None
 
 
 @functools.lru_cache(maxsize=16)
@@ -362,15 +369,30 @@ def _calibrated_shape_unit(
     return ds, positions, rotations
 
 
+RestShapeKey = tuple[tuple[float, ...], tuple[float, ...]] | None
+"""What a profile's rest shape depends on, hashable: None for the normal sagittal profile, else the
+calibrated shape's (17 inclinations in degrees, 16 length fractions)."""
+
+
+def rest_shape_key(profile: Profile) -> RestShapeKey:
+    """The ``RestShapeKey`` of ``profile`` (``Profile`` itself holds dicts and is not hashable)."""
+    if profile.rest_shape is None:
+        return None
+    return tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
+
+
+def rest_shape_unit_of(key: RestShapeKey) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``rest_shape_unit`` of any profile whose ``rest_shape_key`` is ``key`` (the same read-only arrays)."""
+    if key is None:
+        return (_UNIT_SEGMENT_LENGTHS, *_normal_profile_unit())
+    return _calibrated_shape_unit(*key)
+
+
 def rest_shape_unit(profile: Profile) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Segment lengths (16,) mm, positions (17, 3) mm and rotations (17, 3, 3) of the profile's
     rest shape at length scale 1 (read-only, computed once per shape): the normal sagittal profile,
     or the profile's calibrated ``rest_shape``. ``rest_model(profile)`` has these positions."""
-    if profile.rest_shape is None:
-        return (_UNIT_SEGMENT_LENGTHS, *_normal_profile_unit())
-    return _calibrated_shape_unit(
-        tuple(profile.rest_shape["sagittal_inclination_deg"]), tuple(profile.rest_shape["length_fractions"])
-    )
+    return rest_shape_unit_of(rest_shape_key(profile))
 
 
 def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
@@ -383,8 +405,11 @@ def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
     positions = unit_positions * length_scale
     sec = section_properties(*segment_semi_axes(length_scale))
     Y, G, k = profile.youngs_modulus_mpa, profile.shear_modulus_mpa, profile.shear_coefficient
-    alpha = np.stack([Y * sec["I1"], Y * sec["I2"], G * sec["J"]], axis=1)
-    beta = np.stack([k * G * sec["A"], k * G * sec["A"], profile.stretch_factor * Y * sec["A"]], axis=1)
+    alpha = np.empty((len(ds), 3))  # columns as np.stack(..., axis=1) would lay them, without its wrapper
+    alpha[:, 0], alpha[:, 1], alpha[:, 2] = Y * sec["I1"], Y * sec["I2"], G * sec["J"]
+    beta = np.empty((len(ds), 3))
+    beta[:, 0] = beta[:, 1] = k * G * sec["A"]
+    beta[:, 2] = profile.stretch_factor * Y * sec["A"]
     for arr in (ds, positions, alpha, beta):
         arr.setflags(write=False)
     return RestModel(LEVELS, ds, positions, rotations, alpha, beta, profile, float(length_scale))

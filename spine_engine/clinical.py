@@ -21,12 +21,13 @@ holds fixed are estimated from the generic rest model and the PA landmarks:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 
-from .anatomy import Profile, rest_shape_unit
+from .anatomy import Profile, RestShapeKey, rest_shape_key, rest_shape_unit, rest_shape_unit_of
 from .fit import FloatArray, Pose, ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
@@ -148,7 +149,8 @@ def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e
 def polyline_length(points: FloatArray) -> float:
     """Σ_k |p_{k+1} − p_k| of points (k, d), in their units: the segment norms as
     ``np.linalg.norm(·, axis=1)`` computes them (√ of the row sums of squares), without its overhead."""
-    d = np.diff(points, axis=0)
+    points = np.asarray(points)
+    d = points[1:] - points[:-1]  # np.diff(points, axis=0), without its wrapper
     return float(np.sqrt((d * d).sum(axis=1)).sum())
 
 
@@ -169,11 +171,27 @@ def size_factor(profile: Profile, view: ViewData) -> float:
     generic spine's frontal projection through the same levels (1 with fewer than 2 landmarks)."""
     if len(view.indices) < 2:
         return 1.0
-    generic = rest_shape_unit(profile)[1][view.indices]
-    generic_2d = np.stack([generic @ view.e_c, generic @ view.e_r], axis=1)
     patient = polyline_length(np.asarray(view.points) / view.scale)
-    model = polyline_length(generic_2d)
+    model = _generic_projected_length(
+        rest_shape_key(profile),
+        tuple(np.asarray(view.indices).tolist()),
+        tuple(np.asarray(view.e_c).tolist()),
+        tuple(np.asarray(view.e_r).tolist()),
+    )
     return patient / model if patient > 0.0 and model > 0.0 else 1.0
+
+
+@functools.lru_cache(maxsize=64)
+def _generic_projected_length(
+    shape: RestShapeKey, indices: tuple[int, ...], e_c: tuple[float, ...], e_r: tuple[float, ...]
+) -> float:
+    """Σ_k |g_{k+1} − g_k| in mm of the generic rest shape at length scale 1 (``rest_shape_unit_of``)
+    through the vertebrae ``indices``, projected on the image axes: g_k = (e_c·r_k, e_r·r_k). It
+    depends only on the rest shape, the landmarked levels and the view's axes (a few distinct
+    values), so it is computed once for each (``size_factor``)."""
+    generic = rest_shape_unit_of(shape)[1][np.asarray(indices)]
+    generic_2d = np.stack([generic @ np.asarray(e_c), generic @ np.asarray(e_r)], axis=1)
+    return polyline_length(generic_2d)
 
 
 def with_observations(

@@ -63,10 +63,13 @@ def estimate_projection(
         raise ValueError(f"expected points3d (m, 3) and image (m, 2), got {P3.shape} and {p.shape}")
     if P3.shape[0] < 2:
         raise ValueError(f"estimating a projection needs at least 2 points, got {P3.shape[0]}")
-    E = np.stack((np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float)))
+    E = np.array((e_c, e_r), dtype=float)
     q = P3 @ E.T
-    dq = q - q.mean(axis=0)
-    dp = p - p.mean(axis=0)
+    # q̄, p̄ once each, as ndarray.mean computes them (add.reduce over the rows, then ÷ m), without its wrapper
+    q_mean = np.add.reduce(q, axis=0) / len(q)
+    p_mean = np.add.reduce(p, axis=0) / len(p)
+    dq = q - q_mean
+    dp = p - p_mean
     spread = float(np.sum(dq * dq))
     extent = float(np.max(np.abs(P3))) if P3.size else 0.0
     if spread <= (1e-9 * max(extent, 1.0)) ** 2:
@@ -80,4 +83,4 @@ def estimate_projection(
             f"estimated projection scale is {s:.4g} ≤ 0: the landmarks are mirrored or swapped "
             "relative to the 3D points (check the patient orientation and the levels)"
         )
-    return s, p.mean(axis=0) - s * q.mean(axis=0)
+    return s, p_mean - s * q_mean

@@ -8,7 +8,6 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -140,7 +139,7 @@ def _initial_weak_with_boundary(
     try:
         if len(ends[0]) and len(ends[1]):
             return estimate_projection(
-                np.stack([top.position, bottom.position]), arrays.points[[ends[0][0], ends[1][0]]], e_c, e_r
+                np.array((top.position, bottom.position)), arrays.points[[ends[0][0], ends[1][0]]], e_c, e_r
             )
         t = arrays.indices / (n - 1.0)
         chord = (1.0 - t)[:, None] * top.position + t[:, None] * bottom.position
@@ -360,7 +359,9 @@ def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
     With all 17 PA landmarks it compares the projected arc lengths, so lateral curvature is
     counted; with T1 and L5 alone it compares the projected chords.
     """
-    rest_2d = np.stack([rest_positions[view.indices] @ view.e_c, rest_positions[view.indices] @ view.e_r], axis=1)
+    landmarked = rest_positions[view.indices]
+    rest_2d = np.empty((len(landmarked), 2))  # as np.stack(..., axis=1), without its wrapper
+    rest_2d[:, 0], rest_2d[:, 1] = landmarked @ view.e_c, landmarked @ view.e_r
     rest_arc = polyline_length(rest_2d)
     image_arc = polyline_length(view.points / view.scale)
     return image_arc / rest_arc
@@ -378,8 +379,9 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     turned = generic @ turn.T
     scale = projected_arc_scale(turned, problem.views[0])
     scaled = rest_model(profile, length_scale=scale)
-    return dataclasses.replace(
-        scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)
+    return RestModel(
+        scaled.levels, scaled.ds, scaled.positions @ turn.T, np.einsum("ij,njk->nik", turn, scaled.rotations),
+        scaled.alpha, scaled.beta, scaled.profile, scaled.length_scale,
     )
 
 
@@ -494,7 +496,8 @@ def _fit_report(
     )
     return FitReport(
         residuals=residuals,
-        mean_registration_error_mm=float(np.mean(out.residuals_mm["pa"])),
+        # np.mean's arithmetic (add.reduce, then ÷ k) without its wrapper
+        mean_registration_error_mm=float(np.add.reduce(out.residuals_mm["pa"]) / len(out.residuals_mm["pa"])),
         energy_fit=out.energy_fit,
         energy_internal=out.energy_internal,
         iterations=out.iterations,
@@ -568,7 +571,7 @@ def _register_model(model: JobPayload) -> RegistrationResult:
             f"(E_f = {out.energy_fit:.4g} N·mm, E_I = {out.energy_internal:.4g} N·mm)",
             iterations=out.iterations,
         )
-    if not (np.all(np.isfinite(out.positions)) and np.all(np.isfinite(out.rotations))):
+    if not (np.isfinite(out.positions).all() and np.isfinite(out.rotations).all()):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
     measures = compute_measures(
         out.positions,

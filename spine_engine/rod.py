@@ -27,7 +27,7 @@ def strains(r: ArrayLike, R: ArrayLike, ds: ArrayLike) -> tuple[FloatArray, Floa
     r = np.asarray(r, dtype=float)
     R = np.asarray(R, dtype=float)
     inv_ds = 1.0 / np.asarray(ds, dtype=float)[:, None]
-    Rt = np.swapaxes(R[..., :-1, :, :], -1, -2)
+    Rt = R[..., :-1, :, :].swapaxes(-1, -2)
     dr = r[..., 1:, :] - r[..., :-1, :]
     v = np.einsum("...ij,...j->...i", Rt, dr) * inv_ds
     u = log_so3(Rt @ R[..., 1:, :, :]) * inv_ds

@@ -179,13 +179,15 @@ def rotation_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    # ‖x‖ as np.linalg.norm(x, axis=-1) computes it (√ of add.reduce of x·x), without its overhead
     a, b = np.broadcast_arrays(
-        a / np.linalg.norm(a, axis=-1, keepdims=True), b / np.linalg.norm(b, axis=-1, keepdims=True)
+        a / np.sqrt(np.add.reduce(a * a, axis=-1, keepdims=True)),
+        b / np.sqrt(np.add.reduce(b * b, axis=-1, keepdims=True)),
     )
     Ha = hat(a)
     c = (Ha @ b[..., None])[..., 0]
     cos = np.einsum("...i,...i->...", a, b)
-    if np.all(cos > -0.9):
+    if (cos > -0.9).all():
         out = (c / (1.0 + cos)[..., None])[..., :, None] * c[..., None, :] + hat(c)
         out.reshape(*out.shape[:-2], 9)[..., ::4] += cos[..., None]
         return out
@@ -209,5 +211,5 @@ def slerp(R0: ArrayLike, R1: ArrayLike, t: ArrayLike) -> FloatArray:
     R0 = np.asarray(R0, dtype=float)
     R1 = np.asarray(R1, dtype=float)
     t = np.asarray(t, dtype=float)
-    phi = log_so3(np.swapaxes(R0, -1, -2) @ R1)
+    phi = log_so3(R0.swapaxes(-1, -2) @ R1)
     return R0 @ exp_so3(t[..., None] * phi)

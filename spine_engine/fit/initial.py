@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from ..rotations import rotation_between, slerp
@@ -19,6 +20,30 @@ _KD = 5
 """Half-bandwidth of the displacement system over the extended index 3·vertebra + k."""
 _BAND_ROW = _KD + UPPER3[0] - UPPER3[1]
 """Band-storage row of each upper entry (a, b), a ≤ b, of a landmark's 3×3 block (``UPPER3``)."""
+
+
+@functools.lru_cache(maxsize=64)
+def _band_bins(n: int, layout: tuple[tuple[int, ...], ...]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Where the landmarks' terms go in ``initial_configuration``'s displacement system, for N
+    vertebrae and the landmarked vertebrae i of each view (``layout``; integers only, no units):
+    the flat index (``_BAND_ROW`` · 3N + 3i + b) into the band storage (KD + 1, 3N) of each upper
+    entry (a, b) of every landmark's 3×3 block, and the right-hand side's index 3i + k, k = 0, 1, 2,
+    of each landmark, all views stacked in order. Read-only; cached per layout (the same few
+    layouts recur from job to job)."""
+    n_ext = 3 * n
+    _, b = UPPER3
+    rows, cols, rhs_bins = [], [], []
+    for indices in layout:
+        idx = np.asarray(indices, dtype=int)
+        m = len(idx)
+        rows.append(np.broadcast_to(_BAND_ROW, (m, len(_BAND_ROW))).ravel())
+        cols.append((3 * idx[:, None] + b).ravel())
+        rhs_bins.append((3 * idx[:, None] + np.arange(3)).ravel())
+    flat = np.concatenate(rows) * n_ext + np.concatenate(cols)
+    bins = np.concatenate(rhs_bins)
+    flat.flags.writeable = False
+    bins.flags.writeable = False
+    return flat, bins
 
 
 def inplane_targets(view: ViewData) -> FloatArray:
@@ -83,17 +108,16 @@ def initial_configuration(
     kd = _KD
     n_ext = 3 * n
     a, b = UPPER3
-    rows, cols, vals, rhs_bins, rhs_vals = [], [], [], [], []
+    vals, rhs_vals = [], []
+    layout = []
     for view in views:
         idx = np.asarray(view.indices, dtype=int)
+        layout.append(tuple(idx.tolist()))
         m = len(idx)
         E = np.array((view.e_c, view.e_r), dtype=float)
         wE = DATA_WEIGHT * max(float(view.weight), 1e-12) * E
         target = inplane_targets(view)
-        rows.append(np.broadcast_to(_BAND_ROW, (m, len(_BAND_ROW))).ravel())
-        cols.append((3 * idx[:, None] + b).ravel())
-        vals.append(np.broadcast_to((E.T @ wE)[a, b], (m, len(a))).ravel())
-        rhs_bins.append((3 * idx[:, None] + np.arange(3)).ravel())
+        vals.append(np.repeat((E.T @ wE)[None, a, b], m, axis=0).ravel())
         rhs_vals.append(((target - r[idx] @ E.T) @ wE).ravel())
     seg = r[1:] - r[:-1]
     k = 1.0 / np.maximum(np.sqrt(np.einsum("ij,ij->i", seg, seg)), 1e-9)
@@ -103,10 +127,10 @@ def initial_configuration(
     ab[kd, 3:] += k3
     ab[kd - 3, 3:] = -k3
     rhs = np.zeros(n_ext)
-    if rows:
-        flat = np.concatenate(rows) * n_ext + np.concatenate(cols)
+    if vals:
+        flat, rhs_bins = _band_bins(n, tuple(layout))
         ab += accumulate(flat, np.concatenate(vals), minlength=ab.size).reshape(ab.shape)
-        rhs = accumulate(np.concatenate(rhs_bins), np.concatenate(rhs_vals), minlength=n_ext)
+        rhs = accumulate(rhs_bins, np.concatenate(rhs_vals), minlength=n_ext)
     c, info = dpbtrf(ab[:, 3:-3])
     if info != 0:
         raise ValueError("initial configuration: the displacement system is singular (non-finite input?)")

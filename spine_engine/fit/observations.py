@@ -35,6 +35,12 @@ def _shape(a: np.ndarray | None) -> tuple[int, ...]:
     return () if a is None else tuple(np.shape(a))
 
 
+def _row_norms(d: FloatArray) -> FloatArray:
+    """|d_k| of each row of d (k, c), in d's units: √ of add.reduce of d·d over the row, as
+    ``np.linalg.norm(d, axis=1)`` computes it (the same bits), without its wrapper."""
+    return np.sqrt(np.add.reduce(d * d, axis=1))
+
+
 def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
     """½(ω bᵀ + b ωᵀ) − (ω·b) I per row: the second derivative of cᵀR exp(hat δθ) b (ω = Rᵀc)."""
     outer = omega[:, :, None] * b[:, None, :]
@@ -63,9 +69,9 @@ class Observations:
                 raise ValueError(f"view {view.name!r}: tilt indices must lie in 0..{n - 1}")
             if _shape(view.tilt_director) != (3,):
                 raise ValueError(f"view {view.name!r}: tilts need a tilt_director (3,)")
-            if np.any(np.linalg.norm(np.asarray(view.tilt_directions, dtype=float), axis=1) <= 0.0):
+            if (_row_norms(np.asarray(view.tilt_directions, dtype=float)) <= 0.0).any():
                 raise ValueError(f"view {view.name!r}: tilt directions must be non-zero")
-            if np.any(~(np.asarray(view.tilt_weights, dtype=float) >= 0.0)):
+            if (~(np.asarray(view.tilt_weights, dtype=float) >= 0.0)).any():
                 raise ValueError(f"view {view.name!r}: tilt weights must be non-negative")
 
     def __init__(self, views: Sequence[ViewData]):
@@ -80,12 +86,12 @@ class Observations:
                 q0 += view.n_offsets
             if view.n_tilts:
                 m = view.n_tilts
-                E = np.stack((np.asarray(view.e_c, dtype=float), np.asarray(view.e_r, dtype=float)))
+                E = np.array((view.e_c, view.e_r), dtype=float)
                 d = np.asarray(view.tilt_directions, dtype=float)
                 t_idx.append(np.asarray(view.tilt_indices, dtype=int))
-                t_e.append(np.broadcast_to(np.asarray(view.tilt_director, dtype=float), (m, 3)))
-                t_E.append(np.broadcast_to(E, (m, 2, 3)))
-                t_c.append(d / np.linalg.norm(d, axis=1)[:, None])
+                t_e.append(np.repeat(np.asarray(view.tilt_director, dtype=float)[None], m, axis=0))
+                t_E.append(np.repeat(E[None], m, axis=0))
+                t_c.append(d / _row_norms(d)[:, None])
                 t_sw.append(np.sqrt(np.asarray(view.tilt_weights, dtype=float)))
                 self.tilt_slices[view.name] = slice(m0, m0 + m)
                 m0 += m

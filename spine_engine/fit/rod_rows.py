@@ -250,13 +250,13 @@ def check_params(params: RodParameters) -> int:
     ds = np.asarray(params.ds)
     if ds.ndim != 1 or len(ds) < 2:
         raise ValueError(f"ds must have shape (N−1,) with N ≥ 3, got {ds.shape}")
-    if not np.all(ds > 0.0):
+    if not (ds > 0.0).all():
         raise ValueError("rest lengths ds must be positive")
     for name in ("u0", "v0", "alpha", "beta"):
         shape = np.shape(getattr(params, name))
         if shape != (len(ds), 3):
             raise ValueError(f"{name} must have shape ({len(ds)}, 3), got {shape}")
-    if np.any(np.asarray(params.alpha) < 0.0) or np.any(np.asarray(params.beta) < 0.0):
+    if (np.asarray(params.alpha) < 0.0).any() or (np.asarray(params.beta) < 0.0).any():
         raise ValueError("stiffnesses alpha and beta must be non-negative")
     return len(ds) + 1
 
@@ -284,7 +284,7 @@ class RodRows:
     def evaluate(self, r: FloatArray, R: FloatArray, out: FloatArray) -> RodCache:
         """Write the 6(N−1) rod rows into ``out``."""
         ns = self.n - 1
-        Rt = np.swapaxes(R[:-1], 1, 2)
+        Rt = R[:-1].swapaxes(1, 2)
         phi = log_so3(Rt @ R[1:])
         v = (Rt @ (r[1:] - r[:-1])[:, :, None])[:, :, 0] * self._inv_ds
         rod = out[: 6 * ns].reshape(ns, 6)

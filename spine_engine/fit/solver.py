@@ -115,7 +115,7 @@ def solve(
     newton = False
     while iterations < max_iterations:
         system, ab_2, g = problem.normal_equations(state, res, cache, second_order=newton, rows=rows)
-        diag = np.concatenate((system.ab[KD], np.diag(system.C)))
+        diag = np.concatenate((system.ab[KD], system.C.diagonal()))
         np.maximum(D, diag, out=D)
         Dd = np.where(D > 0.0, D, 1.0)
         ab = system.ab if ab_2 is None else system.ab + ab_2
