@@ -156,6 +156,35 @@ run_tool(main, "tool")
     assert f"tool: stopped by {stop_signal.name}" in done.stderr
 
 
+def test_a_signal_lost_in_a_finaliser_is_raised_again() -> None:
+    """Python drops an exception raised while a finaliser runs ("Exception ignored in ..."): a
+    SIGTERM handled inside ``__del__`` is lost (seen: the load bench ran on after one SIGTERM).
+    ``run_tool`` interrupts the main thread again until the tool stops: here within about a second,
+    where the tool would otherwise sleep 20 s."""
+    script = """
+import os, signal, time
+from tools.processes import run_tool
+class Finaliser:
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(100_000):  # the handler runs in here: its KeyboardInterrupt is dropped
+            pass
+def main():
+    try:
+        Finaliser()
+        time.sleep(20)
+    finally:
+        print("finally ran")
+    return 0
+run_tool(main, "tool")
+"""
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert (done.returncode, done.stdout.strip()) == (130, "finally ran"), done.stderr
+    assert "Exception ignored" in done.stderr  # the first interrupt was indeed lost
+    assert time.monotonic() - started < 10
+
+
 @pytest.mark.integration
 def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, postgres_store_url: str,
                                                          redis_url: str) -> None:  # fmt: skip
