@@ -94,6 +94,7 @@ class Phase:
     sent_at: dict[str, float] = field(default_factory=dict)  # job id -> wall time the POST was sent
     latencies_ms: list[float] = field(default_factory=list)
     errors: int = 0
+    error_kinds: dict[str, int] = field(default_factory=dict)  # why: an exception's name or "HTTP <status>"
     started: float = 0.0
     submitted_by: float = 0.0
 
@@ -102,20 +103,26 @@ CLIENT_ERRORS = (aiohttp.ClientError, asyncio.TimeoutError)
 """What a request of the load generator can fail with (refused, reset, timed out)."""
 
 
+def count_error(phase: Phase, kind: str, jobs: int) -> None:
+    phase.errors += jobs
+    phase.error_kinds[kind] = phase.error_kinds.get(kind, 0) + jobs
+
+
 async def post_one(client: aiohttp.ClientSession, phase: Phase, i: int) -> None:
     sent = time.time()
     t0 = time.perf_counter()
     try:
         async with client.post("/v1/jobs", json=payload(i)) as response:
-            body = await response.json() if response.status == 202 else None
-    except CLIENT_ERRORS:
-        phase.errors += 1
+            status = response.status
+            body = await response.json() if status == 202 else None
+    except CLIENT_ERRORS as exc:
+        count_error(phase, type(exc).__name__, 1)
         return
     phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
     if body is not None:
         phase.sent_at[body["id"]] = sent
     else:
-        phase.errors += 1
+        count_error(phase, f"HTTP {status}", 1)
 
 
 async def post_batch(client: aiohttp.ClientSession, phase: Phase, start: int, size: int) -> None:
@@ -123,16 +130,19 @@ async def post_batch(client: aiohttp.ClientSession, phase: Phase, start: int, si
     t0 = time.perf_counter()
     try:
         async with client.post("/v1/jobs/batch", json={"jobs": [payload(start + k) for k in range(size)]}) as response:
-            body = await response.json() if response.status == 200 else {}
-    except CLIENT_ERRORS:
-        phase.errors += size
+            status = response.status
+            body = await response.json() if status == 200 else {}
+    except CLIENT_ERRORS as exc:
+        count_error(phase, type(exc).__name__, size)
         return
     phase.latencies_ms.append((time.perf_counter() - t0) * 1000)
+    if status != 200:
+        count_error(phase, f"HTTP {status}", size)
     for entry in body.get("results", []):
         if entry.get("job"):
             phase.sent_at[entry["job"]["id"]] = sent
         else:
-            phase.errors += 1
+            count_error(phase, f"entry {entry.get('status')}", 1)
 
 
 async def fixed_rate(client: aiohttp.ClientSession, rate: float, seconds: float) -> Phase:
@@ -323,6 +333,7 @@ def summarize(phase: Phase, first: dict[str, Any], second: dict[str, Any]) -> di
     out: dict[str, Any] = {
         "jobs_submitted": len(ids),
         "submit_errors": phase.errors,
+        "submit_errors_by_kind": phase.error_kinds,
         "submitted_per_s": round(len(ids) / submit_span, 1),
         "post_latency_ms_p50": round(pct(phase.latencies_ms, 0.5), 2),
         "post_latency_ms_p99": round(pct(phase.latencies_ms, 0.99), 2),
