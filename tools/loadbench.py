@@ -415,8 +415,12 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
     # aiohttp, not httpx: the generator shares the service's cores, and httpx took about 3 times its
     # CPU per POST (4.3-4.5 against 1.2-1.5 ms here, docs/performance.md, 2026-12-02).
+    # Idle connections closed after 2 s, before uvicorn closes its side (timeout_keep_alive, 5 s): aiohttp
+    # does not send a POST again on a kept-alive connection the server has closed meanwhile
+    # (ServerDisconnectedError; 100-800 jobs of 3,000 were lost that way before).
+    connector = aiohttp.TCPConnector(limit=pool, keepalive_timeout=2.0)
     async with aiohttp.ClientSession(base_url=args.url, timeout=aiohttp.ClientTimeout(total=30), headers=headers,
-                                     connector=aiohttp.TCPConnector(limit=pool)) as client:  # fmt: skip
+                                     connector=connector) as client:  # fmt: skip
         if args.warmup_seconds > 0:  # connections, caches and workers warm; not counted
             warm = await fixed_rate(client, args.rate, args.warmup_seconds)
             await wait_final(client, datetime.fromtimestamp(warm.started).astimezone(), deadline)
