@@ -239,17 +239,27 @@ class Fault:
         self.report["done"] = time.time()
 
 
+def proc_stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (proc(5): state, parent, process
+    group, session, …, utime and stime at 11 and 12); None when the process is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rfind(")") + 2 :].split()
+
+
+def proc_stats() -> dict[int, list[str]]:
+    """``proc_stat`` of every process of this machine."""
+    stats = {int(entry.name): proc_stat(int(entry.name)) for entry in Path("/proc").iterdir() if entry.name.isdigit()}
+    return {pid: fields for pid, fields in stats.items() if fields is not None}
+
+
 def worker_pids(supervisor: int) -> list[int]:
     """The processes under a ``spine worker`` supervisor (its Celery child and that child's pool)."""
     children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-            except OSError:
-                continue
-            parent = int(stat[stat.rfind(")") + 2 :].split()[1])
-            children.setdefault(parent, []).append(int(entry.name))
+    for pid, fields in proc_stats().items():
+        children.setdefault(int(fields[1]), []).append(pid)
     found, todo = [], list(children.get(supervisor, []))
     while todo:
         pid = todo.pop()
@@ -389,12 +399,9 @@ def cpu_seconds_of(pids: Sequence[int]) -> float:
     tick = os.sysconf("SC_CLK_TCK")
     total = 0.0
     for pid in pids:
-        try:
-            stat = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rfind(")") + 2 :].split()
-        total += (int(fields[11]) + int(fields[12])) / tick
+        fields = proc_stat(pid)
+        if fields is not None:
+            total += (int(fields[11]) + int(fields[12])) / tick
     return total
 
 
@@ -503,6 +510,14 @@ def ensure_database(url: str) -> None:
             conn.execute(f'CREATE DATABASE "{target.database}"')
 
 
+def api_ready(url: str) -> bool:
+    """Whether the API at ``url`` answers ``/readyz`` with 200."""
+    try:
+        return httpx.get(url + "/readyz", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
 def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[bytes]]) -> None:
     """Start the API and the workers, appending each process to ``procs`` as it starts (so that the
     caller stops them whenever this is interrupted), and wait until the API is ready."""
@@ -532,12 +547,9 @@ def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[
         args.worker_procs.append(procs[-1])
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        try:
-            if httpx.get(args.url + "/readyz", timeout=2).status_code == 200:
-                time.sleep(3)  # let the workers connect
-                return
-        except httpx.HTTPError:
-            pass
+        if api_ready(args.url):
+            time.sleep(3)  # let the workers connect
+            return
         time.sleep(0.5)
     raise SystemExit("the spawned service did not become ready; see " + str(log_dir))
 

@@ -12,11 +12,13 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
+import psycopg
 import pytest
 
+from tests.conftest import PG_ADMIN_URL, _purge_queue
 from tools import loadbench
 
 
@@ -69,67 +71,57 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+@pytest.fixture
+def bench_env(tmp_path: Path, postgres_store_url: str, redis_url: str) -> Iterator[dict[str, str]]:
+    """The environment of a bench that spawns the distributed service: a database and a queue of its
+    own, dropped and purged afterwards."""
+    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadbench_{uuid.uuid4().hex[:8]}"
+    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
+    yield {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
+           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
+    _purge_queue(redis_url, queue)
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+        admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
+
+
 @pytest.mark.integration
 @pytest.mark.parametrize(
     ("fault", "submission"),
     [("kill-worker", ["--concurrency", "8"]), ("restart-redis", ["--batch", "20", "--concurrency", "2"])],
     ids=["kill-worker", "restart-redis-batches"],
 )
-def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, postgres_store_url: str, redis_url: str,
-                                                fault: str, submission: list[str]) -> None:  # fmt: skip
+def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, bench_env: dict[str, str], fault: str,
+                                                submission: list[str]) -> None:  # fmt: skip
     """The bench against a spawned distributed service (PostgreSQL + Redis + a `spine worker`), with
     its fault injection (issue 11): a worker killed by SIGKILL while single POSTs come, or the
     bench's own Redis restarted for 3 s while batches come; every job ends once, within 30 s of
     the last submission (the target of docs/reliability.md, "Recovery time under faults"), and the
     report carries the rates and CPU figures docs/performance.md quotes."""
-    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadfault_{uuid.uuid4().hex[:8]}"
-    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
-    env = {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
-           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
     out = tmp_path / "report.json"
     cmd = [sys.executable, "-m", "tools.loadbench", "--spawn", "--url", f"http://127.0.0.1:{_free_port()}",
            "--phases", "throughput", "--jobs", "400", *submission, "--warmup-seconds", "0",
            "--recheck-seconds", "0.5", "--max-seconds", "150", "--log-dir", str(tmp_path / "logs"),
            "--output", str(out), "--fault", fault, "--fault-at", "0.3",
            *(["--own-redis"] if fault == "restart-redis" else [])]  # fmt: skip
-    try:
-        done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-        run = json.loads(out.read_text())["throughput"]
-        in_flight = run["fault"]["in_flight_at_fault"]
-        assert in_flight["queued"] + in_flight["running"] > 0, run["fault"]  # the fault hit jobs in flight
-        if fault == "kill-worker":
-            assert run["fault"]["killed_pids"] >= 2  # the Celery process and its pool
-        assert run["jobs_submitted"] == 400 and run["submit_errors"] == 0  # every POST, during the fault too, got 202
-        assert run["statuses"] == {"succeeded": 400}
-        assert run["jobs_lost"] == 0 and run["jobs_with_two_outcomes"] == 0
-        assert run["last_submission_to_last_final_s"] <= 30, run
-        assert run["completed_per_s"] > 0
-        assert run["cpu_ms_per_job"]["worker"] > 0 and run["cpu_ms_per_job"]["api"] > 0
-    finally:
-        import psycopg
-
-        from tests.conftest import PG_ADMIN_URL, _purge_queue
-
-        _purge_queue(redis_url, queue)
-        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
-            admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
+    done = subprocess.run(cmd, env=bench_env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    run = json.loads(out.read_text())["throughput"]
+    in_flight = run["fault"]["in_flight_at_fault"]
+    assert in_flight["queued"] + in_flight["running"] > 0, run["fault"]  # the fault hit jobs in flight
+    if fault == "kill-worker":
+        assert run["fault"]["killed_pids"] >= 2  # the Celery process and its pool
+    assert run["jobs_submitted"] == 400 and run["submit_errors"] == 0  # every POST, during the fault too, got 202
+    assert run["statuses"] == {"succeeded": 400}
+    assert run["jobs_lost"] == 0 and run["jobs_with_two_outcomes"] == 0
+    assert run["last_submission_to_last_final_s"] <= 30, run
+    assert run["completed_per_s"] > 0
+    assert run["cpu_ms_per_job"]["worker"] > 0 and run["cpu_ms_per_job"]["api"] > 0
 
 
 def _session_members(session_ids: set[int]) -> set[int]:
     """Live processes whose session is one of ``session_ids`` (the bench starts each service process
     in its own session, so a session holds that process and its children: a worker's pool)."""
-    members = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if fields[0] != "Z" and int(fields[3]) in session_ids:
-            members.add(int(entry.name))
-    return members
+    return {pid for pid, fields in loadbench.proc_stats().items() if fields[0] != "Z" and int(fields[3]) in session_ids}
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
@@ -186,35 +178,28 @@ run_tool(main, "tool")
 
 
 @pytest.mark.integration
-def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, postgres_store_url: str,
-                                                         redis_url: str) -> None:  # fmt: skip
+def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, bench_env: dict[str, str]) -> None:
     """SIGTERM (a QA script's timeout) in the middle of a phase: the bench exits with 130 and stops
     the API and the worker with its pool. Before, they kept running after the bench had gone."""
-    stop_signal = signal.SIGTERM
-    database = postgres_store_url.rsplit("/", 1)[0] + f"/spine_test_loadstop_{uuid.uuid4().hex[:8]}"
-    queue = f"spine-test-{uuid.uuid4().hex[:8]}"
-    env = {**os.environ, "DATABASE_URL": database, "CELERY_BROKER_URL": redis_url, "SPINE_QUEUE_NAME": queue,
-           "SPINE_DATA_DIR": str(tmp_path / "data")}  # fmt: skip
     url = f"http://127.0.0.1:{_free_port()}"
     cmd = [sys.executable, "-m", "tools.loadbench", "--spawn", "--url", url, "--phases", "latency",
            "--rate", "5", "--rate-seconds", "600", "--warmup-seconds", "0", "--max-seconds", "700",
            "--log-dir", str(tmp_path / "logs")]  # fmt: skip
     sessions: set[int] = set()
-    bench = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    bench = subprocess.Popen(cmd, env=bench_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline and len(sessions) < 2:  # the API and the worker
             time.sleep(0.5)
-            sessions = {int(p.name) for p in Path("/proc").glob("[0-9]*")
-                        if _parent_of(int(p.name)) == bench.pid}  # fmt: skip
+            sessions = {pid for pid, fields in loadbench.proc_stats().items() if int(fields[1]) == bench.pid}
         assert len(sessions) == 2, "the bench did not start the API and a worker"
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not _ready(url):
+        while time.monotonic() < deadline and not loadbench.api_ready(url):
             time.sleep(0.5)
         time.sleep(5)  # past the bench's 3 s wait for the workers: the phase runs, POSTs in flight
         started = _session_members(sessions)
         assert len(started) >= 3, started  # API, the worker's main process and at least one pool process
-        bench.send_signal(stop_signal)
+        bench.send_signal(signal.SIGTERM)
         _, err = bench.communicate(timeout=60)
         assert bench.returncode == 130, err[-2000:]
         assert "stopped by" in err
@@ -230,24 +215,3 @@ def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, postgre
         for pid in _session_members(sessions):  # what a failed stop left behind
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-        import psycopg
-
-        from tests.conftest import PG_ADMIN_URL, _purge_queue
-
-        _purge_queue(redis_url, queue)
-        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
-            admin.execute(f'DROP DATABASE IF EXISTS "{database.rsplit("/", 1)[1]}" WITH (FORCE)')
-
-
-def _ready(url: str) -> bool:
-    try:
-        return httpx.get(url + "/readyz", timeout=2).status_code == 200
-    except httpx.HTTPError:
-        return False
-
-
-def _parent_of(pid: int) -> int:
-    try:
-        return int((Path(f"/proc/{pid}/stat")).read_text().rsplit(")", 1)[1].split()[1])
-    except (OSError, IndexError, ValueError):
-        return 0
