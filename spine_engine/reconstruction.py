@@ -8,6 +8,7 @@ registers the rod to the landmarks (``registration.fit``) and reports strains an
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -379,9 +380,8 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     turned = generic @ turn.T
     scale = projected_arc_scale(turned, problem.views[0])
     scaled = rest_model(profile, length_scale=scale)
-    return RestModel(
-        scaled.levels, scaled.ds, scaled.positions @ turn.T, np.einsum("ij,njk->nik", turn, scaled.rotations),
-        scaled.alpha, scaled.beta, scaled.profile, scaled.length_scale,
+    return dataclasses.replace(
+        scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)
     )
 
 

@@ -169,6 +169,12 @@ def left_jacobian_inv(phi: ArrayLike) -> FloatArray:
     return right_jacobian_inv(-np.asarray(phi, dtype=float))
 
 
+def vector_norms(x: FloatArray) -> FloatArray:
+    """‖x‖ over the last axis, in x's units: √ of add.reduce of x·x, the arithmetic (and the bits)
+    of ``np.linalg.norm(x, axis=-1)`` without its Python wrapper (it shows in the per-job setup)."""
+    return np.sqrt(np.add.reduce(x * x, axis=-1))
+
+
 def rotation_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """The smallest rotation taking the direction of ``a`` onto that of ``b``, (..., 3) → (..., 3, 3).
 
@@ -179,11 +185,7 @@ def rotation_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    # ‖x‖ as np.linalg.norm(x, axis=-1) computes it (√ of add.reduce of x·x), without its overhead
-    a, b = np.broadcast_arrays(
-        a / np.sqrt(np.add.reduce(a * a, axis=-1, keepdims=True)),
-        b / np.sqrt(np.add.reduce(b * b, axis=-1, keepdims=True)),
-    )
+    a, b = np.broadcast_arrays(a / vector_norms(a)[..., None], b / vector_norms(b)[..., None])
     Ha = hat(a)
     c = (Ha @ b[..., None])[..., 0]
     cos = np.einsum("...i,...i->...", a, b)

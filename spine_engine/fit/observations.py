@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..rotations import vector_norms
 from .cameras import project
 from .types import FloatArray, ViewData
 
@@ -33,12 +34,6 @@ if TYPE_CHECKING:
 
 def _shape(a: np.ndarray | None) -> tuple[int, ...]:
     return () if a is None else tuple(np.shape(a))
-
-
-def _row_norms(d: FloatArray) -> FloatArray:
-    """|d_k| of each row of d (k, c), in d's units: √ of add.reduce of d·d over the row, as
-    ``np.linalg.norm(d, axis=1)`` computes it (the same bits), without its wrapper."""
-    return np.sqrt(np.add.reduce(d * d, axis=1))
 
 
 def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
@@ -69,7 +64,7 @@ class Observations:
                 raise ValueError(f"view {view.name!r}: tilt indices must lie in 0..{n - 1}")
             if _shape(view.tilt_director) != (3,):
                 raise ValueError(f"view {view.name!r}: tilts need a tilt_director (3,)")
-            if (_row_norms(np.asarray(view.tilt_directions, dtype=float)) <= 0.0).any():
+            if (vector_norms(np.asarray(view.tilt_directions, dtype=float)) <= 0.0).any():
                 raise ValueError(f"view {view.name!r}: tilt directions must be non-zero")
             if (~(np.asarray(view.tilt_weights, dtype=float) >= 0.0)).any():
                 raise ValueError(f"view {view.name!r}: tilt weights must be non-negative")
@@ -91,7 +86,7 @@ class Observations:
                 t_idx.append(np.asarray(view.tilt_indices, dtype=int))
                 t_e.append(np.repeat(np.asarray(view.tilt_director, dtype=float)[None], m, axis=0))
                 t_E.append(np.repeat(E[None], m, axis=0))
-                t_c.append(d / _row_norms(d)[:, None])
+                t_c.append(d / vector_norms(d)[:, None])
                 t_sw.append(np.sqrt(np.asarray(view.tilt_weights, dtype=float)))
                 self.tilt_slices[view.name] = slice(m0, m0 + m)
                 m0 += m
