@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@# the engine's numba kernels compiled once into their on-disk cache (3-4 s), not on a first job
-	$(BIN)/python -c "from spine_engine.experiments.perf import warm_up; print(f'engine kernels compiled in {warm_up():.1f} s')"
+	$(BIN)/python -c "from spine_engine.warmup import warm_up; print(f'engine kernels compiled in {warm_up():.1f} s')"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -14,18 +14,17 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .errors import FitFailed, InvalidInput, SpineEngineError
+from .version import __version__
 
 if TYPE_CHECKING:
     from .reconstruction import register
-
-__version__ = "0.1.0"
 
 __all__ = ["FitFailed", "InvalidInput", "SpineEngineError", "__version__", "register"]
 
 
 def __getattr__(name: str) -> Any:
     if name == "register":
-        from .reconstruction import register
+        from .reconstruction import register  # lazy: `import spine_engine` for its errors must not load numba
 
         return register
     raise AttributeError(f"module 'spine_engine' has no attribute {name!r}")

@@ -18,7 +18,6 @@ import numpy as np
 from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
-from . import __version__
 from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
@@ -70,8 +69,9 @@ from .models import (
 from .projection import estimate_projection, image_axes
 from .rod import strains
 from .rotations import rotation_between
-from .tilt_prior import load_tilt_prior
+from .tilt_prior import TiltPrior, load_tilt_prior
 from .validation import validate_payload
+from .version import __version__
 
 GAUGE_POSITION_SD_MM = 1000.0
 """No boundary: T1's position is held at the patient origin by a Gaussian of this SD (mm): it fixes
@@ -251,19 +251,21 @@ def _pose_priors(model: JobPayload, top: Pose, boundary: str) -> tuple[PosePrior
     return tuple(priors)
 
 
-def build_problem(model: JobPayload, profile: Profile) -> Problem:
+def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | None = None) -> Problem:
     """Arrays of a validated payload: views in detector mm with their cameras, the boundary mode and
     its pose priors, the initial end poses, and the clinical observations (corner tilts, pedicles,
     tilt prior; ``clinical``).
 
     Without ``boundary`` every vertebra is free (gauge: ``GAUGE_POSITION_SD_MM``), starting from
     ``clinical.place_without_boundary``; with a soft boundary every vertebra is free and T1 and L5
-    are held by Gaussians; with an exact one T1 and L5 are fixed (the paper)."""
+    are held by Gaussians; with an exact one T1 and L5 are fixed (the paper). ``tilt_prior``: the
+    prior used when the payload asks for one (default the shipped ``tilt_prior.load_tilt_prior()``;
+    the AASCE bench passes the priors it cross-validates)."""
     pa_arrays = landmark_arrays(model.pa)
     has_lateral = model.lateral is not None and bool(model.lateral.landmarks)
     lateral_arrays = landmark_arrays(model.lateral) if model.lateral is not None and has_lateral else None
     use_prior = model.options.tilt_prior if model.options.tilt_prior is not None else model.boundary is None
-    prior = load_tilt_prior() if use_prior else None
+    prior = None if not use_prior else tilt_prior if tilt_prior is not None else load_tilt_prior()
     if model.boundary is None:
         boundary = "estimated"
     elif model.boundary.T1.soft or model.boundary.L5.soft:
@@ -544,21 +546,22 @@ def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
     return blas.limit(limits=1, user_api="blas")
 
 
-def register_model(model: JobPayload) -> RegistrationResult:
+def register_model(model: JobPayload, tilt_prior: TiltPrior | None = None) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
+    ``tilt_prior``: as ``build_problem``'s (None: the shipped prior).
 
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
     with _one_blas_thread():
-        return _register_model(model)
+        return _register_model(model, tilt_prior)
 
 
-def _register_model(model: JobPayload) -> RegistrationResult:
+def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> RegistrationResult:
     profile = load_profile(model.options.profile)
     start = time.perf_counter()
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            problem = build_problem(model, profile)
+            problem = build_problem(model, profile, tilt_prior)
             solution, rest = solve_solution(problem, profile)
             out = solution.output
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError) as exc:

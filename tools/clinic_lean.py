@@ -14,16 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from spine_engine.experiments import clinic
+from spine_engine.experiments import clinic, clinic_films
 from spine_engine.models import JobPayload
 from spine_engine.reconstruction import register_model
 
 
-def variants(series: clinic.Series) -> dict[str, dict[str, Any]]:
+def variants(series: clinic_films.Series) -> dict[str, dict[str, Any]]:
     """Case (a)'s payload and its variants, as JSON (the public payload)."""
-    base = clinic.build_payload(series, clinic.CASES["a"]).model_dump(mode="json", exclude_none=True)
-    paper = clinic.build_payload(series, clinic.CASES["f"]).model_dump(mode="json", exclude_none=True)
-    magnification = {"magnification": clinic.SID_MM / clinic.PA_SOD_MM}
+    base = clinic_films.build_payload(series, clinic_films.CASES["a"]).model_dump(mode="json", exclude_none=True)
+    paper = clinic_films.build_payload(series, clinic_films.CASES["f"]).model_dump(mode="json", exclude_none=True)
+    magnification = {"magnification": clinic_films.SID_MM / clinic_films.PA_SOD_MM}
     with_magnification = {**base, "pa": {**base["pa"], "acquisition": magnification}}
     calibrated = {k: v for k, v in paper.items() if k != "boundary"}
     with_boundary = {**base, "boundary": paper["boundary"]}
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     errors: dict[str, list[tuple[float, np.ndarray]]] = {}
     for truth in clinic.verse_truths("dev", args.data):
-        series = clinic.simulate_series(truth, args.noise_mm, 0)
+        series = clinic_films.simulate_series(truth, args.noise_mm, 0)
         t = truth.positions - truth.positions.mean(axis=0)
         for name, payload in variants(series).items():
             result = register_model(JobPayload.model_validate(payload))

@@ -17,7 +17,7 @@ from services.db.engine import dispose_engines
 from services.dicom.store import register_dicom_tasks
 from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
-from spine_engine.experiments.perf import warm_up
+from spine_engine.warmup import warm_up
 
 log = logging.getLogger(__name__)
 settings = get_settings()

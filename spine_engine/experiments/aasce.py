@@ -28,23 +28,19 @@ from __future__ import annotations
 import argparse
 import csv
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from unittest import mock
 
 import numpy as np
 
-from .. import reconstruction as reconstruction_module
 from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
 from ..errors import FitFailed, InvalidInput
 from ..levels import LEVELS, N_LEVELS
 from ..measures import frontal_tilt_deg, major_first_curves
-from ..observations import chord_angles_deg
+from ..observations import chord_angles_deg, frontal_tilt_deg_of_image_vectors
 from ..projection import image_axes
-from ..reconstruction import register
+from ..reconstruction import register, register_model
 from ..tilt_prior import (
     DEFAULT_PRIOR,
     PRIORS_DIR,
@@ -56,6 +52,7 @@ from ..tilt_prior import (
     save_tilt_prior,
     toward_chord_normal,
 )
+from ..validation import validate_payload
 from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 
 DATE = "2026-12-02"
@@ -451,8 +448,8 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
     scores: dict[float, float] = {}
     failures: dict[float, int] = {}
     for fraction in fractions:
-        with prior_in_use(TiltPrior(DEFAULT_PRIOR, CAL_WINDOW, coefficients, fraction, {}, CAL_PLACEMENT)):
-            outcomes = np.array([evaluate_midpoints(r) for r in subset])
+        prior = TiltPrior(DEFAULT_PRIOR, CAL_WINDOW, coefficients, fraction, {}, CAL_PLACEMENT)
+        outcomes = np.array([evaluate_midpoints(r, prior) for r in subset])
         scores[fraction] = float(np.nanmean(np.abs(outcomes - truth)))
         failures[fraction] = int(np.isnan(outcomes).sum())
         print(
@@ -497,17 +494,16 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
 
 def frontal_tilt_deg_of_corners(corners: np.ndarray) -> np.ndarray:
     """Frontal tilt (17,) of annotated corner lines on a PA ["L", "F"] image, degrees."""
-    from ..observations import frontal_tilt_deg_of_image_vectors
-
     e_c, e_r = image_axes(PA)
     vectors, _ = corner_axes(corners)
     return frontal_tilt_deg_of_image_vectors(vectors, e_c, e_r)
 
 
-def evaluate_midpoints(rad: Radiograph) -> float:
-    """Major angle of the midpoints method with the shipped prior (NaN when the fit fails)."""
+def evaluate_midpoints(rad: Radiograph, prior: TiltPrior | None = None) -> float:
+    """Major angle of the midpoints method with ``prior`` (None: the shipped one; NaN when the fit
+    fails)."""
     try:
-        return major_angle(register(payload(rad, "midpoints")))
+        return major_angle(register_model(validate_payload(payload(rad, "midpoints")), prior).model_dump(mode="json"))
     except (FitFailed, InvalidInput):
         return float("nan")
 
@@ -555,13 +551,6 @@ def end_weights(tilts_deg: np.ndarray, end_weight: float) -> np.ndarray:
     return w
 
 
-@contextmanager
-def prior_in_use(prior: TiltPrior) -> Iterator[None]:
-    """``register`` uses ``prior`` instead of the shipped one (experiments only; nothing is written)."""
-    with mock.patch.object(reconstruction_module, "load_tilt_prior", lambda name=DEFAULT_PRIOR: prior):
-        yield
-
-
 def cross_validate(
     data: Path, variants: tuple[PriorVariant, ...], seeds: tuple[int, ...], folds: int, out_dir: Path
 ) -> list[dict[str, Any]]:
@@ -595,8 +584,7 @@ def cross_validate(
                 major = np.full(len(rads), np.nan)
                 for i in scored:
                     prior = TiltPrior("cv", variant.window, coefficients[fold[i]], fraction, {}, variant.placement)
-                    with prior_in_use(prior):
-                        major[i] = evaluate_midpoints(rads[i])
+                    major[i] = evaluate_midpoints(rads[i], prior)
                 err = major - truth
                 row: dict[str, Any] = {
                     "variant": variant.name,

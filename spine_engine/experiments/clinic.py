@@ -7,7 +7,7 @@ entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would
   ``frames.frames_from_centreline``) and synthetic spines built geometrically by
   ``spine_engine.synthetic`` (curve angles, kyphosis, lordosis and axial rotation drawn, never
   made by the fit);
-* films (``simulate_series``): a PA and a lateral radiograph of the superior endplate midpoints
+* films (``clinic_films.simulate_series``): a PA and a lateral radiograph of the superior endplate midpoints
   (the rod's nodes) with Gaussian landmark noise (SD ``noise_mm`` per coordinate, detector mm,
   seeded; the same noise draw serves every case of one spine). Geometry, in the spirit of a full-
   spine series (``SID_MM``, ``PA_SOD_MM``): the PA's magnification at the spine's mid-plane is
@@ -15,7 +15,7 @@ entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would
   its plane by 0.5–2° (drawn sign and size) and both films offset (drawn). The central ray meets
   the patient within ``CENTRAL_RAY_SPREAD_MM`` of the spine's centroid (drawn). PA beam posterior
   → anterior (−y), lateral beam right → left (+x, the patient's left side at the detector);
-* cases (``CASES``): (a) uncalibrated PA + full lateral, weak perspective, nothing given; (b) the
+* cases (``clinic_films.CASES``): (a) uncalibrated PA + full lateral, weak perspective, nothing given; (b) the
   same with the lateral from T4 down; (c) perspective films (pinhole: magnification SID/d with d
   the source distance of each point) with ``acquisition`` giving SID, SOD and the central ray;
   (d) the same films without ``acquisition``; (e) the PA film of (a) only; (f) the paper's case:
@@ -63,228 +63,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from ..errors import SpineEngineError
 from ..frames import axial_rotation_deg, frames_from_centreline
 from ..levels import LEVELS, N_LEVELS
 from ..measures import compute_measures, frontal_tilt_deg
-from ..models import JobPayload, LateralView, PAView
-from ..projection import image_axes
 from ..reconstruction import register
 from ..synthetic import generate_spines
+from .clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, simulate_series
 from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 from .truth import read_verse
-
-FloatArray = npt.NDArray[np.float64]
-
-SID_MM = 1800.0
-"""Source–detector distance of the simulated films, mm: the usual full-spine distance of about
-1.8 m (72 inches) (brief of issue #10: "SID ≈ 1800 mm")."""
-PA_SOD_MM = 1600.0
-"""Source to the spine's mid-plane on the PA film, mm (brief: "SOD ≈ 1600 mm"); PA magnification
-at that plane SID/SOD = 1.125."""
-LATERAL_EXTRA_MAGNIFICATION = (1.05, 1.10)
-"""The lateral film's magnification over the PA's, drawn uniformly (issue #10: "5–10 % more")."""
-LATERAL_TURN_DEG = (0.5, 2.0)
-"""Size of the lateral film's in-plane rotation, drawn uniformly with a random sign ("slightly
-rotated"; a modelling choice)."""
-CENTRAL_RAY_SPREAD_MM = 20.0
-"""SD of the central ray's in-plane distance from the spine's centroid, per axis, mm ("near the
-spine's middle"; a modelling choice)."""
-FILM_OFFSET_MM = ((150.0, 250.0), (350.0, 550.0))
-"""Range of the image (column, row) of the central ray, detector mm: where the spine's middle
-lands on a 35 × 90 cm film (drawn uniformly; any offset is equivalent for the engine)."""
-Z95 = 1.959963984540054
-"""Two-sided 95 % quantile of the standard normal distribution."""
-
-PA_BEAM = np.array([0.0, -1.0, 0.0])
-"""PA film: the beam runs posterior → anterior (LPS −y)."""
-LATERAL_BEAM = np.array([1.0, 0.0, 0.0])
-"""Lateral film: the beam runs from the patient's right to left (LPS +x)."""
-PA_ORIENTATION = ("L", "F")
-LATERAL_ORIENTATION = ("A", "F")
-
-
-@dataclass(frozen=True)
-class Case:
-    """One clinical setting of the benchmark."""
-
-    key: str
-    title: str
-    lateral_from: int | None = 0
-    """First level index on the lateral film (None: no lateral)."""
-    perspective: bool = False
-    """Films made by a point source (pinhole) rather than weak perspective."""
-    acquisition: bool = False
-    """The views' ``acquisition`` (SID, SOD, central ray) is in the payload."""
-    boundary: bool = False
-    """T1 and L5 poses are given from the truth (the paper's setting)."""
-    calibrated: bool = False
-    """Each view's weak perspective ``projection`` is given and the lateral film is not turned."""
-
-
-CASES: dict[str, Case] = {
-    c.key: c
-    for c in (
-        Case("a", "PA + full lateral, uncalibrated"),
-        Case("b", "PA + lateral T4-L5, uncalibrated", lateral_from=3),
-        Case("c", "perspective PA + lateral, geometry given", perspective=True, acquisition=True),
-        Case("d", "perspective PA + lateral, geometry unknown", perspective=True),
-        Case("e", "PA only, uncalibrated", lateral_from=None),
-        Case("f", "paper: T1/L5 given, calibrated PA + lateral", boundary=True, calibrated=True),
-    )
-}
-
-
-@dataclass(frozen=True)
-class Truth:
-    """A known spine: positions (17, 3) mm LPS and rotations (17, 3, 3), directors as columns."""
-
-    spine_id: str
-    positions: FloatArray
-    rotations: FloatArray
-
-
-@dataclass(frozen=True)
-class Film:
-    """The geometry of one simulated radiograph (all lengths mm)."""
-
-    orientation: tuple[str, str]
-    beam: FloatArray
-    """Unit vector of the beam, source → detector, LPS."""
-    sod_mm: float
-    """Source to the plane through the spine's centroid normal to the beam."""
-    principal_point: FloatArray
-    """(3,) where the central ray crosses that plane, patient mm."""
-    central_ray: FloatArray
-    """(2,) image (column, row) of the central ray, detector mm."""
-    turn_deg: float
-    """In-plane rotation of the film, degrees."""
-    sid_mm: float = SID_MM
-
-    @property
-    def magnification(self) -> float:
-        """Magnification at the mid-plane, SID/SOD."""
-        return self.sid_mm / self.sod_mm
-
-    def image(self, points: FloatArray, perspective: bool) -> FloatArray:
-        """Image (column, row) in detector mm of points (k, 3).
-
-        With q = (e_c·(r − c), e_r·(r − c)) the in-plane coordinates from the principal point c:
-        p = Rot(γ) m q + p_c with m = SID / (SOD + b·(r − c)) (pinhole; b the beam) or the
-        constant SID/SOD (weak perspective), γ the film's turn and p_c the central ray's image.
-        """
-        e_c, e_r = image_axes(self.orientation)
-        rel = np.asarray(points, dtype=float) - self.principal_point
-        q = np.stack((rel @ e_c, rel @ e_r), axis=-1)
-        m = self.sid_mm / (self.sod_mm + rel @ self.beam) if perspective else np.full(len(rel), self.magnification)
-        g = np.radians(self.turn_deg)
-        rot = np.array([[np.cos(g), -np.sin(g)], [np.sin(g), np.cos(g)]])
-        return np.asarray((m[:, None] * q) @ rot.T + self.central_ray)
-
-    def weak_projection(self) -> tuple[float, tuple[float, float]]:
-        """(scale s, translation T) of this film as the engine's weak perspective p = s E r + T
-        (valid when the film is not turned): T = p_c − s E c."""
-        e_c, e_r = image_axes(self.orientation)
-        s = self.magnification
-        t = self.central_ray - s * np.array([self.principal_point @ e_c, self.principal_point @ e_r])
-        return s, (float(t[0]), float(t[1]))
-
-
-@dataclass(frozen=True)
-class Series:
-    """A simulated scoliosis series of one spine: both films and the landmark noise."""
-
-    truth: Truth
-    pa: Film
-    lateral: Film
-    pa_noise: FloatArray
-    """(17, 2) landmark noise of the PA film, detector mm."""
-    lateral_noise: FloatArray
-    """(17, 2) landmark noise of the lateral film, detector mm."""
-    noise_mm: float
-
-
-def _seed_of(spine_id: str) -> int:
-    return sum((i + 1) * ord(ch) for i, ch in enumerate(spine_id))
-
-
-def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
-    """Draw the series geometry and noise of one spine (module docstring), deterministic for
-    (seed, spine id)."""
-    rng = np.random.default_rng([seed, _seed_of(truth.spine_id)])
-    centre = truth.positions.mean(axis=0)
-    films = []
-    for orientation, beam, sod in (
-        (PA_ORIENTATION, PA_BEAM, PA_SOD_MM),
-        (LATERAL_ORIENTATION, LATERAL_BEAM, None),
-    ):
-        e_c, e_r = image_axes(orientation)
-        if sod is None:
-            ratio = rng.uniform(*LATERAL_EXTRA_MAGNIFICATION)
-            sod = SID_MM / (SID_MM / PA_SOD_MM * ratio)
-            turn = rng.uniform(*LATERAL_TURN_DEG) * rng.choice([-1.0, 1.0])
-        else:
-            turn = 0.0
-        offset = rng.normal(0.0, CENTRAL_RAY_SPREAD_MM, 2)
-        ray = np.array([rng.uniform(*FILM_OFFSET_MM[0]), rng.uniform(*FILM_OFFSET_MM[1])])
-        films.append(Film(orientation, beam, float(sod), centre + offset[0] * e_c + offset[1] * e_r, ray, float(turn)))
-    pa_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
-    lateral_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
-    return Series(truth, films[0], films[1], pa_noise, lateral_noise, noise_mm)
-
-
-def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -> bool:
-    """Whether this engine's payload model has ``field_name`` on a view (the contract of issue #10
-    lands in steps; the bench sends only what the engine knows)."""
-    return field_name in view.model_fields
-
-
-def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[int], case: Case) -> dict[str, Any]:
-    untilted = Film(film.orientation, film.beam, film.sod_mm, film.principal_point, film.central_ray, 0.0)
-    used = untilted if case.calibrated else film
-    points = used.image(series.truth.positions[levels], case.perspective) + noise[levels]
-    view: dict[str, Any] = {
-        "units": "mm",
-        "patient_orientation": list(film.orientation),
-        "landmarks": [
-            {"level": LEVELS[i], "point": [float(p[0]), float(p[1])]} for i, p in zip(levels, points, strict=True)
-        ],
-    }
-    if supports("landmark_sd_mm") and series.noise_mm > 0:
-        view["landmark_sd_mm"] = series.noise_mm
-    if case.calibrated:
-        s, t = used.weak_projection()
-        view["projection"] = {"scale": s, "translation": list(t)}
-    if case.acquisition:
-        view["acquisition"] = {
-            "distance_source_to_detector_mm": film.sid_mm,
-            "distance_source_to_patient_mm": film.sod_mm,
-            "central_ray": [float(film.central_ray[0]), float(film.central_ray[1])],
-        }
-    return view
-
-
-def build_payload(series: Series, case: Case) -> JobPayload:
-    """The ``JobPayload`` a clinic would send for this series in this case (validated by the
-    public model: a field this engine does not know yet fails here, and the case is reported as
-    refused)."""
-    payload: dict[str, Any] = {
-        "pa": _view_payload(series, series.pa, series.pa_noise, list(range(N_LEVELS)), case),
-    }
-    if case.lateral_from is not None:
-        levels = list(range(case.lateral_from, N_LEVELS))
-        payload["lateral"] = _view_payload(series, series.lateral, series.lateral_noise, levels, case)
-    if case.boundary:
-        t = series.truth
-        payload["boundary"] = {
-            lv: {"position": t.positions[i].tolist(), "directors": t.rotations[i].T.tolist()}
-            for lv, i in (("T1", 0), ("L5", N_LEVELS - 1))
-        }
-    return JobPayload.model_validate(payload)
-
+from .uncertainty_calibration import calibrate_and_write, coverage
 
 # ---------------------------------------------------------------- one reconstruction
 
@@ -437,12 +227,6 @@ def synthetic_truths(n: int, seed: int) -> list[Truth]:
         Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
         for s in generate_spines(n, seed=seed)
     ]
-
-
-def coverage(z: Sequence[float] | FloatArray, scale: float = 1.0) -> float | None:
-    """Fraction of items with |error| ≤ 1.96·scale·SD, from their z = |error|/SD."""
-    a = np.asarray(z, dtype=float).ravel()
-    return None if a.size == 0 else float(np.mean(a <= Z95 * scale))
 
 
 MEASURES = ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "cobb", "axial_rotation")
@@ -609,39 +393,6 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     save_figure(fig, path)
 
 
-# ---------------------------------------------------------------- uncertainty calibration
-
-
-def calibrated_scale(z_by_case: dict[str, FloatArray], target: float = 0.95) -> float:
-    """The scale c for which ±1.96·c·SD covers ``target`` of the pooled coordinates, each case
-    weighing the same: c = Q(z)/1.96 with Q the weighted ``target`` quantile of z."""
-    parts = [np.asarray(z, dtype=float) for z in z_by_case.values() if len(z)]
-    if not parts:
-        raise ValueError("no coordinates with an SD to calibrate on")
-    z = np.concatenate(parts)
-    w = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in parts])
-    order = np.argsort(z)
-    cum = np.cumsum(w[order]) / w.sum()
-    return float(z[order][np.searchsorted(cum, target)] / Z95)
-
-
-def _calibrate(
-    command: str, split: str, truths: list[Truth], cases: list[Case], noise_mm: float, seed: int, profile: str
-) -> dict[str, Any]:
-    """Calibrate and write the uncertainty constants (``uncertainty_calibration``); what to report."""
-    from ..fit.uncertainty import write_calibration
-    from . import uncertainty_calibration as uc
-
-    samples = uc.collect(truths, cases, noise_mm, seed, profile)
-    constants, diagnostics = uc.calibrate(samples)
-    record = constants._replace(
-        provenance=uc.provenance(command, split, len(truths), cases, noise_mm, seed, diagnostics)
-    )
-    path = write_calibration(record)
-    return {"uncertainty_scale": constants.uncertainty_scale, "prior_weight": constants.prior_weight,
-            "calibration_file": str(path), "calibration": diagnostics}
-
-
 # ---------------------------------------------------------------- command
 
 
@@ -684,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
             print("error: calibrate on the dev split only (--split dev); test is reported, never tuned on",
                   file=sys.stderr)
             return 2
-        calibrated = _calibrate(command, args.split, verse, cases, args.noise_mm, args.seed, args.profile)
+        calibrated = calibrate_and_write(command, args.split, verse, cases, args.noise_mm, args.seed, args.profile)
     datasets = {f"verse-{args.split}": verse}
     if args.synthetic > 0 and not args.calibrate_uncertainty:
         datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)

@@ -25,12 +25,13 @@ import numpy as np
 from .. import reconstruction
 from ..anatomy import PROFILES_DIR, Profile, load_profile, save_profile
 from . import clinic
+from .clinic_films import CASES, Truth, simulate_series
 
 DEFAULT_GRID = (3.0, 1.0, 0.3, 0.1, 0.03)
 DEFAULT_CASES = "abce"
 
 
-def score(profile: Profile, truths: list[clinic.Truth], cases: str, noise_mm: float, seed: int) -> dict[str, float]:
+def score(profile: Profile, truths: list[Truth], cases: str, noise_mm: float, seed: int) -> dict[str, float]:
     """Mean 3D error (mm, translation removed) per case with ``profile``'s weights."""
     original = reconstruction.load_profile
     def fixed(name: str = "default") -> Profile:
@@ -40,7 +41,7 @@ def score(profile: Profile, truths: list[clinic.Truth], cases: str, noise_mm: fl
     try:
         out = {}
         for key in cases:
-            runs = [clinic.run_one(clinic.simulate_series(t, noise_mm, seed), clinic.CASES[key]) for t in truths]
+            runs = [clinic.run_one(simulate_series(t, noise_mm, seed), CASES[key]) for t in truths]
             ok = [r for r in runs if r.ok]
             out[key] = float(np.mean([r.per_level_mm.mean() for r in ok])) if ok else float("inf")
         return out

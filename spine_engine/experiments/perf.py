@@ -22,11 +22,11 @@ import numpy as np
 import scipy
 
 from ..fit import RodParameters, ViewData, fit, initial_configuration
+from ..frames import frames_from_centreline
 from ..projection import image_axes, project
-from ..reconstruction import register_model
+from ..reconstruction import register
 from ..rod import strains
-from ..validation import validate_payload
-from .truth import payload_from_truth
+from .truth import payload_from_truth, read_verse
 
 
 def synthetic_spine(
@@ -140,22 +140,6 @@ def build_problem(lateral: bool = False, seed: int = 0, weight: float = 10.0) ->
     )
 
 
-def warm_up() -> float:
-    """Compile the engine's numba kernels (``fit.rod_rows``, ``fit.problem``, ``rotations``) into
-    their on-disk cache, or load them from it, by one fit of the benchmark problem with both views
-    and one ``register()`` of its landmarks without boundary (the clinic's path: cameras estimated,
-    uncertainty, measures); returns the seconds it took (3–4 s on a cold cache on this project's
-    VM, about 0.4 s once cached). ``make install`` runs it, so that no service process pays the
-    compilation on its first job; the worker runs it before forking its pool, so that each pool
-    process inherits the loaded kernels instead of loading them on its first job."""
-    start = time.perf_counter()
-    run(repeats=1, lateral=True, warmup=0)
-    positions, rotations = synthetic_spine(cobb_deg=45.0, twist_deg=15.0, kyphosis_mm=24.0, apex=0.45)
-    levels = list(range(len(positions)))
-    register_model(validate_payload(payload_from_truth(positions, rotations, levels, levels, boundary=False)))
-    return time.perf_counter() - start
-
-
 def _stats(samples_ms: list[float]) -> dict[str, float]:
     a = np.asarray(samples_ms)
     return {
@@ -199,10 +183,6 @@ def run_register(repeats: int, spines_csv: Path = REAL_SPINES) -> dict[str, obje
     """Time the public ``register(payload)`` end to end (validation, patient rest rod, fit,
     measures, result model) with the calibrated default profile, cycling over real spines (VerSe
     dev, 17 PA landmarks projected from CT); also the fit alone as the result reports it."""
-    from ..frames import frames_from_centreline
-    from ..reconstruction import register
-    from .truth import payload_from_truth, read_verse
-
     payloads = [
         payload_from_truth(r, frames_from_centreline(r), list(range(17))) for _, r in read_verse(spines_csv)
     ]

@@ -34,17 +34,17 @@ def shared_data_dir(name: str) -> Path:
 
 def subplots(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
     """``plt.subplots`` on the Agg backend (no display needed): (figure, axes)."""
-    import matplotlib
+    import matplotlib  # lazy: plotting only, the benches' JSON needs no matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: after the Agg backend is chosen
 
     return plt.subplots(*args, **kwargs)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
     """Lay out, write as PNG (creating the folder) and close ``fig``."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: plotting only
 
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Calibration of the uncertainty model's two constants on VerSe dev (issue #10, item 6).
 
 ``spine bench clinic --split dev --calibrate-uncertainty`` films every dev spine in every clinic
-case (``clinic.simulate_series``, ``clinic.build_payload``), fits it once (``reconstruction``'s
+case (``clinic_films.simulate_series``, ``clinic_films.build_payload``), fits it once (``reconstruction``'s
 ``build_problem`` and ``solve_solution``: the same fit as ``register``, kept to reuse its
 ``Solution``) and then, with z = |error| / SD of every position coordinate relative to the
 centroid (``fit.uncertainty``):
@@ -10,7 +10,7 @@ centroid (``fit.uncertainty``):
    (e), where the prior decides the depth, covers ``target`` (95 %) with c = 1; bisection on
    log10 λ in [−2, 6] (coverage falls as λ grows: the prior then holds the spine tighter);
 2. c (``uncertainty_scale``): with that λ, the factor for which ±1.96·c·SD covers ``target`` of
-   the coordinates of all cases pooled, each case weighing the same (``clinic.calibrated_scale``).
+   the coordinates of all cases pooled, each case weighing the same (``calibrated_scale``).
 
 Tune on dev only: the test split is reported, never used here.
 """
@@ -26,16 +26,37 @@ import numpy as np
 from ..anatomy import load_profile
 from ..errors import SpineEngineError
 from ..fit.types import Solution
-from ..fit.uncertainty import Calibration, solution_uncertainty
+from ..fit.uncertainty import Calibration, solution_uncertainty, write_calibration
 from ..reconstruction import build_problem, solve_solution
 from ..validation import validate_payload
-from .clinic import Case, Truth, calibrated_scale, coverage, simulate_series
-from .clinic import build_payload as clinic_payload
+from .clinic_films import Case, FloatArray, Truth, simulate_series
+from .clinic_films import build_payload as clinic_payload
 
 LOG10_PRIOR_WEIGHT_RANGE = (-2.0, 6.0)
 """Bisection range of log10 λ."""
 PRIOR_CASE = "e"
 """The case whose coverage sets λ: PA only, where depth comes from the prior alone."""
+Z95 = 1.959963984540054
+"""Two-sided 95 % quantile of the standard normal distribution."""
+
+
+def coverage(z: Sequence[float] | FloatArray, scale: float = 1.0) -> float | None:
+    """Fraction of items with |error| ≤ 1.96·scale·SD, from their z = |error|/SD."""
+    a = np.asarray(z, dtype=float).ravel()
+    return None if a.size == 0 else float(np.mean(a <= Z95 * scale))
+
+
+def calibrated_scale(z_by_case: dict[str, FloatArray], target: float = 0.95) -> float:
+    """The scale c for which ±1.96·c·SD covers ``target`` of the pooled coordinates, each case
+    weighing the same: c = Q(z)/1.96 with Q the weighted ``target`` quantile of z."""
+    parts = [np.asarray(z, dtype=float) for z in z_by_case.values() if len(z)]
+    if not parts:
+        raise ValueError("no coordinates with an SD to calibrate on")
+    z = np.concatenate(parts)
+    w = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in parts])
+    order = np.argsort(z)
+    cum = np.cumsum(w[order]) / w.sum()
+    return float(z[order][np.searchsorted(cum, target)] / Z95)
 
 
 class Sample(NamedTuple):
@@ -109,10 +130,26 @@ def provenance(command: str, split: str, n_spines: int, cases: Sequence[Case], n
         "each case weighing the same (spine_engine.experiments.uncertainty_calibration)",
         "command": command,
         "training_set": f"VerSe {split} split ({n_spines} spines), {split}.csv; simulated series of "
-        "spine_engine.experiments.clinic",
+        "spine_engine.experiments.clinic_films",
         "cases": {c.key: c.title for c in cases},
         "noise_mm": noise_mm,
         "seed": seed,
         "date": dt.date.today().isoformat(),
         **diagnostics,
+    }
+
+
+def calibrate_and_write(
+    command: str, split: str, truths: list[Truth], cases: list[Case], noise_mm: float, seed: int, profile: str
+) -> dict[str, Any]:
+    """Calibrate the constants on ``truths``, write them with their provenance
+    (``fit.uncertainty.write_calibration``) and return what the bench reports of them."""
+    constants, diagnostics = calibrate(collect(truths, cases, noise_mm, seed, profile))
+    record = constants._replace(provenance=provenance(command, split, len(truths), cases, noise_mm, seed, diagnostics))
+    path = write_calibration(record)
+    return {
+        "uncertainty_scale": constants.uncertainty_scale,
+        "prior_weight": constants.prior_weight,
+        "calibration_file": str(path),
+        "calibration": diagnostics,
     }

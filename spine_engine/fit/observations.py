@@ -26,10 +26,10 @@ import numpy as np
 
 from ..rotations import vector_norms
 from .cameras import project
-from .types import FloatArray, ViewData
+from .types import FloatArray, PointRows, ViewData
 
 if TYPE_CHECKING:
-    from .problem import PointRows, RegistrationProblem, State
+    from .problem import RegistrationProblem, State
 
 
 def _shape(a: np.ndarray | None) -> tuple[int, ...]:
@@ -118,8 +118,6 @@ class Observations:
 
     def offset_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
         """Rows, Jacobians (and θθ second-order terms) of the offset points (module docstring)."""
-        from .problem import PointRows
-
         if not self.n_offsets:
             return None
         P = problem.n_border
@@ -163,8 +161,6 @@ class Observations:
 
     def tilt_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
         """Rows, Jacobians (and θθ second-order terms) of the tilts (module docstring)."""
-        from .problem import PointRows
-
         m = self.n_tilts
         if not m:
             return None

@@ -34,7 +34,18 @@ from .banded import KD, BorderedSystem, band_to_dense
 from .cameras import project
 from .observations import Observations
 from .rod_rows import RodCache, RodRows, jr_inverse
-from .types import Camera, FitOutput, FloatArray, ParameterLayout, Pose, PosePrior, RodParameters, ViewData, as_pose
+from .types import (
+    Camera,
+    FitOutput,
+    FloatArray,
+    ParameterLayout,
+    PointRows,
+    Pose,
+    PosePrior,
+    RodParameters,
+    ViewData,
+    as_pose,
+)
 
 
 @njit(cache=True)
@@ -93,21 +104,6 @@ class State(NamedTuple):
     r: FloatArray
     R: FloatArray
     cameras: tuple[FloatArray, ...]
-
-
-class PointRows(NamedTuple):
-    """The non-rod rows of one configuration: each touches vertebra ``index`` (−1: none)."""
-
-    rho: FloatArray
-    """(k,) values."""
-    vertebra: np.ndarray
-    """(k,) vertebra of each row (−1 when it touches none)."""
-    Jv: FloatArray
-    """(k, 6) ∂ρ/∂[δr_j, δθ_j]."""
-    Jb: FloatArray
-    """(k, P) ∂ρ/∂(estimated camera parameters)."""
-    second: FloatArray | None
-    """(k, 3, 3) ρ ∇²_θθ ρ of each row (offsets and tilts; zero elsewhere), when asked for."""
 
 
 def _check_view(view: ViewData, n: int) -> None:

@@ -259,3 +259,18 @@ class FitOutput:
     """Per view name with tilts, (m,) signed angle α from the observed to the model's axis, degrees."""
     cameras: dict[str, np.ndarray] = field(default_factory=dict)
     """Per view name, its camera parameters at the optimum (``Camera``)."""
+
+
+class PointRows(NamedTuple):
+    """The non-rod rows of one configuration: each touches vertebra ``index`` (−1: none)."""
+
+    rho: FloatArray
+    """(k,) values."""
+    vertebra: np.ndarray
+    """(k,) vertebra of each row (−1 when it touches none)."""
+    Jv: FloatArray
+    """(k, 6) ∂ρ/∂[δr_j, δθ_j]."""
+    Jb: FloatArray
+    """(k, P) ∂ρ/∂(estimated camera parameters)."""
+    second: FloatArray | None
+    """(k, 3, 3) ρ ∇²_θθ ρ of each row (offsets and tilts; zero elsewhere), when asked for."""

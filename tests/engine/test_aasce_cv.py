@@ -3,8 +3,11 @@ numbers (no AASCE data)."""
 
 import numpy as np
 
-from spine_engine import reconstruction
-from spine_engine.experiments.aasce import end_weights, prior_in_use
+from spine_engine.anatomy import load_profile
+from spine_engine.experiments.aasce import end_weights
+from spine_engine.experiments.perf import synthetic_spine
+from spine_engine.experiments.truth import payload_from_truth
+from spine_engine.reconstruction import build_problem
 from spine_engine.tilt_prior import (
     WINDOW,
     TiltPrior,
@@ -14,6 +17,7 @@ from spine_engine.tilt_prior import (
     predict_tilts_deg,
     toward_chord_normal,
 )
+from spine_engine.validation import validate_payload
 
 RNG = np.random.default_rng(11)
 
@@ -41,12 +45,23 @@ def test_end_weights_mark_the_most_and_least_tilted_vertebrae() -> None:
     np.testing.assert_array_equal(end_weights(tilts, 3.0), [[1, 4, 4, 1], [1, 1, 4, 4]])
 
 
-def test_prior_in_use_replaces_the_shipped_prior_only_inside() -> None:
-    shipped = load_tilt_prior()
+def test_a_prior_passed_to_build_problem_replaces_the_shipped_one() -> None:
+    """The bench's cross-validated priors reach the fit through ``tilt_prior`` (no patching)."""
+    positions, rotations = synthetic_spine(cobb_deg=40.0)
+    model = validate_payload(payload_from_truth(positions, rotations, list(range(17)), boundary=False))
+    profile = load_profile()
     other = TiltPrior("cv", WINDOW, np.full((17, len(WINDOW)), 0.25), 7.0)
-    with prior_in_use(other):
-        assert reconstruction.load_tilt_prior() is other
-    assert reconstruction.load_tilt_prior() is shipped
+
+    def tilt_directions(prior: TiltPrior | None) -> np.ndarray:
+        problem = build_problem(model, profile, prior)
+        assert problem.tilt_prior
+        directions = problem.views[0].tilt_directions
+        assert directions is not None
+        return directions
+
+    shipped = tilt_directions(None)
+    np.testing.assert_array_equal(shipped, tilt_directions(load_tilt_prior()))
+    assert np.abs(tilt_directions(other) - shipped).max() > 1e-3
 
 
 def test_shifted_windows_use_distinct_chords_inside_the_spine() -> None:

@@ -9,21 +9,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spine_engine.experiments import clinic
+from spine_engine.experiments import clinic, clinic_films, uncertainty_calibration
 from spine_engine.projection import image_axes, project
 
 VERSE = clinic.shared_data_dir("verse")
 needs_verse = pytest.mark.skipif(not (VERSE / "test.csv").is_file(), reason=f"VerSe data not found at {VERSE}")
 
 
-def _truth() -> clinic.Truth:
+def _truth() -> clinic_films.Truth:
     return clinic.synthetic_truths(1, seed=3)[0]
 
 
 def test_weak_film_is_the_engines_projection() -> None:
     """An unturned weak-perspective film equals ``projection.project`` with the (s, T) the bench
     sends as a calibrated view's ``projection``."""
-    series = clinic.simulate_series(_truth(), noise_mm=0.0, seed=1)
+    series = clinic_films.simulate_series(_truth(), noise_mm=0.0, seed=1)
     for film in (series.pa, dataclasses.replace(series.lateral, turn_deg=0.0)):
         s, t = film.weak_projection()
         e_c, e_r = image_axes(film.orientation)
@@ -34,7 +34,7 @@ def test_weak_film_is_the_engines_projection() -> None:
 def test_perspective_film_is_a_pinhole() -> None:
     """Each image point is where the ray from the source through the point meets the detector
     plane (intersection computed here directly, not with the bench's magnification formula)."""
-    series = clinic.simulate_series(_truth(), noise_mm=0.0, seed=2)
+    series = clinic_films.simulate_series(_truth(), noise_mm=0.0, seed=2)
     for film in (series.pa, series.lateral):
         e_c, e_r = image_axes(film.orientation)
         source = film.principal_point - film.sod_mm * film.beam
@@ -48,19 +48,19 @@ def test_perspective_film_is_a_pinhole() -> None:
             np.testing.assert_allclose(got, rot @ local + film.central_ray, atol=1e-9)
     # the lateral film is 5-10 % more magnified than the PA, and turned by 0.5-2 degrees
     ratio = series.lateral.magnification / series.pa.magnification
-    assert clinic.LATERAL_EXTRA_MAGNIFICATION[0] <= ratio <= clinic.LATERAL_EXTRA_MAGNIFICATION[1]
-    assert clinic.LATERAL_TURN_DEG[0] <= abs(series.lateral.turn_deg) <= clinic.LATERAL_TURN_DEG[1]
+    assert clinic_films.LATERAL_EXTRA_MAGNIFICATION[0] <= ratio <= clinic_films.LATERAL_EXTRA_MAGNIFICATION[1]
+    assert clinic_films.LATERAL_TURN_DEG[0] <= abs(series.lateral.turn_deg) <= clinic_films.LATERAL_TURN_DEG[1]
 
 
 def test_payloads_use_the_public_model() -> None:
     """(b) has no T1-T3 on the lateral; (e) no lateral; (f) boundary and projections; (c) the
     acquisition geometry; no uncalibrated case carries a projection or a boundary."""
-    series = clinic.simulate_series(_truth(), noise_mm=1.0, seed=0)
-    b = clinic.build_payload(series, clinic.CASES["b"])
+    series = clinic_films.simulate_series(_truth(), noise_mm=1.0, seed=0)
+    b = clinic_films.build_payload(series, clinic_films.CASES["b"])
     assert b.lateral is not None and b.lateral.landmarks[0].level == "T4"
     assert b.boundary is None and b.pa.projection is None and b.lateral.projection is None
-    assert clinic.build_payload(series, clinic.CASES["e"]).lateral is None
-    f = clinic.build_payload(series, clinic.CASES["f"])
+    assert clinic_films.build_payload(series, clinic_films.CASES["e"]).lateral is None
+    f = clinic_films.build_payload(series, clinic_films.CASES["f"])
     assert f.boundary is not None and f.pa.projection is not None
     assert f.lateral is not None and f.lateral.projection is not None
 
@@ -71,11 +71,11 @@ def test_calibrated_scale_and_coverage() -> None:
     about 0.01)."""
     rng = np.random.default_rng(0)
     z = np.abs(rng.normal(size=20000)) / 2.0
-    scale = clinic.calibrated_scale({"x": z[:10000], "y": z[10000:]})
+    scale = uncertainty_calibration.calibrated_scale({"x": z[:10000], "y": z[10000:]})
     assert scale == pytest.approx(0.5, abs=0.01)
-    cov = clinic.coverage(z, scale)
+    cov = uncertainty_calibration.coverage(z, scale)
     assert cov is not None and abs(cov - 0.95) < 0.005
-    assert clinic.coverage([]) is None
+    assert uncertainty_calibration.coverage([]) is None
 
 
 @needs_verse

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from spine_engine.experiments import clinic, clinic_films
 from spine_engine.experiments.report import shared_data_dir
 from spine_engine.fit import uncertainty as unc
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
@@ -140,12 +141,11 @@ def test_temperature() -> None:
 def _series_payloads() -> tuple[dict[str, object], dict[str, object]]:
     """One synthetic spine filmed by ``spine bench clinic``'s simulated series (1 mm noise): the
     uncalibrated PA + full lateral payload (case a) and its PA film alone (case e)."""
-    from spine_engine.experiments import clinic
-
     truth = clinic.synthetic_truths(1, seed=11)[0]
-    series = clinic.simulate_series(truth, noise_mm=1.0, seed=0)
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
     return tuple(  # type: ignore[return-value]
-        clinic.build_payload(series, clinic.CASES[key]).model_dump(mode="json", exclude_none=True) for key in "ae"
+        clinic_films.build_payload(series, clinic_films.CASES[key]).model_dump(mode="json", exclude_none=True)
+        for key in "ae"
     )
 
 
@@ -217,10 +217,8 @@ def test_coverage_on_held_out_spines() -> None:
     share its fit's errors, so the effective sample is nearer 8 spines × 3 cases than 1224; two
     calibrations made the same day (with two tilt priors) measured 95.8 % and 97.4 %, the one of
     2026-12-02 (with the tilt prior refitted that day) 97.8 %."""
-    from spine_engine.experiments import clinic
-
     truths = clinic.verse_truths("test")[:8]
-    rows, _ = clinic.run({"held-out": truths}, [clinic.CASES[k] for k in "ace"], noise_mm=1.0, seed=0)
+    rows, _ = clinic.run({"held-out": truths}, [clinic_films.CASES[k] for k in "ace"], noise_mm=1.0, seed=0)
     inside = sum(r["coverage_positions"] * r["coverage_positions_n"] for r in rows)
     n = sum(r["coverage_positions_n"] for r in rows)
     assert n == 1224
@@ -248,11 +246,9 @@ def test_sds_follow_the_declared_landmark_sd() -> None:
     0.50–0.58; 0.50–0.52 with the constants of 2026-12-02). Before the energy unit was made
     independent of σ they stayed the same."""
     from spine_engine import register
-    from spine_engine.experiments import clinic
-
     truth = clinic.synthetic_truths(1, seed=11)[0]
-    series = clinic.simulate_series(truth, noise_mm=1.0, seed=0)
-    payload = clinic.build_payload(series, clinic.CASES["f"]).model_dump(mode="json", exclude_none=True)
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
+    payload = clinic_films.build_payload(series, clinic_films.CASES["f"]).model_dump(mode="json", exclude_none=True)
     wide = np.array([v["position_sd_mm"] for v in register(payload)["vertebrae"]])
     for view in ("pa", "lateral"):
         payload[view]["landmark_sd_mm"] = 0.5

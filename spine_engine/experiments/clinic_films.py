@@ -1,0 +1,236 @@
+"""The simulated scoliosis series of ``spine bench clinic`` (issue #10, item 9): films and cases.
+
+A known spine (``Truth``) is filmed by a PA and a lateral radiograph of the superior endplate
+midpoints (the rod's nodes) with Gaussian landmark noise (SD ``noise_mm`` per coordinate, detector
+mm, seeded; the same noise draw serves every case of one spine). Geometry, in the spirit of a
+full-spine series (``SID_MM``, ``PA_SOD_MM``): the PA's magnification at the spine's mid-plane is
+SID/SOD = 1800/1600 = 1.125; the lateral is 5–10 % more magnified (drawn), its film turned in its
+plane by 0.5–2° (drawn sign and size) and both films offset (drawn). The central ray meets the
+patient within ``CENTRAL_RAY_SPREAD_MM`` of the spine's centroid (drawn). PA beam posterior →
+anterior (−y), lateral beam right → left (+x, the patient's left side at the detector).
+
+``CASES`` are what the clinic sends of such a series (``build_payload``): (a) uncalibrated PA +
+full lateral, weak perspective, nothing given; (b) the same with the lateral from T4 down; (c)
+perspective films (pinhole: magnification SID/d with d the source distance of each point) with
+``acquisition`` giving SID, SOD and the central ray; (d) the same films without ``acquisition``;
+(e) the PA film of (a) only; (f) the paper's case: T1 and L5 given from the truth, both views' weak
+perspective given, films not turned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..levels import LEVELS, N_LEVELS
+from ..models import JobPayload, LateralView, PAView
+from ..projection import image_axes
+
+FloatArray = npt.NDArray[np.float64]
+
+SID_MM = 1800.0
+"""Source–detector distance of the simulated films, mm: the usual full-spine distance of about
+1.8 m (72 inches) (brief of issue #10: "SID ≈ 1800 mm")."""
+PA_SOD_MM = 1600.0
+"""Source to the spine's mid-plane on the PA film, mm (brief: "SOD ≈ 1600 mm"); PA magnification
+at that plane SID/SOD = 1.125."""
+LATERAL_EXTRA_MAGNIFICATION = (1.05, 1.10)
+"""The lateral film's magnification over the PA's, drawn uniformly (issue #10: "5–10 % more")."""
+LATERAL_TURN_DEG = (0.5, 2.0)
+"""Size of the lateral film's in-plane rotation, drawn uniformly with a random sign ("slightly
+rotated"; a modelling choice)."""
+CENTRAL_RAY_SPREAD_MM = 20.0
+"""SD of the central ray's in-plane distance from the spine's centroid, per axis, mm ("near the
+spine's middle"; a modelling choice)."""
+FILM_OFFSET_MM = ((150.0, 250.0), (350.0, 550.0))
+"""Range of the image (column, row) of the central ray, detector mm: where the spine's middle
+lands on a 35 × 90 cm film (drawn uniformly; any offset is equivalent for the engine)."""
+
+PA_BEAM = np.array([0.0, -1.0, 0.0])
+"""PA film: the beam runs posterior → anterior (LPS −y)."""
+LATERAL_BEAM = np.array([1.0, 0.0, 0.0])
+"""Lateral film: the beam runs from the patient's right to left (LPS +x)."""
+PA_ORIENTATION = ("L", "F")
+LATERAL_ORIENTATION = ("A", "F")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One clinical setting of the benchmark."""
+
+    key: str
+    title: str
+    lateral_from: int | None = 0
+    """First level index on the lateral film (None: no lateral)."""
+    perspective: bool = False
+    """Films made by a point source (pinhole) rather than weak perspective."""
+    acquisition: bool = False
+    """The views' ``acquisition`` (SID, SOD, central ray) is in the payload."""
+    boundary: bool = False
+    """T1 and L5 poses are given from the truth (the paper's setting)."""
+    calibrated: bool = False
+    """Each view's weak perspective ``projection`` is given and the lateral film is not turned."""
+
+
+CASES: dict[str, Case] = {
+    c.key: c
+    for c in (
+        Case("a", "PA + full lateral, uncalibrated"),
+        Case("b", "PA + lateral T4-L5, uncalibrated", lateral_from=3),
+        Case("c", "perspective PA + lateral, geometry given", perspective=True, acquisition=True),
+        Case("d", "perspective PA + lateral, geometry unknown", perspective=True),
+        Case("e", "PA only, uncalibrated", lateral_from=None),
+        Case("f", "paper: T1/L5 given, calibrated PA + lateral", boundary=True, calibrated=True),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A known spine: positions (17, 3) mm LPS and rotations (17, 3, 3), directors as columns."""
+
+    spine_id: str
+    positions: FloatArray
+    rotations: FloatArray
+
+
+@dataclass(frozen=True)
+class Film:
+    """The geometry of one simulated radiograph (all lengths mm)."""
+
+    orientation: tuple[str, str]
+    beam: FloatArray
+    """Unit vector of the beam, source → detector, LPS."""
+    sod_mm: float
+    """Source to the plane through the spine's centroid normal to the beam."""
+    principal_point: FloatArray
+    """(3,) where the central ray crosses that plane, patient mm."""
+    central_ray: FloatArray
+    """(2,) image (column, row) of the central ray, detector mm."""
+    turn_deg: float
+    """In-plane rotation of the film, degrees."""
+    sid_mm: float = SID_MM
+
+    @property
+    def magnification(self) -> float:
+        """Magnification at the mid-plane, SID/SOD."""
+        return self.sid_mm / self.sod_mm
+
+    def image(self, points: FloatArray, perspective: bool) -> FloatArray:
+        """Image (column, row) in detector mm of points (k, 3).
+
+        With q = (e_c·(r − c), e_r·(r − c)) the in-plane coordinates from the principal point c:
+        p = Rot(γ) m q + p_c with m = SID / (SOD + b·(r − c)) (pinhole; b the beam) or the
+        constant SID/SOD (weak perspective), γ the film's turn and p_c the central ray's image.
+        """
+        e_c, e_r = image_axes(self.orientation)
+        rel = np.asarray(points, dtype=float) - self.principal_point
+        q = np.stack((rel @ e_c, rel @ e_r), axis=-1)
+        m = self.sid_mm / (self.sod_mm + rel @ self.beam) if perspective else np.full(len(rel), self.magnification)
+        g = np.radians(self.turn_deg)
+        rot = np.array([[np.cos(g), -np.sin(g)], [np.sin(g), np.cos(g)]])
+        return np.asarray((m[:, None] * q) @ rot.T + self.central_ray)
+
+    def weak_projection(self) -> tuple[float, tuple[float, float]]:
+        """(scale s, translation T) of this film as the engine's weak perspective p = s E r + T
+        (valid when the film is not turned): T = p_c − s E c."""
+        e_c, e_r = image_axes(self.orientation)
+        s = self.magnification
+        t = self.central_ray - s * np.array([self.principal_point @ e_c, self.principal_point @ e_r])
+        return s, (float(t[0]), float(t[1]))
+
+
+@dataclass(frozen=True)
+class Series:
+    """A simulated scoliosis series of one spine: both films and the landmark noise."""
+
+    truth: Truth
+    pa: Film
+    lateral: Film
+    pa_noise: FloatArray
+    """(17, 2) landmark noise of the PA film, detector mm."""
+    lateral_noise: FloatArray
+    """(17, 2) landmark noise of the lateral film, detector mm."""
+    noise_mm: float
+
+
+def _seed_of(spine_id: str) -> int:
+    return sum((i + 1) * ord(ch) for i, ch in enumerate(spine_id))
+
+
+def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
+    """Draw the series geometry and noise of one spine (module docstring), deterministic for
+    (seed, spine id)."""
+    rng = np.random.default_rng([seed, _seed_of(truth.spine_id)])
+    centre = truth.positions.mean(axis=0)
+    films = []
+    for orientation, beam, sod in (
+        (PA_ORIENTATION, PA_BEAM, PA_SOD_MM),
+        (LATERAL_ORIENTATION, LATERAL_BEAM, None),
+    ):
+        e_c, e_r = image_axes(orientation)
+        if sod is None:
+            ratio = rng.uniform(*LATERAL_EXTRA_MAGNIFICATION)
+            sod = SID_MM / (SID_MM / PA_SOD_MM * ratio)
+            turn = rng.uniform(*LATERAL_TURN_DEG) * rng.choice([-1.0, 1.0])
+        else:
+            turn = 0.0
+        offset = rng.normal(0.0, CENTRAL_RAY_SPREAD_MM, 2)
+        ray = np.array([rng.uniform(*FILM_OFFSET_MM[0]), rng.uniform(*FILM_OFFSET_MM[1])])
+        films.append(Film(orientation, beam, float(sod), centre + offset[0] * e_c + offset[1] * e_r, ray, float(turn)))
+    pa_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
+    lateral_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
+    return Series(truth, films[0], films[1], pa_noise, lateral_noise, noise_mm)
+
+
+def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -> bool:
+    """Whether this engine's payload model has ``field_name`` on a view (the contract of issue #10
+    lands in steps; the bench sends only what the engine knows)."""
+    return field_name in view.model_fields
+
+
+def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[int], case: Case) -> dict[str, Any]:
+    untilted = Film(film.orientation, film.beam, film.sod_mm, film.principal_point, film.central_ray, 0.0)
+    used = untilted if case.calibrated else film
+    points = used.image(series.truth.positions[levels], case.perspective) + noise[levels]
+    view: dict[str, Any] = {
+        "units": "mm",
+        "patient_orientation": list(film.orientation),
+        "landmarks": [
+            {"level": LEVELS[i], "point": [float(p[0]), float(p[1])]} for i, p in zip(levels, points, strict=True)
+        ],
+    }
+    if supports("landmark_sd_mm") and series.noise_mm > 0:
+        view["landmark_sd_mm"] = series.noise_mm
+    if case.calibrated:
+        s, t = used.weak_projection()
+        view["projection"] = {"scale": s, "translation": list(t)}
+    if case.acquisition:
+        view["acquisition"] = {
+            "distance_source_to_detector_mm": film.sid_mm,
+            "distance_source_to_patient_mm": film.sod_mm,
+            "central_ray": [float(film.central_ray[0]), float(film.central_ray[1])],
+        }
+    return view
+
+
+def build_payload(series: Series, case: Case) -> JobPayload:
+    """The ``JobPayload`` a clinic would send for this series in this case (validated by the
+    public model: a field this engine does not know yet fails here, and the case is reported as
+    refused)."""
+    payload: dict[str, Any] = {
+        "pa": _view_payload(series, series.pa, series.pa_noise, list(range(N_LEVELS)), case),
+    }
+    if case.lateral_from is not None:
+        levels = list(range(case.lateral_from, N_LEVELS))
+        payload["lateral"] = _view_payload(series, series.lateral, series.lateral_noise, levels, case)
+    if case.boundary:
+        t = series.truth
+        payload["boundary"] = {
+            lv: {"position": t.positions[i].tolist(), "directors": t.rotations[i].T.tolist()}
+            for lv, i in (("T1", 0), ("L5", N_LEVELS - 1))
+        }
+    return JobPayload.model_validate(payload)
