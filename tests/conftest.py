@@ -284,11 +284,19 @@ def distributed_service(
 
 
 def _purge_queue(url: str, queue: str) -> None:
-    """Delete a test queue's keys from Redis: the queue, its priority lists and kombu's binding keys."""
+    """Delete a test queue's keys from Redis: the queue, its priority lists, kombu's binding keys and
+    the messages a killed worker left unacknowledged for it (kombu's ``unacked`` hash and
+    ``unacked_index``: any later consumer on the same database would restore them into the queue,
+    which then outlives the test)."""
     import redis
 
     client = redis.Redis.from_url(url)
     client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
+    for tag, raw in client.hgetall("unacked").items():
+        routing_key = json.loads(raw)[2]
+        if routing_key == queue or routing_key.startswith(f"{queue}."):
+            client.hdel("unacked", tag)
+            client.zrem("unacked_index", tag)
 
 
 @pytest.fixture(params=["embedded", "distributed"])

@@ -27,7 +27,7 @@ from services.db.migrate import upgrade
 from services.dicom import synthetic
 from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
-from tests.conftest import Service, make_key, service_env
+from tests.conftest import Service, _purge_queue, make_key, service_env
 
 from .conftest import OrthancServer, spine_payload
 
@@ -53,6 +53,7 @@ def pacs_service(
         yield service
     finally:
         service.stop_worker()
+        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
 
 
 def _pacs(orthanc: OrthancServer) -> Pacs:
@@ -185,6 +186,7 @@ def test_pacs_down_retries_then_fails_the_job(
         job = service.wait(service.submit(payload)["id"], timeout=120)
     finally:
         service.stop_worker()
+        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
     assert job["status"] == "failed"
     assert job["error"]["type"].endswith("/dicomweb-unavailable"), job["error"]
     assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
@@ -239,6 +241,7 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
         done = [service.wait(j, timeout=120) for j in job_ids]
     finally:
         service.stop_worker()
+        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
         if back is not None:
             stop_orthanc(back)
     log = service.worker_log()
@@ -334,4 +337,4 @@ def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redi
             assert session.get(Job, job.id).dicom_store_due_at is None  # type: ignore[union-attr]
         assert broker.llen(settings.dicom_queue) == 1
     finally:
-        broker.delete(settings.dicom_queue)
+        _purge_queue(redis_url, queue)
