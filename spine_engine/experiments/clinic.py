@@ -7,19 +7,11 @@ entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would
   ``frames.frames_from_centreline``) and synthetic spines built geometrically by
   ``spine_engine.synthetic`` (curve angles, kyphosis, lordosis and axial rotation drawn, never
   made by the fit);
-* films (``clinic_films.simulate_series``): a PA and a lateral radiograph of the superior endplate midpoints
-  (the rod's nodes) with Gaussian landmark noise (SD ``noise_mm`` per coordinate, detector mm,
-  seeded; the same noise draw serves every case of one spine). Geometry, in the spirit of a full-
-  spine series (``SID_MM``, ``PA_SOD_MM``): the PA's magnification at the spine's mid-plane is
-  SID/SOD = 1800/1600 = 1.125; the lateral is 5–10 % more magnified (drawn), its film turned in
-  its plane by 0.5–2° (drawn sign and size) and both films offset (drawn). The central ray meets
-  the patient within ``CENTRAL_RAY_SPREAD_MM`` of the spine's centroid (drawn). PA beam posterior
-  → anterior (−y), lateral beam right → left (+x, the patient's left side at the detector);
-* cases (``clinic_films.CASES``): (a) uncalibrated PA + full lateral, weak perspective, nothing given; (b) the
-  same with the lateral from T4 down; (c) perspective films (pinhole: magnification SID/d with d
-  the source distance of each point) with ``acquisition`` giving SID, SOD and the central ray;
-  (d) the same films without ``acquisition``; (e) the PA film of (a) only; (f) the paper's case:
-  T1 and L5 given from the truth, both views' weak perspective given, films not turned.
+* films and cases (``clinic_films``): a simulated PA and lateral radiograph of each spine
+  (``simulate_series``: landmark noise, magnifications, film turn and offsets drawn) and what the
+  clinic sends of them in each case (``CASES``, ``build_payload``): (a) uncalibrated PA + full
+  lateral, (b) the lateral from T4 down, (c) perspective films with the geometry given, (d)
+  without it, (e) PA only, (f) the paper's case.
 
 Metrics per spine, then averaged (``summarise``):
 
