@@ -157,10 +157,8 @@ def polyline_length(points: FloatArray) -> float:
 def generic_arc_scale(profile: Profile, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> float:
     """(length of the landmarks' polyline, detector mm) / (length of the generic spine's projection
     through the same levels, mm): the scale s that makes the patient as long as the generic spine."""
-    generic = rest_shape_unit(profile)[1][arrays.indices]
-    generic_2d = np.stack([generic @ e_c, generic @ e_r], axis=1)
     image = polyline_length(arrays.points)
-    model = polyline_length(generic_2d)
+    model = generic_projected_length(profile, arrays.indices, e_c, e_r)
     if not (image > 0.0 and model > 0.0):
         raise ValueError("the landmarks do not span a length: cannot estimate the scale")
     return image / model
@@ -172,26 +170,37 @@ def size_factor(profile: Profile, view: ViewData) -> float:
     if len(view.indices) < 2:
         return 1.0
     patient = polyline_length(np.asarray(view.points) / view.scale)
-    model = _generic_projected_length(
-        rest_shape_key(profile),
-        tuple(np.asarray(view.indices).tolist()),
-        tuple(np.asarray(view.e_c).tolist()),
-        tuple(np.asarray(view.e_r).tolist()),
-    )
+    model = generic_projected_length(profile, view.indices, view.e_c, view.e_r)
     return patient / model if patient > 0.0 and model > 0.0 else 1.0
+
+
+def projected_length(points: FloatArray, e_c: FloatArray, e_r: FloatArray) -> float:
+    """Σ_k |g_{k+1} − g_k| of the points (k, 3) projected on the image axes, g_k = (e_c·r_k, e_r·r_k),
+    in the points' units."""
+    projected = np.empty((len(points), 2))  # as np.stack(..., axis=1), without its wrapper
+    projected[:, 0], projected[:, 1] = points @ e_c, points @ e_r
+    return polyline_length(projected)
+
+
+def generic_projected_length(
+    profile: Profile, indices: npt.ArrayLike, e_c: npt.ArrayLike, e_r: npt.ArrayLike
+) -> float:
+    """``projected_length`` of the profile's generic rest shape at length scale 1 through the
+    vertebrae ``indices``, mm. It depends only on the rest shape, the levels and the axes (a few
+    distinct values from job to job), so it is computed once for each."""
+    return _generic_projected_length(
+        rest_shape_key(profile),
+        tuple(np.asarray(indices).tolist()),
+        tuple(np.asarray(e_c, dtype=float).tolist()),
+        tuple(np.asarray(e_r, dtype=float).tolist()),
+    )
 
 
 @functools.lru_cache(maxsize=64)
 def _generic_projected_length(
     shape: RestShapeKey, indices: tuple[int, ...], e_c: tuple[float, ...], e_r: tuple[float, ...]
 ) -> float:
-    """Σ_k |g_{k+1} − g_k| in mm of the generic rest shape at length scale 1 (``rest_shape_unit_of``)
-    through the vertebrae ``indices``, projected on the image axes: g_k = (e_c·r_k, e_r·r_k). It
-    depends only on the rest shape, the landmarked levels and the view's axes (a few distinct
-    values), so it is computed once for each (``size_factor``)."""
-    generic = rest_shape_unit_of(shape)[1][np.asarray(indices)]
-    generic_2d = np.stack([generic @ np.asarray(e_c), generic @ np.asarray(e_r)], axis=1)
-    return polyline_length(generic_2d)
+    return projected_length(rest_shape_unit_of(shape)[1][np.asarray(indices)], np.asarray(e_c), np.asarray(e_r))
 
 
 def with_observations(

@@ -28,6 +28,7 @@ from .clinical import (
     observed_frontal_tilts,
     place_without_boundary,
     polyline_length,
+    projected_length,
     size_factor,
     with_observations,
 )
@@ -362,10 +363,7 @@ def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
     With all 17 PA landmarks it compares the projected arc lengths, so lateral curvature is
     counted; with T1 and L5 alone it compares the projected chords.
     """
-    landmarked = rest_positions[view.indices]
-    rest_2d = np.empty((len(landmarked), 2))  # as np.stack(..., axis=1), without its wrapper
-    rest_2d[:, 0], rest_2d[:, 1] = landmarked @ view.e_c, landmarked @ view.e_r
-    rest_arc = polyline_length(rest_2d)
+    rest_arc = projected_length(rest_positions[view.indices], view.e_c, view.e_r)
     image_arc = polyline_length(view.points / view.scale)
     return image_arc / rest_arc
 
