@@ -262,7 +262,7 @@ class FitOutput:
 
 
 class PointRows(NamedTuple):
-    """The non-rod rows of one configuration: each touches vertebra ``index`` (−1: none)."""
+    """The non-rod rows of one configuration: each touches one vertebra (``vertebra``; −1: none)."""
 
     rho: FloatArray
     """(k,) values."""
