@@ -36,7 +36,7 @@ from matplotlib.figure import Figure
 
 from .clinical import landmark_arrays
 from .levels import LEVELS
-from .models import JobPayload
+from .models import LATERAL_ORIENTATION, JobPayload
 from .projection import image_axes, project
 
 FigureFormat = Literal["png", "svg"]
@@ -47,7 +47,6 @@ BODY_WIDTH = 1.4
 BODY_HEIGHT = 0.7
 """Drawn vertebral body height along d3, as a multiple of the segment length."""
 BENDING_CMAP = "coolwarm"
-LATERAL_ORIENTATION = ("A", "F")
 
 
 def bending_norm(values: Sequence[float | None]) -> Normalize:

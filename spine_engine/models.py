@@ -194,11 +194,18 @@ class _View(_Strict):
         return sorted(value, key=lambda lm: LEVEL_INDEX[lm.level])
 
 
+PA_ORIENTATION: tuple[str, str] = ("L", "F")
+"""Default ``patient_orientation`` of the PA view: columns toward the patient's left, rows toward
+the feet (DICOM PS3.3 C.7.6.1.1.1 Patient Orientation), as a PA film is hung."""
+LATERAL_ORIENTATION: tuple[str, str] = ("A", "F")
+"""Default ``patient_orientation`` of the lateral view: columns toward anterior, rows toward the feet."""
+
+
 class PAView(_View):
     """The postero-anterior radiograph and its landmarks."""
 
     patient_orientation: tuple[str, str] = Field(
-        ("L", "F"),
+        PA_ORIENTATION,
         description="DICOM (0020,0020) patient orientation of the column and row directions.",
     )
     landmarks: list[Landmark] = Field(min_length=1, max_length=MAX_LANDMARKS_PER_VIEW)
@@ -208,7 +215,7 @@ class LateralView(_View):
     """An optional lateral radiograph and its landmarks (any subset of levels)."""
 
     patient_orientation: tuple[str, str] = Field(
-        ("A", "F"),
+        LATERAL_ORIENTATION,
         description="DICOM (0020,0020) patient orientation of the column and row directions.",
     )
 

@@ -12,13 +12,12 @@ from __future__ import annotations
 import time
 
 from .levels import LEVELS
+from .models import LATERAL_ORIENTATION, PA_ORIENTATION
 from .projection import image_axes, project
 from .reconstruction import register_model
 from .synthetic import generate_spine
 from .validation import validate_payload
 
-PA_ORIENTATION = ("L", "F")
-LATERAL_ORIENTATION = ("A", "F")
 MAGNIFICATION = 1.125
 """PA and lateral magnification of the warm-up films (any plausible value exercises the same code)."""
 

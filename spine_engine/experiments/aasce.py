@@ -38,6 +38,7 @@ from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
 from ..errors import FitFailed, InvalidInput
 from ..levels import LEVELS, N_LEVELS
 from ..measures import frontal_tilt_deg, major_first_curves
+from ..models import PA_ORIENTATION
 from ..observations import chord_angles_deg, frontal_tilt_deg_of_image_vectors
 from ..projection import image_axes
 from ..reconstruction import register, register_model
@@ -56,7 +57,6 @@ from ..validation import validate_payload
 from .report import format_table, save_figure, shared_data_dir, subplots, write_json
 
 DATE = "2026-12-02"
-PA = ("L", "F")
 PLAUSIBLE_CHORD_DEG = 60.0
 """A radiograph whose superior endplate midpoints make a chord steeper than this (or going up) has
 a misplaced landmark (e.g. an L5 annotated at the top of the image): left out of calibration."""
@@ -175,7 +175,7 @@ def smape(predicted: np.ndarray, truth: np.ndarray) -> float:
 
 def plausible(rad: Radiograph) -> bool:
     """No chord of the superior endplate midpoints steeper than ``PLAUSIBLE_CHORD_DEG`` (or going up)."""
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
     return bool(np.all(np.abs(chord_angles_deg(mids, e_c, e_r)) <= PLAUSIBLE_CHORD_DEG))
 
@@ -205,7 +205,7 @@ def payload(rad: Radiograph, form: str, tilt_prior: bool | None = None) -> dict[
         else:
             landmarks.append({"level": level, "point": (0.5 * (quad[0] + quad[1])).tolist()})
     body: dict[str, Any] = {
-        "pa": {"units": "px", "pixel_spacing": [spacing, spacing], "patient_orientation": list(PA),
+        "pa": {"units": "px", "pixel_spacing": [spacing, spacing], "patient_orientation": list(PA_ORIENTATION),
                "landmarks": landmarks}
     }
     if tilt_prior is not None:
@@ -218,7 +218,7 @@ def model_axes(result: dict[str, Any], spacing: float) -> tuple[np.ndarray, np.n
     vertebra's d1 projected, its node (superior endplate midpoint) projected, and the node + H·d3
     projected as the inferior midpoint (H the table's body height × the reconstruction's length
     over the table's)."""
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     E = np.stack([e_c, e_r])
     s = result["fit"]["pa"]["scale"]
     T = np.asarray(result["fit"]["pa"]["translation"])
@@ -236,7 +236,7 @@ def model_axes(result: dict[str, Any], spacing: float) -> tuple[np.ndarray, np.n
 def line_axes(rad: Radiograph) -> tuple[np.ndarray, np.ndarray]:
     """The straight-chord baseline: each vertebra's axis perpendicular to the mean of the chords of
     the superior endplate midpoints above and below it (one-sided at T1 and L5)."""
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
     phi = chord_angles_deg(mids, e_c, e_r)
     tilt = np.concatenate([[phi[0]], 0.5 * (phi[:-1] + phi[1:]), [phi[-1]]])
@@ -421,7 +421,7 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
     the smallest within ``FRACTION_TIE_DEG`` of the lowest training MAE); write it."""
     rads = read_split(data / "training")
     keep = [r for r in rads if plausible(r) and r.angles[0] < 90.0]
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in keep])
     chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in keep])
     major = np.array([r.angles[0] for r in keep])
@@ -494,7 +494,7 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
 
 def frontal_tilt_deg_of_corners(corners: np.ndarray) -> np.ndarray:
     """Frontal tilt (17,) of annotated corner lines on a PA ["L", "F"] image, degrees."""
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     vectors, _ = corner_axes(corners)
     return frontal_tilt_deg_of_image_vectors(vectors, e_c, e_r)
 
@@ -559,7 +559,7 @@ def cross_validate(
     radiograph of the fold is reconstructed from its midpoints with it. Major-angle MAE and bias over
     the in-order radiographs (refused ones excluded, failed fits counted) and over the plausible ones."""
     rads = read_split(data / "training")
-    e_c, e_r = image_axes(PA)
+    e_c, e_r = image_axes(PA_ORIENTATION)
     tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in rads])
     chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in rads])
     truth = np.array([r.angles[0] for r in rads])

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..levels import LEVELS, N_LEVELS
-from ..models import JobPayload, LateralView, PAView
+from ..models import LATERAL_ORIENTATION, PA_ORIENTATION, JobPayload, LateralView, PAView
 from ..projection import image_axes
 
 FloatArray = npt.NDArray[np.float64]
@@ -53,8 +53,6 @@ PA_BEAM = np.array([0.0, -1.0, 0.0])
 """PA film: the beam runs posterior → anterior (LPS −y)."""
 LATERAL_BEAM = np.array([1.0, 0.0, 0.0])
 """Lateral film: the beam runs from the patient's right to left (LPS +x)."""
-PA_ORIENTATION = ("L", "F")
-LATERAL_ORIENTATION = ("A", "F")
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,10 @@ from ..anatomy import VERTEBRA_TABLE, load_profile
 from ..clinical import size_factor
 from ..fit import ViewData
 from ..levels import LEVELS, N_LEVELS
+from ..models import LATERAL_ORIENTATION, PA_ORIENTATION
 from ..observations import pedicle_offsets_in_image_order
 from ..projection import image_axes, project
 from ..rod import strains
-
-PA_ORIENTATION = ("L", "F")
-LATERAL_ORIENTATION = ("A", "F")
 
 
 def landmark_subset(count: int) -> list[int]:
