@@ -13,6 +13,10 @@ COMMANDS = {
     "aasce": ("spine_engine.experiments.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
     "noise-weight": ("spine_engine.experiments.noise_weight", "prior strength, noisy landmarks (VerSe dev)"),
     "clinic": ("spine_engine.experiments.clinic", "the clinic's setting (issue #10): 3D error and interval coverage"),
+    "clinic-bound": (
+        "spine_engine.experiments.clinic_bound",
+        "the clinic's setting: the error that an oracle knowing the shape cannot avoid",
+    ),
 }
 
 

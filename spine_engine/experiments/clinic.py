@@ -80,11 +80,15 @@ class Outcome:
     ok: bool
     error: str = ""
     per_level_mm: FloatArray = field(default_factory=lambda: np.full(N_LEVELS, np.nan))
+    error_vectors: FloatArray = field(default_factory=lambda: np.full((N_LEVELS, 3), np.nan))
+    """(17, 3) (r_i − r̄) − (t_i − t̄), mm: the errors behind ``per_level_mm``."""
     scale_error_pct: float = float("nan")
     shape_error_mm: float = float("nan")
     """Mean 3D error after removing the best rigid motion (translation and rotation), mm."""
+    rotation_error_deg: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
+    """That rotation's vector (about x, y, z, LPS), degrees."""
     sagittal_lean_deg: float = float("nan")
-    """That rotation's component about the left–right axis (x, LPS), degrees."""
+    """Its component about the left–right axis (x), degrees."""
     errors_deg: dict[str, float] = field(default_factory=dict)
     """Signed error of each measure computed the same way on result and truth (the centreline
     frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
@@ -120,10 +124,12 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
     diff = dr - dt_
     out = Outcome(spine_id=truth.spine_id, case=case, ok=True, runtime_ms=runtime_ms)
+    out.error_vectors = diff
     out.per_level_mm = np.linalg.norm(diff, axis=1)
     rms_ratio = np.sqrt(np.mean(np.sum(dr**2, axis=1)) / np.mean(np.sum(dt_**2, axis=1)))
     out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
-    out.shape_error_mm, out.sagittal_lean_deg = rigid_difference(r, t)
+    out.shape_error_mm, out.rotation_error_deg = rigid_difference(r, t)
+    out.sagittal_lean_deg = float(out.rotation_error_deg[0])
     # "computed the same way": the measures of the centreline frames of the positions, on both
     truth_m = compute_measures(t, frames_from_centreline(t))
     same_m = compute_measures(r, frames_from_centreline(r))
@@ -173,13 +179,14 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     return out
 
 
-def rigid_difference(r: FloatArray, t: FloatArray) -> tuple[float, float]:
-    """(mean |Q(r_i − r̄) − (t_i − t̄)| in mm, Q's rotation about the x axis in degrees) with Q the
-    rotation that best aligns the centred result r on the centred truth t (least squares, Kabsch).
-    The angle is the x component of Q's rotation vector: how far the result leans forward or back."""
+def rigid_difference(r: FloatArray, t: FloatArray) -> tuple[float, FloatArray]:
+    """(mean |Q(r_i − r̄) − (t_i − t̄)| in mm, Q's rotation vector in degrees) with Q the rotation
+    that best aligns the centred result r on the centred truth t (least squares, Kabsch). The
+    vector's x component is how far the result leans forward or back, its z component how far it is
+    turned about the vertical."""
     dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
     turn, _ = Rotation.align_vectors(dt_, dr)
-    return float(np.mean(np.linalg.norm(turn.apply(dr) - dt_, axis=1))), float(turn.as_rotvec(degrees=True)[0])
+    return float(np.mean(np.linalg.norm(turn.apply(dr) - dt_, axis=1))), turn.as_rotvec(degrees=True)
 
 
 Registrar = Callable[[dict[str, Any]], dict[str, Any]]
@@ -230,6 +237,14 @@ def _mean(values: list[float]) -> float | None:
     return float(a.mean()) if a.size else None
 
 
+def rms_rotation_error(outcomes: Sequence[Outcome]) -> list[float] | None:
+    """RMS over the spines of the best rotation's components about x, y, z (degrees), None if none."""
+    if not outcomes:
+        return None
+    vectors = np.array([o.rotation_error_deg for o in outcomes])
+    return np.sqrt(np.mean(vectors**2, axis=0)).round(3).tolist()
+
+
 def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, Any]:
     """One row of the table: means over the spines reconstructed, and coverages (with their
     item counts)."""
@@ -248,6 +263,7 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
         "scale_error_abs_pct": _mean([abs(o.scale_error_pct) for o in ok]),
         "shape_error_mm": _mean([o.shape_error_mm for o in ok]),
         "sagittal_lean_rms_deg": float(np.sqrt(np.mean([o.sagittal_lean_deg**2 for o in ok]))) if ok else None,
+        "rotation_error_rms_deg_xyz": rms_rotation_error(ok),
         "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
         "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
         "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),

@@ -55,6 +55,14 @@ class PosePrior(NamedTuple):
     rotation_sd_rad: float
 
 
+FILM_TURN_PRIOR_SD_DEG = 2.0
+"""SD of the Gaussian prior on a film's in-plane turn ψ when it is estimated, degrees (issue #10: "a
+small in-plane rotation of each film"; not fitted to the simulated films, docs/engine.md)."""
+DEPTH_PRIOR_SD_MM = 30.0
+"""SD of the Gaussian that holds the mid-spine vertebra within the plane at SOD on a perspective
+film whose central-ray point o is estimated, mm (docs/engine.md)."""
+
+
 @dataclass(frozen=True)
 class Camera:
     """The projection of one view (``fit.cameras``), with which of its parameters the fit estimates.
@@ -79,9 +87,9 @@ class Camera:
     """Source to the spine's mid-plane (perspective only), mm."""
     scale_prior: tuple[float, float] | None = None
     """(mean, SD) of a Gaussian prior on s when s is free (weak perspective)."""
-    rotation_prior_sd_rad: float = np.radians(2.0)
+    rotation_prior_sd_rad: float = np.radians(FILM_TURN_PRIOR_SD_DEG)
     """SD of the Gaussian prior on ψ when ψ is free ("a small in-plane rotation")."""
-    depth_prior_sd_mm: float = 30.0
+    depth_prior_sd_mm: float = DEPTH_PRIOR_SD_MM
     """Perspective with o free: SD of b·(r_mid − o), the mid-spine vertebra's distance from the plane at SOD."""
     beam: FloatArray | None = None
     """Perspective: unit beam direction b (source → detector), LPS; None: e_c × e_r."""

@@ -96,15 +96,15 @@ def test_bench_runs_on_a_tiny_case(tmp_path: Path, capsys: pytest.CaptureFixture
 
 
 def test_rigid_difference_removes_a_rigid_motion_and_reads_the_lean() -> None:
-    """A truth turned 1.5° about x (leaning) and moved: shape error 0, lean −1.5° (the rotation that
-    brings it back); noise added after the turn leaves a shape error of the noise's size."""
+    """A truth turned 1.5° about x (leaning) and moved: shape error 0, rotation vector (−1.5°, 0, 0)
+    (the rotation that brings it back); noise added after the turn leaves a shape error of the noise's size."""
     truth = clinic.synthetic_truths(1, seed=3)[0].positions
     a = np.radians(1.5)
     lean = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
     moved = truth @ lean.T + np.array([5.0, -3.0, 12.0])
-    shape, angle = clinic.rigid_difference(moved, truth)
+    shape, rotvec = clinic.rigid_difference(moved, truth)
     assert shape < 1e-9
-    assert angle == pytest.approx(-1.5, abs=1e-9)
+    np.testing.assert_allclose(rotvec, [-1.5, 0.0, 0.0], atol=1e-9)
     noisy = moved + np.random.default_rng(0).normal(0.0, 1.0, moved.shape)
     shape, _ = clinic.rigid_difference(noisy, truth)
     assert 0.8 < shape < 2.0  # the mean of |N(0, I₃)| is 1.60; aligning removes a little of it

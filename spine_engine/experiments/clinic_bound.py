@@ -1,0 +1,318 @@
+"""``spine bench clinic-bound``: how close the films let any reconstruction come (issue #10).
+
+The 3D error of ``spine bench clinic`` removes only the global translation, so a rotation of the
+whole spine that the films leave undetermined counts in full. This command computes, per spine and
+case, the error that such a rotation causes for an **oracle**: an estimator that knows the spine's
+exact shape and size and only has to place it. From the same simulated films
+(``clinic_films.simulate_series``, same seed and noise as ``spine bench clinic``) it estimates
+
+* ω, the spine's rotation vector (rad), about its centroid;
+* per film: τ (3), the spine's translation relative to the film (mm; on a weak-perspective film
+  its component along the beam has no effect and is left out), μ, the log of the film's
+  magnification about its central ray, and ψ, the film's in-plane turn (rad; 0 on the PA by the
+  engine's convention),
+
+with the engine's priors (``Priors``): μ_PA ~ N(0, (0.035/1.125)²) (``clinical.PA_MAGNIFICATION_PRIOR``)
+unless the geometry is given (μ then known), ψ_lateral ~ N(0, σ_ψ²), the component of τ along the
+beam of a perspective film ~ N(0, 30²) (``fit.types.DEPTH_PRIOR_SD_MM``), optionally ω ~ N(0, diag σ_ω²).
+
+Linearised at the truth θ = 0, the images are p(θ) ≈ p(0) + Jθ with J the Jacobian of
+``clinic_films.Film.image`` (central differences, step 10⁻⁶), so the posterior of θ is Gaussian
+with covariance Σ = (JᵀJ/σ² + P)⁻¹ (σ: the landmark noise SD, P: the priors' precisions); Σ_ω is
+its rotation block. The posterior mean is then the best estimate under every symmetric convex loss
+(Anderson's lemma), and its error in the bench's metric is
+
+    bound = E[ mean_i |(R(δω) − I)(t_i − t̄)| ],   δω ~ N(0, Σ_ω)   (mm; Monte Carlo),
+
+which no estimator that knows less (the shape) can beat on average, up to the linearisation.
+Three prior settings are reported: the engine's (σ_ψ = 2°, ``fit.types.FILM_TURN_PRIOR_SD_DEG``),
+σ_ψ = the RMS of the bench's own turns (|ψ| uniform in ``clinic_films.LATERAL_TURN_DEG``: the best
+Gaussian prior for these films), and that plus a prior on ω with the spread of the VerSe **dev**
+spines' orientations (``orientation_spread``; the CT frames the truths come in).
+
+Beside the bound, for comparison: the engine's own result on the same films (``clinic.run_one``:
+3D error, shape error and the RMS of its best rotation about x, y, z) and a floor estimate, the
+bound's rotations added to the engine's error vectors in the paper's case (f), T1/L5 given and
+the films calibrated (more information than any of (a)–(e)): E[mean_i |e_i^(f) + (R(δω) − I)(t_i − t̄)|].
+That one is an estimate, not a bound: it uses the engine's shape errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..clinical import PA_MAGNIFICATION_PRIOR
+from ..fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
+from .clinic import run_one, verse_truths
+from .clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
+from .report import format_table, write_json
+
+TARGETS_MM = {"a": 1.2, "b": 2.0, "c": 1.5}
+"""Issue #10's targets for the mean 3D error on VerSe test, 1 mm noise, no boundary."""
+BOUND_CASES = "abcde"
+"""The cases without boundary ((f) has T1/L5 given: its rotation is known)."""
+FILM_PARAMETERS = 5
+"""τ (3), μ, ψ per film."""
+STEP = 1e-6
+"""Central-difference step of the Jacobian (mm and rad)."""
+
+
+@dataclass(frozen=True)
+class Priors:
+    """The oracle's Gaussian priors (module docstring)."""
+
+    film_turn_sd_deg: float = FILM_TURN_PRIOR_SD_DEG
+    """σ_ψ of the lateral film's turn."""
+    orientation_sd_deg: tuple[float, float, float] | None = None
+    """σ_ω about x, y, z of the spine's rotation, or None (no prior, as in the engine)."""
+
+
+def bench_turn_rms_deg() -> float:
+    """RMS of the bench's film turns, |ψ| ~ U(a, b): √((b³ − a³) / (3(b − a))), degrees."""
+    a, b = LATERAL_TURN_DEG
+    return float(np.sqrt((b**3 - a**3) / (3.0 * (b - a))))
+
+
+def orientation_spread(truths: Sequence[Truth], rounds: int = 5) -> tuple[float, float, float]:
+    """SD about x, y, z (degrees) of the rotations that align each centred spine on the mean shape
+    (Kabsch, the mean re-estimated ``rounds`` times): how differently the spines sit in their frames."""
+    centred = [t.positions - t.positions.mean(axis=0) for t in truths]
+    mean = np.mean(centred, axis=0)
+    vectors = np.zeros((len(centred), 3))
+    for _ in range(rounds):
+        turns = [Rotation.align_vectors(mean, c)[0] for c in centred]
+        mean = np.mean([q.apply(c) for q, c in zip(turns, centred, strict=True)], axis=0)
+        vectors = np.array([q.as_rotvec(degrees=True) for q in turns])
+    sd = vectors.std(axis=0)
+    return float(sd[0]), float(sd[1]), float(sd[2])
+
+
+def _films(series: Series, case: Case) -> list[tuple[Film, int]]:
+    """(film, first level on it) of the films the case sends."""
+    films = [(series.pa, 0)]
+    if case.lateral_from is not None:
+        films.append((series.lateral, case.lateral_from))
+    return films
+
+
+def simulated_images(
+    theta: FloatArray, truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool
+) -> FloatArray:
+    """The films' noise-free images (detector mm, flattened) of the truth moved by θ (module
+    docstring): r = R(ω)(t − t̄) + t̄ + τ_k on film k, the image scaled by e^μ_k about the central
+    ray and the film turned by ψ_k more."""
+    t = truth.positions
+    centre = t.mean(axis=0)
+    moved = (t - centre) @ Rotation.from_rotvec(theta[:3]).as_matrix().T + centre
+    out = []
+    for k, (film, first) in enumerate(films):
+        tau, mu, psi = np.split(theta[3 + FILM_PARAMETERS * k : 3 + FILM_PARAMETERS * (k + 1)], [3, 4])
+        turned = dataclasses.replace(film, turn_deg=film.turn_deg + float(np.degrees(psi[0])))
+        image = turned.image(moved[first:] + tau, perspective)
+        out.append(((image - film.central_ray) * np.exp(mu[0]) + film.central_ray).ravel())
+    return np.concatenate(out)
+
+
+def image_jacobian(truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool) -> FloatArray:
+    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films)."""
+    n = 3 + FILM_PARAMETERS * len(films)
+    columns = []
+    for j in range(n):
+        step = np.zeros(n)
+        step[j] = STEP
+        plus = simulated_images(step, truth, films, perspective)
+        minus = simulated_images(-step, truth, films, perspective)
+        columns.append((plus - minus) / (2.0 * STEP))
+    return np.stack(columns, axis=1)
+
+
+def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArray:
+    """Σ_ω (3, 3), rad²: the rotation block of (JᵀJ/σ² + P)⁻¹ over the parameters the case leaves
+    free (module docstring)."""
+    films = _films(series, case)
+    J = image_jacobian(series.truth, films, case.perspective)
+    precision = J.T @ J / series.noise_mm**2
+    prior = np.zeros(J.shape[1])
+    free = np.ones(J.shape[1], dtype=bool)
+    if priors.orientation_sd_deg is not None:
+        prior[:3] = 1.0 / np.radians(np.asarray(priors.orientation_sd_deg)) ** 2
+    for k, (film, _) in enumerate(films):
+        base = 3 + FILM_PARAMETERS * k
+        beam_axis = base + int(np.argmax(np.abs(film.beam)))
+        if case.perspective:
+            prior[beam_axis] = 1.0 / DEPTH_PRIOR_SD_MM**2
+        else:
+            free[beam_axis] = False  # a weak perspective does not see it
+        if case.perspective and case.acquisition:
+            free[base + 3] = False  # SID and SOD given: the magnification is known
+        elif k == 0:
+            prior[base + 3] = 1.0 / (PA_MAGNIFICATION_PRIOR[1] / PA_MAGNIFICATION_PRIOR[0]) ** 2
+        if k == 0:
+            free[base + 4] = False  # the PA's turn is 0 by convention
+        else:
+            prior[base + 4] = 1.0 / np.radians(priors.film_turn_sd_deg) ** 2
+    keep = np.flatnonzero(free)
+    covariance = np.linalg.inv(precision[np.ix_(keep, keep)] + np.diag(prior[keep]))
+    return np.asarray(covariance[:3, :3])
+
+
+def rotation_errors(covariance: FloatArray, centred: FloatArray, draws: int, seed: int) -> FloatArray:
+    """(draws, N, 3) (R(δω) − I)(t_i − t̄) for δω ~ N(0, Σ_ω), mm."""
+    rng = np.random.default_rng(seed)
+    omegas = rng.multivariate_normal(np.zeros(3), covariance, draws)
+    turns = Rotation.from_rotvec(omegas).as_matrix()
+    return np.asarray(np.einsum("dij,nj->dni", turns, centred) - centred[None])
+
+
+def expected_error(covariance: FloatArray, centred: FloatArray, draws: int, seed: int) -> float:
+    """E[mean_i |(R(δω) − I)(t_i − t̄)|], δω ~ N(0, Σ_ω), mm (Monte Carlo, ``draws``)."""
+    return float(np.linalg.norm(rotation_errors(covariance, centred, draws, seed), axis=2).mean())
+
+
+@dataclass
+class SpineBound:
+    """The bound and the engine's figures for one spine in one case."""
+
+    bounds_mm: dict[str, float]
+    rotation_sd_deg: FloatArray
+    """(3,) √diag Σ_ω under the engine's priors, degrees."""
+    engine_error_mm: float
+    engine_shape_mm: float
+    engine_rotation_deg: FloatArray
+    floor_mm: float
+
+
+def bound_one(series: Series, case: Case, settings: dict[str, Priors], paper_errors: FloatArray | None,
+              draws: int, seed: int) -> SpineBound:
+    """The oracle's bound under each prior setting, the engine's result on the same films and the
+    floor estimate (module docstring) for one spine."""
+    centred = series.truth.positions - series.truth.positions.mean(axis=0)
+    covariances = {name: rotation_covariance(series, case, p) for name, p in settings.items()}
+    engine_cov = covariances["engine_priors"]
+    outcome = run_one(series, case)
+    floor = float("nan")
+    if paper_errors is not None:
+        samples = rotation_errors(engine_cov, centred, draws, seed)
+        floor = float(np.linalg.norm(samples + paper_errors[None], axis=2).mean())
+    return SpineBound(
+        bounds_mm={name: expected_error(c, centred, draws, seed) for name, c in covariances.items()},
+        rotation_sd_deg=np.degrees(np.sqrt(np.diag(engine_cov))),
+        engine_error_mm=float(outcome.per_level_mm.mean()) if outcome.ok else float("nan"),
+        engine_shape_mm=outcome.shape_error_mm,
+        engine_rotation_deg=outcome.rotation_error_deg,
+        floor_mm=floor,
+    )
+
+
+def paper_case_errors(series: Series) -> FloatArray | None:
+    """The engine's (17, 3) error vectors in case (f) on these films (None if it failed)."""
+    outcome = run_one(series, CASES["f"])
+    return outcome.error_vectors if outcome.ok else None
+
+
+def _rms(vectors: Sequence[FloatArray]) -> list[float]:
+    """Component-wise RMS of (3,) vectors, NaN (a failed fit) left out."""
+    return np.sqrt(np.nanmean(np.square(vectors), axis=0)).round(3).tolist()
+
+
+def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Priors], noise_mm: float,
+        seed: int, draws: int) -> list[dict[str, Any]]:
+    """One summary row per case: means over the spines (RMS for angles)."""
+    series = [simulate_series(t, noise_mm, seed) for t in truths]
+    paper = [paper_case_errors(s) for s in series]
+    rows = []
+    for case in cases:
+        found = [bound_one(s, case, settings, p, draws, seed) for s, p in zip(series, paper, strict=True)]
+        rows.append({
+            "case": case.key,
+            "title": case.title,
+            "spines": len(found),
+            "target_mm": TARGETS_MM.get(case.key),
+            "bound_mm": {name: float(np.mean([f.bounds_mm[name] for f in found])) for name in settings},
+            "oracle_rotation_sd_deg_xyz": _rms([f.rotation_sd_deg for f in found]),
+            "floor_estimate_mm": float(np.nanmean([f.floor_mm for f in found])),
+            "engine_mean_3d_error_mm": float(np.nanmean([f.engine_error_mm for f in found])),
+            "engine_shape_error_mm": float(np.nanmean([f.engine_shape_mm for f in found])),
+            "engine_rotation_rms_deg_xyz": _rms([f.engine_rotation_deg for f in found]),
+        })
+    return rows
+
+
+def prior_settings(orientation_sd_deg: tuple[float, float, float]) -> dict[str, Priors]:
+    """The three settings of the module docstring, by name."""
+    bench = bench_turn_rms_deg()
+    return {
+        "engine_priors": Priors(),
+        "bench_turn": Priors(film_turn_sd_deg=bench),
+        "bench_turn_and_orientation": Priors(film_turn_sd_deg=bench, orientation_sd_deg=orientation_sd_deg),
+    }
+
+
+def table(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as an aligned text table."""
+    head = ["case", "target mm", "bound: engine priors", "bench turn", "+ orientation", "floor est.",
+            "engine 3D mm", "engine shape mm", "oracle SD x,y,z °", "engine RMS x,y,z °"]
+    body = [
+        [r["case"], r["target_mm"] if r["target_mm"] is not None else "-", *r["bound_mm"].values(),
+         r["floor_estimate_mm"], r["engine_mean_3d_error_mm"], r["engine_shape_error_mm"],
+         " ".join(f"{v:.2f}" for v in r["oracle_rotation_sd_deg_xyz"]),
+         " ".join(f"{v:.2f}" for v in r["engine_rotation_rms_deg_xyz"])]
+        for r in rows
+    ]
+    return format_table(head, body)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench clinic-bound", description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="VerSe folder with dev.csv and test.csv")
+    parser.add_argument("--split", choices=["dev", "test"], default="test", help="VerSe split (default test)")
+    parser.add_argument("--cases", default=BOUND_CASES, help=f"case letters among {BOUND_CASES} (default all)")
+    parser.add_argument("--noise-mm", type=float, default=1.0, help="landmark noise SD, detector mm (default 1)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--draws", type=int, default=4000, help="Monte Carlo draws of δω per spine (default 4000)")
+    parser.add_argument("--json", action="store_true", help="print the rows as JSON instead of a table")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON")
+    args = parser.parse_args(argv)
+    unknown = [c for c in args.cases if c not in BOUND_CASES]
+    if unknown or args.noise_mm <= 0:
+        print(f"error: cases must be among {BOUND_CASES} (got {unknown}) and --noise-mm > 0", file=sys.stderr)
+        return 2
+    try:
+        truths = verse_truths(args.split, args.data)
+        spread = orientation_spread(verse_truths("dev", args.data))
+    except FileNotFoundError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+    rows = run(truths, [CASES[c] for c in args.cases], prior_settings(spread), args.noise_mm, args.seed, args.draws)
+    report = {
+        "command": "spine bench clinic-bound " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "date": dt.date.today().isoformat(),
+        "split": args.split,
+        "noise_mm": args.noise_mm,
+        "seed": args.seed,
+        "draws": args.draws,
+        "film_turn_sd_deg": {"engine": FILM_TURN_PRIOR_SD_DEG, "bench_rms": bench_turn_rms_deg()},
+        "dev_orientation_sd_deg_xyz": list(spread),
+        "seconds": round(time.perf_counter() - start, 1),
+        "rows": rows,
+    }
+    write_json(args.out / f"clinic-bound-{args.split}.json", report)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(table(rows))
+    return 0
+

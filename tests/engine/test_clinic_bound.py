@@ -1,0 +1,106 @@
+"""``spine bench clinic-bound``: the oracle's rotation covariance against a hand-derived case,
+its Monte Carlo error against the exact formula, and the command on two spines."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
+from spine_engine.experiments import clinic_bound, clinic_films
+from spine_engine.projection import image_axes
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
+
+
+def _sagittal_only_truth() -> clinic_films.Truth:
+    """17 vertebrae straight in the frontal plane (x = 40 mm for all), a kyphosis-lordosis curve
+    in depth and 25 mm apart in height."""
+    k = np.arange(17, dtype=float)
+    positions = np.stack([np.full(17, 40.0), 150.0 + 20.0 * np.sin(np.pi * k / 12.0), 600.0 - 25.0 * k], axis=1)
+    return clinic_films.Truth("sagittal", positions, np.repeat(np.eye(3)[None], 17, axis=0))
+
+
+def test_lean_variance_with_a_free_turn_is_the_pa_rows_regression() -> None:
+    """With the lateral film's turn free (σ_ψ = 10⁶°) the lateral cannot tell a lean δ (rotation
+    about x) from its own turn, and a spine with no frontal curve shows δ on the PA only in its
+    rows: m·(z_i + δ·(y_i − ȳ)) + T, scaled by e^μ. So var(δ) is the (δ, δ) entry of the inverse of
+    XᵀX/σ² + diag(0, 0, π_μ), X = [m(y − ȳ), m, m·e_r·(r − o)] the columns of δ, the row
+    translation and μ, π_μ the PA magnification prior's precision: a 3-parameter regression derived
+    by hand, against the oracle's 13-parameter Jacobian of both films by finite differences."""
+    truth = _sagittal_only_truth()
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=4)
+    cov = clinic_bound.rotation_covariance(series, clinic_films.CASES["a"], clinic_bound.Priors(film_turn_sd_deg=1e6))
+    film = series.pa
+    m = film.magnification
+    _, e_r = image_axes(film.orientation)
+    y = truth.positions[:, 1]
+    X = np.stack([m * (y - y.mean()), np.full(17, m), m * (truth.positions - film.principal_point) @ e_r], axis=1)
+    prior_mu = (PA_MAGNIFICATION_PRIOR[0] / PA_MAGNIFICATION_PRIOR[1]) ** 2
+    info = X.T @ X / series.noise_mm**2 + np.diag([0.0, 0.0, prior_mu])
+    assert cov[0, 0] == pytest.approx(np.linalg.inv(info)[0, 0], rel=1e-6)
+
+
+def test_a_tighter_turn_prior_never_loosens_the_rotation() -> None:
+    """Σ_ω(σ_ψ = 2°) − Σ_ω(σ_ψ = 1.32°) and Σ_ω(no orientation prior) − Σ_ω(with one) are positive
+    semi-definite (adding prior precision lowers a Gaussian posterior's covariance in Loewner order);
+    eigenvalues ≥ −10⁻¹², the roundoff of entries of order 10⁻⁴ rad²."""
+    series = clinic_films.simulate_series(clinic_films.Truth("dev0", *_first_dev_spine()), noise_mm=1.0, seed=0)
+    case = clinic_films.CASES["a"]
+    wide = clinic_bound.rotation_covariance(series, case, clinic_bound.Priors(film_turn_sd_deg=2.0))
+    tight = clinic_bound.rotation_covariance(series, case, clinic_bound.Priors(film_turn_sd_deg=1.32))
+    oriented = clinic_bound.rotation_covariance(series, case, clinic_bound.Priors(1.32, (3.0, 2.0, 9.0)))
+    assert np.linalg.eigvalsh(wide - tight).min() > -1e-12
+    assert np.linalg.eigvalsh(tight - oriented).min() > -1e-12
+    assert wide[0, 0] > tight[0, 0]  # the lean is what the turn's prior decides
+
+
+def _first_dev_spine() -> tuple[np.ndarray, np.ndarray]:
+    row = DATA.read_text().splitlines()[1].split(",")
+    positions = np.array(row[1:], dtype=float).reshape(17, 3)
+    return positions, np.repeat(np.eye(3)[None], 17, axis=0)
+
+
+def test_expected_error_of_a_lean_is_the_chord_formula() -> None:
+    """A rotation δ about x moves a point at distance ρ_i from the axis by the chord 2ρ_i|sin(δ/2)|,
+    so with δ ~ N(0, s²) the expected mean error is E[2|sin(δ/2)|]·mean ρ_i, E computed by
+    quadrature. 20,000 draws: the relative SD of a mean of |N| is √(π/2 − 1)/√20000 = 0.53 %;
+    the tolerance is 4 SD (2.2 %)."""
+    positions, _ = _first_dev_spine()
+    centred = positions - positions.mean(axis=0)
+    s = np.radians(1.0)
+    cov = np.diag([s**2, 0.0, 0.0])
+    rho = np.hypot(centred[:, 1], centred[:, 2])
+    grid = np.linspace(-8 * s, 8 * s, 20001)
+    density = np.exp(-0.5 * (grid / s) ** 2) / (s * np.sqrt(2 * np.pi))
+    chord = float(np.sum(2 * np.abs(np.sin(grid / 2)) * density) * (grid[1] - grid[0]))
+    got = clinic_bound.expected_error(cov, centred, draws=20000, seed=3)
+    assert got == pytest.approx(chord * rho.mean(), rel=0.022)
+
+
+def test_bench_turn_rms() -> None:
+    """|ψ| uniform on [0.5°, 2°]: E ψ² = (2³ − 0.5³)/(3·1.5) = 1.75, RMS 1.3229°."""
+    assert clinic_bound.bench_turn_rms_deg() == pytest.approx(np.sqrt(1.75), rel=1e-12)
+
+
+def test_command_on_two_spines(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two dev spines as the split, (a) and (c), 500 draws: exit 0, a row per case with the three
+    bounds, the engine's figures and the issue's target; an unknown case exits 2."""
+    shutil.copy(DATA, tmp_path / "dev.csv")
+    (tmp_path / "test.csv").write_text("\n".join(DATA.read_text().splitlines()[:3]) + "\n")
+    args = ["--data", str(tmp_path), "--cases", "ac", "--draws", "500", "--json", "--out", str(tmp_path)]
+    code = clinic_bound.main(args)
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [r["case"] for r in report["rows"]] == ["a", "c"]
+    a = report["rows"][0]
+    assert a["target_mm"] == 1.2 and a["spines"] == 2
+    assert set(a["bound_mm"]) == {"engine_priors", "bench_turn", "bench_turn_and_orientation"}
+    assert all(0.0 < v < 10.0 for v in a["bound_mm"].values())
+    assert np.isfinite(a["engine_mean_3d_error_mm"]) and np.isfinite(a["floor_estimate_mm"])
+    assert (tmp_path / "clinic-bound-test.json").is_file()
+    assert clinic_bound.main(["--data", str(tmp_path), "--cases", "f"]) == 2
