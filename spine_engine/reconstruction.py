@@ -150,6 +150,15 @@ def _initial_weak_with_boundary(
         raise InvalidInput([FieldError((name, "landmarks"), str(exc), "projection_not_estimable")]) from None
 
 
+def mid_plane_offset(profile: Profile, beam: np.ndarray) -> float:
+    """b·(g_mid − ḡ), mm: how far along the beam b the mid-spine vertebra (T9) of the profile's
+    generic rest shape (length scale 1, 434 mm for ``default``) lies from its centroid. SOD runs to
+    the spine's mid-plane (DESIGN.md), the plane of the centroid; the depth prior holds T9, which on
+    the PA lies 16.6 mm nearer the source (−16.6 for ``default``: T9 is near the kyphosis' apex)."""
+    positions = rest_shape_unit(profile)[1]
+    return float(beam @ (positions[len(positions) // 2] - positions.mean(axis=0)))
+
+
 def make_camera(
     view: PAView | LateralView,
     name: str,
@@ -158,13 +167,15 @@ def make_camera(
     e_r: np.ndarray,
     mid_depth: float,
     scale_prior: bool,
+    mid_offset: float = 0.0,
 ) -> tuple[Camera | None, ViewSetup]:
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
     * ``projection`` given: that weak perspective, fixed ("given");
     * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
       through o; c = the central ray when given (else estimated, o then moves along the beam only),
-      o estimated ("acquisition");
+      o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(``mid_offset``, 30²) (the spine's
+      mid-plane at SOD; ``mid_plane_offset``), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
       "acquisition"), else estimated: on the PA with the prior ``clinical.PA_MAGNIFICATION_PRIOR``
       when ``scale_prior`` ("prior"), else from the data ("estimated": the lateral's scale is tied to
@@ -192,8 +203,11 @@ def make_camera(
             c = T0.copy()
             o_plane = np.zeros(2)
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
-        o = E.T @ o_plane + b * mid_depth
-        camera = Camera("perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b)
+        o = E.T @ o_plane + b * (mid_depth - mid_offset)
+        camera = Camera(
+            "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
+            depth_prior_mean_mm=mid_offset,
+        )
         return camera, ViewSetup("perspective", "acquisition", spc)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
@@ -312,7 +326,10 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
             mid_depth = float(placement.centreline[mid] @ beam)
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
-        camera, setup = make_camera(view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given")
+        camera, setup = make_camera(
+            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given",
+            mid_offset=mid_plane_offset(profile, beam),
+        )
         data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":
             size = size_factor(profile, data)

@@ -11,7 +11,8 @@ E = ‖ρ‖² (N·mm), with rows in this order (``RegistrationProblem.row_kinds
 * pose priors (soft boundary, the gauge): 6 rows each, √(κ/2) (r_j − r̄)/σ_r and
   √(κ/2) vee(log(R̄ᵀR_j))/σ_θ;
 * camera priors: √(κ/2)(s − s̄)/σ_s on an estimated weak-perspective scale, √(κ/2) ψ/σ_ψ on an
-  estimated film rotation, √(κ/2) b·(r_mid − o)/σ_d on an estimated perspective centre's depth.
+  estimated film rotation, √(κ/2)(b·(r_mid − o) − d̄)/σ_d on an estimated perspective centre's depth
+  (d̄: ``Camera.depth_prior_mean_mm``).
 
 Unknowns (``ParameterLayout``): vertebra j's δr_j (mm) and δθ_j (rad) — r_j + δr_j,
 R_j exp(hat δθ_j) — for the free vertebrae (all 17 without an exact boundary, else 1..N−2), then
@@ -285,7 +286,7 @@ class RegistrationProblem:
             if cam.free[-1]:
                 rows.append((k, len(cam.values) - 1, 0.0, cam.rotation_prior_sd_rad))
             if cam.kind == "perspective" and cam.free[2:5].any():
-                rows.append((k, -1, 0.0, cam.depth_prior_sd_mm))
+                rows.append((k, -1, cam.depth_prior_mean_mm, cam.depth_prior_sd_mm))
         return rows
 
     def point_rows(self, state: State, second_order: bool = False) -> PointRows:
@@ -342,7 +343,7 @@ class RegistrationProblem:
             else:
                 view = self.views[k]
                 b_dir = cam.beam_direction(view.e_c, view.e_r)
-                rho_all[start] = half_k * float(b_dir @ (r[self.depth_reference] - cams[k][2:5])) / sd
+                rho_all[start] = half_k * (float(b_dir @ (r[self.depth_reference] - cams[k][2:5])) - mean) / sd
                 Jv_all[start, :3] = half_k * b_dir / sd
                 for axis in range(3):
                     if (2 + axis) in cols:

@@ -59,8 +59,8 @@ FILM_TURN_PRIOR_SD_DEG = 2.0
 """SD of the Gaussian prior on a film's in-plane turn ψ when it is estimated, degrees (issue #10: "a
 small in-plane rotation of each film"; not fitted to the simulated films, docs/engine.md)."""
 DEPTH_PRIOR_SD_MM = 30.0
-"""SD of the Gaussian that holds the mid-spine vertebra within the plane at SOD on a perspective
-film whose central-ray point o is estimated, mm (docs/engine.md)."""
+"""SD of the Gaussian that holds the spine's mid-plane at SOD on a perspective film whose
+central-ray point o is estimated, mm (docs/engine.md)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,10 @@ class Camera:
     """SD of the Gaussian prior on ψ when ψ is free ("a small in-plane rotation")."""
     depth_prior_sd_mm: float = DEPTH_PRIOR_SD_MM
     """Perspective with o free: SD of b·(r_mid − o), the mid-spine vertebra's distance from the plane at SOD."""
+    depth_prior_mean_mm: float = 0.0
+    """Perspective with o free: the mean of b·(r_mid − o), mm: how far along the beam the mid-spine
+    vertebra lies from the spine's mid-plane, which is the plane at SOD (DESIGN.md: SOD runs "to the
+    spine's mid-plane")."""
     beam: FloatArray | None = None
     """Perspective: unit beam direction b (source → detector), LPS; None: e_c × e_r."""
 

@@ -9,14 +9,17 @@ is far above the O(h²) truncation and rounding of that step and far below any s
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from spine_engine.anatomy import load_profile
 from spine_engine.experiments.perf import placeholder_parameters, synthetic_spine
 from spine_engine.fit import Camera, Pose, PosePrior, RegistrationProblem, ViewData, solve
 from spine_engine.fit.cameras import project
 from spine_engine.projection import image_axes
+from spine_engine.reconstruction import BEAMS, mid_plane_offset
 from spine_engine.rotations import exp_so3
 
 RNG = np.random.default_rng(11)
@@ -133,3 +136,42 @@ def test_joint_fit_converges_and_returns_the_layout() -> None:
     # stationary: the gradient Jᵀρ vanishes at the optimum (relative to its size at the start)
     g0 = prob.jacobian(r, R).T @ prob.residuals(r, R)
     assert np.linalg.norm(solution.jacobian.T @ solution.residuals) < 1e-5 * np.linalg.norm(g0)
+
+
+def test_depth_prior_row_is_centred_on_its_mean() -> None:
+    """The depth row √(κ/2)(b·(r_mid − o) − d̄)/σ_d (κ = 2 here): 0 where the mid vertebra lies d̄
+    from the plane at SOD along the beam, d̄/σ_d (sign included) where it lies in that plane."""
+    truth_r, truth_R = synthetic_spine(cobb_deg=20.0, twist_deg=0.0, kyphosis_mm=30.0)
+    params = placeholder_parameters(truth_r, truth_R)
+    mean, sd = -16.6, 30.0
+    free = np.array([False, False, True, True, True, False])  # central ray given, film not turned
+    camera = Camera("perspective", np.array([180.0, 450.0, 0.0, 0.0, 0.0, 0.0]), free, sid_mm=1800.0,
+                    sod_mm=1600.0, beam=BEAM_PA, depth_prior_sd_mm=sd, depth_prior_mean_mm=mean)  # fmt: skip
+    points = project(camera, camera.values, truth_r, *PA).points
+    view = ViewData("pa", np.arange(N), points, *PA, camera.reference_scale, np.zeros(2), 50.0, camera=camera)
+    prob = RegistrationProblem(params, [view], None, None, energy_unit=2.0)
+    row = prob.row_kinds.index("camera")
+    assert prob.row_kinds.count("camera") == 1
+    mid = truth_r[prob.depth_reference]
+    for depth_of_mid, expected in ((mean, 0.0), (0.0, -mean / sd)):
+        o = mid - depth_of_mid * BEAM_PA  # b·(r_mid − o) = depth_of_mid
+        values = np.array([180.0, 450.0, *o, 0.0])
+        state = prob.initial_state(truth_r, truth_R)
+        state = state._replace(cameras=(values,))
+        assert prob.evaluate(state)[0][row] == pytest.approx(expected, abs=1e-12)
+
+
+def test_mid_plane_offset_of_the_default_rest_shape() -> None:
+    """SOD runs to the spine's mid-plane, the depth prior holds T9: on the PA film (beam posterior →
+    anterior) the default rest shape's T9, near the thoracic apex, lies nearer the source than its
+    centroid, by as much as the dev spines' T9 does on average (the rest shape is their mean shape;
+    tests/data/verse_dev.csv: within one SD of their offsets); on the lateral (beam along x) the
+    generic spine, straight in the frontal plane, has none."""
+    profile = load_profile("default")
+    rows = (Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv").read_text().splitlines()[1:]
+    spines = np.array([np.array(r.split(",")[1:], dtype=float).reshape(N, 3) for r in rows])
+    offsets = spines[:, N // 2] @ BEAMS["pa"] - spines.mean(axis=1) @ BEAMS["pa"]
+    pa = mid_plane_offset(profile, BEAMS["pa"])
+    assert pa < 0.0
+    assert abs(pa - offsets.mean()) < offsets.std()
+    assert mid_plane_offset(profile, BEAMS["lateral"]) == pytest.approx(0.0, abs=1e-9)
