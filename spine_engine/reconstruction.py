@@ -167,15 +167,15 @@ def make_camera(
     e_r: np.ndarray,
     mid_depth: float,
     scale_prior: bool,
-    mid_offset: float = 0.0,
+    profile: Profile,
 ) -> tuple[Camera | None, ViewSetup]:
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
     * ``projection`` given: that weak perspective, fixed ("given");
     * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
       through o; c = the central ray when given (else estimated, o then moves along the beam only),
-      o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(``mid_offset``, 30²) (the spine's
-      mid-plane at SOD; ``mid_plane_offset``), o starting there (``mid_depth``: r_mid's initial b·r);
+      o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, 30²), d̄ = ``mid_plane_offset`` of
+      ``profile`` (the spine's mid-plane at SOD), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
       "acquisition"), else estimated: on the PA with the prior ``clinical.PA_MAGNIFICATION_PRIOR``
       when ``scale_prior`` ("prior"), else from the data ("estimated": the lateral's scale is tied to
@@ -203,6 +203,7 @@ def make_camera(
             c = T0.copy()
             o_plane = np.zeros(2)
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
+        mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
@@ -327,8 +328,7 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(
-            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given",
-            mid_offset=mid_plane_offset(profile, beam),
+            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile
         )
         data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":

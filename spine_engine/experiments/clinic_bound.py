@@ -168,6 +168,11 @@ def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArra
     return np.asarray(covariance[:3, :3])
 
 
+def mean_error(errors: FloatArray) -> float:
+    """mean over draws and vertebrae of |e| for errors (draws, N, 3), mm."""
+    return float(np.linalg.norm(errors, axis=2).mean())
+
+
 def rotation_errors(covariance: FloatArray, centred: FloatArray, draws: int, seed: int) -> FloatArray:
     """(draws, N, 3) (R(δω) − I)(t_i − t̄) for δω ~ N(0, Σ_ω), mm."""
     rng = np.random.default_rng(seed)
@@ -178,7 +183,7 @@ def rotation_errors(covariance: FloatArray, centred: FloatArray, draws: int, see
 
 def expected_error(covariance: FloatArray, centred: FloatArray, draws: int, seed: int) -> float:
     """E[mean_i |(R(δω) − I)(t_i − t̄)|], δω ~ N(0, Σ_ω), mm (Monte Carlo, ``draws``)."""
-    return float(np.linalg.norm(rotation_errors(covariance, centred, draws, seed), axis=2).mean())
+    return mean_error(rotation_errors(covariance, centred, draws, seed))
 
 
 @dataclass
@@ -200,15 +205,12 @@ def bound_one(series: Series, case: Case, settings: dict[str, Priors], paper_err
     floor estimate (module docstring) for one spine."""
     centred = series.truth.positions - series.truth.positions.mean(axis=0)
     covariances = {name: rotation_covariance(series, case, p) for name, p in settings.items()}
-    engine_cov = covariances["engine_priors"]
+    samples = {name: rotation_errors(c, centred, draws, seed) for name, c in covariances.items()}
     outcome = run_one(series, case)
-    floor = float("nan")
-    if paper_errors is not None:
-        samples = rotation_errors(engine_cov, centred, draws, seed)
-        floor = float(np.linalg.norm(samples + paper_errors[None], axis=2).mean())
+    floor = float("nan") if paper_errors is None else mean_error(samples["engine_priors"] + paper_errors[None])
     return SpineBound(
-        bounds_mm={name: expected_error(c, centred, draws, seed) for name, c in covariances.items()},
-        rotation_sd_deg=np.degrees(np.sqrt(np.diag(engine_cov))),
+        bounds_mm={name: mean_error(s) for name, s in samples.items()},
+        rotation_sd_deg=np.degrees(np.sqrt(np.diag(covariances["engine_priors"]))),
         engine_error_mm=float(outcome.per_level_mm.mean()) if outcome.ok else float("nan"),
         engine_shape_mm=outcome.shape_error_mm,
         engine_rotation_deg=outcome.rotation_error_deg,

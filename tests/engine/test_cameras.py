@@ -16,6 +16,7 @@ import pytest
 
 from spine_engine.anatomy import load_profile
 from spine_engine.experiments.perf import placeholder_parameters, synthetic_spine
+from spine_engine.experiments.truth import read_verse
 from spine_engine.fit import Camera, Pose, PosePrior, RegistrationProblem, ViewData, solve
 from spine_engine.fit.cameras import project
 from spine_engine.projection import image_axes
@@ -168,8 +169,7 @@ def test_mid_plane_offset_of_the_default_rest_shape() -> None:
     tests/data/verse_dev.csv: within one SD of their offsets); on the lateral (beam along x) the
     generic spine, straight in the frontal plane, has none."""
     profile = load_profile("default")
-    rows = (Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv").read_text().splitlines()[1:]
-    spines = np.array([np.array(r.split(",")[1:], dtype=float).reshape(N, 3) for r in rows])
+    spines = np.array([p for _, p in read_verse(Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv")])
     offsets = spines[:, N // 2] @ BEAMS["pa"] - spines.mean(axis=1) @ BEAMS["pa"]
     pa = mid_plane_offset(profile, BEAMS["pa"])
     assert pa < 0.0

@@ -12,6 +12,7 @@ import pytest
 
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.experiments import clinic_bound, clinic_films
+from spine_engine.experiments.truth import read_verse
 from spine_engine.projection import image_axes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
@@ -60,8 +61,7 @@ def test_a_tighter_turn_prior_never_loosens_the_rotation() -> None:
 
 
 def _first_dev_spine() -> tuple[np.ndarray, np.ndarray]:
-    row = DATA.read_text().splitlines()[1].split(",")
-    positions = np.array(row[1:], dtype=float).reshape(17, 3)
+    positions = read_verse(DATA)[0][1]
     return positions, np.repeat(np.eye(3)[None], 17, axis=0)
 
 
