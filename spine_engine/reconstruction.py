@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
-from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
+from .anatomy import Profile, RestModel, load_profile, population_prior, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -248,11 +248,26 @@ def _view_data(
     )
 
 
-def _pose_priors(model: JobPayload, top: Pose, boundary: str) -> tuple[PosePrior, ...]:
-    """The gauge (no boundary: T1 at the origin, ``GAUGE_POSITION_SD_MM``) or the soft poses."""
+def _pose_priors(
+    model: JobPayload, top: Pose, bottom: Pose, boundary: str, profile: Profile
+) -> tuple[PosePrior, ...]:
+    """No boundary: the gauge (T1 at the origin, ``GAUGE_POSITION_SD_MM``) and the orientation prior
+    of a standing patient facing the detector: T1's and L5's directors near their placement (the
+    generic spine's sagittal inclination unless a lateral film gave the depths, no rotation about
+    the vertical) with the profile's SDs about d1 (the lean), d2 (frontal tilt, a gauge) and d3 (the
+    spin about the vertical), ``anatomy.PopulationPrior.orientation_sd_deg``; without a population
+    prior T1's directors within ``GAUGE_ROTATION_SD_DEG``. Else the soft poses."""
     if boundary == "estimated":
-        gauge = PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, np.radians(GAUGE_ROTATION_SD_DEG))
-        return (gauge,)
+        prior = population_prior(profile)
+        if prior is None:
+            sd = np.radians(GAUGE_ROTATION_SD_DEG)
+            return (PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd),)
+        sd_top, sd_bottom = (np.radians(prior.orientation_sd_deg[lv]) for lv in ("T1", "L5"))
+        return (
+            PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd_top),
+            PosePrior(len(LEVELS) - 1, Pose(bottom.position - top.position, bottom.rotation), GAUGE_POSITION_SD_MM,
+                      sd_bottom),
+        )
     if boundary != "soft":
         return ()
     assert model.boundary is not None
@@ -362,7 +377,7 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
         boundary=boundary,
-        pose_priors=_pose_priors(model, top, boundary),
+        pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
     )
 
@@ -603,9 +618,13 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
             uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
+    if uncertainty is not None:
+        measures = _measures_with_sds(measures, uncertainty)
+        if "kyphosis" in problem.unreliable:
+            measures = _with_prior_floor(measures, profile)
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
-        measures=measures if uncertainty is None else _measures_with_sds(measures, uncertainty),
+        measures=measures,
         fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
@@ -626,6 +645,26 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
         }
     )
+
+
+def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
+    """Sagittal measures that no film determined (no lateral view: ``fit.unreliable`` has "kyphosis"
+    and "lordosis") come from the population prior, so their SD is at least the population's
+    (``anatomy.PopulationPrior.measure_sd_deg``, VerSe dev): SD = max(Laplace SD, population SD)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return measures
+    kyphosis = prior.measure_sd_deg["kyphosis_t4_t12_deg"]
+    lordosis = prior.measure_sd_deg["lordosis_l1_l5_deg"]
+    update = {
+        name: max(float(getattr(measures, name) or 0.0), floor)
+        for name, floor in (
+            ("thoracic_kyphosis_t4_t12_sd_deg", kyphosis),
+            ("thoracic_kyphosis_t5_t12_sd_deg", kyphosis),
+            ("lumbar_lordosis_l1_l5_sd_deg", lordosis),
+        )
+    }
+    return measures.model_copy(update=update)
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

@@ -326,12 +326,12 @@ class RegistrationProblem:
         for prior in self.pose_priors:
             j = prior.vertebra
             a = half_k / prior.position_sd_mm
-            b = half_k / prior.rotation_sd_rad
+            b = half_k / np.broadcast_to(np.asarray(prior.rotation_sd_rad, dtype=float), (3,))
             phi = log_so3(prior.pose.rotation.T @ R[j])
             rho_all[start : start + 3] = a * (r[j] - prior.pose.position)
             rho_all[start + 3 : start + 6] = b * phi
             Jv_all[start : start + 3, :3] = a * np.eye(3)
-            Jv_all[start + 3 : start + 6, 3:] = b * jr_inverse(phi[None])[0]
+            Jv_all[start + 3 : start + 6, 3:] = b[:, None] * jr_inverse(phi[None])[0]
             start += 6
         # camera priors
         for k, p, mean, sd in self._camera_prior_rows:

@@ -45,14 +45,15 @@ def nearest_rotation(R: ArrayLike) -> FloatArray:
 
 
 class PosePrior(NamedTuple):
-    """A soft pose: vertebra number ``vertebra`` is held near ``pose`` with SDs (Gaussian, isotropic per part).
+    """A soft pose: vertebra number ``vertebra`` is held near ``pose`` with SDs (Gaussian).
 
-    Rows ρ = √(κ/2)·(r − r̄)/σ_r and √(κ/2)·vee(log(R̄ᵀR))/σ_θ (κ: ``Solution.energy_unit``)."""
+    Rows ρ = √(κ/2)·(r − r̄)/σ_r and √(κ/2)·vee(log(R̄ᵀR))/σ_θ (κ: ``Solution.energy_unit``), σ_θ one
+    SD for every axis or three, about the mean pose's own directors d1, d2, d3 (rad)."""
 
     vertebra: int
     pose: Pose
     position_sd_mm: float
-    rotation_sd_rad: float
+    rotation_sd_rad: float | FloatArray
 
 
 FILM_TURN_PRIOR_SD_DEG = 2.0
