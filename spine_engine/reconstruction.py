@@ -47,6 +47,7 @@ from .fit import (
     nearest_rotation,
 )
 from .fit import solve as solve_fit
+from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
 from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
@@ -168,6 +169,7 @@ def make_camera(
     mid_depth: float,
     scale_prior: bool,
     profile: Profile,
+    landmark_centre: np.ndarray,
 ) -> tuple[Camera | None, ViewSetup]:
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
@@ -205,9 +207,10 @@ def make_camera(
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
         mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
+        ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
-            depth_prior_mean_mm=mid_offset,
+            depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
         )
         return camera, ViewSetup("perspective", "acquisition", spc)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
@@ -343,7 +346,8 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(
-            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile
+            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile,
+            landmark_centre=np.nanmean(arrays.points, axis=0),
         )
         data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":

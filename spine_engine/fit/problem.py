@@ -277,8 +277,8 @@ class RegistrationProblem:
     # ------------------------------------------------------------------ rows
 
     def _camera_priors(self) -> list[tuple[int, int, float, float]]:
-        """(view number, parameter, mean, SD) of each Gaussian prior on an estimated camera parameter;
-        parameter −1 is the perspective depth row b·(r_mid − o)."""
+        """(view number, parameter, mean, SD) of each Gaussian prior on an estimated camera parameter
+        (s, ψ, the central ray's foot c); parameter −1 is the perspective depth row b·(r_mid − o)."""
         rows: list[tuple[int, int, float, float]] = []
         for k, cam in enumerate(self.cameras):
             if cam.kind == "weak" and cam.free[0] and cam.scale_prior is not None:
@@ -287,6 +287,9 @@ class RegistrationProblem:
                 rows.append((k, len(cam.values) - 1, 0.0, cam.rotation_prior_sd_rad))
             if cam.kind == "perspective" and cam.free[2:5].any():
                 rows.append((k, -1, cam.depth_prior_mean_mm, cam.depth_prior_sd_mm))
+            if cam.kind == "perspective" and cam.central_ray_prior is not None:
+                mean, sd = cam.central_ray_prior
+                rows += [(k, p, float(mean[p]), sd) for p in (0, 1) if cam.free[p]]
         return rows
 
     def point_rows(self, state: State, second_order: bool = False) -> PointRows:
