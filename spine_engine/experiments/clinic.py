@@ -38,6 +38,11 @@ Metrics per spine, then averaged (``summarise``):
   directors' against the truth's); the fraction of truths inside. A result without SDs has no
   coverage (reported as null / "-").
 
+``--seeds N`` runs the convergence sweep instead (``convergence_sweep``): every case, and the
+sweep's extra valid forms (``SWEEP_EXTRA_CASES``), on every spine over N noise seeds; each failure
+(``FitFailed`` or any exception) is listed by data set, spine, case and seed in
+``clinic-sweep-<split>.json`` and a table, and the command exits 1 if there is one.
+
 ``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
 pooled 95 % intervals of positions cover 95 % on dev (``fit.uncertainty``).
 """
@@ -313,6 +318,94 @@ def run(
     return rows, outcomes
 
 
+# ---------------------------------------------------------------- convergence sweep
+
+
+@dataclass(frozen=True)
+class SweepCase:
+    """A valid payload form of the convergence sweep: a bench ``Case``, optionally with the
+    acquisition's central ray left out (the usual DX header: SID and SOD, no central ray)."""
+
+    case: Case
+    central_ray: bool = True
+
+
+SWEEP_EXTRA_CASES = (
+    SweepCase(Case("c0", "perspective PA + lateral, SID and SOD without central ray", perspective=True,
+                   acquisition=True), central_ray=False),
+    SweepCase(Case("e0", "perspective PA only, SID and SOD without central ray", lateral_from=None,
+                   perspective=True, acquisition=True), central_ray=False),
+)
+"""Sweep-only forms beside ``CASES``: the films of (c) as a DX header describes them (SID and SOD
+without the central ray), with and without the lateral. With one film the central ray and the
+spine's place in the film trade almost exactly (only the perspective's depth dependence tells them
+apart), the slowest valley the solver meets."""
+
+
+def sweep_payload(series: Series, sweep_case: SweepCase) -> dict[str, Any]:
+    """The JSON payload of ``sweep_case`` for ``series`` (``build_payload``, central ray removed
+    when the form has none)."""
+    payload = build_payload(series, sweep_case.case).model_dump(mode="json", exclude_none=True)
+    if not sweep_case.central_ray:
+        for name in ("pa", "lateral"):
+            if name in payload and "acquisition" in payload[name]:
+                payload[name]["acquisition"].pop("central_ray", None)
+    return payload
+
+
+def convergence_sweep(
+    datasets: dict[str, list[Truth]],
+    cases: Sequence[SweepCase],
+    seeds: Sequence[int],
+    noise_mm: float,
+    profile: str = "default",
+    registrar: Registrar = register,
+) -> dict[str, Any]:
+    """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed)``):
+    the runs per case and every failure (``FitFailed``, ``InvalidInput`` or any other exception:
+    each payload is valid, so each failure is a defect) with its data set, spine, case and seed."""
+    failures: list[dict[str, Any]] = []
+    per_case: dict[str, dict[str, Any]] = {
+        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0} for sc in cases
+    }
+    for seed in seeds:
+        for name, truths in datasets.items():
+            for truth in truths:
+                series = simulate_series(truth, noise_mm, seed)
+                for sc in cases:
+                    payload = sweep_payload(series, sc)
+                    payload.setdefault("options", {})["profile"] = profile
+                    row = per_case[sc.case.key]
+                    row["runs"] += 1
+                    try:
+                        result = registrar(payload)
+                    except Exception as exc:  # any exception on a valid payload is a failure to report
+                        row["failures"] += 1
+                        failures.append({
+                            "dataset": name, "spine": truth.spine_id, "case": sc.case.key, "seed": seed,
+                            "error": f"{type(exc).__name__}: {exc}"[:300],
+                        })  # fmt: skip
+                        continue
+                    row["max_iterations"] = max(row["max_iterations"], int(result["fit"]["iterations"]))
+    runs = sum(r["runs"] for r in per_case.values())
+    return {"seeds": list(seeds), "runs": runs, "failed": len(failures), "per_case": per_case, "failures": failures}
+
+
+def sweep_table(sweep: dict[str, Any]) -> str:
+    """The sweep as text: runs, failures and the most solver iterations per case, then each failure."""
+    body = format_table(
+        ["case", "runs", "failed", "max iter", "title"],
+        [[k, r["runs"], r["failures"], r["max_iterations"], r["title"]] for k, r in sweep["per_case"].items()],
+    )
+    if not sweep["failures"]:
+        return body + f"\nno failure in {sweep['runs']} runs (seeds {sweep['seeds']})"
+    failed = format_table(
+        ["data", "spine", "case", "seed", "error"],
+        [[f["dataset"], f["spine"], f["case"], f["seed"], f["error"]] for f in sweep["failures"]],
+    )
+    return f"{body}\nfailures ({sweep['failed']} of {sweep['runs']} runs):\n{failed}"
+
+
 # ---------------------------------------------------------------- output
 
 
@@ -413,6 +506,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default="".join(CASES), help="case letters to run, e.g. ace (default all)")
     parser.add_argument("--noise-mm", type=float, default=1.0, help="landmark noise SD, detector mm (default 1)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seeds", type=int, default=None, metavar="N",
+        help="convergence sweep: run every case (and the sweep's extra forms, SWEEP_EXTRA_CASES) over N noise "
+        "seeds from --seed on, report each failure; exit code 1 if any",
+    )
     parser.add_argument("--profile", default="default")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
@@ -447,6 +545,8 @@ def main(argv: list[str] | None = None) -> int:
     datasets = {f"verse-{args.split}": verse}
     if args.synthetic > 0 and not args.calibrate_uncertainty:
         datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)
+    if args.seeds is not None:
+        return _sweep_main(args, command, datasets, cases)
     rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)
     elapsed = time.perf_counter() - start
     report: dict[str, Any] = {
@@ -476,6 +576,21 @@ def main(argv: list[str] | None = None) -> int:
                   f"{calibrated['prior_weight']:.4g} (written to {calibrated['calibration_file']})")
         print(f"wrote {args.out}/{stem}.json and .png ({elapsed:.1f} s)")
     return 0
+
+
+def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list[Truth]], cases: list[Case]) -> int:
+    """``--seeds N``: the convergence sweep, its JSON (``clinic-sweep-<split>.json``) and table."""
+    start = time.perf_counter()
+    extra = [sc for sc in SWEEP_EXTRA_CASES if sc.case.key[0] in args.cases]
+    sweep = convergence_sweep(
+        datasets, [SweepCase(c) for c in cases] + extra, range(args.seed, args.seed + args.seeds), args.noise_mm,
+        args.profile,
+    )
+    report = {"command": command, "noise_mm": args.noise_mm, "profile": args.profile,
+              "seconds": round(time.perf_counter() - start, 1), **sweep}  # fmt: skip
+    write_json(args.out / f"clinic-sweep-{args.split}.json", report)
+    print(json.dumps(report, indent=2) if args.json else sweep_table(sweep))
+    return 1 if sweep["failures"] else 0
 
 
 if __name__ == "__main__":
