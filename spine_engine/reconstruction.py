@@ -626,6 +626,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         measures = _measures_with_sds(measures, uncertainty)
         if "kyphosis" in problem.unreliable:
             measures = _with_prior_floor(measures, profile)
+        problem = dataclasses.replace(problem, unreliable=_unreliable_by_sd(measures, profile, problem.unreliable))
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
         measures=measures,
@@ -669,6 +670,28 @@ def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
         )
     }
     return measures.model_copy(update=update)
+
+
+UNRELIABLE_SD_FRACTION = 0.5
+"""A sagittal measure is a model estimate (``fit.unreliable``) when its SD exceeds this fraction of the
+population's SD (``anatomy.PopulationPrior.measure_sd_deg``): the films then removed less than three
+quarters of the population's variance (1 − 0.5² = 0.75)."""
+
+
+def _unreliable_by_sd(measures: Measures, profile: Profile, unreliable: list[Unreliable]) -> list[Unreliable]:
+    """``unreliable`` plus "kyphosis" / "lordosis" when their SD exceeds ``UNRELIABLE_SD_FRACTION`` of
+    the population's (order kept, no duplicates)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return list(unreliable)
+    out = list(unreliable)
+    for name, sd, population in (
+        ("kyphosis", measures.thoracic_kyphosis_t4_t12_sd_deg, prior.measure_sd_deg["kyphosis_t4_t12_deg"]),
+        ("lordosis", measures.lumbar_lordosis_l1_l5_sd_deg, prior.measure_sd_deg["lordosis_l1_l5_deg"]),
+    ):
+        if sd is not None and sd > UNRELIABLE_SD_FRACTION * population and name not in out:
+            out.append(name)  # type: ignore[arg-type]
+    return out
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

@@ -92,3 +92,23 @@ def test_pa_only_spine_turned_about_the_vertical_is_not_spun_further() -> None:
     about_vertical = abs(float(np.degrees(rot.as_rotvec()[2])))
     assert about_vertical <= sd
     assert [v["level"] for v in result["vertebrae"]] == list(LEVELS)
+
+
+def test_a_measure_whose_sd_is_a_large_part_of_the_populations_is_unreliable() -> None:
+    """Two films determine the sagittal measures: not marked; the same result with a kyphosis SD above
+    half the population's is marked (``reconstruction.UNRELIABLE_SD_FRACTION``)."""
+    from spine_engine.models import Measures
+    from spine_engine.reconstruction import UNRELIABLE_SD_FRACTION, _unreliable_by_sd
+
+    positions = SPINES[5][1]
+    truth = clinic_films.Truth(SPINES[5][0], positions, frames_from_centreline(positions))
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
+    body = clinic_films.build_payload(series, clinic_films.CASES["a"])
+    result = register(body.model_dump(mode="json", exclude_none=True))
+    assert "kyphosis" not in result["fit"]["unreliable"] and "lordosis" not in result["fit"]["unreliable"]
+    profile = load_profile()
+    population = population_prior(profile).measure_sd_deg["kyphosis_t4_t12_deg"]  # type: ignore[union-attr]
+    wide = Measures.model_validate(result["measures"]).model_copy(
+        update={"thoracic_kyphosis_t4_t12_sd_deg": 1.01 * UNRELIABLE_SD_FRACTION * population}
+    )
+    assert _unreliable_by_sd(wide, profile, []) == ["kyphosis"]
