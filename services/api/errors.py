@@ -8,6 +8,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import iter_route_contexts
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
@@ -59,13 +60,28 @@ async def _http_error(request: Request, exc: Exception) -> JSONResponse:
     return problem_response(body, headers or None)
 
 
+METHOD_GUARD = "method-not-allowed"
+"""The name of a route that only answers 405 for its methods (e.g. GET /v1/jobs/batch, which the job
+route would otherwise take as a job id): its methods are not allowed ones."""
+
+
 def _allowed_methods(request: Request) -> list[str]:
-    methods: set[str] = set()
-    for route in request.app.router.routes:
-        match, _ = route.matches(request.scope)
-        if match != Match.NONE:
-            methods |= set(getattr(route, "methods", None) or ())
-    return sorted(methods)
+    """The methods the request's path answers (RFC 9110 §15.5.6: a 405 "MUST generate an Allow header
+    field containing a list of the target resource's currently supported methods"): each method of a
+    route whose path matches, when the first route that the router would take for it is not a guard.
+    Routes are walked as the router walks them, included routers flattened (``iter_route_contexts``)."""
+    routes = list(iter_route_contexts(request.app.router.routes))
+    candidates: set[str] = set()
+    for route in routes:
+        if route.matches(request.scope)[0] != Match.NONE:
+            candidates |= set(route.methods or ())
+    allowed = []
+    for method in sorted(candidates):
+        scope = {**request.scope, "method": method}
+        first = next((r for r in routes if r.matches(scope)[0] == Match.FULL), None)
+        if first is not None and first.name != METHOD_GUARD:
+            allowed.append(method)
+    return allowed
 
 
 async def _database_down(request: Request, exc: Exception) -> JSONResponse:
