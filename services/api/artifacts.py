@@ -247,10 +247,12 @@ ETAG_HEADER = {
 
 
 def artifact_responses(
-    media_type: str, description: str, schema: Mapping[str, Any] | None = None
+    media_type: str, description: str, schema: Mapping[str, Any]
 ) -> dict[int | str, dict[str, Any]]:
-    """The OpenAPI ``responses`` of an artifact route: 200 and 304 with their ``ETag``, and the problems."""
-    content: dict[str, Any] = {media_type: {"schema": dict(schema)} if schema else {}}
+    """The OpenAPI ``responses`` of an artifact route: 200 (``schema`` under ``media_type``:
+    ``schemas.BINARY_SCHEMA`` for bytes, ``TEXT_SCHEMA`` for a text document, or a JSON schema) and
+    304 with their ``ETag``, and the problems."""
+    content: dict[str, Any] = {media_type: {"schema": dict(schema)}}
     return {
         200: {"content": content, "description": description, "headers": {"ETag": ETAG_HEADER}},
         304: {
