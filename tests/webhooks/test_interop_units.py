@@ -291,6 +291,29 @@ def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
     assert measures[-1]["measure"] == "mean_registration_error" and measures[-1]["unit"] == "mm"
 
 
+def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result: dict[str, Any]) -> None:
+    """The columns and meanings of the page's CSVs (web/src/csv.ts, web/src/results.ts): SDs from the
+    result, and the model-estimate mark on what ``fit.unreliable`` names."""
+    measured = list(csv.DictReader(io.StringIO(tables.vertebrae_csv(result))))
+    v3 = result["vertebrae"][3]
+    assert [float(measured[3][f"position_sd_{a}_mm"]) for a in "xyz"] == pytest.approx(v3["position_sd_mm"])
+    assert float(measured[3]["axial_rotation_sd_deg"]) == pytest.approx(v3["axial_rotation_sd_deg"])
+    assert {r["model_estimate"] for r in measured} == {""}  # T1 and L5 given: nothing from the prior
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(result)))}
+    assert float(rows["thoracic_kyphosis_t4_t12"]["sd"]) == pytest.approx(
+        result["measures"]["thoracic_kyphosis_t4_t12_sd_deg"])  # fmt: skip
+    assert float(rows["cobb_angle"]["sd"]) == pytest.approx(result["measures"]["cobb"][-1]["angle_sd_deg"])
+    assert rows["mean_registration_error"]["sd"] == "" and {r["model_estimate"] for r in rows.values()} == {""}
+
+    estimated = copy.deepcopy(result)
+    estimated["fit"]["unreliable"] = ["depth", "kyphosis", "axial_rotation", "twist"]
+    marks = {r["model_estimate"] for r in csv.DictReader(io.StringIO(tables.vertebrae_csv(estimated)))}
+    assert marks == {"y_mm;pa_bending_deg;axial_rotation_deg;u3_rad_per_mm;twist_deg"}
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(estimated)))}
+    marked = {name for name, r in rows.items() if r["model_estimate"] == "model estimate"}
+    assert marked == {"thoracic_kyphosis_t4_t12", "thoracic_kyphosis_t5_t12", "apex_axial_rotation"}
+
+
 # ------------------------------------------------------------------ API checks
 
 
