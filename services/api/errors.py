@@ -9,6 +9,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import iter_route_contexts
+from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
@@ -71,13 +72,17 @@ def _allowed_methods(request: Request) -> list[str]:
     route whose path matches, when the first route that the router would take for it is not a guard.
     Routes are walked as the router walks them, included routers flattened (``iter_route_contexts``)."""
     routes = list(iter_route_contexts(request.app.router.routes))
+    # the scope as the app's router saw it (a mount that answered extended root_path for its own app)
+    base = {**request.scope, "root_path": request.scope.get("app_root_path", request.scope.get("root_path", ""))}
     candidates: set[str] = set()
     for route in routes:
-        if route.matches(request.scope)[0] != Match.NONE:
+        if route.matches(base)[0] != Match.NONE:
             candidates |= set(route.methods or ())
+            if isinstance(getattr(route, "app", None), StaticFiles):  # a mount of files answers these two
+                candidates |= {"GET", "HEAD"}
     allowed = []
     for method in sorted(candidates):
-        scope = {**request.scope, "method": method}
+        scope = {**base, "method": method}
         first = next((r for r in routes if r.matches(scope)[0] == Match.FULL), None)
         if first is not None and first.name != METHOD_GUARD:
             allowed.append(method)

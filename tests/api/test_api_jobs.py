@@ -222,11 +222,13 @@ def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None
         ("TRACE", "/v1/jobs/batch", "POST"),
         ("POST", "/healthz", "GET"),
         ("POST", "/v1/pacs", "GET"),
+        ("POST", "/", "GET, HEAD"),  # the page
+        ("POST", "/assets/any.js", "GET, HEAD"),  # a mount of static files
     ],
 )
 def test_a_405_lists_the_methods_the_resource_has(api: TestClient, method: str, path: str, allow: str) -> None:
     """RFC 9110 §15.5.6: a 405 carries ``Allow`` with the target resource's methods (the routes of
-    included routers too, and not a method the path only refuses)."""
+    included routers and mounts too, and not a method the path only refuses)."""
     response = api.request(method, path.replace("{id}", str(uuid.uuid4())))
     assert response.status_code == 405, response.text
     assert response.headers["allow"] == allow
