@@ -57,7 +57,7 @@ async def _http_error(request: Request, exc: Exception) -> JSONResponse:
                    instance=request.url.path)  # fmt: skip
     headers = dict(exc.headers) if exc.headers else {}
     if exc.status_code == 405:  # every method the path has, not only those of the first route matched
-        headers["Allow"] = ", ".join(_allowed_methods(request))
+        headers["Allow"] = ", ".join(_allowed_methods(request)) or headers.get("Allow", "")
     return problem_response(body, headers or None)
 
 
