@@ -54,6 +54,7 @@ from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
+    Assumption,
     EngineInfo,
     FitReport,
     JobPayload,
@@ -99,6 +100,8 @@ class ViewSetup:
     """"weak_perspective" or "perspective"."""
     scale_source: str
     pixel_spacing_calibration: str | None
+    assumed: tuple[Assumption, ...] = ()
+    """What the set-up took because the view did not give it (``FitReport.assumed``)."""
 
 
 @dataclass(frozen=True)
@@ -175,7 +178,8 @@ def make_camera(
 
     * ``projection`` given: that weak perspective, fixed ("given");
     * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
-      through o; c = the central ray when given (else estimated, o then moves along the beam only),
+      through o; c = the central ray when given, else the centre of ``acquisition.image_size`` (recorded as
+      assumed, ``_ray_at_centre``), else estimated (o then moves along the beam only),
       o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, 30²), d̄ = ``mid_plane_offset`` of
       ``profile`` (the spine's mid-plane at SOD), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
@@ -197,8 +201,13 @@ def make_camera(
         m0 = sid / sod
         b = BEAMS[name]
         E = np.stack((e_c, e_r))
-        if acq.central_ray is not None:
-            c = np.asarray(acq.central_ray, dtype=float) * detector_spacing(view)
+        ray = acq.central_ray
+        assumed: tuple[Assumption, ...] = ()
+        if ray is None and acq.image_size is not None:
+            ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
+            assumed = (_ray_at_centre(name, ray, view.units),)
+        if ray is not None:
+            c = np.asarray(ray, dtype=float) * detector_spacing(view)
             o_plane = (c - T0) / m0
             free = np.array([False, False, True, True, True, rotate])
         else:
@@ -212,7 +221,7 @@ def make_camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
             depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
         )
-        return camera, ViewSetup("perspective", "acquisition", spc)
+        return camera, ViewSetup("perspective", "acquisition", spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
@@ -222,6 +231,18 @@ def make_camera(
     prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
     camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
     return camera, ViewSetup("weak_perspective", "prior" if prior is not None else "estimated", spc)
+
+
+def _ray_at_centre(name: str, ray: tuple[float, float], units: str) -> Assumption:
+    """The record of a central ray taken at the image's centre: DICOM's SID runs from the source to
+    the detector's centre (PS3.3 C.8.7.6; the DX Positioning Module C.8.11.5 gives no central-ray
+    position), and a full-spine film is taken with the beam centred on the detector."""
+    return Assumption(
+        name="central_ray_at_image_centre",
+        view=name,  # type: ignore[arg-type]
+        reason=f"SID and SOD were given without a central ray: the ray was taken at the image's centre "
+        f"({ray[0]:g}, {ray[1]:g}) {units}, half of acquisition.image_size",
+    )
 
 
 def _view_data(
@@ -562,6 +583,7 @@ def _fit_report(
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
+        assumed=[a for setup in problem.setups.values() for a in setup.assumed],
     )
 
 
