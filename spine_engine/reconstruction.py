@@ -217,6 +217,8 @@ def make_camera(
         mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
         ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
+        if ray_prior is not None:
+            assumed = (_assumption("central_ray_near_landmarks", name),)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
             depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
@@ -230,7 +232,26 @@ def make_camera(
         )
     prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
     camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
-    return camera, ViewSetup("weak_perspective", "prior" if prior is not None else "estimated", spc)
+    if prior is None:
+        return camera, ViewSetup("weak_perspective", "estimated", spc)
+    return camera, ViewSetup("weak_perspective", "prior", spc, (_assumption("magnification_prior", name),))
+
+
+_ASSUMPTION_REASONS = {
+    "central_ray_near_landmarks": "SID and SOD were given without a central ray or an image size: the ray was "
+    "estimated under a prior within 50 mm (SD) of the landmarks' centre",
+    "magnification_prior": "no magnification, geometry or projection was given: the film's magnification "
+    "comes from the full-spine prior 1.125 ± 0.035 (SID/SOD 1800/1600)",
+    "standing_orientation": "no lateral film: the spine's lean and its turn about the vertical come from the "
+    "prior of a standing patient facing the detector (SD about 11° and 5°)",
+    "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
+    "their SDs are at least the population's",
+}
+
+
+def _assumption(name: str, view: str | None) -> Assumption:
+    """The record of a prior that decided a number (``FitReport.assumed``), with its reason in words."""
+    return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
 
 
 def _ray_at_centre(name: str, ray: tuple[float, float], units: str) -> Assumption:
@@ -541,6 +562,13 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
+def _sagittal_assumptions(problem: Problem) -> list[Assumption]:
+    """Without a lateral film (no boundary) the lean, the spin and the sagittal shape come from priors."""
+    if problem.boundary != "estimated" or "lateral" in problem.setups:
+        return []
+    return [_assumption("standing_orientation", None), _assumption("population_sagittal_shape", None)]
+
+
 def _fit_report(
     problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
 ) -> FitReport:
@@ -583,7 +611,7 @@ def _fit_report(
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
-        assumed=[a for setup in problem.setups.values() for a in setup.assumed],
+        assumed=[a for setup in problem.setups.values() for a in setup.assumed] + _sagittal_assumptions(problem),
     )
 
 
