@@ -16,6 +16,7 @@ The queue is a fresh name (``celerycost-…``), deleted at the end; the database
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -62,6 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--concurrency", type=int, default=2, help="pool processes of the worker")
     parser.add_argument("--payload", choices=sorted(PAYLOADS), default="loadbench")
     parser.add_argument("--no-in-process", action="store_true", help="skip the in-process comparison")
+    parser.add_argument("--out", type=Path, help="also write the figures as JSON to this file")
     args = parser.parse_args(argv)
     make_payload = PAYLOADS[args.payload]
     queue = f"celerycost-{uuid.uuid4().hex[:8]}"
@@ -106,11 +108,21 @@ def main(argv: list[str] | None = None) -> int:
             "  by process (supervisor, Celery main, pool…), ms/job: "
             + ", ".join(f"{cpu * 1000 / args.n:.2f}" for cpu in by_pid.values())
         )
+        figures: dict[str, object] = {
+            "settings": {"n": args.n, "concurrency": args.concurrency, "payload": args.payload},
+            "worker_ms": worker_ms, "postgres_ms": pg_ms, "jobs_per_s_wall": args.n / wall_s,
+            "by_process_ms": [cpu * 1000 / args.n for cpu in by_pid.values()],
+        }  # fmt: skip
         if not args.no_in_process:
             inproc = measure(settings, args.n, make_payload)
             print(f"in process (no Celery): worker CPU {inproc['worker_ms']:.2f} ms/job "
                   f"(register() {inproc['fit_ms']:.2f}), PostgreSQL backends {inproc['postgres_ms']:.2f} ms/job; "
                   f"Celery's share {worker_ms - inproc['worker_ms']:.2f} ms/job")  # fmt: skip
+            figures["in_process"] = {k: inproc[k] for k in ("worker_ms", "fit_ms", "postgres_ms")}
+            figures["celery_share_ms"] = worker_ms - inproc["worker_ms"]
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(figures, indent=2) + "\n")
     return 0
 
 

@@ -3,11 +3,13 @@
 Runs in process on a fresh embedded database: POST /v1/jobs (API), the worker's run of the job
 (claim, fit, finish), GET /v1/jobs/{id} (API). For each hop it prints the ``services/`` files
 whose functions ran (by ``sys.setprofile``), so the count is measured, not drawn by hand.
-``python -m tools.hops``.
+``python -m tools.hops [--out FILE]`` (``--out``: the same lists as JSON).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import sys
 import tempfile
 import threading
@@ -60,7 +62,10 @@ def payload() -> dict[str, Any]:
                          "L5": {"position": [0.0, 0.0, -420.0], "directors": identity}}}  # fmt: skip
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, help="also write the files of each hop as JSON to this file")
+    args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings(data_dir=Path(tmp))
         upgrade(settings, quiet=True)
@@ -77,10 +82,15 @@ def main() -> int:
         job_id = uuid.UUID(response.json()["id"])
         outcome, run = files_run(lambda: execute_job(settings, job_id))
         _, get = files_run(lambda: TestClient(app, headers=headers).get(f"/v1/jobs/{job_id}"))
-    for name, files in (("POST /v1/jobs", post), (f"worker run ({outcome})", run), ("GET /v1/jobs/{id}", get)):
+    hops = {"POST /v1/jobs": post, f"worker run ({outcome})": run, "GET /v1/jobs/{id}": get}
+    for name, files in hops.items():
         print(f"{name}: {len(files)} files")
         for f in files:
             print(f"  {f}")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        counts = {name: len(files) for name, files in hops.items()}
+        args.out.write_text(json.dumps({"files": counts, "hops": hops}, indent=2) + "\n")
     return 0
 
 

@@ -18,6 +18,7 @@ fixed result; ``--insert-only``: the insert of N jobs and nothing else)
 from __future__ import annotations
 
 import argparse
+import json
 import resource
 import tempfile
 import time
@@ -175,10 +176,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--without-fit", action="store_true",
                         help="claim, validation and finish only (one fixed result), no register()")  # fmt: skip
     parser.add_argument("--insert-only", action="store_true", help="the insert of N jobs only, no run")
+    parser.add_argument("--out", type=Path, help="also write the figures as JSON to this file")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         settings = Settings(data_dir=Path(tmp), database_url=args.database_url)
         m = measure(settings, args.n, PAYLOADS[args.payload], fit=not args.without_fit, insert_only=args.insert_only)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        settings_out = {"n": args.n, "payload": args.payload, "without_fit": args.without_fit,
+                        "insert_only": args.insert_only, "postgresql": args.database_url is not None}  # fmt: skip
+        args.out.write_text(json.dumps({"settings": settings_out, **m}, indent=2, default=sorted) + "\n")
     pg_insert = m["insert_postgres_ms"]
     insert = "" if pg_insert is None else f", PostgreSQL backends {pg_insert:.2f} ms CPU/job"
     inserted = f"the insert (batches of {BATCH} with audit rows): CPU {m['insert_ms']:.2f} ms/job{insert}"

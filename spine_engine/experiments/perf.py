@@ -208,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=200, help="timed registrations (default 200)")
     parser.add_argument("--lateral", action="store_true", help="also time PA + lateral (17 + 17 landmarks)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--out", type=Path, help="also write the results as JSON to this file")
     parser.add_argument("--register", action="store_true",
                         help="also time the public register() with the calibrated profile on real spines")
     args = parser.parse_args(argv)
@@ -216,15 +217,19 @@ def main(argv: list[str] | None = None) -> int:
         results.append(run(args.repeats, lateral=True))
     if args.register:
         results.append(run_register(args.repeats))
+    environment = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "cpus": os.cpu_count(),
+        **{name: os.environ.get(name) for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
+    }
+    report = json.dumps({"environment": environment, "results": results}, indent=2)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(report + "\n")
     if args.json:
-        environment = {
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "scipy": scipy.__version__,
-            "cpus": os.cpu_count(),
-            **{name: os.environ.get(name) for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
-        }
-        print(json.dumps({"environment": environment, "results": results}, indent=2))
+        print(report)
         return 0
     print(f"{'problem':<28} {'timed':<22} {'median ms':>10} {'p90 ms':>8} {'mean ms':>8} {'iter':>5}")
     for res in results:
