@@ -156,12 +156,12 @@ forward in the lordosis, is the shortest), 1.289 in 3D (a projection is never lo
 recomputes both."""
 SMALLEST_SPINE = 0.6
 """Widening of the lower bound for spines smaller than VerSe's adults (vertebral body plus disc
-heights scale with the spine's length): at the adolescent growth spurt's peak the spine is 87 % of
-its adult length and grows 1.1–1.6 cm a year before it (Sanders et al., "Spinal growth ...
-relative to the growth spurt", Spine Deform 2025;13(2):519–528, doi:10.1007/s43390-024-01011-w),
-on an adult T1–S1 of 42–45 cm (Dimeglio and Canavese, "The growing spine", Eur Spine J
-2012;21(1):64–70, doi:10.1007/s00586-011-1983-3); 0.6 admits children about five years before
-the spurt and VerSe's smallest spine (0.92 of its mean length) shrunk further."""
+heights scale with the spine's length): at 6–8 years the T1–T12 distance is 71–73 % of its final
+length ("Thoracic cage volume and dimension assessment by optoelectronic molding in normal children
+and adolescents during growth", 2019, 622 healthy children aged 6–18, science.ulysseus.eu record
+r245b-mnc02), and at the adolescent growth spurt's peak the spine is 87 % of its adult length
+(Sanders et al., Spine Deform 2025;13(2):519–528, doi:10.1007/s43390-024-01011-w). VerSe dev's
+smallest spine is 0.92 of its mean length: 0.92 × 0.71 = 0.65, and 0.6 leaves room below it."""
 LARGEST_SPINE = 1.25
 """Widening of the upper bound for spines larger than VerSe dev's (its T1–L5 polylines 388–498 mm,
 mean 421): the thoracic vertebral bodies' heights (Panjabi et al., "Thoracic human vertebrae:
@@ -223,7 +223,7 @@ def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
     return known * (1.0 - MAGNIFICATION_SPREAD), known * (1.0 + MAGNIFICATION_SPREAD)
 
 
-def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """Distances between consecutive landmarked levels i < j (k = j − i apart; each landmark's
     top-endplate midpoint: its point, or the mean of its top corners) that no spine has.
 
@@ -245,6 +245,7 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
     q = d / A_ij over the median q of the view's pairs must lie within ``SPACING_RATIO``. A label
     on the wrong vertebra (a click meant as L5 labelled T2) breaks both checks whatever the scale.
     The error names both levels, at the lower level's landmark. Locations use the payload's indices.
+    ``scaled`` False (a stand-in spacing until the image's header is read): the scale-free check only.
     """
     raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
     if not isinstance(raw_landmarks, list):
@@ -272,10 +273,10 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
         upper, lower = LEVELS[i], LEVELS[j]
         apart = "adjacent levels" if j - i == 1 else f"levels {j - i} apart"
         reason = None
-        if (d - noise) / m_max > LARGEST_SPINE * hi * a:
+        if scaled and (d - noise) / m_max > LARGEST_SPINE * hi * a:
             reason = (f"are {d:.0f} mm apart on the film; {apart} of any spine are at most "
                       f"{LARGEST_SPINE * hi * a * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
-        elif (d + noise) / m_min < SMALLEST_SPINE * lo * a:
+        elif scaled and (d + noise) / m_min < SMALLEST_SPINE * lo * a:
             reason = (f"are {d:.1f} mm apart on the film; {apart} of any spine are at least "
                       f"{max(SMALLEST_SPINE * lo * a * m_min - noise, 0.0):.1f} mm apart at magnification down to "
                       f"{m_min:.3g}")
@@ -340,7 +341,7 @@ def _view_errors(name: str, view: PAView | LateralView, exact_boundary: bool) ->
     return errors
 
 
-def validate_payload(payload: Any) -> JobPayload:
+def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobPayload:
     """Validate ``payload`` against the contract; raise ``InvalidInput`` listing every bad field.
 
     Numbers must be finite, levels known and unique per view, directors orthonormal and
@@ -350,7 +351,9 @@ def validate_payload(payload: Any) -> JobPayload:
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
     with columns L or R. On an upright view the landmarks must run head to feet in level order;
     four corners must form a convex quadrilateral in the contract's order (``_corner_errors``); and
-    consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``).
+    consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``;
+    for the views named in ``unscaled_views``, whose pixel spacing is a stand-in until the image's
+    header is read, only the scale-free part).
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -374,9 +377,9 @@ def validate_payload(payload: Any) -> JobPayload:
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _corner_errors("lateral", payload.get("lateral"))
     if not errors:  # distances need the spacing and well-formed landmarks
-        errors += _distance_errors("pa", model.pa, payload.get("pa"))
-        if model.lateral is not None:
-            errors += _distance_errors("lateral", model.lateral, payload.get("lateral"))
+        for name, view in (("pa", model.pa), ("lateral", model.lateral)):
+            if view is not None:
+                errors += _distance_errors(name, view, payload.get(name), name not in unscaled_views)
     if errors:
         raise InvalidInput(errors)
     return model

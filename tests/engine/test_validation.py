@@ -332,3 +332,16 @@ def test_lateral_levels_out_of_order_are_refused_in_any_upright_orientation(orie
     validate_payload(p)
     p["lateral"]["landmarks"][1]["point"][1], p["lateral"]["landmarks"][2]["point"][1] = rows[2], rows[1]
     assert [(path, kind) for path, kind, _ in errors_of(p)] == [("lateral.landmarks[2]", "landmarks_out_of_order")]
+
+
+def test_a_stand_in_spacing_keeps_only_the_scale_free_check() -> None:
+    """A by-reference view checked with a stand-in spacing (``unscaled_views``): its millimetres are
+    not known yet, so 336 mm between T1 and T2 is no evidence; one vertebra labelled twice still is."""
+    pa = _view({"T1": [500.0, 250.0], "T2": [500.0, 250.0 + 336.0 / 0.2]}, units="px", pixel_spacing=[1.0, 1.0])
+    validate_payload({"pa": pa}, unscaled_views=("pa",))
+    _, positions = read_verse(VERSE_DEV)[0]
+    points = {lv: [float(r[0]) / 0.15, -float(r[2]) / 0.15] for lv, r in zip(LEVELS, positions, strict=True)}
+    points["L5"] = [points["L4"][0] + 1.0, points["L4"][1] + 1.0]
+    with pytest.raises(InvalidInput) as info:
+        validate_payload({"pa": _view(points, units="px", pixel_spacing=[1.0, 1.0])}, unscaled_views=("pa",))
+    assert [(e.path, e.type) for e in info.value.errors] == [("pa.landmarks[16]", "implausible_distance")]
