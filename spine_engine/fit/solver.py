@@ -59,9 +59,10 @@ and SOD but no central ray is the slow one: on one film the central ray and the 
 the film trade almost exactly (only the depth dependence of the magnification tells them apart), a
 long flat valley; the cameras' rows carry no second-order terms, so Newton's matrix there is
 indefinite at every step and the shifted step advances at a linear rate (E falling by a few per cent
-of what is left per step). ``spine bench clinic --seeds 3`` (dev and synthetic, central ray 20 mm
-and 80 mm from the spine) needed up to 99 and 224 steps; the old limit of 100 failed 5 of 264 such
-valid payloads. 500 leaves twice the worst measured."""
+of what is left per step). ``spine bench clinic --split dev --seeds 3`` (VerSe dev and 20 synthetic
+spines, the central ray within 20 mm of the spine, form e0) needed up to 144 steps, and 5 of its 132
+e0 payloads failed the former limit of 100; with ``clinic_films.CENTRAL_RAY_SPREAD_MM`` = 80 the
+same sweep needed up to 224. 500 leaves twice the worst measured."""
 SHIFT_MIN = 1e-12
 """Smallest damping tried to make an indefinite Newton matrix definite (then × 10 until it is)."""
 
