@@ -2,9 +2,9 @@
 
 import itertools
 import math
+import statistics
 from typing import Any
 
-import numpy as np
 from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput
@@ -107,9 +107,9 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     for i, lm in enumerate(raw_landmarks):
         if not isinstance(lm, dict) or lm.get("corners") is None:
             continue
-        tl, tr, bl, br = (np.asarray(c, dtype=float) for c in lm["corners"])
+        tl, tr, bl, br = ((float(c[0]), float(c[1])) for c in lm["corners"])
         outline = (tl, tr, br, bl)
-        edges = [outline[(k + 1) % 4] - outline[k] for k in range(4)]
+        edges = [_minus(outline[(k + 1) % 4], outline[k]) for k in range(4)]
         turns = [_cross(edges[k], edges[(k + 1) % 4]) for k in range(4)]
         if min(turns) <= 0.0:
             if max(turns) < 0.0:
@@ -127,17 +127,24 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     return errors
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> float:
+Point = tuple[float, float]
+
+
+def _minus(a: Point, b: Point) -> Point:
+    return a[0] - b[0], a[1] - b[1]
+
+
+def _cross(a: Point, b: Point) -> float:
     """z component of the 2D cross product a × b = a_c b_r − a_r b_c."""
-    return float(a[0] * b[1] - a[1] * b[0])
+    return a[0] * b[1] - a[1] * b[0]
 
 
-def _crossed(outline: tuple[np.ndarray, ...]) -> bool:
+def _crossed(outline: tuple[Point, ...]) -> bool:
     """Whether the outline's opposite sides TL→TR and BR→BL, or TR→BR and BL→TL, intersect."""
 
-    def intersect(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
-        def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
-            return _cross(q - p, r - p)
+    def intersect(a: Point, b: Point, c: Point, d: Point) -> bool:
+        def side(p: Point, q: Point, r: Point) -> float:
+            return _cross(_minus(q, p), _minus(r, p))
 
         return side(a, b, c) * side(a, b, d) < 0.0 and side(c, d, a) * side(c, d, b) < 0.0
 
@@ -149,6 +156,8 @@ MEAN_SEGMENT_MM = (20.3, 20.8, 20.9, 20.9, 22.2, 22.3, 23.0, 23.5, 24.9, 26.4, 2
 """Mean distance between the centroids of adjacent vertebrae T1–T2 … L4–L5 over the 24 VerSe dev
 spines (tests/data/verse_dev.csv, 3D, mm, rounded to 0.1; a test recomputes it). The reference
 length of levels i < j is the arc A_ij = Σ_{l=i}^{j−1} MEAN_SEGMENT_MM[l]."""
+_ARC = [sum(MEAN_SEGMENT_MM[:k]) for k in range(len(MEAN_SEGMENT_MM) + 1)]
+"""A_0j, mm: the VerSe dev mean arc from T1 to level j."""
 VERSE_DISTANCE_RATIO = (0.385, 1.289)
 """Smallest and largest ratio |r_j − r_i| / A_ij over every pair of levels of the VerSe dev spines:
 0.385 for the distance projected on a PA film (the (x, z) plane: L4–L5, whose segment leans far
@@ -194,14 +203,14 @@ reach 0.51–1.30 on the lateral, and the AASCE 2019 training radiographs' well-
 one vertebra (three AASCE annotations: 0.03–0.07)."""
 
 
-def _mm_per_unit(view: PAView | LateralView) -> np.ndarray:
+def _mm_per_unit(view: PAView | LateralView) -> Point:
     """(column, row) mm per unit of the view's coordinates: 1 in mm, the pixel spacing [row, column]
     swapped in px (the conversion of ``clinical.detector_spacing`` before any calibration factor;
     not imported from there, which would load the fit's stack with the validation)."""
     if view.units == "px":
         assert view.pixel_spacing is not None  # _view_errors refused px without a spacing first
-        return np.array([view.pixel_spacing[1], view.pixel_spacing[0]], dtype=float)
-    return np.ones(2)
+        return float(view.pixel_spacing[1]), float(view.pixel_spacing[0])
+    return 1.0, 1.0
 
 
 def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
@@ -251,23 +260,26 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
     if not isinstance(raw_landmarks, list):
         return []
     index = {lm.get("level"): i for i, lm in enumerate(raw_landmarks) if isinstance(lm, dict)}
-    spacing = _mm_per_unit(view)
-    placed = []
-    for lm in view.landmarks:
+    column_mm, row_mm = _mm_per_unit(view)
+    levels, points = [], []
+    for lm in view.landmarks:  # sorted by level; the top endplate midpoint, in film mm
         if lm.point is not None:
-            point = np.asarray(lm.point, dtype=float)
+            column, row = lm.point
         else:
             assert lm.corners is not None
-            point = 0.5 * (np.asarray(lm.corners[0], dtype=float) + np.asarray(lm.corners[1], dtype=float))
-        placed.append((LEVEL_INDEX[lm.level], point * spacing))
-    arc = np.concatenate(([0.0], np.cumsum(MEAN_SEGMENT_MM)))
+            (c0, r0), (c1, r1) = lm.corners[0], lm.corners[1]
+            column, row = 0.5 * (c0 + c1), 0.5 * (r0 + r1)
+        levels.append(LEVEL_INDEX[lm.level])
+        points.append((column * column_mm, row * row_mm))
     m_min, m_max = _magnification_range(view)
     sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
     noise = NOISE_SDS * math.sqrt(2.0) * sigma
     lo, hi = VERSE_DISTANCE_RATIO
-    pairs = [(i, j, float(np.linalg.norm(pj - pi)), float(arc[j] - arc[i])) for (i, pi), (j, pj) in
-             itertools.pairwise(placed)]  # fmt: skip
-    median = float(np.median([d / a for _, _, d, a in pairs])) if len(pairs) >= 2 else None
+    pairs = [
+        (i, j, math.dist(p, q), _ARC[j] - _ARC[i])
+        for (i, p), (j, q) in itertools.pairwise(zip(levels, points, strict=True))
+    ]
+    median = statistics.median(d / a for _, _, d, a in pairs) if len(pairs) >= 2 else None
     errors = []
     for i, j, d, a in pairs:
         upper, lower = LEVELS[i], LEVELS[j]
