@@ -614,7 +614,10 @@ class ViewProjection(BaseModel):
     )
 
 
-AssumptionName = Literal["central_ray_at_image_centre"]
+AssumptionName = Literal[
+    "central_ray_at_image_centre", "central_ray_near_landmarks", "magnification_prior", "standing_orientation",
+    "population_sagittal_shape",
+]
 
 
 class Assumption(BaseModel):
@@ -622,7 +625,12 @@ class Assumption(BaseModel):
 
     name: AssumptionName = Field(
         description="What was assumed: central_ray_at_image_centre (SID and SOD given without a central ray: "
-        "the ray is taken at the centre of acquisition.image_size)."
+        "the ray is taken at the centre of acquisition.image_size); central_ray_near_landmarks (neither a "
+        "central ray nor an image size: a prior holds the ray within 50 mm of the landmarks' centre); "
+        "magnification_prior (the PA's magnification from the full-spine prior 1.125 ± 0.035); "
+        "standing_orientation (no lateral film: the spine's lean and spin about the vertical from the prior "
+        "of a standing patient facing the detector); population_sagittal_shape (no lateral film: kyphosis "
+        "and lordosis from the population prior, with its SD)."
     )
     view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
     reason: str = Field(description="In plain words: what was missing and what was taken instead.")
@@ -645,8 +653,8 @@ class FitReport(BaseModel):
     )
     unreliable: list[Unreliable] = Field(
         default_factory=list,
-        description="Quantities that come from the generic model only, not from the input (docs/measures.md): "
-        "empty when the boundary is given.",
+        description="Quantities that come from the model's priors more than from the input (docs/measures.md): "
+        "what no view determines, and kyphosis or lordosis whenever its SD exceeds half the population's.",
     )
     tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)

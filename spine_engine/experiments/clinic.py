@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..anatomy import load_profile
 from ..errors import SpineEngineError
 from ..frames import axial_rotation_deg, frames_from_centreline
 from ..levels import LEVELS, N_LEVELS
@@ -99,6 +100,8 @@ class Outcome:
     frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
     reported_errors_deg: dict[str, float] = field(default_factory=dict)
     """Signed error of the result's reported measure (its directors) against the same truth."""
+    truth_deg: dict[str, float] = field(default_factory=dict)
+    """The truth's measures computed the same way (the trivial estimator's errors are measured on them)."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
     position_z: FloatArray | None = None
@@ -147,6 +150,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     for name, (key, sd_key) in pairs.items():
         error = float(getattr(same_m, key)) - float(getattr(truth_m, key))
         out.errors_deg[name] = error
+        out.truth_deg[name] = float(getattr(truth_m, key))
         out.reported_errors_deg[name] = float(m[key]) - float(getattr(truth_m, key))
         for z_store, e in ((out.measure_z, error), (out.reported_z, out.reported_errors_deg[name])):
             z = _z(e, m.get(sd_key))
@@ -250,9 +254,21 @@ def rms_rotation_error(outcomes: Sequence[Outcome]) -> list[float] | None:
     return np.sqrt(np.mean(vectors**2, axis=0)).round(3).tolist()
 
 
-def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, Any]:
+def population_means(profile: str = "default") -> dict[str, float]:
+    """The trivial estimator's answer: VerSe dev's mean kyphosis T4–T12 and lordosis L1–L5 (computed as
+    this bench computes a truth's), from the profile's population prior provenance."""
+    data = load_profile(profile).population_prior or {}
+    population = data.get("provenance", {}).get("population", {})
+    return {name: float(population[key]["mean"]) for name, key in (
+        ("kyphosis_t4_t12", "kyphosis_t4_t12_deg"), ("lordosis_l1_l5", "lordosis_l1_l5_deg")) if key in population}
+
+
+def summarise(
+    dataset: str, case: Case, outcomes: list[Outcome], floor: dict[str, float] | None = None
+) -> dict[str, Any]:
     """One row of the table: means over the spines reconstructed, and coverages (with their
-    item counts)."""
+    item counts). ``floor``: the population-mean estimator's answers (``population_means``), whose
+    MAE on the same spines is the row's ``floor_mae_deg``."""
     ok = [o for o in outcomes if o.ok]
     per_level = np.array([o.per_level_mm for o in ok]) if ok else np.empty((0, N_LEVELS))
     pos_z = [o.position_z for o in ok if o.position_z is not None]
@@ -296,6 +312,10 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
     }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
+    row["floor_mae_deg"] = {
+        name: _mean([abs(mean - o.truth_deg[name]) for o in ok if name in o.truth_deg])
+        for name, mean in (floor or {}).items()
+    }
     return row
 
 
@@ -309,12 +329,13 @@ def run(
 ) -> tuple[list[dict[str, Any]], dict[tuple[str, str], list[Outcome]]]:
     """Every case on every spine of every data set: summary rows and the outcomes behind them."""
     rows, outcomes = [], {}
+    floor = population_means(profile)
     for name, truths in datasets.items():
         series = [simulate_series(t, noise_mm, seed) for t in truths]
         for case in cases:
             found = [run_one(s, case, profile, registrar) for s in series]
             outcomes[(name, case.key)] = found
-            rows.append(summarise(name, case, found))
+            rows.append(summarise(name, case, found, floor))
     return rows, outcomes
 
 
@@ -418,7 +439,9 @@ TABLE_COLUMNS = [
     ("shape_error_mm", "shape mm"),
     ("sagittal_lean_rms_deg", "lean°"),
     ("kyphosis_t4_t12_mae_deg", "kyph°"),
+    ("floor_kyphosis", "floor"),
     ("lordosis_l1_l5_mae_deg", "lord°"),
+    ("floor_lordosis", "floor"),
     ("major_cobb_mae_deg", "Cobb°"),
     ("coverage_positions", "cov pos"),
     ("coverage_kyphosis_t4_t12", "cov kyph"),
@@ -426,6 +449,14 @@ TABLE_COLUMNS = [
     ("coverage_cobb", "cov Cobb"),
     ("coverage_axial_rotation", "cov rot"),
 ]
+
+
+def _value(row: dict[str, Any], key: str) -> Any:
+    """A row's entry; ``floor_<measure>``: the population-mean estimator's MAE on the same spines."""
+    if key.startswith("floor_"):
+        measure = "kyphosis_t4_t12" if key == "floor_kyphosis" else "lordosis_l1_l5"
+        return row["floor_mae_deg"].get(measure)
+    return row[key]
 
 
 def _cell(value: Any) -> Any:
@@ -439,7 +470,7 @@ def _cell(value: Any) -> Any:
 def table(rows: list[dict[str, Any]]) -> str:
     """The summary as an aligned plain-text table (``-``: not available), then the cases' titles
     and the errors of refused cases."""
-    body = format_table([h for _, h in TABLE_COLUMNS], [[_cell(r[k]) for k, _ in TABLE_COLUMNS] for r in rows])
+    body = format_table([h for _, h in TABLE_COLUMNS], [[_cell(_value(r, k)) for k, _ in TABLE_COLUMNS] for r in rows])
     notes = [f"  ({c.key}) {c.title}" for c in CASES.values() if any(r["case"] == c.key for r in rows)]
     refused = [f"  {r['dataset']} ({r['case']}): {e}" for r in rows for e in r["errors"]]
     return "\n".join([body, "cases:", *notes, *(["refused or failed:", *refused] if refused else [])])
@@ -448,13 +479,13 @@ def table(rows: list[dict[str, Any]]) -> str:
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table for docs/accuracy.md."""
     head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "lean RMS (°)",
-            "kyphosis MAE (°)", "lordosis MAE (°)",
+            "kyphosis MAE (°)", "population mean's", "lordosis MAE (°)", "population mean's",
             "major Cobb MAE (°)", "coverage positions", "kyphosis", "lordosis", "Cobb", "axial rotation"]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |"]
     for r in rows:
         cells = [r["dataset"], f"({r['case']}) {r['title']}", f"{r['reconstructed']}/{r['spines']}"]
         for key in [k for k, _ in TABLE_COLUMNS[3:]]:
-            v = r[key]
+            v = _value(r, key)
             if v is None:
                 cells.append("–")
             elif key.startswith("coverage"):

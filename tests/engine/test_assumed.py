@@ -67,7 +67,21 @@ def test_a_given_central_ray_wins_and_weak_perspective_ignores_the_size() -> Non
             payload[name]["acquisition"] = {"image_size": [350.0, 900.0]} if payload is sized else {}
     a, b = register(given), register(sized)
     np.testing.assert_array_equal(_positions(b), _positions(a))
-    assert b["fit"]["assumed"] == []
+    assert b["fit"]["assumed"] == a["fit"]["assumed"]
+    assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [("magnification_prior", "pa")]
+
+
+def test_priors_that_decide_are_named() -> None:
+    """SID and SOD alone (no central ray, no image size): the ray's prior is named per view; one PA
+    film alone: the standing orientation and the population's sagittal shape are named."""
+    bare = _case_c("mm")
+    for name in ("pa", "lateral"):
+        bare[name]["acquisition"].pop("central_ray")
+    names = [(x["name"], x["view"]) for x in register(bare)["fit"]["assumed"]]
+    assert names == [("central_ray_near_landmarks", "pa"), ("central_ray_near_landmarks", "lateral")]
+    del bare["lateral"]
+    names = [x["name"] for x in register(bare)["fit"]["assumed"]]
+    assert names == ["central_ray_near_landmarks", "standing_orientation", "population_sagittal_shape"]
 
 
 @pytest.mark.parametrize("bad", [0.0, -10.0])
