@@ -178,6 +178,12 @@ quantitative three-dimensional anatomy", Spine 1991;16(8):888–901) and the lum
 et al., "Human lumbar vertebrae: quantitative three-dimensional anatomy", Spine 1992;17(3):299–306)
 have coefficients of variation near 10 % among adults, so a segment 25 % above the dev maximum ratio
 (itself 29 % above the mean) is beyond any adult's."""
+LABEL_SHIFT = 1
+"""Levels by which a landmark's label may be off the anatomy's count without the spine being
+implausible: transitional vertebrae (a lumbosacralised or sacralised lowest vertebra, 11 or 13
+rib-bearing vertebrae) are common (Apazidis et al., "The prevalence of transitional vertebrae in the
+lumbar spine", Spine J 2011;11(9):858–862), so levels labelled i and j may be j − i + 1 segments
+apart. The upper bound uses that longer arc; the page's T1 and T2 336 mm apart are still refused."""
 MAGNIFICATION_RANGE = (0.9, 1.4)
 """Detector mm per patient mm a view may have when the payload does not say: below 1 for a
 calibration that overshot, up to 1.4 for a lateral film of a broad patient at a short distance."""
@@ -244,7 +250,8 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
     most favourable reading is impossible:
         (d − n)/m_max > LARGEST_SPINE · ρ_max · A_ij    (too far apart), or
         (d + n)/m_min < SMALLEST_SPINE · ρ_min · A_ij   (too close),
-    with n = NOISE_SDS·√2·σ, (ρ_min, ρ_max) = ``VERSE_DISTANCE_RATIO``, A_ij the VerSe dev mean arc.
+    with n = NOISE_SDS·√2·σ, (ρ_min, ρ_max) = ``VERSE_DISTANCE_RATIO``, A_ij the VerSe dev mean arc
+    (in the upper bound extended by ``LABEL_SHIFT`` segments below level j).
     The ratio bounds hold for every k (a chord is at most its arc); for adjacent levels the lower
     bound is below the noise allowance and catches only two clicks on one vertebra.
 
@@ -285,9 +292,10 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
         upper, lower = LEVELS[i], LEVELS[j]
         apart = "adjacent levels" if j - i == 1 else f"levels {j - i} apart"
         reason = None
-        if scaled and (d - noise) / m_max > LARGEST_SPINE * hi * a:
+        a_up = a + sum(MEAN_SEGMENT_MM[min(j + k, len(MEAN_SEGMENT_MM) - 1)] for k in range(LABEL_SHIFT))
+        if scaled and (d - noise) / m_max > LARGEST_SPINE * hi * a_up:
             reason = (f"are {d:.0f} mm apart on the film; {apart} of any spine are at most "
-                      f"{LARGEST_SPINE * hi * a * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
+                      f"{LARGEST_SPINE * hi * a_up * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
         elif scaled and (d + noise) / m_min < SMALLEST_SPINE * lo * a:
             reason = (f"are {d:.1f} mm apart on the film; {apart} of any spine are at least "
                       f"{max(SMALLEST_SPINE * lo * a * m_min - noise, 0.0):.1f} mm apart at magnification down to "

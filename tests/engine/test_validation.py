@@ -239,13 +239,14 @@ def test_adjacent_levels_336_mm_apart_are_refused_naming_both() -> None:
 
 
 def test_the_given_magnification_narrows_the_bound() -> None:
-    """T1–T2 60 mm apart on the film: possible when the scale is unverified (a nominal spacing),
-    not at a stated magnification of 1.2 (at most 1.1 · 1.2 · 1.25 · 1.289 · 20.3 + 3√2 = 47 mm)."""
-    pa = _view({"T1": [0.0, 0.0], "T2": [0.0, 60.0]})
+    """T1–T2 100 mm apart on the film: possible when the scale is unverified (a nominal spacing),
+    not at a stated magnification of 1.2 (at most 1.1 · 1.2 · 1.25 · 1.289 · (20.3 + 20.8) + 3√2 = 92 mm,
+    the arc one level longer for a label a level off, ``LABEL_SHIFT``)."""
+    pa = _view({"T1": [0.0, 0.0], "T2": [0.0, 100.0]})
     validate_payload({"pa": pa})
     pa["acquisition"] = {"magnification": 1.2}
     [(path, kind, msg)] = errors_of({"pa": pa})
-    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance") and "at most 47 mm" in msg
+    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance") and "at most 92 mm" in msg
 
 
 def test_two_labels_on_one_vertebra_are_refused_whatever_the_scale() -> None:
