@@ -36,6 +36,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
+from services.db.job_forms import job_study
 from services.db.models import Job, iso_utc, utcnow
 
 InsertHook = Callable[[Session, list[uuid.UUID]], None]
@@ -357,5 +358,5 @@ def job_json(job: Job) -> dict[str, Any]:
         "engine_version": job.engine_version,
         "result": job.result,
         "error": job.error,
-        "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
+        "study": job_study(job),
     }

@@ -130,6 +130,14 @@ class RadiographHeader:
     patient_name: str | None
     accession_number: str | None
     study_date: date | None
+    study_time: str | None
+    study_id: str | None
+    patient_birth_date: str | None
+    patient_sex: str | None
+    referring_physician_name: str | None
+    """Study time (TM), study ID, birth date (DA) and sex (M, F, O), referring physician (PN) as the
+    header writes them: copied into the SR and SC (General Study and Patient Modules, PS3.3 §C.7.2.1,
+    §C.7.1.1)."""
     modality: str | None
     rows: int | None
     columns: int | None
@@ -463,6 +471,11 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         patient_name=(str(name).strip() or None) if name is not None else None,
         accession_number=_text(ds, "AccessionNumber"),
         study_date=_study_date(ds),
+        study_time=_text(ds, "StudyTime"),
+        study_id=_text(ds, "StudyID"),
+        patient_birth_date=_text(ds, "PatientBirthDate"),
+        patient_sex=_text(ds, "PatientSex"),
+        referring_physician_name=_text(ds, "ReferringPhysicianName"),
         modality=_text(ds, "Modality"),
         rows=int(rows) if rows is not None else None,
         columns=int(columns) if columns is not None else None,

@@ -14,8 +14,6 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from spine_engine.models import LateralView, PAView
-
 from .errors import UnsupportedOrientation, attribute_label
 from .header import RadiographHeader, ViewRole
 
@@ -157,7 +155,14 @@ STUDY_FIELDS = (
     ("patient_name", "PatientName"),
     ("accession_number", "AccessionNumber"),
     ("study_date", "StudyDate"),
+    ("study_time", "StudyTime"),
+    ("study_id", "StudyID"),
+    ("patient_birth_date", "PatientBirthDate"),
+    ("patient_sex", "PatientSex"),
+    ("referring_physician_name", "ReferringPhysicianName"),
 )
+"""What the study block takes from the header. The contract's ``Study`` has the first five; the others
+stay in the provenance and the job's effective payload (``services.db.job_forms``), for the SR and SC."""
 
 
 def merge_study(
@@ -195,36 +200,3 @@ def apply_headers(
         merge_view(merged, role, header, source=source, provenance=provenance)
     merge_study(merged, headers, provenance)
     return merged, provenance
-
-
-def engine_payload(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload`` without the view fields the installed ``spine_engine.models`` does not know (e.g.
-    ``acquisition`` and ``pixel_spacing_calibration`` before the engine reads them): the header's
-    extra values stay recorded in the provenance, and the engine's strict models do not refuse them."""
-    out = dict(payload)
-    for role, model in (("pa", PAView), ("lateral", LateralView)):
-        view = out.get(role)
-        if isinstance(view, dict):
-            out[role] = {k: v for k, v in view.items() if k in model.model_fields}
-    return out
-
-
-def apply_reads(payload: dict[str, Any], provenance: dict[str, Any] | None) -> dict[str, Any]:
-    """The payload a job ran with: ``payload`` (as posted) with every header value the provenance
-    (``DicomProvenance`` as JSON) marks as used put back at its JSON path. Deterministic, so that the
-    job's row keeps the payload as posted and the SR is rebuilt from it."""
-    merged = copy.deepcopy(payload)
-    if not provenance:
-        return merged
-    reads = list(provenance.get("study") or [])
-    for role in ("pa", "lateral"):
-        reads += list((provenance.get(role) or {}).get("read") or [])
-    for read in reads:
-        if not read.get("used"):
-            continue
-        *parents, leaf = str(read["field"]).split(".")
-        target = merged
-        for key in parents:
-            target = target.setdefault(key, {})
-        target[leaf] = read["value"]
-    return merged

@@ -35,10 +35,10 @@ from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, store_retry
 from services.db import runs, stats
 from services.db.engine import session_scope, worker_connection
+from services.db.job_forms import engine_payload
 from services.dicom import store as dicom_store
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import DicomError, PacsUnavailable
-from services.dicom.merge import engine_payload
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.webhooks import delivery as webhooks
 from spine_engine.errors import FitFailed, InvalidInput
