@@ -15,7 +15,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 from .errors import UnsupportedOrientation, attribute_label
-from .header import RadiographHeader, ViewRole
+from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem
 
 VALUE_RTOL = 1e-6
 """Relative tolerance under which a payload number equals the header's (DS values carry at most 16
@@ -200,3 +200,47 @@ def apply_headers(
         merge_view(merged, role, header, source=source, provenance=provenance)
     merge_study(merged, headers, provenance)
     return merged, provenance
+
+
+_VIEW_FIELDS = ("pixel_spacing", "pixel_spacing_calibration", "patient_orientation")
+_STUDY_FIELDS = {key for key, _ in STUDY_FIELDS} | {"pa_sop_instance_uid", "lateral_sop_instance_uid",
+                                                     "series_instance_uid"}  # fmt: skip
+
+
+def _header_field(section: str, path: str) -> bool:
+    """Whether ``path`` is a payload field the DICOM layer fills from a header, in ``section``."""
+    parts = path.split(".")
+    if section == "study":
+        return len(parts) == 2 and parts[0] == "study" and parts[1] in _STUDY_FIELDS
+    if parts[0] != section:
+        return False
+    return (len(parts) == 2 and parts[1] in _VIEW_FIELDS) or (len(parts) == 3 and parts[1] == "acquisition")
+
+
+def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[str | int, ...], str]]:
+    """What is wrong with a ``dicom`` block a client read from its image files and sends with a payload
+    (``spine submit --pa-dicom``), as (JSON path within the block, reason): every view's ``source``
+    is ``file`` (``dicomweb`` reads are the service's own), every read fills a field the DICOM layer
+    fills from a header (so that the block can only complete a payload as a header does), and a
+    study value the contract has no field for is as DICOM writes it."""
+    errors: list[tuple[tuple[str | int, ...], str]] = []
+    sections: list[tuple[str, list[AttributeRead]]] = [("study", provenance.study)]
+    for role in ("pa", "lateral"):
+        record: ViewProvenance | None = getattr(provenance, role)
+        if record is None:
+            continue
+        if record.source != "file":
+            errors.append(((role, "source"), "must be 'file': the service reads the PACS itself"))
+        sections.append((role, record.read))
+    for section, reads in sections:
+        base: tuple[str | int, ...] = (section,) if section == "study" else (section, "read")
+        for i, read in enumerate(reads):
+            if not _header_field(section, read.field):
+                errors.append(((*base, i, "field"), f"{read.field!r} is not a field a {section} header fills"))
+                continue
+            key = read.field.split(".")[-1]
+            if section == "study" and key in IDENTITY_VALUES:
+                reason = identity_problem(key, read.value)
+                if reason is not None:
+                    errors.append(((*base, i, "value"), reason))
+    return errors
