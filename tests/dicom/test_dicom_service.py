@@ -31,9 +31,9 @@ from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
 from tests.conftest import Service, _purge_queue, make_key, service_env
+from tools.sr_adapter import adapter_missing, adapter_tool_state
 
 from .conftest import OrthancServer, spine_payload
-from .ohif import adapter_missing, adapter_tool_state
 
 SPACING = 0.15
 STORE_TIMEOUT_S = 60.0

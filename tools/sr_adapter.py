@@ -1,6 +1,6 @@
 """Reading an SR as OHIF does, in Node: ``tests/node/read_sr.mjs`` runs ``@cornerstonejs/adapters``'
 ``MeasurementReport.generateToolState`` (the versions pinned in ``tests/node/package.json``, installed
-by ``make node-deps``: ``npm ci``). Shared by the DICOM tests and ``tools/cobb_adapter_figure.py``."""
+by ``make node-deps``: ``npm ci``). Used by the DICOM tests and ``tools/cobb_adapter_figure.py``."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
-NODE_DIR = Path(__file__).resolve().parents[1] / "node"
+NODE_DIR = Path(__file__).resolve().parents[1] / "tests" / "node"
 
 
 def adapter_missing() -> str | None:
