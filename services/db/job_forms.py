@@ -12,7 +12,8 @@ with the JSON path it fills and whether the job uses it). From these:
 - ``engine``: ``effective`` cut to the fields of ``spine_engine.models`` (``engine_payload``): what
   ``spine_engine.register`` and ``spine_engine.figures.render_figure`` take, and the job's ``study``
   as the API and webhooks show it.
-- ``result``: the result as stored (JSON), and ``typed_result`` as ``RegistrationResult``.
+- ``result``: the result as stored (``RegistrationResult`` as JSON, what the SR, SC, figures and FHIR
+  read; the API's job views validate it into the model).
 
 All are deterministic functions of the row: an artifact rebuilt from them is the same bytes.
 """
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
-from spine_engine.models import JobPayload, LateralView, PAView, RegistrationResult, Study
+from spine_engine.models import JobPayload, LateralView, PAView, Study
 
 from .models import Job
 
@@ -94,10 +95,6 @@ class JobForms:
         """The study as the contract's ``Study`` (the API's and webhooks' ``study``)."""
         study = self.engine.get("study")
         return study if isinstance(study, dict) else None
-
-    @cached_property
-    def typed_result(self) -> RegistrationResult | None:
-        return RegistrationResult.model_validate(self.result) if self.result is not None else None
 
 
 def job_forms(job: Job) -> JobForms:
