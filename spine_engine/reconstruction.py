@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
-from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
+from .anatomy import Profile, RestModel, load_profile, population_prior, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -47,12 +47,14 @@ from .fit import (
     nearest_rotation,
 )
 from .fit import solve as solve_fit
+from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
 from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
+    Assumption,
     EngineInfo,
     FitReport,
     JobPayload,
@@ -98,6 +100,8 @@ class ViewSetup:
     """"weak_perspective" or "perspective"."""
     scale_source: str
     pixel_spacing_calibration: str | None
+    assumed: tuple[Assumption, ...] = ()
+    """What the set-up took because the view did not give it (``FitReport.assumed``)."""
 
 
 @dataclass(frozen=True)
@@ -168,12 +172,14 @@ def make_camera(
     mid_depth: float,
     scale_prior: bool,
     profile: Profile,
+    landmark_centre: np.ndarray,
 ) -> tuple[Camera | None, ViewSetup]:
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
     * ``projection`` given: that weak perspective, fixed ("given");
     * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
-      through o; c = the central ray when given (else estimated, o then moves along the beam only),
+      through o; c = the central ray when given, else the centre of ``acquisition.image_size`` (recorded as
+      assumed, ``_ray_at_centre``), else estimated (o then moves along the beam only),
       o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, 30²), d̄ = ``mid_plane_offset`` of
       ``profile`` (the spine's mid-plane at SOD), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
@@ -195,8 +201,13 @@ def make_camera(
         m0 = sid / sod
         b = BEAMS[name]
         E = np.stack((e_c, e_r))
-        if acq.central_ray is not None:
-            c = np.asarray(acq.central_ray, dtype=float) * detector_spacing(view)
+        ray = acq.central_ray
+        assumed: tuple[Assumption, ...] = ()
+        if ray is None and acq.image_size is not None:
+            ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
+            assumed = (_ray_at_centre(name, ray, view.units),)
+        if ray is not None:
+            c = np.asarray(ray, dtype=float) * detector_spacing(view)
             o_plane = (c - T0) / m0
             free = np.array([False, False, True, True, True, rotate])
         else:
@@ -205,11 +216,14 @@ def make_camera(
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
         mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
+        ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
+        if ray_prior is not None:
+            assumed = (_assumption("central_ray_near_landmarks", name),)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
-            depth_prior_mean_mm=mid_offset,
+            depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
         )
-        return camera, ViewSetup("perspective", "acquisition", spc)
+        return camera, ViewSetup("perspective", "acquisition", spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
@@ -218,7 +232,38 @@ def make_camera(
         )
     prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
     camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
-    return camera, ViewSetup("weak_perspective", "prior" if prior is not None else "estimated", spc)
+    if prior is None:
+        return camera, ViewSetup("weak_perspective", "estimated", spc)
+    return camera, ViewSetup("weak_perspective", "prior", spc, (_assumption("magnification_prior", name),))
+
+
+_ASSUMPTION_REASONS = {
+    "central_ray_near_landmarks": "SID and SOD were given without a central ray or an image size: the ray was "
+    "estimated under a prior within 50 mm (SD) of the landmarks' centre",
+    "magnification_prior": "no magnification, geometry or projection was given: the film's magnification "
+    "comes from the full-spine prior 1.125 ± 0.035 (SID/SOD 1800/1600)",
+    "standing_orientation": "no lateral film: the spine's lean and its turn about the vertical come from the "
+    "prior of a standing patient facing the detector (SD about 11° and 5°)",
+    "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
+    "their SDs are at least the population's",
+}
+
+
+def _assumption(name: str, view: str | None) -> Assumption:
+    """The record of a prior that decided a number (``FitReport.assumed``), with its reason in words."""
+    return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
+
+
+def _ray_at_centre(name: str, ray: tuple[float, float], units: str) -> Assumption:
+    """The record of a central ray taken at the image's centre: DICOM's SID runs from the source to
+    the detector's centre (PS3.3 C.8.7.6; the DX Positioning Module C.8.11.5 gives no central-ray
+    position), and a full-spine film is taken with the beam centred on the detector."""
+    return Assumption(
+        name="central_ray_at_image_centre",
+        view=name,  # type: ignore[arg-type]
+        reason=f"SID and SOD were given without a central ray: the ray was taken at the image's centre "
+        f"({ray[0]:g}, {ray[1]:g}) {units}, half of acquisition.image_size",
+    )
 
 
 def _view_data(
@@ -248,11 +293,26 @@ def _view_data(
     )
 
 
-def _pose_priors(model: JobPayload, top: Pose, boundary: str) -> tuple[PosePrior, ...]:
-    """The gauge (no boundary: T1 at the origin, ``GAUGE_POSITION_SD_MM``) or the soft poses."""
+def _pose_priors(
+    model: JobPayload, top: Pose, bottom: Pose, boundary: str, profile: Profile
+) -> tuple[PosePrior, ...]:
+    """No boundary: the gauge (T1 at the origin, ``GAUGE_POSITION_SD_MM``) and the orientation prior
+    of a standing patient facing the detector: T1's and L5's directors near their placement (the
+    generic spine's sagittal inclination unless a lateral film gave the depths, no rotation about
+    the vertical) with the profile's SDs about d1 (the lean), d2 (frontal tilt, a gauge) and d3 (the
+    spin about the vertical), ``anatomy.PopulationPrior.orientation_sd_deg``; without a population
+    prior T1's directors within ``GAUGE_ROTATION_SD_DEG``. Else the soft poses."""
     if boundary == "estimated":
-        gauge = PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, np.radians(GAUGE_ROTATION_SD_DEG))
-        return (gauge,)
+        prior = population_prior(profile)
+        if prior is None:
+            sd = np.radians(GAUGE_ROTATION_SD_DEG)
+            return (PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd),)
+        sd_top, sd_bottom = (np.radians(prior.orientation_sd_deg[lv]) for lv in ("T1", "L5"))
+        return (
+            PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd_top),
+            PosePrior(len(LEVELS) - 1, Pose(bottom.position - top.position, bottom.rotation), GAUGE_POSITION_SD_MM,
+                      sd_bottom),
+        )
     if boundary != "soft":
         return ()
     assert model.boundary is not None
@@ -328,7 +388,8 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(
-            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile
+            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile,
+            landmark_centre=np.nanmean(arrays.points, axis=0),
         )
         data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":
@@ -362,7 +423,7 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
         boundary=boundary,
-        pose_priors=_pose_priors(model, top, boundary),
+        pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
     )
 
@@ -501,6 +562,13 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
+def _sagittal_assumptions(problem: Problem) -> list[Assumption]:
+    """Without a lateral film (no boundary) the lean, the spin and the sagittal shape come from priors."""
+    if problem.boundary != "estimated" or "lateral" in problem.setups:
+        return []
+    return [_assumption("standing_orientation", None), _assumption("population_sagittal_shape", None)]
+
+
 def _fit_report(
     problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
 ) -> FitReport:
@@ -543,6 +611,7 @@ def _fit_report(
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
+        assumed=[a for setup in problem.setups.values() for a in setup.assumed] + _sagittal_assumptions(problem),
     )
 
 
@@ -603,9 +672,14 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
             uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
+    if uncertainty is not None:
+        measures = _measures_with_sds(measures, uncertainty)
+        if "kyphosis" in problem.unreliable:
+            measures = _with_prior_floor(measures, profile)
+        problem = dataclasses.replace(problem, unreliable=_unreliable_by_sd(measures, profile, problem.unreliable))
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
-        measures=measures if uncertainty is None else _measures_with_sds(measures, uncertainty),
+        measures=measures,
         fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
@@ -626,6 +700,48 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
         }
     )
+
+
+def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
+    """Sagittal measures that no film determined (no lateral view: ``fit.unreliable`` has "kyphosis"
+    and "lordosis") come from the population prior, so their SD is at least the population's
+    (``anatomy.PopulationPrior.measure_sd_deg``, VerSe dev): SD = max(Laplace SD, population SD)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return measures
+    kyphosis = prior.measure_sd_deg["kyphosis_t4_t12_deg"]
+    lordosis = prior.measure_sd_deg["lordosis_l1_l5_deg"]
+    update = {
+        name: max(float(getattr(measures, name) or 0.0), floor)
+        for name, floor in (
+            ("thoracic_kyphosis_t4_t12_sd_deg", kyphosis),
+            ("thoracic_kyphosis_t5_t12_sd_deg", kyphosis),
+            ("lumbar_lordosis_l1_l5_sd_deg", lordosis),
+        )
+    }
+    return measures.model_copy(update=update)
+
+
+UNRELIABLE_SD_FRACTION = 0.5
+"""A sagittal measure is a model estimate (``fit.unreliable``) when its SD exceeds this fraction of the
+population's SD (``anatomy.PopulationPrior.measure_sd_deg``): the films then removed less than three
+quarters of the population's variance (1 − 0.5² = 0.75)."""
+
+
+def _unreliable_by_sd(measures: Measures, profile: Profile, unreliable: list[Unreliable]) -> list[Unreliable]:
+    """``unreliable`` plus "kyphosis" / "lordosis" when their SD exceeds ``UNRELIABLE_SD_FRACTION`` of
+    the population's (order kept, no duplicates)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return list(unreliable)
+    out = list(unreliable)
+    for name, sd, population in (
+        ("kyphosis", measures.thoracic_kyphosis_t4_t12_sd_deg, prior.measure_sd_deg["kyphosis_t4_t12_deg"]),
+        ("lordosis", measures.lumbar_lordosis_l1_l5_sd_deg, prior.measure_sd_deg["lordosis_l1_l5_deg"]),
+    ):
+        if sd is not None and sd > UNRELIABLE_SD_FRACTION * population and name not in out:
+            out.append(name)  # type: ignore[arg-type]
+    return out
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

@@ -28,7 +28,11 @@ EXPECTED = {
     "huge number (too many digits)": (400, "malformed-json"),
     "unknown level": (422, "validation-error"),
     "duplicate levels": (422, "validation-error"),
+    "duplicate key": (422, "validation-error"),
+    "duplicate key in a batch entry": (422, "validation-error"),
     "landmarks out of order": (422, "validation-error"),
+    "levels implausibly far apart": (422, "validation-error"),
+    "crossed corners": (422, "validation-error"),
     "too many landmarks": (422, "validation-error"),
     "non-orthonormal directors": (422, "validation-error"),
     "left-handed directors": (422, "validation-error"),
@@ -44,6 +48,7 @@ EXPECTED = {
     "oversized Idempotency-Key": (422, "validation-error"),
     "unknown query parameter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
+    "method not allowed": ("405 (Allow: GET, POST)", "method-not-allowed"),
     "bad job id": (422, "validation-error"),
     "another client's job": (404, "not-found"),
     "unknown job": (404, "not-found"),
@@ -71,6 +76,13 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["unknown level"] == "pa.landmarks[3].level"
     assert validation["non-orthonormal directors"] == "boundary.T1.directors"
     assert validation["huge number (finite)"] == "pa.landmarks[0].point[0]"
+    assert validation["levels implausibly far apart"] == "pa.landmarks[1]"
+    assert validation["crossed corners"] == "pa.landmarks[4].corners"
+    details = {r["kind"]: r["detail"] for r in rows}
+    assert "T1 and T2 are 336 mm apart" in details["levels implausibly far apart"]
+    assert "corners of T5" in details["crossed corners"]
+    assert validation["duplicate key"] == "pa.units"
+    assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
 
 
 def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:
