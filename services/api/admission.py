@@ -40,16 +40,39 @@ STAND_IN_SPACING = [1.0, 1.0]
 """Only for checking a by-reference payload before its header is read; never stored nor run."""
 
 
-def _with_stand_in_spacing(body: Any) -> Any:
+SPACING_DEPENDENT = frozenset({"implausible_distance"})
+"""Refusals that depend on the spacing (the landmarks' distances in mm): not judged with the stand-in."""
+
+
+def _with_stand_in_spacing(body: Any) -> tuple[Any, set[str]]:
+    """``body`` with the stand-in spacing on each view that needs its header's, and those views."""
     wanted = views_to_fetch(body) if isinstance(body, dict) else {}
     if not wanted:
-        return body
+        return body, set()
     checked = dict(body)
+    stood_in: set[str] = set()
     for role in wanted:
         view = checked.get(role)
         if isinstance(view, dict) and view.get("pixel_spacing") is None:
             checked[role] = {**view, "pixel_spacing": STAND_IN_SPACING}
-    return checked
+            stood_in.add(role)
+    return checked, stood_in
+
+
+def _validate(body: Any, settings: Settings) -> JobPayload:
+    """``validate_payload``; for a by-reference payload with the stand-in spacing, without the refusals
+    that depend on the spacing on those views: the worker validates the payload again once the header
+    has given the spacing (``services.worker.tasks.run_engine``), and refuses it then, naming the field."""
+    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb_url else (body, set())
+    try:
+        return validate_payload(checked)
+    except InvalidInput as exc:
+        if not stood_in:
+            raise
+        kept = [e for e in exc.errors if not (e.type in SPACING_DEPENDENT and e.loc[:1] and e.loc[0] in stood_in)]
+        if kept:
+            raise InvalidInput(kept) from None
+        return JobPayload.model_validate(checked)
 
 
 MAX_MAGNITUDE = 1e6
@@ -115,7 +138,7 @@ def admit(body: Any, settings: Settings, session: Session, owner: str | None,
     ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
     if dicom is not None and isinstance(body, dict):
         body = engine_payload(apply_reads(body, dicom))
-    model = validate_payload(_with_stand_in_spacing(body) if settings.dicomweb_url else body)
+    model = _validate(body, settings)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)
     return model
