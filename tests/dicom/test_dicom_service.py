@@ -415,9 +415,10 @@ def test_every_artifact_of_a_job_made_each_way(
 
         curves = job["result"]["measures"]["cobb"]
         assert curves, "the C-curve payload has a Cobb angle"
-        groups = [g for g in hd.sr.srread(sr_path).content.get_planar_roi_measurement_groups()
-                  if g.tracking_identifier == CORNERSTONE_COBB_ANGLE]  # fmt: skip
+        planar = hd.sr.srread(sr_path).content.get_planar_roi_measurement_groups()
+        groups = [g for g in planar if g.tracking_identifier == CORNERSTONE_COBB_ANGLE]
         assert len(groups) == len(curves), way
+        assert len(planar) - len(groups) == 17, way  # the 17 landmarks as SCOORDs on the film
         for group in groups:
             ref = group.roi.ContentSequence[0].ReferencedSOPSequence[0]
             assert (ref.ReferencedSOPInstanceUID, ref.ReferencedSOPClassUID) == (film.SOPInstanceUID, film.SOPClassUID)
