@@ -38,16 +38,19 @@ STAND_IN_SPACING = [1.0, 1.0]
 """Only for checking a by-reference payload before its header is read; never stored nor run."""
 
 
-def _with_stand_in_spacing(body: Any) -> Any:
+def _with_stand_in_spacing(body: Any) -> tuple[Any, tuple[str, ...]]:
+    """``body`` with the stand-in spacing in each by-reference view that has none, and those views
+    (whose millimetres are unknown until the header is read: no absolute distance check on them)."""
     wanted = views_to_fetch(body) if isinstance(body, dict) else {}
     if not wanted:
-        return body
-    checked = dict(body)
+        return body, ()
+    checked, stood_in = dict(body), []
     for role in wanted:
         view = checked.get(role)
         if isinstance(view, dict) and view.get("pixel_spacing") is None:
             checked[role] = {**view, "pixel_spacing": STAND_IN_SPACING}
-    return checked
+            stood_in.append(role)
+    return checked, tuple(stood_in)
 
 
 MAX_MAGNITUDE = 1e6
@@ -91,7 +94,8 @@ def check_magnitudes(payload: BaseModel) -> None:
 def admit(body: Any, settings: Settings, session: Session, owner: str | None) -> JobPayload:
     """The payload ``body`` as a validated ``JobPayload`` within the service's limits; raise
     ``InvalidInput`` otherwise."""
-    model = validate_payload(_with_stand_in_spacing(body) if settings.dicomweb_url else body)
+    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb_url else (body, ())
+    model = validate_payload(checked, unscaled_views=stood_in)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)
     return model
