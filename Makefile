@@ -24,7 +24,7 @@ run: $(STAMP)
 	$(BIN)/spine serve --host $(HOST) --port $(PORT)
 
 lint: $(STAMP)
-	$(BIN)/ruff check spine_engine services spine_client migrations tests tools
+	$(BIN)/ruff check spine_engine services spine_client benches migrations tests tools
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 

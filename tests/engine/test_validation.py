@@ -7,9 +7,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches.truth import read_verse
 from spine_engine import validation
 from spine_engine.errors import InvalidInput
-from spine_engine.experiments.truth import read_verse
 from spine_engine.levels import LEVELS
 from spine_engine.validation import MIN_LEVELS_LATERAL, MIN_LEVELS_PA, validate_payload
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spine_engine.experiments import clinic
-from spine_engine.experiments.clinic_films import CASES, Truth
-from spine_engine.experiments.truth import read_verse
+from benches import clinic
+from benches.clinic_films import CASES, Truth
+from benches.truth import read_verse
 from spine_engine.frames import frames_from_centreline
 from spine_engine.synthetic import KINDS, generate_spine
 
