@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from spine_engine.experiments import clinic, clinic_films
+from benches import clinic, clinic_films
 from spine_engine.models import JobPayload
 from spine_engine.reconstruction import register_model
 

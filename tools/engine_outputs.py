@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from benches.perf import REAL_SPINES
+from benches.truth import payload_from_truth, read_verse
 from spine_engine import register
-from spine_engine.experiments.perf import REAL_SPINES
-from spine_engine.experiments.truth import payload_from_truth, read_verse
 from spine_engine.frames import frames_from_centreline
 from tools.loadbench import payload as loadbench_payload
 

@@ -1,8 +1,8 @@
 """The ``spine`` command: serve, worker, migrate, openapi, loadtest, bench; submit, get, list… (client).
 
 ``spine serve`` runs the API with uvicorn and, on the embedded default, a Celery worker as its
-child process (Ctrl-C stops both). ``spine bench ...`` hands its arguments to the engine's
-experiments (``spine_engine.experiments.cli``).
+child process (Ctrl-C stops both). ``spine bench ...`` hands its arguments to the engine's benches
+(``benches.cli``), a package of the source checkout that the wheel does not ship.
 """
 
 from __future__ import annotations
@@ -27,8 +27,12 @@ from services.core.logs import configure_logging, install_celery_job_context, uv
 from services.db.migrate import upgrade
 
 log = logging.getLogger("services.cli")
-TOOLS_DIR = Path(__file__).resolve().parents[2] / "tools"
+CHECKOUT = Path(__file__).resolve().parents[2]
+"""The source checkout beside ``services/`` (an editable install); a wheel's site-packages has no tools or benches."""
+TOOLS_DIR = CHECKOUT / "tools"
 """The repository's tools/ (load benchmark), beside services/: not part of the installed package."""
+BENCHES_DIR = CHECKOUT / "benches"
+"""The repository's benches/ (``spine bench``), beside services/: not part of the installed package."""
 
 
 def _settings() -> Settings:
@@ -200,7 +204,15 @@ def cmd_loadtest(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from spine_engine.experiments.cli import main as bench_main  # lazy: the experiments' data and plots
+    """Run a bench (``benches/cli.py``). The benches are a top-level package of the source checkout, not
+    of the wheel: found in the checkout beside ``services/`` (an editable install, ``make install``)."""
+    if not (BENCHES_DIR / "cli.py").is_file():
+        print(f"spine bench: the benches are part of the source repository ({BENCHES_DIR} not found); "
+              "run it from a checkout installed with `pip install -e .` (`make install`)", file=sys.stderr)  # fmt: skip
+        return 2
+    if str(CHECKOUT) not in sys.path:
+        sys.path.append(str(CHECKOUT))  # the editable install maps the wheel's packages only
+    from benches.cli import main as bench_main  # lazy: a package of the checkout, with the benches' data and plots
 
     return int(bench_main(args.rest))
 
@@ -238,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     loadtest.add_argument("rest", nargs=argparse.REMAINDER)
     loadtest.set_defaults(func=cmd_loadtest)
 
-    bench = sub.add_parser("bench", help="engine experiments (spine_engine.experiments)", add_help=False)
+    bench = sub.add_parser("bench", help="the engine's benches (benches/, in a source checkout)", add_help=False)
     bench.add_argument("rest", nargs=argparse.REMAINDER)
     bench.set_defaults(func=cmd_bench)
 

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches import clinic, clinic_films
 from spine_engine import register
 from spine_engine.errors import InvalidInput
-from spine_engine.experiments import clinic, clinic_films
 from spine_engine.validation import validate_payload
 
 

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benches.perf import placeholder_parameters, synthetic_spine
+from benches.truth import read_verse
 from spine_engine.anatomy import load_profile
-from spine_engine.experiments.perf import placeholder_parameters, synthetic_spine
-from spine_engine.experiments.truth import read_verse
 from spine_engine.fit import Camera, Pose, PosePrior, RegistrationProblem, ViewData, solve
 from spine_engine.fit.cameras import project
 from spine_engine.projection import image_axes

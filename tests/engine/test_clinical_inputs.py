@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches.truth import payload_from_truth
 from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.errors import InvalidInput
-from spine_engine.experiments.truth import payload_from_truth
 from spine_engine.frames import axial_rotation_deg
 from spine_engine.measures import aasce_major_angle, major_first_curves
 from spine_engine.models import RegistrationResult

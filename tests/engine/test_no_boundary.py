@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches.truth import read_verse
 from spine_engine import register
 from spine_engine.errors import InvalidInput
-from spine_engine.experiments.truth import read_verse
 from spine_engine.fit import weak_camera
 from spine_engine.fit.cameras import project
 from spine_engine.frames import frames_from_centreline

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from spine_engine.experiments.perf import placeholder_parameters, synthetic_spine
+from benches.perf import placeholder_parameters, synthetic_spine
 from spine_engine.projection import image_axes, project
 from spine_engine.registration import RegistrationProblem, ViewData, fit, initial_configuration
 from spine_engine.rotations import exp_so3

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches.truth import errors, landmark_subset, payload_from_truth, read_verse
 from spine_engine.errors import InvalidInput
-from spine_engine.experiments.truth import errors, landmark_subset, payload_from_truth, read_verse
 from spine_engine.frames import frames_from_centreline
 from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spine_engine.experiments.perf import build_problem, placeholder_parameters, synthetic_spine
+from benches.perf import build_problem, placeholder_parameters, synthetic_spine
 from spine_engine.projection import image_axes, project
 from spine_engine.registration import (
     RegistrationProblem,

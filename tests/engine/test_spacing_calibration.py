@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from benches.clinic import synthetic_truths
+from benches.clinic_films import CASES, build_payload, simulate_series
 from spine_engine.clinical import calibrated_magnification, detector_spacing
-from spine_engine.experiments.clinic import synthetic_truths
-from spine_engine.experiments.clinic_films import CASES, build_payload, simulate_series
 from spine_engine.models import JobPayload
 from spine_engine.reconstruction import register_model
 

@@ -53,11 +53,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..clinical import PA_MAGNIFICATION_PRIOR
-from ..fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
-from .clinic import run_one, verse_truths
-from .clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
-from .report import format_table, write_json
+from benches.clinic import run_one, verse_truths
+from benches.clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
+from benches.report import format_table, write_json
+from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
+from spine_engine.fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
 
 TARGETS_MM = {"a": 1.2, "b": 2.0, "c": 1.5}
 """Issue #10's targets for the mean 3D error on VerSe test, 1 mm noise, no boundary."""

@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FitFailed
-from ..levels import N_LEVELS
-from ..reconstruction import register
-from ..synthetic import generate_spines
-from .report import format_table, save_figure, subplots, write_json
-from .truth import errors, landmark_subset, payload_from_truth
+from benches.report import format_table, save_figure, subplots, write_json
+from benches.truth import errors, landmark_subset, payload_from_truth
+from spine_engine.errors import FitFailed
+from spine_engine.levels import N_LEVELS
+from spine_engine.reconstruction import register
+from spine_engine.synthetic import generate_spines
 
 PAPER_PA17_MM = 2.114
 PAPER_LOWER_BOUND_MM = 1.0

@@ -62,17 +62,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..anatomy import load_profile
-from ..errors import SpineEngineError
-from ..frames import axial_rotation_deg, frames_from_centreline
-from ..levels import LEVELS, N_LEVELS
-from ..measures import compute_measures, frontal_tilt_deg
-from ..reconstruction import register
-from ..synthetic import generate_spines
-from .clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, simulate_series
-from .report import format_table, save_figure, shared_data_dir, subplots, write_json
-from .truth import read_verse
-from .uncertainty_calibration import calibrate_and_write, coverage
+from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, simulate_series
+from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
+from benches.truth import read_verse
+from benches.uncertainty_calibration import calibrate_and_write, coverage
+from spine_engine.anatomy import load_profile
+from spine_engine.errors import SpineEngineError
+from spine_engine.frames import axial_rotation_deg, frames_from_centreline
+from spine_engine.levels import LEVELS, N_LEVELS
+from spine_engine.measures import compute_measures, frontal_tilt_deg
+from spine_engine.reconstruction import register
+from spine_engine.synthetic import generate_spines
 
 # ---------------------------------------------------------------- one reconstruction
 

@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ..levels import LEVELS, N_LEVELS
-from ..models import LATERAL_ORIENTATION, PA_ORIENTATION, JobPayload, LateralView, PAView
-from ..projection import image_axes
+from spine_engine.levels import LEVELS, N_LEVELS
+from spine_engine.models import LATERAL_ORIENTATION, PA_ORIENTATION, JobPayload, LateralView, PAView
+from spine_engine.projection import image_axes
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -13,14 +13,14 @@ from typing import Any
 
 import numpy as np
 
-from ..anatomy import VERTEBRA_TABLE, load_profile
-from ..clinical import size_factor
-from ..fit import ViewData
-from ..levels import LEVELS, N_LEVELS
-from ..models import LATERAL_ORIENTATION, PA_ORIENTATION
-from ..observations import pedicle_offsets_in_image_order
-from ..projection import image_axes, project
-from ..rod import strains
+from spine_engine.anatomy import VERTEBRA_TABLE, load_profile
+from spine_engine.clinical import size_factor
+from spine_engine.fit import ViewData
+from spine_engine.levels import LEVELS, N_LEVELS
+from spine_engine.models import LATERAL_ORIENTATION, PA_ORIENTATION
+from spine_engine.observations import pedicle_offsets_in_image_order
+from spine_engine.projection import image_axes, project
+from spine_engine.rod import strains
 
 
 def landmark_subset(count: int) -> list[int]:

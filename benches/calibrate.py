@@ -22,12 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ..anatomy import Profile, load_profile, save_profile
-from ..frames import frames_from_centreline
-from .truth import read_verse
-from .verse import default_data_dir, evaluate, mean_interior_error
-
-PROFILE_DIR = Path(__file__).resolve().parents[1] / "profiles"
+from benches.truth import read_verse
+from benches.verse import default_data_dir, evaluate, mean_interior_error
+from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, save_profile
+from spine_engine.frames import frames_from_centreline
 
 
 def score(spines: list[tuple[str, np.ndarray]], profile: Profile) -> tuple[float, float]:
@@ -104,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         provenance = {
             "method": "rest shape = mean sagittal shape of the training spines; then Monte Carlo over Y, G "
-                      "and the stretch factor (log-uniform), spine_engine.experiments.calibrate",
+                      "and the stretch factor (log-uniform), benches.calibrate",
             "command": f"spine bench calibrate --samples {args.samples} --seed {args.seed} "
                        f"--decades {args.decades} --start {args.start} --write {args.write}",
             "training_set": f"VerSe dev split ({len(spines)} spines), {path.name}",
@@ -115,6 +113,6 @@ def main(argv: list[str] | None = None) -> int:
             "date": dt.date.today().isoformat(),
         }
         chosen = dataclasses.replace(best, name=args.write, provenance=provenance)
-        save_profile(chosen, PROFILE_DIR / f"{args.write}.json")
-        print(f"wrote profile {args.write!r} to {PROFILE_DIR / (args.write + '.json')}")
+        save_profile(chosen, PROFILES_DIR / f"{args.write}.json")
+        print(f"wrote profile {args.write!r} to {PROFILES_DIR / (args.write + '.json')}")
     return 0

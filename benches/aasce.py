@@ -34,15 +34,16 @@ from typing import Any
 
 import numpy as np
 
-from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
-from ..errors import FitFailed, InvalidInput
-from ..levels import LEVELS, N_LEVELS
-from ..measures import frontal_tilt_deg
-from ..models import PA_ORIENTATION
-from ..observations import chord_angles_deg, frontal_tilt_deg_of_image_vectors
-from ..projection import image_axes
-from ..reconstruction import register, register_model
-from ..tilt_prior import (
+from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
+from spine_engine.anatomy import VERTEBRA_TABLE, rest_segment_lengths
+from spine_engine.errors import FitFailed, InvalidInput
+from spine_engine.levels import LEVELS, N_LEVELS
+from spine_engine.measures import frontal_tilt_deg
+from spine_engine.models import PA_ORIENTATION
+from spine_engine.observations import chord_angles_deg, frontal_tilt_deg_of_image_vectors
+from spine_engine.projection import image_axes
+from spine_engine.reconstruction import register, register_model
+from spine_engine.tilt_prior import (
     DEFAULT_PRIOR,
     PRIORS_DIR,
     WINDOW,
@@ -53,8 +54,7 @@ from ..tilt_prior import (
     save_tilt_prior,
     toward_chord_normal,
 )
-from ..validation import validate_payload
-from .report import format_table, save_figure, shared_data_dir, subplots, write_json
+from spine_engine.validation import validate_payload
 
 DATE = "2026-12-02"
 PLAUSIBLE_CHORD_DEG = 60.0
@@ -464,7 +464,7 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
         f"({CAL_PLACEMENT} inside the 16 chords at the ends), blended toward the chord-normal tilt with the "
         "weight chosen by 5-fold CV of the prior's own major Cobb MAE; weight fraction chosen by the major Cobb "
         f"MAE through the reconstruction (the smallest within {FRACTION_TIE_DEG}° of the lowest) "
-        "(spine_engine.experiments.aasce --calibrate)",
+        "(benches.aasce --calibrate)",
         "command": "spine bench aasce --calibrate" + (f" --limit {limit}" if limit else ""),
         "training_set": f"AASCE 2019 training split: {len(keep)} of {len(rads)} radiographs (left out: a chord "
         f"steeper than {PLAUSIBLE_CHORD_DEG}° or a major angle >= 90°); never the test split",

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benches import clinic_bound, clinic_films
+from benches.truth import read_verse
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
-from spine_engine.experiments import clinic_bound, clinic_films
-from spine_engine.experiments.truth import read_verse
 from spine_engine.projection import image_axes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"

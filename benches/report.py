@@ -28,7 +28,7 @@ def shared_data_dir(name: str) -> Path:
     """Folder of data set ``name``: ``$SPINE_SHARED_DATA/<name>``, else ``../shared/data/<name>``
     beside the repository. Evaluation data stays outside the repository; commands take ``--data``."""
     env = os.environ.get("SPINE_SHARED_DATA")
-    base = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    base = Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "data"
     return base / name
 
 

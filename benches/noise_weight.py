@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import reconstruction
-from ..anatomy import PROFILES_DIR, Profile, load_profile, save_profile
-from . import clinic
-from .clinic_films import CASES, Truth, simulate_series
+from benches import clinic
+from benches.clinic_films import CASES, Truth, simulate_series
+from spine_engine import reconstruction
+from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, save_profile
 
 DEFAULT_GRID = (3.0, 1.0, 0.3, 0.1, 0.03)
 DEFAULT_CASES = "abce"

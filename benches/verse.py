@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from ..anatomy import Profile, load_profile
-from ..frames import axial_rotation_deg, frames_from_centreline
-from ..levels import LEVELS, N_LEVELS
-from ..measures import compute_measures
-from ..reconstruction import build_problem, solve
-from ..validation import validate_payload
-from .report import format_table, save_figure, shared_data_dir, subplots, write_json
-from .truth import payload_from_truth, read_verse
+from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
+from benches.truth import payload_from_truth, read_verse
+from spine_engine.anatomy import Profile, load_profile
+from spine_engine.frames import axial_rotation_deg, frames_from_centreline
+from spine_engine.levels import LEVELS, N_LEVELS
+from spine_engine.measures import compute_measures
+from spine_engine.reconstruction import build_problem, solve
+from spine_engine.validation import validate_payload
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
     "PA-17": (list(range(N_LEVELS)), None),

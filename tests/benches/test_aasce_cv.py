@@ -3,10 +3,10 @@ numbers (no AASCE data)."""
 
 import numpy as np
 
+from benches.aasce import end_weights
+from benches.perf import synthetic_spine
+from benches.truth import payload_from_truth
 from spine_engine.anatomy import load_profile
-from spine_engine.experiments.aasce import end_weights
-from spine_engine.experiments.perf import synthetic_spine
-from spine_engine.experiments.truth import payload_from_truth
 from spine_engine.reconstruction import build_problem
 from spine_engine.tilt_prior import (
     WINDOW,

@@ -46,13 +46,13 @@ from typing import Any
 
 import numpy as np
 
-from ..anatomy import PROFILES_DIR, Profile, load_profile, population_prior, rest_model, save_profile
-from ..frames import frames_from_centreline
-from ..measures import aasce_major_angle, frontal_tilt_deg, kyphosis_lordosis_deg, sagittal_inclination_deg
-from ..rod import configuration_from_strains, strains
-from .aasce import frontal_tilt_deg_of_corners, read_split
-from .report import format_table, save_figure, shared_data_dir, subplots, write_json
-from .truth import read_verse
+from benches.aasce import frontal_tilt_deg_of_corners, read_split
+from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
+from benches.truth import read_verse
+from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, population_prior, rest_model, save_profile
+from spine_engine.frames import frames_from_centreline
+from spine_engine.measures import aasce_major_angle, frontal_tilt_deg, kyphosis_lordosis_deg, sagittal_inclination_deg
+from spine_engine.rod import configuration_from_strains, strains
 
 REFERENCE_MAGNIFICATION = 1.125
 """s_ref of the prior's temperature τ = w σ_ref² / s_ref²: the full-spine PA's SID/SOD = 1800/1600

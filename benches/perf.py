@@ -5,7 +5,7 @@ spine 450 mm long with kyphosis, lordosis and a 30° lateral curve, and a "patie
 45° curve and axial rotation whose vertebrae are projected on a PA view (s = 1.15) with 0.5 mm
 landmark noise. Run with one BLAS thread for the single-core figure:
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m spine_engine.experiments.perf
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benches.perf
 """
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from ..fit import RodParameters, ViewData, fit, initial_configuration
-from ..frames import frames_from_centreline
-from ..projection import image_axes, project
-from ..reconstruction import register
-from ..rod import strains
-from .truth import payload_from_truth, read_verse
+from benches.truth import payload_from_truth, read_verse
+from spine_engine.fit import RodParameters, ViewData, fit, initial_configuration
+from spine_engine.frames import frames_from_centreline
+from spine_engine.projection import image_axes, project
+from spine_engine.reconstruction import register
+from spine_engine.rod import strains
 
 
 def synthetic_spine(
@@ -176,7 +176,7 @@ def run(repeats: int = 200, lateral: bool = False, warmup: int = 10) -> dict[str
     }
 
 
-REAL_SPINES = Path(__file__).resolve().parents[2] / "tests" / "data" / "verse_dev.csv"
+REAL_SPINES = Path(__file__).resolve().parents[1] / "tests" / "data" / "verse_dev.csv"
 
 
 def run_register(repeats: int, spines_csv: Path = REAL_SPINES) -> dict[str, object]:

@@ -23,14 +23,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..anatomy import load_profile
-from ..errors import SpineEngineError
-from ..fit.types import Solution
-from ..fit.uncertainty import Calibration, solution_uncertainty, write_calibration
-from ..reconstruction import build_problem, solve_solution
-from ..validation import validate_payload
-from .clinic_films import Case, FloatArray, Truth, simulate_series
-from .clinic_films import build_payload as clinic_payload
+from benches.clinic_films import Case, FloatArray, Truth, simulate_series
+from benches.clinic_films import build_payload as clinic_payload
+from spine_engine.anatomy import load_profile
+from spine_engine.errors import SpineEngineError
+from spine_engine.fit.types import Solution
+from spine_engine.fit.uncertainty import Calibration, solution_uncertainty, write_calibration
+from spine_engine.reconstruction import build_problem, solve_solution
+from spine_engine.validation import validate_payload
 
 LOG10_PRIOR_WEIGHT_RANGE = (-2.0, 6.0)
 """Bisection range of log10 λ."""
@@ -127,10 +127,10 @@ def provenance(command: str, split: str, n_spines: int, cases: Sequence[Case], n
         "method": "Laplace approximation at the fit's optimum; prior_weight: the rod rows' weight in the Hessian at "
         "which the PA-only case (e) covers 95 % with scale 1 (bisection on log10); uncertainty_scale: then the "
         "factor on every SD for 95 % coverage of the centroid-relative position coordinates of all cases pooled, "
-        "each case weighing the same (spine_engine.experiments.uncertainty_calibration)",
+        "each case weighing the same (benches.uncertainty_calibration)",
         "command": command,
         "training_set": f"VerSe {split} split ({n_spines} spines), {split}.csv; simulated series of "
-        "spine_engine.experiments.clinic_films",
+        "benches.clinic_films",
         "cases": {c.key: c.title for c in cases},
         "noise_mm": noise_mm,
         "seed": seed,

@@ -1,0 +1,1 @@
+"""The engine's benches: experiment and benchmark commands (``spine bench ...``), outside the wheel."""

@@ -1,0 +1,31 @@
+"""``spine bench ...``: the experiment and benchmark commands of the engine."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+COMMANDS = {
+    "paper": ("benches.paper", "the paper's experiments on 30 synthetic spines"),
+    "verse": ("benches.verse", "3D error on real spines from CT (VerSe)"),
+    "perf": ("benches.perf", "time single 17-landmark fits"),
+    "calibrate": ("benches.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
+    "aasce": ("benches.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
+    "noise-weight": ("benches.noise_weight", "prior strength, noisy landmarks (VerSe dev)"),
+    "prior": ("benches.prior", "calibrate the population prior and check its prior predictive"),
+    "clinic": ("benches.clinic", "the clinic's setting: 3D error and interval coverage"),
+    "clinic-bound": (
+        "benches.clinic_bound",
+        "the clinic's setting: the error that an oracle knowing the shape cannot avoid",
+    ),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench", description=__doc__)
+    described = "; ".join(f"{name}: {what}" for name, (_, what) in COMMANDS.items())
+    parser.add_argument("command", choices=sorted(COMMANDS), help=described)
+    parser.add_argument("args", nargs=argparse.REMAINDER)
+    ns = parser.parse_args(argv)
+    module = importlib.import_module(COMMANDS[ns.command][0])
+    return int(module.main(ns.args))

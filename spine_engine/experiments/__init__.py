@@ -1,1 +1,0 @@
-"""Experiment and benchmark commands of the engine (``spine bench ...``)."""

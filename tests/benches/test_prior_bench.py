@@ -1,0 +1,37 @@
+"""``spine bench prior``: the shipped profile's population prior predicts VerSe dev (the prior
+predictive check of ``benches.prior``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from benches import prior
+from benches.truth import read_verse
+from spine_engine.anatomy import load_profile
+from spine_engine.frames import frames_from_centreline
+from spine_engine.measures import kyphosis_lordosis_deg
+
+DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
+SPINES = read_verse(DEV)
+
+
+def test_prior_predictive_means_match_dev() -> None:
+    """1500 spines drawn from the shipped prior with no landmark (the mean's sampling SD about 0.5°):
+    kyphosis and lordosis means within 2° of VerSe dev's, the T1–L5 length's mean within 2 % and its
+    SD within 20 % (the acceptance bands; the sagittal SDs are wider by design,
+    ``prior.SAGITTAL_FIT_LOOSENING``)."""
+    profile = load_profile()
+    data = profile.population_prior
+    assert data is not None
+    drawn = prior.sample_prior(profile, 1500, 1, data["size_sd"], data["size_mean"])
+    dev = np.array([kyphosis_lordosis_deg(frames_from_centreline(p)) for _, p in SPINES])
+    assert abs(drawn["kyphosis_t4_t12_deg"].mean() - dev[:, 0].mean()) <= 2.0
+    assert abs(drawn["lordosis_l1_l5_deg"].mean() - dev[:, 2].mean()) <= 2.0
+    lengths = np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for _, p in SPINES])
+    assert abs(drawn["length_t1_l5_mm"].mean() / lengths.mean() - 1.0) <= 0.02
+    assert abs(drawn["length_t1_l5_mm"].std() / lengths.std(ddof=1) - 1.0) <= 0.20
+    # the prior is at least as wide as the population in the sagittal plane: never tighter
+    assert drawn["kyphosis_t4_t12_deg"].std() >= 0.8 * dev[:, 0].std(ddof=1)
+    assert drawn["lordosis_l1_l5_deg"].std() >= 0.8 * dev[:, 2].std(ddof=1)
