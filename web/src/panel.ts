@@ -41,6 +41,8 @@ export class FilmPanel {
   private readonly status: HTMLElement;
   private readonly error: HTMLElement;
   private readonly zoomOut: HTMLOutputElement;
+  private readonly undoButton: HTMLButtonElement;
+  private readonly redoButton: HTMLButtonElement;
   /** Set when a job is reopened without its film: the spacing and units of its payload. */
   reopened: ViewPayload | null = null;
 
@@ -91,17 +93,20 @@ export class FilmPanel {
     this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${view === "pa" ? "PA" : "lateral"} film to start.`);
     this.status = el("p", { id: id("status"), class: "summary", "aria-live": "polite" });
     const keys = el("p", { id: id("keys"), class: "help" },
-      "Mouse: click places the next point, drag a point to move it, drag elsewhere to pan, wheel zooms. " +
+      "Mouse: a click always places the next point (its role is shown at the cursor), even on another point; " +
+      "drag a point to move it, drag elsewhere to pan, Shift+click selects a point, wheel zooms. " +
       "Keyboard: arrow keys move the crosshair (Shift: ten times faster), Enter places, Delete removes the selected mark, " +
-      "Alt+arrows move the selected point, [ and ] change level, + and − zoom, 0 fits the film.");
+      "Alt+arrows move the selected point, Ctrl+Z undoes, Ctrl+Shift+Z redoes, [ and ] change level, + and − zoom, 0 fits the film.");
     const buttons = el("div", { class: "button-row" });
+    const undo = (this.undoButton = el("button", { type: "button", id: id("undo"), "aria-keyshortcuts": "Control+Z" }, "Undo"));
+    const redo = (this.redoButton = el("button", { type: "button", id: id("redo"), "aria-keyshortcuts": "Control+Shift+Z" }, "Redo"));
     const del = el("button", { type: "button", id: id("delete") }, "Delete selected");
     const clear = el("button", { type: "button", id: id("clear") }, "Clear all");
     const fit = el("button", { type: "button", id: id("fit") }, "Fit film");
     const zin = el("button", { type: "button", id: id("zoom-in"), "aria-label": "Zoom in" }, "+");
     const zout = el("button", { type: "button", id: id("zoom-out"), "aria-label": "Zoom out" }, "−");
     this.zoomOut = el("output", { id: id("zoom"), "aria-live": "off" });
-    buttons.append(del, clear, fit, zout, zin, this.zoomOut);
+    buttons.append(undo, redo, del, clear, fit, zout, zin, this.zoomOut);
 
     const tools = el("div", { class: "film-tools" });
     tools.append(modes, labelled(id("level"), "Level", this.levelSelect));
@@ -139,6 +144,8 @@ export class FilmPanel {
       this.wlWidth.value = String(round(this.dicom.window.width));
       applyWl();
     });
+    undo.addEventListener("click", () => this.editor.undo());
+    redo.addEventListener("click", () => this.editor.redo());
     del.addEventListener("click", () => this.editor.removeSelected());
     clear.addEventListener("click", () => this.editor.clear());
     fit.addEventListener("click", () => this.editor.fit());
@@ -274,6 +281,8 @@ export class FilmPanel {
       out.push(`Enter the pixel spacing of the ${name} film (mm per pixel, between 0.001 and 10): ${this.dicom ? "its header gives none" : "a PNG or JPEG does not carry it"}, and it is never guessed.`);
     }
     out.push(...this.editor.incomplete().map((s) => `${name} film, ${s}: finish or delete it.`));
+    this.editor.rowsTowardHead = this.orientation()[1] === "H";
+    out.push(...this.editor.problems().map((p) => `${name} film, ${p.level}: ${p.text} (drawn in red): move its points, or undo.`));
     return out;
   }
 
@@ -289,11 +298,13 @@ export class FilmPanel {
     const ed = this.editor;
     const placed = ed.landmarks();
     this.zoomOut.value = ed.source || this.reopened ? `${ed.zoomPercent} %` : "";
+    this.undoButton.disabled = !ed.canUndo;
+    this.redoButton.disabled = !ed.canRedo;
     if (!ed.source && !this.reopened) {
       this.status.textContent = "";
       return;
     }
-    this.prompt.textContent = `Next: ${ed.nextPart()}.`;
+    this.prompt.textContent = ed.finished ? `${ed.level} is complete: choose a level to place again, or drag a point to move it.` : `Next: ${ed.nextPart()}.`;
     const levels = placed.map((l) => l.level);
     const kinds = [
       placed.filter((l) => l.point).length && `${placed.filter((l) => l.point).length} midpoints`,
