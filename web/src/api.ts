@@ -1,4 +1,5 @@
 // The page's only network access: the service's own /v1 API, with the API key when one is set.
+import type { PatientMeasures } from "./followup";
 import type { Job, JobPayload, PacsStatus, PacsStudyImages, Problem } from "./types";
 
 export interface JobPage {
@@ -92,6 +93,11 @@ export class Api {
     const q = new URLSearchParams({ limit: String(limit) });
     for (const [k, v] of Object.entries(filters)) if (v.trim()) q.set(k, v.trim());
     return this.json<JobPage>(await this.send("GET", `/v1/jobs?${q}`));
+  }
+
+  /** The caller's succeeded jobs of a patient by study date, with the changes between visits. */
+  async followUp(patientId: string): Promise<PatientMeasures> {
+    return this.json<PatientMeasures>(await this.send("GET", `/v1/patients/${encodeURIComponent(patientId)}/measures`));
   }
 
   async cancel(id: string): Promise<Job> {

@@ -11,9 +11,11 @@ export interface Capabilities {
   srExport: boolean;
   /** GET /v1/pacs and its study routes: "Open from the PACS" (shown only when /v1/pacs says a PACS is configured). */
   pacsRoutes: boolean;
+  /** GET /v1/patients/{patient_id}/measures: the Follow-up view. */
+  followUp: boolean;
 }
 
-const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false, pacsRoutes: false };
+const NONE: Capabilities = { acquisition: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false, pacsRoutes: false, followUp: false };
 
 let cached: Promise<Capabilities> | null = null;
 
@@ -33,6 +35,7 @@ export function readCapabilities(spec: unknown): Capabilities {
     dicomRoutes: Object.keys(s.paths ?? {}).some((p) => p.startsWith("/v1/dicom")),
     srExport: "/v1/jobs/{job_id}/sr.dcm" in (s.paths ?? {}),
     pacsRoutes: "/v1/pacs/studies/{study_instance_uid}/images" in (s.paths ?? {}),
+    followUp: "/v1/patients/{patient_id}/measures" in (s.paths ?? {}),
   };
 }
 

@@ -1,11 +1,13 @@
 // The page: films (DICOM, PNG or JPEG) with their landmarks, a CSV or a JSON payload → POST
 // /v1/jobs → poll GET /v1/jobs/{id} → the reconstruction (3D, projections, measures with their
-// trust, report). #/jobs lists the caller's jobs; #/jobs/{id} reopens one after a reload.
+// trust, report). #/jobs lists the caller's jobs; #/jobs/{id} reopens one after a reload;
+// #/follow-up/{patient id} shows a patient's measures over time.
 import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
+import { changesTable, fillFollowUp, visitsTable } from "./followup";
 import { PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
@@ -505,6 +507,13 @@ function showResult(job: Job): void {
   fillStrains($<HTMLTableElement>("strains"), result);
   fillReportHead(job);
   $<HTMLAnchorElement>("job-link").href = `#/jobs/${job.id}`;
+  const patientId = (job.study ?? job.payload?.study)?.patient_id;
+  const followLink = $<HTMLAnchorElement>("followup-link");
+  followLink.hidden = !patientId || !caps?.followUp;
+  $("print-followup-row").hidden = followLink.hidden;
+  if (patientId) followLink.href = `#/follow-up/${encodeURIComponent(patientId)}`;
+  $<HTMLInputElement>("print-followup").checked = false;
+  $("report-followup").hidden = true;
   $("result").dataset.jobId = job.id;
   $("download-sr").hidden = !caps?.srExport;
   void loadFigure(job.id);
@@ -543,6 +552,24 @@ async function loadFigure(id: string): Promise<void> {
 }
 
 $("print-report").addEventListener("click", () => window.print());
+
+// The printed report's follow-up table: the patient's visits and changes, fetched when asked for.
+$<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
+  const box = $("report-followup");
+  const patientId = (currentJob?.study ?? currentJob?.payload?.study)?.patient_id;
+  box.hidden = true;
+  box.replaceChildren();
+  if (!(e.target as HTMLInputElement).checked || !patientId) return;
+  try {
+    const data = await api.followUp(patientId);
+    const head = document.createElement("h3");
+    head.textContent = `Follow-up of patient ${patientId}`;
+    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), changesTable(data, `Changes between consecutive visits. ${data.rule}`));
+    box.hidden = false;
+  } catch (error) {
+    if (error instanceof ApiError) showProblem(problemBox, error.problem);
+  }
+});
 
 function download(name: string, blob: Blob): void {
   const url = URL.createObjectURL(blob);
@@ -669,17 +696,60 @@ async function openJob(id: string): Promise<void> {
   }
 }
 
+// ------------------------------------------------------------------ follow-up
+
+const followForm = $<HTMLFormElement>("followup-form");
+const followInput = $<HTMLInputElement>("followup-patient");
+followForm.addEventListener("submit", (e) => {
+  e.preventDefault();
+  const value = followInput.value.trim();
+  if (value) location.hash = `#/follow-up/${encodeURIComponent(value)}`;
+});
+
+const UUID = /^[0-9a-fA-F]{8}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{12}$/;
+
+/** The follow-up of a patient ID, or of a job's patient when given a job ID. */
+async function showFollowUp(idOrJob: string): Promise<void> {
+  const box = $("followup");
+  const problem = $("followup-problem");
+  showProblem(problem, null);
+  box.replaceChildren();
+  followInput.value = idOrJob;
+  if (!idOrJob) return;
+  try {
+    let patientId = idOrJob;
+    if (UUID.test(idOrJob)) {
+      const job = await api.job(idOrJob);
+      const pid = (job.study ?? job.payload?.study)?.patient_id;
+      if (!pid) {
+        showProblem(problem, { type: "about:blank", title: "No patient", status: 0, detail: `Job ${idOrJob} names no patient: its payload and films gave no Patient ID.` });
+        return;
+      }
+      patientId = pid;
+    }
+    const data = await api.followUp(patientId);
+    fillFollowUp(box, data);
+    box.dataset.patient = patientId;
+  } catch (error) {
+    showProblem(problem, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  }
+}
+
 function route(): void {
   const hash = location.hash.replace(/^#/, "");
   const jobsPage = hash === "/jobs";
+  const followMatch = hash.match(/^\/follow-up(?:\/(.*))?$/);
   $("page-jobs").hidden = !jobsPage;
-  $("page-job").hidden = jobsPage;
+  $("page-follow-up").hidden = !followMatch;
+  $("page-job").hidden = jobsPage || !!followMatch;
   document.querySelectorAll<HTMLAnchorElement>(".site-nav a").forEach((a) => {
-    const here = a.getAttribute("href") === `#${hash}` || (a.getAttribute("href") === "#/" && !jobsPage && !hash.startsWith("/jobs/"));
+    const href = a.getAttribute("href");
+    const here = href === `#${hash}` || (href === "#/follow-up" && !!followMatch) || (href === "#/" && !jobsPage && !followMatch && !hash.startsWith("/jobs/"));
     if (here) a.setAttribute("aria-current", "page");
     else a.removeAttribute("aria-current");
   });
   if (jobsPage) void showJobs();
+  if (followMatch) void showFollowUp(decodeURIComponent(followMatch[1] ?? ""));
   const m = hash.match(/^\/jobs\/([0-9a-fA-F-]{36})$/);
   if (m) void openJob(m[1]);
 }
