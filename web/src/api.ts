@@ -38,6 +38,8 @@ function asProblem(status: number, body: unknown, fallback: string): Problem {
 }
 
 export class Api {
+  /** Called with the problem of every answer that refuses the key (401, 403). */
+  onRefused: (problem: Problem) => void = () => {};
   constructor(private readonly apiKey: () => string) {}
 
   private headers(extra: Record<string, string> = {}): Headers {
@@ -75,7 +77,9 @@ export class Api {
       const fallback = response.status === 401 || response.status === 403
         ? `the service refused the request (HTTP ${response.status}): check the API key`
         : `HTTP ${response.status} ${response.statusText}`;
-      throw new ApiError(asProblem(response.status, body, fallback));
+      const problem = asProblem(response.status, body, fallback);
+      if (response.status === 401 || response.status === 403) this.onRefused(problem);
+      throw new ApiError(problem);
     }
     return body as T;
   }

@@ -46,8 +46,36 @@ let backdrop: Backdrop | null = null;
 
 const apiKeyInput = $<HTMLInputElement>("api-key");
 apiKeyInput.value = loadApiKey();
-apiKeyInput.addEventListener("input", () => saveApiKey(apiKeyInput.value.trim()));
+apiKeyInput.addEventListener("input", () => {
+  saveApiKey(apiKeyInput.value.trim());
+  updatePreview(); // a missing key is listed before sending
+});
 const api = new Api(() => apiKeyInput.value);
+
+// A refused key is said at the top, beside the key field, whatever asked; typing a key retries
+// what the address asks for (the job, the list, the follow-up) without a reload.
+const keyProblem = $("key-problem");
+let refused = false;
+api.onRefused = (problem) => {
+  refused = true;
+  keyProblem.hidden = false;
+  const typed = apiKeyInput.value.trim();
+  keyProblem.textContent = `${typed ? "The service refused this API key" : "An API key is needed"}: ${problem.detail || problem.title}. ${typed ? "Check it" : "Enter it above"}; the page retries as you type.`;
+  apiKeyInput.setAttribute("aria-invalid", "true");
+};
+let keyRetry: number | undefined;
+apiKeyInput.addEventListener("input", () => {
+  window.clearTimeout(keyRetry);
+  keyRetry = window.setTimeout(() => {
+    if (!refused || !apiKeyInput.value.trim()) return;
+    refused = false;
+    keyProblem.hidden = true;
+    apiKeyInput.removeAttribute("aria-invalid");
+    currentJob = null;
+    route();
+    draftChanged();
+  }, 400);
+});
 
 // ------------------------------------------------------------------ tabs
 
@@ -341,6 +369,7 @@ function buildPayload(): JobPayload | null {
 function missing(): string[] {
   const out: string[] = [];
   const v = views();
+  if (caps?.needsKey && !apiKeyInput.value.trim()) out.push("Enter the API key at the top of the page: `spine keys create` makes one (the first `spine serve` prints one).");
   if (source === "image") {
     out.push(...panels.pa.problems(), ...panels.lateral.problems());
     if (!panels.pa.hasFilm()) out.push("Open the PA film (DICOM, PNG or JPEG), or give the landmarks as a CSV or a payload.");
@@ -516,6 +545,8 @@ function showResult(job: Job): void {
   $("report-followup").hidden = true;
   $("result").dataset.jobId = job.id;
   $("download-sr").hidden = !caps?.srExport;
+  $("download-figure-dcm").hidden = !caps?.figureDcm;
+  $("download-fhir").hidden = !caps?.fhirExport;
   void loadFigure(job.id);
 }
 
@@ -595,14 +626,22 @@ $("download-csv").addEventListener("click", () => {
 $("download-measures").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}-measures.csv`, new Blob([measuresCsv(measureRows(currentJob, currentJob.result))], { type: "text/csv" }));
 });
-$("download-sr").addEventListener("click", async () => {
-  if (!currentJob) return;
-  try {
-    download(`spine-${currentJob.id}-sr.dcm`, await api.blob(`/v1/jobs/${currentJob.id}/sr.dcm`));
-  } catch (error) {
-    if (error instanceof ApiError) showProblem(problemBox, error.problem);
-  }
-});
+// The service's artifacts of the job: [button, path under /v1/jobs/{id}/, file name suffix, Accept].
+const ARTIFACTS: [string, string, string, string | undefined][] = [
+  ["download-sr", "sr.dcm", "-sr.dcm", "application/dicom"],
+  ["download-figure-dcm", "figure.dcm", "-figure.dcm", "application/dicom"],
+  ["download-fhir", "fhir", "-fhir.json", "application/fhir+json"],
+];
+for (const [button, path, suffix, accept] of ARTIFACTS) {
+  $(button).addEventListener("click", async () => {
+    if (!currentJob) return;
+    try {
+      download(`spine-${currentJob.id}${suffix}`, await api.blob(`/v1/jobs/${currentJob.id}/${path}`, accept));
+    } catch (error) {
+      if (error instanceof ApiError) showProblem(problemBox, error.problem);
+    }
+  });
+}
 for (const fmt of ["png", "svg"] as const) {
   $(`download-${fmt}`).addEventListener("click", async () => {
     if (!currentJob) return;

@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, parseFilm, personName, type DicomFilm } from "./dicom";
+import { DicomError, parseFilm, personName, serviceSpacingWords, type DicomFilm } from "./dicom";
 import { FilmEditor, type Mode } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
@@ -213,7 +213,8 @@ export class FilmPanel {
       rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
-      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.`]);
+      const service = serviceSpacingWords(d.spacing, d.acquisition, d.hasImagerSpacing);
+      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.${service ? ` ${service}` : ""}`]);
       rows.push(["Orientation", d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
         : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`]);
       const a = d.acquisition;
