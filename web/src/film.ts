@@ -62,6 +62,8 @@ export class FilmEditor {
   finished = false;
   /** The film's rows run toward the patient's head (orientation [_, "H"]): "down the spine" is −row. */
   rowsTowardHead = false;
+  /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
+  blankNote: string | null = null;
   /** Said once, at the cursor, after a click that placed nothing. */
   private notice: string | null = null;
   private undoStack: Snapshot[] = [];
@@ -95,6 +97,7 @@ export class FilmEditor {
 
   setSource(source: FilmSource): void {
     this.source = source;
+    this.blankNote = null;
     this.extent = { width: source.width, height: source.height };
     if (source.dicom) {
       this.window = { center: source.dicom.window.center, width: source.dicom.window.width };
@@ -104,6 +107,13 @@ export class FilmEditor {
     this.render();
     this.cursor = [source.width / 2, source.height * 0.1];
     this.fit();
+  }
+
+  /** Forget the film (the landmarks stay, on a blank frame). */
+  clearSource(): void {
+    this.source = null;
+    this.raster = null;
+    this.extent = this.landmarkExtent();
   }
 
   setWindow(center: number, width: number, invert: boolean): void {
@@ -575,6 +585,8 @@ export class FilmEditor {
       ctx.fillRect(0, 0, this.extent.width, this.extent.height);
     }
     ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+    this.canvas.dataset.blank = this.raster ? "" : (this.blankNote ?? "");
+    if (!this.raster && this.blankNote) this.note(ctx, this.blankNote);
     ctx.lineWidth = 1.5;
     ctx.font = "600 12px system-ui, sans-serif";
     ctx.textBaseline = "middle";
@@ -635,6 +647,20 @@ export class FilmEditor {
       ctx.stroke();
       this.label(ctx, this.notice ?? this.nextRole(), [x + r + 4, y - 10], this.notice ? "#ff6b6b" : "#00e5ff");
     }
+  }
+
+  /** A few lines of text at the top of the canvas, wrapped to its width. */
+  private note(ctx: CanvasRenderingContext2D, text: string): void {
+    const width = this.canvas.getBoundingClientRect().width - 24;
+    ctx.font = "500 13px system-ui, sans-serif";
+    const lines: string[] = [];
+    for (const word of text.split(" ")) {
+      const last = lines[lines.length - 1];
+      if (last !== undefined && ctx.measureText(`${last} ${word}`).width <= width) lines[lines.length - 1] = `${last} ${word}`;
+      else lines.push(word);
+    }
+    lines.forEach((line, i) => this.label(ctx, line, [12, 18 + i * 17], "#ffffff"));
+    ctx.font = "600 12px system-ui, sans-serif";
   }
 
   private isSelected(level: Level, kind: Mode, index: number): boolean {

@@ -8,7 +8,7 @@ import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
 import { changesTable, fillFollowUp, visitsTable } from "./followup";
-import { PacsOpener } from "./pacs";
+import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
@@ -723,6 +723,7 @@ async function openJob(id: string): Promise<void> {
       const p = job.payload;
       panels.pa.restore(p.pa);
       if (p.lateral) panels.lateral.restore(p.lateral);
+      void reopenFilms(job);
       source = "image";
       applyBoundary(p.boundary);
       selectSourceTab($<HTMLButtonElement>("tab-image"), false);
@@ -771,6 +772,35 @@ async function showFollowUp(idOrJob: string): Promise<void> {
     box.dataset.patient = patientId;
   } catch (error) {
     showProblem(problem, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  }
+}
+
+/** A reopened job's films fetched again from the PACS when it named them by UID; else why not, in place. */
+async function reopenFilms(job: Job): Promise<void> {
+  caps ??= await capabilities();
+  const study = job.payload?.study;
+  for (const view of ["pa", "lateral"] as const) {
+    const landmarks = view === "pa" ? job.payload?.pa : job.payload?.lateral;
+    const sop = view === "pa" ? study?.pa_sop_instance_uid : study?.lateral_sop_instance_uid;
+    const uid = study?.study_instance_uid;
+    if (!landmarks || !uid || !sop) continue; // not from the PACS: restore() said so
+    const panel = panels[view];
+    const blank = "The landmarks are shown on a blank frame; open the film to see it under them.";
+    const noPacs = `Not stored by the service, and this service has no PACS to fetch it from again (image ${sop} of study ${uid}). ${blank}`;
+    if (!caps?.pacsRoutes) {
+      panel.explainBlank(noPacs);
+      continue;
+    }
+    panel.explainBlank(`Fetching the film (image ${sop}) from the PACS…`);
+    try {
+      const file = await pacs.fetchFilm(uid, sop);
+      if (currentJob?.id !== job.id) return; // another job was opened meanwhile
+      await panel.open(file);
+    } catch (error) {
+      if (currentJob?.id !== job.id) return;
+      if (error instanceof NoPacs) panel.explainBlank(noPacs);
+      else panel.explainBlank(`The film is image ${sop} of study ${uid} in the PACS, but it could not be fetched again: ${error instanceof Error ? error.message : String(error)}. ${blank}`);
+    }
   }
 }
 

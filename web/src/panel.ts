@@ -287,12 +287,25 @@ export class FilmPanel {
     return out;
   }
 
-  restore(view: ViewPayload): void {
+  /** A reopened job's view: its landmarks on a blank frame until its film is opened (by hand, or
+   * fetched again from the PACS); ``why`` says why the film is not there, in the header and the frame. */
+  restore(view: ViewPayload, why = "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."): void {
     this.reopened = { ...view, landmarks: [] };
+    this.dicom = null;
+    this.fileName = null;
+    this.wlRow.hidden = true;
+    this.editor.clearSource();
     this.editor.setLandmarks(view.landmarks, view.pixel_spacing as Vec2 | null, view.units);
     if (view.units === "px" && view.pixel_spacing) this.spacing.value = String(view.pixel_spacing[1]);
-    this.header.replaceChildren(el("dt", {}, "Film"), el("dd", {}, "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."));
+    this.explainBlank(why);
     this.update();
+  }
+
+  /** Why the film is not under the landmarks, in the header and in the blank frame. */
+  explainBlank(why: string): void {
+    this.header.replaceChildren(el("dt", {}, "Film"), el("dd", {}, why));
+    this.editor.blankNote = why;
+    this.editor.draw();
   }
 
   update(): void {
