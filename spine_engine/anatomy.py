@@ -222,7 +222,10 @@ class Profile:
     rest_shape: ``None`` for the normal literature profile (kyphosis/lordosis of healthy controls),
     else a calibrated sagittal rest shape ``{"sagittal_inclination_deg": [17 values, T1 = 0],
     "length_fractions": [16 values summing to 1], "source": ...}``. provenance: where each value
-    comes from.
+    comes from. population_prior: ``None`` (bending and stretch stiffness from Y, G and the
+    sections), else the rod's prior calibrated on the population (``PopulationPrior``, written by
+    ``spine bench prior``): it sets the sagittal and frontal bending and the stretch stiffness so
+    that the prior alone predicts the population, and the set-up priors of the fit.
     """
 
     name: str
@@ -234,6 +237,7 @@ class Profile:
     provenance: dict[str, Any] = field(default_factory=dict)
     stretch_factor: float = 1.0
     rest_shape: dict[str, Any] | None = None
+    population_prior: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         for key in ("youngs_modulus_mpa", "shear_modulus_mpa", "shear_coefficient", "fit_weight_pa"):
@@ -254,7 +258,7 @@ class Profile:
 
 
 _PROFILE_KEYS = tuple(Profile.__dataclass_fields__)
-_OPTIONAL_PROFILE_KEYS = ("stretch_factor", "rest_shape")
+_OPTIONAL_PROFILE_KEYS = ("stretch_factor", "rest_shape", "population_prior")
 _PROFILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 
@@ -265,7 +269,7 @@ def list_profiles() -> list[str]:
 
 def profile_from_dict(data: dict[str, Any]) -> Profile:
     """A Profile from its JSON object; every key of the dataclass but the optional ones
-    (stretch_factor, rest_shape) is required, no other key allowed."""
+    (stretch_factor, rest_shape, population_prior) is required, no other key allowed."""
     missing = [k for k in _PROFILE_KEYS if k not in data and k not in _OPTIONAL_PROFILE_KEYS]
     extra = [k for k in data if k not in _PROFILE_KEYS]
     if missing or extra:
@@ -410,9 +414,79 @@ def rest_model(profile: Profile, length_scale: float = 1.0) -> RestModel:
     beta = np.empty((len(ds), 3))
     beta[:, 0] = beta[:, 1] = k * G * sec["A"]
     beta[:, 2] = profile.stretch_factor * Y * sec["A"]
+    prior = population_prior(profile)
+    if prior is not None:
+        alpha[:, 0] = prior.bending_stiffness(ds, prior.sagittal_sd_deg)
+        alpha[:, 1] = prior.bending_stiffness(ds, prior.frontal_sd_deg)
+        alpha[:, 2] = prior.bending_stiffness(ds, prior.twist_sd_deg)
+        beta[:, :2] = 2.0 * prior.temperature_nmm / (ds[:, None] * prior.shear_sd**2)
     for arr in (ds, positions, alpha, beta):
         arr.setflags(write=False)
     return RestModel(LEVELS, ds, positions, rotations, alpha, beta, profile, float(length_scale))
+
+
+@dataclass(frozen=True)
+class PopulationPrior:
+    """The rod's prior calibrated on a population (``Profile.population_prior``).
+
+    Read as a prior at the fit's temperature τ (``temperature_nmm``, N·mm: the landmark weight w over
+    the reference magnification squared, w·σ_ref²/s_ref², ``fit.uncertainty``), the rod's energy
+    E_I = ½ Σ_i Δs_i α_i (u_i − u⁰_i)² makes each segment's bending angle θ_i = Δs_i u_i Gaussian with
+    SD θ_sd,i when α_i = 2 τ Δs_i / θ_sd,i² (N·mm², θ in rad), and a shear v_k Gaussian with SD σ_k
+    when β_k = 2 τ / (Δs σ_k²) (N). Per segment (16, T1–T2 … L4–L5):
+
+    * ``sagittal_sd_deg``: bending about d1 (sagittal plane), VerSe dev's spread scaled so that the
+      prior's kyphosis T4–T12 has the population's SD;
+    * ``frontal_sd_deg``: bending about d2 (frontal plane), AASCE training's spread scaled so that the
+      prior's major Cobb angle has the population's mean;
+    * ``stretch_sd``: segment length relative to the patient-scaled rest length over the population
+      (reported; the stretch stiffness stays the profile's Y·A: the PA film sets the patient's size,
+      and holding each segment to it cost two-film accuracy, docs/engine.md);
+    * ``shear_sd`` (16, 2): the chord's component across the vertebra's axis (v1, v2),
+      β_k = 2τ/(Δs σ_k²);
+    * ``twist_sd_deg``: twist about d3, α_3 as the bending ones.
+
+    Set-up priors of a standing patient facing the detector, SDs in degrees: ``orientation_sd_deg``
+    ``{"T1": [about d1, about d2, about d3], "L5": [...]}`` (d1: sagittal inclination, the lean;
+    d2: frontal tilt; d3: rotation about the body's long axis, the spin about the vertical).
+    ``measure_sd_deg``: the population SD of each measure a film may leave undetermined, the floor of
+    its reported SD then (``reconstruction``). ``provenance``: data, command and checks.
+    """
+
+    temperature_nmm: float
+    sagittal_sd_deg: FloatArray
+    frontal_sd_deg: FloatArray
+    stretch_sd: FloatArray
+    shear_sd: FloatArray
+    twist_sd_deg: FloatArray
+    orientation_sd_deg: dict[str, FloatArray]
+    measure_sd_deg: dict[str, float]
+
+    def bending_stiffness(self, ds: FloatArray, sd_deg: FloatArray) -> FloatArray:
+        """α_i = 2 τ Δs_i / θ_sd,i² (N·mm²) of segments ``ds`` (mm) for angle SDs ``sd_deg``."""
+        return np.asarray(2.0 * self.temperature_nmm * ds / np.radians(sd_deg) ** 2)
+
+
+def population_prior(profile: Profile) -> PopulationPrior | None:
+    """The profile's ``population_prior`` as arrays (None when it has none)."""
+    return _population_prior(profile.name, json.dumps(profile.population_prior, sort_keys=True))
+
+
+@functools.lru_cache(maxsize=16)
+def _population_prior(name: str, text: str) -> PopulationPrior | None:
+    data = json.loads(text)
+    if data is None:
+        return None
+    keys = ("sagittal_sd_deg", "frontal_sd_deg", "stretch_sd", "twist_sd_deg")
+    sd = {k: np.asarray(data[k], dtype=float) for k in keys}
+    shear = np.asarray(data["shear_sd"], dtype=float).T
+    if any(v.shape != (N_LEVELS - 1,) or not np.all(v > 0) for v in sd.values()) or shear.shape != (N_LEVELS - 1, 2):
+        raise ValueError(f"profile {name!r}: population_prior needs 16 positive SDs per segment for each plane")
+    orientation = {k: np.asarray(v, dtype=float) for k, v in data["orientation_sd_deg"].items()}
+    return PopulationPrior(
+        float(data["temperature_nmm"]), sd["sagittal_sd_deg"], sd["frontal_sd_deg"], sd["stretch_sd"], shear,
+        sd["twist_sd_deg"], orientation, {k: float(v) for k, v in data["measure_sd_deg"].items()},
+    )
 
 
 def typical_bending_energy_nmm(profile: Profile, cobb_deg: float = 40.0, segments: int = 6) -> float:

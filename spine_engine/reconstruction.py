@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
-from .anatomy import Profile, RestModel, load_profile, rest_model, rest_shape_unit
+from .anatomy import Profile, RestModel, load_profile, population_prior, rest_model, rest_shape_unit
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -47,6 +47,7 @@ from .fit import (
     nearest_rotation,
 )
 from .fit import solve as solve_fit
+from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
 from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
@@ -168,6 +169,7 @@ def make_camera(
     mid_depth: float,
     scale_prior: bool,
     profile: Profile,
+    landmark_centre: np.ndarray,
 ) -> tuple[Camera | None, ViewSetup]:
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
@@ -205,9 +207,10 @@ def make_camera(
             free = np.array([True, True, *(np.abs(b) > 0.5), rotate])
         mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
+        ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
-            depth_prior_mean_mm=mid_offset,
+            depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
         )
         return camera, ViewSetup("perspective", "acquisition", spc)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
@@ -248,11 +251,26 @@ def _view_data(
     )
 
 
-def _pose_priors(model: JobPayload, top: Pose, boundary: str) -> tuple[PosePrior, ...]:
-    """The gauge (no boundary: T1 at the origin, ``GAUGE_POSITION_SD_MM``) or the soft poses."""
+def _pose_priors(
+    model: JobPayload, top: Pose, bottom: Pose, boundary: str, profile: Profile
+) -> tuple[PosePrior, ...]:
+    """No boundary: the gauge (T1 at the origin, ``GAUGE_POSITION_SD_MM``) and the orientation prior
+    of a standing patient facing the detector: T1's and L5's directors near their placement (the
+    generic spine's sagittal inclination unless a lateral film gave the depths, no rotation about
+    the vertical) with the profile's SDs about d1 (the lean), d2 (frontal tilt, a gauge) and d3 (the
+    spin about the vertical), ``anatomy.PopulationPrior.orientation_sd_deg``; without a population
+    prior T1's directors within ``GAUGE_ROTATION_SD_DEG``. Else the soft poses."""
     if boundary == "estimated":
-        gauge = PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, np.radians(GAUGE_ROTATION_SD_DEG))
-        return (gauge,)
+        prior = population_prior(profile)
+        if prior is None:
+            sd = np.radians(GAUGE_ROTATION_SD_DEG)
+            return (PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd),)
+        sd_top, sd_bottom = (np.radians(prior.orientation_sd_deg[lv]) for lv in ("T1", "L5"))
+        return (
+            PosePrior(0, Pose(np.zeros(3), top.rotation), GAUGE_POSITION_SD_MM, sd_top),
+            PosePrior(len(LEVELS) - 1, Pose(bottom.position - top.position, bottom.rotation), GAUGE_POSITION_SD_MM,
+                      sd_bottom),
+        )
     if boundary != "soft":
         return ()
     assert model.boundary is not None
@@ -328,7 +346,8 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         else:
             mid_depth = float(0.5 * (top.position + bottom.position) @ beam)
         camera, setup = make_camera(
-            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile
+            view, name, initial, e_c, e_r, mid_depth, scale_prior=boundary != "given", profile=profile,
+            landmark_centre=np.nanmean(arrays.points, axis=0),
         )
         data = _view_data(name, view, arrays, weight, camera, initial, (e_c, e_r))
         if name == "pa":
@@ -362,7 +381,7 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
         boundary=boundary,
-        pose_priors=_pose_priors(model, top, boundary),
+        pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
     )
 
@@ -603,9 +622,14 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
             uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
+    if uncertainty is not None:
+        measures = _measures_with_sds(measures, uncertainty)
+        if "kyphosis" in problem.unreliable:
+            measures = _with_prior_floor(measures, profile)
+        problem = dataclasses.replace(problem, unreliable=_unreliable_by_sd(measures, profile, problem.unreliable))
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
-        measures=measures if uncertainty is None else _measures_with_sds(measures, uncertainty),
+        measures=measures,
         fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
@@ -626,6 +650,48 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
         }
     )
+
+
+def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
+    """Sagittal measures that no film determined (no lateral view: ``fit.unreliable`` has "kyphosis"
+    and "lordosis") come from the population prior, so their SD is at least the population's
+    (``anatomy.PopulationPrior.measure_sd_deg``, VerSe dev): SD = max(Laplace SD, population SD)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return measures
+    kyphosis = prior.measure_sd_deg["kyphosis_t4_t12_deg"]
+    lordosis = prior.measure_sd_deg["lordosis_l1_l5_deg"]
+    update = {
+        name: max(float(getattr(measures, name) or 0.0), floor)
+        for name, floor in (
+            ("thoracic_kyphosis_t4_t12_sd_deg", kyphosis),
+            ("thoracic_kyphosis_t5_t12_sd_deg", kyphosis),
+            ("lumbar_lordosis_l1_l5_sd_deg", lordosis),
+        )
+    }
+    return measures.model_copy(update=update)
+
+
+UNRELIABLE_SD_FRACTION = 0.5
+"""A sagittal measure is a model estimate (``fit.unreliable``) when its SD exceeds this fraction of the
+population's SD (``anatomy.PopulationPrior.measure_sd_deg``): the films then removed less than three
+quarters of the population's variance (1 − 0.5² = 0.75)."""
+
+
+def _unreliable_by_sd(measures: Measures, profile: Profile, unreliable: list[Unreliable]) -> list[Unreliable]:
+    """``unreliable`` plus "kyphosis" / "lordosis" when their SD exceeds ``UNRELIABLE_SD_FRACTION`` of
+    the population's (order kept, no duplicates)."""
+    prior = population_prior(profile)
+    if prior is None:
+        return list(unreliable)
+    out = list(unreliable)
+    for name, sd, population in (
+        ("kyphosis", measures.thoracic_kyphosis_t4_t12_sd_deg, prior.measure_sd_deg["kyphosis_t4_t12_deg"]),
+        ("lordosis", measures.lumbar_lordosis_l1_l5_sd_deg, prior.measure_sd_deg["lordosis_l1_l5_deg"]),
+    ):
+        if sd is not None and sd > UNRELIABLE_SD_FRACTION * population and name not in out:
+            out.append(name)  # type: ignore[arg-type]
+    return out
 
 
 def register(payload: dict[str, Any]) -> dict[str, Any]:

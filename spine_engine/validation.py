@@ -1,13 +1,16 @@
 """Turn a raw payload (a JSON object) into a validated ``JobPayload`` or a typed ``InvalidInput``."""
 
 import itertools
+import math
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
+from .clinical import detector_spacing
 from .errors import FieldError, InvalidInput
 from .levels import LEVEL_INDEX, LEVELS
-from .models import JobPayload, LateralView, PAView
+from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, LateralView, PAView
 
 _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
 """Errors raised by a model validator on a whole landmark, and the field their location names."""
@@ -90,6 +93,193 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Field
     return errors
 
 
+def _corner_errors(name: str, raw: Any) -> list[FieldError]:
+    """Each four-corner landmark must be a convex quadrilateral in the order the contract names
+    (top-left, top-right, bottom-left, bottom-right as they appear in the image). Taken around the
+    outline TL → TR → BR → BL in image (column, row) coordinates (rows run down), every turn is
+    clockwise as displayed: the cross product (b − a) × (c − b) = (b−a)_c (c−b)_r − (b−a)_r (c−b)_c
+    is > 0 at each of the four corners. Two corners swapped (top-right with bottom-left, or left with
+    right) make the outline cross itself or turn the other way; a reflex corner or three corners in
+    a line is no vertebral body either. Locations use the payload's indices."""
+    raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
+    if not isinstance(raw_landmarks, list):
+        return []
+    errors = []
+    for i, lm in enumerate(raw_landmarks):
+        if not isinstance(lm, dict) or lm.get("corners") is None:
+            continue
+        tl, tr, bl, br = (np.asarray(c, dtype=float) for c in lm["corners"])
+        outline = (tl, tr, br, bl)
+        turns = [_cross(outline[(k + 1) % 4] - outline[k], outline[(k + 2) % 4] - outline[(k + 1) % 4]) for k in range(4)]
+        if min(turns) <= 0.0:
+            if max(turns) < 0.0:
+                kind = "run the wrong way round (two corners swapped)"
+            else:
+                kind = "cross each other" if _crossed(outline) else "do not form a convex quadrilateral"
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i, "corners"),
+                    f"the corners of {lm.get('level')} {kind}: give them as they appear in the image, in the order "
+                    "top-left, top-right, bottom-left, bottom-right, forming a convex quadrilateral",
+                    "corners_not_convex",
+                )
+            )
+    return errors
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z component of the 2D cross product a × b = a_c b_r − a_r b_c."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _crossed(outline: tuple[np.ndarray, ...]) -> bool:
+    """Whether the outline's opposite sides TL→TR and BR→BL, or TR→BR and BL→TL, intersect."""
+
+    def intersect(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
+        def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
+            return _cross(q - p, r - p)
+
+        return side(a, b, c) * side(a, b, d) < 0.0 and side(c, d, a) * side(c, d, b) < 0.0
+
+    tl, tr, br, bl = outline
+    return intersect(tl, tr, br, bl) or intersect(tr, br, bl, tl)
+
+
+MEAN_SEGMENT_MM = (20.3, 20.8, 20.9, 20.9, 22.2, 22.3, 23.0, 23.5, 24.9, 26.4, 28.6, 30.7, 32.7, 34.4, 35.3, 33.8)
+"""Mean distance between the centroids of adjacent vertebrae T1–T2 … L4–L5 over the 24 VerSe dev
+spines (tests/data/verse_dev.csv, 3D, mm, rounded to 0.1; a test recomputes it). The reference
+length of levels i < j is the arc A_ij = Σ_{l=i}^{j−1} MEAN_SEGMENT_MM[l]."""
+VERSE_DISTANCE_RATIO = (0.385, 1.289)
+"""Smallest and largest ratio |r_j − r_i| / A_ij over every pair of levels of the VerSe dev spines:
+0.385 for the distance projected on a PA film (the (x, z) plane: L4–L5, whose segment leans far
+forward in the lordosis, is the shortest), 1.289 in 3D (a projection is never longer). A test
+recomputes both."""
+SMALLEST_SPINE = 0.6
+"""Widening of the lower bound for spines smaller than VerSe's adults (vertebral body plus disc
+heights scale with the spine's length): at the adolescent growth spurt's peak the spine is 87 % of
+its adult length and grows 1.1–1.6 cm a year before it (Sanders et al., "Spinal growth ...
+relative to the growth spurt", Spine Deform 2025;13(2):519–528, doi:10.1007/s43390-024-01011-w),
+on an adult T1–S1 of 42–45 cm (Dimeglio and Canavese, "The growing spine", Eur Spine J
+2012;21(1):64–70, doi:10.1007/s00586-011-1983-3); 0.6 admits children about five years before
+the spurt and VerSe's smallest spine (0.92 of its mean length) shrunk further."""
+LARGEST_SPINE = 1.25
+"""Widening of the upper bound for spines larger than VerSe dev's (its T1–L5 polylines 388–498 mm,
+mean 421): the thoracic vertebral bodies' heights (Panjabi et al., "Thoracic human vertebrae:
+quantitative three-dimensional anatomy", Spine 1991;16(8):888–901) and the lumbar ones' (Panjabi
+et al., "Human lumbar vertebrae: quantitative three-dimensional anatomy", Spine 1992;17(3):299–306)
+have coefficients of variation near 10 % among adults, so a segment 25 % above the dev maximum ratio
+(itself 29 % above the mean) is beyond any adult's."""
+MAGNIFICATION_RANGE = (0.9, 1.4)
+"""Detector mm per patient mm a view may have when the payload does not say: below 1 for a
+calibration that overshot, up to 1.4 for a lateral film of a broad patient at a short distance."""
+UNVERIFIED_SCALE = 2.5
+"""Without a magnification in the payload nothing ties the stated millimetres to the patient: the
+spacing may be nominal (a film digitised without a scale: the AASCE 2019 bench spreads each image's
+height over a 36-inch cassette, and on its well-formed training annotations adjacent levels then
+read up to 1.7 times the largest VerSe-based bound at magnification 1.4). The range
+``MAGNIFICATION_RANGE`` is then widened by this factor both ways: the absolute check still refuses
+a label several levels off (the page's T1 and T2 336 mm apart: 95 mm at the widest reading against
+at most 33 mm), and the scale-free check does the finer work."""
+MAGNIFICATION_SPREAD = 0.1
+"""When the payload gives the magnification (ERMF, SID/SOD or a projection's scale): the relative
+spread around it of the magnification of points off the mid-plane (± 150 mm of depth at SOD ≈ 1.5 m)."""
+NOISE_SDS = 3.0
+"""Landmark noise allowed for: a distance may be off by NOISE_SDS · √2 · σ, σ the view's landmark SD."""
+SPACING_RATIO = (0.25, 2.5)
+"""Scale-free bound: the ratio q = d / A_ij of one pair of consecutive landmarked levels over the
+median q of the view's pairs. VerSe dev's within-spine extremes are 0.41–1.21 on the PA projection
+and 0.80–1.20 on the lateral, synthetic severe curves (``spine_engine.synthetic``, Cobb up to 80°)
+reach 0.51–1.30 on the lateral, and the AASCE 2019 training radiographs' well-formed annotations
+0.36–1.82 (clicked corners, cropped films); widened beyond all three. Below it are two labels on
+one vertebra (three AASCE annotations: 0.03–0.07)."""
+
+
+def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
+    """Detector mm per patient mm at the spine, lowest and highest (``MAGNIFICATION_*``)."""
+    acq = view.acquisition
+    known: float | None = None
+    if view.projection is not None:
+        known = float(view.projection.scale)
+    elif acq is not None and acq.magnification is not None:
+        known = float(acq.magnification)
+    elif acq is not None and acq.perspective:
+        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
+        known = acq.distance_source_to_detector_mm / acq.distance_source_to_patient_mm
+    if known is None:
+        return MAGNIFICATION_RANGE[0] / UNVERIFIED_SCALE, MAGNIFICATION_RANGE[1] * UNVERIFIED_SCALE
+    return known * (1.0 - MAGNIFICATION_SPREAD), known * (1.0 + MAGNIFICATION_SPREAD)
+
+
+def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+    """Distances between consecutive landmarked levels i < j (k = j − i apart; each landmark's
+    top-endplate midpoint: its point, or the mean of its top corners) that no spine has.
+
+    Absolute bound. The view's coordinates times ``clinical.detector_spacing`` are detector mm
+    (units mm, or px with the pixel spacing the contract requires), so a distance d is known in
+    detector mm; the magnification m is the payload's (ERMF, SID/SOD or the projection's scale, ±
+    ``MAGNIFICATION_SPREAD``) or else anywhere in ``MAGNIFICATION_RANGE`` widened by
+    ``UNVERIFIED_SCALE`` (the stated mm themselves unverified). Refused when even the
+    most favourable reading is impossible:
+        (d − n)/m_max > LARGEST_SPINE · ρ_max · A_ij    (too far apart), or
+        (d + n)/m_min < SMALLEST_SPINE · ρ_min · A_ij   (too close),
+    with n = NOISE_SDS·√2·σ, (ρ_min, ρ_max) = ``VERSE_DISTANCE_RATIO``, A_ij the VerSe dev mean arc.
+    The ratio bounds hold for every k (a chord is at most its arc); for adjacent levels the lower
+    bound is below the noise allowance and catches only two clicks on one vertebra.
+
+    Scale-free bound. The film's scale (weak perspective s) is estimated in the fit and the stated
+    millimetres may be nominal (e.g. a spacing spread over a cassette's height when the image has
+    none), so with three or more landmarked levels the pairs are also compared with each other:
+    q = d / A_ij over the median q of the view's pairs must lie within ``SPACING_RATIO``. A label
+    on the wrong vertebra (a click meant as L5 labelled T2) breaks both checks whatever the scale.
+    The error names both levels, at the lower level's landmark. Locations use the payload's indices.
+    """
+    raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
+    if not isinstance(raw_landmarks, list):
+        return []
+    index = {lm.get("level"): i for i, lm in enumerate(raw_landmarks) if isinstance(lm, dict)}
+    spacing = detector_spacing(view)
+    placed = []
+    for lm in view.landmarks:
+        if lm.point is not None:
+            point = np.asarray(lm.point, dtype=float)
+        else:
+            assert lm.corners is not None
+            point = 0.5 * (np.asarray(lm.corners[0], dtype=float) + np.asarray(lm.corners[1], dtype=float))
+        placed.append((LEVEL_INDEX[lm.level], point * spacing))
+    arc = np.concatenate(([0.0], np.cumsum(MEAN_SEGMENT_MM)))
+    m_min, m_max = _magnification_range(view)
+    sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+    noise = NOISE_SDS * math.sqrt(2.0) * sigma
+    lo, hi = VERSE_DISTANCE_RATIO
+    pairs = [(i, j, float(np.linalg.norm(pj - pi)), float(arc[j] - arc[i])) for (i, pi), (j, pj) in
+             itertools.pairwise(placed)]  # fmt: skip
+    median = float(np.median([d / a for _, _, d, a in pairs])) if len(pairs) >= 2 else None
+    errors = []
+    for i, j, d, a in pairs:
+        upper, lower = LEVELS[i], LEVELS[j]
+        apart = "adjacent levels" if j - i == 1 else f"levels {j - i} apart"
+        reason = None
+        if (d - noise) / m_max > LARGEST_SPINE * hi * a:
+            reason = (f"are {d:.0f} mm apart on the film; {apart} of any spine are at most "
+                      f"{LARGEST_SPINE * hi * a * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
+        elif (d + noise) / m_min < SMALLEST_SPINE * lo * a:
+            reason = (f"are {d:.1f} mm apart on the film; {apart} of any spine are at least "
+                      f"{max(SMALLEST_SPINE * lo * a * m_min - noise, 0.0):.1f} mm apart at magnification down to "
+                      f"{m_min:.3g}")
+        elif median is not None and median > 0.0 and not SPACING_RATIO[0] <= d / a / median <= SPACING_RATIO[1]:
+            reason = (f"are {d / a / median:.2f} times as far apart as the other landmarks' spacing predicts; no "
+                      f"spine's spacing varies that much (allowed {SPACING_RATIO[0]:g}–{SPACING_RATIO[1]:g})")
+        if reason is not None:
+            errors.append(
+                FieldError(
+                    (name, "landmarks", index.get(lower, 0)),
+                    f"{upper} and {lower} {reason}: check which vertebra each landmark is on",
+                    "implausible_distance",
+                )
+            )
+    return errors
+
+
 MIN_LEVELS_PROJECTION_GIVEN = 1
 """A view whose projection is given (and, for the PA, with T1 and L5 given exactly) needs one level."""
 MIN_LEVELS_PA = 2
@@ -145,7 +335,9 @@ def validate_payload(payload: Any) -> JobPayload:
     ``minimum_levels`` landmarked levels, any levels (``MIN_LEVELS_*``). A landmark has exactly
     one of ``point`` / ``corners`` (the error names the field: ``point`` when neither is given,
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
-    with columns L or R. On an upright view the landmarks must run head to feet in level order.
+    with columns L or R. On an upright view the landmarks must run head to feet in level order;
+    four corners must form a convex quadrilateral in the contract's order (``_corner_errors``); and
+    consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``).
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -162,11 +354,16 @@ def validate_payload(payload: Any) -> JobPayload:
         ) from None
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
     errors = _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
-    errors += _order_errors("pa", model.pa, payload.get("pa"))
+    errors += _order_errors("pa", model.pa, payload.get("pa")) + _corner_errors("pa", payload.get("pa"))
     if model.lateral is not None:
         errors += _view_errors("lateral", model.lateral, exact)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
+        errors += _corner_errors("lateral", payload.get("lateral"))
+    if not errors:  # distances need the spacing and well-formed landmarks
+        errors += _distance_errors("pa", model.pa, payload.get("pa"))
+        if model.lateral is not None:
+            errors += _distance_errors("lateral", model.lateral, payload.get("lateral"))
     if errors:
         raise InvalidInput(errors)
     return model

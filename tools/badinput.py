@@ -107,6 +107,18 @@ def _swap_t1_t2(payload: dict[str, Any]) -> None:
     first["point"], second["point"] = second["point"], first["point"]
 
 
+def _t2_336_mm_below_t1(payload: dict[str, Any]) -> None:
+    payload["pa"].update(units="px", pixel_spacing=[0.2, 0.2])
+    payload["pa"]["landmarks"] = [{"level": "T1", "point": [500.0, 250.0]}, {"level": "T2", "point": [500.0, 1930.0]}]
+
+
+def _crossed_corners(payload: dict[str, Any]) -> None:
+    column, row = payload["pa"]["landmarks"][4].pop("point")
+    top_left, top_right = [column - 15.0, row], [column + 15.0, row]
+    bottom_left, bottom_right = [column - 15.0, row + 18.0], [column + 15.0, row + 18.0]
+    payload["pa"]["landmarks"][4]["corners"] = [top_left, bottom_left, top_right, bottom_right]  # TR and BL swapped
+
+
 def _many_landmarks(payload: dict[str, Any]) -> None:
     payload["pa"]["landmarks"] = payload["pa"]["landmarks"] * 7  # 119 landmarks
 
@@ -135,6 +147,9 @@ def cases() -> list[Case]:
         Case("unknown level", "level `T13`", body=edited(_set(("pa", "landmarks", 3, "level"), "T13"))),
         Case("duplicate levels", "T5 twice", body=edited(_duplicate_level)),
         Case("landmarks out of order", "T1 drawn below T2 on the PA image (points swapped)", body=edited(_swap_t1_t2)),
+        Case("levels implausibly far apart", "PA T1 and T2 1680 px apart at 0.2 mm/px (336 mm: the click meant "
+             "for L5 labelled T2)", body=edited(_t2_336_mm_below_t1)),
+        Case("crossed corners", "T5's corners with top-right and bottom-left swapped", body=edited(_crossed_corners)),
         Case("too many landmarks", "119 landmarks in the PA view", body=edited(_many_landmarks)),
         Case("non-orthonormal directors", "T1 directors `[[2,0,0],[0,-1,0],[0,0,-1]]`",
              body=edited(_set(("boundary", "T1", "directors"), [[2.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]))),

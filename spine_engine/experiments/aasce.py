@@ -37,7 +37,7 @@ import numpy as np
 from ..anatomy import VERTEBRA_TABLE, rest_segment_lengths
 from ..errors import FitFailed, InvalidInput
 from ..levels import LEVELS, N_LEVELS
-from ..measures import frontal_tilt_deg, major_first_curves
+from ..measures import frontal_tilt_deg
 from ..models import PA_ORIENTATION
 from ..observations import chord_angles_deg, frontal_tilt_deg_of_image_vectors
 from ..projection import image_axes
@@ -246,13 +246,9 @@ def line_axes(rad: Radiograph) -> tuple[np.ndarray, np.ndarray]:
 
 
 def major_angle(result: dict[str, Any]) -> float:
-    """The major curve's Cobb angle of a result, without the 10° reporting threshold: the largest
-    curve of ``measures.major_first_curves`` on ``vertebrae[].frontal_tilt_deg`` (the tilts
-    ``measures.cobb`` uses: corner lines where given, else the reconstructed d1). It is
-    ``measures.cobb``'s major ``angle_deg`` whenever that curve reaches 10°."""
-    tilt = np.array([v["frontal_tilt_deg"] for v in result["vertebrae"]])
-    curves = major_first_curves(tilt, 0.0)
-    return max((angle for _, _, angle in curves), default=0.0)
+    """The major Cobb angle a user reads in a result: ``measures.cobb``'s major curve's ``angle_deg``,
+    0 when no curve reaches the 10° reporting threshold (the user then reads no curve)."""
+    return next((float(c["angle_deg"]) for c in result["measures"]["cobb"] if c["major"]), 0.0)
 
 
 def in_order(rad: Radiograph) -> bool:
@@ -283,7 +279,7 @@ def evaluate(rad: Radiograph) -> Outcome:
             failed.append(name)
             return None
 
-    a = run("corners", payload(rad, "corners", tilt_prior=False))
+    a = run("corners", payload(rad, "corners"))
     if a is not None:
         major["corners"] = major_angle(a)
         major["corners_aasce"] = a["measures"]["aasce2019"]["angle_deg"]

@@ -12,6 +12,7 @@ COMMANDS = {
     "calibrate": ("spine_engine.experiments.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
     "aasce": ("spine_engine.experiments.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
     "noise-weight": ("spine_engine.experiments.noise_weight", "prior strength, noisy landmarks (VerSe dev)"),
+    "prior": ("spine_engine.experiments.prior", "calibrate the population prior and check its prior predictive"),
     "clinic": ("spine_engine.experiments.clinic", "the clinic's setting (issue #10): 3D error and interval coverage"),
     "clinic-bound": (
         "spine_engine.experiments.clinic_bound",

@@ -38,6 +38,11 @@ Metrics per spine, then averaged (``summarise``):
   directors' against the truth's); the fraction of truths inside. A result without SDs has no
   coverage (reported as null / "-").
 
+``--seeds N`` runs the convergence sweep instead (``convergence_sweep``): every case, and the
+sweep's extra valid forms (``SWEEP_EXTRA_CASES``), on every spine over N noise seeds; each failure
+(``FitFailed`` or any exception) is listed by data set, spine, case and seed in
+``clinic-sweep-<split>.json`` and a table, and the command exits 1 if there is one.
+
 ``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
 pooled 95 % intervals of positions cover 95 % on dev (``fit.uncertainty``).
 """
@@ -57,6 +62,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..anatomy import load_profile
 from ..errors import SpineEngineError
 from ..frames import axial_rotation_deg, frames_from_centreline
 from ..levels import LEVELS, N_LEVELS
@@ -94,6 +100,8 @@ class Outcome:
     frames of the positions): kyphosis_t4_t12, kyphosis_t5_t12, lordosis_l1_l5, major_cobb."""
     reported_errors_deg: dict[str, float] = field(default_factory=dict)
     """Signed error of the result's reported measure (its directors) against the same truth."""
+    truth_deg: dict[str, float] = field(default_factory=dict)
+    """The truth's measures computed the same way (the trivial estimator's errors are measured on them)."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
     position_z: FloatArray | None = None
@@ -142,6 +150,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     for name, (key, sd_key) in pairs.items():
         error = float(getattr(same_m, key)) - float(getattr(truth_m, key))
         out.errors_deg[name] = error
+        out.truth_deg[name] = float(getattr(truth_m, key))
         out.reported_errors_deg[name] = float(m[key]) - float(getattr(truth_m, key))
         for z_store, e in ((out.measure_z, error), (out.reported_z, out.reported_errors_deg[name])):
             z = _z(e, m.get(sd_key))
@@ -245,9 +254,21 @@ def rms_rotation_error(outcomes: Sequence[Outcome]) -> list[float] | None:
     return np.sqrt(np.mean(vectors**2, axis=0)).round(3).tolist()
 
 
-def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, Any]:
+def population_means(profile: str = "default") -> dict[str, float]:
+    """The trivial estimator's answer: VerSe dev's mean kyphosis T4–T12 and lordosis L1–L5 (computed as
+    this bench computes a truth's), from the profile's population prior provenance."""
+    data = load_profile(profile).population_prior or {}
+    population = data.get("provenance", {}).get("population", {})
+    return {name: float(population[key]["mean"]) for name, key in (
+        ("kyphosis_t4_t12", "kyphosis_t4_t12_deg"), ("lordosis_l1_l5", "lordosis_l1_l5_deg")) if key in population}
+
+
+def summarise(
+    dataset: str, case: Case, outcomes: list[Outcome], floor: dict[str, float] | None = None
+) -> dict[str, Any]:
     """One row of the table: means over the spines reconstructed, and coverages (with their
-    item counts)."""
+    item counts). ``floor``: the population-mean estimator's answers (``population_means``), whose
+    MAE on the same spines is the row's ``floor_mae_deg``."""
     ok = [o for o in outcomes if o.ok]
     per_level = np.array([o.per_level_mm for o in ok]) if ok else np.empty((0, N_LEVELS))
     pos_z = [o.position_z for o in ok if o.position_z is not None]
@@ -291,6 +312,10 @@ def summarise(dataset: str, case: Case, outcomes: list[Outcome]) -> dict[str, An
     }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
+    row["floor_mae_deg"] = {
+        name: _mean([abs(mean - o.truth_deg[name]) for o in ok if name in o.truth_deg])
+        for name, mean in (floor or {}).items()
+    }
     return row
 
 
@@ -304,13 +329,102 @@ def run(
 ) -> tuple[list[dict[str, Any]], dict[tuple[str, str], list[Outcome]]]:
     """Every case on every spine of every data set: summary rows and the outcomes behind them."""
     rows, outcomes = [], {}
+    floor = population_means(profile)
     for name, truths in datasets.items():
         series = [simulate_series(t, noise_mm, seed) for t in truths]
         for case in cases:
             found = [run_one(s, case, profile, registrar) for s in series]
             outcomes[(name, case.key)] = found
-            rows.append(summarise(name, case, found))
+            rows.append(summarise(name, case, found, floor))
     return rows, outcomes
+
+
+# ---------------------------------------------------------------- convergence sweep
+
+
+@dataclass(frozen=True)
+class SweepCase:
+    """A valid payload form of the convergence sweep: a bench ``Case``, optionally with the
+    acquisition's central ray left out (the usual DX header: SID and SOD, no central ray)."""
+
+    case: Case
+    central_ray: bool = True
+
+
+SWEEP_EXTRA_CASES = (
+    SweepCase(Case("c0", "perspective PA + lateral, SID and SOD without central ray", perspective=True,
+                   acquisition=True), central_ray=False),
+    SweepCase(Case("e0", "perspective PA only, SID and SOD without central ray", lateral_from=None,
+                   perspective=True, acquisition=True), central_ray=False),
+)
+"""Sweep-only forms beside ``CASES``: the films of (c) as a DX header describes them (SID and SOD
+without the central ray), with and without the lateral. With one film the central ray and the
+spine's place in the film trade almost exactly (only the perspective's depth dependence tells them
+apart), the slowest valley the solver meets."""
+
+
+def sweep_payload(series: Series, sweep_case: SweepCase) -> dict[str, Any]:
+    """The JSON payload of ``sweep_case`` for ``series`` (``build_payload``, central ray removed
+    when the form has none)."""
+    payload = build_payload(series, sweep_case.case).model_dump(mode="json", exclude_none=True)
+    if not sweep_case.central_ray:
+        for name in ("pa", "lateral"):
+            if name in payload and "acquisition" in payload[name]:
+                payload[name]["acquisition"].pop("central_ray", None)
+    return payload
+
+
+def convergence_sweep(
+    datasets: dict[str, list[Truth]],
+    cases: Sequence[SweepCase],
+    seeds: Sequence[int],
+    noise_mm: float,
+    profile: str = "default",
+    registrar: Registrar = register,
+) -> dict[str, Any]:
+    """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed)``):
+    the runs per case and every failure (``FitFailed``, ``InvalidInput`` or any other exception:
+    each payload is valid, so each failure is a defect) with its data set, spine, case and seed."""
+    failures: list[dict[str, Any]] = []
+    per_case: dict[str, dict[str, Any]] = {
+        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0} for sc in cases
+    }
+    for seed in seeds:
+        for name, truths in datasets.items():
+            for truth in truths:
+                series = simulate_series(truth, noise_mm, seed)
+                for sc in cases:
+                    payload = sweep_payload(series, sc)
+                    payload.setdefault("options", {})["profile"] = profile
+                    row = per_case[sc.case.key]
+                    row["runs"] += 1
+                    try:
+                        result = registrar(payload)
+                    except Exception as exc:  # any exception on a valid payload is a failure to report
+                        row["failures"] += 1
+                        failures.append({
+                            "dataset": name, "spine": truth.spine_id, "case": sc.case.key, "seed": seed,
+                            "error": f"{type(exc).__name__}: {exc}"[:300],
+                        })  # fmt: skip
+                        continue
+                    row["max_iterations"] = max(row["max_iterations"], int(result["fit"]["iterations"]))
+    runs = sum(r["runs"] for r in per_case.values())
+    return {"seeds": list(seeds), "runs": runs, "failed": len(failures), "per_case": per_case, "failures": failures}
+
+
+def sweep_table(sweep: dict[str, Any]) -> str:
+    """The sweep as text: runs, failures and the most solver iterations per case, then each failure."""
+    body = format_table(
+        ["case", "runs", "failed", "max iter", "title"],
+        [[k, r["runs"], r["failures"], r["max_iterations"], r["title"]] for k, r in sweep["per_case"].items()],
+    )
+    if not sweep["failures"]:
+        return body + f"\nno failure in {sweep['runs']} runs (seeds {sweep['seeds']})"
+    failed = format_table(
+        ["data", "spine", "case", "seed", "error"],
+        [[f["dataset"], f["spine"], f["case"], f["seed"], f["error"]] for f in sweep["failures"]],
+    )
+    return f"{body}\nfailures ({sweep['failed']} of {sweep['runs']} runs):\n{failed}"
 
 
 # ---------------------------------------------------------------- output
@@ -325,7 +439,9 @@ TABLE_COLUMNS = [
     ("shape_error_mm", "shape mm"),
     ("sagittal_lean_rms_deg", "lean°"),
     ("kyphosis_t4_t12_mae_deg", "kyph°"),
+    ("floor_kyphosis", "floor"),
     ("lordosis_l1_l5_mae_deg", "lord°"),
+    ("floor_lordosis", "floor"),
     ("major_cobb_mae_deg", "Cobb°"),
     ("coverage_positions", "cov pos"),
     ("coverage_kyphosis_t4_t12", "cov kyph"),
@@ -333,6 +449,14 @@ TABLE_COLUMNS = [
     ("coverage_cobb", "cov Cobb"),
     ("coverage_axial_rotation", "cov rot"),
 ]
+
+
+def _value(row: dict[str, Any], key: str) -> Any:
+    """A row's entry; ``floor_<measure>``: the population-mean estimator's MAE on the same spines."""
+    if key.startswith("floor_"):
+        measure = "kyphosis_t4_t12" if key == "floor_kyphosis" else "lordosis_l1_l5"
+        return row["floor_mae_deg"].get(measure)
+    return row[key]
 
 
 def _cell(value: Any) -> Any:
@@ -346,7 +470,7 @@ def _cell(value: Any) -> Any:
 def table(rows: list[dict[str, Any]]) -> str:
     """The summary as an aligned plain-text table (``-``: not available), then the cases' titles
     and the errors of refused cases."""
-    body = format_table([h for _, h in TABLE_COLUMNS], [[_cell(r[k]) for k, _ in TABLE_COLUMNS] for r in rows])
+    body = format_table([h for _, h in TABLE_COLUMNS], [[_cell(_value(r, k)) for k, _ in TABLE_COLUMNS] for r in rows])
     notes = [f"  ({c.key}) {c.title}" for c in CASES.values() if any(r["case"] == c.key for r in rows)]
     refused = [f"  {r['dataset']} ({r['case']}): {e}" for r in rows for e in r["errors"]]
     return "\n".join([body, "cases:", *notes, *(["refused or failed:", *refused] if refused else [])])
@@ -355,13 +479,13 @@ def table(rows: list[dict[str, Any]]) -> str:
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table for docs/accuracy.md."""
     head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "lean RMS (°)",
-            "kyphosis MAE (°)", "lordosis MAE (°)",
+            "kyphosis MAE (°)", "population mean's", "lordosis MAE (°)", "population mean's",
             "major Cobb MAE (°)", "coverage positions", "kyphosis", "lordosis", "Cobb", "axial rotation"]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |"]
     for r in rows:
         cells = [r["dataset"], f"({r['case']}) {r['title']}", f"{r['reconstructed']}/{r['spines']}"]
         for key in [k for k, _ in TABLE_COLUMNS[3:]]:
-            v = r[key]
+            v = _value(r, key)
             if v is None:
                 cells.append("–")
             elif key.startswith("coverage"):
@@ -413,6 +537,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default="".join(CASES), help="case letters to run, e.g. ace (default all)")
     parser.add_argument("--noise-mm", type=float, default=1.0, help="landmark noise SD, detector mm (default 1)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seeds", type=int, default=None, metavar="N",
+        help="convergence sweep: run every case (and the sweep's extra forms, SWEEP_EXTRA_CASES) over N noise "
+        "seeds from --seed on, report each failure; exit code 1 if any",
+    )
     parser.add_argument("--profile", default="default")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
@@ -447,6 +576,8 @@ def main(argv: list[str] | None = None) -> int:
     datasets = {f"verse-{args.split}": verse}
     if args.synthetic > 0 and not args.calibrate_uncertainty:
         datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)
+    if args.seeds is not None:
+        return _sweep_main(args, command, datasets, cases)
     rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)
     elapsed = time.perf_counter() - start
     report: dict[str, Any] = {
@@ -476,6 +607,21 @@ def main(argv: list[str] | None = None) -> int:
                   f"{calibrated['prior_weight']:.4g} (written to {calibrated['calibration_file']})")
         print(f"wrote {args.out}/{stem}.json and .png ({elapsed:.1f} s)")
     return 0
+
+
+def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list[Truth]], cases: list[Case]) -> int:
+    """``--seeds N``: the convergence sweep, its JSON (``clinic-sweep-<split>.json``) and table."""
+    start = time.perf_counter()
+    extra = [sc for sc in SWEEP_EXTRA_CASES if sc.case.key[0] in args.cases]
+    sweep = convergence_sweep(
+        datasets, [SweepCase(c) for c in cases] + extra, range(args.seed, args.seed + args.seeds), args.noise_mm,
+        args.profile,
+    )
+    report = {"command": command, "noise_mm": args.noise_mm, "profile": args.profile,
+              "seconds": round(time.perf_counter() - start, 1), **sweep}  # fmt: skip
+    write_json(args.out / f"clinic-sweep-{args.split}.json", report)
+    print(json.dumps(report, indent=2) if args.json else sweep_table(sweep))
+    return 1 if sweep["failures"] else 0
 
 
 if __name__ == "__main__":

@@ -14,7 +14,8 @@ full lateral, weak perspective, nothing given; (b) the same with the lateral fro
 perspective films (pinhole: magnification SID/d with d the source distance of each point) with
 ``acquisition`` giving SID, SOD and the central ray; (d) the same films without ``acquisition``;
 (e) the PA film of (a) only; (f) the paper's case: T1 and L5 given from the truth, both views' weak
-perspective given, films not turned.
+perspective given, films not turned; (g) the films of (c) with SID and SOD but no central ray (a DX
+header), the ray farther from the spine (``RAY_OFFSET_SD_MM``).
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ rotated"; a modelling choice)."""
 CENTRAL_RAY_SPREAD_MM = 20.0
 """SD of the central ray's in-plane distance from the spine's centroid, per axis, mm ("near the
 spine's middle"; a modelling choice)."""
+RAY_OFFSET_SD_MM = 40.0
+"""Case (g): SD per axis of the central ray's extra distance from the spine, mm, so that it lies up to
+about 80 mm (2 SD) from the spine (the brief of the DX-header case)."""
 FILM_OFFSET_MM = ((150.0, 250.0), (350.0, 550.0))
 """Range of the image (column, row) of the central ray, detector mm: where the spine's middle
 lands on a 35 × 90 cm film (drawn uniformly; any offset is equivalent for the engine)."""
@@ -71,6 +75,11 @@ class Case:
     """T1 and L5 poses are given from the truth (the paper's setting)."""
     calibrated: bool = False
     """Each view's weak perspective ``projection`` is given and the lateral film is not turned."""
+    central_ray: bool = True
+    """With ``acquisition``: whether it gives the central ray (a DX header usually gives SID and SOD only)."""
+    ray_offset_sd_mm: float = 0.0
+    """SD per image axis of an extra offset of the central ray from the spine, mm (patient plane),
+    drawn per spine apart from the series' own draws (``ray_offset``)."""
 
 
 CASES: dict[str, Case] = {
@@ -82,6 +91,8 @@ CASES: dict[str, Case] = {
         Case("d", "perspective PA + lateral, geometry unknown", perspective=True),
         Case("e", "PA only, uncalibrated", lateral_from=None),
         Case("f", "paper: T1/L5 given, calibrated PA + lateral", boundary=True, calibrated=True),
+        Case("g", "perspective PA + lateral, SID/SOD without central ray, ray ~40 mm off", perspective=True,
+             acquisition=True, central_ray=False, ray_offset_sd_mm=RAY_OFFSET_SD_MM),
     )
 }
 
@@ -190,7 +201,20 @@ def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -
     return field_name in view.model_fields
 
 
+def ray_offset(series: Series, film: Film, case: Case) -> Film:
+    """``film`` with its central ray moved by a drawn offset of SD ``case.ray_offset_sd_mm`` per image
+    axis (seeded by the spine and the film's beam, apart from ``simulate_series``'s draws)."""
+    if case.ray_offset_sd_mm <= 0.0:
+        return film
+    rng = np.random.default_rng([_seed_of(series.truth.spine_id), int(abs(film.beam[0])), 40])
+    e_c, e_r = image_axes(film.orientation)
+    shift = rng.normal(0.0, case.ray_offset_sd_mm, 2)
+    moved = film.principal_point + shift[0] * e_c + shift[1] * e_r
+    return Film(film.orientation, film.beam, film.sod_mm, moved, film.central_ray, film.turn_deg, film.sid_mm)
+
+
 def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[int], case: Case) -> dict[str, Any]:
+    film = ray_offset(series, film, case)
     untilted = Film(film.orientation, film.beam, film.sod_mm, film.principal_point, film.central_ray, 0.0)
     used = untilted if case.calibrated else film
     points = used.image(series.truth.positions[levels], case.perspective) + noise[levels]
@@ -210,8 +234,9 @@ def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[in
         view["acquisition"] = {
             "distance_source_to_detector_mm": film.sid_mm,
             "distance_source_to_patient_mm": film.sod_mm,
-            "central_ray": [float(film.central_ray[0]), float(film.central_ray[1])],
         }
+        if case.central_ray:
+            view["acquisition"]["central_ray"] = [float(film.central_ray[0]), float(film.central_ray[1])]
     return view
 
 

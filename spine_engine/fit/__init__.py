@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from .initial import initial_configuration
 from .problem import RegistrationProblem, State
-from .solver import solve
+from .solver import MAX_ITERATIONS, solve
 from .types import (
     Camera,
     FitOutput,
@@ -48,7 +48,7 @@ def fit(
     bottom: Pose | tuple[ArrayLike, ArrayLike],
     init_positions: ArrayLike,
     init_rotations: ArrayLike,
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> FitOutput:
     """Register the rod to the landmarks of ``views`` with T1 = ``top`` and L5 = ``bottom`` fixed exactly.
 

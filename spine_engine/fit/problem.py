@@ -277,8 +277,8 @@ class RegistrationProblem:
     # ------------------------------------------------------------------ rows
 
     def _camera_priors(self) -> list[tuple[int, int, float, float]]:
-        """(view number, parameter, mean, SD) of each Gaussian prior on an estimated camera parameter;
-        parameter −1 is the perspective depth row b·(r_mid − o)."""
+        """(view number, parameter, mean, SD) of each Gaussian prior on an estimated camera parameter
+        (s, ψ, the central ray's foot c); parameter −1 is the perspective depth row b·(r_mid − o)."""
         rows: list[tuple[int, int, float, float]] = []
         for k, cam in enumerate(self.cameras):
             if cam.kind == "weak" and cam.free[0] and cam.scale_prior is not None:
@@ -287,6 +287,9 @@ class RegistrationProblem:
                 rows.append((k, len(cam.values) - 1, 0.0, cam.rotation_prior_sd_rad))
             if cam.kind == "perspective" and cam.free[2:5].any():
                 rows.append((k, -1, cam.depth_prior_mean_mm, cam.depth_prior_sd_mm))
+            if cam.kind == "perspective" and cam.central_ray_prior is not None:
+                mean, sd = cam.central_ray_prior
+                rows += [(k, p, float(mean[p]), sd) for p in (0, 1) if cam.free[p]]
         return rows
 
     def point_rows(self, state: State, second_order: bool = False) -> PointRows:
@@ -326,12 +329,12 @@ class RegistrationProblem:
         for prior in self.pose_priors:
             j = prior.vertebra
             a = half_k / prior.position_sd_mm
-            b = half_k / prior.rotation_sd_rad
+            b = half_k / np.broadcast_to(np.asarray(prior.rotation_sd_rad, dtype=float), (3,))
             phi = log_so3(prior.pose.rotation.T @ R[j])
             rho_all[start : start + 3] = a * (r[j] - prior.pose.position)
             rho_all[start + 3 : start + 6] = b * phi
             Jv_all[start : start + 3, :3] = a * np.eye(3)
-            Jv_all[start + 3 : start + 6, 3:] = b * jr_inverse(phi[None])[0]
+            Jv_all[start + 3 : start + 6, 3:] = b[:, None] * jr_inverse(phi[None])[0]
             start += 6
         # camera priors
         for k, p, mean, sd in self._camera_prior_rows:

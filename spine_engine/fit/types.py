@@ -45,19 +45,28 @@ def nearest_rotation(R: ArrayLike) -> FloatArray:
 
 
 class PosePrior(NamedTuple):
-    """A soft pose: vertebra number ``vertebra`` is held near ``pose`` with SDs (Gaussian, isotropic per part).
+    """A soft pose: vertebra number ``vertebra`` is held near ``pose`` with SDs (Gaussian).
 
-    Rows ρ = √(κ/2)·(r − r̄)/σ_r and √(κ/2)·vee(log(R̄ᵀR))/σ_θ (κ: ``Solution.energy_unit``)."""
+    Rows ρ = √(κ/2)·(r − r̄)/σ_r and √(κ/2)·vee(log(R̄ᵀR))/σ_θ (κ: ``Solution.energy_unit``), σ_θ one
+    SD for every axis or three, about the mean pose's own directors d1, d2, d3 (rad)."""
 
     vertebra: int
     pose: Pose
     position_sd_mm: float
-    rotation_sd_rad: float
+    rotation_sd_rad: float | FloatArray
 
 
 FILM_TURN_PRIOR_SD_DEG = 2.0
 """SD of the Gaussian prior on a film's in-plane turn ψ when it is estimated, degrees (issue #10: "a
 small in-plane rotation of each film"; not fitted to the simulated films, docs/engine.md)."""
+CENTRAL_RAY_PRIOR_SD_MM = 50.0
+"""SD of the Gaussian prior on where the central ray meets the detector when a perspective film's
+header gives SID and SOD but neither the central ray nor the image size, per image axis, detector
+mm, around the landmarks' centre. In a standing full-spine series the patient's spine is centred on
+the image receptor and the central ray on the receptor's centre (Bontrager & Lampignano, Textbook
+of Radiographic Positioning and Related Anatomy, scoliosis series: "centre IR to CR", the
+midsagittal plane to the CR); 50 mm per axis is our allowance for off-centring (a modelling
+choice, not a measured spread)."""
 DEPTH_PRIOR_SD_MM = 30.0
 """SD of the Gaussian that holds the spine's mid-plane at SOD on a perspective film whose
 central-ray point o is estimated, mm (docs/engine.md)."""
@@ -97,6 +106,9 @@ class Camera:
     spine's mid-plane")."""
     beam: FloatArray | None = None
     """Perspective: unit beam direction b (source → detector), LPS; None: e_c × e_r."""
+    central_ray_prior: tuple[FloatArray, float] | None = None
+    """Perspective with c free: (mean (2,), SD) of a Gaussian prior on the central ray's foot c,
+    detector mm (``CENTRAL_RAY_PRIOR_SD_MM``)."""
 
     def beam_direction(self, e_c: ArrayLike, e_r: ArrayLike) -> FloatArray:
         """b: ``beam`` or e_c × e_r."""

@@ -29,6 +29,8 @@ EXPECTED = {
     "unknown level": (422, "validation-error"),
     "duplicate levels": (422, "validation-error"),
     "landmarks out of order": (422, "validation-error"),
+    "levels implausibly far apart": (422, "validation-error"),
+    "crossed corners": (422, "validation-error"),
     "too many landmarks": (422, "validation-error"),
     "non-orthonormal directors": (422, "validation-error"),
     "left-handed directors": (422, "validation-error"),
@@ -71,6 +73,11 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["unknown level"] == "pa.landmarks[3].level"
     assert validation["non-orthonormal directors"] == "boundary.T1.directors"
     assert validation["huge number (finite)"] == "pa.landmarks[0].point[0]"
+    assert validation["levels implausibly far apart"] == "pa.landmarks[1]"
+    assert validation["crossed corners"] == "pa.landmarks[4].corners"
+    details = {r["kind"]: r["detail"] for r in rows}
+    assert "T1 and T2 are 336 mm apart" in details["levels implausibly far apart"]
+    assert "corners of T5" in details["crossed corners"]
 
 
 def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:

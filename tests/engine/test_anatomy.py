@@ -13,6 +13,7 @@ from spine_engine.anatomy import (
     Profile,
     list_profiles,
     load_profile,
+    population_prior,
     profile_from_dict,
     rest_model,
     rest_segment_lengths,
@@ -126,9 +127,13 @@ def test_default_profile_is_calibrated_with_provenance() -> None:
     rest = rest_model(default, length_scale=1.1)
     assert sum(rest_model(default).ds) * 1.1 == pytest.approx(sum(rest.ds))
     assert abs(rest.positions[-1, 1] - rest.positions[0, 1]) < 1e-6  # balanced: L5 below T1
-    np.testing.assert_allclose(rest.beta[:, 2] / rest.beta[:, 0],
-                               default.stretch_factor * default.youngs_modulus_mpa
-                               / (default.shear_coefficient * default.shear_modulus_mpa))
+    # the stretch stiffness is the mechanical Y·A; bending, twist and shear come from the population prior
+    literature_sections = rest_model(dataclasses.replace(default, population_prior=None), length_scale=1.1)
+    np.testing.assert_allclose(rest.beta[:, 2], literature_sections.beta[:, 2])
+    prior = population_prior(default)
+    assert prior is not None
+    expected = 2 * prior.temperature_nmm * rest.ds / np.radians(prior.sagittal_sd_deg) ** 2
+    np.testing.assert_allclose(rest.alpha[:, 0], expected)
 
 
 def test_profile_rest_shape_is_checked() -> None:

@@ -96,7 +96,7 @@ def _joint_problem() -> tuple[RegistrationProblem, np.ndarray, np.ndarray]:
     views[0] = dataclasses.replace(pa, offset_indices=pi, offset_vectors=offsets, offset_columns=columns)
     turned = truth_R[-1] @ exp_so3(np.array([0.05, 0.0, 0.02]))
     priors = [PosePrior(0, Pose(truth_r[0] + 2.0, truth_R[0]), 3.0, np.radians(4.0)),
-              PosePrior(N - 1, Pose(truth_r[-1], turned), 2.0, 0.1)]  # fmt: skip
+              PosePrior(N - 1, Pose(truth_r[-1], turned), 2.0, np.array([0.1, 0.5, 0.04]))]  # fmt: skip
     r = truth_r + RNG.normal(0, 2.0, truth_r.shape)
     R = truth_R @ exp_so3(RNG.normal(0, 0.05, (N, 3)))
     return RegistrationProblem(params, views, None, None, pose_priors=priors, energy_unit=3.0), r, R

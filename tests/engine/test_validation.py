@@ -1,11 +1,16 @@
 """Every kind of bad input gets a typed InvalidInput that names the field and the reason."""
 
 import json
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from spine_engine import validation
 from spine_engine.errors import InvalidInput
+from spine_engine.experiments.truth import read_verse
+from spine_engine.levels import LEVELS
 from spine_engine.validation import MIN_LEVELS_LATERAL, MIN_LEVELS_PA, validate_payload
 
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
@@ -211,3 +216,118 @@ def test_no_boundary_pa_needs_two_levels_even_with_a_projection() -> None:
     p["pa"]["landmarks"] = p["pa"]["landmarks"][:1]
     [(path, kind, _)] = errors_of(p)
     assert (path, kind) == ("pa.landmarks", "too_few_landmarks")
+
+
+# ---------------------------------------------------------------- implausible inputs
+
+
+VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
+
+
+def _view(points: dict[str, list[float]], **fields: Any) -> dict[str, Any]:
+    return {"landmarks": [{"level": lv, "point": p} for lv, p in points.items()], **fields}
+
+
+def test_adjacent_levels_336_mm_apart_are_refused_naming_both() -> None:
+    """The page's job: T1 and T2 336 mm apart (the click meant as L5 labelled T2), spacing given."""
+    pa = _view({"T1": [500.0, 250.0], "T2": [500.0, 250.0 + 336.0 / 0.2]}, units="px", pixel_spacing=[0.2, 0.2])
+    [(path, kind, msg)] = errors_of({"pa": pa})
+    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance")
+    assert "T1 and T2" in msg and "336 mm" in msg
+    pa["landmarks"][1]["point"][1] = 250.0 + 25.0 / 0.2  # 25 mm: an adjacent pair's spacing
+    validate_payload({"pa": pa})
+
+
+def test_the_given_magnification_narrows_the_bound() -> None:
+    """T1–T2 60 mm apart on the film: possible when the scale is unverified (a nominal spacing),
+    not at a stated magnification of 1.2 (at most 1.1 · 1.2 · 1.25 · 1.289 · 20.3 + 3√2 = 47 mm)."""
+    pa = _view({"T1": [0.0, 0.0], "T2": [0.0, 60.0]})
+    validate_payload({"pa": pa})
+    pa["acquisition"] = {"magnification": 1.2}
+    [(path, kind, msg)] = errors_of({"pa": pa})
+    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance") and "at most 47 mm" in msg
+
+
+def test_two_labels_on_one_vertebra_are_refused_whatever_the_scale() -> None:
+    """A VerSe dev spine's PA landmarks at magnification 1.2, with L5 clicked on L4 (1 mm off): the
+    scale-free check names L4 and L5; the spine as it is passes."""
+    _, positions = read_verse(VERSE_DEV)[0]
+    points = {lv: [1.2 * float(r[0]), -1.2 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
+    validate_payload({"pa": _view(points)})
+    points["L5"] = [points["L4"][0] + 1.0, points["L4"][1] + 1.0]
+    [(path, kind, msg)] = errors_of({"pa": _view(points)})
+    assert (path, kind) == ("pa.landmarks[16]", "implausible_distance") and "L4 and L5" in msg
+
+
+def test_distance_bounds_come_from_verse_dev() -> None:
+    """MEAN_SEGMENT_MM and VERSE_DISTANCE_RATIO recomputed from tests/data/verse_dev.csv."""
+    spines = np.array([p for _, p in read_verse(VERSE_DEV)])
+    segments = np.linalg.norm(np.diff(spines, axis=1), axis=2).mean(axis=0)
+    np.testing.assert_allclose(validation.MEAN_SEGMENT_MM, segments, atol=0.05)
+    arc = np.concatenate(([0.0], np.cumsum(validation.MEAN_SEGMENT_MM)))
+    i, j = np.triu_indices(len(LEVELS), 1)
+    ratios = {}
+    for name, axes in (("3d", [0, 1, 2]), ("pa", [0, 2]), ("lateral", [1, 2])):
+        q = spines[..., axes]
+        ratios[name] = np.linalg.norm(q[:, i] - q[:, j], axis=2) / (arc[j] - arc[i])
+    assert validation.VERSE_DISTANCE_RATIO[0] == pytest.approx(min(r.min() for r in ratios.values()), abs=5e-4)
+    assert validation.VERSE_DISTANCE_RATIO[1] == pytest.approx(ratios["3d"].max(), abs=5e-4)
+
+
+@pytest.mark.parametrize("magnification", [0.9, 1.0, 1.4])
+def test_every_verse_dev_spine_passes_on_both_films(magnification: float) -> None:
+    """Each dev spine projected on a PA ((x, z)) and a lateral ((−y, z)) film, every level, at the
+    ends of MAGNIFICATION_RANGE: accepted, with the magnification unstated and stated."""
+    for _, positions in read_verse(VERSE_DEV):
+        pa = {lv: [magnification * r[0], -magnification * r[2]] for lv, r in zip(LEVELS, positions.tolist())}
+        lateral = {lv: [-magnification * r[1], -magnification * r[2]] for lv, r in zip(LEVELS, positions.tolist())}
+        validate_payload({"pa": _view(pa), "lateral": _view(lateral)})
+        acq = {"acquisition": {"magnification": magnification}}
+        validate_payload({"pa": _view(pa, **acq), "lateral": _view(lateral, **acq)})
+
+
+def _corners(column: float, row: float) -> list[list[float]]:
+    """A 30 × 18 body: top-left, top-right, bottom-left, bottom-right."""
+    return [[column - 15.0, row], [column + 15.0, row], [column - 15.0, row + 18.0], [column + 15.0, row + 18.0]]
+
+
+@pytest.mark.parametrize(
+    ("order", "words"),
+    [
+        ((0, 2, 1, 3), "wrong way round"),  # top-right and bottom-left swapped
+        ((1, 0, 2, 3), "cross each other"),  # top-left and top-right swapped: a bow tie
+        ((0, 1, 3, 2), "cross each other"),  # bottom corners swapped
+    ],
+)
+@pytest.mark.parametrize("view", ["pa", "lateral"])
+def test_swapped_corners_are_refused_naming_the_landmark(order: tuple[int, ...], words: str, view: str) -> None:
+    p = good()
+    corners = _corners(104.0, 250.0)
+    p["pa"]["landmarks"][1] = {"level": "T8", "corners": corners}
+    p["lateral"] = _view({"T1": [10.0, 50.0], "T8": [14.0, 250.0], "L5": [11.0, 500.0]})
+    validate_payload(p)
+    p[view]["landmarks"][1] = {"level": "T8", "corners": [corners[k] for k in order]}
+    [(path, kind, msg)] = errors_of(p)
+    assert (path, kind) == (f"{view}.landmarks[1].corners", "corners_not_convex")
+    assert words in msg and "T8" in msg
+
+
+def test_a_reflex_corner_is_refused() -> None:
+    p = good()
+    corners = _corners(104.0, 250.0)
+    corners[3] = [104.0, 252.0]  # bottom-right pushed inside the body, above the top edge's far end
+    p["pa"]["landmarks"][1] = {"level": "T8", "corners": corners}
+    [(path, kind, msg)] = errors_of(p)
+    assert (path, kind) == ("pa.landmarks[1].corners", "corners_not_convex") and "convex" in msg
+
+
+@pytest.mark.parametrize("orientation", [["A", "F"], ["P", "F"], ["A", "H"]])
+def test_lateral_levels_out_of_order_are_refused_in_any_upright_orientation(orientation: list[str]) -> None:
+    """The head-to-feet order holds on the lateral view too, with rows toward the feet or the head."""
+    p = good()
+    rows = [50.0, 250.0, 500.0] if orientation[1] == "F" else [500.0, 300.0, 50.0]
+    p["lateral"] = _view({"T1": [10.0, rows[0]], "T8": [14.0, rows[1]], "L5": [11.0, rows[2]]},
+                         patient_orientation=orientation)  # fmt: skip
+    validate_payload(p)
+    p["lateral"]["landmarks"][1]["point"][1], p["lateral"]["landmarks"][2]["point"][1] = rows[2], rows[1]
+    assert [(path, kind) for path, kind, _ in errors_of(p)] == [("lateral.landmarks[2]", "landmarks_out_of_order")]
