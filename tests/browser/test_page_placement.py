@@ -4,7 +4,8 @@ A full-size DX phantom (1400 × 3000 px at 0.15 mm, the size of a clinic's full-
 17 × 4 corners by mouse at the fitted zoom (26 %) and at 63 %, with each vertebra's top corners
 clicked 5 CSS px below the corners of the one above: every click places the next corner in its
 role (a click on or near a point never selects it). A crossed quadrilateral is drawn and named
-before sending and the send is refused; Ctrl+Z / Ctrl+Shift+Z undo and redo the clicks.
+before sending and the send is refused, and the service refuses the same payload (422 naming the
+corners); Ctrl+Z / Ctrl+Shift+Z undo and redo the clicks.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 from page_fixtures import LEVELS, make_dicom, open_page
 
@@ -158,6 +160,13 @@ def test_crossed_quadrilateral_named_before_sending_and_undo_redo(
     page.click("#submit")
     assert crossed in (page.text_content("#problem") or "")
     assert not watch.posted_jobs()
+    # the service refuses the same payload, naming the corners (spine_engine.validation's corner check)
+    payload = json.loads(page.text_content("#payload-preview") or "{}")
+    answer = httpx.post(f"{live_url}/v1/jobs", json=payload, headers={"Authorization": f"Bearer {api_key}"}, timeout=30)
+    assert answer.status_code == 422, answer.text
+    refused = {e["path"]: e for e in answer.json()["errors"]}
+    assert refused["pa.landmarks[2].corners"]["type"] == "corners_not_convex", refused
+    assert "T3" in refused["pa.landmarks[2].corners"]["msg"]
 
     # undo the four clicks of T3 (Ctrl+Z on the film), redo two, undo them again (the button)
     page.focus("#pa-canvas")
