@@ -9,6 +9,8 @@ export interface MarkProblem {
   level: Level;
   /** Plain words, e.g. "its four corners make a crossed quadrilateral (…)". */
   text: string;
+  /** A few words drawn beside the body on the film, e.g. "crossed: top-left and top-right swapped?". */
+  short: string;
 }
 
 /** Corner order of the contract: top-left, top-right, bottom-left, bottom-right (AASCE 2019). */
@@ -45,21 +47,24 @@ function convexInOrder(c: Vec2[], down: number): boolean {
 }
 
 /** What is wrong with one set of four corners (empty when it is a convex quadrilateral in order). */
-export function cornerProblems(c: Vec2[], down = 1): string[] {
+export function cornerProblems(c: Vec2[], down = 1): [string, string][] {
   if (c.length !== 4) return [];
-  const out: string[] = [];
+  const out: [string, string][] = [];
   const below = (a: Vec2, b: Vec2): boolean => (a[1] - b[1]) * down > 0;
-  if (below(c[TL], c[BL]) && below(c[TR], c[BR])) out.push("its top corners are below its bottom corners");
-  else if (c[TL][0] > c[TR][0] && c[BL][0] > c[BR][0]) out.push("its left corners are right of its right corners");
+  if (below(c[TL], c[BL]) && below(c[TR], c[BR])) out.push(["its top corners are below its bottom corners", "top below bottom"]);
+  else if (c[TL][0] > c[TR][0] && c[BL][0] > c[BR][0]) out.push(["its left corners are right of its right corners", "left and right swapped"]);
   else if (segmentsCross(c[TL], c[TR], c[BR], c[BL]) || segmentsCross(c[TR], c[BR], c[BL], c[TL])) {
     const swap = SWAPS.find(([i, j]) => {
       const d = [...c];
       [d[i], d[j]] = [d[j], d[i]];
       return convexInOrder(d, down);
     });
-    out.push(`its four corners make a crossed quadrilateral${swap ? ` (the ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} corners look swapped)` : ""}`);
+    out.push([
+      `its four corners make a crossed quadrilateral${swap ? ` (the ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} corners look swapped)` : ""}`,
+      `crossed${swap ? `: ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} swapped?` : ""}`,
+    ]);
   } else if (!convexInOrder(c, down) && !convexInOrder([c[TR], c[TL], c[BR], c[BL]], down)) {
-    out.push("its four corners make a quadrilateral that is not convex");
+    out.push(["its four corners make a quadrilateral that is not convex", "not convex"]);
   }
   return out;
 }
@@ -110,7 +115,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[] 
     const m = marks.get(level);
     if (!m) continue;
     const corners = m.corners?.length === 4 ? m.corners : null;
-    if (corners) for (const text of cornerProblems(corners, down)) out.push({ level, text });
+    if (corners) for (const [text, short] of cornerProblems(corners, down)) out.push({ level, text, short });
     const top = m.point ?? (corners ? ([(corners[TL][0] + corners[TR][0]) / 2, (corners[TL][1] + corners[TR][1]) / 2] as Vec2) : null);
     if (top) placed.push({ level, top, corners });
   }
@@ -119,7 +124,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[] 
     const upper = placed[i - 1];
     const lower = placed[i];
     if ((lower.top[1] - upper.top[1]) * down <= 0) {
-      out.push({ level: lower.level, text: `it is placed above ${upper.level} (levels go down the spine in order: was a level skipped or repeated?)` });
+      out.push({ level: lower.level, text: `it is placed above ${upper.level} (levels go down the spine in order: was a level skipped or repeated?)`, short: `above ${upper.level}` });
       continue;
     }
     const adjacent = LEVELS.indexOf(lower.level) - LEVELS.indexOf(upper.level) === 1;
@@ -127,7 +132,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[] 
     const poly = (c: Vec2[]): Vec2[] => OUTLINE.map((k) => c[k]);
     const depth = overlapDepth(poly(upper.corners), poly(lower.corners));
     if (depth > OVERLAP_TOLERANCE * Math.min(height(upper.corners), height(lower.corners))) {
-      out.push({ level: lower.level, text: `its top endplate overlaps ${upper.level}'s bottom endplate` });
+      out.push({ level: lower.level, text: `its top endplate overlaps ${upper.level}'s bottom endplate`, short: `overlaps ${upper.level}` });
     }
   }
   return out;

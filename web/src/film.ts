@@ -604,7 +604,7 @@ export class FilmEditor {
       ctx.stroke();
     }
     const problems = new Map<Level, string[]>();
-    for (const p of this.problems()) problems.set(p.level, [...(problems.get(p.level) ?? []), p.text]);
+    for (const p of this.problems()) problems.set(p.level, [...(problems.get(p.level) ?? []), p.short]);
     this.canvas.dataset.problems = [...problems.keys()].join(" ");
     for (const [level, m] of this.marks) {
       const current = level === this.level;

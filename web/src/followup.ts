@@ -54,6 +54,16 @@ export const MEASURE_NAMES: Record<MeasureName, string> = {
 };
 const ORDER = Object.keys(MEASURE_NAMES) as MeasureName[];
 
+/** The flagging rule, as the page words it (the API's `rule` names its own fields). */
+export const RULE_WORDS = "A change between consecutive visits is flagged when it exceeds both 5° (the convention for progression) " +
+  "and 1.96 × √(sd₁² + sd₂²) (the 95 % interval of the difference of two measures with their SDs); “Decided by” names the larger of the two thresholds.";
+
+/** Degrees with one decimal and a sign, never "-0.0". */
+const signed = (x: number): string => {
+  const r = Math.round(x * 10) / 10;
+  return `${r > 0 ? "+" : ""}${(r === 0 ? 0 : r).toFixed(1)}°`;
+};
+
 const el = <K extends keyof HTMLElementTagNameMap>(tag: K, text?: string, cls?: string): HTMLElementTagNameMap[K] => {
   const node = document.createElement(tag);
   if (text !== undefined) node.textContent = text;
@@ -111,7 +121,7 @@ export function changesTable(data: PatientMeasures, caption: string): HTMLTableE
     name.scope = "row";
     tr.append(name);
     tr.insertCell().textContent = `${c.from_date} → ${c.to_date}`;
-    tr.insertCell().textContent = `${c.change_deg > 0 ? "+" : ""}${c.change_deg.toFixed(1)}°`;
+    tr.insertCell().textContent = signed(c.change_deg);
     tr.insertCell().textContent = `${c.threshold_deg.toFixed(1)}°`;
     tr.insertCell().textContent = c.flagged ? "⚠ exceeds both rules" : "within";
     tr.insertCell().textContent = c.decided_by === "combined_sd"
@@ -180,10 +190,10 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
 export function fillFollowUp(container: HTMLElement, data: PatientMeasures): void {
   const flagged = data.changes.filter((c) => c.flagged);
   const summary = el("p", data.visits.length
-    ? `${data.visits.length} succeeded job${data.visits.length > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${c.change_deg > 0 ? "+" : ""}${c.change_deg.toFixed(1)}° (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
+    ? `${data.visits.length} succeeded job${data.visits.length > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
     : `No succeeded job of patient ${data.patient_id} with this API key.`, "summary");
   summary.id = "followup-summary";
-  const rule = el("p", `${data.rule} A 95 % interval is ±1.96 SD.`, "help");
+  const rule = el("p", RULE_WORDS, "help");
   const scroll = (table: HTMLTableElement, id: string): HTMLElement => {
     const div = el("div", undefined, "table-scroll");
     div.tabIndex = 0;

@@ -7,7 +7,7 @@ import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
-import { changesTable, fillFollowUp, visitsTable } from "./followup";
+import { changesTable, fillFollowUp, RULE_WORDS, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
@@ -595,7 +595,7 @@ $<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
     const data = await api.followUp(patientId);
     const head = document.createElement("h3");
     head.textContent = `Follow-up of patient ${patientId}`;
-    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), changesTable(data, `Changes between consecutive visits. ${data.rule}`));
+    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
     box.hidden = false;
   } catch (error) {
     if (error instanceof ApiError) showProblem(problemBox, error.problem);
