@@ -197,5 +197,17 @@ def test_crossed_quadrilateral_named_before_sending_and_undo_redo(
     back = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"][1]["corners"][3]
     assert back == pytest.approx(list(corners[1][3]), abs=1 / view(page)[0])
     assert "3 vertebrae on the PA film (T1–T3): 3 with four corners" in (page.text_content("#pa-status") or "")
+    # by keyboard: comma selects the previous point, Alt+arrow moves it, Ctrl+Z puts it back
+    page.focus("#pa-canvas")
+    page.keyboard.press(".")  # nothing selected after the undo: the first point
+    assert page.get_attribute("#pa-canvas", "data-selected") == "T1 top-left"
+    page.keyboard.press(",")
+    assert page.get_attribute("#pa-canvas", "data-selected") == "T3 bottom-right"
+    page.keyboard.press("Alt+ArrowRight")
+    nudged = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"][2]["corners"][3]
+    assert nudged[0] > corners[2][3][0] + 0.5
+    page.keyboard.press("Control+z")
+    back = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"][2]["corners"][3]
+    assert back == pytest.approx(list(corners[2][3]), abs=1 / view(page)[0])
     assert not watch.errors
     context.close()

@@ -542,6 +542,8 @@ export class FilmEditor {
     } else if (e.key === "0") {
       this.fit();
       this.onChange("view");
+    } else if (e.key === "," || e.key === ".") {
+      this.cycleSelection(e.key === "." ? 1 : -1);
     } else if (e.key === "Escape") {
       this.selected = null;
       this.draw();
@@ -549,6 +551,18 @@ export class FilmEditor {
       return;
     }
     e.preventDefault();
+  }
+
+  /** Select the next (+1) or previous (−1) point, in level order, and bring it into view. */
+  private cycleSelection(step: number): void {
+    const order: Record<Mode, number> = { point: 0, corners: 1, pedicles: 2 };
+    const all = this.handles().sort((a, b) => LEVELS.indexOf(a.level) - LEVELS.indexOf(b.level) || order[a.kind] - order[b.kind] || a.index - b.index);
+    if (!all.length) return;
+    const at = all.findIndex((h) => this.isSelected(h.level, h.kind, h.index));
+    const next = all[at < 0 ? (step > 0 ? 0 : all.length - 1) : (at + step + all.length) % all.length];
+    this.selected = { level: next.level, kind: next.kind, index: next.index };
+    this.keepInView(next.p);
+    this.draw();
   }
 
   private keepInView(p: Vec2): void {
@@ -575,6 +589,8 @@ export class FilmEditor {
     this.canvas.dataset.view = `${this.scale.toFixed(4)} ${this.origin[0].toFixed(1)} ${this.origin[1].toFixed(1)}`;
     this.canvas.dataset.cursor = this.cursor ? `${this.cursor[0]} ${this.cursor[1]}` : "";
     this.canvas.dataset.next = this.notice ?? this.nextRole();
+    const s = this.selected;
+    this.canvas.dataset.selected = s ? `${s.level} ${s.kind === "corners" ? CORNER_NAMES[s.index] : s.kind === "pedicles" ? PEDICLE_NAMES[s.index] : "midpoint"}` : "";
     const k = this.scale * ratio;
     ctx.setTransform(k, 0, 0, k, -this.origin[0] * k, -this.origin[1] * k);
     if (this.raster) {

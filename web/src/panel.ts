@@ -96,7 +96,7 @@ export class FilmPanel {
       "Mouse: a click always places the next point (its role is shown at the cursor), even on another point; " +
       "drag a point to move it, drag elsewhere to pan, Shift+click selects a point, wheel zooms. " +
       "Keyboard: arrow keys move the crosshair (Shift: ten times faster), Enter places, Delete removes the selected mark, " +
-      "Alt+arrows move the selected point, Ctrl+Z undoes, Ctrl+Shift+Z redoes, [ and ] change level, + and − zoom, 0 fits the film.");
+      "comma and period select the previous and next point, Alt+arrows move the selected point, Ctrl+Z undoes, Ctrl+Shift+Z redoes, [ and ] change level, + and − zoom, 0 fits the film.");
     const buttons = el("div", { class: "button-row" });
     const undo = (this.undoButton = el("button", { type: "button", id: id("undo"), "aria-keyshortcuts": "Control+Z" }, "Undo"));
     const redo = (this.redoButton = el("button", { type: "button", id: id("redo"), "aria-keyshortcuts": "Control+Shift+Z" }, "Redo"));
