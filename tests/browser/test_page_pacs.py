@@ -121,6 +121,7 @@ def test_open_a_film_from_the_pacs_landmark_it_and_send(
         json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"]
         == job["payload"]["pa"]["landmarks"]
     )
+    page.wait_for_selector("#pa-caption:has-text('over the film')")  # the result's PA projection over it too
 
     # -- the image gone from the PACS: the frame says why it is blank
     found = httpx.post(

@@ -525,11 +525,7 @@ function showResult(job: Job): void {
     viewer.show(result);
     $("view3d").dataset.shown = job.id;
   });
-  const payload = (job.payload ?? buildPayload()) as JobPayload;
-  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
-  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, under);
-  $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
-  $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
+  drawViews(job);
   fillLegend($("legend"), result);
   fillMeasures($<HTMLTableElement>("measures"), job, result);
   fillLenke($("lenke"), result);
@@ -548,6 +544,16 @@ function showResult(job: Job): void {
   $("download-figure-dcm").hidden = !caps?.figureDcm;
   $("download-fhir").hidden = !caps?.fhirExport;
   void loadFigure(job.id);
+}
+
+/** The result's PA and lateral projections, over the PA film when the page has it. */
+function drawViews(job: Job): void {
+  if (!job.result) return;
+  const payload = (job.payload ?? buildPayload()) as JobPayload;
+  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
+  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), job.result, payload, under);
+  $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
+  $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
 }
 
 function fillReportHead(job: Job): void {
@@ -796,6 +802,11 @@ async function reopenFilms(job: Job): Promise<void> {
       const file = await pacs.fetchFilm(uid, sop);
       if (currentJob?.id !== job.id) return; // another job was opened meanwhile
       await panel.open(file);
+      if (view === "pa" && currentJob?.id === job.id) {
+        if (backdrop) URL.revokeObjectURL(backdrop.url);
+        backdrop = await panel.backdrop(); // the result's PA projection over the film again
+        if (currentJob.result) drawViews(currentJob);
+      }
     } catch (error) {
       if (currentJob?.id !== job.id) return;
       if (error instanceof NoPacs) panel.explainBlank(noPacs);
