@@ -1,5 +1,11 @@
 """CSV views of a job's result: one row per vertebra, or one row per measure, and the summary of
-``spine submit-dir``. Column names carry their units (README "Python client and CLI")."""
+``spine submit-dir``. Column names carry their units (README "Python client and CLI").
+
+Every number with its trust, as in the page's CSVs (web/src/csv.ts, web/src/results.ts): the
+standard deviations the result gives (``position_sd_*_mm``, ``axial_rotation_sd_deg``; a measure's
+``sd`` in its unit) and a ``model_estimate`` mark on what comes from the model's prior rather than the
+landmarks (``fit.unreliable``): per vertebra, the columns so estimated joined by ``;`` (the same on
+every row); per measure, ``model estimate`` or empty."""
 
 from __future__ import annotations
 
@@ -9,11 +15,23 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 VERTEBRA_COLUMNS = [
-    "level", "x_mm", "y_mm", "z_mm",
+    "level", "x_mm", "y_mm", "z_mm", "position_sd_x_mm", "position_sd_y_mm", "position_sd_z_mm",
     "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
-    "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "frontal_tilt_deg",
+    "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "axial_rotation_sd_deg",
+    "frontal_tilt_deg", "model_estimate",
 ]  # fmt: skip
-MEASURE_COLUMNS = ["measure", "value", "unit", "upper", "lower", "apex", "convexity", "major"]
+MEASURE_COLUMNS = ["measure", "value", "sd", "unit", "upper", "lower", "apex", "convexity", "major", "model_estimate"]
+MODEL_MARK = "model estimate"
+"""The page's mark of a measure from the model's prior (web/src/results.ts ``MODEL_MARK``)."""
+MODEL_COLUMNS: dict[str, tuple[str, ...]] = {
+    "depth": ("y_mm",),
+    "axial_rotation": ("axial_rotation_deg",),
+    "twist": ("u3_rad_per_mm", "twist_deg"),
+    "kyphosis": ("pa_bending_deg",),
+}
+"""The vertebra columns that come from the model's prior when ``fit.unreliable`` names the quantity
+(the page's ``MODEL_COLUMNS``; ``pa_bending_deg`` is the sagittal bending, the page's
+``sagittal_bending_deg``)."""
 SUMMARY_COLUMNS = [
     "file", "job_id", "status", "major_cobb_deg", "major_upper", "major_lower", "major_apex", "major_convexity",
     "thoracic_kyphosis_t4_t12_deg", "lumbar_lordosis_l1_l5_deg", "mean_registration_error_mm", "problem_type",
@@ -38,43 +56,68 @@ def _cell(value: Any) -> Any:
     return value
 
 
+def _unreliable(result: dict[str, Any]) -> list[str]:
+    """``fit.unreliable``: the quantities that come from the model's prior, in the result's order."""
+    return list((result.get("fit") or {}).get("unreliable") or [])
+
+
 def vertebrae_csv(result: dict[str, Any]) -> str:
-    """One row per vertebra, T1 to L5: position (LPS, mm), strains u (rad/mm) and v, and angles."""
+    """One row per vertebra, T1 to L5: position (LPS, mm) and its SD, strains u (rad/mm) and v,
+    angles, the axial rotation's SD, and the columns that are model estimates."""
+    model = ";".join(c for q in _unreliable(result) for c in MODEL_COLUMNS.get(q, ()))
     rows = []
     for v in result.get("vertebrae") or []:
         u = v.get("u") or (None, None, None)
         s = v.get("v") or (None, None, None)
+        sd = v.get("position_sd_mm") or (None, None, None)
         x, y, z = v["position"]
         rows.append({
             "level": v["level"], "x_mm": x, "y_mm": y, "z_mm": z,
+            "position_sd_x_mm": sd[0], "position_sd_y_mm": sd[1], "position_sd_z_mm": sd[2],
             "u1_rad_per_mm": u[0], "u2_rad_per_mm": u[1], "u3_rad_per_mm": u[2], "v1": s[0], "v2": s[1], "v3": s[2],
-            "pa_bending_deg": v.get("pa_bending_deg"), "lateral_bending_deg": v.get("lateral_bending_deg"),
+            "pa_bending_deg": v.get("sagittal_bending_deg", v.get("pa_bending_deg")),
+            "lateral_bending_deg": v.get("frontal_bending_deg", v.get("lateral_bending_deg")),
             "twist_deg": v.get("twist_deg"), "axial_rotation_deg": v.get("axial_rotation_deg"),
-            "frontal_tilt_deg": v.get("frontal_tilt_deg"),
+            "axial_rotation_sd_deg": v.get("axial_rotation_sd_deg"), "frontal_tilt_deg": v.get("frontal_tilt_deg"),
+            "model_estimate": model,
         })  # fmt: skip
     return _csv(VERTEBRA_COLUMNS, rows)
 
 
 def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The measures' rows, each with its SD (when the result gives one) and its model-estimate mark
+    (the page's ``measureRows``: the apex's rotation when ``axial_rotation`` is unreliable, the plane
+    of maximum curvature and the Cobb angle in it when ``plane_of_max_curvature`` is, kyphosis and
+    lordosis by their names)."""
     measures = result.get("measures") or {}
+    unreliable = set(_unreliable(result))
+
+    def mark(quantity: str | None) -> str:
+        return MODEL_MARK if quantity in unreliable else ""
+
+    rotation_sd = {v.get("level"): v.get("axial_rotation_sd_deg") for v in result.get("vertebrae") or []}
     rows: list[dict[str, Any]] = []
     for c in measures.get("cobb") or []:
         where = {"upper": c["upper"], "lower": c["lower"], "apex": c["apex"], "convexity": c["convexity"],
                  "major": bool(c.get("major"))}  # fmt: skip
-        rows.append({"measure": "cobb_angle", "value": c["angle_deg"], "unit": "deg", **where})
-        rows.append({"measure": "apex_axial_rotation", "value": c["apex_axial_rotation_deg"], "unit": "deg", **where})
-        rows.append(
-            {"measure": "plane_of_max_curvature", "value": c["plane_of_max_curvature_deg"], "unit": "deg", **where}
-        )
-        rows.append({"measure": "max_curvature", "value": c["max_curvature_deg"], "unit": "deg", **where})
-    for name, upper, lower in (
-        ("thoracic_kyphosis_t4_t12", "T4", "T12"),
-        ("thoracic_kyphosis_t5_t12", "T5", "T12"),
-        ("lumbar_lordosis_l1_l5", "L1", "L5"),
+        plane = mark("plane_of_max_curvature")
+        rows += [
+            {"measure": "cobb_angle", "value": c["angle_deg"], "sd": c.get("angle_sd_deg"), "unit": "deg", **where},
+            {"measure": "apex_axial_rotation", "value": c["apex_axial_rotation_deg"], "sd": rotation_sd.get(c["apex"]),
+             "unit": "deg", **where, "model_estimate": mark("axial_rotation")},
+            {"measure": "plane_of_max_curvature", "value": c["plane_of_max_curvature_deg"], "unit": "deg", **where,
+             "model_estimate": plane},
+            {"measure": "max_curvature", "value": c["max_curvature_deg"], "unit": "deg", **where,
+             "model_estimate": plane},
+        ]  # fmt: skip
+    for name, upper, lower, quantity in (
+        ("thoracic_kyphosis_t4_t12", "T4", "T12", "kyphosis"),
+        ("thoracic_kyphosis_t5_t12", "T5", "T12", "kyphosis"),
+        ("lumbar_lordosis_l1_l5", "L1", "L5", "lordosis"),
     ):
         if measures.get(f"{name}_deg") is not None:
-            rows.append({"measure": name, "value": measures[f"{name}_deg"], "unit": "deg", "upper": upper,
-                         "lower": lower})  # fmt: skip
+            rows.append({"measure": name, "value": measures[f"{name}_deg"], "sd": measures.get(f"{name}_sd_deg"),
+                         "unit": "deg", "upper": upper, "lower": lower, "model_estimate": mark(quantity)})  # fmt: skip
     fit = result.get("fit") or {}
     if fit.get("mean_registration_error_mm") is not None:
         rows.append({"measure": "mean_registration_error", "value": fit["mean_registration_error_mm"], "unit": "mm"})
@@ -83,7 +126,7 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
 
 def measures_csv(result: dict[str, Any]) -> str:
     """One row per measure: every Cobb curve (angle, apical rotation, plane and magnitude of maximum
-    curvature), kyphosis, lordosis and the mean registration error."""
+    curvature), kyphosis, lordosis and the mean registration error, each with its SD and mark."""
     return _csv(MEASURE_COLUMNS, measure_rows(result))
 
 

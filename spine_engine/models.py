@@ -34,6 +34,7 @@ PositiveFactor = Annotated[float, Field(gt=0, le=1e3, allow_inf_nan=False)]
 DistanceMm = Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)]
 """A positive distance in mm (source-to-detector and source-to-patient distances are 1–5 m)."""
 Vec2 = tuple[FiniteFloat, FiniteFloat]
+PositiveCoordinate = Annotated[float, Field(gt=0, le=MAX_COORDINATE, allow_inf_nan=False)]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
@@ -118,7 +119,16 @@ class Acquisition(_Strict):
     central_ray: Vec2 | None = Field(
         None,
         description="Where the central ray (the perpendicular from the source) meets the detector, image "
-        "(column, row) in the view's units. Estimated in the fit when absent.",
+        "(column, row) in the view's units. When absent: the image's centre if image_size is given (with SID and "
+        "SOD; fit.assumed then names central_ray_at_image_centre), else estimated in the fit.",
+    )
+    image_size: tuple[PositiveCoordinate, PositiveCoordinate] | None = Field(
+        None,
+        description="The image's extent [columns, rows] in the view's units: in px the DICOM Columns (0028,0011) "
+        "and Rows (0028,0010), in mm those times the pixel spacing (filled by the DICOM layer). Coordinates run "
+        "from (0, 0), the top-left corner of the top-left pixel, so the image's centre is (columns/2, rows/2). "
+        "Used with SID and SOD when central_ray is absent: the central ray is taken to meet the detector at the "
+        "image's centre (SID is measured to the detector's centre, DICOM PS3.3 C.8.7.6 and C.8.11.5).",
     )
 
     @model_validator(mode="after")
@@ -604,6 +614,28 @@ class ViewProjection(BaseModel):
     )
 
 
+AssumptionName = Literal[
+    "central_ray_at_image_centre", "central_ray_near_landmarks", "magnification_prior", "standing_orientation",
+    "population_sagittal_shape",
+]
+
+
+class Assumption(BaseModel):
+    """A prior or default that decided a number of the result because the input did not give it."""
+
+    name: AssumptionName = Field(
+        description="What was assumed: central_ray_at_image_centre (SID and SOD given without a central ray: "
+        "the ray is taken at the centre of acquisition.image_size); central_ray_near_landmarks (neither a "
+        "central ray nor an image size: a prior holds the ray within 50 mm of the landmarks' centre); "
+        "magnification_prior (the PA's magnification from the full-spine prior 1.125 ± 0.035); "
+        "standing_orientation (no lateral film: the spine's lean and spin about the vertical from the prior "
+        "of a standing patient facing the detector); population_sagittal_shape (no lateral film: kyphosis "
+        "and lordosis from the population prior, with its SD)."
+    )
+    view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
+    reason: str = Field(description="In plain words: what was missing and what was taken instead.")
+
+
 class FitReport(BaseModel):
     residuals: list[Residual]
     mean_registration_error_mm: float = Field(description="Mean PA landmark residual, patient mm.")
@@ -621,8 +653,8 @@ class FitReport(BaseModel):
     )
     unreliable: list[Unreliable] = Field(
         default_factory=list,
-        description="Quantities that come from the generic model only, not from the input (docs/measures.md): "
-        "empty when the boundary is given.",
+        description="Quantities that come from the model's priors more than from the input (docs/measures.md): "
+        "what no view determines, and kyphosis or lordosis whenever its SD exceeds half the population's.",
     )
     tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)
@@ -631,6 +663,11 @@ class FitReport(BaseModel):
         None,
         description="Calibrated factor applied to the Laplace standard deviations (calibrated on VerSe dev so "
         "that ±1.96 SD covers 95 % of truth). Null when no uncertainty was computed.",
+    )
+    assumed: list[Assumption] = Field(
+        default_factory=list,
+        description="Each prior or default that decided a number because the input did not give it (name, view, "
+        "reason); empty when the input gave everything used.",
     )
 
 

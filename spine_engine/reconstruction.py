@@ -54,6 +54,7 @@ from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
+    Assumption,
     EngineInfo,
     FitReport,
     JobPayload,
@@ -99,6 +100,8 @@ class ViewSetup:
     """"weak_perspective" or "perspective"."""
     scale_source: str
     pixel_spacing_calibration: str | None
+    assumed: tuple[Assumption, ...] = ()
+    """What the set-up took because the view did not give it (``FitReport.assumed``)."""
 
 
 @dataclass(frozen=True)
@@ -175,7 +178,8 @@ def make_camera(
 
     * ``projection`` given: that weak perspective, fixed ("given");
     * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
-      through o; c = the central ray when given (else estimated, o then moves along the beam only),
+      through o; c = the central ray when given, else the centre of ``acquisition.image_size`` (recorded as
+      assumed, ``_ray_at_centre``), else estimated (o then moves along the beam only),
       o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, 30²), d̄ = ``mid_plane_offset`` of
       ``profile`` (the spine's mid-plane at SOD), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
@@ -197,8 +201,13 @@ def make_camera(
         m0 = sid / sod
         b = BEAMS[name]
         E = np.stack((e_c, e_r))
-        if acq.central_ray is not None:
-            c = np.asarray(acq.central_ray, dtype=float) * detector_spacing(view)
+        ray = acq.central_ray
+        assumed: tuple[Assumption, ...] = ()
+        if ray is None and acq.image_size is not None:
+            ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
+            assumed = (_ray_at_centre(name, ray, view.units),)
+        if ray is not None:
+            c = np.asarray(ray, dtype=float) * detector_spacing(view)
             o_plane = (c - T0) / m0
             free = np.array([False, False, True, True, True, rotate])
         else:
@@ -208,11 +217,13 @@ def make_camera(
         mid_offset = mid_plane_offset(profile, b)
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
         ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
+        if ray_prior is not None:
+            assumed = (_assumption("central_ray_near_landmarks", name),)
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
             depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
         )
-        return camera, ViewSetup("perspective", "acquisition", spc)
+        return camera, ViewSetup("perspective", "acquisition", spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
@@ -221,7 +232,38 @@ def make_camera(
         )
     prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
     camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
-    return camera, ViewSetup("weak_perspective", "prior" if prior is not None else "estimated", spc)
+    if prior is None:
+        return camera, ViewSetup("weak_perspective", "estimated", spc)
+    return camera, ViewSetup("weak_perspective", "prior", spc, (_assumption("magnification_prior", name),))
+
+
+_ASSUMPTION_REASONS = {
+    "central_ray_near_landmarks": "SID and SOD were given without a central ray or an image size: the ray was "
+    "estimated under a prior within 50 mm (SD) of the landmarks' centre",
+    "magnification_prior": "no magnification, geometry or projection was given: the film's magnification "
+    "comes from the full-spine prior 1.125 ± 0.035 (SID/SOD 1800/1600)",
+    "standing_orientation": "no lateral film: the spine's lean and its turn about the vertical come from the "
+    "prior of a standing patient facing the detector (SD about 11° and 5°)",
+    "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
+    "their SDs are at least the population's",
+}
+
+
+def _assumption(name: str, view: str | None) -> Assumption:
+    """The record of a prior that decided a number (``FitReport.assumed``), with its reason in words."""
+    return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
+
+
+def _ray_at_centre(name: str, ray: tuple[float, float], units: str) -> Assumption:
+    """The record of a central ray taken at the image's centre: DICOM's SID runs from the source to
+    the detector's centre (PS3.3 C.8.7.6; the DX Positioning Module C.8.11.5 gives no central-ray
+    position), and a full-spine film is taken with the beam centred on the detector."""
+    return Assumption(
+        name="central_ray_at_image_centre",
+        view=name,  # type: ignore[arg-type]
+        reason=f"SID and SOD were given without a central ray: the ray was taken at the image's centre "
+        f"({ray[0]:g}, {ray[1]:g}) {units}, half of acquisition.image_size",
+    )
 
 
 def _view_data(
@@ -520,6 +562,13 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
+def _sagittal_assumptions(problem: Problem) -> list[Assumption]:
+    """Without a lateral film (no boundary) the lean, the spin and the sagittal shape come from priors."""
+    if problem.boundary != "estimated" or "lateral" in problem.setups:
+        return []
+    return [_assumption("standing_orientation", None), _assumption("population_sagittal_shape", None)]
+
+
 def _fit_report(
     problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
 ) -> FitReport:
@@ -562,6 +611,7 @@ def _fit_report(
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
+        assumed=[a for setup in problem.setups.values() for a in setup.assumed] + _sagittal_assumptions(problem),
     )
 
 

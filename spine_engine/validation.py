@@ -7,7 +7,6 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from .clinical import detector_spacing
 from .errors import FieldError, InvalidInput
 from .levels import LEVEL_INDEX, LEVELS
 from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, LateralView, PAView
@@ -110,7 +109,8 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
             continue
         tl, tr, bl, br = (np.asarray(c, dtype=float) for c in lm["corners"])
         outline = (tl, tr, br, bl)
-        turns = [_cross(outline[(k + 1) % 4] - outline[k], outline[(k + 2) % 4] - outline[(k + 1) % 4]) for k in range(4)]
+        edges = [outline[(k + 1) % 4] - outline[k] for k in range(4)]
+        turns = [_cross(edges[k], edges[(k + 1) % 4]) for k in range(4)]
         if min(turns) <= 0.0:
             if max(turns) < 0.0:
                 kind = "run the wrong way round (two corners swapped)"
@@ -194,11 +194,24 @@ reach 0.51–1.30 on the lateral, and the AASCE 2019 training radiographs' well-
 one vertebra (three AASCE annotations: 0.03–0.07)."""
 
 
+def _mm_per_unit(view: PAView | LateralView) -> np.ndarray:
+    """(column, row) mm per unit of the view's coordinates: 1 in mm, the pixel spacing [row, column]
+    swapped in px (the conversion of ``clinical.detector_spacing`` before any calibration factor;
+    not imported from there, which would load the fit's stack with the validation)."""
+    if view.units == "px":
+        assert view.pixel_spacing is not None  # _view_errors refused px without a spacing first
+        return np.array([view.pixel_spacing[1], view.pixel_spacing[0]], dtype=float)
+    return np.ones(2)
+
+
 def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
-    """Detector mm per patient mm at the spine, lowest and highest (``MAGNIFICATION_*``)."""
+    """Film mm per patient mm at the spine, lowest and highest (``MAGNIFICATION_*``): 1 ± spread for
+    a 'calibrated' spacing (mm in the patient's plane, PS3.3 §10.7.1.1)."""
     acq = view.acquisition
     known: float | None = None
-    if view.projection is not None:
+    if view.pixel_spacing_calibration == "calibrated":
+        known = 1.0
+    elif view.projection is not None:
         known = float(view.projection.scale)
     elif acq is not None and acq.magnification is not None:
         known = float(acq.magnification)
@@ -214,10 +227,10 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
     """Distances between consecutive landmarked levels i < j (k = j − i apart; each landmark's
     top-endplate midpoint: its point, or the mean of its top corners) that no spine has.
 
-    Absolute bound. The view's coordinates times ``clinical.detector_spacing`` are detector mm
-    (units mm, or px with the pixel spacing the contract requires), so a distance d is known in
-    detector mm; the magnification m is the payload's (ERMF, SID/SOD or the projection's scale, ±
-    ``MAGNIFICATION_SPREAD``) or else anywhere in ``MAGNIFICATION_RANGE`` widened by
+    Absolute bound. The view's coordinates times ``_mm_per_unit`` are film mm (units mm, or px with
+    the pixel spacing the contract requires), so a distance d is known in film mm; the magnification
+    m is 1 for a 'calibrated' spacing (patient-plane mm), else the payload's (ERMF, SID/SOD or the
+    projection's scale), ± ``MAGNIFICATION_SPREAD``, or else anywhere in ``MAGNIFICATION_RANGE`` widened by
     ``UNVERIFIED_SCALE`` (the stated mm themselves unverified). Refused when even the
     most favourable reading is impossible:
         (d − n)/m_max > LARGEST_SPINE · ρ_max · A_ij    (too far apart), or
@@ -237,7 +250,7 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
     if not isinstance(raw_landmarks, list):
         return []
     index = {lm.get("level"): i for i, lm in enumerate(raw_landmarks) if isinstance(lm, dict)}
-    spacing = detector_spacing(view)
+    spacing = _mm_per_unit(view)
     placed = []
     for lm in view.landmarks:
         if lm.point is not None:

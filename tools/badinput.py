@@ -93,6 +93,11 @@ def _set(path: Sequence[str | int], value: Any) -> Callable[[dict[str, Any]], No
     return change
 
 
+def with_key_twice() -> bytes:
+    """The good payload with the PA view's ``units`` given twice, ``px`` then ``mm``."""
+    return json.dumps(good_payload()).replace('"pa": {', '"pa": {"units": "px", "units": "mm", ', 1).encode()
+
+
 def _duplicate_level(payload: dict[str, Any]) -> None:
     payload["pa"]["landmarks"][5]["level"] = "T5"
 
@@ -146,6 +151,9 @@ def cases() -> list[Case]:
         Case("huge number (too many digits)", "an integer of 5000 digits", body=with_literal("9" * 5000)),
         Case("unknown level", "level `T13`", body=edited(_set(("pa", "landmarks", 3, "level"), "T13"))),
         Case("duplicate levels", "T5 twice", body=edited(_duplicate_level)),
+        Case("duplicate key", '`"units": "px", "units": "mm"` in the PA view', body=with_key_twice()),
+        Case("duplicate key in a batch entry", "the same, in the first of two payloads", path="/v1/jobs/batch",
+             body=b'{"jobs": [' + with_key_twice() + b", " + json.dumps(good_payload()).encode() + b"]}"),
         Case("landmarks out of order", "T1 drawn below T2 on the PA image (points swapped)", body=edited(_swap_t1_t2)),
         Case("levels implausibly far apart", "PA T1 and T2 1680 px apart at 0.2 mm/px (336 mm: the click meant "
              "for L5 labelled T2)", body=edited(_t2_336_mm_below_t1)),
@@ -175,6 +183,7 @@ def cases() -> list[Case]:
              params={"stauts": "queued"}, content_type=None),
         Case("number as a timestamp", "`GET /v1/jobs?created_after=0.5`", method="GET", path="/v1/jobs",
              params={"created_after": "0.5"}, content_type=None),
+        Case("method not allowed", "`DELETE /v1/jobs`", method="DELETE", path="/v1/jobs", content_type=None),
         Case("bad job id", "`GET /v1/jobs/not-a-uuid`", method="GET", path="/v1/jobs/not-a-uuid", content_type=None),
         Case("another client's job", "`GET /v1/jobs/{id}` of a job another client made", method="GET",
              path="/v1/jobs/{other}", content_type=None),
@@ -230,6 +239,8 @@ def send(client: httpx.Client, case: Case, keys: Keys) -> dict[str, Any]:
         first = body["results"][0]
         problem = first.get("problem")
         row["status"] = f"{response.status_code} (entry {first.get('status')})"
+    if response.status_code == 405:  # RFC 9110 §15.5.6: the methods the resource has
+        row["status"] = f"405 (Allow: {response.headers.get('allow', '')})"
     row["type"] = str(problem.get("type", "")).removeprefix(PROBLEMS) if isinstance(problem, dict) else ""
     paths = [e.get("path", "") for e in (problem or {}).get("errors") or []] if isinstance(problem, dict) else []
     row["fields"] = ", ".join(sorted({p or "(body)" for p in paths}))[:120]

@@ -19,7 +19,7 @@ from services.api.docs_ui import mount_docs
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
 from services.api.routes import dicom, fhir, figures, health, jobs, pacs, patients
-from services.api.schemas import BatchRequest
+from services.api.schemas import BatchRequest, Problem
 from services.api.security import install_auth, install_edge, secure_openapi
 from services.api.web import mount_web
 from services.core.config import Settings, get_settings
@@ -102,8 +102,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for name, definition in defs.pop("$defs", {}).items():
                 components.setdefault(name, definition)
             components["JobPayload"] = defs
-            # POST /v1/jobs/batch's body (declared through openapi_extra, so FastAPI does not add it)
-            components.setdefault("BatchRequest", BatchRequest.model_json_schema(ref_template=REF))
+            # POST /v1/jobs/batch's body (declared through openapi_extra, so FastAPI does not add it), and the
+            # body of every problem+json answer (schemas.problem_responses refers to it by name)
+            for model in (BatchRequest, Problem):
+                defs = model.model_json_schema(ref_template=REF)
+                for name, definition in defs.pop("$defs", {}).items():
+                    components.setdefault(name, definition)
+                components.setdefault(model.__name__, defs)
             app.openapi_schema = secure_openapi(schema)
         return app.openapi_schema
 

@@ -5,8 +5,9 @@ Once a job has succeeded, what its artifacts are built from never changes: the p
 posted), the DICOM provenance (``jobs.dicom``, written only while the job runs, fenced by attempt),
 the result, ``finished_at`` and ``engine_version`` (written once, by the run that finished it; a
 finished job keeps its one outcome, ``db.runs.finish_job``). The bytes are then a function of the
-job's id, its ``finished_at`` and ``engine_version``, the kind of artifact, and the code and
-libraries that build it (``BUILD``): an artifact's entity tag is a digest of exactly these.
+job's id, its ``finished_at`` and ``engine_version``, the kind of artifact, the settings it is
+built with (``variant``: the FHIR export's ``SPINE_PATIENT_ID_SYSTEM``), and the code and libraries
+that build it (``BUILD``): an artifact's entity tag is a digest of exactly these.
 
 - ``ETag`` (RFC 9110 §8.8.3): a strong validator, sent on every 200 and 304 of an artifact; equal
   tags mean equal bytes (§8.8.1), since everything that determines them is in the digest. Different
@@ -44,7 +45,7 @@ from services.db.models import Job
 
 ArtifactKind = Literal["figure.png", "figure.svg", "sr.dcm", "figure.dcm", "fhir"]
 
-ARTIFACT_REVISION = "1"
+ARTIFACT_REVISION = "2"
 """Bump when the service's code builds different bytes for the same job (the SR's content tree, the
 figure's drawing, the Bundle's shape) without a new version of a library listed in ``BUILD``."""
 
@@ -64,11 +65,12 @@ BUILD = ";".join(
 renderer) and the libraries that write PNG, SVG and DICOM."""
 
 
-def entity_tag(kind: ArtifactKind, job: Job) -> str:
+def entity_tag(kind: ArtifactKind, job: Job, variant: str = "") -> str:
     """The strong ETag (RFC 9110 §8.8.3) of a succeeded job's artifact: ``"<kind>-<32 hex>"``, the
-    digest (SHA-256, 128 bits) of the kind, the job's id, ``finished_at``, ``engine_version`` and ``BUILD``."""
+    digest (SHA-256, 128 bits) of the kind, the job's id, ``finished_at``, ``engine_version``, ``BUILD``
+    and ``variant`` (the settings the bytes depend on, if any)."""
     finished = job.finished_at.isoformat() if job.finished_at is not None else "-"
-    parts = (kind, str(job.id), finished, job.engine_version or "-", BUILD)
+    parts = (kind, str(job.id), finished, job.engine_version or "-", BUILD, variant)
     digest = hashlib.sha256("\x1f".join(parts).encode()).hexdigest()[:32]
     return f'"{kind.replace(".", "-")}-{digest}"'
 
@@ -219,11 +221,12 @@ ArtifactCacheDep = Annotated[ArtifactCache, Depends(get_artifact_cache)]
 
 def artifact_response(
     kind: ArtifactKind, job: Job, if_none_match: str | None, cache: ArtifactCache, build: Callable[[], bytes],
-    media_type: str, headers: Mapping[str, str] | None = None,
+    media_type: str, headers: Mapping[str, str] | None = None, variant: str = "",
 ) -> Response:  # fmt: skip
     """A succeeded job's artifact, its access already checked: 304 when ``If-None-Match`` matches its
-    ETag (RFC 9110 §13.1.2, §15.4.5: no body, no build), else 200 with the bytes (cached or built)."""
-    etag = entity_tag(kind, job)
+    ETag (RFC 9110 §13.1.2, §15.4.5: no body, no build), else 200 with the bytes (cached or built).
+    ``variant`` names the settings the bytes depend on (``entity_tag``)."""
+    etag = entity_tag(kind, job, variant)
     if if_none_match is not None and none_match_matches(if_none_match, etag):
         return Response(status_code=304, headers={"ETag": etag})
     body = cache.get_or_build(etag, build)
@@ -244,10 +247,12 @@ ETAG_HEADER = {
 
 
 def artifact_responses(
-    media_type: str, description: str, schema: Mapping[str, Any] | None = None
+    media_type: str, description: str, schema: Mapping[str, Any]
 ) -> dict[int | str, dict[str, Any]]:
-    """The OpenAPI ``responses`` of an artifact route: 200 and 304 with their ``ETag``, and the problems."""
-    content: dict[str, Any] = {media_type: {"schema": dict(schema)} if schema else {}}
+    """The OpenAPI ``responses`` of an artifact route: 200 (``schema`` under ``media_type``:
+    ``schemas.BINARY_SCHEMA`` for bytes, ``TEXT_SCHEMA`` for a text document, or a JSON schema) and
+    304 with their ``ETag``, and the problems."""
+    content: dict[str, Any] = {media_type: {"schema": dict(schema)}}
     return {
         200: {"content": content, "description": description, "headers": {"ETag": ETAG_HEADER}},
         304: {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import AsyncIterator
 from datetime import datetime
 from typing import Annotated, Any
@@ -129,8 +130,45 @@ def _too_large(limit: int, instance: str) -> ProblemError:
                                 limit=limit))  # fmt: skip
 
 
+class _DuplicateKey(Exception):
+    """An object of the body has a name twice (found while parsing; ``duplicate_keys`` says where)."""
+
+
+def _unique_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' object hook: the object as a dict, unless a name repeats (``_DuplicateKey``)."""
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        raise _DuplicateKey
+    return obj
+
+
+class _Members(list[tuple[str, Any]]):
+    """An object's members in their order, repeated names kept."""
+
+
+def duplicate_keys(raw: bytes) -> list[FieldError]:
+    """Every name given twice (or more) in one object of the JSON text ``raw``, by the JSON path of that
+    member. RFC 8259 §4: the names of an object SHOULD be unique, and a receiver's behaviour on repeated
+    names is unpredictable (Python's ``json`` keeps the last): a body that has them is ambiguous, and
+    it is refused rather than read one way."""
+    found: dict[tuple[str | int, ...], FieldError] = {}
+    stack: list[tuple[Any, tuple[str | int, ...]]] = [(json.loads(raw, object_pairs_hook=_Members), ())]
+    while stack:  # depth-first, without recursion (the body may be nested as deep as the parser allows)
+        node, loc = stack.pop()
+        if isinstance(node, _Members):
+            for key, times in Counter(key for key, _ in node).items():
+                if times > 1:
+                    msg = f"the key {key!r} is given {times} times in this object; give it once"
+                    found.setdefault((*loc, key), FieldError((*loc, key), msg, "duplicate_key"))
+            stack.extend(((value, (*loc, key)) for key, value in reversed(node)))
+        elif isinstance(node, list):
+            stack.extend(((value, (*loc, i)) for i, value in reversed(list(enumerate(node)))))
+    return sorted(found.values(), key=lambda e: e.path)
+
+
 async def read_json(request: Request, limit: int) -> Any:
-    """The request body as JSON: 415 if not JSON, 413 over ``limit`` bytes, 400 if malformed."""
+    """The request body as JSON: 415 if not JSON, 413 over ``limit`` bytes, 400 if malformed, 422
+    naming every key given twice in one object (``duplicate_keys``)."""
     instance = request.url.path
     content_type = request.headers.get("content-type", "")
     if not _is_json(content_type):
@@ -162,7 +200,9 @@ async def read_json(request: Request, limit: int) -> Any:
         chunks.append(chunk)
     raw = b"".join(chunks)
     try:
-        return json.loads(raw)
+        return json.loads(raw, object_pairs_hook=_unique_object)
+    except _DuplicateKey:
+        raise ProblemError(validation_problem(duplicate_keys(raw), instance=instance)) from None
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError, ValueError) as exc:
         # RecursionError: nested too deeply; ValueError: an integer of more than 4300 digits.
         where = f"line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else "body"

@@ -8,6 +8,8 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import iter_route_contexts
+from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
@@ -55,17 +57,36 @@ async def _http_error(request: Request, exc: Exception) -> JSONResponse:
                    instance=request.url.path)  # fmt: skip
     headers = dict(exc.headers) if exc.headers else {}
     if exc.status_code == 405:  # every method the path has, not only those of the first route matched
-        headers["Allow"] = ", ".join(_allowed_methods(request))
+        headers["Allow"] = ", ".join(_allowed_methods(request)) or headers.get("Allow", "")
     return problem_response(body, headers or None)
 
 
+METHOD_GUARD = "method-not-allowed"
+"""The name of a route that only answers 405 for its methods (e.g. GET /v1/jobs/batch, which the job
+route would otherwise take as a job id): its methods are not allowed ones."""
+
+
 def _allowed_methods(request: Request) -> list[str]:
-    methods: set[str] = set()
-    for route in request.app.router.routes:
-        match, _ = route.matches(request.scope)
-        if match != Match.NONE:
-            methods |= set(getattr(route, "methods", None) or ())
-    return sorted(methods)
+    """The methods the request's path answers (RFC 9110 §15.5.6: a 405 "MUST generate an Allow header
+    field containing a list of the target resource's currently supported methods"): each method of a
+    route whose path matches, when the first route that the router would take for it is not a guard.
+    Routes are walked as the router walks them, included routers flattened (``iter_route_contexts``)."""
+    routes = list(iter_route_contexts(request.app.router.routes))
+    # the scope as the app's router saw it (a mount that answered extended root_path for its own app)
+    base = {**request.scope, "root_path": request.scope.get("app_root_path", request.scope.get("root_path", ""))}
+    candidates: set[str] = set()
+    for route in routes:
+        if route.matches(base)[0] != Match.NONE:
+            candidates |= set(route.methods or ())
+            if isinstance(getattr(route, "app", None), StaticFiles):  # a mount of files answers these two
+                candidates |= {"GET", "HEAD"}
+    allowed = []
+    for method in sorted(candidates):
+        scope = {**base, "method": method}
+        first = next((r for r in routes if r.matches(scope)[0] == Match.FULL), None)
+        if first is not None and first.name != METHOD_GUARD:
+            allowed.append(method)
+    return allowed
 
 
 async def _database_down(request: Request, exc: Exception) -> JSONResponse:

@@ -44,9 +44,20 @@ class Problem(BaseModel):
     )
 
 
+PROBLEM_SCHEMA_REF = "#/components/schemas/Problem"
+
+BINARY_SCHEMA: dict[str, str] = {"type": "string", "format": "binary"}
+"""The schema of a body of bytes (a PNG, a DICOM Part 10 file): what client generators read as a file."""
+
+TEXT_SCHEMA: dict[str, str] = {"type": "string"}
+"""The schema of a text body (an SVG document: UTF-8 XML)."""
+
+
 def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """A route's OpenAPI ``responses`` for these statuses: each a ``Problem`` as application/problem+json."""
-    return {s: {"model": Problem, "content": {PROBLEM_MEDIA_TYPE: {}}} for s in statuses}
+    """A route's OpenAPI ``responses`` for these statuses: each a ``Problem`` as application/problem+json,
+    its only media type (no error is answered as application/json). The app's ``openapi()`` puts the
+    ``Problem`` schema in the components."""
+    return {s: {"content": {PROBLEM_MEDIA_TYPE: {"schema": {"$ref": PROBLEM_SCHEMA_REF}}}} for s in statuses}
 
 
 # Built from the row by ``Job.summary`` (POST, the list, a batch, cancel) or ``Job.detail`` (GET by id).

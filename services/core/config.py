@@ -8,6 +8,7 @@ SQLite-backed Celery broker (kombu's SQLAlchemy transport) under ``SPINE_DATA_DI
 from __future__ import annotations
 
 import os
+import re
 from functools import lru_cache
 from pathlib import Path
 
@@ -15,6 +16,8 @@ from pydantic import AliasChoices, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from services.core.webhook_policy import decode_secret, parse_allow_list
+
+_ABSOLUTE_URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:\S+$")
 
 
 class Settings(BaseSettings):
@@ -172,10 +175,29 @@ class Settings(BaseSettings):
         "them again; 0: no cache (an If-None-Match that matches still answers 304 without building).",
     )
 
+    # FHIR export (services/fhir): the namespace of the patient identifiers it writes.
+    patient_id_system: str | None = Field(
+        None,
+        description="FHIR `Identifier.system` of the Patient IDs (DICOM Patient ID (0010,0020)) the FHIR export "
+        "names as each Observation's `subject`: the URI of the issuer's namespace, e.g. "
+        "urn:oid:1.2.3.4.5 or https://hospital.example/patient-ids; unset: the identifier has no system.",
+    )
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:
         return value.expanduser().resolve()  # so that every process (worker children too) agrees
+
+    @field_validator("patient_id_system")
+    @classmethod
+    def _patient_id_system(cls, value: str | None) -> str | None:
+        """An absolute URI (RFC 3986 §4.3: a scheme, then no whitespace), as FHIR's ``Identifier.system``
+        (``uri``) requires; empty means unset."""
+        if not value:
+            return None
+        if not _ABSOLUTE_URI.match(value):
+            raise ValueError(f"{value!r} is not an absolute URI (e.g. urn:oid:1.2.3.4.5 or https://host/path)")
+        return value
 
     @field_validator("webhook_allowed_urls")
     @classmethod

@@ -42,7 +42,10 @@ interest (PS3.3 §C.8.11.7), so its SOD is the one wanted;
 (c) DSP alone, or DSE alone, unchanged (as Cornerstone3D does), recorded as an approximation: for a
     typical adult trunk 200–300 mm deep the spine lies 100–150 mm from either surface, so at SID
     1800 mm the magnification SID/SOD is off by about 0.5–1 % either way.
-``magnification`` = ERMF when given.
+``magnification`` = ERMF when given. ``image_size`` = [Columns (0028,0011), Rows (0028,0010)] in px,
+or those times the column and row spacing in mm (``view_acquisition``: the view's units decide): with
+SID and SOD but no central ray the engine puts the ray at the image's centre (the pixel data's extent,
+PS3.3 §C.7.6.3; SID is measured to the detector's centre, PS3.3 §C.8.7.6).
 
 Orientation: Patient Orientation (0020,0020) (PS3.3 §C.7.6.1.1.1: the patient directions of the
 image's rows and columns, the first letter of a combination being the main one); without it View
@@ -147,6 +150,22 @@ class RadiographHeader:
     acquisition: Acquisition
     sources: Mapping[str, str] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+
+    def view_acquisition(self, units: str, pixel_spacing: Any) -> dict[str, Any]:
+        """The view's ``acquisition`` fields from this header (``Acquisition.as_payload``) and
+        ``image_size`` [columns, rows] in the view's ``units``: [Columns, Rows] in px; in mm
+        [Columns · column spacing, Rows · row spacing] with ``pixel_spacing`` [row, column] the
+        spacing the view uses (none in mm: no image_size). Each key's source is in ``sources``
+        (``acquisition.<key>``)."""
+        fields: dict[str, Any] = dict(self.acquisition.as_payload())
+        if self.rows is None or self.columns is None:
+            return fields
+        if units == "px":
+            fields["image_size"] = [float(self.columns), float(self.rows)]
+        elif pixel_spacing is not None:
+            row_spacing, column_spacing = (float(v) for v in pixel_spacing)
+            fields["image_size"] = [self.columns * column_spacing, self.rows * row_spacing]
+        return fields
 
     def require_spacing(self, json_path: str) -> tuple[float, float]:
         if self.pixel_spacing is None:
@@ -452,8 +471,12 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
     if orientation is not None:
         sources["patient_orientation"] = orientation_source
     sources.update(acquisition_sources)
-    name = ds.get("PatientName")
     rows, columns = ds.get("Rows"), ds.get("Columns")
+    if rows is not None and columns is not None:
+        sources["acquisition.image_size"] = (
+            f"[{attribute_label('Columns')}, {attribute_label('Rows')}] (× the pixel spacing in mm)"
+        )
+    name = ds.get("PatientName")
     return RadiographHeader(
         sop_class_uid=_uid(ds, "SOPClassUID", required=False),
         sop_instance_uid=sop_uid,

@@ -106,7 +106,8 @@ def merge_view(
     source: Literal["file", "dicomweb"], provenance: DicomProvenance,
 ) -> None:  # fmt: skip
     """Fill ``payload[role]`` from ``header`` in place: pixel spacing (and its calibration when the
-    header's spacing is the one used), patient orientation, acquisition. Raises
+    header's spacing is the one used), patient orientation, acquisition (with the image size in the view's
+    units). Raises
     ``UnsupportedOrientation`` when the header's image is not the view it is given as (a lateral
     image sent as ``pa``), and ``MissingAttribute`` when the view's landmarks are in px and neither
     payload nor header gives a spacing, or neither gives an orientation."""
@@ -141,7 +142,7 @@ def merge_view(
                     header.sources["patient_orientation"], record.read)  # fmt: skip
     elif view.get("patient_orientation") is None:
         header.require_orientation(f"{role}.patient_orientation")
-    acquisition = header.acquisition.as_payload()
+    acquisition = header.view_acquisition(view.get("units", "mm"), view.get("pixel_spacing"))
     if acquisition:
         target = dict(view.get("acquisition") or {})
         for key, value in acquisition.items():

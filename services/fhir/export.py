@@ -6,19 +6,33 @@ Observation nor Bundle for the elements written here (status, category, code, is
 Quantity, component, note, method, derivedFrom, identifier; Bundle type, timestamp, entry.fullUrl),
 so the JSON is valid R4 as well.
 
-Coding: no LOINC or SNOMED CT code is asserted for these measures (none is used unless it is
-certain to exist with that meaning), so each Observation's ``code`` is ``text`` only. The codes
-that are used are FHIR's own category ``imaging``
-(http://terminology.hl7.org/CodeSystem/observation-category) and UCUM ``deg``. The input images'
-DICOM Study Instance UID, when the payload had a ``study``, is referenced in ``derivedFrom`` as an
-ImagingStudy identifier (system ``urn:dicom:uid``, value ``urn:oid:<uid>``).
+Coding: each Observation's ``code`` keeps its ``text`` and carries a coding where one exists.
+The frontal Cobb angle is SNOMED CT 285285000 "Cobb angle" (``http://snomed.info/sct``), the code
+DICOM PS3.16 CID 7550 "Angle Measurement" gives it and the SR uses. PS3.16 (pydicom 3.0.2's concept
+dictionary, which lists all of it) has no code for thoracic kyphosis, lumbar lordosis or the axial
+rotation of a vertebra, and no LOINC term for them was found; a CodeableConcept's codings are
+translations of one meaning (FHIR R4 CodeableConcept.coding), so the broader "Cobb angle" is not put
+on the sagittal angles. Those, and the components with a concept of their own, are coded in the
+service's local code system ``LOCAL_CODE_SYSTEM`` (a ``urn:uuid``: FHIR R4 §4.1 "Using Codes" allows
+a UUID as the system of a code system without a URL), whose codes are the SR's private ``99SPINE``
+code values with the same meanings (``LOCAL_CODES``, documented in the README). The other codes used
+are FHIR's category ``imaging`` (http://terminology.hl7.org/CodeSystem/observation-category) and
+UCUM ``deg``. The input images' DICOM Study Instance UID, when the payload had a ``study``, is
+referenced in ``derivedFrom`` as an ImagingStudy identifier (system ``urn:dicom:uid``, value
+``urn:oid:<uid>``).
+
+Subject and time: ``subject`` is the Patient by identifier (DICOM Patient ID (0010,0020)) whenever a
+patient ID is known, with ``system`` the setting ``SPINE_PATIENT_ID_SYSTEM`` (the issuer's namespace;
+none when unset). Every Observation has ``effectiveDateTime`` (``effective_date_time``): the study's
+date and time, else the film's acquisition (or content) date and time, else the job's creation.
 """
 
 from __future__ import annotations
 
+import re
 import uuid
-from collections.abc import Sequence
-from datetime import datetime
+from collections.abc import Mapping, Sequence
+from datetime import date, datetime
 from typing import Any
 
 from fhir.resources.R4B.bundle import Bundle
@@ -27,6 +41,24 @@ FHIR_MEDIA_TYPE = "application/fhir+json"
 FHIR_VERSION = "4.0.1"
 UCUM = "http://unitsofmeasure.org"
 OBSERVATION_CATEGORY = "http://terminology.hl7.org/CodeSystem/observation-category"
+SNOMED_CT = "http://snomed.info/sct"
+COBB_ANGLE = {"system": SNOMED_CT, "code": "285285000", "display": "Cobb angle"}
+"""SNOMED CT "Cobb angle", DICOM PS3.16 CID 7550 "Angle Measurement" (as in the SR)."""
+LOCAL_CODE_SYSTEM = "urn:uuid:4b0e7d3c-5f0a-5c11-9a7e-0c2f6d1e8a55"
+"""The service's own code system for measures without a standard code (fixed for all releases)."""
+LOCAL_CODE_SYSTEM_VERSION = "1"
+LOCAL_CODES: dict[str, str] = {
+    "KYPH-T4-T12": "Thoracic kyphosis T4-T12",
+    "KYPH-T5-T12": "Thoracic kyphosis T5-T12",
+    "LORD-L1-L5": "Lumbar lordosis L1-L5",
+    "APEX-AXROT": "Axial rotation of the apical vertebra",
+    "PMC-ORIENT": "Orientation of the plane of maximum curvature",
+    "PMC-COBB": "Cobb angle in the plane of maximum curvature",
+    "ENDPLATE-COBB": "Cobb angle between the end vertebrae's endplates",
+    "CONVEXITY": "Convexity of the curve",
+    "MAJOR-CURVE": "Major curve (the largest)",
+}
+"""The local code system's concepts: code -> display (the SR's ``99SPINE`` values and meanings)."""
 DICOM_UID = "urn:dicom:uid"
 URI = "urn:ietf:rfc:3986"
 METHOD = (
@@ -55,8 +87,18 @@ def _text(text: str) -> dict[str, Any]:
     return {"text": text}
 
 
-def _component(name: str, **value: Any) -> dict[str, Any]:
-    return {"code": _text(name), **value}
+def _local(code: str) -> dict[str, Any]:
+    return {"system": LOCAL_CODE_SYSTEM, "version": LOCAL_CODE_SYSTEM_VERSION, "code": code,
+            "display": LOCAL_CODES[code]}  # fmt: skip
+
+
+def _coded(text: str, coding: dict[str, Any] | None) -> dict[str, Any]:
+    """A CodeableConcept: ``text`` always, with ``coding`` when the concept has a code."""
+    return {"coding": [coding], "text": text} if coding else _text(text)
+
+
+def _component(name: str, code: str | None = None, **value: Any) -> dict[str, Any]:
+    return {"code": _coded(name, _local(code) if code else None), **value}
 
 
 def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -72,15 +114,60 @@ def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
     ]
 
 
-def _subject(study: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The Patient by identifier (DICOM Patient ID (0010,0020); its issuer is not known, so no system),
-    with the DICOM Patient's Name as display; None without a patient ID."""
+def _subject(study: Mapping[str, Any] | None, patient_id_system: str | None) -> dict[str, Any] | None:
+    """The Patient by identifier (DICOM Patient ID (0010,0020), ``system`` the issuer's namespace
+    ``patient_id_system`` when configured), with the DICOM Patient's Name as display; None without a
+    patient ID."""
     if not study or not study.get("patient_id"):
         return None
-    subject: dict[str, Any] = {"type": "Patient", "identifier": {"value": study["patient_id"]}}
+    identifier = {"value": study["patient_id"]}
+    if patient_id_system:
+        identifier = {"system": patient_id_system, **identifier}
+    subject: dict[str, Any] = {"type": "Patient", "identifier": identifier}
     if study.get("patient_name"):
         subject["display"] = str(study["patient_name"]).replace("^", " ").strip()
     return subject
+
+
+_DICOM_TM = re.compile(r"^(\d{2})(?::?(\d{2})(?::?(\d{2})(\.\d{1,6})?)?)?$")
+_DICOM_OFFSET = re.compile(r"^[+-]\d{2}:?\d{2}$")
+
+
+def _study_date_time(study: Mapping[str, Any]) -> str | None:
+    """The study's Study Date (0008,0020), with its Study Time (0008,0030) when the study also gives
+    its Timezone Offset From UTC (0008,0201): FHIR R4 ``dateTime`` SHALL have a time zone when it has
+    a time (datatypes §2.24.0.1), and a DICOM TM alone is in no stated zone."""
+    when = study.get("study_date")
+    if not when:
+        return None
+    day = when.isoformat() if isinstance(when, date) else str(when)
+    time_match = _DICOM_TM.match(str(study.get("study_time") or ""))
+    offset = str(study.get("timezone_offset_from_utc") or "")
+    if time_match is None or not _DICOM_OFFSET.match(offset):
+        return day
+    hh, mm, ss, fraction = time_match.groups()
+    zone = f"{offset[:3]}:{offset[-2:]}"
+    return f"{day}T{hh}:{mm or '00'}:{ss or '00'}{fraction or ''}{zone}"
+
+
+def _date_time(value: datetime | date | str) -> str:
+    """A FHIR ``dateTime`` of a datetime (its date alone when it has no time zone), a date, or text
+    already in that form."""
+    if isinstance(value, datetime):
+        return value.isoformat() if value.tzinfo is not None else value.date().isoformat()
+    return value.isoformat() if isinstance(value, date) else value
+
+
+def effective_date_time(
+    study: Mapping[str, Any] | None, film_datetime: datetime | date | str | None, created_at: datetime
+) -> str:
+    """``effectiveDateTime``, the clinically relevant time of the measures: the study's date (and
+    time, ``_study_date_time``), else the film's acquisition or content date and time, else the job's
+    creation (the landmarks' time when nothing of the films is known)."""
+    from_study = _study_date_time(study) if study else None
+    if from_study:
+        return from_study
+    return _date_time(film_datetime if film_datetime is not None else created_at)
 
 
 def _image_note(study: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -104,18 +191,24 @@ def observation_bundle(
     *,
     finished_at: datetime,
     study: dict[str, Any] | None = None,
+    created_at: datetime | None = None,
+    film_datetime: datetime | date | str | None = None,
+    patient_id_system: str | None = None,
 ) -> dict[str, Any]:
-    """The Bundle of a job's measures as FHIR JSON (validated by fhir.resources)."""
+    """The Bundle of a job's measures as FHIR JSON (validated by fhir.resources). ``created_at`` is the
+    job's creation (``finished_at`` when not given), ``film_datetime`` the film's acquisition date
+    and time when the DICOM layer read one (``effective_date_time``); ``patient_id_system`` is
+    ``SPINE_PATIENT_ID_SYSTEM``."""
     measures = result.get("measures") or {}
     unreliable = set((result.get("fit") or {}).get("unreliable") or [])
     version = (result.get("engine") or {}).get("version", "unknown")
     issued = finished_at.isoformat()
     derived = _derived_from(study)
     image_note = _image_note(study)
-    subject = _subject(study)
-    effective = (study or {}).get("study_date")
+    subject = _subject(study, patient_id_system)
+    effective = effective_date_time(study, film_datetime, created_at or finished_at)
 
-    def observation(key: str, name: str, value: float, *, notes: Sequence[str] = (),
+    def observation(key: str, name: str, value: float, *, coding: dict[str, Any], notes: Sequence[str] = (),
                     components: Sequence[dict[str, Any]] = (), estimate: bool = False,
                     sd: float | None = None) -> dict[str, Any]:  # fmt: skip
         if sd is not None:
@@ -128,7 +221,8 @@ def observation_bundle(
             "identifier": [{"system": URI, "value": f"urn:uuid:{obs_id}"}],
             "status": "final",
             "category": [{"coding": [{"system": OBSERVATION_CATEGORY, "code": "imaging", "display": "Imaging"}]}],
-            "code": _text(name),
+            "code": _coded(name, coding),
+            "effectiveDateTime": effective,
             "issued": issued,
             "valueQuantity": _deg(value),
             "method": _text(f"{METHOD}; spine_engine {version}"),
@@ -139,8 +233,6 @@ def observation_bundle(
             body["derivedFrom"] = derived
         if subject:
             body["subject"] = subject
-        if effective:
-            body["effectiveDateTime"] = str(effective)
         if components:
             body["component"] = list(components)
         return body
@@ -153,37 +245,40 @@ def observation_bundle(
             _component("Upper end vertebra", valueString=curve["upper"]),
             _component("Lower end vertebra", valueString=curve["lower"]),
             _component("Apex vertebra", valueString=curve["apex"]),
-            _component("Convexity (patient side)", valueString=curve["convexity"]),
-            _component("Major curve", valueBoolean=bool(curve.get("major"))),
-            _component("Apical vertebral axial rotation", valueQuantity=_deg(curve["apex_axial_rotation_deg"])),
-            _component(
-                "Plane of maximum curvature, azimuth from the frontal plane toward anterior",
-                valueQuantity=_deg(curve["plane_of_max_curvature_deg"]),
-            ),
-            _component("Cobb angle in the plane of maximum curvature", valueQuantity=_deg(curve["max_curvature_deg"])),
-        ]
+            _component("Convexity (patient side)", "CONVEXITY", valueString=curve["convexity"]),
+            _component("Major curve", "MAJOR-CURVE", valueBoolean=bool(curve.get("major"))),
+            _component("Apical vertebral axial rotation", "APEX-AXROT",
+                       valueQuantity=_deg(curve["apex_axial_rotation_deg"])),
+            _component("Plane of maximum curvature, azimuth from the frontal plane toward anterior", "PMC-ORIENT",
+                       valueQuantity=_deg(curve["plane_of_max_curvature_deg"])),
+            _component("Cobb angle in the plane of maximum curvature", "PMC-COBB",
+                       valueQuantity=_deg(curve["max_curvature_deg"])),
+        ]  # fmt: skip
         if curve.get("endplate_angle_deg") is not None:
             endplates = _deg(curve["endplate_angle_deg"])
-            components.append(_component("Cobb angle between end plates, frontal plane", valueQuantity=endplates))
+            components.append(_component("Cobb angle between end plates, frontal plane", "ENDPLATE-COBB",
+                                         valueQuantity=endplates))  # fmt: skip
         note = (
             f"{kind.capitalize()} {curve['upper']}–{curve['lower']}, apex {curve['apex']}, "
             f"convex to the patient's {curve['convexity']}."
         )
         observations.append(
             observation(f"cobb:{i}:{curve['upper']}-{curve['lower']}", f"Cobb angle, frontal plane, {kind}",
-                        curve["angle_deg"], notes=[note], components=components, sd=curve.get("angle_sd_deg"))
+                        curve["angle_deg"], coding=COBB_ANGLE, notes=[note], components=components,
+                        sd=curve.get("angle_sd_deg"))
         )  # fmt: skip
     major = next((c for c in curves if c.get("major")), None)
-    for key, name, field, flag in (
+    for key, name, field, flag, code in (
         ("kyphosis-t4-t12", "Thoracic kyphosis T4–T12 (sagittal Cobb angle)", "thoracic_kyphosis_t4_t12_deg",
-         "kyphosis"),
+         "kyphosis", "KYPH-T4-T12"),
         ("kyphosis-t5-t12", "Thoracic kyphosis T5–T12 (sagittal Cobb angle)", "thoracic_kyphosis_t5_t12_deg",
-         "kyphosis"),
-        ("lordosis-l1-l5", "Lumbar lordosis L1–L5 (sagittal Cobb angle)", "lumbar_lordosis_l1_l5_deg", "lordosis"),
+         "kyphosis", "KYPH-T5-T12"),
+        ("lordosis-l1-l5", "Lumbar lordosis L1–L5 (sagittal Cobb angle)", "lumbar_lordosis_l1_l5_deg", "lordosis",
+         "LORD-L1-L5"),
     ):  # fmt: skip
         if measures.get(field) is not None:
             sign = "positive when convex posteriorly" if flag == "kyphosis" else "positive when convex anteriorly"
-            observations.append(observation(key, name, measures[field], notes=[f"Sign: {sign}."],
+            observations.append(observation(key, name, measures[field], coding=_local(code), notes=[f"Sign: {sign}."],
                                             estimate=flag in unreliable,
                                             sd=measures.get(field.replace("_deg", "_sd_deg"))))  # fmt: skip
     if major is not None:
@@ -194,6 +289,7 @@ def observation_bundle(
                 "apical-axial-rotation",
                 "Apical vertebral axial rotation of the major curve",
                 major["apex_axial_rotation_deg"],
+                coding=_local("APEX-AXROT"),
                 notes=[f"Apex {major['apex']}; positive toward the patient's left (SRS sense, seen from above)."],
                 components=[_component("Apex vertebra", valueString=major["apex"])],
                 estimate="axial_rotation" in unreliable,

@@ -211,6 +211,55 @@ def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None
     assert problem_of(wrong_method)["type"] == PROBLEM_BASE + "method-not-allowed"
 
 
+@pytest.mark.parametrize(
+    ("method", "path", "allow"),
+    [
+        ("DELETE", "/v1/jobs", "GET, POST"),
+        ("PUT", "/v1/jobs/{id}", "GET"),
+        ("DELETE", "/v1/jobs/{id}/cancel", "POST"),
+        ("POST", "/v1/jobs/{id}/fhir", "GET"),
+        ("GET", "/v1/jobs/batch", "POST"),  # not the job route's GET of a job id "batch"
+        ("TRACE", "/v1/jobs/batch", "POST"),
+        ("POST", "/healthz", "GET"),
+        ("POST", "/v1/pacs", "GET"),
+        ("POST", "/", "GET, HEAD"),  # the page
+        ("POST", "/assets/any.js", "GET, HEAD"),  # a mount of static files
+    ],
+)
+def test_a_405_lists_the_methods_the_resource_has(api: TestClient, method: str, path: str, allow: str) -> None:
+    """RFC 9110 §15.5.6: a 405 carries ``Allow`` with the target resource's methods (the routes of
+    included routers and mounts too, and not a method the path only refuses)."""
+    response = api.request(method, path.replace("{id}", str(uuid.uuid4())))
+    assert response.status_code == 405, response.text
+    assert response.headers["allow"] == allow
+    assert problem_of(response)["type"] == PROBLEM_BASE + "method-not-allowed"
+
+
+def test_a_key_given_twice_is_a_422_naming_it(api: TestClient, payload: dict[str, Any]) -> None:
+    """RFC 8259 §4: a receiver's reading of repeated names is unpredictable (Python's json keeps the
+    last): the body is refused, each repeated key named by its JSON path, not read one way."""
+    text = json.dumps(payload)
+    twice = text.replace('"pa": {', '"pa": {"units": "px", "units": "mm", ', 1)
+    response = api.post("/v1/jobs", content=twice, headers={"Content-Type": "application/json"})
+    assert response.status_code == 422
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "validation-error"
+    assert [(e["path"], e["loc"], e["type"]) for e in problem["errors"]] == [("pa.units", ["pa", "units"],
+                                                                               "duplicate_key")]  # fmt: skip
+    assert "'units' is given 2 times" in problem["errors"][0]["msg"] and "pa.units" in problem["detail"]
+    # in a batch, every repeated key of every entry, deep ones included; nothing is stored
+    entry = json.dumps(payload).replace('"level": "T4"', '"level": "T4", "level": "T5"', 1)
+    batch = '{"jobs": [' + ", ".join((json.dumps(payload), twice, entry)) + ']}'
+    before = len(api.get("/v1/jobs").json()["jobs"])
+    answer = api.post("/v1/jobs/batch", content=batch, headers={"Content-Type": "application/json"})
+    assert answer.status_code == 422
+    paths = [e["path"] for e in problem_of(answer)["errors"]]
+    assert paths == ["jobs[1].pa.units", "jobs[2].pa.landmarks[3].level"]
+    assert len(api.get("/v1/jobs").json()["jobs"]) == before
+    # the same body without the repetition is a job
+    assert api.post("/v1/jobs", content=text, headers={"Content-Type": "application/json"}).status_code == 202
+
+
 def test_unexpected_error_is_a_500_problem_without_traceback(api: TestClient) -> None:
     def explode() -> None:
         raise RuntimeError("secret internals")

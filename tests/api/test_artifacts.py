@@ -54,9 +54,12 @@ class App:
         cache: ArtifactCache = self.client.app.state.artifact_cache  # type: ignore[attr-defined]
         return cache
 
-    def succeeded_job(self, result: dict[str, Any], headers: dict[str, str] | None = None) -> str:
+    def succeeded_job(
+        self, result: dict[str, Any], headers: dict[str, str] | None = None, payload: dict[str, Any] | None = None
+    ) -> str:
         """A job of clinic a (or of ``headers``' client) made succeeded with ``result``, as the worker leaves it."""
-        response = self.client.post("/v1/jobs", json=spine_payload(curve_mm=25.0), headers=headers or self.a)
+        body = payload or spine_payload(curve_mm=25.0)
+        response = self.client.post("/v1/jobs", json=body, headers=headers or self.a)
         job_id = str(response.json()["id"])
         finished = datetime(2026, 12, 2, 9, 30, 0, 123456, tzinfo=UTC)
         with session_scope(self.settings) as session:
@@ -176,6 +179,47 @@ def test_another_jobs_or_artifacts_etag_does_not_match(app: App, result: dict[st
     assert len(set(etags.values())) == 4
     assert app.get(other, "fhir", etags[(one, "fhir")]).status_code == 200
     assert app.get(one, "fhir", etags[(one, "figure.svg")]).status_code == 200
+
+
+def test_the_fhir_subject_system_is_the_setting_and_in_the_etag(tmp_path: Path, result: dict[str, Any]) -> None:
+    """SPINE_PATIENT_ID_SYSTEM is each subject's identifier system; the same job's Bundle under another
+    setting is other bytes, so its strong ETag differs too (RFC 9110 §8.8.1). Two API processes on one
+    database, one without the setting and one with it."""
+    from fhir.resources.R4B.bundle import Bundle
+
+    study = {"study_instance_uid": "1.2.826.0.1.3680043.8.498.1", "patient_id": "P-1", "study_date": "2026-11-30"}
+    job_id = ""
+    answers = {}
+    for system in (None, "urn:oid:1.2.3.4.5"):
+        app = App(tmp_path, patient_id_system=system)
+        with app.client:
+            if not job_id:
+                job_id = app.succeeded_job(result, payload={**spine_payload(curve_mm=25.0), "study": study})
+            answers[system] = app.get(job_id, "fhir")
+    assert answers[None].headers["etag"] != answers["urn:oid:1.2.3.4.5"].headers["etag"]
+    for system, response in answers.items():
+        assert response.status_code == 200
+        bundle = response.json()
+        Bundle.model_validate(bundle)
+        identifier = {"value": "P-1"} if system is None else {"system": system, "value": "P-1"}
+        assert all(e["resource"]["subject"]["identifier"] == identifier for e in bundle["entry"])
+        assert {e["resource"]["effectiveDateTime"] for e in bundle["entry"]} == {"2026-11-30"}  # the study's date
+
+
+def test_a_fhir_bundle_without_study_is_effective_at_the_jobs_creation(app: App, result: dict[str, Any]) -> None:
+    job_id = app.succeeded_job(result)
+    created = app.client.get(f"/v1/jobs/{job_id}", headers=app.a).json()["created_at"]
+    bundle = app.get(job_id, "fhir").json()
+    effective = {datetime.fromisoformat(e["resource"]["effectiveDateTime"]) for e in bundle["entry"]}
+    assert effective == {datetime.fromisoformat(created)}
+    assert all("subject" not in e["resource"] for e in bundle["entry"])
+
+
+def test_a_patient_id_system_must_be_an_absolute_uri() -> None:
+    for value in ("hospital ids", "1.2.3.4", "://x"):
+        with pytest.raises(ValueError, match="absolute URI"):
+            Settings(patient_id_system=value)
+    assert Settings(patient_id_system="").patient_id_system is None
 
 
 # ------------------------------------------------------------------ the functions

@@ -28,6 +28,8 @@ EXPECTED = {
     "huge number (too many digits)": (400, "malformed-json"),
     "unknown level": (422, "validation-error"),
     "duplicate levels": (422, "validation-error"),
+    "duplicate key": (422, "validation-error"),
+    "duplicate key in a batch entry": (422, "validation-error"),
     "landmarks out of order": (422, "validation-error"),
     "levels implausibly far apart": (422, "validation-error"),
     "crossed corners": (422, "validation-error"),
@@ -46,6 +48,7 @@ EXPECTED = {
     "oversized Idempotency-Key": (422, "validation-error"),
     "unknown query parameter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
+    "method not allowed": ("405 (Allow: GET, POST)", "method-not-allowed"),
     "bad job id": (422, "validation-error"),
     "another client's job": (404, "not-found"),
     "unknown job": (404, "not-found"),
@@ -78,6 +81,8 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     details = {r["kind"]: r["detail"] for r in rows}
     assert "T1 and T2 are 336 mm apart" in details["levels implausibly far apart"]
     assert "corners of T5" in details["crossed corners"]
+    assert validation["duplicate key"] == "pa.units"
+    assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
 
 
 def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:

@@ -243,7 +243,8 @@ def test_merge_fills_missing_and_reports_conflicts() -> None:
     assert merged["pa"]["pixel_spacing_calibration"] == "calibrated"
     assert merged["pa"]["patient_orientation"] == ["L", "F"]
     assert merged["pa"]["acquisition"] == {"magnification": 1.25, "distance_source_to_detector_mm": 1800.0,
-                                           "distance_source_to_patient_mm": pytest.approx(1440.0)}  # fmt: skip
+                                           "distance_source_to_patient_mm": pytest.approx(1440.0),
+                                           "image_size": [32.0, 64.0]}  # fmt: skip
     assert merged["lateral"]["pixel_spacing"] == [0.2, 0.2]  # the payload wins
     assert "pixel_spacing_calibration" not in merged["lateral"]  # the header's calibration is not of this spacing
     assert merged["study"]["accession_number"] == "TYPED"
@@ -266,6 +267,34 @@ def test_merge_fills_missing_and_reports_conflicts() -> None:
     assert not {r.field: r for r in provenance.lateral.read}["lateral.pixel_spacing"].used
     Study.model_validate(merged["study"])  # the study block is a valid payload Study
     assert provenance.model_dump(mode="json")["conflicts"][0].keys() == {"field", "payload", "header", "attribute"}
+
+
+@pytest.mark.parametrize(("view", "size"), [
+    ({"units": "px"}, [500.0, 1200.0]),  # [Columns, Rows]
+    ({"units": "mm", "pixel_spacing": [0.2, 0.15]}, [75.0, 240.0]),  # × column 0.15, row 0.2 mm
+    ({"units": "mm"}, [75.0, 240.0]),  # the header's spacing, filled first
+])  # fmt: skip
+def test_image_size_is_read_from_columns_and_rows(view: dict[str, Any], size: list[float]) -> None:
+    """acquisition.image_size is [Columns, Rows] (0028,0011)/(0028,0010) in the view's units."""
+    header = read_header(synthetic.radiograph(rows=1200, columns=500, sid=1800.0, sod=1600.0,
+                                              imager_pixel_spacing=None, pixel_spacing=(0.2, 0.15)))  # fmt: skip
+    merged, provenance = apply_headers({"pa": {**view, "landmarks": []}}, {"pa": header}, source="file")
+    assert merged["pa"]["acquisition"]["image_size"] == pytest.approx(size)
+    assert provenance.pa is not None
+    read = {r.field: r for r in provenance.pa.read}["pa.acquisition.image_size"]
+    assert read.used and "Columns (0028,0011)" in read.attribute and "Rows (0028,0010)" in read.attribute
+
+
+def test_image_size_needs_a_spacing_in_mm_and_a_given_one_wins() -> None:
+    header = read_header(synthetic.radiograph(rows=1200, columns=500, imager_pixel_spacing=None))
+    assert header.pixel_spacing is None
+    merged, _ = apply_headers({"pa": {"units": "mm", "landmarks": []}}, {"pa": header}, source="file")
+    assert "image_size" not in (merged["pa"].get("acquisition") or {})
+    payload = {"pa": {"units": "px", "pixel_spacing": [0.2, 0.2], "acquisition": {"image_size": [400.0, 1200.0]},
+                      "landmarks": []}}
+    merged, provenance = apply_headers(payload, {"pa": header}, source="file")
+    assert merged["pa"]["acquisition"]["image_size"] == [400.0, 1200.0]
+    assert [(c.field, c.header) for c in provenance.conflicts] == [("pa.acquisition.image_size", [500.0, 1200.0])]
 
 
 def test_equal_values_are_no_conflict() -> None:

@@ -10,13 +10,19 @@ from typing import Any
 import numpy as np
 import pytest
 
-from spine_engine.anatomy import load_profile
+from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.errors import InvalidInput
 from spine_engine.experiments.truth import payload_from_truth
 from spine_engine.frames import axial_rotation_deg
 from spine_engine.measures import aasce_major_angle, major_first_curves
 from spine_engine.models import RegistrationResult
-from spine_engine.reconstruction import build_problem, patient_rest_model, register, rod_parameters
+from spine_engine.reconstruction import (
+    UNRELIABLE_SD_FRACTION,
+    build_problem,
+    patient_rest_model,
+    register,
+    rod_parameters,
+)
 from spine_engine.registration import RegistrationProblem
 from spine_engine.rotations import exp_so3
 from spine_engine.synthetic import generate_spine, generate_spines
@@ -197,9 +203,18 @@ def test_without_boundary_the_fit_converges_and_flags_what_the_model_supplies(sp
     assert lateral["fit"]["converged"] and "depth" not in lateral["fit"]["unreliable"]
     pedicles = register(payload_from_truth(spine.positions, spine.rotations, ALL, boundary=False, pedicle_levels=ALL))
     assert pedicles["fit"]["converged"] and "axial_rotation" not in pedicles["fit"]["unreliable"]
-    # with the boundary given nothing is flagged, and the prior is off unless asked for
+    # with the boundary given only a sagittal measure whose SD is a large part of the population's is
+    # flagged (reconstruction.UNRELIABLE_SD_FRACTION), and the prior is off unless asked for
     given = register(payload_from_truth(spine.positions, spine.rotations, ALL))
-    assert given["fit"]["unreliable"] == [] and given["fit"]["boundary"] == "given" and not given["fit"]["tilt_prior"]
+    assert given["fit"]["boundary"] == "given" and not given["fit"]["tilt_prior"]
+    population = population_prior(load_profile()).measure_sd_deg  # type: ignore[union-attr]
+    for name, sd_key, pop_key in (
+        ("kyphosis", "thoracic_kyphosis_t4_t12_sd_deg", "kyphosis_t4_t12_deg"),
+        ("lordosis", "lumbar_lordosis_l1_l5_sd_deg", "lordosis_l1_l5_deg"),
+    ):
+        wide = given["measures"][sd_key] > UNRELIABLE_SD_FRACTION * population[pop_key]
+        assert (name in given["fit"]["unreliable"]) == wide
+    assert set(given["fit"]["unreliable"]) <= {"kyphosis", "lordosis"}
     asked = payload_from_truth(spine.positions, spine.rotations, ALL)
     asked["options"] = {"tilt_prior": True}
     assert register(asked)["fit"]["tilt_prior"]

@@ -279,8 +279,9 @@ def test_every_verse_dev_spine_passes_on_both_films(magnification: float) -> Non
     """Each dev spine projected on a PA ((x, z)) and a lateral ((−y, z)) film, every level, at the
     ends of MAGNIFICATION_RANGE: accepted, with the magnification unstated and stated."""
     for _, positions in read_verse(VERSE_DEV):
-        pa = {lv: [magnification * r[0], -magnification * r[2]] for lv, r in zip(LEVELS, positions.tolist())}
-        lateral = {lv: [-magnification * r[1], -magnification * r[2]] for lv, r in zip(LEVELS, positions.tolist())}
+        levels = list(zip(LEVELS, positions.tolist(), strict=True))
+        pa = {lv: [magnification * r[0], -magnification * r[2]] for lv, r in levels}
+        lateral = {lv: [-magnification * r[1], -magnification * r[2]] for lv, r in levels}
         validate_payload({"pa": _view(pa), "lateral": _view(lateral)})
         acq = {"acquisition": {"magnification": magnification}}
         validate_payload({"pa": _view(pa, **acq), "lateral": _view(lateral, **acq)})

@@ -25,6 +25,7 @@ from standardwebhooks import Webhook
 from services.core.jobqueue import make_celery
 from services.db import jobs as jobs_repo
 from services.db.engine import session_scope
+from services.fhir.export import LOCAL_CODE_SYSTEM
 from services.webhooks.delivery import job_ended, message_id
 from spine_client import (
     IdempotencyConflict,
@@ -314,7 +315,8 @@ def test_fhir_bundle_of_a_succeeded_job(client: SpineClient) -> None:
     for obs in observations:
         assert obs["status"] == "final"
         assert obs["category"][0]["coding"][0]["code"] == "imaging"
-        assert set(obs["code"]) == {"text"}  # no invented LOINC / SNOMED CT code
+        assert obs["code"]["text"] and len(obs["code"]["coding"]) == 1  # coded, the text kept
+        assert obs["code"]["coding"][0]["system"] in ("http://snomed.info/sct", LOCAL_CODE_SYSTEM)
         assert obs["valueQuantity"]["system"] == "http://unitsofmeasure.org"
         assert obs["valueQuantity"]["code"] == "deg"
         assert obs["derivedFrom"] == [{"type": "ImagingStudy", "display": f"DICOM study {STUDY['study_instance_uid']}",

@@ -7,9 +7,10 @@ import base64
 import copy
 import csv
 import io
+import re
 import uuid
 from collections.abc import Iterator
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, date, datetime, timedelta
 from email.utils import format_datetime
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,15 @@ from services.core.webhook_policy import (
     parse_allow_list,
 )
 from services.db.migrate import upgrade
-from services.fhir.export import observation_bundle
+from services.dicom.sr import PRIVATE_SCHEME_VERSION, P
+from services.fhir.export import (
+    COBB_ANGLE,
+    LOCAL_CODE_SYSTEM,
+    LOCAL_CODE_SYSTEM_VERSION,
+    LOCAL_CODES,
+    effective_date_time,
+    observation_bundle,
+)
 from services.webhooks.delivery import message_id, retry_delay
 from services.webhooks.signing import signed_headers
 from spine_client import tables
@@ -179,6 +188,93 @@ def test_fhir_bundle_without_curves_has_no_cobb_or_apical_rotation(result: dict[
     assert len(texts) == 3 and not any("Cobb angle, frontal" in t or "Apical" in t for t in texts)
 
 
+def test_fhir_observations_are_coded_and_keep_their_text(result: dict[str, Any]) -> None:
+    """The frontal Cobb angles carry SNOMED CT 285285000 (PS3.16 CID 7550, as the SR); the sagittal
+    angles, the apical rotation and the curves' components carry the local code system's codes; every
+    code keeps its text."""
+    from fhir.resources.R4B.bundle import Bundle
+
+    bundle = observation_bundle(uuid.uuid4(), result, finished_at=datetime.now(UTC))
+    Bundle.model_validate(bundle)
+    codes = {e["resource"]["code"]["text"]: e["resource"]["code"]["coding"] for e in bundle["entry"]}
+    cobb = [c for t, c in codes.items() if t.startswith("Cobb angle, frontal plane")]
+    assert cobb and all(c == [COBB_ANGLE] for c in cobb)
+    assert COBB_ANGLE == {"system": "http://snomed.info/sct", "code": "285285000", "display": "Cobb angle"}
+    local = {t: c[0]["code"] for t, c in codes.items() if c[0]["system"] == LOCAL_CODE_SYSTEM}
+    assert local == {
+        "Thoracic kyphosis T4–T12 (sagittal Cobb angle)": "KYPH-T4-T12",
+        "Thoracic kyphosis T5–T12 (sagittal Cobb angle)": "KYPH-T5-T12",
+        "Lumbar lordosis L1–L5 (sagittal Cobb angle)": "LORD-L1-L5",
+        "Apical vertebral axial rotation of the major curve": "APEX-AXROT",
+    }
+    major = next(e["resource"] for e in bundle["entry"] if e["resource"]["code"]["text"].endswith("major curve"))
+    coded = {c["code"]["coding"][0]["code"] for c in major["component"] if "coding" in c["code"]}
+    assert {"CONVEXITY", "MAJOR-CURVE", "APEX-AXROT", "PMC-ORIENT", "PMC-COBB"} <= coded
+    assert all(c["code"]["text"] for c in major["component"])
+
+
+def test_fhir_local_codes_are_the_srs_private_codes() -> None:
+    """One meaning, one code value, in DICOM (99SPINE) and in FHIR (``LOCAL_CODE_SYSTEM``)."""
+    sr_codes = {c.value: c.meaning for c in vars(P).values() if hasattr(c, "scheme_designator")}
+    assert {code: sr_codes.get(code) for code in LOCAL_CODES} == LOCAL_CODES
+    assert LOCAL_CODE_SYSTEM_VERSION == PRIVATE_SCHEME_VERSION
+    uuid_urn = r"urn:uuid:[0-9a-f]{8}-[0-9a-f]{4}-5[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}"  # RFC 9562 version 5
+    assert re.fullmatch(uuid_urn, LOCAL_CODE_SYSTEM)
+
+
+def test_fhir_subject_has_the_configured_system_and_every_observation_a_time(result: dict[str, Any]) -> None:
+    from fhir.resources.R4B.bundle import Bundle
+
+    created = datetime(2026, 12, 1, 8, 0, 5, tzinfo=UTC)
+    finished = created + timedelta(seconds=3)
+    study = {"study_instance_uid": "1.2.3", "patient_id": "P-17", "patient_name": "Doe^Jane",
+             "study_date": "2026-11-30"}  # fmt: skip
+    bundle = observation_bundle(uuid.uuid4(), result, finished_at=finished, created_at=created, study=study,
+                                patient_id_system="urn:oid:1.2.3.4.5")  # fmt: skip
+    Bundle.model_validate(bundle)
+    for entry in bundle["entry"]:
+        obs = entry["resource"]
+        assert obs["subject"]["identifier"] == {"system": "urn:oid:1.2.3.4.5", "value": "P-17"}
+        assert obs["subject"]["display"] == "Doe Jane" and obs["effectiveDateTime"] == "2026-11-30"
+    # no study, no patient: no subject, and the job's creation as the effective time
+    bare = observation_bundle(uuid.uuid4(), result, finished_at=finished, created_at=created)
+    Bundle.model_validate(bare)
+    effective = {e["resource"]["effectiveDateTime"] for e in bare["entry"]}
+    assert effective == {"2026-12-01T08:00:05Z"}  # the job's creation, in UTC as fhir.resources writes it
+    assert all("subject" not in e["resource"] for e in bare["entry"])
+    # a patient without a configured system: the identifier alone
+    unsystematic = observation_bundle(uuid.uuid4(), result, finished_at=finished, study=study)
+    assert unsystematic["entry"][0]["resource"]["subject"]["identifier"] == {"value": "P-17"}
+
+
+@pytest.mark.parametrize(
+    ("study", "film", "expected"),
+    [
+        ({"study_date": "2026-11-30"}, None, "2026-11-30"),
+        # a time is written only with its zone (FHIR R4 dateTime), else the date alone
+        ({"study_date": "2026-11-30", "study_time": "101500"}, None, "2026-11-30"),
+        ({"study_date": "2026-11-30", "study_time": "101500.25", "timezone_offset_from_utc": "+0100"}, None,
+         "2026-11-30T10:15:00.25+01:00"),
+        ({"study_date": "2026-11-30", "study_time": "0915", "timezone_offset_from_utc": "-0500"}, None,
+         "2026-11-30T09:15:00-05:00"),
+        ({"study_instance_uid": "1.2.3"}, datetime(2026, 11, 29, 7, 45, tzinfo=UTC), "2026-11-29T07:45:00+00:00"),
+        (None, datetime(2026, 11, 29, 7, 45), "2026-11-29"),
+        (None, date(2026, 11, 28), "2026-11-28"),
+        (None, None, "2026-12-01T08:00:05+00:00"),
+    ],
+)  # fmt: skip
+def test_fhir_effective_time_is_the_studys_else_the_films_else_the_jobs(
+    study: dict[str, Any] | None, film: datetime | date | None, expected: str
+) -> None:
+    from fhir.resources.R4B.observation import Observation
+
+    created = datetime(2026, 12, 1, 8, 0, 5, tzinfo=UTC)
+    value = effective_date_time(study, film, created)
+    assert value == expected
+    Observation.model_validate({"resourceType": "Observation", "status": "final", "code": {"text": "x"},
+                                "effectiveDateTime": value})  # fmt: skip
+
+
 # ------------------------------------------------------------------ CSV tables
 
 
@@ -193,6 +289,29 @@ def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
     cobb = [m for m in measures if m["measure"] == "cobb_angle"]
     assert len(cobb) == len(result["measures"]["cobb"]) and {m["major"] for m in cobb} <= {"true", "false"}
     assert measures[-1]["measure"] == "mean_registration_error" and measures[-1]["unit"] == "mm"
+
+
+def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result: dict[str, Any]) -> None:
+    """The columns and meanings of the page's CSVs (web/src/csv.ts, web/src/results.ts): SDs from the
+    result, and the model-estimate mark on what ``fit.unreliable`` names."""
+    measured = list(csv.DictReader(io.StringIO(tables.vertebrae_csv(result))))
+    v3 = result["vertebrae"][3]
+    assert [float(measured[3][f"position_sd_{a}_mm"]) for a in "xyz"] == pytest.approx(v3["position_sd_mm"])
+    assert float(measured[3]["axial_rotation_sd_deg"]) == pytest.approx(v3["axial_rotation_sd_deg"])
+    assert {r["model_estimate"] for r in measured} == {""}  # T1 and L5 given: nothing from the prior
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(result)))}
+    assert float(rows["thoracic_kyphosis_t4_t12"]["sd"]) == pytest.approx(
+        result["measures"]["thoracic_kyphosis_t4_t12_sd_deg"])  # fmt: skip
+    assert float(rows["cobb_angle"]["sd"]) == pytest.approx(result["measures"]["cobb"][-1]["angle_sd_deg"])
+    assert rows["mean_registration_error"]["sd"] == "" and {r["model_estimate"] for r in rows.values()} == {""}
+
+    estimated = copy.deepcopy(result)
+    estimated["fit"]["unreliable"] = ["depth", "kyphosis", "axial_rotation", "twist"]
+    marks = {r["model_estimate"] for r in csv.DictReader(io.StringIO(tables.vertebrae_csv(estimated)))}
+    assert marks == {"y_mm;pa_bending_deg;axial_rotation_deg;u3_rad_per_mm;twist_deg"}
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(estimated)))}
+    marked = {name for name, r in rows.items() if r["model_estimate"] == "model estimate"}
+    assert marked == {"thoracic_kyphosis_t4_t12", "thoracic_kyphosis_t5_t12", "apex_axial_rotation"}
 
 
 # ------------------------------------------------------------------ API checks

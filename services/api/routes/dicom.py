@@ -24,6 +24,7 @@ from services.api.artifacts import (
 )
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
+from services.api.schemas import BINARY_SCHEMA
 from services.dicom.merge import apply_reads, engine_payload
 from services.dicom.results import PART10_MEDIA_TYPE, job_figure_sc, job_sr
 from spine_engine.figures import render_figure
@@ -40,7 +41,7 @@ router = APIRouter(prefix="/v1/jobs", tags=["dicom"])
     "the SR, each with its SD and whether it is measured or model-based, the landmarks as SCOORD on the source "
     "image when known, and the algorithm's name, version and profile. In a new series of the job's study. "
     "404 for an unknown job; 409 while it has no result." + CONDITIONAL,
-    responses=artifact_responses(PART10_MEDIA_TYPE, "The SR as a DICOM Part 10 file."),
+    responses=artifact_responses(PART10_MEDIA_TYPE, "The SR as a DICOM Part 10 file.", BINARY_SCHEMA),
 )
 def sr_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
@@ -60,7 +61,7 @@ def sr_dcm(
     summary="A succeeded job's figure as a DICOM Secondary Capture",
     description="The figure of figure.png as an RGB Secondary Capture in a new series of the job's study. "
     "404 for an unknown job; 409 while it has no result." + CONDITIONAL,
-    responses=artifact_responses(PART10_MEDIA_TYPE, "The figure as a DICOM Part 10 file."),
+    responses=artifact_responses(PART10_MEDIA_TYPE, "The figure as a DICOM Part 10 file.", BINARY_SCHEMA),
 )
 def figure_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep

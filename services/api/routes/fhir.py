@@ -18,7 +18,7 @@ from services.api.artifacts import (
     artifact_response,
     artifact_responses,
 )
-from services.api.deps import AccessDep, SessionDep
+from services.api.deps import AccessDep, SessionDep, SettingsDep
 from services.api.job_reads import read_succeeded_job
 from services.db.models import utcnow
 from services.dicom.merge import apply_reads
@@ -32,10 +32,12 @@ DESCRIPTION = (
     "A FHIR R4 Bundle (type `collection`) of Observations (status `final`, category `imaging`, UCUM `deg`): "
     "the Cobb angle of every frontal curve (end and apex vertebrae, convexity, apical axial rotation and plane "
     "of maximum curvature as components), thoracic kyphosis T4–T12 and T5–T12, lumbar lordosis L1–L5, and the "
-    "apical axial rotation of the major curve. `code` is text only (no LOINC or SNOMED CT code is asserted). "
-    "With a `study` in the payload, each Observation's `derivedFrom` names the ImagingStudy by its DICOM Study "
-    "Instance UID; with its patient ID (typed in or read from the image header), `subject` is the Patient by "
-    "identifier, and with its study date, `effectiveDateTime` is that date. 404 for an unknown job; 409 "
+    'apical axial rotation of the major curve. `code` keeps its text and is coded: SNOMED CT 285285000 "Cobb '
+    'angle" for the frontal Cobb angles, the service\'s local code system (README, "FHIR export") for the '
+    "measures no standard code names. With a `study` in the payload, each Observation's `derivedFrom` names the "
+    "ImagingStudy by its DICOM Study Instance UID. With a patient ID (typed in or read from the image header), "
+    "`subject` is the Patient by identifier, its `system` the setting `SPINE_PATIENT_ID_SYSTEM`. "
+    "`effectiveDateTime` is the study's date, else the job's creation. 404 for an unknown job; 409 "
     "(`job-has-no-result`) unless the job succeeded." + CONDITIONAL
 )
 
@@ -50,14 +52,27 @@ DESCRIPTION = (
     ),
 )
 def job_fhir(
-    job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
+    job_id: uuid.UUID,
+    session: SessionDep,
+    access: AccessDep,
+    if_none_match: IfNoneMatchDep,
+    cache: ArtifactCacheDep,
+    settings: SettingsDep,
 ) -> Response:
     job, result = read_succeeded_job(session, job_id, access, "FHIR export")
 
     def build() -> bytes:
         payload: Any = job.payload
         study = apply_reads(payload, job.dicom).get("study") if isinstance(payload, dict) else None
-        bundle = observation_bundle(job.id, result, finished_at=job.finished_at or utcnow(), study=study)
+        bundle = observation_bundle(
+            job.id,
+            result,
+            finished_at=job.finished_at or utcnow(),
+            study=study,
+            created_at=job.created_at,
+            patient_id_system=settings.patient_id_system,
+        )
         return json.dumps(bundle, ensure_ascii=False).encode()
 
-    return artifact_response("fhir", job, if_none_match, cache, build, FHIR_MEDIA_TYPE)
+    return artifact_response("fhir", job, if_none_match, cache, build, FHIR_MEDIA_TYPE,
+                             variant=f"patient_id_system={settings.patient_id_system or ''}")  # fmt: skip

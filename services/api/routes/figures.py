@@ -21,6 +21,7 @@ from services.api.artifacts import (
 )
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
+from services.api.schemas import BINARY_SCHEMA, TEXT_SCHEMA
 from spine_engine.figures import MEDIA_TYPES, FigureFormat, render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["figures"])
@@ -48,7 +49,7 @@ def _figure(
     response_class=Response,
     summary="Figure of a succeeded job's reconstruction (PNG)",
     description=DESCRIPTION,
-    responses=artifact_responses(MEDIA_TYPES["png"], "The figure as PNG."),
+    responses=artifact_responses(MEDIA_TYPES["png"], "The figure as PNG.", BINARY_SCHEMA),
 )
 def figure_png(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
@@ -61,7 +62,7 @@ def figure_png(
     response_class=Response,
     summary="Figure of a succeeded job's reconstruction (SVG)",
     description=DESCRIPTION,
-    responses=artifact_responses(MEDIA_TYPES["svg"], "The figure as SVG."),
+    responses=artifact_responses(MEDIA_TYPES["svg"], "The figure as SVG (an XML text document, UTF-8).", TEXT_SCHEMA),
 )
 def figure_svg(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep

@@ -6,14 +6,14 @@ import uuid
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Query, Request, Response
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, Header, Query, Response
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from services.api import job_reads
 from services.api.admission import admit
 from services.api.batch import batch_response
 from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
-from services.api.errors import ProblemError
+from services.api.errors import METHOD_GUARD, ProblemError
 from services.api.schemas import (
     BatchEntry,
     BatchResponse,
@@ -23,7 +23,7 @@ from services.api.schemas import (
     Problem,
     problem_responses,
 )
-from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from services.core.problems import problem, validation_problem
 from services.db import jobs as jobs_repo
 from services.db.deliveries import deliveries
 from services.db.jobs import MAX_BATCH_KEY_LENGTH
@@ -157,11 +157,11 @@ def submit_batch(
     return BatchResponse(accepted=len(jobs), rejected=len(payloads) - len(jobs), results=entries)
 
 
-@router.api_route("/batch", methods=["GET", "PUT", "PATCH", "DELETE"], include_in_schema=False)
-async def batch_other_methods(request: Request) -> JSONResponse:
-    """/v1/jobs/batch takes POST only: a 405, not the job route's 422 for a job id "batch"."""
-    body = problem("method-not-allowed", "Method Not Allowed", instance=request.url.path)
-    return JSONResponse(body, status_code=405, media_type=PROBLEM_MEDIA_TYPE, headers={"Allow": "POST"})
+@router.api_route("/batch", methods=["GET", "PUT", "PATCH", "DELETE"], include_in_schema=False, name=METHOD_GUARD)
+async def batch_other_methods() -> None:
+    """/v1/jobs/batch takes POST only: a 405 (its ``Allow`` as for any 405), not the job route's 422
+    for a job id "batch"."""
+    raise StarletteHTTPException(405, "Method Not Allowed")
 
 
 @router.get(

@@ -19,7 +19,7 @@ from fastapi.responses import Response
 
 from services.api.deps import AccessDep, SettingsDep
 from services.api.errors import ProblemError
-from services.api.schemas import PacsStatus, PacsStudyImages, problem_responses
+from services.api.schemas import BINARY_SCHEMA, PacsStatus, PacsStudyImages, problem_responses
 from services.core.config import Settings
 from services.core.problems import problem
 from services.dicom.dicomweb import Pacs
@@ -105,7 +105,7 @@ def study_images(study_instance_uid: Uid, settings: SettingsDep, access: AccessD
     "`dicomweb-transfer-syntax-unavailable` when the PACS cannot send it uncompressed. " + NOT_CONFIGURED,
     responses={
         200: {
-            "content": {PART10_MEDIA_TYPE: {}},
+            "content": {PART10_MEDIA_TYPE: {"schema": BINARY_SCHEMA}},
             "description": "The image as a DICOM Part 10 file, Explicit VR Little Endian.",
         },
         **problem_responses(404, 422, 502, 503),
