@@ -18,6 +18,8 @@ export interface Acquisition {
   magnification?: number;
   distance_source_to_detector_mm?: number;
   distance_source_to_patient_mm?: number;
+  /** [columns, rows] of the image in the view's units (px here): DICOM Columns (0028,0011), Rows (0028,0010). */
+  image_size?: [number, number];
 }
 
 export interface DicomStudy {

@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, parseFilm, personName, serviceSpacingWords, type DicomFilm } from "./dicom";
+import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
 import { FilmEditor, type Mode } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
@@ -256,7 +256,7 @@ export class FilmPanel {
   }
 
   /** The view of the payload, or null without landmarks. Optional members only when the service takes them. */
-  payload(accepts: { acquisition: boolean; calibration: boolean }): ViewPayload | null {
+  payload(accepts: { acquisition: boolean; calibration: boolean; imageSize: boolean }): ViewPayload | null {
     const landmarks = this.editor.landmarks();
     if (!landmarks.length) return null;
     if (this.reopened && !this.editor.source) {
@@ -267,7 +267,9 @@ export class FilmPanel {
     if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
     if (d && accepts.acquisition) {
       // Millimetres already in the patient plane are not magnified again.
-      const acq = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      // The film's extent in px (the payload's units): with SID and SOD, the central ray at its centre.
+      if (accepts.imageSize) acq.image_size = [d.width, d.height];
       if (Object.keys(acq).length) view.acquisition = acq;
     }
     return view;
