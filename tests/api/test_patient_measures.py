@@ -8,6 +8,7 @@ import math
 import uuid
 from datetime import date
 from typing import Any
+from urllib.parse import quote
 
 import pytest
 
@@ -65,7 +66,9 @@ def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distribut
     assert all(j["status"] == "succeeded" for j in jobs.values()), [j.get("error") for j in jobs.values()]
 
     def follow_up(key: str, pid: str = patient) -> dict[str, Any]:
-        response = svc.client.get(f"/v1/patients/{pid}/measures", headers={"Authorization": f"Bearer {key}"})
+        response = svc.client.get(
+            f"/v1/patients/{quote(pid, safe='')}/measures", headers={"Authorization": f"Bearer {key}"}
+        )
         assert response.status_code == 200, response.text
         body: dict[str, Any] = response.json()
         return body
@@ -101,4 +104,5 @@ def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distribut
     theirs = follow_up(key_b)
     assert [v["job_id"] for v in theirs["visits"]] == [other] and theirs["changes"] == []
     assert follow_up(key_a, f"P-{uuid.uuid4().hex[:8]}")["visits"] == []
+    assert follow_up(key_a, "A/B 7")["patient_id"] == "A/B 7"  # a DICOM LO may hold "/" and spaces
     assert len(follow_up(svc.api_key)["visits"]) == 5

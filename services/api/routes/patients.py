@@ -185,7 +185,7 @@ def follow_up(patient_id: str, jobs: list[Job]) -> PatientMeasures:
 
 
 @router.get(
-    "/{patient_id}/measures",
+    "/{patient_id:path}/measures",
     response_model=PatientMeasures,
     summary="A patient's measures over time (follow-up)",
     description="The caller's succeeded jobs of this Patient ID (0010,0020), by Study Date (0008,0020), each with "
