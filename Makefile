@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean web browser pacs
+.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean web browser pacs node-deps
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,7 +28,7 @@ lint: $(STAMP)
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
-test: $(STAMP) lint browser pacs
+test: $(STAMP) lint browser pacs node-deps
 	$(BIN)/python -m pytest -ra --durations=15
 
 bench-paper: $(STAMP)
@@ -86,6 +86,20 @@ pacs:
 		$(call apt_install,orthanc,orthanc orthanc-dicomweb dcmtk dicom3tools,the PACS and DICOM tests); \
 	fi
 
+# The Cornerstone adapters OHIF reads SRs with (@cornerstonejs/adapters, pinned in tests/node/package.json
+# and its lock), for the DICOM tests that load the service's SR in Node (tests/dicom/ohif.py). Node and npm
+# are Debian's nodejs and npm, installed with apt-get as above when missing.
+NODE_STAMP := tests/node/node_modules/.installed
+node-deps: $(NODE_STAMP)
+
+$(NODE_STAMP): tests/node/package.json tests/node/package-lock.json
+	@if ! command -v npm >/dev/null 2>&1; then \
+		$(call apt_install,node,nodejs npm,the SR adapter tests); \
+	fi
+	@if command -v npm >/dev/null 2>&1; then \
+		cd tests/node && npm ci --no-audit --no-fund --loglevel=error && touch node_modules/.installed; \
+	fi
+
 # Service load benchmark: PostgreSQL + Redis on 127.0.0.1, API and workers started by the bench.
 LOADTEST_ARGS ?= --spawn --url http://127.0.0.1:8090 --workers 1 --worker-concurrency 2
 loadtest: $(STAMP)
@@ -94,4 +108,4 @@ loadtest: $(STAMP)
 	$(BIN)/python -m tools.loadbench $(LOADTEST_ARGS)
 
 clean:
-	rm -rf $(VENV) .spine .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .spine .pytest_cache .mypy_cache .ruff_cache tests/node/node_modules

@@ -108,8 +108,9 @@ def _job_exit(job: dict[str, Any]) -> int:
 
 
 def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
-    """The payload of ``spine submit --pa-dicom`` (landmarks CSV + headers read here; conflicts to
-    stderr) or of ``--study-instance-uid`` (landmarks CSV + UIDs: the service reads the headers)."""
+    """The payload of ``spine submit --pa-dicom`` (landmarks CSV + headers read here, sent as the job's
+    ``dicom`` block, so that the job keeps its film as a PACS job does; conflicts to stderr) or of
+    ``--study-instance-uid`` (landmarks CSV + UIDs: the service reads the headers)."""
     from spine_client.dicom_input import LandmarkCsvError, payload_by_reference, payload_from_dicom
 
     base = _load_json(args.base) if args.base else {}
@@ -137,7 +138,7 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
     for c in provenance["conflicts"]:
         _err(f"warning: {c['field']}: the payload's {c['payload']!r} is kept; the header's {c['attribute']} "
              f"says {c['header']!r}")  # fmt: skip
-    return payload
+    return {**payload, "dicom": provenance}
 
 
 def cmd_submit(args: argparse.Namespace) -> int:

@@ -264,10 +264,11 @@ class SpineClient:
         idempotency_key: str | None = None,
     ) -> tuple[Job, dict[str, Any]]:
         """Submit a landmark CSV with the spacing, orientation, geometry and study read from the
-        radiographs' DICOM headers on this machine (``spine_client.dicom_input``); returns the job
-        and what was read (``conflicts`` lists header values that differ from ``base``'s)."""
+        radiographs' DICOM headers on this machine (``spine_client.dicom_input``), what was read sent as
+        the job's ``dicom`` block; returns the job and what was read (``conflicts`` lists header values
+        that differ from ``base``'s)."""
         from spine_client.dicom_input import payload_from_dicom
 
         payload, provenance = payload_from_dicom(landmarks_csv, pa_dicom, lateral_dicom, units=units,
                                                  base=dict(base or {}))  # fmt: skip
-        return self.submit(payload, idempotency_key=idempotency_key), provenance
+        return self.submit({**payload, "dicom": provenance}, idempotency_key=idempotency_key), provenance

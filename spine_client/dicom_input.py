@@ -106,8 +106,9 @@ def payload_from_dicom(
     ``MissingAttribute``, ``InvalidAttribute``, ``UnsupportedOrientation``), each naming the
     attribute by keyword and tag.
     """
+    from services.db.job_forms import engine_payload
     from services.dicom.header import read_header
-    from services.dicom.merge import apply_headers, engine_payload
+    from services.dicom.merge import apply_headers
 
     landmarks = parse_landmark_csv(Path(landmarks_csv).read_text(encoding="utf-8"))
     payload: dict[str, Any] = dict(base or {})

@@ -2,9 +2,9 @@
 
 import itertools
 import math
+import statistics
 from typing import Any
 
-import numpy as np
 from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput
@@ -107,9 +107,9 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     for i, lm in enumerate(raw_landmarks):
         if not isinstance(lm, dict) or lm.get("corners") is None:
             continue
-        tl, tr, bl, br = (np.asarray(c, dtype=float) for c in lm["corners"])
+        tl, tr, bl, br = ((float(c[0]), float(c[1])) for c in lm["corners"])
         outline = (tl, tr, br, bl)
-        edges = [outline[(k + 1) % 4] - outline[k] for k in range(4)]
+        edges = [_minus(outline[(k + 1) % 4], outline[k]) for k in range(4)]
         turns = [_cross(edges[k], edges[(k + 1) % 4]) for k in range(4)]
         if min(turns) <= 0.0:
             if max(turns) < 0.0:
@@ -127,17 +127,24 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     return errors
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> float:
+Point = tuple[float, float]
+
+
+def _minus(a: Point, b: Point) -> Point:
+    return a[0] - b[0], a[1] - b[1]
+
+
+def _cross(a: Point, b: Point) -> float:
     """z component of the 2D cross product a × b = a_c b_r − a_r b_c."""
-    return float(a[0] * b[1] - a[1] * b[0])
+    return a[0] * b[1] - a[1] * b[0]
 
 
-def _crossed(outline: tuple[np.ndarray, ...]) -> bool:
+def _crossed(outline: tuple[Point, ...]) -> bool:
     """Whether the outline's opposite sides TL→TR and BR→BL, or TR→BR and BL→TL, intersect."""
 
-    def intersect(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
-        def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
-            return _cross(q - p, r - p)
+    def intersect(a: Point, b: Point, c: Point, d: Point) -> bool:
+        def side(p: Point, q: Point, r: Point) -> float:
+            return _cross(_minus(q, p), _minus(r, p))
 
         return side(a, b, c) * side(a, b, d) < 0.0 and side(c, d, a) * side(c, d, b) < 0.0
 
@@ -149,6 +156,8 @@ MEAN_SEGMENT_MM = (20.3, 20.8, 20.9, 20.9, 22.2, 22.3, 23.0, 23.5, 24.9, 26.4, 2
 """Mean distance between the centroids of adjacent vertebrae T1–T2 … L4–L5 over the 24 VerSe dev
 spines (tests/data/verse_dev.csv, 3D, mm, rounded to 0.1; a test recomputes it). The reference
 length of levels i < j is the arc A_ij = Σ_{l=i}^{j−1} MEAN_SEGMENT_MM[l]."""
+_ARC = [sum(MEAN_SEGMENT_MM[:k]) for k in range(len(MEAN_SEGMENT_MM) + 1)]
+"""A_0j, mm: the VerSe dev mean arc from T1 to level j."""
 VERSE_DISTANCE_RATIO = (0.385, 1.289)
 """Smallest and largest ratio |r_j − r_i| / A_ij over every pair of levels of the VerSe dev spines:
 0.385 for the distance projected on a PA film (the (x, z) plane: L4–L5, whose segment leans far
@@ -156,12 +165,12 @@ forward in the lordosis, is the shortest), 1.289 in 3D (a projection is never lo
 recomputes both."""
 SMALLEST_SPINE = 0.6
 """Widening of the lower bound for spines smaller than VerSe's adults (vertebral body plus disc
-heights scale with the spine's length): at the adolescent growth spurt's peak the spine is 87 % of
-its adult length and grows 1.1–1.6 cm a year before it (Sanders et al., "Spinal growth ...
-relative to the growth spurt", Spine Deform 2025;13(2):519–528, doi:10.1007/s43390-024-01011-w),
-on an adult T1–S1 of 42–45 cm (Dimeglio and Canavese, "The growing spine", Eur Spine J
-2012;21(1):64–70, doi:10.1007/s00586-011-1983-3); 0.6 admits children about five years before
-the spurt and VerSe's smallest spine (0.92 of its mean length) shrunk further."""
+heights scale with the spine's length): at 6–8 years the T1–T12 distance is 71–73 % of its final
+length ("Thoracic cage volume and dimension assessment by optoelectronic molding in normal children
+and adolescents during growth", 2019, 622 healthy children aged 6–18, science.ulysseus.eu record
+r245b-mnc02), and at the adolescent growth spurt's peak the spine is 87 % of its adult length
+(Sanders et al., Spine Deform 2025;13(2):519–528, doi:10.1007/s43390-024-01011-w). VerSe dev's
+smallest spine is 0.92 of its mean length: 0.92 × 0.71 = 0.65, and 0.6 leaves room below it."""
 LARGEST_SPINE = 1.25
 """Widening of the upper bound for spines larger than VerSe dev's (its T1–L5 polylines 388–498 mm,
 mean 421): the thoracic vertebral bodies' heights (Panjabi et al., "Thoracic human vertebrae:
@@ -169,6 +178,12 @@ quantitative three-dimensional anatomy", Spine 1991;16(8):888–901) and the lum
 et al., "Human lumbar vertebrae: quantitative three-dimensional anatomy", Spine 1992;17(3):299–306)
 have coefficients of variation near 10 % among adults, so a segment 25 % above the dev maximum ratio
 (itself 29 % above the mean) is beyond any adult's."""
+LABEL_SHIFT = 1
+"""Levels by which a landmark's label may be off the anatomy's count without the spine being
+implausible: transitional vertebrae (a lumbosacralised or sacralised lowest vertebra, 11 or 13
+rib-bearing vertebrae) are common (Apazidis et al., "The prevalence of transitional vertebrae in the
+lumbar spine", Spine J 2011;11(9):858–862), so levels labelled i and j may be j − i + 1 segments
+apart. The upper bound uses that longer arc; the page's T1 and T2 336 mm apart are still refused."""
 MAGNIFICATION_RANGE = (0.9, 1.4)
 """Detector mm per patient mm a view may have when the payload does not say: below 1 for a
 calibration that overshot, up to 1.4 for a lateral film of a broad patient at a short distance."""
@@ -194,14 +209,14 @@ reach 0.51–1.30 on the lateral, and the AASCE 2019 training radiographs' well-
 one vertebra (three AASCE annotations: 0.03–0.07)."""
 
 
-def _mm_per_unit(view: PAView | LateralView) -> np.ndarray:
+def _mm_per_unit(view: PAView | LateralView) -> Point:
     """(column, row) mm per unit of the view's coordinates: 1 in mm, the pixel spacing [row, column]
     swapped in px (the conversion of ``clinical.detector_spacing`` before any calibration factor;
     not imported from there, which would load the fit's stack with the validation)."""
     if view.units == "px":
         assert view.pixel_spacing is not None  # _view_errors refused px without a spacing first
-        return np.array([view.pixel_spacing[1], view.pixel_spacing[0]], dtype=float)
-    return np.ones(2)
+        return float(view.pixel_spacing[1]), float(view.pixel_spacing[0])
+    return 1.0, 1.0
 
 
 def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
@@ -223,7 +238,7 @@ def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
     return known * (1.0 - MAGNIFICATION_SPREAD), known * (1.0 + MAGNIFICATION_SPREAD)
 
 
-def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """Distances between consecutive landmarked levels i < j (k = j − i apart; each landmark's
     top-endplate midpoint: its point, or the mean of its top corners) that no spine has.
 
@@ -235,7 +250,8 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
     most favourable reading is impossible:
         (d − n)/m_max > LARGEST_SPINE · ρ_max · A_ij    (too far apart), or
         (d + n)/m_min < SMALLEST_SPINE · ρ_min · A_ij   (too close),
-    with n = NOISE_SDS·√2·σ, (ρ_min, ρ_max) = ``VERSE_DISTANCE_RATIO``, A_ij the VerSe dev mean arc.
+    with n = NOISE_SDS·√2·σ, (ρ_min, ρ_max) = ``VERSE_DISTANCE_RATIO``, A_ij the VerSe dev mean arc
+    (in the upper bound extended by ``LABEL_SHIFT`` segments below level j).
     The ratio bounds hold for every k (a chord is at most its arc); for adjacent levels the lower
     bound is below the noise allowance and catches only two clicks on one vertebra.
 
@@ -245,37 +261,42 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Fi
     q = d / A_ij over the median q of the view's pairs must lie within ``SPACING_RATIO``. A label
     on the wrong vertebra (a click meant as L5 labelled T2) breaks both checks whatever the scale.
     The error names both levels, at the lower level's landmark. Locations use the payload's indices.
+    ``scaled`` False (a stand-in spacing until the image's header is read): the scale-free check only.
     """
     raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
     if not isinstance(raw_landmarks, list):
         return []
     index = {lm.get("level"): i for i, lm in enumerate(raw_landmarks) if isinstance(lm, dict)}
-    spacing = _mm_per_unit(view)
-    placed = []
-    for lm in view.landmarks:
+    column_mm, row_mm = _mm_per_unit(view)
+    levels, points = [], []
+    for lm in view.landmarks:  # sorted by level; the top endplate midpoint, in film mm
         if lm.point is not None:
-            point = np.asarray(lm.point, dtype=float)
+            column, row = lm.point
         else:
             assert lm.corners is not None
-            point = 0.5 * (np.asarray(lm.corners[0], dtype=float) + np.asarray(lm.corners[1], dtype=float))
-        placed.append((LEVEL_INDEX[lm.level], point * spacing))
-    arc = np.concatenate(([0.0], np.cumsum(MEAN_SEGMENT_MM)))
+            (c0, r0), (c1, r1) = lm.corners[0], lm.corners[1]
+            column, row = 0.5 * (c0 + c1), 0.5 * (r0 + r1)
+        levels.append(LEVEL_INDEX[lm.level])
+        points.append((column * column_mm, row * row_mm))
     m_min, m_max = _magnification_range(view)
     sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
     noise = NOISE_SDS * math.sqrt(2.0) * sigma
     lo, hi = VERSE_DISTANCE_RATIO
-    pairs = [(i, j, float(np.linalg.norm(pj - pi)), float(arc[j] - arc[i])) for (i, pi), (j, pj) in
-             itertools.pairwise(placed)]  # fmt: skip
-    median = float(np.median([d / a for _, _, d, a in pairs])) if len(pairs) >= 2 else None
+    pairs = [
+        (i, j, math.dist(p, q), _ARC[j] - _ARC[i])
+        for (i, p), (j, q) in itertools.pairwise(zip(levels, points, strict=True))
+    ]
+    median = statistics.median(d / a for _, _, d, a in pairs) if len(pairs) >= 2 else None
     errors = []
     for i, j, d, a in pairs:
         upper, lower = LEVELS[i], LEVELS[j]
         apart = "adjacent levels" if j - i == 1 else f"levels {j - i} apart"
         reason = None
-        if (d - noise) / m_max > LARGEST_SPINE * hi * a:
+        a_up = a + sum(MEAN_SEGMENT_MM[min(j + k, len(MEAN_SEGMENT_MM) - 1)] for k in range(LABEL_SHIFT))
+        if scaled and (d - noise) / m_max > LARGEST_SPINE * hi * a_up:
             reason = (f"are {d:.0f} mm apart on the film; {apart} of any spine are at most "
-                      f"{LARGEST_SPINE * hi * a * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
-        elif (d + noise) / m_min < SMALLEST_SPINE * lo * a:
+                      f"{LARGEST_SPINE * hi * a_up * m_max + noise:.0f} mm apart at magnification up to {m_max:.3g}")
+        elif scaled and (d + noise) / m_min < SMALLEST_SPINE * lo * a:
             reason = (f"are {d:.1f} mm apart on the film; {apart} of any spine are at least "
                       f"{max(SMALLEST_SPINE * lo * a * m_min - noise, 0.0):.1f} mm apart at magnification down to "
                       f"{m_min:.3g}")
@@ -340,7 +361,7 @@ def _view_errors(name: str, view: PAView | LateralView, exact_boundary: bool) ->
     return errors
 
 
-def validate_payload(payload: Any) -> JobPayload:
+def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobPayload:
     """Validate ``payload`` against the contract; raise ``InvalidInput`` listing every bad field.
 
     Numbers must be finite, levels known and unique per view, directors orthonormal and
@@ -350,7 +371,9 @@ def validate_payload(payload: Any) -> JobPayload:
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
     with columns L or R. On an upright view the landmarks must run head to feet in level order;
     four corners must form a convex quadrilateral in the contract's order (``_corner_errors``); and
-    consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``).
+    consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``;
+    for the views named in ``unscaled_views``, whose pixel spacing is a stand-in until the image's
+    header is read, only the scale-free part).
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -374,9 +397,9 @@ def validate_payload(payload: Any) -> JobPayload:
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _corner_errors("lateral", payload.get("lateral"))
     if not errors:  # distances need the spacing and well-formed landmarks
-        errors += _distance_errors("pa", model.pa, payload.get("pa"))
-        if model.lateral is not None:
-            errors += _distance_errors("lateral", model.lateral, payload.get("lateral"))
+        for name, view in (("pa", model.pa), ("lateral", model.lateral)):
+            if view is not None:
+                errors += _distance_errors(name, view, payload.get(name), name not in unscaled_views)
     if errors:
         raise InvalidInput(errors)
     return model

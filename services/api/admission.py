@@ -24,10 +24,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 from sqlalchemy.orm import Session
 
 from services.core.config import Settings
+from services.db.job_forms import apply_reads, engine_payload
+from services.dicom.merge import DicomProvenance, client_provenance_errors
 from services.dicom.reference import views_to_fetch
 from services.webhooks.submission import check_callback
 from spine_engine.errors import FieldError, InvalidInput
@@ -38,16 +40,19 @@ STAND_IN_SPACING = [1.0, 1.0]
 """Only for checking a by-reference payload before its header is read; never stored nor run."""
 
 
-def _with_stand_in_spacing(body: Any) -> Any:
+def _with_stand_in_spacing(body: Any) -> tuple[Any, tuple[str, ...]]:
+    """``body`` with the stand-in spacing in each by-reference view that has none, and those views
+    (whose millimetres are unknown until the header is read: no absolute distance check on them)."""
     wanted = views_to_fetch(body) if isinstance(body, dict) else {}
     if not wanted:
-        return body
-    checked = dict(body)
+        return body, ()
+    checked, stood_in = dict(body), []
     for role in wanted:
         view = checked.get(role)
         if isinstance(view, dict) and view.get("pixel_spacing") is None:
             checked[role] = {**view, "pixel_spacing": STAND_IN_SPACING}
-    return checked
+            stood_in.append(role)
+    return checked, tuple(stood_in)
 
 
 MAX_MAGNITUDE = 1e6
@@ -88,10 +93,33 @@ def check_magnitudes(payload: BaseModel) -> None:
         raise InvalidInput(errors)
 
 
-def admit(body: Any, settings: Settings, session: Session, owner: str | None) -> JobPayload:
-    """The payload ``body`` as a validated ``JobPayload`` within the service's limits; raise
-    ``InvalidInput`` otherwise."""
-    model = validate_payload(_with_stand_in_spacing(body) if settings.dicomweb_url else body)
+def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
+    """``POST /v1/jobs``'s body as (payload, ``dicom`` block or None). The block is what a client read
+    from its image files (``spine submit --pa-dicom``; ``DicomProvenance``, every view's ``source``
+    ``file``): kept on the job as the service keeps its own PACS reads, it completes the payload as
+    a header does (``services.dicom.merge.client_provenance_errors``). Raises ``InvalidInput`` naming
+    each wrong member by its JSON path under ``dicom``."""
+    if not isinstance(body, dict) or body.get("dicom") is None:
+        return (({k: v for k, v in body.items() if k != "dicom"}) if isinstance(body, dict) else body), None
+    payload = {k: v for k, v in body.items() if k != "dicom"}
+    try:
+        provenance = DicomProvenance.model_validate(body["dicom"])
+    except ValidationError as exc:
+        raise InvalidInput([FieldError(("dicom", *e["loc"]), e["msg"], e["type"]) for e in exc.errors()]) from None
+    errors = client_provenance_errors(provenance)
+    if errors:
+        raise InvalidInput([FieldError(("dicom", *loc), reason, "dicom_read") for loc, reason in errors[:MAX_ERRORS]])
+    return payload, provenance.model_dump(mode="json")
+
+
+def admit(body: Any, settings: Settings, session: Session, owner: str | None,
+          dicom: dict[str, Any] | None = None) -> JobPayload:  # fmt: skip
+    """The payload ``body`` (completed by the client's ``dicom`` reads, ``split_dicom``) as a validated
+    ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
+    if dicom is not None and isinstance(body, dict):
+        body = engine_payload(apply_reads(body, dicom))
+    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb_url else (body, ())
+    model = validate_payload(checked, unscaled_views=stood_in)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)
     return model

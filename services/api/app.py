@@ -29,6 +29,15 @@ from services.db.engine import get_engine
 from spine_engine.models import JobPayload
 
 REF = "#/components/schemas/{model}"
+CLIENT_DICOM: dict[str, Any] = {
+    "anyOf": [{"$ref": "#/components/schemas/DicomProvenance"}, {"type": "null"}],
+    "description": "Service only (POST /v1/jobs; the engine ignores it): what the client read from the radiographs' "
+    "DICOM files (`spine submit --pa-dicom`), in the form of the job's `dicom` member, every view's `source` `file`. "
+    "Kept on the job as the service keeps its own PACS reads: its reads marked `used` complete the payload (they may "
+    "only fill what a header fills: a view's spacing, calibration, orientation and acquisition, the study's "
+    "identifiers), and the SR references the film and copies its patient and study. 422 naming the member otherwise.",
+}
+"""The ``dicom`` member of a posted payload (``services.api.admission.split_dicom``)."""
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for name, definition in defs.pop("$defs", {}).items():
                 components.setdefault(name, definition)
             components["JobPayload"] = defs
+            defs["properties"]["dicom"] = CLIENT_DICOM  # service only, read by the API (admission.split_dicom)
             # POST /v1/jobs/batch's body (declared through openapi_extra, so FastAPI does not add it), and the
             # body of every problem+json answer (schemas.problem_responses refers to it by name)
             for model in (BatchRequest, Problem):

@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.core.status import JobStatus
+from services.db.job_forms import job_study
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.dicomweb import StudyImage
@@ -78,7 +79,11 @@ class Job(BaseModel):
     result: RegistrationResult | None = Field(description="The reconstruction, when succeeded.")
     error: Problem | None = Field(description="Why the job failed, when failed.")
     payload: dict[str, Any] | None = Field(None, description="The payload as posted; only in GET /v1/jobs/{id}.")
-    study: Study | None = Field(None, description="The payload's DICOM identifiers, unchanged (null without).")
+    study: Study | None = Field(
+        None,
+        description="The job's DICOM identifiers: the payload's, completed by the values read from the images' "
+        "headers (listed in `dicom.study`); null without.",
+    )
     deliveries: list[WebhookDeliveryAttempt] | None = Field(
         None, description="Webhook delivery attempts to the payload's callback_url; only in GET /v1/jobs/{id}."
     )
@@ -122,7 +127,7 @@ def _members(row: JobRow) -> dict[str, Any]:
         "engine_version": row.engine_version,
         "result": row.result,
         "error": row.error,
-        "study": row.payload.get("study") if isinstance(row.payload, dict) else None,
+        "study": job_study(row),
     }
 
 

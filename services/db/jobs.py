@@ -36,6 +36,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
+from services.db.job_forms import job_study
 from services.db.models import Job, iso_utc, utcnow
 
 InsertHook = Callable[[Session, list[uuid.UUID]], None]
@@ -111,18 +112,22 @@ def create_job(
     owner: str | None = None,
     idempotency_key: str | None = None,
     on_insert: InsertHook | None = None,
+    dicom: dict[str, Any] | None = None,
 ) -> tuple[Job, bool]:
-    """Store a queued job; return it and whether it is new (False: an idempotent replay).
+    """Store a queued job; return it and whether it is new (False: an idempotent replay). ``dicom``:
+    what the client read from its image files (``jobs.dicom``, as the worker stores its PACS reads).
 
     Raises ``IdempotencyConflict`` when ``idempotency_key`` was used by this owner with another body.
     ``on_insert(session, [job id])`` runs in the inserting transaction (the API's audit row).
     """
-    digest = request_hash(payload) if idempotency_key is not None else None
+    body = payload if dicom is None else {**payload, "dicom": dicom}
+    digest = request_hash(body) if idempotency_key is not None else None
     if idempotency_key is not None:
         existing = _by_idempotency_key(session, owner, idempotency_key)
         if existing is not None:
             return _replay(existing, digest)
-    values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest)
+    extra: dict[str, Any] = {"dicom": dicom} if dicom is not None else {}
+    values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest, **extra)
     try:
         session.execute(insert(Job), [values])  # Core insert: the hot path skips the unit of work
         if on_insert is not None:
@@ -143,7 +148,7 @@ def _detached(values: dict[str, Any]) -> Job:
     """A Job object holding what was just inserted (no read back)."""
     row = {"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
            "idempotency_key": None, "request_hash": None, "callback_url": None, "lease_expires_at": None,
-           **values}  # fmt: skip
+           "dicom": None, **values}  # fmt: skip
     return Job(**row)
 
 
@@ -374,5 +379,5 @@ def job_json(job: Job) -> dict[str, Any]:
         "engine_version": job.engine_version,
         "result": job.result,
         "error": job.error,
-        "study": job.payload.get("study") if isinstance(job.payload, dict) else None,
+        "study": job_study(job),
     }

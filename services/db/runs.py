@@ -52,6 +52,8 @@ class Claim:
     payload: dict[str, Any]
     created_at: datetime
     callback_url: str | None = None
+    dicom: dict[str, Any] | None = None
+    """What was read from the images' headers so far (``jobs.dicom``): the client's, or an earlier run's."""
 
 
 _JOBS = cast(Table, Job.__table__)
@@ -65,7 +67,7 @@ _CLAIM = (
         engine_version=bindparam("engine_version"),
         lease_expires_at=bindparam("lease_until"),
     )
-    .returning(_JOBS.c.attempts, _JOBS.c.payload, _JOBS.c.created_at, _JOBS.c.callback_url)
+    .returning(_JOBS.c.attempts, _JOBS.c.payload, _JOBS.c.created_at, _JOBS.c.callback_url, _JOBS.c.dicom)
 )
 _RENEW = (
     update(_JOBS)
@@ -160,7 +162,7 @@ def claim_job(
     session.commit()
     if row is None:
         return None
-    return Claim(job_id, row.attempts, row.payload, row.created_at, row.callback_url)
+    return Claim(job_id, row.attempts, row.payload, row.created_at, row.callback_url, row.dicom)
 
 
 def renew_leases(session: Db, claims: Sequence[Claim], lease: timedelta) -> list[Claim]:

@@ -60,7 +60,7 @@ from __future__ import annotations
 import io
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import date
 from pathlib import Path
@@ -133,6 +133,14 @@ class RadiographHeader:
     patient_name: str | None
     accession_number: str | None
     study_date: date | None
+    study_time: str | None
+    study_id: str | None
+    patient_birth_date: str | None
+    patient_sex: str | None
+    referring_physician_name: str | None
+    """Study time (TM), study ID, birth date (DA) and sex (M, F, O), referring physician (PN) as the
+    header writes them: copied into the SR and SC (General Study and Patient Modules, PS3.3 §C.7.2.1,
+    §C.7.1.1)."""
     modality: str | None
     rows: int | None
     columns: int | None
@@ -235,6 +243,33 @@ def _text(ds: Dataset, keyword: str) -> str | None:
         return None
     text = str(value).strip()
     return text or None
+
+_TM = re.compile(r"^([01]\d|2[0-3])([0-5]\d([0-5]\d(\.\d{1,6})?)?)?$")
+IDENTITY_VALUES: dict[str, tuple[str, Callable[[str], bool]]] = {
+    "study_time": ("a DICOM TM time HHMMSS.FFFFFF (PS3.5 §6.2)", lambda v: bool(_TM.match(v))),
+    "study_id": ("a DICOM SH of at most 16 characters (PS3.5 §6.2)", lambda v: 0 < len(v) <= 16),
+    "patient_birth_date": ("a DICOM DA date YYYYMMDD (PS3.5 §6.2)",
+                           lambda v: len(v) == 8 and v.isdigit() and 1 <= int(v[4:6]) <= 12 and 1 <= int(v[6:]) <= 31),
+    "patient_sex": ("M, F or O (PS3.3 §C.7.1.1)", lambda v: v in ("M", "F", "O")),
+    "referring_physician_name": ("a DICOM PN of at most 5 × 64 characters (PS3.5 §6.2)", lambda v: 0 < len(v) <= 320),
+}  # fmt: skip
+"""The study block's values the contract's ``Study`` has no field for: what each must be to go into
+the SR and SC as the header had it."""
+
+
+def identity_problem(key: str, value: Any) -> str | None:
+    """Why ``value`` cannot be the study's ``key`` (one of ``IDENTITY_VALUES``), or None when it can."""
+    what, ok = IDENTITY_VALUES[key]
+    if not isinstance(value, str) or "\\" in value or any(ord(ch) < 32 for ch in value) or not ok(value):
+        return f"must be {what}"
+    return None
+
+
+
+def _identity(ds: Dataset, keyword: str, key: str) -> str | None:
+    """A header's study or patient value for the SR and SC, None when absent or not as DICOM writes it."""
+    value = _text(ds, keyword)
+    return value if value is not None and identity_problem(key, value) is None else None
 
 
 def _uid(ds: Dataset, keyword: str, *, required: bool) -> str | None:
@@ -486,6 +521,11 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         patient_name=(str(name).strip() or None) if name is not None else None,
         accession_number=_text(ds, "AccessionNumber"),
         study_date=_study_date(ds),
+        study_time=_identity(ds, "StudyTime", "study_time"),
+        study_id=_identity(ds, "StudyID", "study_id"),
+        patient_birth_date=_identity(ds, "PatientBirthDate", "patient_birth_date"),
+        patient_sex=_identity(ds, "PatientSex", "patient_sex"),
+        referring_physician_name=_identity(ds, "ReferringPhysicianName", "referring_physician_name"),
         modality=_text(ds, "Modality"),
         rows=int(rows) if rows is not None else None,
         columns=int(columns) if columns is not None else None,

@@ -14,10 +14,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from spine_engine.models import LateralView, PAView
-
 from .errors import UnsupportedOrientation, attribute_label
-from .header import RadiographHeader, ViewRole
+from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem
 
 VALUE_RTOL = 1e-6
 """Relative tolerance under which a payload number equals the header's (DS values carry at most 16
@@ -158,7 +156,14 @@ STUDY_FIELDS = (
     ("patient_name", "PatientName"),
     ("accession_number", "AccessionNumber"),
     ("study_date", "StudyDate"),
+    ("study_time", "StudyTime"),
+    ("study_id", "StudyID"),
+    ("patient_birth_date", "PatientBirthDate"),
+    ("patient_sex", "PatientSex"),
+    ("referring_physician_name", "ReferringPhysicianName"),
 )
+"""What the study block takes from the header. The contract's ``Study`` has the first five; the others
+stay in the provenance and the job's effective payload (``services.db.job_forms``), for the SR and SC."""
 
 
 def merge_study(
@@ -198,34 +203,45 @@ def apply_headers(
     return merged, provenance
 
 
-def engine_payload(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload`` without the view fields the installed ``spine_engine.models`` does not know (e.g.
-    ``acquisition`` and ``pixel_spacing_calibration`` before the engine reads them): the header's
-    extra values stay recorded in the provenance, and the engine's strict models do not refuse them."""
-    out = dict(payload)
-    for role, model in (("pa", PAView), ("lateral", LateralView)):
-        view = out.get(role)
-        if isinstance(view, dict):
-            out[role] = {k: v for k, v in view.items() if k in model.model_fields}
-    return out
+_VIEW_FIELDS = ("pixel_spacing", "pixel_spacing_calibration", "patient_orientation")
+_STUDY_FIELDS = {key for key, _ in STUDY_FIELDS} | {"pa_sop_instance_uid", "lateral_sop_instance_uid",
+                                                     "series_instance_uid"}  # fmt: skip
 
 
-def apply_reads(payload: dict[str, Any], provenance: dict[str, Any] | None) -> dict[str, Any]:
-    """The payload a job ran with: ``payload`` (as posted) with every header value the provenance
-    (``DicomProvenance`` as JSON) marks as used put back at its JSON path. Deterministic, so that the
-    job's row keeps the payload as posted and the SR is rebuilt from it."""
-    merged = copy.deepcopy(payload)
-    if not provenance:
-        return merged
-    reads = list(provenance.get("study") or [])
+def _header_field(section: str, path: str) -> bool:
+    """Whether ``path`` is a payload field the DICOM layer fills from a header, in ``section``."""
+    parts = path.split(".")
+    if section == "study":
+        return len(parts) == 2 and parts[0] == "study" and parts[1] in _STUDY_FIELDS
+    if parts[0] != section:
+        return False
+    return (len(parts) == 2 and parts[1] in _VIEW_FIELDS) or (len(parts) == 3 and parts[1] == "acquisition")
+
+
+def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[str | int, ...], str]]:
+    """What is wrong with a ``dicom`` block a client read from its image files and sends with a payload
+    (``spine submit --pa-dicom``), as (JSON path within the block, reason): every view's ``source``
+    is ``file`` (``dicomweb`` reads are the service's own), every read fills a field the DICOM layer
+    fills from a header (so that the block can only complete a payload as a header does), and a
+    study value the contract has no field for is as DICOM writes it."""
+    errors: list[tuple[tuple[str | int, ...], str]] = []
+    sections: list[tuple[str, list[AttributeRead]]] = [("study", provenance.study)]
     for role in ("pa", "lateral"):
-        reads += list((provenance.get(role) or {}).get("read") or [])
-    for read in reads:
-        if not read.get("used"):
+        record: ViewProvenance | None = getattr(provenance, role)
+        if record is None:
             continue
-        *parents, leaf = str(read["field"]).split(".")
-        target = merged
-        for key in parents:
-            target = target.setdefault(key, {})
-        target[leaf] = read["value"]
-    return merged
+        if record.source != "file":
+            errors.append(((role, "source"), "must be 'file': the service reads the PACS itself"))
+        sections.append((role, record.read))
+    for section, reads in sections:
+        base: tuple[str | int, ...] = (section,) if section == "study" else (section, "read")
+        for i, read in enumerate(reads):
+            if not _header_field(section, read.field):
+                errors.append(((*base, i, "field"), f"{read.field!r} is not a field a {section} header fills"))
+                continue
+            key = read.field.split(".")[-1]
+            if section == "study" and key in IDENTITY_VALUES:
+                reason = identity_problem(key, read.value)
+                if reason is not None:
+                    errors.append(((*base, i, "value"), reason))
+    return errors

@@ -4,9 +4,11 @@ Rule: a view whose image is named in ``study`` (``pa_sop_instance_uid``, ``later
 with ``study_instance_uid`` and, optionally, ``series_instance_uid`` for the PA) and whose JSON lacks
 ``pixel_spacing`` or ``patient_orientation`` has that instance's WADO-RS metadata read, and the
 header's values merged (``merge.apply_headers``: the payload's explicit values win, conflicts are
-recorded). A view that gives both is not fetched: a PACS that is down does not fail a job that
-needs nothing from it. Errors: ``PacsUnavailable`` (transient: retry), ``InstanceNotFound``, and the
-header's own (``MissingAttribute``, ``InvalidAttribute``, ``UnsupportedOrientation``).
+recorded). A view that gives both is read too, for the SR's image reference and the study's
+attributes (``all_named``), but then a PACS that is down or lacks the image does not fail the job,
+which needs nothing from it (the worker runs it without the reads). Errors: ``PacsUnavailable``
+(transient: retry), ``InstanceNotFound``, and the header's own (``MissingAttribute``,
+``InvalidAttribute``, ``UnsupportedOrientation``).
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ from .header import RadiographHeader, ViewRole
 from .merge import DicomProvenance, apply_headers
 
 
-def views_to_fetch(payload: dict[str, Any]) -> dict[ViewRole, str]:
-    """The views (→ SOP Instance UID) whose header is needed: named in ``study`` and missing a value."""
+def views_to_fetch(payload: dict[str, Any], *, all_named: bool = False) -> dict[ViewRole, str]:
+    """The views (→ SOP Instance UID) whose header is needed: named in ``study`` and missing a value
+    (or, with ``all_named``, every view ``study`` names)."""
     study = payload.get("study") or {}
     wanted: dict[ViewRole, str] = {}
     for role in ("pa", "lateral"):
@@ -30,14 +33,18 @@ def views_to_fetch(payload: dict[str, Any]) -> dict[ViewRole, str]:
         if role == "lateral" and view is None:
             continue
         view = view or {}
-        if view.get("pixel_spacing") is None or view.get("patient_orientation") is None:
+        if all_named or view.get("pixel_spacing") is None or view.get("patient_orientation") is None:
             wanted[role] = str(sop)  # type: ignore[index]
     return wanted
 
 
-def resolve_by_reference(payload: dict[str, Any], pacs: Pacs) -> tuple[dict[str, Any], DicomProvenance | None]:
-    """(payload with header values filled in, provenance), or (payload unchanged, None) when nothing is fetched."""
-    wanted = views_to_fetch(payload)
+def resolve_by_reference(
+    payload: dict[str, Any], pacs: Pacs, *, all_named: bool = False
+) -> tuple[dict[str, Any], DicomProvenance | None]:
+    """(payload with header values filled in, provenance), or (payload unchanged, None) when nothing is
+    fetched. ``all_named``: read every image ``study`` names, even when the payload gives all it needs
+    (for the SR's reference to it: its SOP class and series, the patient and study attributes)."""
+    wanted = views_to_fetch(payload, all_named=all_named)
     if not wanted:
         return payload, None
     study = payload["study"]

@@ -1,12 +1,13 @@
 """A finished job → its SR and its figure's Secondary Capture, as Part 10 bytes (what
 ``GET /v1/jobs/{id}/sr.dcm`` and ``/figure.dcm`` return and what STOW-RS sends).
 
-The study and patient come from the job's ``study`` block (filled from the header when one was
-read); the source images (for the SR's evidence and the landmarks' SCOORD) from the job's DICOM
-provenance (``DicomProvenance`` as JSON: SOP Class UID, series) or, without it, from ``study``'s SOP
-Instance UIDs, whose SOP class is then unknown: such an image is not referenced (an SR's image
-reference needs its Referenced SOP Class UID, Type 1 in the SOP Instance Reference Macro, PS3.3
-Table 10-11) and the landmarks are left out of the SR.
+Both are built from the job's forms (``services.db.job_forms.JobForms``: the payload it ran with,
+its DICOM provenance, its result). The study and patient come from the effective payload's ``study``
+(filled from the header when one was read: ``StudyIdentity.from_study``); the source images (for
+the SR's evidence and the landmarks' SCOORD) from the job's DICOM provenance (SOP Class UID,
+series) or, without it, from ``study``'s SOP Instance UIDs, whose SOP class is then unknown: such an
+image is not referenced (an SR's image reference needs its Referenced SOP Class UID, Type 1 in the
+SOP Instance Reference Macro, PS3.3 Table 10-11) and the landmarks are left out of the SR.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from datetime import datetime
 from typing import Any
 
 from pydicom.dataset import Dataset
+
+from services.db.job_forms import JobForms
+from spine_engine.figures import render_figure
 
 from .sc import build_sc
 from .sr import SourceImage, StudyIdentity, build_sr
@@ -50,32 +54,26 @@ def source_images(payload: Mapping[str, Any], provenance: Mapping[str, Any] | No
     return images
 
 
-def job_sr_dataset(
-    job_id: uuid.UUID | str, payload: Mapping[str, Any], result: Mapping[str, Any],
-    provenance: Mapping[str, Any] | None = None, finished_at: datetime | None = None,
-) -> Dataset:  # fmt: skip
+def job_sr_dataset(job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None) -> Dataset:
     """The job's SR (``sr.build_sr``)."""
-    identity = StudyIdentity.from_study(payload.get("study"))
-    return build_sr(result, payload, job_id, identity, source_images(payload, provenance), content_datetime=finished_at)
+    payload, result = forms.effective, forms.result or {}
+    identity = StudyIdentity.from_study(forms.study)
+    images = source_images(payload, forms.provenance)
+    return build_sr(result, payload, job_id, identity, images, content_datetime=finished_at)
 
 
-def job_sr(
-    job_id: uuid.UUID | str, payload: Mapping[str, Any], result: Mapping[str, Any],
-    provenance: Mapping[str, Any] | None = None, finished_at: datetime | None = None,
-) -> bytes:  # fmt: skip
-    """The job's SR as Part 10 bytes; the same bytes for the same job and inputs."""
-    return part10(job_sr_dataset(job_id, payload, result, provenance, finished_at))
+def job_sr(job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None) -> bytes:
+    """The job's SR as Part 10 bytes; the same bytes for the same job."""
+    return part10(job_sr_dataset(job_id, forms, finished_at))
 
 
-def job_figure_sc_dataset(
-    job_id: uuid.UUID | str, payload: Mapping[str, Any], png: bytes, finished_at: datetime | None = None
-) -> Dataset:
-    """The job's figure as a Secondary Capture (``sc.build_sc``)."""
-    return build_sc(png, job_id, StudyIdentity.from_study(payload.get("study")), content_datetime=finished_at)
+def job_figure_sc_dataset(job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None) -> Dataset:
+    """The job's figure (``spine_engine.figures``, drawn from the payload it ran with) as a Secondary
+    Capture (``sc.build_sc``)."""
+    png = render_figure(forms.result or {}, forms.engine)
+    return build_sc(png, job_id, StudyIdentity.from_study(forms.study), content_datetime=finished_at)
 
 
-def job_figure_sc(
-    job_id: uuid.UUID | str, payload: Mapping[str, Any], png: bytes, finished_at: datetime | None = None
-) -> bytes:
+def job_figure_sc(job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None) -> bytes:
     """The job's figure as a Secondary Capture, Part 10 bytes."""
-    return part10(job_figure_sc_dataset(job_id, payload, png, finished_at))
+    return part10(job_figure_sc_dataset(job_id, forms, finished_at))

@@ -6,8 +6,15 @@ the job id (``uids.py``).
 The PNG is decoded with Pillow into 8-bit RGB (Photometric Interpretation RGB, PS3.3 §C.7.6.3.1.2),
 stored uncompressed (Explicit VR Little Endian). The figure is a chart, not a view of the patient:
 its Patient Orientation (0020,0020) is sent empty (a Type 2 value may be empty, PS3.5 §7.4.3; highdicom
-requires one for its ``PATIENT`` coordinate system, so it is cleared after), and so is Laterality (0020,0060)
-(Type 2C, General Series Module PS3.3 §C.7.3.1: the figure shows no paired structure).
+requires one for its ``PATIENT`` coordinate system, so it is cleared after). Laterality (0020,0060) is left
+out: General Series Module (PS3.3 §C.7.3.1) makes it Type 2C, required only when the body part examined
+is a paired structure, and the spine is not; a Type 2C attribute whose condition is not met is not
+sent (PS3.5 §7.4.4). Body Part Examined (0018,0015, Type 3) says which: ``SPINE`` (PS3.16 Annex L,
+Body Part Examined defined terms), from which dicom3tools' dciodvfy evaluates the condition. The SR
+has no Laterality either: its SR Document Series Module (PS3.3 §C.17.1) has none. The patient and
+study are the source's (Patient and General Study Modules, PS3.3 §C.7.1.1, §C.7.2.1: a new series of
+the same study repeats them); the General Equipment Module (§C.7.5.1) describes the equipment that
+made the series, this service, not the film's modality.
 """
 
 from __future__ import annotations
@@ -51,7 +58,9 @@ def build_sc(
         patient_orientation=("L", "F"), series_description="Spine reconstruction figure",
     )  # fmt: skip
     sc.PatientOrientation = []
-    sc.Laterality = ""
+    sc.BodyPartExamined = "SPINE"
+    if "Laterality" in sc:
+        del sc.Laterality
     sc.BurnedInAnnotation = "NO"
     if content_datetime is not None:
         sc.ContentDate = sc.InstanceCreationDate = sc.DateOfSecondaryCapture = DA(content_datetime.date())

@@ -48,6 +48,7 @@ from pydicom.dataset import Dataset
 from pydicom.sr.codedict import codes
 from pydicom.valuerep import DA, DT, TM
 
+from .cobb_lines import cobb_lines_px
 from .uids import job_uids
 
 PRIVATE_SCHEME = "99SPINE"
@@ -99,6 +100,7 @@ class P:
     FRONTAL_BENDING = _private("FRONT-BEND", "Frontal bending of the segment below the vertebra")
     TWIST = _private("TWIST", "Twist of the segment below the vertebra")
     REGISTRATION_ERROR = _private("REG-ERR", "Mean registration error of the PA landmarks")
+    COBB_LINES = _private("COBB-LINES", "Lines across the end vertebrae (upper, then lower)")
     MEASURED = _private("MEASURED", "Measured (determined by the image landmarks)")
     MODEL_BASED = _private("MODEL-BASED", "Model-based estimate (from the spine model's prior)")
     CONVEXITY = _private("CONVEXITY", "Convexity of the curve")
@@ -114,6 +116,10 @@ MILLIMETRE = CodedConcept("mm", "UCUM", "millimeter")
 COBB_ANGLE = CodedConcept("285285000", "SCT", "Cobb angle")
 SUPERIOR, INFERIOR, APICAL = codes.SCT.Superior, codes.SCT.Inferior, codes.SCT.Apical
 PROCEDURE = CodedConcept("363680008", "SCT", "Radiographic imaging procedure")
+CORNERSTONE_COBB_ANGLE = "Cornerstone3DTools@^0.1.0:CobbAngle"
+"""The tracking identifier by which ``@cornerstonejs/adapters`` (what OHIF loads SR measurements with)
+recognises a Cobb angle: its ``CORNERSTONE_3D_TAG`` and tool type (``Cornerstone3D/cornerstone3DTag.js``,
+``CobbAngle.ts``, ``BaseAdapter3D.init``)."""
 
 
 @dataclass(frozen=True)
@@ -153,6 +159,11 @@ class StudyIdentity:
             patient_name=study.get("patient_name"),
             accession_number=study.get("accession_number"),
             study_date=date.fromisoformat(when) if isinstance(when, str) else when,
+            study_time=study.get("study_time"),
+            study_id=study.get("study_id"),
+            patient_birth_date=study.get("patient_birth_date"),
+            patient_sex=study.get("patient_sex"),
+            referring_physician_name=study.get("referring_physician_name"),
         )
 
 
@@ -191,6 +202,9 @@ class _Builder:
         if sd is not None:
             properties = hd.sr.MeasurementProperties(upper_measurement_uncertainty=float(sd),
                                                      lower_measurement_uncertainty=float(sd))  # fmt: skip
+            for item in properties:  # highdicom writes (1, UCUM, "no units"); an SD has the value's unit
+                if item.ValueType == "NUM":
+                    item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence = [unit]
         method = P.MODEL_BASED if quantity is not None and quantity in self.unreliable else P.MEASURED
         return hd.sr.Measurement(
             name=name, value=float(value), unit=unit, method=method, properties=properties,
@@ -199,15 +213,60 @@ class _Builder:
 
     def group(self, label: str, measurements: Sequence[hd.sr.Measurement | None], *,
               sites: Sequence[hd.sr.FindingSite] = (),
-              evaluations: Sequence[hd.sr.QualitativeEvaluation] = ()) -> None:  # fmt: skip
+              evaluations: Sequence[hd.sr.QualitativeEvaluation] = (),
+              lines: tuple[hd.sr.ImageRegion, hd.sr.ScoordContentItem] | None = None) -> None:  # fmt: skip
+        """A TID 1501 group, or with ``lines`` (a Cobb angle drawn on the film) a TID 1410 group whose
+        image region they are, tracked as the Cornerstone adapters' CobbAngle (``_cobb_lines``)."""
         items = [m for m in measurements if m is not None]
         if not items and not evaluations:
             return
-        self.groups.append(hd.sr.MeasurementsAndQualitativeEvaluations(
-            tracking_identifier=hd.sr.TrackingIdentifier(uid=_tracking_uid(self.job_id, label), identifier=label),
-            algorithm_id=self.algorithm, finding_sites=list(sites) or None, measurements=items or None,
-            qualitative_evaluations=list(evaluations) or None,
-        ))  # fmt: skip
+        uid = _tracking_uid(self.job_id, label)
+        common: dict[str, Any] = {
+            "algorithm_id": self.algorithm, "finding_sites": list(sites) or None, "measurements": items or None,
+            "qualitative_evaluations": list(evaluations) or None,
+        }  # fmt: skip
+        if lines is None:
+            tracking = hd.sr.TrackingIdentifier(uid=uid, identifier=label)
+            self.groups.append(hd.sr.MeasurementsAndQualitativeEvaluations(tracking_identifier=tracking, **common))
+            return
+        region, scoord = lines
+        tracking = hd.sr.TrackingIdentifier(uid=uid, identifier=CORNERSTONE_COBB_ANGLE)
+        group = hd.sr.PlanarROIMeasurementsAndQualitativeEvaluations(
+            tracking_identifier=tracking, referenced_region=region, **common)  # fmt: skip
+        # the lines under the first NUM, the Cobb angle, where the adapters look for them; TID 300 allows
+        # an INFERRED FROM SCOORD (TID 320), highdicom's constructor does not, so it is added after
+        [num] = [item for item in group[0].ContentSequence if item.ValueType == "NUM" and item.name == COBB_ANGLE]
+        num.ContentSequence.append(scoord)
+        self.groups.append(group)
+
+
+def _cobb_lines(
+    result: Mapping[str, Any], payload: Mapping[str, Any], curve: Mapping[str, Any], image: SourceImage | None,
+    cobb: hd.sr.Measurement | None,
+) -> tuple[hd.sr.ImageRegion, hd.sr.ScoordContentItem] | None:  # fmt: skip
+    """A Cobb curve's two endplate lines on the PA film (``cobb_lines.cobb_lines_px``), written as the
+    Cornerstone adapters read a CobbAngle (module docstring): the four points as one image SCOORD
+    POLYLINE under the Cobb angle's NUM (INFERRED FROM, the image SELECTED FROM), and the group's
+    image region, the closed quadrilateral they bound (TID 1410 row 7). None without the PA image or
+    its pixel spacing."""
+    if image is None or image.pixel_spacing is None or cobb is None:
+        return None
+    points = cobb_lines_px(result, payload.get("pa") or {}, curve, image.pixel_spacing)
+    if points is None:
+        return None
+    def source() -> hd.sr.SourceImageForRegion:
+        return hd.sr.SourceImageForRegion(referenced_sop_class_uid=image.sop_class_uid,
+                                          referenced_sop_instance_uid=image.sop_instance_uid)  # fmt: skip
+
+    lines = hd.sr.ScoordContentItem(
+        name=P.COBB_LINES, graphic_type=hd.sr.GraphicTypeValues.POLYLINE, graphic_data=points,
+        relationship_type=hd.sr.RelationshipTypeValues.INFERRED_FROM,
+    )  # fmt: skip
+    lines.ContentSequence = hd.sr.ContentSequence([source()])
+    p1, p2, p3, p4 = points
+    region = hd.sr.ImageRegion(graphic_type="POLYLINE", graphic_data=np.array([p1, p2, p4, p3, p1]),
+                               source_image=source())  # fmt: skip
+    return region, lines
 
 
 def _tracking_uid(job_id: uuid.UUID, label: str) -> str:
@@ -289,10 +348,11 @@ def build_sr(
 
     for i, c in enumerate(measures.get("cobb") or [], start=1):
         sites = [vertebra(c["upper"], SUPERIOR), vertebra(c["lower"], INFERIOR), vertebra(c["apex"], APICAL)]
+        cobb = b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), sites=sites)
         b.group(
             f"Cobb curve {i} {c['upper']}-{c['lower']}",
             [
-                b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), sites=sites),
+                cobb,
                 b.measurement(P.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"), quantity="axial_rotation",
                               sites=[vertebra(c["apex"], APICAL)]),
                 b.measurement(P.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
@@ -306,6 +366,7 @@ def build_sr(
                                             codes.SCT.Left if c["convexity"] == "left" else codes.SCT.Right),
                 hd.sr.QualitativeEvaluation(P.MAJOR_CURVE, codes.SCT.Yes if c.get("major") else codes.SCT.No),
             ],
+            lines=_cobb_lines(result, payload, c, images.get("pa"), cobb),
         )  # fmt: skip
 
     fit = result.get("fit") or {}

@@ -25,12 +25,11 @@ from services.core.config import Settings
 from services.core.jobqueue import make_celery
 from services.core.retry import TRANSIENT
 from services.db.engine import session_scope
+from services.db.job_forms import job_forms
 from services.db.models import Job, utcnow
-from spine_engine.figures import render_figure
 
 from .dicomweb import DicomwebConfig, Pacs
 from .errors import DicomError, DicomwebError
-from .merge import apply_reads, engine_payload
 from .results import job_figure_sc_dataset, job_sr_dataset
 
 log = logging.getLogger(__name__)
@@ -149,13 +148,12 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         job = session.get(Job, job_id)
         if job is None or job.status != "succeeded" or job.result is None or config is None:
             raise LookupError(f"job {job_id} has no result to store (or no SPINE_DICOMWEB_URL)")
-        payload = apply_reads(job.payload, job.dicom)
-        result, provenance, finished = job.result, job.dicom, job.finished_at
+        forms, finished = job_forms(job), job.finished_at
     started = time.perf_counter()
     outcome = DicomStoreAttempt(attempt=attempt, attempted_at=utcnow(), ok=False)
     try:
-        sr = job_sr_dataset(job_id, payload, result, provenance, finished)
-        sc = job_figure_sc_dataset(job_id, payload, render_figure(result, engine_payload(payload)), finished)
+        sr = job_sr_dataset(job_id, forms, finished)
+        sc = job_figure_sc_dataset(job_id, forms, finished)
         with Pacs(config) as pacs:
             stored = pacs.store([sr, sc])
         outcome.ok, outcome.stored = True, list(stored.stored)

@@ -74,8 +74,8 @@ def radiograph(
     ds.Modality = modality
     ds.PatientID = patient_id or ""
     ds.PatientName = patient_name or ""
-    ds.PatientBirthDate = ""
-    ds.PatientSex = ""
+    ds.PatientBirthDate = "20120412"
+    ds.PatientSex = "F"
     ds.AccessionNumber = accession_number or ""
     ds.StudyDate = study_date.strftime("%Y%m%d") if study_date else ""
     ds.StudyTime = "101500"

@@ -35,10 +35,10 @@ from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, store_retry
 from services.db import runs, stats
 from services.db.engine import session_scope, worker_connection
+from services.db.job_forms import apply_reads, engine_payload
 from services.dicom import store as dicom_store
-from services.dicom.dicomweb import Pacs
+from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.errors import DicomError, PacsUnavailable
-from services.dicom.merge import engine_payload
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.webhooks import delivery as webhooks
 from spine_engine.errors import FitFailed, InvalidInput
@@ -144,9 +144,11 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
     (``RunLater``) until its attempts (SPINE_MAX_ATTEMPTS) are spent, then fails it
     (``dicomweb-unavailable``); a missing instance or an unusable header fails it at once."""
     config = dicom_store.dicomweb_config(settings)
-    payload = claim.payload
-    if config is None or not views_to_fetch(payload):
-        return payload, None
+    payload = apply_reads(claim.payload, claim.dicom)  # the client's reads of its files, or an earlier run's
+    if config is None or (claim.dicom is not None and not views_to_fetch(payload)):
+        return engine_payload(payload), None
+    if not views_to_fetch(payload):  # read only for the SR's reference: a PACS problem does not fail the job
+        return engine_payload(_reference_reads(settings, config, claim, payload)), None
     try:
         with Pacs(config) as pacs:
             resolved, provenance = resolve_by_reference(payload, pacs)
@@ -163,6 +165,26 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
         with worker_connection(settings) as session:
             runs.record_dicom(session, claim, provenance.model_dump(mode="json"), resolved.get("study") or {})
     return engine_payload(resolved), None
+
+
+def _reference_reads(
+    settings: Settings, config: DicomwebConfig, claim: runs.Claim, payload: dict[str, Any]
+) -> dict[str, Any]:
+    """The payload with the headers of the images its study names, read although it gives all it needs
+    (``resolve_by_reference(all_named=True)``) and recorded on the job; unchanged when the PACS cannot
+    give them (logged)."""
+    if not views_to_fetch(payload, all_named=True):
+        return payload
+    try:
+        with Pacs(config) as pacs:
+            resolved, provenance = resolve_by_reference(payload, pacs, all_named=True)
+    except DicomError as exc:
+        log.warning("job %s: the images its study names were not read (%s); it runs without them", claim.job_id, exc)
+        return payload
+    if provenance is not None:
+        with worker_connection(settings) as session:
+            runs.record_dicom(session, claim, provenance.model_dump(mode="json"), resolved.get("study") or {})
+    return resolved
 
 
 @store_retry

@@ -54,14 +54,14 @@ LAMBDA_GN = 1e-3
 LAMBDA_MAX = 1e12
 """Damping at which the search gives up on decreasing E further."""
 MAX_ITERATIONS = 500
-"""Accepted steps before the search ends unconverged. Most fits take 4–15. A perspective film with SID
-and SOD but no central ray is the slow one: on one film the central ray and the spine's place in
-the film trade almost exactly (only the depth dependence of the magnification tells them apart), a
-long flat valley; the cameras' rows carry no second-order terms, so Newton's matrix there is
-indefinite at every step and the shifted step advances at a linear rate (E falling by a few per cent
-of what is left per step). ``spine bench clinic --seeds 3`` (dev and synthetic, central ray 20 mm
-and 80 mm from the spine) needed up to 99 and 224 steps; the old limit of 100 failed 5 of 264 such
-valid payloads. 500 leaves twice the worst measured."""
+"""Accepted steps before the search ends unconverged; ``spine bench clinic --split dev --seeds 3``
+(every case, 1188 runs) needs at most 14, and 19 with the central ray 80 mm from the spine
+(``clinic_films.CENTRAL_RAY_SPREAD_MM`` = 80). The limit guards against a flat valley: a perspective
+film with SID and SOD whose central ray is free (no prior on it) lets the ray and the spine's place
+in the film trade almost exactly, the cameras' rows carry no second-order terms, so Newton's matrix
+there is indefinite at every step and the shifted step advances at a linear rate. Before the central
+ray's prior the sweep's PA-only form e0 needed up to 144 steps (224 at 80 mm) and 5 of its 132 valid
+payloads failed a limit of 100; 500 is twice the worst of those."""
 SHIFT_MIN = 1e-12
 """Smallest damping tried to make an indefinite Newton matrix definite (then × 10 until it is)."""
 

@@ -305,3 +305,37 @@ def test_simultaneous_gets_of_one_tag_build_it_once() -> None:
     for t in threads:
         t.join(30)
     assert results == [b"sr bytes"] * 8 and len(builds) == 1 and cache._flights == {}
+
+
+def test_every_artifact_of_a_job_whose_spacing_came_from_its_film(app: App, tmp_path: Path) -> None:
+    """A job whose payload has px landmarks and no spacing (the film's header gave it, recorded in the
+    job's ``dicom``): every artifact is built from the payload the job ran with (``services.db.job_forms``),
+    so the figure does not fail on the missing spacing, and the SR references the film."""
+    import highdicom as hd
+
+    from services.dicom import synthetic
+    from services.dicom.sr import CORNERSTONE_COBB_ANGLE
+    from spine_client.dicom_input import payload_from_dicom
+
+    film = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15))
+    synthetic.write(film, tmp_path / "pa.dcm")
+    points = spine_payload(curve_mm=25.0)["pa"]["landmarks"]
+    (tmp_path / "lm.csv").write_text("".join(f"{p['level']},{p['point'][0] / 0.15},{p['point'][1] / 0.15}\n"
+                                             for p in points))  # fmt: skip
+    payload, dicom = payload_from_dicom(tmp_path / "lm.csv", tmp_path / "pa.dcm")
+    del payload["pa"]["pixel_spacing"]
+    response = app.client.post("/v1/jobs", json={**payload, "dicom": dicom}, headers=app.a)
+    assert response.status_code == 202, response.text
+    job_id = str(response.json()["id"])
+    run = register({**payload, "pa": {**payload["pa"], "pixel_spacing": [0.15, 0.15]}})
+    with session_scope(app.settings) as session:
+        finished = datetime(2026, 12, 2, 9, 30, tzinfo=UTC)
+        session.execute(update(JobRow).where(JobRow.id == uuid.UUID(job_id)).values(
+            status="succeeded", result=run, finished_at=finished, attempts=1))  # fmt: skip
+    answers = {kind: app.get(job_id, kind) for kind in KINDS}
+    assert {kind: r.status_code for kind, r in answers.items()} == dict.fromkeys(KINDS, 200)
+    (tmp_path / "sr.dcm").write_bytes(answers["sr.dcm"].content)
+    groups = hd.sr.srread(tmp_path / "sr.dcm").content.get_planar_roi_measurement_groups()
+    cobb = [g for g in groups if g.tracking_identifier == CORNERSTONE_COBB_ANGLE]
+    assert len(cobb) == len(run["measures"]["cobb"]) >= 1
+    assert cobb[0].roi.ContentSequence[0].ReferencedSOPSequence[0].ReferencedSOPInstanceUID == film.SOPInstanceUID

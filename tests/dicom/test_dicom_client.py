@@ -103,7 +103,7 @@ def test_python_client_builds_the_same_payload(tmp_path: Path, capsys: pytest.Ca
     payload, provenance = payload_from_dicom(tmp_path / "landmarks.csv", tmp_path / "pa.dcm")
     code, out, _ = _run(capsys, "submit", "--pa-dicom", str(tmp_path / "pa.dcm"), str(tmp_path / "landmarks.csv"),
                         "--print-payload")  # fmt: skip
-    assert code == EXIT_OK and json.loads(out) == json.loads(json.dumps(payload))
+    assert code == EXIT_OK and json.loads(out) == json.loads(json.dumps({**payload, "dicom": provenance}))
     assert provenance["pa"]["cornerstone_calibration_type"] == "ERMF" and provenance["conflicts"] == []
     read = {r["field"]: r["value"] for r in provenance["pa"]["read"]}  # recorded even when not sent
     assert read["pa.acquisition.magnification"] == 1.25 and read["pa.pixel_spacing_calibration"] == "calibrated"

@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from pydicom.dataset import Dataset
 
+from services.db.job_forms import engine_payload
 from services.dicom import synthetic
 from services.dicom.errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation
 from services.dicom.header import read_header
@@ -265,7 +266,10 @@ def test_merge_fills_missing_and_reports_conflicts() -> None:
         "pa.pixel_spacing"].attribute  # fmt: skip
     assert provenance.lateral is not None
     assert not {r.field: r for r in provenance.lateral.read}["lateral.pixel_spacing"].used
-    Study.model_validate(merged["study"])  # the study block is a valid payload Study
+    Study.model_validate(engine_payload(merged)["study"])  # cut to the contract, a valid payload Study
+    # the patient and study attributes the contract has no field for, for the SR and SC (PS3.3 §C.7.1.1, §C.7.2.1)
+    extra = {key: merged["study"][key] for key in ("study_time", "study_id", "patient_birth_date", "patient_sex")}
+    assert extra == {"study_time": "101500", "study_id": "1", "patient_birth_date": "20120412", "patient_sex": "F"}
     assert provenance.model_dump(mode="json")["conflicts"][0].keys() == {"field", "payload", "header", "attribute"}
 
 

@@ -17,6 +17,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import highdicom as hd
+import numpy as np
 import pydicom
 import pytest
 from fastapi.testclient import TestClient
@@ -27,7 +29,9 @@ from services.db.migrate import upgrade
 from services.dicom import synthetic
 from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
+from services.dicom.sr import CORNERSTONE_COBB_ANGLE
 from tests.conftest import Service, _purge_queue, make_key, service_env
+from tools.sr_adapter import adapter_missing, adapter_tool_state
 
 from .conftest import OrthancServer, spine_payload
 
@@ -338,3 +342,130 @@ def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redi
         assert broker.llen(settings.dicom_queue) == 1
     finally:
         _purge_queue(redis_url, queue)
+
+
+ARTIFACTS = ("sr.dcm", "figure.dcm", "figure.png", "figure.svg", "fhir")
+
+
+def _cobb_angle_deg(points: Any) -> float:
+    """The angle between lines 1–2 and 3–4 of four points (the CobbAngle tool's two lines), degrees."""
+    p = np.asarray(points, dtype=float)[:, :2]
+    a, b = p[1] - p[0], p[3] - p[2]
+    return float(np.degrees(np.arccos(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b))))
+
+
+def test_every_artifact_of_a_job_made_each_way(
+    pacs_service: Service, orthanc: OrthancServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """One film in the PACS, three jobs on it: JSON with the spacing typed (and the study's UIDs), the
+    CLI's ``spine submit --pa-dicom`` (headers read on the client, sent as the job's ``dicom``), and
+    the UIDs only (the service reads the header). Each keeps the film (``dicom``), every artifact
+    answers 200, the SR and SC carry the film's patient and study, highdicom finds the Cobb angles
+    as planar ROI groups on the film, and the Cornerstone adapters (Node) load them as CobbAngle
+    annotations with the SR's values and lines that meet at that angle."""
+    from spine_client import SpineClient
+    from spine_client import cli as spine_cli
+
+    reason = adapter_missing()
+    if reason:
+        pytest.skip(reason)
+    film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
+                                accession_number="ACC-WAYS", patient_id="P-WAYS")  # fmt: skip
+    with _pacs(orthanc) as pacs:
+        pacs.store([film])
+    synthetic.write(film, tmp_path / "pa.dcm")
+    study = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": film.SOPInstanceUID}
+
+    typed = spine_payload(spacing_mm=SPACING)
+    typed["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    typed["study"] = study
+    by_reference = spine_payload(spacing_mm=SPACING)
+    by_reference["study"] = study
+    csv = tmp_path / "landmarks.csv"
+    csv.write_text(
+        "".join(f"{lm['level']},{lm['point'][0]},{lm['point'][1]}\n" for lm in by_reference["pa"]["landmarks"])
+    )
+    (tmp_path / "base.json").write_text(json.dumps({"boundary": by_reference["boundary"]}))
+    transport, key = pacs_service.client._transport, pacs_service.api_key
+    monkeypatch.setattr(spine_cli, "_client", lambda args: SpineClient("http://testserver", key, transport=transport,
+                                                                       retries=0))  # fmt: skip
+    assert spine_cli.main(["submit", "--pa-dicom", str(tmp_path / "pa.dcm"), "--base", str(tmp_path / "base.json"),
+                           str(csv)]) == 0  # fmt: skip
+    ids = {"json": pacs_service.submit(typed)["id"], "file": json.loads(capsys.readouterr().out)["id"],
+           "pacs": pacs_service.submit(by_reference)["id"]}  # fmt: skip
+    jobs = dict(zip(ids, pacs_service.wait_all(list(ids.values()), timeout=180), strict=True))
+
+    for way, job in jobs.items():
+        assert job["status"] == "succeeded", (way, job.get("error"))
+        assert job["dicom"]["pa"]["sop_instance_uid"] == film.SOPInstanceUID, way  # the film is kept
+        assert job["dicom"]["pa"]["source"] == ("file" if way == "file" else "dicomweb")
+        assert job["study"]["patient_id"] == "P-WAYS", way
+        answers = {name: pacs_service.client.get(f"/v1/jobs/{job['id']}/{name}") for name in ARTIFACTS}
+        assert {name: r.status_code for name, r in answers.items()} == dict.fromkeys(ARTIFACTS, 200), way
+
+        sr_path = tmp_path / f"{way}-sr.dcm"
+        sr_path.write_bytes(answers["sr.dcm"].content)
+        sr, sc = pydicom.dcmread(sr_path), pydicom.dcmread(io.BytesIO(answers["figure.dcm"].content))
+        for made in (sr, sc):  # Patient and General Study Modules as the film's (PS3.3 §C.7.1.1, §C.7.2.1)
+            for keyword in ("PatientID", "PatientName", "PatientBirthDate", "PatientSex", "StudyInstanceUID",
+                            "StudyDate", "StudyTime", "StudyID", "AccessionNumber"):  # fmt: skip
+                assert made.get(keyword) == film.get(keyword), (way, made.Modality, keyword)
+        assert "Laterality" not in sc and "Laterality" not in sr
+
+        curves = job["result"]["measures"]["cobb"]
+        assert curves, "the C-curve payload has a Cobb angle"
+        planar = hd.sr.srread(sr_path).content.get_planar_roi_measurement_groups()
+        groups = [g for g in planar if g.tracking_identifier == CORNERSTONE_COBB_ANGLE]
+        assert len(groups) == len(curves), way
+        assert len(planar) - len(groups) == 17, way  # the 17 landmarks as SCOORDs on the film
+        for group in groups:
+            ref = group.roi.ContentSequence[0].ReferencedSOPSequence[0]
+            assert (ref.ReferencedSOPInstanceUID, ref.ReferencedSOPClassUID) == (film.SOPInstanceUID, film.SOPClassUID)
+
+        state = adapter_tool_state(sr_path, film.SOPInstanceUID, (SPACING, SPACING))
+        assert len(state["CobbAngle"]) == len(curves), (way, state["tools"])
+        for read, curve in zip(state["CobbAngle"], curves, strict=True):
+            # the NUM's value (DS: 16 characters, PS3.5 §6.2) and the lines in mm (FL coordinates: float32)
+            assert read["angle"] == pytest.approx(curve["angle_deg"], abs=1e-9), way
+            assert _cobb_angle_deg(read["points"]) == pytest.approx(curve["angle_deg"], abs=1e-3), way
+            assert read["referencedImageId"].endswith(film.SOPInstanceUID)
+
+
+def test_a_dicom_block_completes_the_payload_only_as_a_header_does(
+    two_clients: tuple[TestClient, TestClient], tmp_path: Path
+) -> None:
+    """``POST /v1/jobs`` with the ``dicom`` block the CLI reads from a file: kept on the job, its used
+    reads completing the payload (the px landmarks get the film's spacing); a block that claims the
+    PACS's reads, fills another field or holds a value DICOM cannot carry is a 422 naming it."""
+    from spine_client.dicom_input import payload_from_dicom
+
+    a, _ = two_clients
+    synthetic.write(synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING)), tmp_path / "pa.dcm")
+    csv = tmp_path / "landmarks.csv"
+    points = spine_payload(spacing_mm=SPACING)["pa"]["landmarks"]
+    csv.write_text("".join(f"{lm['level']},{lm['point'][0]},{lm['point'][1]}\n" for lm in points))
+    payload, dicom = payload_from_dicom(csv, tmp_path / "pa.dcm")
+    del payload["pa"]["pixel_spacing"]  # the block's read gives it back
+    answer = a.post("/v1/jobs", json={**payload, "dicom": dicom})
+    assert answer.status_code == 202, answer.text
+    job = a.get(f"/v1/jobs/{answer.json()['id']}").json()
+    assert job["dicom"] == dicom and "pixel_spacing" not in job["payload"]["pa"]
+    assert job["study"]["patient_id"] == "P-0001"
+
+    def refused(block: dict[str, Any]) -> list[str]:
+        response = a.post("/v1/jobs", json={**payload, "dicom": block})
+        assert response.status_code == 422, response.text
+        return [".".join(map(str, e["loc"])) for e in response.json()["errors"]]
+
+    pacs_claim = json.loads(json.dumps(dicom))
+    pacs_claim["pa"]["source"] = "dicomweb"
+    assert refused(pacs_claim) == ["dicom.pa.source"]
+    landmarks = json.loads(json.dumps(dicom))
+    landmarks["pa"]["read"][0]["field"] = "pa.landmarks"
+    assert refused(landmarks) == ["dicom.pa.read.0.field"]
+    sex = json.loads(json.dumps(dicom))
+    index = next(i for i, r in enumerate(sex["study"]) if r["field"] == "study.patient_sex")
+    sex["study"][index]["value"] = "female"
+    assert refused(sex) == [f"dicom.study.{index}.value"]
+    assert refused({"pa": "nothing"}) == ["dicom.pa"]

@@ -13,14 +13,27 @@ from pathlib import Path
 from typing import Any
 
 import highdicom as hd
+import numpy as np
 import pytest
 from pydicom.dataset import Dataset
 
+from services.db.job_forms import JobForms
 from services.dicom import synthetic
 from services.dicom.header import read_header
 from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
-from services.dicom.sr import COBB_ANGLE, PRIVATE_SCHEME, VERTEBRA_CODES, P, SourceImage, StudyIdentity, build_sr
+from services.dicom.sr import (
+    COBB_ANGLE,
+    PRIVATE_SCHEME,
+    VERTEBRA_CODES,
+    P,
+    SourceImage,
+    StudyIdentity,
+    build_sr,
+)
+from services.dicom.sr import (
+    CORNERSTONE_COBB_ANGLE as COBB_TOOL,
+)
 from spine_engine import register
 from spine_engine.figures import render_figure
 
@@ -42,7 +55,7 @@ def case() -> dict[str, Any]:
         patient_name=header.patient_name, accession_number=header.accession_number, study_date=header.study_date,
     )  # fmt: skip
     source = SourceImage(header.sop_instance_uid, str(header.sop_class_uid), header.series_instance_uid,
-                         header.study_instance_uid)  # fmt: skip
+                         header.study_instance_uid, pixel_spacing=(SPACING, SPACING))  # fmt: skip
     return {"image": image, "payload": payload, "result": result, "identity": identity, "source": source}
 
 
@@ -83,7 +96,7 @@ def test_sr_reads_back_with_cobb_items_equal_to_the_result(case: dict[str, Any],
     result["measures"]["cobb"][0]["angle_sd_deg"] = 1.5
     sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
     assert isinstance(sr, hd.sr.Comprehensive3DSR)
-    groups = sr.content.get_image_measurement_groups()
+    groups = sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups()
     cobbs = [(g, m) for g in groups for m in g.get_measurements(name=COBB_ANGLE)]
     expected = result["measures"]["cobb"]
     assert len(cobbs) == len(expected) >= 1
@@ -97,11 +110,37 @@ def test_sr_reads_back_with_cobb_items_equal_to_the_result(case: dict[str, Any],
             (VERTEBRA_CODES[curve["apex"]][0], "Apical"),
         ]
         assert m.method.value == P.MEASURED.value
-        assert group.tracking_identifier == f"Cobb curve 1 {curve['upper']}-{curve['lower']}"
+        assert group.tracking_identifier == COBB_TOOL  # on the PA image: the adapters' CobbAngle
     first = cobbs[0][1]
-    uncertainty = {item.ConceptNameCodeSequence[0].CodeValue: item.MeasuredValueSequence[0].NumericValue
+    uncertainty = {item.ConceptNameCodeSequence[0].CodeValue: (item.MeasuredValueSequence[0].NumericValue,
+                                                               item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence[0].CodeValue)
                    for item in first[0].ContentSequence if item.ValueType == "NUM"}  # fmt: skip
-    assert uncertainty == {"371886008": 1.5, "371885007": 1.5}  # upper and lower measurement uncertainty = 1 SD
+    # upper and lower measurement uncertainty = 1 SD, in the value's unit
+    assert uncertainty == {"371886008": (1.5, "deg"), "371885007": (1.5, "deg")}
+
+
+def test_cobb_lines_on_the_pa_image(case: dict[str, Any], tmp_path: Path) -> None:
+    """Each Cobb angle is a planar ROI group on the PA image whose Cobb NUM holds the two end vertebrae's
+    lines (one 4-point POLYLINE): in mm (the image's spacing) they meet at the Cobb angle itself."""
+    sr = hd.sr.srread(_write(_sr(case), tmp_path / "sr.dcm"))
+    groups = [g for g in sr.content.get_planar_roi_measurement_groups() if g.tracking_identifier == COBB_TOOL]
+    curves = case["result"]["measures"]["cobb"]
+    assert len(groups) == len(curves) >= 1
+    for group, curve in zip(groups, curves, strict=True):
+        assert (
+            group.roi.ContentSequence[0].ReferencedSOPSequence[0].ReferencedSOPInstanceUID
+            == case["image"].SOPInstanceUID
+        )
+        [num] = group.get_measurements(name=COBB_ANGLE)
+        [lines] = [item for item in num[0].ContentSequence if item.ValueType == "SCOORD"]
+        assert lines.GraphicType == "POLYLINE" and lines.RelationshipType == "INFERRED FROM"
+        assert (
+            lines.ContentSequence[0].ReferencedSOPSequence[0].ReferencedSOPInstanceUID == case["image"].SOPInstanceUID
+        )
+        p = np.asarray(lines.GraphicData, dtype=float).reshape(4, 2) * SPACING  # square pixels: mm
+        a, b = p[1] - p[0], p[3] - p[2]
+        angle = np.degrees(np.arccos(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b)))
+        assert angle == pytest.approx(curve["angle_deg"], abs=1e-3)  # GraphicData is float32 (FL)
 
 
 def test_sr_identity_series_and_scheme(case: dict[str, Any]) -> None:
@@ -130,7 +169,7 @@ def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path)
     result["fit"]["unreliable"] = ["kyphosis", "lordosis", "axial_rotation"]
     sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
     methods: dict[str, set[str]] = {}
-    for group in sr.content.get_image_measurement_groups():
+    for group in sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups():
         for m in group.get_measurements():
             methods.setdefault(m.name.value, set()).add(m.method.value)
     assert methods[COBB_ANGLE.value] == {"MEASURED"}
@@ -142,7 +181,7 @@ def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path)
 
 def test_landmarks_are_scoord_on_the_source_image(case: dict[str, Any], tmp_path: Path) -> None:
     sr = hd.sr.srread(_write(_sr(case), tmp_path / "sr.dcm"))
-    regions = sr.content.get_planar_roi_measurement_groups()
+    regions = [g for g in sr.content.get_planar_roi_measurement_groups() if g.tracking_identifier != COBB_TOOL]
     assert len(regions) == 17
     first = regions[0]
     roi = first.roi
@@ -153,7 +192,8 @@ def test_landmarks_are_scoord_on_the_source_image(case: dict[str, Any], tmp_path
 
 
 def _regions(sr: Dataset, tmp_path: Path) -> list[Any]:
-    return list(hd.sr.srread(_write(sr, tmp_path / "sr.dcm")).content.get_planar_roi_measurement_groups())
+    groups = hd.sr.srread(_write(sr, tmp_path / "sr.dcm")).content.get_planar_roi_measurement_groups()
+    return [g for g in groups if g.tracking_identifier != COBB_TOOL]
 
 
 def test_landmarks_in_mm_are_converted_with_the_spacing(case: dict[str, Any], tmp_path: Path) -> None:
@@ -197,8 +237,9 @@ def test_job_results_are_the_same_bytes_on_every_build(case: dict[str, Any]) -> 
     provenance = {"pa": {"sop_instance_uid": image.SOPInstanceUID, "sop_class_uid": str(image.SOPClassUID),
                          "series_instance_uid": image.SeriesInstanceUID}}  # fmt: skip
     finished = datetime(2026, 12, 1, 12, 0, 0)
-    first = job_sr(JOB, payload, case["result"], provenance, finished)
-    assert first == job_sr(JOB, payload, case["result"], provenance, finished)
-    png = render_figure(case["result"], payload, dpi=30)
-    assert job_figure_sc(JOB, payload, png, finished) == job_figure_sc(JOB, payload, png, finished)
-    assert job_sr(JOB, payload, case["result"], None, finished) != first  # without provenance: no image reference
+    forms = JobForms(posted=payload, provenance=provenance, result=case["result"])
+    first = job_sr(JOB, forms, finished)
+    assert first == job_sr(JOB, JobForms(posted=payload, provenance=provenance, result=case["result"]), finished)
+    assert job_figure_sc(JOB, forms, finished) == job_figure_sc(JOB, forms, finished)
+    without = JobForms(posted=payload, provenance=None, result=case["result"])
+    assert job_sr(JOB, without, finished) != first  # without provenance: no image reference

@@ -16,7 +16,7 @@ VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
 
 DEV_SPINES = ("verse127", "verse255")
 """Two dev spines whose PA-only SID/SOD film without central ray (sweep form ``e0``) did not converge
-within the solver's former limit of 100 steps (seed 2 and seed 0)."""
+within 100 steps before the central ray had a prior (seeds 2 and 0)."""
 SYNTHETIC = ((4253401181, 10), (574372308, 6))
 """Two synthetic spines (seed, index in ``generate_spines(20, 0)``, which fixes the kind) that failed
 the same way (seeds 1 and 2)."""

@@ -239,13 +239,14 @@ def test_adjacent_levels_336_mm_apart_are_refused_naming_both() -> None:
 
 
 def test_the_given_magnification_narrows_the_bound() -> None:
-    """T1–T2 60 mm apart on the film: possible when the scale is unverified (a nominal spacing),
-    not at a stated magnification of 1.2 (at most 1.1 · 1.2 · 1.25 · 1.289 · 20.3 + 3√2 = 47 mm)."""
-    pa = _view({"T1": [0.0, 0.0], "T2": [0.0, 60.0]})
+    """T1–T2 100 mm apart on the film: possible when the scale is unverified (a nominal spacing),
+    not at a stated magnification of 1.2 (at most 1.1 · 1.2 · 1.25 · 1.289 · (20.3 + 20.8) + 3√2 = 92 mm,
+    the arc one level longer for a label a level off, ``LABEL_SHIFT``)."""
+    pa = _view({"T1": [0.0, 0.0], "T2": [0.0, 100.0]})
     validate_payload({"pa": pa})
     pa["acquisition"] = {"magnification": 1.2}
     [(path, kind, msg)] = errors_of({"pa": pa})
-    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance") and "at most 47 mm" in msg
+    assert (path, kind) == ("pa.landmarks[1]", "implausible_distance") and "at most 92 mm" in msg
 
 
 def test_two_labels_on_one_vertebra_are_refused_whatever_the_scale() -> None:
@@ -332,3 +333,16 @@ def test_lateral_levels_out_of_order_are_refused_in_any_upright_orientation(orie
     validate_payload(p)
     p["lateral"]["landmarks"][1]["point"][1], p["lateral"]["landmarks"][2]["point"][1] = rows[2], rows[1]
     assert [(path, kind) for path, kind, _ in errors_of(p)] == [("lateral.landmarks[2]", "landmarks_out_of_order")]
+
+
+def test_a_stand_in_spacing_keeps_only_the_scale_free_check() -> None:
+    """A by-reference view checked with a stand-in spacing (``unscaled_views``): its millimetres are
+    not known yet, so 336 mm between T1 and T2 is no evidence; one vertebra labelled twice still is."""
+    pa = _view({"T1": [500.0, 250.0], "T2": [500.0, 250.0 + 336.0 / 0.2]}, units="px", pixel_spacing=[1.0, 1.0])
+    validate_payload({"pa": pa}, unscaled_views=("pa",))
+    _, positions = read_verse(VERSE_DEV)[0]
+    points = {lv: [float(r[0]) / 0.15, -float(r[2]) / 0.15] for lv, r in zip(LEVELS, positions, strict=True)}
+    points["L5"] = [points["L4"][0] + 1.0, points["L4"][1] + 1.0]
+    with pytest.raises(InvalidInput) as info:
+        validate_payload({"pa": _view(points, units="px", pixel_spacing=[1.0, 1.0])}, unscaled_views=("pa",))
+    assert [(e.path, e.type) for e in info.value.errors] == [("pa.landmarks[16]", "implausible_distance")]

@@ -25,9 +25,8 @@ from services.api.artifacts import (
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import BINARY_SCHEMA
-from services.dicom.merge import apply_reads, engine_payload
+from services.db.job_forms import job_forms
 from services.dicom.results import PART10_MEDIA_TYPE, job_figure_sc, job_sr
-from spine_engine.figures import render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["dicom"])
 
@@ -46,10 +45,10 @@ router = APIRouter(prefix="/v1/jobs", tags=["dicom"])
 def sr_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
 ) -> Response:
-    job, result = read_succeeded_job(session, job_id, access, "SR")
+    job, _ = read_succeeded_job(session, job_id, access, "SR")
 
     def build() -> bytes:  # payload, provenance, result and finished_at: all fixed once the job succeeded
-        return job_sr(job.id, apply_reads(job.payload, job.dicom), result, job.dicom, job.finished_at)
+        return job_sr(job.id, job_forms(job), job.finished_at)
 
     headers = {"Content-Disposition": f'attachment; filename="{job_id}-sr.dcm"'}
     return artifact_response("sr.dcm", job, if_none_match, cache, build, PART10_MEDIA_TYPE, headers)
@@ -66,11 +65,10 @@ def sr_dcm(
 def figure_dcm(
     job_id: uuid.UUID, session: SessionDep, access: AccessDep, if_none_match: IfNoneMatchDep, cache: ArtifactCacheDep
 ) -> Response:
-    job, result = read_succeeded_job(session, job_id, access, "figure")
+    job, _ = read_succeeded_job(session, job_id, access, "figure")
 
     def build() -> bytes:
-        payload = apply_reads(job.payload, job.dicom)
-        return job_figure_sc(job.id, payload, render_figure(result, engine_payload(payload)), job.finished_at)
+        return job_figure_sc(job.id, job_forms(job), job.finished_at)
 
     headers = {"Content-Disposition": f'attachment; filename="{job_id}-figure.dcm"'}
     return artifact_response("figure.dcm", job, if_none_match, cache, build, PART10_MEDIA_TYPE, headers)

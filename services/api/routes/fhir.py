@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import uuid
-from typing import Any
 
 from fastapi import APIRouter
 from fastapi.responses import Response
@@ -20,8 +19,8 @@ from services.api.artifacts import (
 )
 from services.api.deps import AccessDep, SessionDep, SettingsDep
 from services.api.job_reads import read_succeeded_job
+from services.db.job_forms import job_forms
 from services.db.models import utcnow
-from services.dicom.merge import apply_reads
 from services.fhir.export import observation_bundle
 
 router = APIRouter(prefix="/v1/jobs", tags=["interoperability"])
@@ -62,8 +61,7 @@ def job_fhir(
     job, result = read_succeeded_job(session, job_id, access, "FHIR export")
 
     def build() -> bytes:
-        payload: Any = job.payload
-        study = apply_reads(payload, job.dicom).get("study") if isinstance(payload, dict) else None
+        study = job_forms(job).study
         bundle = observation_bundle(
             job.id,
             result,

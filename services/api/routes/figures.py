@@ -22,6 +22,7 @@ from services.api.artifacts import (
 from services.api.deps import AccessDep, SessionDep
 from services.api.job_reads import read_succeeded_job
 from services.api.schemas import BINARY_SCHEMA, TEXT_SCHEMA
+from services.db.job_forms import job_forms
 from spine_engine.figures import MEDIA_TYPES, FigureFormat, render_figure
 
 router = APIRouter(prefix="/v1/jobs", tags=["figures"])
@@ -39,9 +40,10 @@ def _figure(
     cache: ArtifactCache,
 ) -> Response:  # fmt: skip
     job, result = read_succeeded_job(session, job_id, access, "figure")
-    # a sync route: rendering runs in the thread pool, and only when the client's copy is not current
+    # a sync route: rendering runs in the thread pool, and only when the client's copy is not current;
+    # drawn from the payload the job ran with (header values included), as the SC is
     return artifact_response("figure.png" if fmt == "png" else "figure.svg", job, if_none_match, cache,
-                             lambda: render_figure(result, job.payload, fmt), MEDIA_TYPES[fmt])  # fmt: skip
+                             lambda: render_figure(result, job_forms(job).engine, fmt), MEDIA_TYPES[fmt])  # fmt: skip
 
 
 @router.get(

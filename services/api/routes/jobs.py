@@ -10,7 +10,7 @@ from fastapi import APIRouter, Header, Query, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from services.api import job_reads
-from services.api.admission import admit
+from services.api.admission import admit, split_dicom
 from services.api.batch import batch_response
 from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
 from services.api.errors import METHOD_GUARD, ProblemError
@@ -72,13 +72,14 @@ def submit_job(
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
 ) -> Job:
     try:
-        admit(body, settings, session, access.owner)
+        payload, dicom = split_dicom(body)
+        admit(payload, settings, session, access.owner, dicom)
     except InvalidInput as exc:
         raise ProblemError(validation_problem(exc.errors)) from None
     access.admit(session, 1)
     try:
-        job, created = jobs_repo.create_job(session, body, owner=access.owner, idempotency_key=idempotency_key,
-                                            on_insert=access.created)  # fmt: skip
+        job, created = jobs_repo.create_job(session, payload, owner=access.owner, idempotency_key=idempotency_key,
+                                            on_insert=access.created, dicom=dicom)  # fmt: skip
     except jobs_repo.IdempotencyConflict as exc:
         raise ProblemError(
             problem(

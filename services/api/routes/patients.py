@@ -29,8 +29,8 @@ from pydantic import BaseModel, Field
 from services.api.deps import AccessDep, SessionDep
 from services.api.schemas import problem_responses
 from services.db import jobs as jobs_repo
+from services.db.job_forms import job_study
 from services.db.models import Job
-from services.dicom.merge import apply_reads
 from spine_engine.models import CobbCurve, RegistrationResult
 
 router = APIRouter(prefix="/v1/patients", tags=["jobs"])
@@ -109,9 +109,8 @@ RULE = (
 
 
 def _study(job: Job) -> dict[str, Any]:
-    payload = job.payload if isinstance(job.payload, dict) else {}
-    study = apply_reads(payload, job.dicom).get("study")
-    return study if isinstance(study, dict) else {}
+    """The job's study with the header's values (``services.db.job_forms``, the one owner of a job's forms)."""
+    return job_study(job) or {}
 
 
 def _date(value: Any) -> date | None:
