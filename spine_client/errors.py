@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import httpx
 
-from spine_client.models import Problem
-
-if TYPE_CHECKING:
-    from spine_client.models import Job
+from spine_client.contract import Job, Problem
 
 PROBLEM_BASE = "https://spine.example/problems/"
 
