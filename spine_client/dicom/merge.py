@@ -3,7 +3,7 @@ disagrees is reported as a conflict (never silently taken), and what was read is
 attribute (``DicomProvenance``, shown on the job as ``dicom`` in openapi.yaml).
 
 Works on the payload as JSON (a dict), so that fields the engine adds (``acquisition``,
-``pixel_spacing_calibration``) pass through whatever the installed ``spine_engine.models`` holds.
+``pixel_spacing_calibration``) pass through whatever version of the contract the reader holds.
 """
 
 from __future__ import annotations
