@@ -97,6 +97,21 @@ class Boundary(OpenModel):
     L5: Pose
 
 
+class Change(OpenModel):
+    """Change"""
+
+    measure: Literal["major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation"]
+    from_job: uuid.UUID
+    to_job: uuid.UUID
+    from_date: date
+    to_date: date
+    change_deg: float
+    combined_sd_deg: float | None
+    threshold_deg: float
+    flagged: bool
+    decided_by: Literal["convention_5deg", "combined_sd"]
+
+
 class CobbCurve(OpenModel):
     """One frontal curve: Cobb angle between its end vertebrae, apex and 3D descriptors."""
 
@@ -291,6 +306,14 @@ class LenkeInputs(OpenModel):
     not_supported: list[str]
 
 
+class MeasureValue(OpenModel):
+    """MeasureValue"""
+
+    value_deg: float
+    sd_deg: float | None = None
+    levels: str | None = None
+
+
 class Measures(OpenModel):
     """Clinical measures computed from the reconstruction (definitions in docs/measures.md)."""
 
@@ -336,6 +359,15 @@ class PacsStudyImages(OpenModel):
 
     study_instance_uid: str
     images: list[StudyImage]
+
+
+class PatientMeasures(OpenModel):
+    """PatientMeasures"""
+
+    patient_id: str
+    visits: list[Visit]
+    changes: list[Change]
+    rule: str
 
 
 class PedicleResidual(OpenModel):
@@ -488,6 +520,21 @@ class ViewProvenance(OpenModel):
     orientation_assumed: bool = False
     read: list[AttributeRead] = Field(default_factory=list)
     warnings: list[str] = Field(default_factory=list)
+
+
+class Visit(OpenModel):
+    """Visit"""
+
+    job_id: uuid.UUID
+    study_date: date | None
+    study_instance_uid: str | None = None
+    accession_number: str | None = None
+    finished_at: datetime | None = None
+    major_cobb: MeasureValue | None = None
+    minor_cobb: MeasureValue | None = None
+    kyphosis_t4_t12: MeasureValue
+    lordosis_l1_l5: MeasureValue
+    apex_axial_rotation: MeasureValue | None = None
 
 
 class WebhookDeliveryAttempt(OpenModel):
