@@ -21,8 +21,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from services.dicom import synthetic
-from services.dicom.header import read_header
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
+from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.levels import LEVELS
 from tools.sr_adapter import adapter_missing, adapter_tool_state

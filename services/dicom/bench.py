@@ -22,12 +22,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
 
 from . import synthetic
 from .dicomweb import DicomwebConfig, Pacs
-from .header import read_header
 from .orthanc import orthanc_missing, start_orthanc, stop_orthanc
 from .results import part10
 from .sc import build_sc

@@ -22,8 +22,9 @@ from pydicom.datadict import tag_for_keyword
 from pydicom.dataset import Dataset
 from pydicom.uid import ExplicitVRLittleEndian
 
+from spine_client.dicom.header import RadiographHeader, check_uid, read_header
+
 from .errors import InstanceNotFound, PacsUnavailable, StoreRefused, StudyNotFound, TransferSyntaxUnavailable
-from .header import RadiographHeader, check_uid, read_header
 
 DEFAULT_TIMEOUT_S = 10.0
 """Connect and read timeout of one DICOMweb request, s: metadata of one instance is a few kB, and a

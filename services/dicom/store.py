@@ -27,9 +27,10 @@ from services.core.retry import TRANSIENT
 from services.db.engine import session_scope
 from services.db.job_forms import job_forms
 from services.db.models import Job, utcnow
+from spine_client.dicom.errors import DicomError
 
 from .dicomweb import DicomwebConfig, Pacs
-from .errors import DicomError, DicomwebError
+from .errors import DicomwebError
 from .results import job_figure_sc_dataset, job_sr_dataset
 
 log = logging.getLogger(__name__)

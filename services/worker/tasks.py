@@ -38,9 +38,10 @@ from services.db.engine import session_scope, worker_connection
 from services.db.job_forms import apply_reads, engine_payload
 from services.dicom import store as dicom_store
 from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.errors import DicomError, PacsUnavailable
+from services.dicom.errors import PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.webhooks import delivery as webhooks
+from spine_client.dicom.errors import DicomError
 from spine_engine.errors import FitFailed, InvalidInput
 from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register_model

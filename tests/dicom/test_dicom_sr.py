@@ -19,7 +19,6 @@ from pydicom.dataset import Dataset
 
 from services.db.job_forms import JobForms
 from services.dicom import synthetic
-from services.dicom.header import read_header
 from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
 from services.dicom.sr import (
@@ -34,6 +33,7 @@ from services.dicom.sr import (
 from services.dicom.sr import (
     CORNERSTONE_COBB_ANGLE as COBB_TOOL,
 )
+from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
 

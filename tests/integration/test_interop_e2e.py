@@ -39,7 +39,7 @@ from spine_client import (
     WaitTimeout,
 )
 from spine_client import cli as client_cli
-from spine_engine.models import RegistrationResult
+from spine_client.models import RegistrationResult
 from tests.conftest import _postgres_database, _purge_queue, spine_payload
 from tests.interop_helpers import ApiOnly, FlakyProxy, Receiver, Rule, Served, free_port, wait_until
 
