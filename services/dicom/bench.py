@@ -22,11 +22,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from services.core.config import DicomwebConfig
 from spine_engine import register
 from spine_engine.figures import render_figure
 
 from . import synthetic
-from .dicomweb import DicomwebConfig, Pacs
+from .dicomweb import Pacs
 from .header import read_header
 from .orthanc import orthanc_missing, start_orthanc, stop_orthanc
 from .results import part10

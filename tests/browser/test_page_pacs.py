@@ -28,7 +28,8 @@ from page_fixtures import (
 )
 from pydicom.uid import generate_uid
 
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
 from services.dicom.orthanc import OrthancServer
 
 pytestmark = pytest.mark.browser

@@ -9,8 +9,9 @@ from typing import Any
 
 import pytest
 
+from services.core.config import DicomwebConfig
 from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.dicomweb import Pacs
 from services.dicom.errors import InstanceNotFound, InvalidAttribute, PacsUnavailable
 from services.dicom.header import read_header
 from services.dicom.reference import resolve_by_reference, views_to_fetch
