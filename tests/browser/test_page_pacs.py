@@ -30,7 +30,7 @@ from pydicom.uid import generate_uid
 
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
-from services.dicom.orthanc import OrthancServer
+from tools.dicom.orthanc import OrthancServer
 
 pytestmark = pytest.mark.browser
 

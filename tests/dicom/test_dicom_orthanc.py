@@ -10,7 +10,6 @@ from typing import Any
 import pytest
 
 from services.core.config import DicomwebConfig
-from services.dicom import synthetic
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import InstanceNotFound, InvalidAttribute, PacsUnavailable
 from services.dicom.header import read_header
@@ -19,6 +18,7 @@ from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_engine import register
 from spine_engine.figures import render_figure
+from tools.dicom import synthetic
 
 from .conftest import OrthancServer, free_port, spine_payload
 

@@ -26,11 +26,11 @@ from fastapi.testclient import TestClient
 from services.api.app import create_app
 from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
-from services.dicom import synthetic
 from services.dicom.dicomweb import Pacs
-from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
 from tests.conftest import Service, _purge_queue, make_key, service_env
+from tools.dicom import synthetic
+from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
 from .conftest import OrthancServer, spine_payload
@@ -176,7 +176,7 @@ def test_by_reference_needs_no_spacing_only_with_a_pacs(two_clients: tuple[TestC
 def test_pacs_down_retries_then_fails_the_job(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
 ) -> None:
-    from services.dicom.orthanc import free_port
+    from tools.dicom.orthanc import free_port
 
     data_dir = tmp_path_factory.mktemp("dicom-down")
     env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
