@@ -1,5 +1,5 @@
 """Payloads of the DICOM tests. Their throwaway Orthanc with its DICOMweb plugin is the session
-fixture ``orthanc`` of ``tests/conftest.py`` (``services.dicom.orthanc``: Debian's ``orthanc`` and
+fixture ``orthanc`` of ``tests/conftest.py`` (``tools.dicom.orthanc``: Debian's ``orthanc`` and
 ``orthanc-dicomweb``, storage in a temporary folder, a free loopback port, stopped by its PID), shared
 with the page tests. When Orthanc or the plugin is missing the tests that need it are skipped, saying
 why (CI counts skips as failures). ``dcmtk`` (dsrdump) and ``dicom3tools`` (dciodvfy) check the SR.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from services.dicom.orthanc import OrthancServer, free_port
+from tools.dicom.orthanc import OrthancServer, free_port
 
 __all__ = ["LEVELS", "OrthancServer", "free_port", "spine_payload"]
 

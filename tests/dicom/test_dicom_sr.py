@@ -18,7 +18,6 @@ import pytest
 from pydicom.dataset import Dataset
 
 from services.db.job_forms import JobForms
-from services.dicom import synthetic
 from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
 from services.dicom.sr import (
@@ -36,6 +35,7 @@ from services.dicom.sr import (
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
+from tools.dicom import synthetic
 
 from .conftest import spine_payload
 
