@@ -91,6 +91,7 @@ def test_every_json_route_answers_through_its_response_model(
         ("GET", "/v1/pacs/studies/{study_instance_uid}/images"): ("GET", "/v1/pacs/studies/1.2.3/images", None),
         ("GET", "/healthz"): ("GET", "/healthz", None),
         ("GET", "/readyz"): ("GET", "/readyz", None),
+        ("GET", "/v1/patients/{patient_id}/measures"): ("GET", "/v1/patients/P-1/measures", None),
     }
     models = _json_answers(api.app.openapi())  # type: ignore[attr-defined]
     assert models.keys() == calls.keys(), "a JSON route of the contract is missing from this test (or gone)"
