@@ -28,7 +28,7 @@ from spine_engine.anatomy import Profile, load_profile
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures
-from spine_engine.reconstruction import build_problem, solve
+from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
 from spine_engine.validation import validate_payload
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -80,8 +80,7 @@ def reconstruct_spine(
         positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng, **extra  # type: ignore[arg-type]
     )
     model = validate_payload(payload)
-    problem = build_problem(model, profile)
-    out, _ = solve(problem, profile)
+    out = fit_patient_rod(prepare_inputs(model, profile), profile)[0].output
     truth_m = compute_measures(positions, rotations)
     recon_m = compute_measures(out.positions, out.rotations)
     return SpineOutcome(

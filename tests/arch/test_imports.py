@@ -79,8 +79,8 @@ def test_no_module_import_cycle() -> None:
 
 @pytest.mark.parametrize(("package", "at_least"), [("spine_engine", 25), ("benches", 10)])
 def test_no_module_import_cycle_in_the_engine_or_the_benches(package: str, at_least: int) -> None:
-    """Imports under ``if TYPE_CHECKING`` are left out: ``fit.observations`` names
-    ``fit.problem.RegistrationProblem`` in its signatures only (the problem calls the observations
+    """Imports under ``if TYPE_CHECKING`` are left out: ``fit.pose_rows`` names
+    ``fit.problem.RegistrationProblem`` in its signatures only (the problem calls its pose rows
     with itself)."""
     graph = grimp.build_graph(package, cache_dir=None, exclude_type_checking_imports=True)
     modules = {m for m in graph.modules if m.startswith(package)}

@@ -44,7 +44,7 @@ def result_like(major_cobb: float = 23.5) -> RegistrationResult:
     for i, v in enumerate(result["vertebrae"]):
         last = i == len(result["vertebrae"]) - 1
         v.update({"u": None if last else [0.001, 0.002 * i, 0.0005], "v": None if last else [0.0, 0.0, 1.0],
-                  "pa_bending_deg": None if last else 1.5, "lateral_bending_deg": None if last else 0.1 * i,
+                  "sagittal_bending_deg": None if last else 1.5, "frontal_bending_deg": None if last else 0.1 * i,
                   "twist_deg": None if last else 0.2, "axial_rotation_deg": 0.5 * i})  # fmt: skip
     curve = result["measures"]["cobb"][0]
     result["measures"]["cobb"] = [
@@ -112,6 +112,7 @@ def test_measures_are_stored_queryably(db_settings: Settings) -> None:
         assert len(strains) == 17
         t3 = next(v for v in strains if v.level == "T3")
         assert (t3.u2, t3.v3, t3.twist_deg) == (pytest.approx(0.004), 1.0, 0.2)
+        assert (t3.sagittal_bending_deg, t3.frontal_bending_deg) == (1.5, pytest.approx(0.2))  # T3 is index 2
         assert next(v for v in strains if v.level == "L5").u1 is None
 
 

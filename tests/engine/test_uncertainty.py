@@ -161,11 +161,11 @@ def test_lateral_rows_only_lower_the_variances() -> None:
     weight, enough to break the inequality). One unit row on each of those columns, which no other
     row touches, makes H definite without changing any other variance."""
     from spine_engine.anatomy import load_profile
-    from spine_engine.reconstruction import build_problem, solve_solution
+    from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
     from spine_engine.validation import validate_payload
 
     profile = load_profile("default")
-    solution, _ = solve_solution(build_problem(validate_payload(_series_payloads()[0]), profile), profile)
+    solution, _ = fit_patient_rod(prepare_inputs(validate_payload(_series_payloads()[0]), profile), profile)
     lateral = np.array([kind.endswith(":lateral") for kind in solution.row_kinds])
     assert lateral.any()
     jacobian = solution.jacobian[~lateral]

@@ -30,7 +30,7 @@ from services.core.webhook_policy import (
     parse_allow_list,
 )
 from services.db.migrate import upgrade
-from services.dicom.sr import PRIVATE_SCHEME_VERSION, P
+from services.dicom.sr import PRIVATE_SCHEME_VERSION, PrivateCodes
 from services.fhir.export import (
     COBB_ANGLE,
     LOCAL_CODE_SYSTEM,
@@ -215,7 +215,7 @@ def test_fhir_observations_are_coded_and_keep_their_text(result: dict[str, Any])
 
 def test_fhir_local_codes_are_the_srs_private_codes() -> None:
     """One meaning, one code value, in DICOM (99SPINE) and in FHIR (``LOCAL_CODE_SYSTEM``)."""
-    sr_codes = {c.value: c.meaning for c in vars(P).values() if hasattr(c, "scheme_designator")}
+    sr_codes = {c.value: c.meaning for c in vars(PrivateCodes).values() if hasattr(c, "scheme_designator")}
     assert {code: sr_codes.get(code) for code in LOCAL_CODES} == LOCAL_CODES
     assert LOCAL_CODE_SYSTEM_VERSION == PRIVATE_SCHEME_VERSION
     uuid_urn = r"urn:uuid:[0-9a-f]{8}-[0-9a-f]{4}-5[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}"  # RFC 9562 version 5
