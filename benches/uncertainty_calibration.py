@@ -1,4 +1,4 @@
-"""Calibration of the uncertainty model's two constants on VerSe dev (issue #10, item 6).
+"""Calibration of the uncertainty model's two constants on VerSe dev.
 
 ``spine bench clinic --split dev --calibrate-uncertainty`` films every dev spine in every clinic
 case (``clinic_films.simulate_series``, ``clinic_films.build_payload``), fits it once (``reconstruction``'s

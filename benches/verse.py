@@ -5,7 +5,7 @@ Each spine of a VerSe split (vertebral centroids T1..L5, LPS mm) is projected on
 (position, and directors built from the centreline by ``frames_from_centreline``); the spine is
 reconstructed and its 3D error measured per spine and per level. Tune on ``dev``, report ``test``.
 
-``--clinical`` adds the cases of issue #5 (``CLINICAL_CASES``) to the 17 PA points: the two
+``--clinical`` adds the clinical cases (``CLINICAL_CASES``) to the 17 PA points: the two
 pedicle centres of every vertebra on the PA view, derived from the truth frames with the
 engine's offsets (``observations.pedicle_offsets_mm``; the truth frames carry no axial rotation,
 so these say "not rotated"), and/or four corners per vertebra (a box of the table's width and
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", default="default")
     parser.add_argument("--noise-mm", type=float, default=0.0, help="landmark noise SD, detector mm")
     parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
-    parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases (issue #5)")
+    parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases")
     parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
     args = parser.parse_args(argv)
     path = (args.data or default_data_dir()) / f"{args.split}.csv"

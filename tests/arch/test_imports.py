@@ -1,4 +1,4 @@
-"""The import structure (issue 11, DESIGN.md "services/: layered"): the import-linter contracts of
+"""The import structure (DESIGN.md "services/: layered"): the import-linter contracts of
 pyproject.toml hold, no module of ``services``, ``spine_engine`` or ``benches`` is in an import cycle, the
 engine does not import the benches (they sit on top of the engine, outside its wheel), and no
 import hides inside a function except the few marked ``# lazy: <why>`` (an entry point's optional

@@ -1,4 +1,4 @@
-"""The migrations equal the models (issue 11): an empty SQLite and an empty PostgreSQL database
+"""The migrations equal the models: an empty SQLite and an empty PostgreSQL database
 upgraded to head show no difference with ``Base.metadata`` (Alembic's ``compare_metadata``), and
 every revision goes down and up again."""
 

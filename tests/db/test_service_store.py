@@ -181,7 +181,6 @@ def _reconcile(settings: Settings, max_attempts: int = 2) -> runs.Reconciliation
         return runs.reconcile(
             s,
             queued_timeout=timedelta(minutes=5),
-            running_timeout=timedelta(minutes=10),
             max_attempts=max_attempts,
             lost_problem=LOST,
         )
@@ -304,7 +303,7 @@ def test_a_job_whose_message_could_not_be_published_is_published_at_the_next_rec
 
 @BACKENDS
 def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_settings: Settings) -> None:
-    """Leases (issue 11): a run renewing its lease is left alone however long it runs; once it stops
+    """Leases: a run renewing its lease is left alone however long it runs; once it stops
     renewing, the reconciler takes the job back; a stale run's renewal is refused (fenced by attempt)."""
     job_id = new_job(db_settings)
     with session_scope(db_settings) as s:
@@ -321,18 +320,6 @@ def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_se
         fresh = runs.claim_job(s, job_id, "1.0")
     assert fresh is not None and fresh.attempt == 2
     assert status_of(db_settings, job_id).lease_expires_at is not None
-
-
-@BACKENDS
-def test_a_run_without_a_lease_is_taken_back_after_the_running_timeout(db_settings: Settings) -> None:
-    """A run claimed before leases existed (lease NULL) falls back to started_at + running timeout."""
-    job_id = new_job(db_settings)
-    with session_scope(db_settings) as s:
-        assert runs.claim_job(s, job_id, "1.0") is not None
-    _age(db_settings, job_id, lease_expires_at=None)
-    assert _reconcile(db_settings).requeue == []
-    _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
-    assert _reconcile(db_settings).requeue == [job_id]
 
 
 @BACKENDS

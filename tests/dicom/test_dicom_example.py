@@ -19,8 +19,7 @@ from services.dicom.dicomweb import DicomwebConfig, Pacs
 from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from services.dicom.reference import resolve_by_reference
 from spine_client.dicom_input import payload_by_reference
-
-from .conftest import LEVELS
+from spine_engine.levels import LEVELS
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "orthanc"
 ANNOUNCE_TIMEOUT_S = 30.0

@@ -18,8 +18,9 @@ from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_engine import register
 from spine_engine.figures import render_figure
+from tests.conftest import spine_payload
 
-from .conftest import OrthancServer, free_port, spine_payload
+from .conftest import OrthancServer, free_port
 
 HEADER_CASES: list[dict[str, Any]] = [
     dict(pixel_spacing=(0.14, 0.13), imager_pixel_spacing=(0.15, 0.15), calibration_type="GEOMETRY"),

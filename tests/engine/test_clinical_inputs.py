@@ -13,6 +13,7 @@ import pytest
 from benches.truth import payload_from_truth
 from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.errors import InvalidInput
+from spine_engine.fit import RegistrationProblem
 from spine_engine.frames import axial_rotation_deg
 from spine_engine.measures import aasce_major_angle, major_first_curves
 from spine_engine.models import RegistrationResult
@@ -23,7 +24,6 @@ from spine_engine.reconstruction import (
     register,
     rod_parameters,
 )
-from spine_engine.registration import RegistrationProblem
 from spine_engine.rotations import exp_so3
 from spine_engine.synthetic import generate_spine, generate_spines
 from spine_engine.tilt_prior import load_tilt_prior, predict_tilts_deg

@@ -402,7 +402,7 @@ def test_fhir_of_unknown_or_unfinished_jobs(api: TestClient) -> None:
 
 
 def test_fhir_observations_carry_the_results_sd(result: dict[str, Any]) -> None:
-    """Each measure with an SD in the result has it as a component in degrees (issue #13: every number
+    """Each measure with an SD in the result has it as a component in degrees (every number
     with its trust), equal to the result's value."""
     sds = copy.deepcopy(result)
     sds["measures"]["thoracic_kyphosis_t4_t12_sd_deg"] = 2.5
