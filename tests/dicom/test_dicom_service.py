@@ -278,7 +278,7 @@ def test_python_client_and_cli_get_the_sr(
     assert "wrote" in capsys.readouterr().err
 
 
-def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
+def test_sweep_publishes_an_overdue_stow_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
     """A STOW-RS attempt whose message was never published (attempt 0) or was lost is published by the
     reconciler's sweep once overdue, as the next attempt; out of attempts, the job is left alone."""
     import uuid as uuid_module
