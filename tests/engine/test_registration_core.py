@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from benches.perf import build_problem, placeholder_parameters, synthetic_spine
+from benches.perf import build_case, placeholder_parameters, synthetic_spine
 from spine_engine.fit import RegistrationProblem, RodParameters, ViewData, fit, initial_configuration
 from spine_engine.projection import image_axes, project
 from spine_engine.rod import internal_energy, strains
@@ -265,7 +265,7 @@ def test_pa_only_initial_configuration_keeps_rest_depth():
 
 
 def test_benchmark_problem_converges_quickly():
-    pb = build_problem()
+    pb = build_case()
     r0, R0 = initial_configuration(pb.rest_positions, pb.rest_rotations, pb.views, pb.top, pb.bottom)
     out = fit(pb.params, pb.views, pb.top, pb.bottom, r0, R0)
     assert out.converged and out.iterations <= 8
