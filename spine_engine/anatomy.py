@@ -467,16 +467,27 @@ class PopulationPrior:
         return np.asarray(2.0 * self.temperature_nmm * ds / np.radians(sd_deg) ** 2)
 
 
+_PARSED_PRIORS: dict[int, tuple[dict[str, Any], PopulationPrior]] = {}
+"""``population_prior``'s parses, keyed by the id of the profile's dict (kept alive beside them, so
+an id is never reused while its entry stands): a loaded profile is parsed once, not per job."""
+
+
 def population_prior(profile: Profile) -> PopulationPrior | None:
     """The profile's ``population_prior`` as arrays (None when it has none)."""
-    return _population_prior(profile.name, json.dumps(profile.population_prior, sort_keys=True))
-
-
-@functools.lru_cache(maxsize=16)
-def _population_prior(name: str, text: str) -> PopulationPrior | None:
-    data = json.loads(text)
+    data = profile.population_prior
     if data is None:
         return None
+    hit = _PARSED_PRIORS.get(id(data))
+    if hit is not None and hit[0] is data:
+        return hit[1]
+    parsed = _parse_population_prior(profile.name, data)
+    if len(_PARSED_PRIORS) >= 32:
+        _PARSED_PRIORS.clear()
+    _PARSED_PRIORS[id(data)] = (data, parsed)
+    return parsed
+
+
+def _parse_population_prior(name: str, data: dict[str, Any]) -> PopulationPrior:
     keys = ("sagittal_sd_deg", "frontal_sd_deg", "stretch_sd", "twist_sd_deg")
     sd = {k: np.asarray(data[k], dtype=float) for k in keys}
     shear = np.asarray(data["shear_sd"], dtype=float).T

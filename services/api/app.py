@@ -18,7 +18,7 @@ from services.api.deps import reject_unknown_query
 from services.api.docs_ui import mount_docs
 from services.api.errors import install_error_handlers
 from services.api.metrics import HTTPMetrics, JobStateCollector
-from services.api.routes import dicom, fhir, figures, health, jobs, pacs
+from services.api.routes import dicom, fhir, figures, health, jobs, pacs, patients
 from services.api.schemas import BatchRequest, Problem
 from services.api.security import install_auth, install_edge, secure_openapi
 from services.api.web import mount_web
@@ -96,6 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(fhir.router)
     app.include_router(dicom.router)
     app.include_router(pacs.router)
+    app.include_router(patients.router)
     mount_docs(app)
     mount_web(app)
     install_auth(app, settings)  # API keys on /v1, inside the metrics middleware: refusals are counted

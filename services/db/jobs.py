@@ -252,6 +252,23 @@ def list_jobs(
     return jobs[:limit], next_cursor
 
 
+MAX_PATIENT_JOBS = 1000
+"""At most this many succeeded jobs of one patient are read for a follow-up (a patient filmed every
+4 months for 20 years has 60 visits)."""
+
+
+def succeeded_jobs_of_patient(session: Session, patient_id: str, *, owner: str | None = None) -> list[Job]:
+    """The succeeded jobs of a patient (the ``patient_id`` column: the payload's study, or the one the
+    DICOM layer read from the header), of ``owner`` (None: every owner's, for an admin), oldest first
+    by creation (the caller orders them by study date, which lives in the payload or the header
+    reads). Uses the ``(owner, patient_id, created_at)`` index."""
+    query = select(Job).where(Job.patient_id == patient_id, Job.status == JobStatus.succeeded.value)
+    if owner is not None:
+        query = query.where(Job.owner == owner)
+    query = query.order_by(Job.created_at, Job.id).limit(MAX_PATIENT_JOBS)
+    return list(session.scalars(query))
+
+
 def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None) -> tuple[Job, bool]:
     """Move a queued or running job to cancelled; return it and whether this call cancelled it
     (False: it already was, and is returned as it is).

@@ -1,7 +1,9 @@
 """The worker's Celery app (``celery -A services.worker.celery_app``), built from the settings.
 
 It registers the job task and the reconciler, which Celery beat (embedded in the worker with
-``-B``) runs every ``SPINE_RECONCILE_INTERVAL_S``.
+``-B``) runs every ``SPINE_RECONCILE_INTERVAL_S``. Celery's own lines about the reconciler's runs
+(beat sending it, the worker receiving it, its success) are DEBUG: at INFO they would be three lines
+every 2 s that bury the rest; the reconciler logs at INFO itself when it acted (``tasks.reconcile_once``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,27 @@ from services.worker import tasks
 from spine_engine.warmup import warm_up
 
 log = logging.getLogger(__name__)
+
+CELERY_TASK_LOGGERS = ("celery.beat", "celery.worker.strategy", "celery.app.trace")
+"""Celery's loggers of a task being sent by beat, received and finished."""
+
+
+class ReconcilerAtDebug(logging.Filter):
+    """Celery's INFO records about the reconciler task, lowered to DEBUG (dropped unless the logger
+    shows DEBUG); warnings and errors about it stay as they are."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno != logging.INFO or RECONCILE not in record.getMessage():
+            return True
+        if not logging.getLogger(record.name).isEnabledFor(logging.DEBUG):
+            return False
+        record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return True
+
+
+for _name in CELERY_TASK_LOGGERS:
+    logging.getLogger(_name).addFilter(ReconcilerAtDebug())
+
 settings = get_settings()
 app = make_celery(settings)
 tasks.register_tasks(app, settings)

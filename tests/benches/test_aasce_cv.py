@@ -45,7 +45,7 @@ def test_end_weights_mark_the_most_and_least_tilted_vertebrae() -> None:
     np.testing.assert_array_equal(end_weights(tilts, 3.0), [[1, 4, 4, 1], [1, 1, 4, 4]])
 
 
-def test_a_prior_passed_to_build_problem_replaces_the_shipped_one() -> None:
+def test_a_prior_passed_to_prepare_inputs_replaces_the_shipped_one() -> None:
     """The bench's cross-validated priors reach the fit through ``tilt_prior`` (no patching)."""
     positions, rotations = synthetic_spine(cobb_deg=40.0)
     model = validate_payload(payload_from_truth(positions, rotations, list(range(17)), boundary=False))

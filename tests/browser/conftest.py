@@ -6,12 +6,14 @@ opens its own browser context), instead of one of each per module.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 from page_fixtures import CHROMIUM_FLAGS, chromium_path, start_serve, stop_serve
 
 API_KEYS: dict[str, str] = {}
+DATA_DIRS: dict[str, Path] = {}
 
 
 @pytest.fixture(scope="session")
@@ -19,6 +21,7 @@ def live_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """`spine serve` on a free port of 127.0.0.1: uvicorn API and its Celery worker child."""
     serve = start_serve(tmp_path_factory.mktemp("page-service"))
     API_KEYS[serve.url] = serve.api_key
+    DATA_DIRS[serve.url] = serve.log.parent
     try:
         yield serve.url
     finally:
@@ -28,6 +31,12 @@ def live_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 @pytest.fixture(scope="session")
 def api_key(live_url: str) -> str:
     return API_KEYS[live_url]
+
+
+@pytest.fixture(scope="session")
+def live_data_dir(live_url: str) -> Path:
+    """The data directory of the session's `spine serve` (its embedded SQLite database)."""
+    return DATA_DIRS[live_url]
 
 
 @pytest.fixture(scope="session")

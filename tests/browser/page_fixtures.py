@@ -86,13 +86,16 @@ def lateral_points(first: str = "T4") -> list[tuple[str, float, float]]:
     return out
 
 
-def film_pixels(bodies: list[list[tuple[float, float]]], monochrome1: bool) -> np.ndarray:
-    """12-bit film: soft tissue, and bright (dense) vertebral bodies; MONOCHROME1 stores them low."""
+def film_pixels(
+    bodies: list[list[tuple[float, float]]], monochrome1: bool, size: tuple[int, int] = FILM_SIZE
+) -> np.ndarray:
+    """12-bit film of `size` (columns, rows): soft tissue, and bright (dense) vertebral bodies;
+    MONOCHROME1 stores them low."""
     from PIL import Image, ImageDraw, ImageFilter
 
-    image = Image.new("L", FILM_SIZE, 20)
+    image = Image.new("L", size, 20)
     draw = ImageDraw.Draw(image)
-    draw.rectangle((FILM_SIZE[0] * 0.2, 0, FILM_SIZE[0] * 0.8, FILM_SIZE[1]), fill=60)
+    draw.rectangle((size[0] * 0.2, 0, size[0] * 0.8, size[1]), fill=60)
     for tl, tr, bl, br in bodies:
         draw.polygon([tl, tr, br, bl], fill=210)
     grey = np.asarray(image.filter(ImageFilter.GaussianBlur(1.2)), dtype=np.float64)
@@ -108,22 +111,29 @@ def make_dicom(
     first_lateral: str = "T4",
     spacing: dict[str, list[float]] | None = None,
     transfer_syntax: str | None = None,
+    bodies: list[list[tuple[float, float]]] | None = None,
+    size: tuple[int, int] = FILM_SIZE,
+    study: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """A DX film with the attributes the page reads; returns them for the assertions. `spacing`
     replaces the view's spacing attributes (keys PixelSpacing, ImagerPixelSpacing); an empty dict
-    leaves the film without any. `transfer_syntax` only labels the file (its pixels stay raw)."""
+    leaves the film without any. `transfer_syntax` only labels the file (its pixels stay raw).
+    `bodies` (four corners each) and `size` (columns, rows) replace the synthetic spine and film
+    size; `study` replaces header attributes by keyword (e.g. StudyInstanceUID, StudyDate)."""
     import pydicom
     from pydicom.dataset import FileMetaDataset
     from pydicom.encaps import encapsulate
     from pydicom.uid import UID, ExplicitVRLittleEndian, generate_uid
 
-    if view == "pa":
+    if bodies is not None:
+        pass
+    elif view == "pa":
         bodies = pa_corners()
     else:
         bodies = []
         for _, col, row in lateral_points(first_lateral):
             bodies.append([(col - 26, row), (col + 26, row), (col - 26, row + 22), (col + 26, row + 22)])
-    pixels = film_pixels(bodies, monochrome1)
+    pixels = film_pixels(bodies, monochrome1, size)
     meta = FileMetaDataset()
     meta.MediaStorageSOPClassUID = UID("1.2.840.10008.5.1.4.1.1.1.1")  # Digital X-Ray Image Storage - For Presentation
     meta.MediaStorageSOPInstanceUID = generate_uid()
@@ -150,6 +160,8 @@ def make_dicom(
     ds.PixelRepresentation = 0
     ds.WindowCenter = 2000
     ds.WindowWidth = 3500
+    for keyword, text in (study or {}).items():
+        setattr(ds, keyword, text)
     if spacing is not None:
         for keyword, value in spacing.items():
             setattr(ds, keyword, value)

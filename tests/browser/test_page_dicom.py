@@ -148,6 +148,9 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
         assert body_sent["lateral"]["patient_orientation"] == ["A", "F"]
         assert body_sent["lateral"]["pixel_spacing"] == [0.45, 0.45]
         assert body_sent["pa"]["acquisition"]["magnification"] == 1.2
+        if "image_size" in spec["components"]["schemas"]["Acquisition"]["properties"]:  # the film's [columns, rows]
+            assert body_sent["pa"]["acquisition"]["image_size"] == list(FILM_SIZE)
+            assert body_sent["lateral"]["acquisition"]["image_size"] == list(FILM_SIZE)
         assert body_sent["pa"]["pixel_spacing_calibration"] == "detector"
         assert body_sent["lateral"]["pixel_spacing_calibration"] == "calibrated"
     else:

@@ -2,7 +2,9 @@
 `spine serve` pointed at it; a synthetic DX film stored in Orthanc is opened by its Study Instance UID
 ("Open from the PACS"), used as the PA film (its header's spacing shown as for a file from disk),
 landmarked by 17 clicks and sent; the job succeeds and its payload names the study and the image by
-UID. An unknown study is said in plain words; a service without a PACS shows no such control."""
+UID. Reopened from its URL, the job shows its film again, fetched from the PACS by those UIDs; once
+the image is deleted from the PACS, the blank frame says why. An unknown study is said in plain
+words; a service without a PACS shows no such control."""
 
 from __future__ import annotations
 
@@ -18,10 +20,12 @@ from page_fixtures import (
     LEVELS,
     PA_SPACING,
     Serve,
+    canvas_grey,
     canvas_point,
     centreline,
     make_dicom,
     open_page,
+    pa_corners,
     run_axe,
     start_serve,
     stop_serve,
@@ -101,8 +105,40 @@ def test_open_a_film_from_the_pacs_landmark_it_and_send(
     assert study["study_instance_uid"] == film.StudyInstanceUID
     assert study["pa_sop_instance_uid"] == film.SOPInstanceUID
     assert job["payload"]["pa"]["pixel_spacing"] == [PA_SPACING, PA_SPACING]
+
+    # -- reopened from its URL in a new page: the film fetched again from the PACS under the landmarks
+    page.goto(f"{pacs_serve.url}/#/jobs/{job_id}")
+    page.reload()
+    page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
+    page.wait_for_selector("#pa-header dd:has-text('DOE JANE')", timeout=30_000)
+    assert film.StudyInstanceUID in (page.text_content("#pa-header") or "")
+    assert page.get_attribute("#pa-canvas", "data-blank") == ""
+    body = pa_corners()[8]
+    centre = ((body[0][0] + body[3][0]) / 2, (body[0][1] + body[3][1]) / 2)
+    assert canvas_grey(page, "pa", *centre) > canvas_grey(page, "pa", 20, 20) + 80  # the film's bone, not a blank frame
+    assert "17 vertebrae" in (page.text_content("#pa-status") or "")
+    assert (
+        json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"]
+        == job["payload"]["pa"]["landmarks"]
+    )
+    page.wait_for_selector("#pa-caption:has-text('over the film')")  # the result's PA projection over it too
+
+    # -- the image gone from the PACS: the frame says why it is blank
+    found = httpx.post(
+        f"{orthanc.url}/tools/lookup", content=film.SOPInstanceUID, auth=orthanc.auth(), timeout=10
+    ).json()
+    httpx.delete(f"{orthanc.url}{found[0]['Path']}", auth=orthanc.auth(), timeout=10).raise_for_status()
+    page.goto(f"{pacs_serve.url}/#/jobs")
+    page.goto(f"{pacs_serve.url}/#/jobs/{job_id}")
+    page.reload()
+    page.wait_for_selector("#pa-canvas[data-blank*='could not be fetched again']", timeout=30_000)
+    why = page.get_attribute("#pa-canvas", "data-blank") or ""
+    assert film.SOPInstanceUID in why and "blank frame" in why, why
+    assert why in (page.text_content("#pa-header") or "")
     # the one console error is Chromium's note of the unknown study's 404, which the page said in words
-    assert [e for e in watch.errors if "status of 404" not in e] == [] and watch.foreign == []
+    assert [
+        e for e in watch.errors if "status of 404" not in e
+    ] == [] and watch.foreign == []  # 404s: unknown study, image gone
     context.close()
 
 

@@ -1,4 +1,5 @@
 // The page's only network access: the service's own /v1 API, with the API key when one is set.
+import type { PatientMeasures } from "./followup";
 import type { Job, JobPayload, PacsStatus, PacsStudyImages, Problem } from "./types";
 
 export interface JobPage {
@@ -37,6 +38,8 @@ function asProblem(status: number, body: unknown, fallback: string): Problem {
 }
 
 export class Api {
+  /** Called with the problem of every answer that refuses the key (401, 403). */
+  onRefused: (problem: Problem) => void = () => {};
   constructor(private readonly apiKey: () => string) {}
 
   private headers(extra: Record<string, string> = {}): Headers {
@@ -74,7 +77,9 @@ export class Api {
       const fallback = response.status === 401 || response.status === 403
         ? `the service refused the request (HTTP ${response.status}): check the API key`
         : `HTTP ${response.status} ${response.statusText}`;
-      throw new ApiError(asProblem(response.status, body, fallback));
+      const problem = asProblem(response.status, body, fallback);
+      if (response.status === 401 || response.status === 403) this.onRefused(problem);
+      throw new ApiError(problem);
     }
     return body as T;
   }
@@ -92,6 +97,11 @@ export class Api {
     const q = new URLSearchParams({ limit: String(limit) });
     for (const [k, v] of Object.entries(filters)) if (v.trim()) q.set(k, v.trim());
     return this.json<JobPage>(await this.send("GET", `/v1/jobs?${q}`));
+  }
+
+  /** The caller's succeeded jobs of a patient by study date, with the changes between visits. */
+  async followUp(patientId: string): Promise<PatientMeasures> {
+    return this.json<PatientMeasures>(await this.send("GET", `/v1/patients/${encodeURIComponent(patientId)}/measures`));
   }
 
   async cancel(id: string): Promise<Job> {

@@ -18,6 +18,8 @@ export interface Acquisition {
   magnification?: number;
   distance_source_to_detector_mm?: number;
   distance_source_to_patient_mm?: number;
+  /** [columns, rows] of the image in the view's units (px here): DICOM Columns (0028,0011), Rows (0028,0010). */
+  image_size?: [number, number];
 }
 
 export interface DicomStudy {
@@ -41,6 +43,8 @@ export interface DicomFilm {
   photometric: string;
   window: { center: number; width: number; fromHeader: boolean };
   spacing: Spacing;
+  /** The header has Imager Pixel Spacing (0018,1164). */
+  hasImagerSpacing: boolean;
   acquisition: Acquisition;
   orientation: [string, string] | null;
   orientationRaw: string | null;
@@ -131,6 +135,23 @@ export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | nul
   return { value: null, calibration: "unknown", explanation: "The header gives no pixel spacing: enter it." };
 }
 
+/**
+ * The spacing in the service's words (services/dicom/header.py, Cornerstone3D's
+ * getPixelSpacingInformation): Imager Pixel Spacing divided by the magnification, ERMF (0018,1114)
+ * when > 1, else SID/SOD when SOD < SID, is "calibrated (ERMF)"; otherwise the page's own reading.
+ * The page sends the detector spacing and the geometry, which the service turns into the same mm.
+ */
+export function serviceSpacingWords(spacing: Spacing, acquisition: Acquisition, imagerSpacing: boolean): string | null {
+  if (!spacing.value || !imagerSpacing || spacing.calibration === "calibrated") return null;
+  const ermf = acquisition.magnification;
+  const sid = acquisition.distance_source_to_detector_mm;
+  const sod = acquisition.distance_source_to_patient_mm;
+  const [m, source] = ermf && ermf > 1 ? [ermf, `ERMF ${ermf}`] : sid && sod && sod < sid ? [sid / sod, `SID/SOD ${sid}/${sod}`] : [null, ""];
+  if (!m) return null;
+  const v = spacing.value.map((x) => Number((x / m).toFixed(4)));
+  return `The service reads it as ${v[0] === v[1] ? v[0] : v.join(" × ")} mm calibrated (ERMF): Imager Pixel Spacing / ${source}, the same millimetres in the patient.`;
+}
+
 /** Patient Orientation (0020,0020) as two single-letter directions, or null when it is not of that form. */
 export function readOrientation(raw: string | undefined): [string, string] | null {
   if (!raw) return null;
@@ -155,8 +176,11 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
   try {
     ds = parseDicom(bytes);
   } catch (error) {
+    // Without the "DICM" prefix of a DICOM file (PS3.10 §7.1) the bytes are most likely not DICOM at all.
+    const part10 = bytes.length > 132 && String.fromCharCode(...bytes.subarray(128, 132)) === "DICM";
+    if (!part10) throw new DicomError(`${name} is not a DICOM file: open the radiograph as a DICOM file (.dcm), PNG or JPEG.`);
     const why = typeof error === "string" ? error : error instanceof Error ? error.message : String(error);
-    throw new DicomError(`${name} could not be read as DICOM (${why}).`);
+    throw new DicomError(`${name} is a damaged DICOM file: its header could not be read (${why}).`);
   }
   const syntax = text(ds, tags.transferSyntax) ?? "1.2.840.10008.1.2";
   if (!(syntax in UNCOMPRESSED_SYNTAXES)) {
@@ -222,6 +246,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     photometric,
     window,
     spacing: readSpacing(pair(ds, tags.pixelSpacing), pair(ds, tags.imagerPixelSpacing), text(ds, tags.calibrationType)),
+    hasImagerSpacing: pair(ds, tags.imagerPixelSpacing) !== null,
     acquisition,
     orientation: readOrientation(orientationRaw ?? undefined),
     orientationRaw,

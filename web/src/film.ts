@@ -1,7 +1,10 @@
 // One film (PA or lateral) and its landmarks: rendering with window/level, zoom and pan on a
-// full-size film, three click modes (top endplate midpoint, four corners, two pedicles), drag to
-// move a point, Delete to remove one, and the same by keyboard (arrows move a crosshair, Enter
-// places). Coordinates are image pixels (column, row).
+// full-size film, three click modes (top endplate midpoint, four corners, two pedicles). A click
+// always places the next landmark, whatever lies under it; a point moves only by a drag (press and
+// move past DRAG_PX) or by the keyboard (arrows move a crosshair, Enter places, Alt+arrows move the
+// selected point). Ctrl+Z / Ctrl+Shift+Z undo and redo. What is wrong with the marks (checks.ts) is
+// drawn in place, in red. Coordinates are image pixels (column, row).
+import { filmProblems, type MarkProblem } from "./checks";
 import { windowToGrey, type DicomFilm } from "./dicom";
 import { LEVELS, type Landmark, type Level, type Vec2 } from "./types";
 
@@ -32,7 +35,20 @@ export interface FilmSource {
   element: HTMLImageElement | null;
 }
 
-const HIT_PX = 9; // CSS px around a point that grab it
+const HIT_PX = 9; // CSS px around a point that a drag grabs
+const DRAG_PX = 4; // CSS px a press must move to be a drag (a pan, or moving the point under it)
+const HISTORY = 200; // undo steps kept
+
+interface Snapshot {
+  marks: [Level, Mark][];
+  level: Level;
+  finished: boolean;
+}
+const copyMark = (m: Mark): Mark => ({
+  ...(m.point ? { point: [...m.point] as Vec2 } : {}),
+  ...(m.corners ? { corners: m.corners.map((p) => [...p] as Vec2) } : {}),
+  ...(m.pedicles ? { pedicles: m.pedicles.map((p) => [...p] as Vec2) } : {}),
+});
 const round1 = (x: number): number => Math.round(x * 10) / 10;
 
 export class FilmEditor {
@@ -42,6 +58,16 @@ export class FilmEditor {
   level: Level = "T1";
   selected: Handle | null = null;
   cursor: Vec2 | null = null;
+  /** Set when the last level (L5) was completed: a click then places nothing until a level is chosen. */
+  finished = false;
+  /** The film's rows run toward the patient's head (orientation [_, "H"]): "down the spine" is −row. */
+  rowsTowardHead = false;
+  /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
+  blankNote: string | null = null;
+  /** Said once, at the cursor, after a click that placed nothing. */
+  private notice: string | null = null;
+  private undoStack: Snapshot[] = [];
+  private redoStack: Snapshot[] = [];
   window = { center: 0, width: 1 };
   invert = false;
   /** CSS px per image px, and the image point at the canvas's top-left corner. */
@@ -50,7 +76,7 @@ export class FilmEditor {
   private fitted = true;
   private raster: HTMLCanvasElement | null = null;
   private extent: { width: number; height: number } | null = null;
-  private drag: { handle: Handle | null; start: Vec2; origin: Vec2; moved: boolean } | null = null;
+  private drag: { handle: Handle | null; start: Vec2; origin: Vec2; moved: boolean; shift: boolean } | null = null;
 
   constructor(
     readonly canvas: HTMLCanvasElement,
@@ -71,6 +97,7 @@ export class FilmEditor {
 
   setSource(source: FilmSource): void {
     this.source = source;
+    this.blankNote = null;
     this.extent = { width: source.width, height: source.height };
     if (source.dicom) {
       this.window = { center: source.dicom.window.center, width: source.dicom.window.width };
@@ -80,6 +107,13 @@ export class FilmEditor {
     this.render();
     this.cursor = [source.width / 2, source.height * 0.1];
     this.fit();
+  }
+
+  /** Forget the film (the landmarks stay, on a blank frame). */
+  clearSource(): void {
+    this.source = null;
+    this.raster = null;
+    this.extent = this.landmarkExtent();
   }
 
   setWindow(center: number, width: number, invert: boolean): void {
@@ -133,6 +167,54 @@ export class FilmEditor {
     return out;
   }
 
+  /** What is wrong with the complete marks (crossed or non-convex corners, order, overlaps). */
+  problems(): MarkProblem[] {
+    return filmProblems(this.marks, this.rowsTowardHead);
+  }
+
+  private snapshot(): Snapshot {
+    return { marks: [...this.marks].map(([lv, m]) => [lv, copyMark(m)]), level: this.level, finished: this.finished };
+  }
+
+  /** Keep the marks as they are now for Undo; call before each change of the marks. */
+  private remember(): void {
+    this.undoStack.push(this.snapshot());
+    if (this.undoStack.length > HISTORY) this.undoStack.shift();
+    this.redoStack = [];
+  }
+
+  private restoreSnapshot(s: Snapshot): void {
+    this.marks = new Map(s.marks.map(([lv, m]) => [lv, copyMark(m)]));
+    this.level = s.level;
+    this.finished = s.finished;
+    this.selected = null;
+    this.notice = null;
+    this.draw();
+    this.onChange("marks");
+  }
+
+  get canUndo(): boolean {
+    return this.undoStack.length > 0;
+  }
+
+  get canRedo(): boolean {
+    return this.redoStack.length > 0;
+  }
+
+  undo(): void {
+    const s = this.undoStack.pop();
+    if (!s) return;
+    this.redoStack.push(this.snapshot());
+    this.restoreSnapshot(s);
+  }
+
+  redo(): void {
+    const s = this.redoStack.pop();
+    if (!s) return;
+    this.undoStack.push(this.snapshot());
+    this.restoreSnapshot(s);
+  }
+
   /** What is placed only in part, in words (e.g. "T3: 2 of 4 corners"). */
   incomplete(): string[] {
     const out: string[] = [];
@@ -149,6 +231,9 @@ export class FilmEditor {
   setLandmarks(landmarks: Landmark[], spacing?: Vec2 | null, units?: string): void {
     // Reopened payloads in mm are shown in mm (1 "pixel" = 1 mm) unless a spacing brings them to px.
     this.marks.clear();
+    this.undoStack = [];
+    this.redoStack = [];
+    this.finished = false;
     const k = units === "mm" && spacing ? [1 / spacing[1], 1 / spacing[0]] : [1, 1];
     const px = (p: Vec2): Vec2 => [round1(p[0] * k[0]), round1(p[1] * k[1])];
     for (const lm of landmarks) {
@@ -165,8 +250,10 @@ export class FilmEditor {
   }
 
   clear(): void {
+    if (this.marks.size) this.remember();
     this.marks.clear();
     this.selected = null;
+    this.finished = false;
     this.level = "T1";
     this.draw();
     this.onChange("marks");
@@ -174,28 +261,48 @@ export class FilmEditor {
 
   setMode(mode: Mode): void {
     this.mode = mode;
+    this.finished = false;
     this.draw();
     this.onChange("level");
   }
 
   setLevel(level: Level): void {
     this.level = level;
+    this.finished = false;
+    this.notice = null;
     this.draw();
     this.onChange("level");
   }
 
   /** What the next click places, in words. */
   nextPart(): string {
+    if (this.finished) return `nothing: ${this.level} is complete (choose a level to place again)`;
     const m = this.marks.get(this.level);
-    if (this.mode === "point") return `the top endplate midpoint of ${this.level}`;
+    const again = (done: boolean): string => (done ? `, replacing ${this.level}'s` : "");
+    if (this.mode === "point") return `the top endplate midpoint of ${this.level}${again(!!m?.point)}`;
     const list = this.mode === "corners" ? m?.corners : m?.pedicles;
     const names = this.mode === "corners" ? CORNER_NAMES : PEDICLE_NAMES;
     const i = list && list.length < names.length ? list.length : 0;
-    return `the ${names[i]}${this.mode === "corners" ? " corner" : ""} of ${this.level}`;
+    return `the ${names[i]}${this.mode === "corners" ? " corner" : ""} of ${this.level}${again(!!list && list.length === names.length)}`;
+  }
+
+  /** The role of the next click in a few words, drawn at the cursor (e.g. "T3 top-right"). */
+  private nextRole(): string {
+    if (this.finished) return `${this.level} complete`;
+    if (this.mode === "point") return `${this.level} midpoint`;
+    return this.nextPart().split(" of ")[0].replace("the ", `${this.level} `).replace(" corner", "");
   }
 
   place(p: Vec2): void {
     if (!this.extent) return;
+    if (this.finished) {
+      this.notice = `Nothing placed: ${this.level} is complete`;
+      this.draw();
+      this.onChange("level");
+      return;
+    }
+    this.notice = null;
+    this.remember();
     const q: Vec2 = [round1(Math.min(this.extent.width, Math.max(0, p[0]))), round1(Math.min(this.extent.height, Math.max(0, p[1])))];
     const m = this.marks.get(this.level) ?? {};
     let done = false;
@@ -218,6 +325,7 @@ export class FilmEditor {
     if (done) {
       const next = LEVELS.indexOf(this.level) + 1;
       if (next < LEVELS.length) this.level = LEVELS[next];
+      else this.finished = true;
     }
     this.draw();
     this.onChange("marks");
@@ -228,9 +336,11 @@ export class FilmEditor {
     const target = this.selected ?? { level: this.level, kind: this.mode, index: 0 };
     const m = this.marks.get(target.level);
     if (!m) return;
+    this.remember();
     delete m[target.kind];
     if (!m.point && !m.corners && !m.pedicles) this.marks.delete(target.level);
     this.level = target.level;
+    this.finished = false;
     this.selected = null;
     this.draw();
     this.onChange("marks");
@@ -339,9 +449,9 @@ export class FilmEditor {
     if (!this.extent || e.button !== 0) return;
     this.canvas.focus({ preventScroll: true });
     this.canvas.setPointerCapture(e.pointerId);
+    // A press only says what a drag would move; a click (no drag) always places the next landmark.
     const handle = this.hit(e.clientX, e.clientY);
-    if (handle) this.selected = handle;
-    this.drag = { handle, start: [e.clientX, e.clientY], origin: [...this.origin], moved: false };
+    this.drag = { handle, start: [e.clientX, e.clientY], origin: [...this.origin], moved: false, shift: e.shiftKey };
     this.draw();
   }
 
@@ -352,7 +462,13 @@ export class FilmEditor {
     if (d) {
       const dx = e.clientX - d.start[0];
       const dy = e.clientY - d.start[1];
-      if (Math.hypot(dx, dy) > 4) d.moved = true;
+      if (!d.moved && Math.hypot(dx, dy) > DRAG_PX) {
+        d.moved = true;
+        if (d.handle) {
+          this.remember();
+          this.selected = d.handle;
+        }
+      }
       if (d.moved && d.handle) this.movePoint(d.handle, this.cursor);
       else if (d.moved) {
         this.origin = [d.origin[0] - dx / this.scale, d.origin[1] - dy / this.scale];
@@ -368,8 +484,11 @@ export class FilmEditor {
     if (!d || !this.extent) return;
     if (d.moved && d.handle) this.onChange("marks");
     else if (d.moved) this.onChange("view");
-    else if (!d.handle) this.place(this.toImage(e.clientX, e.clientY));
-    else this.draw();
+    else if (d.shift) {
+      // Shift+click selects the point under the cursor (for Alt+arrows or Delete), placing nothing.
+      this.selected = d.handle;
+      this.draw();
+    } else this.place(this.toImage(e.clientX, e.clientY));
   }
 
   private onWheel(e: WheelEvent): void {
@@ -389,11 +508,19 @@ export class FilmEditor {
     const step = this.step(e.shiftKey);
     const moves: Record<string, Vec2> = { ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, -step], ArrowDown: [0, step] };
     const c = this.cursor ?? [this.extent.width / 2, this.extent.height / 2];
-    if (e.key in moves) {
+    if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") {
+      if (e.shiftKey) this.redo();
+      else this.undo();
+    } else if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "y") {
+      this.redo();
+    } else if (e.key in moves) {
       const [dx, dy] = moves[e.key];
       if (e.altKey && this.selected) {
         const p = this.pointOf(this.selected);
-        if (p) this.movePoint(this.selected, [p[0] + dx, p[1] + dy]);
+        if (p) {
+          if (!e.repeat) this.remember();
+          this.movePoint(this.selected, [p[0] + dx, p[1] + dy]);
+        }
         this.onChange("marks");
       } else {
         this.cursor = [Math.min(this.extent.width, Math.max(0, c[0] + dx)), Math.min(this.extent.height, Math.max(0, c[1] + dy))];
@@ -415,6 +542,8 @@ export class FilmEditor {
     } else if (e.key === "0") {
       this.fit();
       this.onChange("view");
+    } else if (e.key === "," || e.key === ".") {
+      this.cycleSelection(e.key === "." ? 1 : -1);
     } else if (e.key === "Escape") {
       this.selected = null;
       this.draw();
@@ -422,6 +551,18 @@ export class FilmEditor {
       return;
     }
     e.preventDefault();
+  }
+
+  /** Select the next (+1) or previous (−1) point, in level order, and bring it into view. */
+  private cycleSelection(step: number): void {
+    const order: Record<Mode, number> = { point: 0, corners: 1, pedicles: 2 };
+    const all = this.handles().sort((a, b) => LEVELS.indexOf(a.level) - LEVELS.indexOf(b.level) || order[a.kind] - order[b.kind] || a.index - b.index);
+    if (!all.length) return;
+    const at = all.findIndex((h) => this.isSelected(h.level, h.kind, h.index));
+    const next = all[at < 0 ? (step > 0 ? 0 : all.length - 1) : (at + step + all.length) % all.length];
+    this.selected = { level: next.level, kind: next.kind, index: next.index };
+    this.keepInView(next.p);
+    this.draw();
   }
 
   private keepInView(p: Vec2): void {
@@ -447,6 +588,9 @@ export class FilmEditor {
     // CSS px per image px and the image point at the top-left corner (read by the browser tests)
     this.canvas.dataset.view = `${this.scale.toFixed(4)} ${this.origin[0].toFixed(1)} ${this.origin[1].toFixed(1)}`;
     this.canvas.dataset.cursor = this.cursor ? `${this.cursor[0]} ${this.cursor[1]}` : "";
+    this.canvas.dataset.next = this.notice ?? this.nextRole();
+    const s = this.selected;
+    this.canvas.dataset.selected = s ? `${s.level} ${s.kind === "corners" ? CORNER_NAMES[s.index] : s.kind === "pedicles" ? PEDICLE_NAMES[s.index] : "midpoint"}` : "";
     const k = this.scale * ratio;
     ctx.setTransform(k, 0, 0, k, -this.origin[0] * k, -this.origin[1] * k);
     if (this.raster) {
@@ -457,6 +601,8 @@ export class FilmEditor {
       ctx.fillRect(0, 0, this.extent.width, this.extent.height);
     }
     ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+    this.canvas.dataset.blank = this.raster ? "" : (this.blankNote ?? "");
+    if (!this.raster && this.blankNote) this.note(ctx, this.blankNote);
     ctx.lineWidth = 1.5;
     ctx.font = "600 12px system-ui, sans-serif";
     ctx.textBaseline = "middle";
@@ -473,23 +619,31 @@ export class FilmEditor {
       mids.forEach((p, i) => (i ? ctx.lineTo(p[0], p[1]) : ctx.moveTo(p[0], p[1])));
       ctx.stroke();
     }
+    const problems = new Map<Level, string[]>();
+    for (const p of this.problems()) problems.set(p.level, [...(problems.get(p.level) ?? []), p.short]);
+    this.canvas.dataset.problems = [...problems.keys()].join(" ");
     for (const [level, m] of this.marks) {
       const current = level === this.level;
+      const wrong = problems.get(level);
       if (m.corners?.length) {
         const c = m.corners.map(S);
-        ctx.strokeStyle = current ? "#00e5ff" : "#ffd000";
+        ctx.strokeStyle = wrong ? "#ff3b3b" : current ? "#00e5ff" : "#ffd000";
+        ctx.lineWidth = wrong ? 3 : 1.5;
         ctx.beginPath();
         const order = [0, 1, 3, 2].filter((i) => i < c.length);
         order.forEach((i, j) => (j ? ctx.lineTo(c[i][0], c[i][1]) : ctx.moveTo(c[i][0], c[i][1])));
         if (c.length === 4) ctx.closePath();
         ctx.stroke();
         c.forEach((p, i) => this.dot(ctx, p, "#ffd000", this.isSelected(level, "corners", i)));
-        this.label(ctx, level, [Math.max(...c.map((p) => p[0])) + 8, c[0][1]]);
+        const at: Vec2 = [Math.max(...c.map((p) => p[0])) + 8, c[0][1]];
+        this.label(ctx, level, at);
+        if (wrong) this.label(ctx, `⚠ ${wrong.join("; ")}`, [at[0] + 30, at[1]], "#ff6b6b");
       }
       if (m.point) {
         const p = S(m.point);
         this.dot(ctx, p, "#ffd000", this.isSelected(level, "point", 0));
         this.label(ctx, level, [p[0] + 9, p[1]]);
+        if (wrong && !m.corners) this.label(ctx, `⚠ ${wrong.join("; ")}`, [p[0] + 39, p[1]], "#ff6b6b");
       }
       (m.pedicles ?? []).forEach((q, i) => {
         const p = S(q);
@@ -507,8 +661,22 @@ export class FilmEditor {
       ctx.moveTo(x, y - r);
       ctx.lineTo(x, y + r);
       ctx.stroke();
-      this.label(ctx, `${this.level} ${this.mode === "point" ? "midpoint" : this.nextPart().split(" of ")[0].replace("the ", "")}`, [x + r + 4, y - 10], "#00e5ff");
+      this.label(ctx, this.notice ?? this.nextRole(), [x + r + 4, y - 10], this.notice ? "#ff6b6b" : "#00e5ff");
     }
+  }
+
+  /** A few lines of text at the top of the canvas, wrapped to its width. */
+  private note(ctx: CanvasRenderingContext2D, text: string): void {
+    const width = this.canvas.getBoundingClientRect().width - 24;
+    ctx.font = "500 13px system-ui, sans-serif";
+    const lines: string[] = [];
+    for (const word of text.split(" ")) {
+      const last = lines[lines.length - 1];
+      if (last !== undefined && ctx.measureText(`${last} ${word}`).width <= width) lines[lines.length - 1] = `${last} ${word}`;
+      else lines.push(word);
+    }
+    lines.forEach((line, i) => this.label(ctx, line, [12, 18 + i * 17], "#ffffff"));
+    ctx.font = "600 12px system-ui, sans-serif";
   }
 
   private isSelected(level: Level, kind: Mode, index: number): boolean {

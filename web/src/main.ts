@@ -1,12 +1,14 @@
 // The page: films (DICOM, PNG or JPEG) with their landmarks, a CSV or a JSON payload → POST
 // /v1/jobs → poll GET /v1/jobs/{id} → the reconstruction (3D, projections, measures with their
-// trust, report). #/jobs lists the caller's jobs; #/jobs/{id} reopens one after a reload.
+// trust, report). #/jobs lists the caller's jobs; #/jobs/{id} reopens one after a reload;
+// #/follow-up/{patient id} shows a patient's measures over time.
 import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
-import { PacsOpener } from "./pacs";
+import { changesTable, fillFollowUp, RULE_WORDS, visitsTable } from "./followup";
+import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
@@ -44,8 +46,36 @@ let backdrop: Backdrop | null = null;
 
 const apiKeyInput = $<HTMLInputElement>("api-key");
 apiKeyInput.value = loadApiKey();
-apiKeyInput.addEventListener("input", () => saveApiKey(apiKeyInput.value.trim()));
+apiKeyInput.addEventListener("input", () => {
+  saveApiKey(apiKeyInput.value.trim());
+  updatePreview(); // a missing key is listed before sending
+});
 const api = new Api(() => apiKeyInput.value);
+
+// A refused key is said at the top, beside the key field, whatever asked; typing a key retries
+// what the address asks for (the job, the list, the follow-up) without a reload.
+const keyProblem = $("key-problem");
+let refused = false;
+api.onRefused = (problem) => {
+  refused = true;
+  keyProblem.hidden = false;
+  const typed = apiKeyInput.value.trim();
+  keyProblem.textContent = `${typed ? "The service refused this API key" : "An API key is needed"}: ${problem.detail || problem.title}. ${typed ? "Check it" : "Enter it above"}; the page retries as you type.`;
+  apiKeyInput.setAttribute("aria-invalid", "true");
+};
+let keyRetry: number | undefined;
+apiKeyInput.addEventListener("input", () => {
+  window.clearTimeout(keyRetry);
+  keyRetry = window.setTimeout(() => {
+    if (!refused || !apiKeyInput.value.trim()) return;
+    refused = false;
+    keyProblem.hidden = true;
+    apiKeyInput.removeAttribute("aria-invalid");
+    currentJob = null;
+    route();
+    draftChanged();
+  }, 400);
+});
 
 // ------------------------------------------------------------------ tabs
 
@@ -179,7 +209,7 @@ function applyBoundary(boundary: unknown): void {
 /** The views of the payload: from the films, or from the CSV / JSON draft. */
 function views(): { pa: ViewPayload | null; lateral: ViewPayload | null } {
   if (source !== "image") return { pa: draft?.pa ?? null, lateral: draft?.lateral ?? null };
-  const accepts = { acquisition: !!caps?.acquisition, calibration: !!caps?.calibration };
+  const accepts = { acquisition: !!caps?.acquisition, calibration: !!caps?.calibration, imageSize: !!caps?.imageSize };
   return { pa: panels.pa.payload(accepts), lateral: panels.lateral.payload(accepts) };
 }
 
@@ -339,6 +369,7 @@ function buildPayload(): JobPayload | null {
 function missing(): string[] {
   const out: string[] = [];
   const v = views();
+  if (caps?.needsKey && !apiKeyInput.value.trim()) out.push("Enter the API key at the top of the page: `spine keys create` makes one (the first `spine serve` prints one).");
   if (source === "image") {
     out.push(...panels.pa.problems(), ...panels.lateral.problems());
     if (!panels.pa.hasFilm()) out.push("Open the PA film (DICOM, PNG or JPEG), or give the landmarks as a CSV or a payload.");
@@ -494,20 +525,35 @@ function showResult(job: Job): void {
     viewer.show(result);
     $("view3d").dataset.shown = job.id;
   });
-  const payload = (job.payload ?? buildPayload()) as JobPayload;
-  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
-  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), result, payload, under);
-  $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
-  $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
+  drawViews(job);
   fillLegend($("legend"), result);
   fillMeasures($<HTMLTableElement>("measures"), job, result);
   fillLenke($("lenke"), result);
   fillStrains($<HTMLTableElement>("strains"), result);
   fillReportHead(job);
   $<HTMLAnchorElement>("job-link").href = `#/jobs/${job.id}`;
+  const patientId = (job.study ?? job.payload?.study)?.patient_id;
+  const followLink = $<HTMLAnchorElement>("followup-link");
+  followLink.hidden = !patientId || !caps?.followUp;
+  $("print-followup-row").hidden = followLink.hidden;
+  if (patientId) followLink.href = `#/follow-up/${encodeURIComponent(patientId)}`;
+  $<HTMLInputElement>("print-followup").checked = false;
+  $("report-followup").hidden = true;
   $("result").dataset.jobId = job.id;
   $("download-sr").hidden = !caps?.srExport;
+  $("download-figure-dcm").hidden = !caps?.figureDcm;
+  $("download-fhir").hidden = !caps?.fhirExport;
   void loadFigure(job.id);
+}
+
+/** The result's PA and lateral projections, over the PA film when the page has it. */
+function drawViews(job: Job): void {
+  if (!job.result) return;
+  const payload = (job.payload ?? buildPayload()) as JobPayload;
+  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
+  const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), job.result, payload, under);
+  $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
+  $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
 }
 
 function fillReportHead(job: Job): void {
@@ -544,6 +590,24 @@ async function loadFigure(id: string): Promise<void> {
 
 $("print-report").addEventListener("click", () => window.print());
 
+// The printed report's follow-up table: the patient's visits and changes, fetched when asked for.
+$<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
+  const box = $("report-followup");
+  const patientId = (currentJob?.study ?? currentJob?.payload?.study)?.patient_id;
+  box.hidden = true;
+  box.replaceChildren();
+  if (!(e.target as HTMLInputElement).checked || !patientId) return;
+  try {
+    const data = await api.followUp(patientId);
+    const head = document.createElement("h3");
+    head.textContent = `Follow-up of patient ${patientId}`;
+    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
+    box.hidden = false;
+  } catch (error) {
+    if (error instanceof ApiError) showProblem(problemBox, error.problem);
+  }
+});
+
 function download(name: string, blob: Blob): void {
   const url = URL.createObjectURL(blob);
   const a = document.createElement("a");
@@ -568,14 +632,22 @@ $("download-csv").addEventListener("click", () => {
 $("download-measures").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}-measures.csv`, new Blob([measuresCsv(measureRows(currentJob, currentJob.result))], { type: "text/csv" }));
 });
-$("download-sr").addEventListener("click", async () => {
-  if (!currentJob) return;
-  try {
-    download(`spine-${currentJob.id}-sr.dcm`, await api.blob(`/v1/jobs/${currentJob.id}/sr.dcm`));
-  } catch (error) {
-    if (error instanceof ApiError) showProblem(problemBox, error.problem);
-  }
-});
+// The service's artifacts of the job: [button, path under /v1/jobs/{id}/, file name suffix, Accept].
+const ARTIFACTS: [string, string, string, string | undefined][] = [
+  ["download-sr", "sr.dcm", "-sr.dcm", "application/dicom"],
+  ["download-figure-dcm", "figure.dcm", "-figure.dcm", "application/dicom"],
+  ["download-fhir", "fhir", "-fhir.json", "application/fhir+json"],
+];
+for (const [button, path, suffix, accept] of ARTIFACTS) {
+  $(button).addEventListener("click", async () => {
+    if (!currentJob) return;
+    try {
+      download(`spine-${currentJob.id}${suffix}`, await api.blob(`/v1/jobs/${currentJob.id}/${path}`, accept));
+    } catch (error) {
+      if (error instanceof ApiError) showProblem(problemBox, error.problem);
+    }
+  });
+}
 for (const fmt of ["png", "svg"] as const) {
   $(`download-${fmt}`).addEventListener("click", async () => {
     if (!currentJob) return;
@@ -657,6 +729,7 @@ async function openJob(id: string): Promise<void> {
       const p = job.payload;
       panels.pa.restore(p.pa);
       if (p.lateral) panels.lateral.restore(p.lateral);
+      void reopenFilms(job);
       source = "image";
       applyBoundary(p.boundary);
       selectSourceTab($<HTMLButtonElement>("tab-image"), false);
@@ -669,17 +742,94 @@ async function openJob(id: string): Promise<void> {
   }
 }
 
+// ------------------------------------------------------------------ follow-up
+
+const followForm = $<HTMLFormElement>("followup-form");
+const followInput = $<HTMLInputElement>("followup-patient");
+followForm.addEventListener("submit", (e) => {
+  e.preventDefault();
+  const value = followInput.value.trim();
+  if (value) location.hash = `#/follow-up/${encodeURIComponent(value)}`;
+});
+
+const UUID = /^[0-9a-fA-F]{8}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{12}$/;
+
+/** The follow-up of a patient ID, or of a job's patient when given a job ID. */
+async function showFollowUp(idOrJob: string): Promise<void> {
+  const box = $("followup");
+  const problem = $("followup-problem");
+  showProblem(problem, null);
+  box.replaceChildren();
+  followInput.value = idOrJob;
+  if (!idOrJob) return;
+  try {
+    let patientId = idOrJob;
+    if (UUID.test(idOrJob)) {
+      const job = await api.job(idOrJob);
+      const pid = (job.study ?? job.payload?.study)?.patient_id;
+      if (!pid) {
+        showProblem(problem, { type: "about:blank", title: "No patient", status: 0, detail: `Job ${idOrJob} names no patient: its payload and films gave no Patient ID.` });
+        return;
+      }
+      patientId = pid;
+    }
+    const data = await api.followUp(patientId);
+    fillFollowUp(box, data);
+    box.dataset.patient = patientId;
+  } catch (error) {
+    showProblem(problem, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  }
+}
+
+/** A reopened job's films fetched again from the PACS when it named them by UID; else why not, in place. */
+async function reopenFilms(job: Job): Promise<void> {
+  caps ??= await capabilities();
+  const study = job.payload?.study;
+  for (const view of ["pa", "lateral"] as const) {
+    const landmarks = view === "pa" ? job.payload?.pa : job.payload?.lateral;
+    const sop = view === "pa" ? study?.pa_sop_instance_uid : study?.lateral_sop_instance_uid;
+    const uid = study?.study_instance_uid;
+    if (!landmarks || !uid || !sop) continue; // not from the PACS: restore() said so
+    const panel = panels[view];
+    const blank = "The landmarks are shown on a blank frame; open the film to see it under them.";
+    const noPacs = `Not stored by the service, and this service has no PACS to fetch it from again (image ${sop} of study ${uid}). ${blank}`;
+    if (!caps?.pacsRoutes) {
+      panel.explainBlank(noPacs);
+      continue;
+    }
+    panel.explainBlank(`Fetching the film (image ${sop}) from the PACS…`);
+    try {
+      const file = await pacs.fetchFilm(uid, sop);
+      if (currentJob?.id !== job.id) return; // another job was opened meanwhile
+      await panel.open(file);
+      if (view === "pa" && currentJob?.id === job.id) {
+        if (backdrop) URL.revokeObjectURL(backdrop.url);
+        backdrop = await panel.backdrop(); // the result's PA projection over the film again
+        if (currentJob.result) drawViews(currentJob);
+      }
+    } catch (error) {
+      if (currentJob?.id !== job.id) return;
+      if (error instanceof NoPacs) panel.explainBlank(noPacs);
+      else panel.explainBlank(`The film is image ${sop} of study ${uid} in the PACS, but it could not be fetched again: ${error instanceof Error ? error.message : String(error)}. ${blank}`);
+    }
+  }
+}
+
 function route(): void {
   const hash = location.hash.replace(/^#/, "");
   const jobsPage = hash === "/jobs";
+  const followMatch = hash.match(/^\/follow-up(?:\/(.*))?$/);
   $("page-jobs").hidden = !jobsPage;
-  $("page-job").hidden = jobsPage;
+  $("page-follow-up").hidden = !followMatch;
+  $("page-job").hidden = jobsPage || !!followMatch;
   document.querySelectorAll<HTMLAnchorElement>(".site-nav a").forEach((a) => {
-    const here = a.getAttribute("href") === `#${hash}` || (a.getAttribute("href") === "#/" && !jobsPage && !hash.startsWith("/jobs/"));
+    const href = a.getAttribute("href");
+    const here = href === `#${hash}` || (href === "#/follow-up" && !!followMatch) || (href === "#/" && !jobsPage && !followMatch && !hash.startsWith("/jobs/"));
     if (here) a.setAttribute("aria-current", "page");
     else a.removeAttribute("aria-current");
   });
   if (jobsPage) void showJobs();
+  if (followMatch) void showFollowUp(decodeURIComponent(followMatch[1] ?? ""));
   const m = hash.match(/^\/jobs\/([0-9a-fA-F-]{36})$/);
   if (m) void openJob(m[1]);
 }

@@ -22,6 +22,9 @@ function describe(image: PacsImage): string {
   return [image.modality, image.view_position, image.series_description].filter(Boolean).join(" ") || "image";
 }
 
+/** The service has no PACS (GET /v1/pacs says it is not configured). */
+export class NoPacs extends Error {}
+
 export class PacsOpener {
   private readonly form = $<HTMLFormElement>("pacs-open");
   private readonly study = $<HTMLInputElement>("pacs-study");
@@ -107,15 +110,42 @@ export class PacsOpener {
     return tr;
   }
 
+  /** One image of a study as a DICOM file, fetched through the service (uncompressed). */
+  private async fetchImage(studyUid: string, image: PacsImage): Promise<File> {
+    const path = ["/v1/pacs/studies", studyUid, "series", image.series_instance_uid, "instances", image.sop_instance_uid]
+      .map((part, i) => (i % 2 ? encodeURIComponent(part) : part))
+      .join("/");
+    const blob = await this.hooks.api.blob(path, "application/dicom, application/problem+json");
+    return new File([blob], `${image.sop_instance_uid}.dcm`, { type: "application/dicom" });
+  }
+
+  /**
+   * A reopened job's film, fetched again from the PACS by its UIDs (the series from the study's
+   * list); a plain-words Error when it cannot be: no PACS now, the image gone, the PACS refusing.
+   */
+  async fetchFilm(studyUid: string, sopUid: string): Promise<File> {
+    let configured = false;
+    try {
+      configured = (await this.hooks.api.pacsStatus()).configured;
+    } catch (error) {
+      throw new Error(`the service could not say whether it has a PACS (${error instanceof Error ? error.message : String(error)})`);
+    }
+    if (!configured) throw new NoPacs("this service is not connected to a PACS");
+    try {
+      const study = await this.hooks.api.pacsImages(studyUid);
+      const image = study.images.find((i) => i.sop_instance_uid === sopUid);
+      if (!image) throw new Error(`the PACS has no image ${sopUid} in study ${studyUid} any more`);
+      return await this.fetchImage(studyUid, image);
+    } catch (error) {
+      throw new Error(error instanceof ApiError ? `the PACS did not give it: ${error.message}` : error instanceof Error ? error.message : String(error));
+    }
+  }
+
   private async use(image: PacsImage, view: ViewName, label: string): Promise<void> {
     this.showProblem(null);
     this.note.textContent = `Fetching image ${describe(image)} from the PACS…`;
-    const path = ["/v1/pacs/studies", this.studyUid, "series", image.series_instance_uid, "instances", image.sop_instance_uid]
-      .map((part, i) => (i % 2 ? encodeURIComponent(part) : part))
-      .join("/");
     try {
-      const blob = await this.hooks.api.blob(path, "application/dicom, application/problem+json");
-      const file = new File([blob], `${image.sop_instance_uid}.dcm`, { type: "application/dicom" });
+      const file = await this.fetchImage(this.studyUid, image);
       await this.hooks.open(view, file);
       this.note.textContent = `Opened ${describe(image)} from the PACS as the ${label} film.`;
     } catch (error) {

@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, parseFilm, personName, type DicomFilm } from "./dicom";
+import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
 import { FilmEditor, type Mode } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
@@ -41,6 +41,8 @@ export class FilmPanel {
   private readonly status: HTMLElement;
   private readonly error: HTMLElement;
   private readonly zoomOut: HTMLOutputElement;
+  private readonly undoButton: HTMLButtonElement;
+  private readonly redoButton: HTMLButtonElement;
   /** Set when a job is reopened without its film: the spacing and units of its payload. */
   reopened: ViewPayload | null = null;
 
@@ -91,17 +93,20 @@ export class FilmPanel {
     this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${view === "pa" ? "PA" : "lateral"} film to start.`);
     this.status = el("p", { id: id("status"), class: "summary", "aria-live": "polite" });
     const keys = el("p", { id: id("keys"), class: "help" },
-      "Mouse: click places the next point, drag a point to move it, drag elsewhere to pan, wheel zooms. " +
+      "Mouse: a click always places the next point (its role is shown at the cursor), even on another point; " +
+      "drag a point to move it, drag elsewhere to pan, Shift+click selects a point, wheel zooms. " +
       "Keyboard: arrow keys move the crosshair (Shift: ten times faster), Enter places, Delete removes the selected mark, " +
-      "Alt+arrows move the selected point, [ and ] change level, + and − zoom, 0 fits the film.");
+      "comma and period select the previous and next point, Alt+arrows move the selected point, Ctrl+Z undoes, Ctrl+Shift+Z redoes, [ and ] change level, + and − zoom, 0 fits the film.");
     const buttons = el("div", { class: "button-row" });
+    const undo = (this.undoButton = el("button", { type: "button", id: id("undo"), "aria-keyshortcuts": "Control+Z" }, "Undo"));
+    const redo = (this.redoButton = el("button", { type: "button", id: id("redo"), "aria-keyshortcuts": "Control+Shift+Z" }, "Redo"));
     const del = el("button", { type: "button", id: id("delete") }, "Delete selected");
     const clear = el("button", { type: "button", id: id("clear") }, "Clear all");
     const fit = el("button", { type: "button", id: id("fit") }, "Fit film");
     const zin = el("button", { type: "button", id: id("zoom-in"), "aria-label": "Zoom in" }, "+");
     const zout = el("button", { type: "button", id: id("zoom-out"), "aria-label": "Zoom out" }, "−");
     this.zoomOut = el("output", { id: id("zoom"), "aria-live": "off" });
-    buttons.append(del, clear, fit, zout, zin, this.zoomOut);
+    buttons.append(undo, redo, del, clear, fit, zout, zin, this.zoomOut);
 
     const tools = el("div", { class: "film-tools" });
     tools.append(modes, labelled(id("level"), "Level", this.levelSelect));
@@ -139,6 +144,8 @@ export class FilmPanel {
       this.wlWidth.value = String(round(this.dicom.window.width));
       applyWl();
     });
+    undo.addEventListener("click", () => this.editor.undo());
+    redo.addEventListener("click", () => this.editor.redo());
     del.addEventListener("click", () => this.editor.removeSelected());
     clear.addEventListener("click", () => this.editor.clear());
     fit.addEventListener("click", () => this.editor.fit());
@@ -206,7 +213,8 @@ export class FilmPanel {
       rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
-      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.`]);
+      const service = serviceSpacingWords(d.spacing, d.acquisition, d.hasImagerSpacing);
+      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.${service ? ` ${service}` : ""}`]);
       rows.push(["Orientation", d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
         : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`]);
       const a = d.acquisition;
@@ -248,7 +256,7 @@ export class FilmPanel {
   }
 
   /** The view of the payload, or null without landmarks. Optional members only when the service takes them. */
-  payload(accepts: { acquisition: boolean; calibration: boolean }): ViewPayload | null {
+  payload(accepts: { acquisition: boolean; calibration: boolean; imageSize: boolean }): ViewPayload | null {
     const landmarks = this.editor.landmarks();
     if (!landmarks.length) return null;
     if (this.reopened && !this.editor.source) {
@@ -259,7 +267,9 @@ export class FilmPanel {
     if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
     if (d && accepts.acquisition) {
       // Millimetres already in the patient plane are not magnified again.
-      const acq = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      // The film's extent in px (the payload's units): with SID and SOD, the central ray at its centre.
+      if (accepts.imageSize) acq.image_size = [d.width, d.height];
       if (Object.keys(acq).length) view.acquisition = acq;
     }
     return view;
@@ -274,26 +284,43 @@ export class FilmPanel {
       out.push(`Enter the pixel spacing of the ${name} film (mm per pixel, between 0.001 and 10): ${this.dicom ? "its header gives none" : "a PNG or JPEG does not carry it"}, and it is never guessed.`);
     }
     out.push(...this.editor.incomplete().map((s) => `${name} film, ${s}: finish or delete it.`));
+    this.editor.rowsTowardHead = this.orientation()[1] === "H";
+    out.push(...this.editor.problems().map((p) => `${name} film, ${p.level}: ${p.text} (drawn in red): move its points, or undo.`));
     return out;
   }
 
-  restore(view: ViewPayload): void {
+  /** A reopened job's view: its landmarks on a blank frame until its film is opened (by hand, or
+   * fetched again from the PACS); ``why`` says why the film is not there, in the header and the frame. */
+  restore(view: ViewPayload, why = "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."): void {
     this.reopened = { ...view, landmarks: [] };
+    this.dicom = null;
+    this.fileName = null;
+    this.wlRow.hidden = true;
+    this.editor.clearSource();
     this.editor.setLandmarks(view.landmarks, view.pixel_spacing as Vec2 | null, view.units);
     if (view.units === "px" && view.pixel_spacing) this.spacing.value = String(view.pixel_spacing[1]);
-    this.header.replaceChildren(el("dt", {}, "Film"), el("dd", {}, "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."));
+    this.explainBlank(why);
     this.update();
+  }
+
+  /** Why the film is not under the landmarks, in the header and in the blank frame. */
+  explainBlank(why: string): void {
+    this.header.replaceChildren(el("dt", {}, "Film"), el("dd", {}, why));
+    this.editor.blankNote = why;
+    this.editor.draw();
   }
 
   update(): void {
     const ed = this.editor;
     const placed = ed.landmarks();
     this.zoomOut.value = ed.source || this.reopened ? `${ed.zoomPercent} %` : "";
+    this.undoButton.disabled = !ed.canUndo;
+    this.redoButton.disabled = !ed.canRedo;
     if (!ed.source && !this.reopened) {
       this.status.textContent = "";
       return;
     }
-    this.prompt.textContent = `Next: ${ed.nextPart()}.`;
+    this.prompt.textContent = ed.finished ? `${ed.level} is complete: choose a level to place again, or drag a point to move it.` : `Next: ${ed.nextPart()}.`;
     const levels = placed.map((l) => l.level);
     const kinds = [
       placed.filter((l) => l.point).length && `${placed.filter((l) => l.point).length} midpoints`,

@@ -140,7 +140,7 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
   const cap = table.createCaption();
   cap.textContent = "Lenke inputs";
   const head = table.createTHead().insertRow();
-  for (const h of ["Region", "Curve", "Apex", "Cobb", "Major", "≥ 25° (by magnitude)", "Kyphosis ≥ 20°"]) {
+  for (const h of ["Region", "Curve", "Apex", "Cobb", "Major", "≥ 25° (by magnitude)", "Regional kyphosis ≥ +20°"]) {
     const th = document.createElement("th");
     th.scope = "col";
     th.textContent = h;
@@ -150,11 +150,16 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
   const region: Record<string, string> = { proximal_thoracic: "Proximal thoracic", main_thoracic: "Main thoracic", thoracolumbar_lumbar: "Thoracolumbar/lumbar" };
   for (const c of l.curves) {
     const tr = body.insertRow();
-    tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(c.apex), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"), td(c.structural_by_kyphosis ? "yes" : "no"));
+    // Lenke's kyphosis criterion is regional (docs/measures.md): T2–T5 for the proximal thoracic curve,
+    // T10–L2 for the others; the thoracic T5–T12 kyphosis sets the sagittal modifier, not this column.
+    const [span, kyphosis] = c.region === "proximal_thoracic" ? ["T2–T5", l.t2_t5_kyphosis_deg] : ["T10–L2", l.t10_l2_kyphosis_deg];
+    tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(c.apex), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"),
+      td(`${c.structural_by_kyphosis ? "yes" : "no"} (${span} ${num(kyphosis)}°)`));
   }
   const facts = document.createElement("p");
   const modifier = { "-": "− (hypokyphotic, T5–T12 < 10°)", N: "N (normal, 10–40°)", "+": "+ (hyperkyphotic, > 40°)" }[l.sagittal_thoracic_modifier];
-  facts.textContent = `Sagittal thoracic modifier ${modifier}; kyphosis T2–T5 ${num(l.t2_t5_kyphosis_deg)}°, T5–T12 ${num(l.t5_t12_kyphosis_deg)}°, T10–L2 ${num(l.t10_l2_kyphosis_deg)}°.` +
+  facts.textContent = "The kyphosis criterion of a minor curve is regional (T2–T5 above a proximal thoracic curve, T10–L2 for the others); " +
+    `the thoracic kyphosis T5–T12 gives the sagittal modifier. Sagittal thoracic modifier ${modifier}; kyphosis T2–T5 ${num(l.t2_t5_kyphosis_deg)}°, T5–T12 ${num(l.t5_t12_kyphosis_deg)}°, T10–L2 ${num(l.t10_l2_kyphosis_deg)}°.` +
     (l.not_supported.length ? ` Not given by the reconstruction: ${l.not_supported.join("; ").replace(/_/g, " ")}.` : "");
   container.append(p, table, facts);
 }

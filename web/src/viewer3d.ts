@@ -39,6 +39,16 @@ export class SpineViewer {
   readonly kind: "webgl" | "svg";
   private spine = new Group();
   private axes = axes();
+  /** The axes' names, HTML over the drawing at the projected tips (both renderers; hidden from
+   * assistive technology, which reads the camera's position in words instead). */
+  private axisLabels: HTMLSpanElement[] = AXIS_ENDS.map(([, , name, colour]) => {
+    const span = document.createElement("span");
+    span.className = "axis-label";
+    span.textContent = name;
+    span.style.color = colour;
+    span.setAttribute("aria-hidden", "true");
+    return span;
+  });
   private target = new Vector3();
   private radius = 300;
   private halfHeight = 250;
@@ -72,7 +82,7 @@ export class SpineViewer {
     this.renderer = renderer;
     this.kind = kind;
     container.dataset.renderer = kind;
-    container.append(renderer.domElement);
+    container.append(renderer.domElement, ...this.axisLabels);
     renderer.domElement.setAttribute("aria-hidden", "true");
     this.camera.up.set(0, 0, 1);
     this.scene.background = new Color(0xf7f8fa);
@@ -210,6 +220,15 @@ export class SpineViewer {
     this.camera.far = distance + this.radius * 3;
     this.camera.updateProjectionMatrix();
     this.renderer.render(this.scene, this.camera);
+    const w = this.container.clientWidth;
+    const h = this.container.clientHeight;
+    AXIS_ENDS.forEach(([end], i) => {
+      const p = new Vector3(...end).multiplyScalar(1.25).add(this.axes.position).project(this.camera);
+      const label = this.axisLabels[i];
+      label.hidden = p.z > 1 || Math.abs(p.x) > 1 || Math.abs(p.y) > 1;
+      label.style.left = `${((p.x + 1) / 2) * w}px`;
+      label.style.top = `${((1 - p.y) / 2) * h}px`;
+    });
     this.orientationLabel.textContent = describe(this.view.azimuth, this.view.elevation);
   }
 }
@@ -229,11 +248,17 @@ export function describe(azimuthDeg: number, elevationDeg: number): string {
   return `Camera ${where}${el === 0 ? "" : `, ${Math.abs(el)}° ${el > 0 ? "above" : "below"}`}.`;
 }
 
+/** Patient axes (DICOM LPS, DESIGN.md), 60 mm long: tip, line colour, label, label colour. */
+const AXIS_ENDS: [Vec3, number, string, string][] = [
+  [[60, 0, 0], 0xcc2222, "x left", "#a31515"],
+  [[0, 60, 0], 0x229922, "y posterior", "#17661a"],
+  [[0, 0, 60], 0x2244cc, "z head", "#1f3fb0"],
+];
+
 /** Patient axes, 60 mm long: x left (red), y posterior (green), z head (blue); placed beside L5. */
 function axes(): Group {
   const group = new Group();
-  const colours: [Vec3, number][] = [[[60, 0, 0], 0xcc2222], [[0, 60, 0], 0x229922], [[0, 0, 60], 0x2244cc]];
-  for (const [end, colour] of colours) {
+  for (const [end, colour] of AXIS_ENDS) {
     const geometry = new BufferGeometry().setAttribute("position", new Float32BufferAttribute([0, 0, 0, ...end], 3));
     group.add(new Line(geometry, new LineBasicMaterial({ color: colour })));
   }

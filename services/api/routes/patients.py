@@ -1,0 +1,204 @@
+"""/v1/patients/{patient_id}/measures: a patient's follow-up over time, from the caller's succeeded jobs.
+
+A scoliosis patient is filmed every 4–12 months and the question is whether the curve progresses.
+Each visit is one succeeded job of the patient (Patient ID (0010,0020): the payload's ``study`` or the
+header the DICOM layer read), ordered by its study date (Study Date (0008,0020), same sources). Between
+consecutive visits with a study date, each measure's change Δ = m₂ − m₁ (degrees) is flagged when
+
+    |Δ| > 5°                      (the convention for a progressing Cobb angle: the inter-observer
+                                   variability of manual Cobb measurement is about 5°, Morrissy et al.,
+                                   J Bone Joint Surg Am 1990;72:320–327), and
+    |Δ| > 1.96 · √(sd₁² + sd₂²)    (the two visits' 95 % interval of the difference, their SDs being
+                                   independent),
+
+i.e. when |Δ| exceeds the larger of the two thresholds; ``decided_by`` names that larger one (the rule
+that decided the flag, either way). Without an SD on either visit only the 5° rule applies.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import uuid
+from datetime import date, datetime
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Path
+from pydantic import BaseModel, Field
+
+from services.api.deps import AccessDep, SessionDep
+from services.api.schemas import problem_responses
+from services.db import jobs as jobs_repo
+from services.db.job_forms import job_study
+from services.db.models import Job
+from spine_engine.models import CobbCurve, RegistrationResult
+
+router = APIRouter(prefix="/v1/patients", tags=["jobs"])
+
+CONVENTION_DEG = 5.0
+"""A change of a Cobb angle is called progression only beyond 5° (inter-observer variability)."""
+Z95 = 1.96
+"""Two-sided 95 % quantile of the normal distribution."""
+
+MeasureName = Literal["major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation"]
+MEASURES: tuple[MeasureName, ...] = (
+    "major_cobb",
+    "minor_cobb",
+    "kyphosis_t4_t12",
+    "lordosis_l1_l5",
+    "apex_axial_rotation",
+)
+
+
+class MeasureValue(BaseModel):
+    value_deg: float = Field(description="The measure, degrees.")
+    sd_deg: float | None = Field(None, description="1 SD of the measure, degrees; null when the job has none.")
+    levels: str | None = Field(
+        None, description="For a Cobb angle its end vertebrae and apex (e.g. 'T5–T12, apex T8'); for the apex "
+        "rotation the apex vertebra."
+    )  # fmt: skip
+
+
+class Visit(BaseModel):
+    job_id: uuid.UUID
+    study_date: date | None = Field(
+        description="Study Date (0008,0020); null when neither payload nor header gives it."
+    )
+    study_instance_uid: str | None = None
+    accession_number: str | None = None
+    finished_at: datetime | None = None
+    major_cobb: MeasureValue | None = Field(None, description="The major (largest) frontal Cobb angle.")
+    minor_cobb: MeasureValue | None = Field(None, description="The largest other frontal curve; null with one curve.")
+    kyphosis_t4_t12: MeasureValue = Field(description="Thoracic kyphosis T4–T12.")
+    lordosis_l1_l5: MeasureValue = Field(description="Lumbar lordosis L1–L5.")
+    apex_axial_rotation: MeasureValue | None = Field(
+        None, description="Axial rotation of the major curve's apex vertebra (SD: that vertebra's)."
+    )
+
+
+class Change(BaseModel):
+    measure: MeasureName
+    from_job: uuid.UUID
+    to_job: uuid.UUID
+    from_date: date
+    to_date: date
+    change_deg: float = Field(description="Later minus earlier value, degrees.")
+    combined_sd_deg: float | None = Field(description="√(sd₁² + sd₂²), degrees; null when a visit has no SD.")
+    threshold_deg: float = Field(description="max(5°, 1.96 × combined SD): |change| must exceed it to be flagged.")
+    flagged: bool = Field(description="|change| exceeds both 5° and 1.96 × the combined SD.")
+    decided_by: Literal["convention_5deg", "combined_sd"] = Field(
+        description="The larger threshold, the one that decided: the 5° convention or 1.96 × the combined SD."
+    )
+
+
+class PatientMeasures(BaseModel):
+    patient_id: str
+    visits: list[Visit] = Field(
+        description="The caller's succeeded jobs of the patient by study date (jobs without one last, by creation)."
+    )
+    changes: list[Change] = Field(
+        description="Per measure, the change between consecutive visits that have a study date and the measure."
+    )
+    rule: str = Field(description="The flagging rule in words.")
+
+
+RULE = (
+    "A change between consecutive visits is flagged when it exceeds both 5° (the convention for progression) "
+    "and 1.96 × √(sd₁² + sd₂²) (the 95 % interval of the difference); decided_by names the larger threshold."
+)
+
+
+def _study(job: Job) -> dict[str, Any]:
+    """The job's study with the header's values (``services.db.job_forms``, the one owner of a job's forms)."""
+    return job_study(job) or {}
+
+
+def _date(value: Any) -> date | None:
+    if isinstance(value, str):
+        try:
+            return date.fromisoformat(value)
+        except ValueError:
+            return None
+    return value if isinstance(value, date) else None
+
+
+def _cobb(curve: CobbCurve | None) -> MeasureValue | None:
+    if curve is None:
+        return None
+    levels = f"{curve.upper}–{curve.lower}, apex {curve.apex}"
+    return MeasureValue(value_deg=curve.angle_deg, sd_deg=curve.angle_sd_deg, levels=levels)
+
+
+def visit(job: Job) -> Visit:
+    """One visit: the job's study identifiers and its measures from the stored result."""
+    result = RegistrationResult.model_validate(job.result)
+    measures = result.measures
+    curves = sorted(measures.cobb, key=lambda c: -c.angle_deg)
+    major = next((c for c in curves if c.major), None)
+    minor = next((c for c in curves if c is not major), None)
+    rotation = None
+    if major:
+        apex = next((v for v in result.vertebrae if v.level == major.apex), None)
+        rotation = MeasureValue(value_deg=major.apex_axial_rotation_deg,
+                                sd_deg=apex.axial_rotation_sd_deg if apex else None, levels=major.apex)  # fmt: skip
+    study = _study(job)
+    return Visit(
+        job_id=job.id,
+        study_date=_date(study.get("study_date")),
+        study_instance_uid=study.get("study_instance_uid"),
+        accession_number=study.get("accession_number"),
+        finished_at=job.finished_at,
+        major_cobb=_cobb(major),
+        minor_cobb=_cobb(minor),
+        kyphosis_t4_t12=MeasureValue(value_deg=measures.thoracic_kyphosis_t4_t12_deg,
+                                     sd_deg=measures.thoracic_kyphosis_t4_t12_sd_deg),
+        lordosis_l1_l5=MeasureValue(value_deg=measures.lumbar_lordosis_l1_l5_deg,
+                                    sd_deg=measures.lumbar_lordosis_l1_l5_sd_deg),
+        apex_axial_rotation=rotation,
+    )  # fmt: skip
+
+
+def change(name: MeasureName, earlier: Visit, later: Visit) -> Change | None:
+    """The flagged-or-not change of one measure between two dated visits (None when either lacks it)."""
+    a: MeasureValue | None = getattr(earlier, name)
+    b: MeasureValue | None = getattr(later, name)
+    if a is None or b is None or earlier.study_date is None or later.study_date is None:
+        return None
+    delta = b.value_deg - a.value_deg
+    sd = math.hypot(a.sd_deg, b.sd_deg) if a.sd_deg is not None and b.sd_deg is not None else None
+    by_sd = Z95 * sd if sd is not None else 0.0
+    threshold = max(CONVENTION_DEG, by_sd)
+    return Change(
+        measure=name, from_job=earlier.job_id, to_job=later.job_id, from_date=earlier.study_date,
+        to_date=later.study_date, change_deg=delta, combined_sd_deg=sd, threshold_deg=threshold,
+        flagged=abs(delta) > threshold, decided_by="combined_sd" if by_sd > CONVENTION_DEG else "convention_5deg",
+    )  # fmt: skip
+
+
+def follow_up(patient_id: str, jobs: list[Job]) -> PatientMeasures:
+    """The visits by study date (undated last, in creation order) and the changes between dated ones."""
+    visits = sorted((visit(j) for j in jobs), key=lambda v: (v.study_date is None, v.study_date or date.min))
+    dated = [v for v in visits if v.study_date is not None]
+    changes = [c for name in MEASURES for a, b in itertools.pairwise(dated) if (c := change(name, a, b))]
+    return PatientMeasures(patient_id=patient_id, visits=visits, changes=changes, rule=RULE)
+
+
+@router.get(
+    "/{patient_id:path}/measures",
+    response_model=PatientMeasures,
+    summary="A patient's measures over time (follow-up)",
+    description="The caller's succeeded jobs of this Patient ID (0010,0020), by Study Date (0008,0020), each with "
+    "its major and minor Cobb angles, kyphosis T4–T12, lordosis L1–L5 and the major curve's apex axial rotation, "
+    "with their SDs; and each change between consecutive visits, flagged when it exceeds both 5° and 1.96 × the "
+    "combined SD √(sd₁² + sd₂²), saying which rule decided. Only the caller's jobs (an admin key: every job); a "
+    "patient without any is an empty list, not a 404 (the answer says nothing of other clients' patients).",
+    responses=problem_responses(422),
+)
+def patient_measures(
+    patient_id: Annotated[str, Path(min_length=1, max_length=64, description="Patient ID (0010,0020).")],
+    session: SessionDep,
+    access: AccessDep,
+) -> PatientMeasures:
+    jobs = jobs_repo.succeeded_jobs_of_patient(session, patient_id, owner=access.owner)
+    access.record(session, "list", [j.id for j in jobs])
+    return follow_up(patient_id, jobs)

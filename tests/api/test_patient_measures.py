@@ -1,0 +1,108 @@
+"""GET /v1/patients/{patient_id}/measures: a patient's follow-up, on PostgreSQL with real jobs run by the
+worker (the distributed service: PostgreSQL, Redis, a `spine worker` subprocess), restricted to the
+caller's jobs; and the flagging rule on its own (5° and 1.96 × the combined SD, which decided)."""
+
+from __future__ import annotations
+
+import math
+import uuid
+from datetime import date
+from typing import Any
+from urllib.parse import quote
+
+import pytest
+
+from services.api.routes.patients import MeasureValue, Visit, change
+from tests.conftest import Service, make_key, spine_payload
+
+MEASURES = ("major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation")
+
+
+def _visit(value: float, sd: float | None, when: date) -> Visit:
+    m = MeasureValue(value_deg=value, sd_deg=sd)
+    return Visit(job_id=uuid.uuid4(), study_date=when, kyphosis_t4_t12=m, lordosis_l1_l5=m, major_cobb=m)
+
+
+@pytest.mark.parametrize(
+    ("before", "after", "sd", "flagged", "decided_by"),
+    [
+        (40.0, 48.0, 1.5, True, "convention_5deg"),  # 1.96·√2·1.5 = 4.2° < 5°: the 5° convention decides
+        (40.0, 44.0, 1.5, False, "convention_5deg"),  # 4° < 5°
+        (40.0, 48.0, 3.5, False, "combined_sd"),  # 1.96·√2·3.5 = 9.7° > 8°: within the measurement's noise
+        (40.0, 30.0, 3.5, True, "combined_sd"),  # a 10° decrease exceeds both
+        (40.0, 46.0, None, True, "convention_5deg"),  # no SD: the 5° rule alone
+    ],
+)
+def test_a_change_is_flagged_beyond_both_5_deg_and_1_96_combined_sd(
+    before: float, after: float, sd: float | None, flagged: bool, decided_by: str
+) -> None:
+    c = change("major_cobb", _visit(before, sd, date(2025, 1, 1)), _visit(after, sd, date(2025, 7, 1)))
+    assert c is not None
+    assert c.change_deg == pytest.approx(after - before)
+    assert c.flagged is flagged and c.decided_by == decided_by
+    assert c.combined_sd_deg == (None if sd is None else pytest.approx(math.hypot(sd, sd)))
+
+
+def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distributed_service: Service) -> None:
+    svc = distributed_service
+    patient = f"P-{uuid.uuid4().hex[:8]}"
+    key_a = make_key(svc.settings, "follow-up-a")
+    key_b = make_key(svc.settings, "follow-up-b")
+
+    def submit(key: str, curve_mm: float, when: str | None) -> str:
+        payload: dict[str, Any] = spine_payload(curve_mm=curve_mm)
+        payload["study"] = {"study_instance_uid": f"1.2.826.0.1.3680043.8.498.{uuid.uuid4().int % 10**12}",
+                            "patient_id": patient, **({"study_date": when} if when else {})}  # fmt: skip
+        response = svc.client.post("/v1/jobs", json=payload, headers={"Authorization": f"Bearer {key}"})
+        assert response.status_code == 202, response.text
+        return str(response.json()["id"])
+
+    # the caller's three visits, sent out of date order, one undated; another client's job of the same ID
+    dated = {"2026-01-12": submit(key_a, 50.0, "2026-01-12"), "2025-01-10": submit(key_a, 20.0, "2025-01-10"),
+             "2025-07-08": submit(key_a, 35.0, "2025-07-08")}  # fmt: skip
+    undated = submit(key_a, 40.0, None)
+    other = submit(key_b, 30.0, "2025-03-01")
+    jobs = {j["id"]: j for j in svc.wait_all([*dated.values(), undated, other])}
+    assert all(j["status"] == "succeeded" for j in jobs.values()), [j.get("error") for j in jobs.values()]
+
+    def follow_up(key: str, pid: str = patient) -> dict[str, Any]:
+        response = svc.client.get(
+            f"/v1/patients/{quote(pid, safe='')}/measures", headers={"Authorization": f"Bearer {key}"}
+        )
+        assert response.status_code == 200, response.text
+        body: dict[str, Any] = response.json()
+        return body
+
+    mine = follow_up(key_a)
+    assert mine["patient_id"] == patient
+    assert [v["job_id"] for v in mine["visits"]] == [*(dated[d] for d in sorted(dated)), undated]
+    assert [v["study_date"] for v in mine["visits"]] == [*sorted(dated), None]
+    for v in mine["visits"]:
+        result = jobs[v["job_id"]]["result"]
+        major = next(c for c in result["measures"]["cobb"] if c["major"])
+        assert v["major_cobb"]["value_deg"] == major["angle_deg"]
+        assert v["major_cobb"]["sd_deg"] == major["angle_sd_deg"]
+        assert v["kyphosis_t4_t12"]["value_deg"] == result["measures"]["thoracic_kyphosis_t4_t12_deg"]
+        assert v["lordosis_l1_l5"]["sd_deg"] == result["measures"]["lumbar_lordosis_l1_l5_sd_deg"]
+        apex = next(x for x in result["vertebrae"] if x["level"] == major["apex"])
+        assert v["apex_axial_rotation"]["sd_deg"] == apex["axial_rotation_sd_deg"]
+    # changes between consecutive dated visits only, each flagged by the rule it states
+    pairs = {(c["from_job"], c["to_job"]) for c in mine["changes"]}
+    ordered = [dated[d] for d in sorted(dated)]
+    assert pairs == {(ordered[0], ordered[1]), (ordered[1], ordered[2])}
+    for c in mine["changes"]:
+        sd = c["combined_sd_deg"]
+        threshold = max(5.0, 1.96 * sd) if sd is not None else 5.0
+        assert c["threshold_deg"] == pytest.approx(threshold)
+        assert c["flagged"] == (abs(c["change_deg"]) > threshold)
+        assert c["decided_by"] == ("combined_sd" if sd is not None and 1.96 * sd > 5.0 else "convention_5deg")
+    assert {c["measure"] for c in mine["changes"]} <= set(MEASURES)
+    major_changes = [c for c in mine["changes"] if c["measure"] == "major_cobb"]
+    assert len(major_changes) == 2 and all(c["change_deg"] > 0 for c in major_changes)  # the curve grew 20 → 50 mm
+
+    # the other client sees its own job only; an unknown patient is an empty follow-up; the admin sees all
+    theirs = follow_up(key_b)
+    assert [v["job_id"] for v in theirs["visits"]] == [other] and theirs["changes"] == []
+    assert follow_up(key_a, f"P-{uuid.uuid4().hex[:8]}")["visits"] == []
+    assert follow_up(key_a, "A/B 7")["patient_id"] == "A/B 7"  # a DICOM LO may hold "/" and spaces
+    assert len(follow_up(svc.api_key)["visits"]) == 5

@@ -1,0 +1,114 @@
+"""The Follow-up view in Debian's Chromium against a real `spine serve`: three succeeded jobs of one
+patient with study dates give the table by date, one plot per measure and a flagged progression.
+
+The jobs are real (posted to the service, run by its worker). To show an 8° progression with SDs of
+1.5°, the test then sets the major curve's angle and SD in the three stored results (40°, 48°, 49.5°,
+all ± 1.5°): 1.96 × √(1.5² + 1.5²) = 4.2° is below 5°, so 8° is flagged by the 5° convention and the
+1.5° change after it is not. The flags are computed by the API from the stored results.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from page_fixtures import open_page, run_axe
+from sqlalchemy import select
+
+from services.core.config import Settings
+from services.db.engine import session_factory
+from services.db.models import Job
+from tests.conftest import spine_payload
+
+pytestmark = pytest.mark.browser
+
+VISITS = [("2025-01-10", 40.0), ("2025-07-08", 48.0), ("2026-01-12", 49.5)]  # study date, major Cobb (deg)
+SD = 1.5
+
+
+def _three_jobs(url: str, key: str, data_dir: Path, patient: str) -> list[str]:
+    headers = {"Authorization": f"Bearer {key}"}
+    ids = []
+    for i, (when, _) in enumerate(VISITS):
+        payload: dict[str, Any] = spine_payload(curve_mm=30.0 + 5 * i)
+        payload["study"] = {"study_instance_uid": f"1.2.826.0.1.3680043.8.498.{uuid.uuid4().int % 10**12}",
+                            "patient_id": patient, "study_date": when}  # fmt: skip
+        response = httpx.post(f"{url}/v1/jobs", json=payload, headers=headers, timeout=30)
+        assert response.status_code == 202, response.text
+        ids.append(response.json()["id"])
+    deadline = time.monotonic() + 90
+    while True:
+        states = [httpx.get(f"{url}/v1/jobs/{j}", headers=headers, timeout=10).json()["status"] for j in ids]
+        if all(s == "succeeded" for s in states):
+            break
+        assert time.monotonic() < deadline and not {"failed", "cancelled"} & set(states), states
+        time.sleep(0.3)
+    with session_factory(Settings(data_dir=data_dir, DATABASE_URL=None))() as session:
+        for job_id, (_, angle) in zip(ids, VISITS, strict=True):
+            job = session.scalars(select(Job).where(Job.id == uuid.UUID(job_id))).one()
+            result = dict(job.result or {})
+            curves = [dict(c) for c in result["measures"]["cobb"]]
+            major = next(c for c in curves if c["major"])
+            major.update(angle_deg=angle, angle_sd_deg=SD)
+            result["measures"] = {**result["measures"], "cobb": curves}
+            job.result = result
+        session.commit()
+    return ids
+
+
+def test_follow_up_of_three_visits_flags_an_8_deg_progression(
+    browser: Any, live_url: str, api_key: str, live_data_dir: Path, tmp_path: Path
+) -> None:
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    ids = _three_jobs(live_url, api_key, live_data_dir, patient)
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+
+    # from a job: its result links to the patient's follow-up
+    page.goto(f"{live_url}/#/jobs/{ids[2]}")
+    page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
+    page.click("#followup-link")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table")
+    rows = page.locator(".followup-visits tbody tr")
+    assert rows.count() == 3
+    assert [rows.nth(i).locator("th").text_content() for i in range(3)] == [d for d, _ in VISITS]
+    assert "48.0° ± 1.5°" in (rows.nth(1).text_content() or "")
+    flagged = page.locator(".followup-changes tr[data-measure=major_cobb]")
+    assert flagged.count() == 2
+    first, second = flagged.nth(0), flagged.nth(1)
+    assert first.get_attribute("data-flagged") == "true" and "+8.0°" in (first.text_content() or "")
+    assert "5° convention" in (first.text_content() or "")
+    assert second.get_attribute("data-flagged") == "false" and "+1.5°" in (second.text_content() or "")
+    assert "Major Cobb +8.0° (2025-01-10 → 2025-07-08)" in (page.text_content("#followup-summary") or "")
+    # one plot per measure, the flagged segment drawn in red
+    assert page.locator(".followup-plot").count() >= 4
+    plot = page.locator(".followup-plot[data-measure=major_cobb]")
+    assert plot.locator("circle").count() == 3 and plot.locator("line.trend.flagged").count() == 1
+    assert "1 flagged change" in (plot.get_attribute("aria-label") or "")
+    assert not run_axe(page)
+
+    # from a patient ID typed in the form
+    page.goto(f"{live_url}/#/follow-up")
+    page.fill("#followup-patient", patient)
+    page.click("#followup-form button[type=submit]")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] .followup-changes")
+    assert page.locator(".followup-visits tbody tr").count() == 3
+
+    # the printed report with the follow-up table
+    page.goto(f"{live_url}/#/jobs/{ids[1]}")
+    page.wait_for_selector(f"#result[data-job-id='{ids[1]}']", timeout=30_000)
+    page.check("#print-followup")
+    page.wait_for_selector("#report-followup table.followup-changes")
+    page.emulate_media(media="print")
+    pdf = tmp_path / "report.pdf"
+    page.pdf(path=str(pdf), format="A4", print_background=True)
+    if shutil.which("pdftotext"):
+        text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
+        assert f"Follow-up of patient {patient}" in text and "2025-07-08" in text
+    assert not watch.errors, watch.errors
+    context.close()

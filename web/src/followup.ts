@@ -1,0 +1,218 @@
+// The Follow-up view: a patient's succeeded jobs by study date (GET /v1/patients/{id}/measures), the
+// measures with their ±, each change between consecutive visits (flagged beyond both 5° and 1.96 ×
+// the combined SD, with the rule that decided), and one small plot per measure over time (the value
+// with its 95 % interval, ±1.96 SD; a flagged change drawn in red).
+import { withSd } from "./results";
+
+export type MeasureName = "major_cobb" | "minor_cobb" | "kyphosis_t4_t12" | "lordosis_l1_l5" | "apex_axial_rotation";
+
+export interface MeasureValue {
+  value_deg: number;
+  sd_deg: number | null;
+  levels: string | null;
+}
+
+export interface Visit {
+  job_id: string;
+  study_date: string | null;
+  study_instance_uid: string | null;
+  accession_number: string | null;
+  finished_at: string | null;
+  major_cobb: MeasureValue | null;
+  minor_cobb: MeasureValue | null;
+  kyphosis_t4_t12: MeasureValue;
+  lordosis_l1_l5: MeasureValue;
+  apex_axial_rotation: MeasureValue | null;
+}
+
+export interface Change {
+  measure: MeasureName;
+  from_job: string;
+  to_job: string;
+  from_date: string;
+  to_date: string;
+  change_deg: number;
+  combined_sd_deg: number | null;
+  threshold_deg: number;
+  flagged: boolean;
+  decided_by: "convention_5deg" | "combined_sd";
+}
+
+export interface PatientMeasures {
+  patient_id: string;
+  visits: Visit[];
+  changes: Change[];
+  rule: string;
+}
+
+export const MEASURE_NAMES: Record<MeasureName, string> = {
+  major_cobb: "Major Cobb",
+  minor_cobb: "Minor Cobb",
+  kyphosis_t4_t12: "Kyphosis T4–T12",
+  lordosis_l1_l5: "Lordosis L1–L5",
+  apex_axial_rotation: "Apex axial rotation",
+};
+const ORDER = Object.keys(MEASURE_NAMES) as MeasureName[];
+
+/** The flagging rule, as the page words it (the API's `rule` names its own fields). */
+export const RULE_WORDS = "A change between consecutive visits is flagged when it exceeds both 5° (the convention for progression) " +
+  "and 1.96 × √(sd₁² + sd₂²) (the 95 % interval of the difference of two measures with their SDs); “Decided by” names the larger of the two thresholds.";
+
+/** Degrees with one decimal and a sign, never "-0.0". */
+const signed = (x: number): string => {
+  const r = Math.round(x * 10) / 10;
+  return `${r > 0 ? "+" : ""}${(r === 0 ? 0 : r).toFixed(1)}°`;
+};
+
+const el = <K extends keyof HTMLElementTagNameMap>(tag: K, text?: string, cls?: string): HTMLElementTagNameMap[K] => {
+  const node = document.createElement(tag);
+  if (text !== undefined) node.textContent = text;
+  if (cls) node.className = cls;
+  return node;
+};
+
+function cell(m: MeasureValue | null): string {
+  if (!m) return "—";
+  return `${withSd(m.value_deg, m.sd_deg)}${m.levels ? ` (${m.levels})` : ""}`;
+}
+
+/** The visits table: one row per job, by study date. */
+export function visitsTable(data: PatientMeasures, caption: string): HTMLTableElement {
+  const table = el("table", undefined, "data followup-visits");
+  table.createCaption().textContent = caption;
+  const head = table.createTHead().insertRow();
+  for (const h of ["Study date", "Job", ...ORDER.map((k) => MEASURE_NAMES[k])]) {
+    const th = el("th", h);
+    th.scope = "col";
+    head.append(th);
+  }
+  const body = table.createTBody();
+  for (const v of data.visits) {
+    const tr = body.insertRow();
+    const link = el("a", v.job_id.slice(0, 8));
+    link.href = `#/jobs/${v.job_id}`;
+    link.setAttribute("aria-label", `Open job ${v.job_id}`);
+    const date = el("th", v.study_date ?? "no study date");
+    date.scope = "row";
+    tr.append(date);
+    tr.insertCell().append(link);
+    for (const k of ORDER) tr.insertCell().textContent = cell(v[k]);
+  }
+  return table;
+}
+
+/** The changes table: per measure and pair of consecutive visits, flagged or not and why. */
+export function changesTable(data: PatientMeasures, caption: string): HTMLTableElement {
+  const table = el("table", undefined, "data followup-changes");
+  table.createCaption().textContent = caption;
+  const head = table.createTHead().insertRow();
+  for (const h of ["Measure", "Between", "Change", "Threshold", "Verdict", "Decided by"]) {
+    const th = el("th", h);
+    th.scope = "col";
+    head.append(th);
+  }
+  const body = table.createTBody();
+  for (const c of data.changes) {
+    const tr = body.insertRow();
+    tr.dataset.measure = c.measure;
+    tr.dataset.flagged = String(c.flagged);
+    if (c.flagged) tr.className = "flagged";
+    const name = el("th", MEASURE_NAMES[c.measure]);
+    name.scope = "row";
+    tr.append(name);
+    tr.insertCell().textContent = `${c.from_date} → ${c.to_date}`;
+    tr.insertCell().textContent = signed(c.change_deg);
+    tr.insertCell().textContent = `${c.threshold_deg.toFixed(1)}°`;
+    tr.insertCell().textContent = c.flagged ? "⚠ exceeds both rules" : "within";
+    tr.insertCell().textContent = c.decided_by === "combined_sd"
+      ? `1.96 × combined SD (${c.combined_sd_deg?.toFixed(1)}°) = ${c.threshold_deg.toFixed(1)}° > 5°`
+      : `5° convention${c.combined_sd_deg != null ? ` (1.96 × combined SD ${c.combined_sd_deg.toFixed(1)}° = ${(1.96 * c.combined_sd_deg).toFixed(1)}° is less)` : " (no SD)"}`;
+  }
+  return table;
+}
+
+const SVG = "http://www.w3.org/2000/svg";
+function svg<K extends keyof SVGElementTagNameMap>(tag: K, attrs: Record<string, string | number>): SVGElementTagNameMap[K] {
+  const node = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, String(v));
+  return node;
+}
+
+/** One small plot of a measure over time: points with ±1.96 SD bars, flagged changes in red. */
+export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGElement | null {
+  const points = data.visits.flatMap((v) => {
+    const m = v[name];
+    return v.study_date && m ? [{ t: Date.parse(v.study_date), m, job: v.job_id }] : [];
+  });
+  if (!points.length) return null;
+  const W = 260;
+  const H = 140;
+  const pad = { l: 40, r: 10, t: 22, b: 24 };
+  const lo = Math.min(...points.map((p) => p.m.value_deg - 1.96 * (p.m.sd_deg ?? 0)));
+  const hi = Math.max(...points.map((p) => p.m.value_deg + 1.96 * (p.m.sd_deg ?? 0)));
+  const span = Math.max(hi - lo, 5);
+  const [y0, y1] = [lo - span * 0.1, lo + span * 1.1];
+  const [t0, t1] = [points[0].t, points[points.length - 1].t];
+  const x = (t: number): number => pad.l + (t1 > t0 ? ((t - t0) / (t1 - t0)) * (W - pad.l - pad.r) : (W - pad.l - pad.r) / 2);
+  const y = (v: number): number => H - pad.b - ((v - y0) / (y1 - y0)) * (H - pad.t - pad.b);
+  const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img", class: "followup-plot" });
+  root.dataset.measure = name;
+  const flagged = data.changes.filter((c) => c.measure === name && c.flagged);
+  root.setAttribute("aria-label", `${MEASURE_NAMES[name]} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
+  const title = svg("text", { x: pad.l, y: 14, class: "plot-title" });
+  title.textContent = `${MEASURE_NAMES[name]} (°)`;
+  root.append(title, svg("line", { x1: pad.l, y1: H - pad.b, x2: W - pad.r, y2: H - pad.b, class: "axis" }),
+    svg("line", { x1: pad.l, y1: pad.t, x2: pad.l, y2: H - pad.b, class: "axis" }));
+  for (const v of [y0 + (y1 - y0) * 0.1, y0 + (y1 - y0) * 0.9]) {
+    const tick = svg("text", { x: pad.l - 4, y: y(v) + 4, class: "tick", "text-anchor": "end" });
+    tick.textContent = v.toFixed(0);
+    root.append(tick);
+  }
+  for (const [i, p] of [points[0], points[points.length - 1]].entries()) {
+    const label = svg("text", { x: x(p.t), y: H - 8, class: "tick", "text-anchor": i ? "end" : "start" });
+    label.textContent = new Date(p.t).toISOString().slice(0, 7);
+    root.append(label);
+  }
+  for (let i = 1; i < points.length; i++) {
+    const [a, b] = [points[i - 1], points[i]];
+    const red = flagged.some((c) => c.from_job === a.job && c.to_job === b.job);
+    root.append(svg("line", { x1: x(a.t), y1: y(a.m.value_deg), x2: x(b.t), y2: y(b.m.value_deg), class: red ? "trend flagged" : "trend" }));
+  }
+  for (const p of points) {
+    const sd = p.m.sd_deg ?? 0;
+    root.append(svg("line", { x1: x(p.t), y1: y(p.m.value_deg - 1.96 * sd), x2: x(p.t), y2: y(p.m.value_deg + 1.96 * sd), class: "bar" }),
+      svg("circle", { cx: x(p.t), cy: y(p.m.value_deg), r: 3.5, class: "point" }));
+  }
+  return root;
+}
+
+/** Fill the Follow-up view: summary, visits, changes, plots. */
+export function fillFollowUp(container: HTMLElement, data: PatientMeasures): void {
+  const flagged = data.changes.filter((c) => c.flagged);
+  const summary = el("p", data.visits.length
+    ? `${data.visits.length} succeeded job${data.visits.length > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
+    : `No succeeded job of patient ${data.patient_id} with this API key.`, "summary");
+  summary.id = "followup-summary";
+  const rule = el("p", RULE_WORDS, "help");
+  const scroll = (table: HTMLTableElement, id: string): HTMLElement => {
+    const div = el("div", undefined, "table-scroll");
+    div.tabIndex = 0;
+    div.setAttribute("role", "region");
+    table.caption!.id = `${id}-caption`;
+    div.setAttribute("aria-labelledby", `${id}-caption`);
+    div.append(table);
+    return div;
+  };
+  const plots = el("div", undefined, "followup-plots");
+  for (const name of ORDER) {
+    const plot = measurePlot(data, name);
+    if (plot) plots.append(plot);
+  }
+  container.replaceChildren(summary, rule);
+  if (!data.visits.length) return;
+  container.append(
+    scroll(visitsTable(data, `Patient ${data.patient_id}: measures by study date (± one SD)`), "followup-visits"),
+    scroll(changesTable(data, "Changes between consecutive visits"), "followup-changes"),
+    plots,
+  );
+}
