@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from spine_client import tables
+from spine_client import optional, tables
 from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient
 from spine_client.errors import (
     ApiError,
@@ -37,6 +37,7 @@ from spine_client.errors import (
     Unauthorized,
     WaitTimeout,
 )
+from spine_client.landmarks import LandmarkCsvError, payload_by_reference
 
 EXIT_OK = 0
 EXIT_JOB_FAILED = 1
@@ -111,8 +112,6 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
     """The payload of ``spine submit --pa-dicom`` (landmarks CSV + headers read here, sent as the job's
     ``dicom`` block, so that the job keeps its film as a PACS job does; conflicts to stderr) or of
     ``--study-instance-uid`` (landmarks CSV + UIDs: the service reads the headers)."""
-    from spine_client.dicom_input import LandmarkCsvError, payload_by_reference, payload_from_dicom
-
     base = _load_json(args.base) if args.base else {}
     if args.study_instance_uid:
         if not args.pa_sop_instance_uid:
@@ -124,14 +123,16 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
             raise UsageError(f"{args.payload}: {exc}") from None
         except OSError as exc:
             raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
-    from services.dicom.errors import DicomError
-
     try:
-        payload, provenance = payload_from_dicom(args.payload, args.pa_dicom, args.lateral_dicom, units=args.units,
-                                                 base=base)  # fmt: skip
+        dicom_input = optional.dicom_input()
+    except optional.MissingExtra as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        payload, provenance = dicom_input.payload_from_dicom(args.payload, args.pa_dicom, args.lateral_dicom,
+                                                             units=args.units, base=base)  # fmt: skip
     except LandmarkCsvError as exc:
         raise UsageError(f"{args.payload}: {exc}") from None
-    except DicomError as exc:
+    except dicom_input.DicomError as exc:
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
@@ -216,15 +217,10 @@ def cmd_list(args: argparse.Namespace) -> int:
     if args.format == "csv":
         sys.stdout.write(tables._csv(columns, rows))
         return EXIT_OK
-    from rich.console import Console
-    from rich.table import Table
-
     more = f" (more: --cursor {next_cursor})" if next_cursor else ""
-    table = Table(*columns, title=f"{len(rows)} jobs{more}")
-    for row in rows:
-        table.add_row(*[("" if row.get(c) is None else f"{row[c]:.1f}" if isinstance(row[c], float) else str(row[c]))
-                        for c in columns])  # fmt: skip
-    Console(width=None if sys.stdout.isatty() else 200).print(table)
+    cells = [[("" if row.get(c) is None else f"{row[c]:.1f}" if isinstance(row[c], float) else str(row[c]))
+              for c in columns] for row in rows]  # fmt: skip
+    optional.print_table(columns, cells, f"{len(rows)} jobs{more}", width=None if sys.stdout.isatty() else 200)
     return EXIT_OK
 
 
@@ -243,9 +239,6 @@ def cmd_fhir(args: argparse.Namespace) -> int:
 
 
 def cmd_submit_dir(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     folder = Path(args.directory)
     if not folder.is_dir():
         raise UsageError(f"{folder} is not a folder")
@@ -263,10 +256,8 @@ def cmd_submit_dir(args: argparse.Namespace) -> int:
         except UsageError as exc:
             rows[path.name] = tables.summary_row(path.name, None, status="rejected",
                                                  problem={"type": "malformed-json", "detail": str(exc)})  # fmt: skip
-    console = Console(stderr=True)
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     pending: dict[str, str] = {}  # job id -> file
-    with _client(args) as client, Progress(*columns, console=console, disable=args.no_progress) as progress:
+    with _client(args) as client, optional.progress(disable=args.no_progress) as progress:
         submitting = progress.add_task("submitting", total=len(payloads))
         for start in range(0, len(payloads), args.batch_size):
             part = payloads[start : start + args.batch_size]

@@ -1,7 +1,9 @@
-"""``SpineClient``: the service's HTTP API for scripts (httpx, retries with tenacity).
+"""``SpineClient``: the service's HTTP API for scripts (httpx).
 
 Every request is retried with exponential backoff and jitter on connection errors, timeouts,
-429 and 5xx, honouring ``Retry-After``. Retrying a POST is safe: ``submit`` and ``submit_batch``
+429 and 5xx, honouring ``Retry-After``: attempt n (n = 1, 2, …) failed waits
+min(max_backoff, backoff·2ⁿ⁻¹)·u seconds, u uniform in [0.5, 1), or the ``Retry-After`` (up to
+``max_retry_after``). Retrying a POST is safe: ``submit`` and ``submit_batch``
 send an ``Idempotency-Key`` (a new UUID unless given), so the service returns the job it already
 made instead of making a second one; cancelling twice is a no-op. Errors are typed
 (``spine_client.errors``) and carry the server's problem+json.
@@ -20,8 +22,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import httpx
-from tenacity import RetryCallState, Retrying, retry_if_exception, stop_after_attempt
 
+from spine_client import optional
 from spine_client.errors import ServiceUnreachable, WaitTimeout, error_for
 from spine_client.models import BatchEntry, BatchResult, Job, JobPage
 
@@ -31,15 +33,6 @@ API_KEY_ENV = "SPINE_API_KEY"
 USER_AGENT = "spine-client/1"
 BATCH_CHUNK = 500
 """Payloads per POST /v1/jobs/batch request (the service takes up to 1,000 and 16 MiB)."""
-
-
-class _RetryableStatus(Exception):
-    def __init__(self, response: httpx.Response):
-        self.response = response
-
-
-def _retryable(exc: BaseException) -> bool:
-    return isinstance(exc, (_RetryableStatus, httpx.TransportError))
 
 
 def retry_after_seconds(value: str | None) -> float | None:
@@ -100,14 +93,15 @@ class SpineClient:
     def __exit__(self, *_: object) -> None:
         self.close()
 
-    def _wait(self, state: RetryCallState) -> float:
-        exc = state.outcome.exception() if state.outcome is not None else None
-        if isinstance(exc, _RetryableStatus):
-            asked = retry_after_seconds(exc.response.headers.get("retry-after"))
-            if asked is not None:
-                return min(asked, self.max_retry_after)
-        delay = min(self.max_backoff, self.backoff * 2 ** (state.attempt_number - 1))
-        return delay * (0.5 + random.random() / 2)  # jitter: retries of many clients spread out
+    def retry_wait(self, attempt: int, response: httpx.Response | None) -> float:
+        """Seconds to wait after failed attempt ``attempt`` (1, 2, …): the response's ``Retry-After``
+        (at most ``max_retry_after``), else min(max_backoff, backoff·2^(attempt−1)) times a jitter
+        in [0.5, 1), so that the retries of many clients spread out."""
+        asked = retry_after_seconds(response.headers.get("retry-after")) if response is not None else None
+        if asked is not None:
+            return min(asked, self.max_retry_after)
+        delay = min(self.max_backoff, self.backoff * 2 ** (attempt - 1))
+        return delay * (0.5 + random.random() / 2)
 
     def request(
         self,
@@ -119,30 +113,23 @@ class SpineClient:
         headers: Mapping[str, str] | None = None,
     ) -> httpx.Response:
         """Send a request with retries; return the 2xx response or raise a typed error."""
-
-        def attempt() -> httpx.Response:
-            response = self._http.request(method, path, json=json, params=params, headers=headers)
-            if response.status_code == 429 or response.status_code >= 500:
-                response.read()
-                raise _RetryableStatus(response)
+        attempt = 0
+        while True:
+            attempt += 1
+            last = attempt > self.retries
+            try:
+                response = self._http.request(method, path, json=json, params=params, headers=headers)
+            except httpx.TransportError as exc:
+                if last:
+                    raise ServiceUnreachable(f"{method} {self.base_url}{path}: {type(exc).__name__}: {exc}") from exc
+                self._sleep(self.retry_wait(attempt, None))
+                continue
+            if (response.status_code == 429 or response.status_code >= 500) and not last:
+                self._sleep(self.retry_wait(attempt, response))
+                continue
+            if response.status_code >= 400:
+                raise error_for(response)
             return response
-
-        retrying = Retrying(
-            retry=retry_if_exception(_retryable),
-            stop=stop_after_attempt(self.retries + 1),
-            wait=self._wait,
-            sleep=self._sleep,
-            reraise=True,
-        )
-        try:
-            response = retrying(attempt)
-        except _RetryableStatus as exc:
-            raise error_for(exc.response) from None
-        except httpx.TransportError as exc:
-            raise ServiceUnreachable(f"{method} {self.base_url}{path}: {type(exc).__name__}: {exc}") from exc
-        if response.status_code >= 400:
-            raise error_for(response)
-        return response
 
     def _json(self, method: str, path: str, **kwargs: Any) -> Any:
         return self.request(method, path, **kwargs).json()
@@ -264,11 +251,10 @@ class SpineClient:
         idempotency_key: str | None = None,
     ) -> tuple[Job, dict[str, Any]]:
         """Submit a landmark CSV with the spacing, orientation, geometry and study read from the
-        radiographs' DICOM headers on this machine (``spine_client.dicom_input``), what was read sent as
+        radiographs' DICOM headers on this machine (``spine_client.dicom_input``, the ``[dicom]`` extra:
+        ``MissingExtra`` without pydicom), what was read sent as
         the job's ``dicom`` block; returns the job and what was read (``conflicts`` lists header values
         that differ from ``base``'s)."""
-        from spine_client.dicom_input import payload_from_dicom
-
-        payload, provenance = payload_from_dicom(landmarks_csv, pa_dicom, lateral_dicom, units=units,
-                                                 base=dict(base or {}))  # fmt: skip
+        read = optional.dicom_input().payload_from_dicom
+        payload, provenance = read(landmarks_csv, pa_dicom, lateral_dicom, units=units, base=dict(base or {}))
         return self.submit({**payload, "dicom": provenance}, idempotency_key=idempotency_key), provenance

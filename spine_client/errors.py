@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import httpx
 
-from spine_client.models import Problem
-
-if TYPE_CHECKING:
-    from spine_client.models import Job
+from spine_client.contract import Job, Problem
 
 PROBLEM_BASE = "https://spine.example/problems/"
 
@@ -105,13 +102,15 @@ _CONFLICTS = {
 
 
 def problem_of(response: httpx.Response) -> Problem:
-    """The response's problem+json body, or one made from its status when it has none."""
+    """The response's problem+json body, or one made from its status when it has none. Members a
+    problem from elsewhere (a proxy) may leave out, all optional in RFC 9457 §3.1, are the response's
+    status and empty texts."""
     body: Any = None
     with contextlib.suppress(ValueError):
         body = response.json()
     if isinstance(body, dict) and "type" in body:
         try:
-            return Problem.model_validate(body)
+            return Problem.model_validate({"title": "", "status": response.status_code, "detail": "", **body})
         except ValueError:
             pass
     return Problem(

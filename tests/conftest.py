@@ -32,8 +32,8 @@ from services.api.app import create_app
 from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
-from services.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
 from spine_engine.levels import LEVELS
+from tools.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
 from tools.processes import stop_processes
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")

@@ -29,9 +29,9 @@ from sqlalchemy.orm import Session
 
 from services.core.config import Settings
 from services.db.job_forms import apply_reads, engine_payload
-from services.dicom.merge import DicomProvenance, client_provenance_errors
 from services.dicom.reference import views_to_fetch
 from services.webhooks.submission import check_callback
+from spine_client.dicom.merge import DicomProvenance, client_provenance_errors
 from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.models import JobPayload
 from spine_engine.validation import validate_payload
@@ -97,7 +97,7 @@ def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     """``POST /v1/jobs``'s body as (payload, ``dicom`` block or None). The block is what a client read
     from its image files (``spine submit --pa-dicom``; ``DicomProvenance``, every view's ``source``
     ``file``): kept on the job as the service keeps its own PACS reads, it completes the payload as
-    a header does (``services.dicom.merge.client_provenance_errors``). Raises ``InvalidInput`` naming
+    a header does (``spine_client.dicom.merge.client_provenance_errors``). Raises ``InvalidInput`` naming
     each wrong member by its JSON path under ``dicom``."""
     if not isinstance(body, dict) or body.get("dicom") is None:
         return (({k: v for k, v in body.items() if k != "dicom"}) if isinstance(body, dict) else body), None
@@ -118,7 +118,7 @@ def admit(body: Any, settings: Settings, session: Session, owner: str | None,
     ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
     if dicom is not None and isinstance(body, dict):
         body = engine_payload(apply_reads(body, dicom))
-    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb_url else (body, ())
+    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb is not None else (body, ())
     model = validate_payload(checked, unscaled_views=stood_in)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)

@@ -10,13 +10,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.core.status import JobStatus
+from services.db.dicom_stores import DicomStoreAttempt
 from services.db.job_forms import job_study
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.dicomweb import StudyImage
-from services.dicom.merge import DicomProvenance
-from services.dicom.store import DicomStoreAttempt
 from services.webhooks.schemas import WebhookDeliveryAttempt
+from spine_client.dicom.merge import DicomProvenance
 from spine_engine.models import RegistrationResult, Study
 
 JobStatusName = JobStatus

@@ -2,7 +2,7 @@
 views, figures, SR, Secondary Capture, FHIR, the STOW-RS task, webhooks, the worker's run).
 
 A job's row keeps the payload as posted (``jobs.payload``) and, apart, what the DICOM layer read from
-the images' headers (``jobs.dicom``: ``services.dicom.merge.DicomProvenance`` as JSON, each value
+the images' headers (``jobs.dicom``: ``spine_client.dicom.merge.DicomProvenance`` as JSON, each value
 with the JSON path it fills and whether the job uses it). From these:
 
 - ``effective``: the payload the job ran with, the posted payload with every header value marked

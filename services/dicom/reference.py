@@ -15,9 +15,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from spine_client.dicom.header import RadiographHeader, ViewRole
+from spine_client.dicom.merge import DicomProvenance, apply_headers
+
 from .dicomweb import Pacs
-from .header import RadiographHeader, ViewRole
-from .merge import DicomProvenance, apply_headers
 
 
 def views_to_fetch(payload: dict[str, Any], *, all_named: bool = False) -> dict[ViewRole, str]:

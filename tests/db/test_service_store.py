@@ -17,8 +17,8 @@ from sqlalchemy import event, inspect, select, text, update
 from sqlalchemy.orm import Session
 
 from services.core.config import Settings
+from services.db import dicom_stores, runs, stats
 from services.db import jobs as repo
-from services.db import runs, stats
 from services.db.engine import PSYCOPG_CACHED_PARAMS, get_engine, session_scope, worker_connection
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
@@ -388,10 +388,7 @@ def test_the_partial_indexes_still_serve_their_queries(db_settings: Settings) ->
         "ix_jobs_owner_accession_number": lambda s: repo.list_jobs(s, owner="c", accession_number="A1"),
         "ix_jobs_owner_patient_id": lambda s: repo.list_jobs(s, owner="c", patient_id="P1"),
         "ix_jobs_finished_at": lambda s: stats.recent_durations(s, since),
-        # services/dicom/store.sweep's query
-        "ix_jobs_dicom_store_due_at": lambda s: s.execute(
-            select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < utcnow()).limit(100)
-        ).all(),
+        "ix_jobs_dicom_store_due_at": lambda s: dicom_stores.overdue(s, utcnow()),  # the STOW-RS sweep's query
         "uq_jobs_owner_idempotency_key": lambda s: repo.create_job(s, spine_payload(), owner="c", idempotency_key="k"),
     }
     for index, call in queries.items():

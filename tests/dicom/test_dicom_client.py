@@ -9,11 +9,11 @@ from typing import Any
 
 import pytest
 
-from services.dicom import synthetic
 from spine_client.cli import EXIT_OK, EXIT_USAGE, main
 from spine_client.dicom_input import LandmarkCsvError, parse_landmark_csv, payload_from_dicom
 from spine_engine.levels import LEVELS
 from spine_engine.models import PAView
+from tools.dicom import synthetic
 
 
 def _files(tmp_path: Path) -> dict[str, Any]:

@@ -9,16 +9,18 @@ from typing import Any
 
 import pytest
 
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.errors import InstanceNotFound, InvalidAttribute, PacsUnavailable
-from services.dicom.header import read_header
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
+from services.dicom.errors import InstanceNotFound, PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
+from spine_client.dicom.errors import InvalidAttribute
+from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
 from tests.conftest import spine_payload
+from tools.dicom import synthetic
 
 from .conftest import OrthancServer, free_port
 

@@ -15,11 +15,11 @@ from fastapi.testclient import TestClient
 from pydicom.uid import ExplicitVRLittleEndian, RLELossless, generate_uid
 
 from services.api.app import create_app
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.dicomweb import Pacs
 from tests.conftest import make_key
+from tools.dicom import synthetic
 
 from .conftest import OrthancServer, free_port
 

@@ -24,13 +24,13 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
+from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
 from tests.conftest import Service, _purge_queue, make_key, spawned_service, spine_payload
+from tools.dicom import synthetic
+from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
 from .conftest import OrthancServer
@@ -169,7 +169,7 @@ def test_by_reference_needs_no_spacing_only_with_a_pacs(two_clients: tuple[TestC
 def test_pacs_down_retries_then_fails_the_job(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
 ) -> None:
-    from services.dicom.orthanc import free_port
+    from tools.dicom.orthanc import free_port
 
     with spawned_service("dicom-down", tmp_path_factory.mktemp("dicom-down"), postgres_url=postgres_url,
                          redis_url=redis_url, SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web",
@@ -287,11 +287,11 @@ def test_sweep_publishes_an_overdue_stow_once_per_due_time(tmp_path: Path, redis
     import redis
     from sqlalchemy import update
 
-    from services.core.jobqueue import make_celery
+    from services.core.jobqueue import STORE_DICOM, make_celery
     from services.db import jobs as jobs_repo
     from services.db.engine import session_scope
     from services.db.models import Job, utcnow
-    from services.dicom import store
+    from services.worker import dicom_tasks
 
     queue = f"spine-test-{uuid_module.uuid4().hex[:8]}"
     settings = Settings(data_dir=tmp_path, CELERY_BROKER_URL=redis_url, queue_name=queue,
@@ -308,17 +308,17 @@ def test_sweep_publishes_an_overdue_stow_once_per_due_time(tmp_path: Path, redis
     broker = redis.Redis.from_url(redis_url)
     app = make_celery(settings)
     try:
-        assert store.sweep(settings, app) == 1
+        assert dicom_tasks.sweep(settings, app) == 1
         assert broker.llen(settings.dicom_queue) == 1
         message = json.loads(broker.lindex(settings.dicom_queue, 0))  # type: ignore[arg-type]
-        assert message["headers"]["task"] == store.STORE and message["headers"]["argsrepr"] == f"['{job.id}', 1]"
-        assert store.sweep(settings, app) == 0  # due again only SPINE_DICOMWEB_SWEEP_AFTER_S later
+        assert message["headers"]["task"] == STORE_DICOM and message["headers"]["argsrepr"] == f"['{job.id}', 1]"
+        assert dicom_tasks.sweep(settings, app) == 0  # due again only SPINE_DICOMWEB_SWEEP_AFTER_S later
         with session_scope(settings) as session:
             due = session.get(Job, job.id).dicom_store_due_at  # type: ignore[union-attr]
             assert due is not None and due > utcnow() + timedelta(seconds=250)
             stores = [{**attempt0, "attempt": n} for n in (1, 2, 3)]
             session.execute(update(Job).where(Job.id == job.id).values(dicom_stores=stores, dicom_store_due_at=past))
-        assert store.sweep(settings, app) == 0  # out of attempts: cleared, not published
+        assert dicom_tasks.sweep(settings, app) == 0  # out of attempts: cleared, not published
         with session_scope(settings) as session:
             assert session.get(Job, job.id).dicom_store_due_at is None  # type: ignore[union-attr]
         assert broker.llen(settings.dicom_queue) == 1

@@ -18,8 +18,6 @@ import pytest
 from pydicom.dataset import Dataset
 
 from services.db.job_forms import JobForms
-from services.dicom import synthetic
-from services.dicom.header import read_header
 from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
 from services.dicom.sr import (
@@ -34,9 +32,11 @@ from services.dicom.sr import (
 from services.dicom.sr import (
     CORNERSTONE_COBB_ANGLE as COBB_TOOL,
 )
+from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
 from tests.conftest import spine_payload
+from tools.dicom import synthetic
 
 SPACING = 0.15
 JOB = uuid.UUID("0b4f6c1e-8f7a-4a77-9a53-7d6ad0a3f0c1")

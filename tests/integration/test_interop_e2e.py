@@ -24,9 +24,9 @@ from standardwebhooks import Webhook
 
 from services.core.jobqueue import make_celery
 from services.db import jobs as jobs_repo
+from services.db.deliveries import job_ended, message_id
 from services.db.engine import session_scope
 from services.fhir.export import LOCAL_CODE_SYSTEM
-from services.webhooks.delivery import job_ended, message_id
 from spine_client import (
     IdempotencyConflict,
     InvalidRequest,
@@ -39,7 +39,7 @@ from spine_client import (
     WaitTimeout,
 )
 from spine_client import cli as client_cli
-from spine_engine.models import RegistrationResult
+from spine_client.models import RegistrationResult
 from tests.conftest import _postgres_database, _purge_queue, spine_payload
 from tests.interop_helpers import ApiOnly, FlakyProxy, Receiver, Rule, Served, free_port, wait_until
 

@@ -29,6 +29,7 @@ from services.core.webhook_policy import (
     destination_problem,
     parse_allow_list,
 )
+from services.db.deliveries import message_id
 from services.db.migrate import upgrade
 from services.dicom.sr import PRIVATE_SCHEME_VERSION, PrivateCodes
 from services.fhir.export import (
@@ -39,7 +40,7 @@ from services.fhir.export import (
     effective_date_time,
     observation_bundle,
 )
-from services.webhooks.delivery import message_id, retry_delay
+from services.webhooks.delivery import retry_delay
 from services.webhooks.signing import signed_headers
 from spine_client import tables
 from spine_client.client import retry_after_seconds

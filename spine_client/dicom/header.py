@@ -23,7 +23,7 @@ radiograph SOP class (CR, DX, MG, IO, XA, RF, the same list as Cornerstone3D):
 3. Else Pixel Spacing alone, type ``Unknown``.
 
 Other SOP classes (e.g. Secondary Capture) give Pixel Spacing with Cornerstone's type ``""``
-(not applicable), mapped to ``unknown``. The service's ``pixel_spacing_calibration`` (CONTRACT.md)
+(not applicable), mapped to ``unknown``. The service's ``pixel_spacing_calibration`` (openapi.yaml)
 is: ``calibrated`` (Cornerstone ``Calibrated`` or ``ERMF``: millimetres in the patient, at the
 plane the magnification refers to), ``projection`` (``Proj`` from Pixel Spacing: equal to, or
 standing for, the imager's spacing, millimetres at the detector), ``detector`` (``Proj`` from
@@ -70,7 +70,13 @@ import pydicom
 from pydicom.dataset import Dataset
 from pydicom.errors import InvalidDicomError
 
-from .errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation, attribute_label
+from spine_client.dicom.errors import (
+    InvalidAttribute,
+    MissingAttribute,
+    NotDicom,
+    UnsupportedOrientation,
+    attribute_label,
+)
 
 Calibration = Literal["calibrated", "projection", "detector", "unknown"]
 ViewRole = Literal["pa", "lateral"]
@@ -110,7 +116,7 @@ _VIEW_POSITION_ORIENTATION: dict[str, tuple[ViewRole, tuple[str, str]]] = {
 
 @dataclass(frozen=True)
 class Acquisition:
-    """The view's acquisition geometry from the header (CONTRACT.md ``Acquisition``), mm and ratios."""
+    """The view's acquisition geometry from the header (openapi.yaml ``Acquisition``), mm and ratios."""
 
     magnification: float | None = None
     distance_source_to_detector_mm: float | None = None

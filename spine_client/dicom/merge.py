@@ -1,9 +1,9 @@
 """Header values into a job payload: what the payload gives explicitly wins, a header value that
 disagrees is reported as a conflict (never silently taken), and what was read is recorded with its
-attribute (``DicomProvenance``, shown on the job as ``dicom``; CONTRACT.md).
+attribute (``DicomProvenance``, shown on the job as ``dicom`` in openapi.yaml).
 
 Works on the payload as JSON (a dict), so that fields the engine adds (``acquisition``,
-``pixel_spacing_calibration``) pass through whatever the installed ``spine_engine.models`` holds.
+``pixel_spacing_calibration``) pass through whatever version of the contract the reader holds.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from .errors import UnsupportedOrientation, attribute_label
+from spine_client.dicom.errors import UnsupportedOrientation, attribute_label
+
 from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem
 
 VALUE_RTOL = 1e-6
