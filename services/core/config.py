@@ -80,12 +80,6 @@ class Settings(BaseSettings):
         description="A running job's lease: the worker renews it every third of this while the fit runs; a job "
         "whose lease expired (its worker died) is taken back by the reconciler, fenced by attempt.",
     )
-    running_grace_s: float = Field(
-        30.0,
-        ge=0,
-        description="A job running without a lease (claimed before leases existed) this long past the fit time "
-        "limit is taken back by the reconciler (its worker is presumed dead).",
-    )
     max_attempts: int = Field(
         3, ge=1, description="Runs a job may start; a job stranded in running after that many fails."
     )

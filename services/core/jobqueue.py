@@ -39,7 +39,7 @@ class _SharedClientChannel(kombu_redis.Channel):
     kombu builds a new one for every call that is given none: the QoS bookkeeping of each delivered
     message (its entry in the unacked hash, then its ack) and each published message. Building a
     ``redis.Redis`` rebuilds its table of ~170 response callbacks (redis-py issue #3624): about a
-    quarter of the Celery main process's CPU per task here (docs/performance.md, 2026-12-02). Every
+    quarter of the Celery main process's CPU per task here (docs/performance.md). Every
     command still takes a connection from the same pool, so nothing changes on the wire; a new pool
     (after a reconnection) gets a new client."""
 

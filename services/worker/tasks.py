@@ -280,7 +280,6 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
         outcome = runs.reconcile(
             session,
             queued_timeout=queued_timeout,
-            running_timeout=timedelta(seconds=settings.fit_time_limit_s + settings.running_grace_s),
             max_attempts=settings.max_attempts,
             lost_problem=lost,
             republish_queued=missing,

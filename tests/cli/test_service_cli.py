@@ -206,7 +206,7 @@ def test_worker_supervisor_restarts_a_celery_worker_that_stopped_unasked(tmp_pat
 
 
 def test_the_data_dir_is_one_place_whatever_the_working_directory(tmp_path: Path) -> None:
-    """A key made from one folder is seen from another (issue 11: it went to a second database)."""
+    """A key made from one folder is seen from another (not a second database)."""
     env = {k: v for k, v in os.environ.items() if k not in ("SPINE_DATA_DIR", "DATABASE_URL", "CELERY_BROKER_URL")}
     env["XDG_DATA_HOME"] = str(tmp_path / "xdg")
     here, there = tmp_path / "here", tmp_path / "there"

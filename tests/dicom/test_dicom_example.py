@@ -18,10 +18,9 @@ from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
 from services.dicom.reference import resolve_by_reference
 from spine_client.dicom_input import payload_by_reference
+from spine_engine.levels import LEVELS
 from tools.dicom import synthetic
 from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
-
-from .conftest import LEVELS
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "orthanc"
 ANNOUNCE_TIMEOUT_S = 30.0

@@ -28,12 +28,12 @@ from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
 from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
-from tests.conftest import Service, _purge_queue, make_key, service_env
+from tests.conftest import Service, _purge_queue, make_key, spawned_service, spine_payload
 from tools.dicom import synthetic
 from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
-from .conftest import OrthancServer, spine_payload
+from .conftest import OrthancServer
 
 SPACING = 0.15
 STORE_TIMEOUT_S = 60.0
@@ -45,19 +45,12 @@ building the SR on two loaded cores."""
 def pacs_service(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str, orthanc: OrthancServer
 ) -> Iterator[Service]:
-    data_dir = tmp_path_factory.mktemp("dicom-service")
-    env = service_env(
-        data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url, SPINE_DICOMWEB_URL=orthanc.dicomweb_url,
-        SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
-        SPINE_DICOMWEB_STORE_RESULTS="true",
-    )  # fmt: skip
-    service = Service("dicom", env, data_dir)
-    service.start_worker()
-    try:
+    with spawned_service(
+        "dicom", tmp_path_factory.mktemp("dicom-service"), postgres_url=postgres_url, redis_url=redis_url,
+        SPINE_DICOMWEB_URL=orthanc.dicomweb_url, SPINE_DICOMWEB_USERNAME=orthanc.username,
+        SPINE_DICOMWEB_PASSWORD=orthanc.password, SPINE_DICOMWEB_STORE_RESULTS="true",
+    ) as service:  # fmt: skip
         yield service
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
 
 
 def _pacs(orthanc: OrthancServer) -> Pacs:
@@ -178,19 +171,12 @@ def test_pacs_down_retries_then_fails_the_job(
 ) -> None:
     from tools.dicom.orthanc import free_port
 
-    data_dir = tmp_path_factory.mktemp("dicom-down")
-    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
-                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
-                      SPINE_MAX_ATTEMPTS="2")  # fmt: skip
-    service = Service("dicom-down", env, data_dir)
-    service.start_worker()
-    try:
+    with spawned_service("dicom-down", tmp_path_factory.mktemp("dicom-down"), postgres_url=postgres_url,
+                         redis_url=redis_url, SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web",
+                         SPINE_DICOMWEB_TIMEOUT_S="2", SPINE_MAX_ATTEMPTS="2") as service:  # fmt: skip
         payload = spine_payload(spacing_mm=SPACING)
         payload["study"] = {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4"}
         job = service.wait(service.submit(payload)["id"], timeout=120)
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
     assert job["status"] == "failed"
     assert job["error"]["type"].endswith("/dicomweb-unavailable"), job["error"]
     assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
@@ -224,30 +210,26 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
         stop_orthanc(proc)
 
     port = free_port()  # nothing listens there until the PACS comes back
-    data_dir = tmp_path_factory.mktemp("dicom-back")
-    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
-                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{port}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
-                      SPINE_DICOMWEB_USERNAME=before.username, SPINE_DICOMWEB_PASSWORD=before.password,
-                      SPINE_MAX_ATTEMPTS="5")  # fmt: skip
     # 5 attempts: hand-backs after 2, 4, 8 and 16 s leave 30 s for the PACS to come back (it takes ~1 s)
-    service = Service("dicom-back", env, data_dir)
-    service.start_worker()
     back: subprocess.Popen[bytes] | None = None
-    try:
-        payload = spine_payload(spacing_mm=SPACING)
-        payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
-        job_ids = [service.submit(payload)["id"] for _ in range(2)]
-        _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
-                    "every job handed back to the queue while the PACS is down")  # fmt: skip
-        assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
-        back, server = start_orthanc(folder, port=port)
-        assert server.dicomweb_url == env["SPINE_DICOMWEB_URL"]
-        done = [service.wait(j, timeout=120) for j in job_ids]
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
-        if back is not None:
-            stop_orthanc(back)
+    with spawned_service("dicom-back", tmp_path_factory.mktemp("dicom-back"), postgres_url=postgres_url,
+                         redis_url=redis_url, SPINE_DICOMWEB_URL=f"http://127.0.0.1:{port}/dicom-web",
+                         SPINE_DICOMWEB_TIMEOUT_S="2", SPINE_DICOMWEB_USERNAME=before.username,
+                         SPINE_DICOMWEB_PASSWORD=before.password, SPINE_MAX_ATTEMPTS="5") as service:  # fmt: skip
+        try:
+            payload = spine_payload(spacing_mm=SPACING)
+            payload["study"] = {"study_instance_uid": image.StudyInstanceUID,
+                                "pa_sop_instance_uid": image.SOPInstanceUID}  # fmt: skip
+            job_ids = [service.submit(payload)["id"] for _ in range(2)]
+            _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
+                        "every job handed back to the queue while the PACS is down")  # fmt: skip
+            assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
+            back, server = start_orthanc(folder, port=port)
+            assert server.dicomweb_url == service.env["SPINE_DICOMWEB_URL"]
+            done = [service.wait(j, timeout=120) for j in job_ids]
+        finally:
+            if back is not None:
+                stop_orthanc(back)
     log = service.worker_log()
     for job in done:
         assert job["status"] == "succeeded", (job.get("error"), log[-3000:])
@@ -296,7 +278,7 @@ def test_python_client_and_cli_get_the_sr(
     assert "wrote" in capsys.readouterr().err
 
 
-def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
+def test_sweep_publishes_an_overdue_stow_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
     """A STOW-RS attempt whose message was never published (attempt 0) or was lost is published by the
     reconciler's sweep once overdue, as the next attempt; out of attempts, the job is left alone."""
     import uuid as uuid_module

@@ -31,7 +31,7 @@ from services.core.webhook_policy import (
 )
 from services.db.deliveries import message_id
 from services.db.migrate import upgrade
-from services.dicom.sr import PRIVATE_SCHEME_VERSION, P
+from services.dicom.sr import PRIVATE_SCHEME_VERSION, PrivateCodes
 from services.fhir.export import (
     COBB_ANGLE,
     LOCAL_CODE_SYSTEM,
@@ -216,7 +216,7 @@ def test_fhir_observations_are_coded_and_keep_their_text(result: dict[str, Any])
 
 def test_fhir_local_codes_are_the_srs_private_codes() -> None:
     """One meaning, one code value, in DICOM (99SPINE) and in FHIR (``LOCAL_CODE_SYSTEM``)."""
-    sr_codes = {c.value: c.meaning for c in vars(P).values() if hasattr(c, "scheme_designator")}
+    sr_codes = {c.value: c.meaning for c in vars(PrivateCodes).values() if hasattr(c, "scheme_designator")}
     assert {code: sr_codes.get(code) for code in LOCAL_CODES} == LOCAL_CODES
     assert LOCAL_CODE_SYSTEM_VERSION == PRIVATE_SCHEME_VERSION
     uuid_urn = r"urn:uuid:[0-9a-f]{8}-[0-9a-f]{4}-5[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}"  # RFC 9562 version 5
@@ -403,7 +403,7 @@ def test_fhir_of_unknown_or_unfinished_jobs(api: TestClient) -> None:
 
 
 def test_fhir_observations_carry_the_results_sd(result: dict[str, Any]) -> None:
-    """Each measure with an SD in the result has it as a component in degrees (issue #13: every number
+    """Each measure with an SD in the result has it as a component in degrees (every number
     with its trust), equal to the result's value."""
     sds = copy.deepcopy(result)
     sds["measures"]["thoracic_kyphosis_t4_t12_sd_deg"] = 2.5

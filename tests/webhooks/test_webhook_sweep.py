@@ -147,9 +147,9 @@ def slow_receiver() -> Iterator[Receiver]:
 
 @BACKENDS
 def test_two_deliveries_of_one_attempt_make_one_request(db_settings: Settings, slow_receiver: Receiver) -> None:
-    """The CI failure of 2026-12-01: attempt 2 of a message ran twice (its retry and a sweep), both
-    passed the check-then-insert, and the receiver got it twice. The claim is now an insert under a
-    unique index, so exactly one of the racing deliveries makes the request."""
+    """Attempt 2 of a message run twice at once (its retry and a sweep): a check-then-insert would
+    let both through and the receiver get it twice; the claim is an insert under a unique index, so
+    exactly one of the racing deliveries makes the request."""
     url = slow_receiver.url(f"/hooks/{uuid.uuid4().hex}")
     secret = SecretStr("whsec_" + "A" * 43 + "=")
     settings = db_settings.model_copy(update={"webhook_allowed_urls": url, "webhook_secret": secret})
