@@ -1,4 +1,4 @@
-"""``spine bench clinic``: the engine in the clinic's setting (issue #10, item 9).
+"""``spine bench clinic``: the engine in the clinic's setting .
 
 Known spines are filmed by a simulated scoliosis series and reconstructed through the public
 entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would use it:

@@ -1,4 +1,4 @@
-"""``spine bench clinic-bound``: how close the films let any reconstruction come (issue #10).
+"""``spine bench clinic-bound``: how close the films let any reconstruction come.
 
 The 3D error of ``spine bench clinic`` removes only the global translation, so a rotation of the
 whole spine that the films leave undetermined counts in full. This command computes, per spine and

@@ -1,4 +1,4 @@
-"""The simulated scoliosis series of ``spine bench clinic`` (issue #10, item 9): films and cases.
+"""The simulated scoliosis series of ``spine bench clinic``: films and cases.
 
 A known spine (``Truth``) is filmed by a PA and a lateral radiograph of the superior endplate
 midpoints (the rod's nodes) with Gaussian landmark noise (SD ``noise_mm`` per coordinate, detector
@@ -34,12 +34,13 @@ FloatArray = npt.NDArray[np.float64]
 
 SID_MM = 1800.0
 """Source–detector distance of the simulated films, mm: the usual full-spine distance of about
-1.8 m (72 inches) (brief of issue #10: "SID ≈ 1800 mm")."""
+1.8 m (72 inches)."""
 PA_SOD_MM = 1600.0
-"""Source to the spine's mid-plane on the PA film, mm (brief: "SOD ≈ 1600 mm"); PA magnification
-at that plane SID/SOD = 1.125."""
+"""Source to the spine's mid-plane on the PA film, mm (the mid-plane 20 cm before the detector); PA
+magnification at that plane SID/SOD = 1.125."""
 LATERAL_EXTRA_MAGNIFICATION = (1.05, 1.10)
-"""The lateral film's magnification over the PA's, drawn uniformly (issue #10: "5–10 % more")."""
+"""The lateral film's magnification over the PA's, drawn uniformly: 5–10 % more (the spine's mid-plane
+lies farther from the lateral's detector)."""
 LATERAL_TURN_DEG = (0.5, 2.0)
 """Size of the lateral film's in-plane rotation, drawn uniformly with a random sign ("slightly
 rotated"; a modelling choice)."""
@@ -196,8 +197,8 @@ def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
 
 
 def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -> bool:
-    """Whether this engine's payload model has ``field_name`` on a view (the contract of issue #10
-    lands in steps; the bench sends only what the engine knows)."""
+    """Whether this engine's payload model has ``field_name`` on a view (the bench sends only what
+    the engine knows)."""
     return field_name in view.model_fields
 
 

@@ -87,8 +87,8 @@ def synthetic_spine(
 
 
 @dataclass(frozen=True)
-class Problem:
-    """One benchmark registration problem."""
+class BenchCase:
+    """One timed registration: the rod, its rest shape, the views, the exact ends and the truth."""
 
     params: RodParameters
     rest_positions: np.ndarray
@@ -113,8 +113,8 @@ def placeholder_parameters(rest_positions: np.ndarray, rest_rotations: np.ndarra
     )
 
 
-def build_problem(lateral: bool = False, seed: int = 0, weight: float = 10.0) -> Problem:
-    """The benchmark problem: 17 PA landmarks (and 17 lateral ones if ``lateral``)."""
+def build_case(lateral: bool = False, seed: int = 0, weight: float = 10.0) -> BenchCase:
+    """The benchmark case: 17 PA landmarks (and 17 lateral ones if ``lateral``)."""
     rng = np.random.default_rng(seed)
     rest_r, rest_R = synthetic_spine(cobb_deg=30.0, twist_deg=0.0)
     true_r, true_R = synthetic_spine(
@@ -129,7 +129,7 @@ def build_problem(lateral: bool = False, seed: int = 0, weight: float = 10.0) ->
         e_c, e_r = image_axes(orientation)
         points = project(true_r, e_c, e_r, s, np.asarray(T)) + rng.normal(0.0, 0.5, (len(true_r), 2))
         views.append(ViewData(name, idx, points, e_c, e_r, s, np.asarray(T), weight))
-    return Problem(
+    return BenchCase(
         params=placeholder_parameters(rest_r, rest_R),
         rest_positions=rest_r,
         rest_rotations=rest_R,
@@ -151,7 +151,7 @@ def _stats(samples_ms: list[float]) -> dict[str, float]:
 
 def run(repeats: int = 200, lateral: bool = False, warmup: int = 10) -> dict[str, object]:
     """Time ``repeats`` registrations; returns timings (ms) of initial configuration + fit and fit alone."""
-    pb = build_problem(lateral=lateral)
+    pb = build_case(lateral=lateral)
     total, fit_only = [], []
     out = None
     for k in range(warmup + repeats):

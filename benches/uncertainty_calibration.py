@@ -1,8 +1,8 @@
-"""Calibration of the uncertainty model's two constants on VerSe dev (issue #10, item 6).
+"""Calibration of the uncertainty model's two constants on VerSe dev.
 
 ``spine bench clinic --split dev --calibrate-uncertainty`` films every dev spine in every clinic
 case (``clinic_films.simulate_series``, ``clinic_films.build_payload``), fits it once (``reconstruction``'s
-``build_problem`` and ``solve_solution``: the same fit as ``register``, kept to reuse its
+``prepare_inputs`` and ``fit_patient_rod``: the same fit as ``register``, kept to reuse its
 ``Solution``) and then, with z = |error| / SD of every position coordinate relative to the
 centroid (``fit.uncertainty``):
 
@@ -29,7 +29,7 @@ from spine_engine.anatomy import load_profile
 from spine_engine.errors import SpineEngineError
 from spine_engine.fit.types import Solution
 from spine_engine.fit.uncertainty import Calibration, solution_uncertainty, write_calibration
-from spine_engine.reconstruction import build_problem, solve_solution
+from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
 from spine_engine.validation import validate_payload
 
 LOG10_PRIOR_WEIGHT_RANGE = (-2.0, 6.0)
@@ -74,7 +74,7 @@ def collect(truths: Sequence[Truth], cases: Sequence[Case], noise_mm: float, see
         for case in cases:
             try:
                 model = validate_payload(clinic_payload(series, case).model_dump(mode="json", exclude_none=True))
-                solution, _ = solve_solution(build_problem(model, prof), prof)
+                solution, _ = fit_patient_rod(prepare_inputs(model, prof), prof)
             except (SpineEngineError, ValueError, ArithmeticError, np.linalg.LinAlgError):
                 continue  # refused (e.g. a subset this engine does not take) or broken down: not a sample
             if solution.output.converged:

@@ -5,7 +5,7 @@ Each spine of a VerSe split (vertebral centroids T1..L5, LPS mm) is projected on
 (position, and directors built from the centreline by ``frames_from_centreline``); the spine is
 reconstructed and its 3D error measured per spine and per level. Tune on ``dev``, report ``test``.
 
-``--clinical`` adds the cases of issue #5 (``CLINICAL_CASES``) to the 17 PA points: the two
+``--clinical`` adds the clinical cases (``CLINICAL_CASES``) to the 17 PA points: the two
 pedicle centres of every vertebra on the PA view, derived from the truth frames with the
 engine's offsets (``observations.pedicle_offsets_mm``; the truth frames carry no axial rotation,
 so these say "not rotated"), and/or four corners per vertebra (a box of the table's width and
@@ -28,7 +28,7 @@ from spine_engine.anatomy import Profile, load_profile
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures
-from spine_engine.reconstruction import build_problem, solve
+from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
 from spine_engine.validation import validate_payload
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -80,8 +80,7 @@ def reconstruct_spine(
         positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng, **extra  # type: ignore[arg-type]
     )
     model = validate_payload(payload)
-    problem = build_problem(model, profile)
-    out, _ = solve(problem, profile)
+    out = fit_patient_rod(prepare_inputs(model, profile), profile)[0].output
     truth_m = compute_measures(positions, rotations)
     recon_m = compute_measures(out.positions, out.rotations)
     return SpineOutcome(
@@ -145,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", default="default")
     parser.add_argument("--noise-mm", type=float, default=0.0, help="landmark noise SD, detector mm")
     parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
-    parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases (issue #5)")
+    parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases")
     parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
     args = parser.parse_args(argv)
     path = (args.data or default_data_dir()) / f"{args.split}.csv"

@@ -1,5 +1,5 @@
 """Clinical inputs of a payload as arrays: corners, pedicles, the tilt prior, and a spine placed
-without boundary conditions. Used by ``reconstruction.build_problem``; pure functions on arrays
+without boundary conditions. Used by ``reconstruction.prepare_inputs``; pure functions on arrays
 and validated payload models, nothing of JSON.
 
 Without boundary conditions (``place_without_boundary``) the T1 and L5 poses that the registration

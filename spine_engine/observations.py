@@ -23,7 +23,7 @@ smaller row). They give
   transverse axis is not explained by an axial rotation instead.
 
 Pedicle centres are fixed offsets in the vertebra's own frame (``PEDICLE_TABLE``); only their
-image column, the coordinate across the spine, is fitted (``registration.ViewData``).
+image column, the coordinate across the spine, is fitted (``fit.ViewData``).
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """The public entry point: a job payload in, a reconstruction result out.
 
-``register(payload)`` validates the payload, builds the generic rod for the chosen elastic
-profile, converts the landmarks to detector mm, fixes the weak perspective of each view,
-registers the rod to the landmarks (``registration.fit``) and reports strains and measures.
+``register(payload)`` validates the payload, turns it into arrays (``prepare_inputs``: landmarks
+in detector mm, each view's camera, the boundary and the clinical observations), registers the
+patient-scaled generic rod to the landmarks (``fit_patient_rod``, the solver of ``spine_engine.fit``)
+and reports strains and measures.
 """
 
 from __future__ import annotations
@@ -45,8 +46,8 @@ from .fit import (
     as_pose,
     initial_configuration,
     nearest_rotation,
+    solve,
 )
-from .fit import solve as solve_fit
 from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
 from .fit.uncertainty import Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
@@ -105,8 +106,9 @@ class ViewSetup:
 
 
 @dataclass(frozen=True)
-class Problem:
-    """A validated registration problem in arrays: what ``solve`` needs, nothing of JSON."""
+class RegistrationInputs:
+    """A validated payload in arrays, ready to register: views in detector mm with their cameras, the
+    boundary and its pose priors, the clinical observations; what ``fit_patient_rod`` needs, nothing of JSON."""
 
     views: list[ViewData]
     projections: dict[str, ViewProjection]
@@ -327,7 +329,9 @@ def _pose_priors(
     return tuple(priors)
 
 
-def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | None = None) -> Problem:
+def prepare_inputs(
+    model: JobPayload, profile: Profile, tilt_prior: TiltPrior | None = None
+) -> RegistrationInputs:
     """Arrays of a validated payload: views in detector mm with their cameras, the boundary mode and
     its pose priors, the initial end poses, and the clinical observations (corner tilts, pedicles,
     tilt prior; ``clinical``).
@@ -410,7 +414,7 @@ def build_problem(model: JobPayload, profile: Profile, tilt_prior: TiltPrior | N
     pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
     unreliable = [] if placement is None else list(placement.unreliable)
-    return Problem(
+    return RegistrationInputs(
         views=views,
         projections=projections,
         top=top,
@@ -446,7 +450,7 @@ def projected_arc_scale(rest_positions: np.ndarray, view: ViewData) -> float:
     return image_arc / rest_arc
 
 
-def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
+def patient_rest_model(profile: Profile, inputs: RegistrationInputs) -> RestModel:
     """The generic rod turned and scaled to the patient.
 
     It is turned rigidly so that its T1→L5 chord has the direction of the patient's (known from
@@ -454,40 +458,35 @@ def patient_rest_model(profile: Profile, problem: Problem) -> RestModel:
     landmarks' polyline. Strains do not depend on the turn; the scale sets the rest lengths.
     """
     generic = rest_shape_unit(profile)[1]
-    turn = rotation_between(generic[-1] - generic[0], problem.bottom[0] - problem.top[0])
+    turn = rotation_between(generic[-1] - generic[0], inputs.bottom[0] - inputs.top[0])
     turned = generic @ turn.T
-    scale = projected_arc_scale(turned, problem.views[0])
+    scale = projected_arc_scale(turned, inputs.views[0])
     scaled = rest_model(profile, length_scale=scale)
     return dataclasses.replace(
         scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)
     )
 
 
-def solve_solution(problem: Problem, profile: Profile) -> tuple[Solution, RestModel]:
-    """Register the patient-scaled generic rod to the landmarks of ``problem``: the solver's
+def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solution, RestModel]:
+    """Register the patient-scaled generic rod to the landmarks of ``inputs``: the solver's
     ``Solution`` (optimum, residuals, Jacobian and parameter layout for the Laplace approximation)."""
-    rest = patient_rest_model(profile, problem)
-    init_r, init_R = initial_configuration(rest.positions, rest.rotations, problem.views, problem.top, problem.bottom)
-    exact = problem.boundary == "given"
+    rest = patient_rest_model(profile, inputs)
+    init_r, init_R = initial_configuration(rest.positions, rest.rotations, inputs.views, inputs.top, inputs.bottom)
+    exact = inputs.boundary == "given"
     # κ: a landmark row √w_v (P r − p)/s₀ with w_v = w·(σ_ref/σ)² and noise SD σ has variance
     # w·σ_ref²/s₀² whatever σ, so E = κ(−log posterior) with κ = 2 w σ_ref²/s₀² (first view)
-    first = problem.views[0]
+    first = inputs.views[0]
     weight = profile.fit_weight_pa if first.name == "pa" else profile.fit_weight_lateral
     fit_problem = RegistrationProblem(
         rod_parameters(rest),
-        problem.views,
-        problem.top if exact else None,
-        problem.bottom if exact else None,
-        pose_priors=problem.pose_priors,
+        inputs.views,
+        inputs.top if exact else None,
+        inputs.bottom if exact else None,
+        pose_priors=inputs.pose_priors,
         energy_unit=2.0 * weight * LANDMARK_SD_MM_DEFAULT**2 / first.scale**2,
     )
-    return solve_fit(fit_problem, init_r, init_R), rest
+    return solve(fit_problem, init_r, init_R), rest
 
-
-def solve(problem: Problem, profile: Profile) -> tuple[FitOutput, RestModel]:
-    """Register the patient-scaled generic rod to the landmarks of ``problem``."""
-    solution, rest = solve_solution(problem, profile)
-    return solution.output, rest
 
 
 _VERTEBRA_LIST = TypeAdapter(list[VertebraResult])
@@ -546,10 +545,10 @@ def _vertebrae(
     )
 
 
-def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProjection | None:
+def _projection_report(inputs: RegistrationInputs, out: FitOutput, name: str) -> ViewProjection | None:
     """The view's projection at the optimum: weak perspective s, T, ψ; perspective SID/SOD, c, ψ."""
-    given = problem.projections.get(name)
-    view = next((v for v in problem.views if v.name == name), None)
+    given = inputs.projections.get(name)
+    view = next((v for v in inputs.views if v.name == name), None)
     if given is None or view is None or view.camera is None or name not in out.cameras:
         return given
     values = out.cameras[name]
@@ -562,20 +561,20 @@ def _projection_report(problem: Problem, out: FitOutput, name: str) -> ViewProje
     )
 
 
-def _sagittal_assumptions(problem: Problem) -> list[Assumption]:
+def _sagittal_assumptions(inputs: RegistrationInputs) -> list[Assumption]:
     """Without a lateral film (no boundary) the lean, the spin and the sagittal shape come from priors."""
-    if problem.boundary != "estimated" or "lateral" in problem.setups:
+    if inputs.boundary != "estimated" or "lateral" in inputs.setups:
         return []
     return [_assumption("standing_orientation", None), _assumption("population_sagittal_shape", None)]
 
 
 def _fit_report(
-    problem: Problem, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
+    inputs: RegistrationInputs, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
 ) -> FitReport:
     residuals = _RESIDUAL_LIST.validate_python(
         [
             {"view": view.name, "level": LEVELS[idx], "residual_mm": res}
-            for view in problem.views
+            for view in inputs.views
             for idx, res in zip(view.indices.tolist(), out.residuals_mm[view.name].tolist(), strict=True)
         ]
     )
@@ -588,30 +587,30 @@ def _fit_report(
         iterations=out.iterations,
         converged=out.converged,
         runtime_ms=runtime_ms,
-        pa=_projection_report(problem, out, "pa"),
-        lateral=_projection_report(problem, out, "lateral"),
-        boundary=problem.boundary,  # type: ignore[arg-type]
-        unreliable=list(problem.unreliable),
-        tilt_prior=problem.tilt_prior,
+        pa=_projection_report(inputs, out, "pa"),
+        lateral=_projection_report(inputs, out, "lateral"),
+        boundary=inputs.boundary,  # type: ignore[arg-type]
+        unreliable=list(inputs.unreliable),
+        tilt_prior=inputs.tilt_prior,
         tilt_residuals=[
             TiltResidual(view=view.name, level=LEVELS[idx], source=src, residual_deg=float(res))
-            for view in problem.views
+            for view in inputs.views
             if view.tilt_indices is not None
             for idx, src, res in zip(
-                view.tilt_indices, problem.tilt_sources[view.name], out.tilt_residuals_deg[view.name], strict=True
+                view.tilt_indices, inputs.tilt_sources[view.name], out.tilt_residuals_deg[view.name], strict=True
             )
         ],
         pedicle_residuals=[
             PedicleResidual(view="pa", level=LEVELS[idx], side=src, residual_mm=float(res))
-            for view in problem.views
+            for view in inputs.views
             if view.offset_indices is not None
             for idx, src, res in zip(
-                view.offset_indices, problem.offset_sources[view.name], out.offset_residuals_mm[view.name], strict=True
+                view.offset_indices, inputs.offset_sources[view.name], out.offset_residuals_mm[view.name], strict=True
             )
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
-        assumed=[a for setup in problem.setups.values() for a in setup.assumed] + _sagittal_assumptions(problem),
+        assumed=[a for setup in inputs.setups.values() for a in setup.assumed] + _sagittal_assumptions(inputs),
     )
 
 
@@ -632,7 +631,7 @@ def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
 
 def register_model(model: JobPayload, tilt_prior: TiltPrior | None = None) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
-    ``tilt_prior``: as ``build_problem``'s (None: the shipped prior).
+    ``tilt_prior``: as ``prepare_inputs``'s (None: the shipped prior).
 
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
@@ -645,8 +644,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     start = time.perf_counter()
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            problem = build_problem(model, profile, tilt_prior)
-            solution, rest = solve_solution(problem, profile)
+            inputs = prepare_inputs(model, profile, tilt_prior)
+            solution, rest = fit_patient_rod(inputs, profile)
             out = solution.output
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError) as exc:
         # A degenerate geometry (e.g. landmarks that no spine can have) breaks the numerics.
@@ -663,8 +662,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     measures = compute_measures(
         out.positions,
         out.rotations,
-        observed_tilt_deg=problem.observed_tilt_deg,
-        observed_endplate_tilt_deg=problem.observed_endplate_tilt_deg,
+        observed_tilt_deg=inputs.observed_tilt_deg,
+        observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg,
     )
     uncertainty: Uncertainty | None
     try:
@@ -674,13 +673,13 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
     if uncertainty is not None:
         measures = _measures_with_sds(measures, uncertainty)
-        if "kyphosis" in problem.unreliable:
+        if "kyphosis" in inputs.unreliable:
             measures = _with_prior_floor(measures, profile)
-        problem = dataclasses.replace(problem, unreliable=_unreliable_by_sd(measures, profile, problem.unreliable))
+        inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
     return RegistrationResult(
-        vertebrae=_vertebrae(out, rest, problem.observed_tilt_deg, uncertainty),
+        vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty),
         measures=measures,
-        fit=_fit_report(problem, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
+        fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
 

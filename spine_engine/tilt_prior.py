@@ -17,7 +17,7 @@ mirror-symmetric (a left curve is a mirrored right one). The coefficients are co
 squares on the ``training`` split of AASCE 2019 only, possibly blended toward the chord-normal
 tilt (``toward_chord_normal``), written by ``spine bench aasce --calibrate``
 (``spine_engine/priors/tilt_aasce2019.json``, with its provenance). In the registration each
-predicted tilt is a soft tilt observation (``registration.ViewData``), weighted
+predicted tilt is a soft tilt observation (``fit.ViewData``), weighted
 ``weight_fraction`` × the weight of a tilt from corners.
 """
 
@@ -39,9 +39,9 @@ FloatArray = npt.NDArray[np.float64]
 PRIORS_DIR = Path(__file__).resolve().parent / "priors"
 DEFAULT_PRIOR = "tilt_aasce2019"
 WINDOW: tuple[int, ...] = (-2, -1, 0, 1)
-"""Default window: chords used for vertebra i, relative to chord i (which joins vertebra i to i + 1).
-The prior shipped until 2026-12-01 used it; the shipped prior's own window (since 2026-12-02
-−3..+2, "shifted") is in its JSON."""
+"""Default window of ``chord_windows`` and ``fit_coefficients``: chords used for vertebra i, relative
+to chord i (which joins vertebra i to i + 1). The shipped prior's own window (−3..+2, "shifted") is
+in its JSON."""
 
 
 @dataclass(frozen=True)

@@ -32,13 +32,12 @@ from services.api.app import create_app
 from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
-from services.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
+from spine_engine.levels import LEVELS
+from tools.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
 from tools.processes import stop_processes
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
 REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
-LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
-          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
 FINAL = {"succeeded", "failed", "cancelled"}
 
@@ -60,16 +59,23 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         )
 
 
-def spine_payload(curve_mm: float = 15.0, length_mm: float = 420.0) -> dict[str, Any]:
-    """A plausible PA payload: 17 endplate midpoints on a C-curve, T1 and L5 given (LPS, mm)."""
+def spine_payload(
+    curve_mm: float = 15.0, length_mm: float = 420.0, *, spacing_mm: float | None = None
+) -> dict[str, Any]:
+    """A plausible PA payload: 17 endplate midpoints on a C-curve (image mm, or px of ``spacing_mm``
+    mm when it is given), T1 and L5 given (LPS, mm)."""
     landmarks = []
     for i, level in enumerate(LEVELS):
         t = i / (len(LEVELS) - 1)
-        x = curve_mm * math.sin(math.pi * t)
-        z = -length_mm * t
-        landmarks.append({"level": level, "point": [round(100.0 + x, 3), round(50.0 - z, 3)]})
+        col, row = 100.0 + curve_mm * math.sin(math.pi * t), 50.0 + length_mm * t
+        if spacing_mm:
+            col, row = col / spacing_mm, row / spacing_mm
+        landmarks.append({"level": level, "point": [round(col, 3), round(row, 3)]})
+    pa: dict[str, Any] = {"landmarks": landmarks}
+    if spacing_mm:
+        pa["units"] = "px"
     payload = {
-        "pa": {"landmarks": landmarks},
+        "pa": pa,
         "boundary": {
             "T1": {"position": [0.0, 0.0, 0.0], "directors": IDENTITY_LPS},
             "L5": {"position": [0.0, 0.0, -length_mm], "directors": IDENTITY_LPS},
@@ -255,16 +261,29 @@ def service_env(data_dir: Path, **extra: str) -> dict[str, str]:
     }
 
 
-@pytest.fixture(scope="session")
-def embedded_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    """The embedded default: SQLite, kombu's SQLAlchemy broker on SQLite, a worker subprocess."""
-    data_dir = tmp_path_factory.mktemp("embedded")
-    service = Service("embedded", service_env(data_dir), data_dir)
+@contextmanager
+def spawned_service(
+    name: str, data_dir: Path, *, postgres_url: str | None = None, redis_url: str | None = None, **env: str
+) -> Iterator[Service]:
+    """A ``Service`` on ``service_env(data_dir, **env)`` with its worker subprocess started: embedded
+    (SQLite, kombu's SQLAlchemy broker) unless ``postgres_url`` and ``redis_url`` are given; on exit
+    the worker is stopped and the test queue's Redis keys are deleted."""
+    backends = {"DATABASE_URL": postgres_url, "CELERY_BROKER_URL": redis_url}
+    service = Service(name, service_env(data_dir, **{k: v for k, v in backends.items() if v}, **env), data_dir)
     service.start_worker()
     try:
         yield service
     finally:
         service.stop_worker()
+        if redis_url:
+            _purge_queue(redis_url, service.env["SPINE_QUEUE_NAME"])
+
+
+@pytest.fixture(scope="session")
+def embedded_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """The embedded default: SQLite, kombu's SQLAlchemy broker on SQLite, a worker subprocess."""
+    with spawned_service("embedded", tmp_path_factory.mktemp("embedded")) as service:
+        yield service
 
 
 @pytest.fixture(scope="session")
@@ -273,14 +292,8 @@ def distributed_service(
 ) -> Iterator[Service]:
     """Distributed mode: PostgreSQL, Redis broker, a worker subprocess."""
     data_dir = tmp_path_factory.mktemp("distributed")
-    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url)
-    service = Service("distributed", env, data_dir)
-    service.start_worker()
-    try:
+    with spawned_service("distributed", data_dir, postgres_url=postgres_url, redis_url=redis_url) as service:
         yield service
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
 
 
 def _purge_queue(url: str, queue: str) -> None:

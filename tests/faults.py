@@ -150,7 +150,6 @@ def reliability_env(workdir: Path, database_url: str, broker_url: str, **extra: 
         "SPINE_RECONCILE_INTERVAL_S": "1",
         "SPINE_QUEUED_TIMEOUT_S": "3",
         "SPINE_FIT_TIME_LIMIT_S": "5",
-        "SPINE_RUNNING_GRACE_S": "1",
         "SPINE_MAX_ATTEMPTS": "3",
         "SPINE_MAX_QUEUED_PER_CLIENT": "0",
         "SPINE_API_KEY_CACHE_S": "2",

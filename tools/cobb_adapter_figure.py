@@ -1,6 +1,6 @@
 """The Cobb lines of a job's SR as OHIF's Cornerstone adapters read them, drawn for docs/dicom.md.
 
-A synthetic PA film (``services.dicom.synthetic``, 0.15 mm square pixels) with 17 endplate midpoints on
+A synthetic PA film (``tools.dicom.synthetic``, 0.15 mm square pixels) with 17 endplate midpoints on
 an S-curve (px, no boundary: the clinic's path), run by the engine; its SR (``services.dicom.sr``) is
 read in Node by ``@cornerstonejs/adapters`` (``tools.sr_adapter``); the figure shows the landmarks and
 the four points of each CobbAngle annotation the adapter returns (its image coordinates), labelled
@@ -20,11 +20,11 @@ from typing import Any
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from services.dicom import synthetic
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.levels import LEVELS
+from tools.dicom import synthetic
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
 SPACING = 0.15

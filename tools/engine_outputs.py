@@ -1,6 +1,6 @@
 """Same results, bit for bit? ``register()``'s outputs over a fixed set of payloads, written to a
-file and compared with another run's (docs/performance.md: the engine's CPU cuts of 2026-12-02 kept
-every output float identical).
+file and compared with another run's (docs/performance.md: the engine's CPU cuts kept every output
+float identical).
 
     python -m tools.engine_outputs dump before.json          # on the old code (an export first on PYTHONPATH)
     python -m tools.engine_outputs dump after.json

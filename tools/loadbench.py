@@ -421,7 +421,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     report: dict[str, Any] = {"url": args.url}
     headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
     # aiohttp, not httpx: the generator shares the service's cores, and httpx took about 3 times its
-    # CPU per POST (4.3-4.5 against 1.2-1.5 ms here, docs/performance.md, 2026-12-02).
+    # CPU per POST (4.3-4.5 against 1.2-1.5 ms here, docs/performance.md).
     # Idle connections closed after 2 s, before uvicorn closes its side (timeout_keep_alive, 5 s): aiohttp
     # does not send a POST again on a kept-alive connection the server has closed meanwhile
     # (ServerDisconnectedError; 100-800 jobs of 3,000 were lost that way before).

@@ -118,7 +118,7 @@ def admit(body: Any, settings: Settings, session: Session, owner: str | None,
     ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
     if dicom is not None and isinstance(body, dict):
         body = engine_payload(apply_reads(body, dicom))
-    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb_url else (body, ())
+    checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb is not None else (body, ())
     model = validate_payload(checked, unscaled_views=stood_in)
     check_magnitudes(model)
     check_callback(model.callback_url, settings, session, owner)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -18,6 +19,23 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from services.core.webhook_policy import decode_secret, parse_allow_list
 
 _ABSOLUTE_URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:\S+$")
+
+
+@dataclass(frozen=True)
+class DicomwebConfig:
+    """Where the PACS is and how to authenticate: what ``services.dicom.dicomweb.Pacs`` connects to
+    (``Settings.dicomweb`` from the SPINE_DICOMWEB_* settings, or given directly)."""
+
+    url: str
+    """DICOMweb base URL, e.g. Orthanc's ``http://host:8042/dicom-web``."""
+    username: str | None = None
+    password: str | None = None
+    token: str | None = None
+    """Bearer token (sent as ``Authorization: Bearer``); wins over username/password when both are set."""
+    timeout_s: float = 10.0
+    """Connect and read timeout of one DICOMweb request, s: metadata of one instance is a few kB, and a
+    STOW of an SR and a figure (≈ 0.1–3 MB) takes well under a second on a hospital network; 10 s turns
+    a hung PACS into a retry without holding a worker long."""
 
 
 class Settings(BaseSettings):
@@ -61,12 +79,6 @@ class Settings(BaseSettings):
         gt=0,
         description="A running job's lease: the worker renews it every third of this while the fit runs; a job "
         "whose lease expired (its worker died) is taken back by the reconciler, fenced by attempt.",
-    )
-    running_grace_s: float = Field(
-        30.0,
-        ge=0,
-        description="A job running without a lease (claimed before leases existed) this long past the fit time "
-        "limit is taken back by the reconciler (its worker is presumed dead).",
     )
     max_attempts: int = Field(
         3, ge=1, description="Runs a job may start; a job stranded in running after that many fails."
@@ -239,6 +251,26 @@ class Settings(BaseSettings):
     def dicom_queue(self) -> str:
         """The queue of STOW-RS pushes of results (``<SPINE_QUEUE_NAME>.dicom``)."""
         return f"{self.queue_name}.dicom"
+
+    @property
+    def dicomweb(self) -> DicomwebConfig | None:
+        """The PACS (``SPINE_DICOMWEB_URL`` and its credentials), or None without ``SPINE_DICOMWEB_URL``:
+        the one place that decides whether the service has a PACS."""
+        if not self.dicomweb_url:
+            return None
+        return DicomwebConfig(
+            url=self.dicomweb_url,
+            username=self.dicomweb_username,
+            password=self.dicomweb_password.get_secret_value() if self.dicomweb_password else None,
+            token=self.dicomweb_token.get_secret_value() if self.dicomweb_token else None,
+            timeout_s=self.dicomweb_timeout_s,
+        )
+
+    @property
+    def stores_dicom_results(self) -> bool:
+        """Whether succeeded jobs' SR and figure are stored in the PACS by STOW-RS
+        (``SPINE_DICOMWEB_STORE_RESULTS`` with a PACS)."""
+        return self.dicomweb_store_results and bool(self.dicomweb_url)
 
     @property
     def starts_worker(self) -> bool:

@@ -1,12 +1,17 @@
-"""The job queue: the Celery app's configuration and the publishing side used by the API.
+"""The job queue: the Celery app's configuration, the names of the tasks, and the publishing side
+used by the API, the worker and the reconciler (one publisher per process: ``publisher``).
 
-Messages carry only a job id; the database holds the job. Celery's result backend is not used.
+Messages carry only a job id (and an attempt number); the database holds the job. Celery's result
+backend is not used. Queues: ``SPINE_QUEUE_NAME`` (runs, the reconciler), ``<SPINE_QUEUE_NAME>.webhooks``
+(``DELIVER_WEBHOOK``) and ``<SPINE_QUEUE_NAME>.dicom`` (``STORE_DICOM``).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import sqlite3
+import threading
 import uuid
 from collections.abc import Iterable, Iterator
 from contextlib import closing, contextmanager
@@ -22,6 +27,10 @@ log = logging.getLogger(__name__)
 
 RUN_JOB = "spine.run_job"
 RECONCILE = "spine.reconcile"
+DELIVER_WEBHOOK = "spine.deliver_webhook"
+"""args: job id, final status, attempt (1, 2, …)."""
+STORE_DICOM = "spine.dicom_store"
+"""args: job id, attempt (1, 2, …)."""
 REDIS_TRANSPORT = "services.core.jobqueue:RedisTransport"
 
 
@@ -30,7 +39,7 @@ class _SharedClientChannel(kombu_redis.Channel):
     kombu builds a new one for every call that is given none: the QoS bookkeeping of each delivered
     message (its entry in the unacked hash, then its ack) and each published message. Building a
     ``redis.Redis`` rebuilds its table of ~170 response callbacks (redis-py issue #3624): about a
-    quarter of the Celery main process's CPU per task here (docs/performance.md, 2026-12-02). Every
+    quarter of the Celery main process's CPU per task here (docs/performance.md). Every
     command still takes a connection from the same pool, so nothing changes on the wire; a new pool
     (after a reconnection) gets a new client."""
 
@@ -91,6 +100,41 @@ def make_celery(settings: Settings) -> Celery:
         beat_scheduler="celery.beat:Scheduler",
     )
     return app
+
+
+_PUBLISHERS: dict[tuple[str, int], Celery] = {}
+_LOCK = threading.Lock()
+
+
+def publisher(settings: Settings) -> Celery:
+    """The process's Celery app for publishing to the broker of ``settings``: built once per process
+    (a forked child builds its own, so that no broker connection is shared across a fork)."""
+    key = (settings.celery_broker_url, os.getpid())
+    with _LOCK:
+        if key not in _PUBLISHERS:
+            _PUBLISHERS[key] = make_celery(settings)
+        return _PUBLISHERS[key]
+
+
+def publish_webhook(
+    settings: Settings, job_id: uuid.UUID | str, status: str, attempt: int, *, countdown: float = 0.0,
+    celery: Celery | None = None,
+) -> None:  # fmt: skip
+    """Publish attempt ``attempt`` of the webhook of a job that ended in ``status``, after ``countdown`` s,
+    with ``celery`` (default: the process's ``publisher``). Raises when the broker cannot take it."""
+    app = celery or publisher(settings)
+    app.send_task(DELIVER_WEBHOOK, args=[str(job_id), status, attempt], countdown=countdown or None,
+                  queue=settings.webhook_queue)  # fmt: skip
+
+
+def publish_dicom_store(
+    settings: Settings, job_id: uuid.UUID | str, attempt: int, *, countdown: float = 0.0,
+    celery: Celery | None = None,
+) -> None:  # fmt: skip
+    """Publish attempt ``attempt`` of the STOW-RS of a succeeded job's results, after ``countdown`` s,
+    with ``celery`` (default: the process's ``publisher``). Raises when the broker cannot take it."""
+    app = celery or publisher(settings)
+    app.send_task(STORE_DICOM, args=[str(job_id), attempt], countdown=countdown or None, queue=settings.dicom_queue)
 
 
 class _BrokerConnection(sqlite3.Connection):

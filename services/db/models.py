@@ -195,7 +195,8 @@ class JobMeasures(Base):
 
 
 class VertebraStrain(Base):
-    """Pose angles and Cosserat strains of one vertebra of a succeeded job (u rad/mm, v 1)."""
+    """Pose angles and Cosserat strains of one vertebra of a succeeded job (u rad/mm, v 1); the bending
+    angles u1·Δs and u2·Δs (degrees) named by plane, as ``VertebraResult``'s."""
 
     __tablename__ = "vertebra_strains"
 
@@ -207,8 +208,8 @@ class VertebraStrain(Base):
     v1: Mapped[float | None] = mapped_column(Float, nullable=True)
     v2: Mapped[float | None] = mapped_column(Float, nullable=True)
     v3: Mapped[float | None] = mapped_column(Float, nullable=True)
-    pa_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
-    lateral_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    sagittal_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    frontal_bending_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     twist_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     axial_rotation_deg: Mapped[float] = mapped_column(Float, nullable=False)
 

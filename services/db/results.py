@@ -40,8 +40,8 @@ def strain_rows(result: RegistrationResult) -> list[dict[str, Any]]:
                 "level": v.level,
                 "u1": u[0], "u2": u[1], "u3": u[2],
                 "v1": s[0], "v2": s[1], "v3": s[2],
-                "pa_bending_deg": v.sagittal_bending_deg,
-                "lateral_bending_deg": v.frontal_bending_deg,
+                "sagittal_bending_deg": v.sagittal_bending_deg,
+                "frontal_bending_deg": v.frontal_bending_deg,
                 "twist_deg": v.twist_deg,
                 "axial_rotation_deg": v.axial_rotation_deg,
             }

@@ -22,7 +22,6 @@ from sqlalchemy import (
     Connection,
     CursorResult,
     Table,
-    and_,
     bindparam,
     column,
     func,
@@ -239,7 +238,6 @@ def reconcile(
     session: Session,
     *,
     queued_timeout: timedelta,
-    running_timeout: timedelta,
     max_attempts: int,
     lost_problem: dict[str, Any],
     batch: int = 1000,
@@ -248,8 +246,7 @@ def reconcile(
     """Find jobs a lost message or a dead worker stranded, and hand them back or fail them.
 
     A running job is stranded when its lease expired (its worker stopped renewing it:
-    ``lease_expires_at < now``), or, for a run that holds no lease (claimed before leases
-    existed), when it started more than ``running_timeout`` ago. A queued job is stranded when
+    ``lease_expires_at < now``; every claim sets a lease). A queued job is stranded when
     it was last enqueued more than ``queued_timeout`` ago or is marked unpublished; with
     ``republish_queued`` set, only that many of the oldest such jobs are taken (the broker is
     missing about that many messages), and ``queued_timeout`` zero takes every queued job
@@ -258,12 +255,10 @@ def reconcile(
     now = utcnow()
     requeue: list[uuid.UUID] = []
     failed: list[uuid.UUID] = []
-    expired = or_(
-        Job.lease_expires_at < now,
-        and_(Job.lease_expires_at.is_(None), Job.started_at < now - running_timeout),
-    )
     stale_running = session.execute(
-        select(Job.id, Job.attempts).where(Job.status == JobStatus.running.value, expired).limit(batch)
+        select(Job.id, Job.attempts)
+        .where(Job.status == JobStatus.running.value, Job.lease_expires_at < now)
+        .limit(batch)
     ).all()
     for job_id, attempts in stale_running:
         guard = (Job.id == job_id, Job.status == JobStatus.running.value, Job.attempts == attempts)

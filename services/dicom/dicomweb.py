@@ -22,14 +22,10 @@ from pydicom.datadict import tag_for_keyword
 from pydicom.dataset import Dataset
 from pydicom.uid import ExplicitVRLittleEndian
 
+from services.core.config import DicomwebConfig
 from spine_client.dicom.header import RadiographHeader, check_uid, read_header
 
 from .errors import InstanceNotFound, PacsUnavailable, StoreRefused, StudyNotFound, TransferSyntaxUnavailable
-
-DEFAULT_TIMEOUT_S = 10.0
-"""Connect and read timeout of one DICOMweb request, s: metadata of one instance is a few kB, and a
-STOW of an SR and a figure (≈ 0.1–3 MB) takes well under a second on a hospital network; 10 s turns a
-hung PACS into a retry without holding a worker long."""
 
 SERIES_INSTANCE_UID = "0020000E"
 SOP_INSTANCE_UID = "00080018"
@@ -91,19 +87,6 @@ class StudyImage(BaseModel):
         series = self.series_number if self.series_number is not None else big
         instance = self.instance_number if self.instance_number is not None else big
         return (series, self.series_instance_uid, instance, self.sop_instance_uid)
-
-
-@dataclass(frozen=True)
-class DicomwebConfig:
-    """Where the PACS is and how to authenticate (the service's SPINE_DICOMWEB_* settings)."""
-
-    url: str
-    """DICOMweb base URL, e.g. Orthanc's ``http://host:8042/dicom-web``."""
-    username: str | None = None
-    password: str | None = None
-    token: str | None = None
-    """Bearer token (sent as ``Authorization: Bearer``); wins over username/password when both are set."""
-    timeout_s: float = DEFAULT_TIMEOUT_S
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
 """A finished job → its SR and its figure's Secondary Capture, as Part 10 bytes (what
-``GET /v1/jobs/{id}/sr.dcm`` and ``/figure.dcm`` return and what STOW-RS sends).
+``GET /v1/jobs/{id}/sr.dcm`` and ``/figure.dcm`` return), and both stored in the PACS in one STOW-RS
+request (``store_job_results``).
 
 Both are built from the job's forms (``services.db.job_forms.JobForms``: the payload it ran with,
 its DICOM provenance, its result). The study and patient come from the effective payload's ``study``
@@ -20,9 +21,11 @@ from typing import Any
 
 from pydicom.dataset import Dataset
 
+from services.core.config import DicomwebConfig
 from services.db.job_forms import JobForms
 from spine_engine.figures import render_figure
 
+from .dicomweb import Pacs
 from .sc import build_sc
 from .sr import SourceImage, StudyIdentity, build_sr
 
@@ -77,3 +80,16 @@ def job_figure_sc_dataset(job_id: uuid.UUID | str, forms: JobForms, finished_at:
 def job_figure_sc(job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None) -> bytes:
     """The job's figure as a Secondary Capture, Part 10 bytes."""
     return part10(job_figure_sc_dataset(job_id, forms, finished_at))
+
+
+def store_job_results(
+    config: DicomwebConfig, job_id: uuid.UUID | str, forms: JobForms, finished_at: datetime | None = None
+) -> list[str]:
+    """Store the job's SR and figure (Secondary Capture) in the PACS in one STOW-RS request (PS3.18
+    §10.5); the SOP Instance UIDs it stored. Their UIDs derive from the job, so storing again stores the
+    same instances (the PACS replaces or ignores them). Raises ``DicomwebError`` when the PACS is
+    unavailable or refuses, another ``DicomError`` when the result cannot be put in DICOM."""
+    sr = job_sr_dataset(job_id, forms, finished_at)
+    sc = job_figure_sc_dataset(job_id, forms, finished_at)
+    with Pacs(config) as pacs:
+        return list(pacs.store([sr, sc]).stored)

@@ -85,7 +85,7 @@ def _private(value: str, meaning: str) -> CodedConcept:
     return CodedConcept(value, PRIVATE_SCHEME, meaning, PRIVATE_SCHEME_VERSION)
 
 
-class P:
+class PrivateCodes:
     """The private scheme's concepts (code value SH, at most 16 characters; meaning LO, at most 64)."""
 
     KYPHOSIS_T4_T12 = _private("KYPH-T4-T12", "Thoracic kyphosis T4-T12")
@@ -205,7 +205,8 @@ class _Builder:
             for item in properties:  # highdicom writes (1, UCUM, "no units"); an SD has the value's unit
                 if item.ValueType == "NUM":
                     item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence = [unit]
-        method = P.MODEL_BASED if quantity is not None and quantity in self.unreliable else P.MEASURED
+        model_based = quantity is not None and quantity in self.unreliable
+        method = PrivateCodes.MODEL_BASED if model_based else PrivateCodes.MEASURED
         return hd.sr.Measurement(
             name=name, value=float(value), unit=unit, method=method, properties=properties,
             finding_sites=list(sites) or None,
@@ -259,7 +260,7 @@ def _cobb_lines(
                                           referenced_sop_instance_uid=image.sop_instance_uid)  # fmt: skip
 
     lines = hd.sr.ScoordContentItem(
-        name=P.COBB_LINES, graphic_type=hd.sr.GraphicTypeValues.POLYLINE, graphic_data=points,
+        name=PrivateCodes.COBB_LINES, graphic_type=hd.sr.GraphicTypeValues.POLYLINE, graphic_data=points,
         relationship_type=hd.sr.RelationshipTypeValues.INFERRED_FROM,
     )  # fmt: skip
     lines.ContentSequence = hd.sr.ContentSequence([source()])
@@ -298,14 +299,14 @@ def _landmark_regions(builder: _Builder, payload: Mapping[str, Any], view: str, 
         level = lm["level"]
         shapes: list[tuple[CodedConcept, str, np.ndarray]] = []
         if lm.get("point") is not None:
-            shapes.append((P.ENDPLATE_MIDPOINT, "POINT", px([lm["point"]])))
+            shapes.append((PrivateCodes.ENDPLATE_MIDPOINT, "POINT", px([lm["point"]])))
         if lm.get("corners") is not None:
             tl, tr, bl, br = lm["corners"]
-            shapes.append((P.BODY_CORNERS, "POLYLINE", px([tl, tr, br, bl, tl])))
+            shapes.append((PrivateCodes.BODY_CORNERS, "POLYLINE", px([tl, tr, br, bl, tl])))
         if lm.get("pedicles") is not None:
             left, right = lm["pedicles"]
-            shapes.append((P.PEDICLE_LEFT, "POINT", px([left])))
-            shapes.append((P.PEDICLE_RIGHT, "POINT", px([right])))
+            shapes.append((PrivateCodes.PEDICLE_LEFT, "POINT", px([left])))
+            shapes.append((PrivateCodes.PEDICLE_RIGHT, "POINT", px([right])))
         for kind, graphic_type, data in shapes:
             label = f"{view} {level} {kind.value}"
             builder.groups.append(hd.sr.PlanarROIMeasurementsAndQualitativeEvaluations(
@@ -353,34 +354,36 @@ def build_sr(
             f"Cobb curve {i} {c['upper']}-{c['lower']}",
             [
                 cobb,
-                b.measurement(P.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"), quantity="axial_rotation",
-                              sites=[vertebra(c["apex"], APICAL)]),
-                b.measurement(P.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
+                b.measurement(PrivateCodes.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"),
+                              quantity="axial_rotation", sites=[vertebra(c["apex"], APICAL)]),
+                b.measurement(PrivateCodes.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
                               quantity="plane_of_max_curvature"),
-                b.measurement(P.MAX_CURVATURE, c.get("max_curvature_deg"), quantity="plane_of_max_curvature"),
-                b.measurement(P.ENDPLATE_ANGLE, c.get("endplate_angle_deg")),
+                b.measurement(PrivateCodes.MAX_CURVATURE, c.get("max_curvature_deg"),
+                              quantity="plane_of_max_curvature"),
+                b.measurement(PrivateCodes.ENDPLATE_ANGLE, c.get("endplate_angle_deg")),
             ],
             sites=sites,
             evaluations=[
-                hd.sr.QualitativeEvaluation(P.CONVEXITY,
+                hd.sr.QualitativeEvaluation(PrivateCodes.CONVEXITY,
                                             codes.SCT.Left if c["convexity"] == "left" else codes.SCT.Right),
-                hd.sr.QualitativeEvaluation(P.MAJOR_CURVE, codes.SCT.Yes if c.get("major") else codes.SCT.No),
+                hd.sr.QualitativeEvaluation(PrivateCodes.MAJOR_CURVE,
+                                            codes.SCT.Yes if c.get("major") else codes.SCT.No),
             ],
             lines=_cobb_lines(result, payload, c, images.get("pa"), cobb),
         )  # fmt: skip
 
     fit = result.get("fit") or {}
     b.group("Sagittal measures", [
-        b.measurement(P.KYPHOSIS_T4_T12, measures.get("thoracic_kyphosis_t4_t12_deg"), quantity="kyphosis",
+        b.measurement(PrivateCodes.KYPHOSIS_T4_T12, measures.get("thoracic_kyphosis_t4_t12_deg"), quantity="kyphosis",
                       sd=measures.get("thoracic_kyphosis_t4_t12_sd_deg"),
                       sites=[vertebra("T4", SUPERIOR), vertebra("T12", INFERIOR)]),
-        b.measurement(P.KYPHOSIS_T5_T12, measures.get("thoracic_kyphosis_t5_t12_deg"), quantity="kyphosis",
+        b.measurement(PrivateCodes.KYPHOSIS_T5_T12, measures.get("thoracic_kyphosis_t5_t12_deg"), quantity="kyphosis",
                       sd=measures.get("thoracic_kyphosis_t5_t12_sd_deg"),
                       sites=[vertebra("T5", SUPERIOR), vertebra("T12", INFERIOR)]),
-        b.measurement(P.LORDOSIS_L1_L5, measures.get("lumbar_lordosis_l1_l5_deg"), quantity="lordosis",
+        b.measurement(PrivateCodes.LORDOSIS_L1_L5, measures.get("lumbar_lordosis_l1_l5_deg"), quantity="lordosis",
                       sd=measures.get("lumbar_lordosis_l1_l5_sd_deg"),
                       sites=[vertebra("L1", SUPERIOR), vertebra("L5", INFERIOR)]),
-        b.measurement(P.REGISTRATION_ERROR, fit.get("mean_registration_error_mm"), unit=MILLIMETRE),
+        b.measurement(PrivateCodes.REGISTRATION_ERROR, fit.get("mean_registration_error_mm"), unit=MILLIMETRE),
     ])  # fmt: skip
 
     for v in result.get("vertebrae") or []:
@@ -388,11 +391,11 @@ def build_sr(
         sagittal = v.get("sagittal_bending_deg", v.get("pa_bending_deg"))
         frontal = v.get("frontal_bending_deg", v.get("lateral_bending_deg"))
         b.group(f"Vertebra {level}", [
-            b.measurement(P.AXIAL_ROTATION, v.get("axial_rotation_deg"), quantity="axial_rotation",
+            b.measurement(PrivateCodes.AXIAL_ROTATION, v.get("axial_rotation_deg"), quantity="axial_rotation",
                           sd=v.get("axial_rotation_sd_deg")),
-            b.measurement(P.SAGITTAL_BENDING, sagittal, quantity="kyphosis"),
-            b.measurement(P.FRONTAL_BENDING, frontal),
-            b.measurement(P.TWIST, v.get("twist_deg"), quantity="twist"),
+            b.measurement(PrivateCodes.SAGITTAL_BENDING, sagittal, quantity="kyphosis"),
+            b.measurement(PrivateCodes.FRONTAL_BENDING, frontal),
+            b.measurement(PrivateCodes.TWIST, v.get("twist_deg"), quantity="twist"),
         ], sites=[vertebra(level)])  # fmt: skip
 
     for view, image in images.items():

@@ -1,9 +1,10 @@
 """The worker's Celery app (``celery -A services.worker.celery_app``), built from the settings.
 
-It registers the job task and the reconciler, which Celery beat (embedded in the worker with
-``-B``) runs every ``SPINE_RECONCILE_INTERVAL_S``. Celery's own lines about the reconciler's runs
-(beat sending it, the worker receiving it, its success) are DEBUG: at INFO they would be three lines
-every 2 s that bury the rest; the reconciler logs at INFO itself when it acted (``tasks.reconcile_once``).
+It registers the job task, the webhook delivery and the STOW-RS push of results, and the
+reconciler, which Celery beat (embedded in the worker with ``-B``) runs every
+``SPINE_RECONCILE_INTERVAL_S``. Celery's own lines about the reconciler's runs (beat sending it, the
+worker receiving it, its success) are DEBUG: at INFO they would be three lines every 2 s that bury the
+rest; the reconciler logs at INFO itself when it acted (``tasks.reconcile_once``).
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from celery.signals import worker_init, worker_process_init
 from services.core.config import get_settings
 from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
-from services.dicom.store import register_dicom_tasks
-from services.webhooks.delivery import register_webhook_tasks
 from services.worker import tasks
+from services.worker.dicom_tasks import register_dicom_tasks
+from services.worker.webhook_tasks import register_webhook_tasks
 from spine_engine.warmup import warm_up
 
 log = logging.getLogger(__name__)

@@ -29,18 +29,17 @@ from celery.exceptions import SoftTimeLimitExceeded
 from sqlalchemy.orm import Session
 
 import spine_engine
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_depth
 from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, store_retry
-from services.db import runs, stats
+from services.db import deliveries, runs, stats
 from services.db.engine import session_scope, worker_connection
 from services.db.job_forms import apply_reads, engine_payload
-from services.dicom import store as dicom_store
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.dicomweb import Pacs
 from services.dicom.errors import PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
-from services.webhooks import delivery as webhooks
+from services.worker import dicom_tasks, webhook_tasks
 from spine_client.dicom.errors import DicomError
 from spine_engine.errors import FitFailed, InvalidInput
 from spine_engine.models import RegistrationResult
@@ -144,7 +143,7 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
     (payload, None) or (payload, problem). A PACS that is unavailable hands the job back to the queue
     (``RunLater``) until its attempts (SPINE_MAX_ATTEMPTS) are spent, then fails it
     (``dicomweb-unavailable``); a missing instance or an unusable header fails it at once."""
-    config = dicom_store.dicomweb_config(settings)
+    config = settings.dicomweb
     payload = apply_reads(claim.payload, claim.dicom)  # the client's reads of its files, or an earlier run's
     if config is None or (claim.dicom is not None and not views_to_fetch(payload)):
         return engine_payload(payload), None
@@ -157,11 +156,11 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
         if claim.attempt < settings.max_attempts:
             with worker_connection(settings) as session:
                 runs.release_claim(session, claim)
-            raise RunLater(dicom_store.retry_delay_s(claim.attempt)) from None
+            raise RunLater(dicom_tasks.retry_delay_s(claim.attempt)) from None
         detail = f"{exc}; {claim.attempt} attempts (SPINE_MAX_ATTEMPTS)"
         return payload, problem("dicomweb-unavailable", detail, instance=instance, attempts=claim.attempt)
     except DicomError as exc:
-        return payload, problem(exc.problem, str(exc), instance=instance, **dicom_store.as_problem_fields(exc))
+        return payload, problem(exc.problem, str(exc), instance=instance, **exc.problem_fields)
     if provenance is not None:
         with worker_connection(settings) as session:
             runs.record_dicom(session, claim, provenance.model_dump(mode="json"), resolved.get("study") or {})
@@ -225,9 +224,9 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     status = "succeeded" if error is None else "failed"
     url = claim.callback_url
     if url:  # only then: a message on the webhook queue
-        webhooks.job_ended(settings, job_id, status, url=url)
-    if status == "succeeded":
-        dicom_store.job_succeeded(settings, job_id)  # STOW-RS of the SR and figure, when configured
+        deliveries.job_ended(settings, job_id, status, url=url)
+    if status == "succeeded" and settings.stores_dicom_results:
+        dicom_tasks.job_succeeded(settings, job_id)  # STOW-RS of the SR and figure
     return status
 
 
@@ -281,7 +280,6 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
         outcome = runs.reconcile(
             session,
             queued_timeout=queued_timeout,
-            running_timeout=timedelta(seconds=settings.fit_time_limit_s + settings.running_grace_s),
             max_attempts=settings.max_attempts,
             lost_problem=lost,
             republish_queued=missing,
@@ -291,11 +289,11 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
             runs.publish(session, app, outcome.requeue)
     if outcome.failed:
         with session_scope(settings) as session:
-            webhooks.jobs_ended(session, settings, outcome.failed, app)
+            deliveries.jobs_ended(session, settings, outcome.failed, app)
     if outcome.requeue or outcome.failed:
         log.info("reconciler: re-enqueued %d jobs, failed %d", len(outcome.requeue), len(outcome.failed))
-    webhooks.sweep(settings, app)
-    dicom_store.sweep(settings, app)
+    webhook_tasks.sweep(settings, app)
+    dicom_tasks.sweep(settings, app)
     return outcome
 
 

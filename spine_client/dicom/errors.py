@@ -7,6 +7,8 @@ filled (e.g. ``pa.pixel_spacing``), when there is one.
 
 from __future__ import annotations
 
+from typing import Any
+
 from pydicom.datadict import keyword_for_tag, tag_for_keyword
 from pydicom.tag import Tag
 
@@ -40,6 +42,14 @@ class DicomError(ValueError):
     @property
     def labels(self) -> list[str]:
         return [attribute_label(k) for k in self.attributes]
+
+    @property
+    def problem_fields(self) -> dict[str, Any]:
+        """Extension members of its problem: the attributes by keyword and tag, and the payload field."""
+        fields: dict[str, Any] = {"attributes": self.labels}
+        if self.field:
+            fields["field"] = self.field
+        return fields
 
 
 class NotDicom(DicomError):

@@ -7,7 +7,7 @@ Kept apart as PyElastica keeps its kernels from its time-stepper:
 | ``types`` | ``FloatArray``, ``Pose`` and the pose helper ``as_pose``, ``ViewData``, ``Camera``, ``Solution``… |
 | ``rod_rows`` | the rod's residual rows (strains), Jacobian and second-order terms |
 | ``cameras`` | weak-perspective and perspective projection with analytic derivatives |
-| ``observations`` | offset-point and tilt rows |
+| ``pose_rows`` | the offset-point and tilt rows (observations that touch one vertebra's pose) |
 | ``problem`` | ``RegistrationProblem``: all rows, the parameter layout, normal equations |
 | ``banded`` | LAPACK band storage and the bordered (arrow) solve |
 | ``solver`` | the Levenberg–Marquardt / Newton loop, returning a ``Solution`` |

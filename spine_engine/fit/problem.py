@@ -6,8 +6,8 @@ E = ‖ρ‖² (N·mm), with rows in this order (``RegistrationProblem.row_kinds
 * landmarks: 2 per landmark, √w (P(r_j) − p)/s₀ with P the view's camera (``cameras``), p the
   landmark (detector mm) and s₀ the view's reference scale (so the rows are in patient mm ·√(N/mm));
 * offset points (pedicle centres, inferior endplate midpoints), one row each, the column of
-  √w (P(r_j + R_j o) − c)/s₀ (``observations``);
-* tilts, one row each, √w_m α (``observations``);
+  √w (P(r_j + R_j o) − c)/s₀ (``pose_rows``);
+* tilts, one row each, √w_m α (``pose_rows``);
 * pose priors (soft boundary, the gauge): 6 rows each, √(κ/2) (r_j − r̄)/σ_r and
   √(κ/2) vee(log(R̄ᵀR_j))/σ_θ;
 * camera priors: √(κ/2)(s − s̄)/σ_s on an estimated weak-perspective scale, √(κ/2) ψ/σ_ψ on an
@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike
 from ..rotations import exp_so3, log_so3
 from .banded import KD, BorderedSystem, band_to_dense
 from .cameras import project
-from .observations import Observations
+from .pose_rows import PoseRows
 from .rod_rows import RodCache, RodRows, jr_inverse
 from .types import (
     Camera,
@@ -118,7 +118,7 @@ def _check_view(view: ViewData, n: int) -> None:
         raise ValueError(f"view {view.name!r}: scale must be positive, got {view.scale}")
     if not view.weight >= 0.0:
         raise ValueError(f"view {view.name!r}: weight must be non-negative, got {view.weight}")
-    Observations.check_view(view, n)
+    PoseRows.check_view(view, n)
 
 
 class RegistrationProblem:
@@ -192,7 +192,7 @@ class RegistrationProblem:
         self.layout = ParameterLayout(position, rotation, self.n_vertebra_params, view_cols, self.n_params)
 
         # Rows.
-        self.obs = Observations(self.views)
+        self.obs = PoseRows(self.views)
         kinds: list[str] = ["rod"] * (6 * (n - 1))
         self._lm_slices: dict[str, slice] = {}
         start = 0

@@ -57,8 +57,8 @@ class PosePrior(NamedTuple):
 
 
 FILM_TURN_PRIOR_SD_DEG = 2.0
-"""SD of the Gaussian prior on a film's in-plane turn ψ when it is estimated, degrees (issue #10: "a
-small in-plane rotation of each film"; not fitted to the simulated films, docs/engine.md)."""
+"""SD of the Gaussian prior on a film's in-plane turn ψ when it is estimated, degrees (a film
+is turned in its plane by a small angle; not fitted to the simulated films, docs/engine.md)."""
 CENTRAL_RAY_PRIOR_SD_MM = 50.0
 """SD of the Gaussian prior on where the central ray meets the detector when a perspective film's
 header gives SID and SOD but neither the central ray nor the image size, per image axis, detector

@@ -26,7 +26,7 @@ computed for all functionals at once with one Cholesky factorisation of H and a 
 (half-bandwidth 11) with a dense border of projection parameters, and ``functional_variances``
 has that bordered band solve (``n_band``); at N = 17 (H 93 × 93 to 109 × 109) the dense
 Cholesky is the cheaper: 0.83 against 1.50 million instructions per call for the ~71 functionals
-(valgrind callgrind, deterministic, 2026-12-02, docs/performance.md: LAPACK's band triangular
+(valgrind callgrind, deterministic, docs/performance.md: LAPACK's band triangular
 solve ``dtbtrs`` takes the right-hand sides one at a time, and gathering the band costs more than
 the band factorisation saves), so ``solution_uncertainty`` uses the dense one. H itself is summed
 over the nonzero entries of each row of J only (``weighted_gram``).
@@ -336,8 +336,7 @@ def weighted_gram(J: FloatArray, w: FloatArray) -> FloatArray:
 
     A row of the fit touches at most two vertebrae and the cameras (about 700 of 12,000 entries
     nonzero at N = 17), so this is about 10,000 multiplications against the dense product's 1.1
-    million: 0.28 against 0.81 million instructions per call (callgrind, docs/performance.md,
-    2026-12-02)."""
+    million: 0.28 against 0.81 million instructions per call (callgrind, docs/performance.md)."""
     m, n = J.shape
     H = np.zeros((n, n))
     nonzero = np.empty(n, dtype=np.intp)

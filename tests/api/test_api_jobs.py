@@ -71,8 +71,8 @@ def test_wrong_content_type_is_a_415_problem(api: TestClient, content_type: str 
 
 def test_a_dicom_body_is_a_415_that_says_how_to_send_a_film(api: TestClient) -> None:
     """Issue #12's first try: a radiograph posted as the job. Refused, with the two ways that work."""
-    from services.dicom import synthetic
     from services.dicom.results import part10
+    from tools.dicom import synthetic
 
     film = part10(synthetic.radiograph(rows=64, columns=48, imager_pixel_spacing=(0.2, 0.2)))
     response = api.post("/v1/jobs", content=film, headers={"content-type": "application/dicom"})

@@ -313,9 +313,9 @@ def test_every_artifact_of_a_job_whose_spacing_came_from_its_film(app: App, tmp_
     so the figure does not fail on the missing spacing, and the SR references the film."""
     import highdicom as hd
 
-    from services.dicom import synthetic
     from services.dicom.sr import CORNERSTONE_COBB_ANGLE
     from spine_client.dicom_input import payload_from_dicom
+    from tools.dicom import synthetic
 
     film = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15))
     synthetic.write(film, tmp_path / "pa.dcm")

@@ -23,16 +23,15 @@ from sqlalchemy import insert, update
 
 from services.api import schemas
 from services.api.app import create_app
-from services.api.routes import pacs as pacs_routes
 from services.api.schemas import Job
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.core.problems import problem
 from services.db.engine import session_scope
 from services.db.jobs import get_job, job_json
 from services.db.migrate import upgrade
 from services.db.models import Job as JobRow
 from services.db.models import WebhookDelivery
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.dicomweb import Pacs
 from spine_engine import register
 from tests.api.test_api_jobs import TIMESTAMP
 from tests.conftest import make_key, spine_payload
@@ -79,7 +78,7 @@ def test_every_json_route_answers_through_its_response_model(
     monkeypatch.setattr(fastapi.routing, "serialize_response", recording)
     # The PACS routes answer 2xx only with a PACS: one that is configured and lists no image (tests/dicom
     # has them on a real Orthanc).
-    monkeypatch.setattr(pacs_routes, "dicomweb_config", lambda _settings: DicomwebConfig("http://127.0.0.1:9/dicom-web"))
+    monkeypatch.setattr(Settings, "dicomweb", property(lambda _settings: DicomwebConfig("http://127.0.0.1:9/dicom-web")))
     monkeypatch.setattr(Pacs, "study_images", lambda _self, _study: [])
     job_id = api.post("/v1/jobs", json=payload).json()["id"]
     calls: dict[tuple[str, str], tuple[str, str, dict[str, Any] | None]] = {
@@ -92,6 +91,7 @@ def test_every_json_route_answers_through_its_response_model(
         ("GET", "/v1/pacs/studies/{study_instance_uid}/images"): ("GET", "/v1/pacs/studies/1.2.3/images", None),
         ("GET", "/healthz"): ("GET", "/healthz", None),
         ("GET", "/readyz"): ("GET", "/readyz", None),
+        ("GET", "/v1/patients/{patient_id}/measures"): ("GET", "/v1/patients/P-1/measures", None),
     }
     models = _json_answers(api.app.openapi())  # type: ignore[attr-defined]
     assert models.keys() == calls.keys(), "a JSON route of the contract is missing from this test (or gone)"

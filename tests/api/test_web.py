@@ -86,7 +86,7 @@ def test_the_committed_build_matches_the_sources() -> None:
 
 
 def test_the_service_serves_its_own_api_docs(api: TestClient) -> None:
-    """/docs and /redoc come from the service (issue #13): every script and style they load is one of
+    """/docs and /redoc come from the service: every script and style they load is one of
     its own assets, so the pages work offline (FastAPI's defaults load both from a CDN)."""
     for path in ("/docs", "/redoc"):
         answer = api.get(path)

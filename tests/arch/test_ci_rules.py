@@ -1,4 +1,4 @@
-"""CI cannot pass without its back ends (issue 11): with CI=true (as .ci/run sets it) a skipped test
+"""CI cannot pass without its back ends: with CI=true (as .ci/run sets it) a skipped test
 is a failure, naming why it skipped; on a developer's machine it stays a skip."""
 
 from __future__ import annotations

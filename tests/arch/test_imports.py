@@ -1,4 +1,4 @@
-"""The import structure (issue 11, DESIGN.md "services/: layered"): the import-linter contracts of
+"""The import structure (DESIGN.md "services/: layered"): the import-linter contracts of
 pyproject.toml hold, no module of ``services``, ``spine_engine`` or ``benches`` is in an import cycle, the
 engine does not import the benches (they sit on top of the engine, outside its wheel), and no
 import hides inside a function except the few marked ``# lazy: <why>`` (an entry point's optional
@@ -79,8 +79,8 @@ def test_no_module_import_cycle() -> None:
 
 @pytest.mark.parametrize(("package", "at_least"), [("spine_engine", 25), ("benches", 10)])
 def test_no_module_import_cycle_in_the_engine_or_the_benches(package: str, at_least: int) -> None:
-    """Imports under ``if TYPE_CHECKING`` are left out: ``fit.observations`` names
-    ``fit.problem.RegistrationProblem`` in its signatures only (the problem calls the observations
+    """Imports under ``if TYPE_CHECKING`` are left out: ``fit.pose_rows`` names
+    ``fit.problem.RegistrationProblem`` in its signatures only (the problem calls its pose rows
     with itself)."""
     graph = grimp.build_graph(package, cache_dir=None, exclude_type_checking_imports=True)
     modules = {m for m in graph.modules if m.startswith(package)}

@@ -1,6 +1,7 @@
 """The wheel ships the science and the service only (DESIGN.md "House rules"): built from a copy of the
 sources, it holds ``spine_engine/`` (with its profiles and priors) and ``services/``, and no bench,
-test or tool. The benches run from a source checkout (``spine bench``, README "Benches")."""
+test or tool (the DICOM test kit included: ``tools/dicom``). The benches run from a source checkout
+(``spine bench``, README "Benches")."""
 
 from __future__ import annotations
 
@@ -43,3 +44,5 @@ def test_the_wheel_ships_the_engine_and_the_service_without_the_benches(tmp_path
     assert "spine_engine/profiles/default.json" in names and "spine_engine/priors/tilt_aasce2019.json" in names
     assert not tops & {"benches", "tests", "tools"}
     assert [n for n in names if n.startswith("spine_engine/experiments")] == []
+    kit = ("services/dicom/synthetic.py", "services/dicom/orthanc.py", "services/dicom/bench.py")
+    assert not set(kit) & set(names)  # the DICOM test and bench kit is in tools/dicom

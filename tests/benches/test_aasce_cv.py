@@ -7,7 +7,7 @@ from benches.aasce import end_weights
 from benches.perf import synthetic_spine
 from benches.truth import payload_from_truth
 from spine_engine.anatomy import load_profile
-from spine_engine.reconstruction import build_problem
+from spine_engine.reconstruction import prepare_inputs
 from spine_engine.tilt_prior import (
     WINDOW,
     TiltPrior,
@@ -45,7 +45,7 @@ def test_end_weights_mark_the_most_and_least_tilted_vertebrae() -> None:
     np.testing.assert_array_equal(end_weights(tilts, 3.0), [[1, 4, 4, 1], [1, 1, 4, 4]])
 
 
-def test_a_prior_passed_to_build_problem_replaces_the_shipped_one() -> None:
+def test_a_prior_passed_to_prepare_inputs_replaces_the_shipped_one() -> None:
     """The bench's cross-validated priors reach the fit through ``tilt_prior`` (no patching)."""
     positions, rotations = synthetic_spine(cobb_deg=40.0)
     model = validate_payload(payload_from_truth(positions, rotations, list(range(17)), boundary=False))
@@ -53,9 +53,9 @@ def test_a_prior_passed_to_build_problem_replaces_the_shipped_one() -> None:
     other = TiltPrior("cv", WINDOW, np.full((17, len(WINDOW)), 0.25), 7.0)
 
     def tilt_directions(prior: TiltPrior | None) -> np.ndarray:
-        problem = build_problem(model, profile, prior)
-        assert problem.tilt_prior
-        directions = problem.views[0].tilt_directions
+        inputs = prepare_inputs(model, profile, prior)
+        assert inputs.tilt_prior
+        directions = inputs.views[0].tilt_directions
         assert directions is not None
         return directions
 

@@ -118,9 +118,8 @@ def test_coverage_on_held_out_spines() -> None:
     and (e) (uncalibrated PA + lateral, perspective with geometry, PA only; 1 mm noise), pooled:
     n = 8 × 17 × 3 × 3 = 1224 coordinates. Band: the calibration's target, 90–98 %. A binomial band
     (95 % ± 3 SD = [93.1, 96.9] %) is too narrow here: the 153 coordinates of one spine in one case
-    share its fit's errors, so the effective sample is nearer 8 spines × 3 cases than 1224; two
-    calibrations made the same day (with two tilt priors) measured 95.8 % and 97.4 %, the one of
-    2026-12-02 (with the tilt prior refitted that day) 97.8 %."""
+    share its fit's errors, so the effective sample is nearer 8 spines × 3 cases than 1224; with the
+    shipped calibration and tilt prior it measured 97.8 %."""
     truths = clinic.verse_truths("test")[:8]
     rows, _ = clinic.run({"held-out": truths}, [clinic_films.CASES[k] for k in "ace"], noise_mm=1.0, seed=0)
     inside = sum(r["coverage_positions"] * r["coverage_positions_n"] for r in rows)

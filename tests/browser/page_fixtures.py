@@ -26,10 +26,9 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from spine_engine.levels import LEVELS
 from tools.processes import stop_processes
 
-LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
-          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
     "--disable-component-update", "--no-first-run", "--disable-sync", "--disable-quic",

@@ -34,7 +34,7 @@ pytestmark = pytest.mark.browser
 
 
 def _service_takes_lateral_subsets(url: str) -> bool:
-    """The engine release with acquisition geometry also takes any levels on the lateral film (issue 12)."""
+    """The engine release with acquisition geometry also takes any levels on the lateral film."""
     spec = httpx.get(f"{url}/openapi.json", timeout=10).json()
     return "acquisition" in spec["components"]["schemas"]["PAView"]["properties"]
 
@@ -124,7 +124,7 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
         assert not watch.posted_jobs()
         # the lateral's landmarks are kept aside and the PA film goes alone
         lateral_marks = json.loads(page.text_content("#payload-preview") or "{}")["lateral"]["landmarks"]
-        assert [lm["level"] for lm in lateral_marks] == LEVELS[3:]
+        assert [lm["level"] for lm in lateral_marks] == list(LEVELS[3:])
         page.click("#tab-film-lateral")
         page.click("#lateral-clear")
     assert "Ready to send" in (page.text_content("#missing") or "")
@@ -144,7 +144,7 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
         assert body_sent["study"]["patient_name"] == "DOE^JANE" and body_sent["study"]["patient_id"] == "PAT-0042"
         assert body_sent["study"]["accession_number"] == "ACC-7" and body_sent["study"]["study_date"] == "2026-11-30"
     if any_levels:
-        assert [lm["level"] for lm in body_sent["lateral"]["landmarks"]] == LEVELS[3:]
+        assert [lm["level"] for lm in body_sent["lateral"]["landmarks"]] == list(LEVELS[3:])
         assert body_sent["lateral"]["patient_orientation"] == ["A", "F"]
         assert body_sent["lateral"]["pixel_spacing"] == [0.45, 0.45]
         assert body_sent["pa"]["acquisition"]["magnification"] == 1.2

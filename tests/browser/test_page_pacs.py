@@ -32,8 +32,9 @@ from page_fixtures import (
 )
 from pydicom.uid import generate_uid
 
-from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.orthanc import OrthancServer
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
+from tools.dicom.orthanc import OrthancServer
 
 pytestmark = pytest.mark.browser
 

@@ -140,11 +140,13 @@ def test_spine_migrate_creates_the_embedded_database(tmp_path: Path) -> None:
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_readme_starts_with_make_run_then_make_test() -> None:
+def test_readme_starts_with_its_title_then_make_run_and_make_test() -> None:
+    """A newcomer reads the title, then the README's first code block: its two commands."""
     lines = [ln for ln in (ROOT / "README.md").read_text().splitlines() if ln.strip()]
-    commands = [ln.split("#")[0].strip() for ln in lines[1:3]]
-    assert lines[0].startswith("```") and lines[3] == "```"
-    assert commands == ["make run", "make test"]
+    assert lines[0].startswith("# ")
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("```"))
+    commands = [ln.split("#")[0].strip() for ln in lines[start + 1 : start + 3]]
+    assert commands == ["make run", "make test"] and lines[start + 3] == "```"
 
 
 def test_readme_documents_every_setting() -> None:
@@ -204,7 +206,7 @@ def test_worker_supervisor_restarts_a_celery_worker_that_stopped_unasked(tmp_pat
 
 
 def test_the_data_dir_is_one_place_whatever_the_working_directory(tmp_path: Path) -> None:
-    """A key made from one folder is seen from another (issue 11: it went to a second database)."""
+    """A key made from one folder is seen from another (not a second database)."""
     env = {k: v for k, v in os.environ.items() if k not in ("SPINE_DATA_DIR", "DATABASE_URL", "CELERY_BROKER_URL")}
     env["XDG_DATA_HOME"] = str(tmp_path / "xdg")
     here, there = tmp_path / "here", tmp_path / "there"

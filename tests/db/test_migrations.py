@@ -1,4 +1,4 @@
-"""The migrations equal the models (issue 11): an empty SQLite and an empty PostgreSQL database
+"""The migrations equal the models: an empty SQLite and an empty PostgreSQL database
 upgraded to head show no difference with ``Base.metadata`` (Alembic's ``compare_metadata``), and
 every revision goes down and up again."""
 
@@ -139,5 +139,28 @@ def test_the_partial_indexes_of_the_models_are_partial_in_the_database(empty_db:
         downgrade(empty_db, "0009_result_lz4")
         partial = {n for n, w in _predicates(engine).items() if w is not None}
         assert partial == {"ix_jobs_owner_queued", "ix_jobs_running_lease"}
+    finally:
+        engine.dispose()
+
+
+def test_the_bending_columns_keep_their_values_across_the_rename(tmp_path: Path) -> None:
+    """Revision 0011 renames ``vertebra_strains``' bending columns by plane (pa → sagittal, lateral →
+    frontal) and back, each value staying in its column (SQLite: no foreign keys enforced, so a strain
+    row needs no job here)."""
+    settings = Settings(data_dir=tmp_path)
+    upgrade(settings, "0010_jobs_partial_indexes", quiet=True)
+    engine = create_engine(settings.sqlalchemy_url)
+    insert = "INSERT INTO vertebra_strains (job_id, level, pa_bending_deg, lateral_bending_deg, axial_rotation_deg) "
+    try:
+        with engine.begin() as conn:
+            conn.exec_driver_sql(insert + "VALUES ('00000000000000000000000000000001', 'T3', 1.5, -0.25, 0.0)")
+        upgrade(settings, quiet=True)
+        with engine.connect() as conn:
+            by_plane = "SELECT sagittal_bending_deg, frontal_bending_deg FROM vertebra_strains"
+            assert conn.exec_driver_sql(by_plane).one() == (1.5, -0.25)
+        downgrade(settings, "0010_jobs_partial_indexes")
+        with engine.connect() as conn:
+            by_view = "SELECT pa_bending_deg, lateral_bending_deg FROM vertebra_strains"
+            assert conn.exec_driver_sql(by_view).one() == (1.5, -0.25)
     finally:
         engine.dispose()

@@ -17,8 +17,8 @@ from sqlalchemy import event, inspect, select, text, update
 from sqlalchemy.orm import Session
 
 from services.core.config import Settings
+from services.db import dicom_stores, runs, stats
 from services.db import jobs as repo
-from services.db import runs, stats
 from services.db.engine import PSYCOPG_CACHED_PARAMS, get_engine, session_scope, worker_connection
 from services.db.migrate import downgrade, upgrade
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
@@ -44,7 +44,7 @@ def result_like(major_cobb: float = 23.5) -> RegistrationResult:
     for i, v in enumerate(result["vertebrae"]):
         last = i == len(result["vertebrae"]) - 1
         v.update({"u": None if last else [0.001, 0.002 * i, 0.0005], "v": None if last else [0.0, 0.0, 1.0],
-                  "pa_bending_deg": None if last else 1.5, "lateral_bending_deg": None if last else 0.1 * i,
+                  "sagittal_bending_deg": None if last else 1.5, "frontal_bending_deg": None if last else 0.1 * i,
                   "twist_deg": None if last else 0.2, "axial_rotation_deg": 0.5 * i})  # fmt: skip
     curve = result["measures"]["cobb"][0]
     result["measures"]["cobb"] = [
@@ -112,6 +112,7 @@ def test_measures_are_stored_queryably(db_settings: Settings) -> None:
         assert len(strains) == 17
         t3 = next(v for v in strains if v.level == "T3")
         assert (t3.u2, t3.v3, t3.twist_deg) == (pytest.approx(0.004), 1.0, 0.2)
+        assert (t3.sagittal_bending_deg, t3.frontal_bending_deg) == (1.5, pytest.approx(0.2))  # T3 is index 2
         assert next(v for v in strains if v.level == "L5").u1 is None
 
 
@@ -180,7 +181,6 @@ def _reconcile(settings: Settings, max_attempts: int = 2) -> runs.Reconciliation
         return runs.reconcile(
             s,
             queued_timeout=timedelta(minutes=5),
-            running_timeout=timedelta(minutes=10),
             max_attempts=max_attempts,
             lost_problem=LOST,
         )
@@ -303,7 +303,7 @@ def test_a_job_whose_message_could_not_be_published_is_published_at_the_next_rec
 
 @BACKENDS
 def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_settings: Settings) -> None:
-    """Leases (issue 11): a run renewing its lease is left alone however long it runs; once it stops
+    """Leases: a run renewing its lease is left alone however long it runs; once it stops
     renewing, the reconciler takes the job back; a stale run's renewal is refused (fenced by attempt)."""
     job_id = new_job(db_settings)
     with session_scope(db_settings) as s:
@@ -320,18 +320,6 @@ def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_se
         fresh = runs.claim_job(s, job_id, "1.0")
     assert fresh is not None and fresh.attempt == 2
     assert status_of(db_settings, job_id).lease_expires_at is not None
-
-
-@BACKENDS
-def test_a_run_without_a_lease_is_taken_back_after_the_running_timeout(db_settings: Settings) -> None:
-    """A run claimed before leases existed (lease NULL) falls back to started_at + running timeout."""
-    job_id = new_job(db_settings)
-    with session_scope(db_settings) as s:
-        assert runs.claim_job(s, job_id, "1.0") is not None
-    _age(db_settings, job_id, lease_expires_at=None)
-    assert _reconcile(db_settings).requeue == []
-    _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))
-    assert _reconcile(db_settings).requeue == [job_id]
 
 
 @BACKENDS
@@ -400,10 +388,7 @@ def test_the_partial_indexes_still_serve_their_queries(db_settings: Settings) ->
         "ix_jobs_owner_accession_number": lambda s: repo.list_jobs(s, owner="c", accession_number="A1"),
         "ix_jobs_owner_patient_id": lambda s: repo.list_jobs(s, owner="c", patient_id="P1"),
         "ix_jobs_finished_at": lambda s: stats.recent_durations(s, since),
-        # services/dicom/store.sweep's query
-        "ix_jobs_dicom_store_due_at": lambda s: s.execute(
-            select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < utcnow()).limit(100)
-        ).all(),
+        "ix_jobs_dicom_store_due_at": lambda s: dicom_stores.overdue(s, utcnow()),  # the STOW-RS sweep's query
         "uq_jobs_owner_idempotency_key": lambda s: repo.create_job(s, spine_payload(), owner="c", idempotency_key="k"),
     }
     for index, call in queries.items():

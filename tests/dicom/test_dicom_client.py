@@ -9,12 +9,11 @@ from typing import Any
 
 import pytest
 
-from services.dicom import synthetic
 from spine_client.cli import EXIT_OK, EXIT_USAGE, main
 from spine_client.dicom_input import LandmarkCsvError, parse_landmark_csv, payload_from_dicom
+from spine_engine.levels import LEVELS
 from spine_engine.models import PAView
-
-from .conftest import LEVELS
+from tools.dicom import synthetic
 
 
 def _files(tmp_path: Path) -> dict[str, Any]:
@@ -52,8 +51,8 @@ def test_submit_reads_the_headers(tmp_path: Path, capsys: pytest.CaptureFixture[
         assert "acquisition" not in payload["pa"] and "pixel_spacing_calibration" not in payload["pa"]
     assert payload["pa"]["patient_orientation"] == ["L", "F"]
     assert payload["lateral"]["patient_orientation"] == ["A", "F"]
-    assert [lm["level"] for lm in payload["pa"]["landmarks"]] == LEVELS
-    assert [lm["level"] for lm in payload["lateral"]["landmarks"]] == LEVELS[4:]
+    assert [lm["level"] for lm in payload["pa"]["landmarks"]] == list(LEVELS)
+    assert [lm["level"] for lm in payload["lateral"]["landmarks"]] == list(LEVELS[4:])
     assert payload["pa"]["landmarks"][0]["point"] == [600.0, 300.0]
     study = payload["study"]
     assert study["study_instance_uid"] == images["pa"].StudyInstanceUID

@@ -14,13 +14,13 @@ from typing import Any
 
 import pytest
 
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
 from services.dicom.reference import resolve_by_reference
 from spine_client.dicom_input import payload_by_reference
-
-from .conftest import LEVELS
+from spine_engine.levels import LEVELS
+from tools.dicom import synthetic
+from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "orthanc"
 ANNOUNCE_TIMEOUT_S = 30.0

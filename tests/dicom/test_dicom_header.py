@@ -12,11 +12,11 @@ import pytest
 from pydicom.dataset import Dataset
 
 from services.db.job_forms import engine_payload
-from services.dicom import synthetic
 from spine_client.dicom.errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation
 from spine_client.dicom.header import read_header
 from spine_client.dicom.merge import apply_headers
 from spine_engine.models import Study
+from tools.dicom import synthetic
 
 
 def part10(ds: Dataset) -> bytes:

@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
 from services.dicom.errors import InstanceNotFound, PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.dicom.sc import build_sc
@@ -19,8 +19,10 @@ from spine_client.dicom.errors import InvalidAttribute
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
+from tests.conftest import spine_payload
+from tools.dicom import synthetic
 
-from .conftest import OrthancServer, free_port, spine_payload
+from .conftest import OrthancServer, free_port
 
 HEADER_CASES: list[dict[str, Any]] = [
     dict(pixel_spacing=(0.14, 0.13), imager_pixel_spacing=(0.15, 0.15), calibration_type="GEOMETRY"),

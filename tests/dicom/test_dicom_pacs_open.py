@@ -15,11 +15,11 @@ from fastapi.testclient import TestClient
 from pydicom.uid import ExplicitVRLittleEndian, RLELossless, generate_uid
 
 from services.api.app import create_app
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
+from services.dicom.dicomweb import Pacs
 from tests.conftest import make_key
+from tools.dicom import synthetic
 
 from .conftest import OrthancServer, free_port
 
@@ -39,7 +39,7 @@ def api(tmp_path: Path, orthanc: OrthancServer) -> Iterator[TestClient]:
         yield client
 
 
-def _store(orthanc: OrthancServer, *images: pydicom.Dataset) -> None:
+def _stow_to_pacs(orthanc: OrthancServer, *images: pydicom.Dataset) -> None:
     with Pacs(DicomwebConfig(orthanc.dicomweb_url, orthanc.username, orthanc.password)) as pacs:
         pacs.store(list(images))
 
@@ -57,7 +57,7 @@ def test_list_and_open_a_study(api: TestClient, orthanc: OrthancServer) -> None:
     lateral = synthetic.radiograph(study_instance_uid=study, modality="CR", view_position="LL",
                                    patient_orientation=("A", "F"), rows=100, columns=40,
                                    extra={"SeriesNumber": 1, "InstanceNumber": 3})  # fmt: skip
-    _store(orthanc, pa, lateral)
+    _stow_to_pacs(orthanc, pa, lateral)
     assert api.get("/v1/pacs").json() == {"configured": True}
 
     listed = api.get(f"/v1/pacs/studies/{study}/images")
@@ -88,7 +88,7 @@ def test_a_compressed_film_comes_uncompressed(api: TestClient, orthanc: OrthancS
     image = synthetic.radiograph(rows=64, columns=32)
     pixels = image.pixel_array
     image.compress(RLELossless)
-    _store(orthanc, image)
+    _stow_to_pacs(orthanc, image)
     got = api.get(_instance_url(image))
     assert got.status_code == 200, got.text
     ds = pydicom.dcmread(io.BytesIO(got.content))
@@ -98,7 +98,7 @@ def test_a_compressed_film_comes_uncompressed(api: TestClient, orthanc: OrthancS
 
 def test_problems(api: TestClient, orthanc: OrthancServer, tmp_path: Path) -> None:
     image = synthetic.radiograph()
-    _store(orthanc, image)
+    _stow_to_pacs(orthanc, image)
     unknown = api.get("/v1/pacs/studies/1.2.3.999/images")
     assert unknown.status_code == 404 and unknown.headers["content-type"] == "application/problem+json"
     assert unknown.json()["type"].endswith("/dicomweb-study-not-found") and "1.2.3.999" in unknown.json()["detail"]

@@ -24,16 +24,16 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
-from services.core.config import Settings
+from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
-from services.dicom import synthetic
-from services.dicom.dicomweb import DicomwebConfig, Pacs
-from services.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
+from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
-from tests.conftest import Service, _purge_queue, make_key, service_env
+from tests.conftest import Service, _purge_queue, make_key, spawned_service, spine_payload
+from tools.dicom import synthetic
+from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
-from .conftest import OrthancServer, spine_payload
+from .conftest import OrthancServer
 
 SPACING = 0.15
 STORE_TIMEOUT_S = 60.0
@@ -45,19 +45,12 @@ building the SR on two loaded cores."""
 def pacs_service(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str, orthanc: OrthancServer
 ) -> Iterator[Service]:
-    data_dir = tmp_path_factory.mktemp("dicom-service")
-    env = service_env(
-        data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url, SPINE_DICOMWEB_URL=orthanc.dicomweb_url,
-        SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
-        SPINE_DICOMWEB_STORE_RESULTS="true",
-    )  # fmt: skip
-    service = Service("dicom", env, data_dir)
-    service.start_worker()
-    try:
+    with spawned_service(
+        "dicom", tmp_path_factory.mktemp("dicom-service"), postgres_url=postgres_url, redis_url=redis_url,
+        SPINE_DICOMWEB_URL=orthanc.dicomweb_url, SPINE_DICOMWEB_USERNAME=orthanc.username,
+        SPINE_DICOMWEB_PASSWORD=orthanc.password, SPINE_DICOMWEB_STORE_RESULTS="true",
+    ) as service:  # fmt: skip
         yield service
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
 
 
 def _pacs(orthanc: OrthancServer) -> Pacs:
@@ -176,21 +169,14 @@ def test_by_reference_needs_no_spacing_only_with_a_pacs(two_clients: tuple[TestC
 def test_pacs_down_retries_then_fails_the_job(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
 ) -> None:
-    from services.dicom.orthanc import free_port
+    from tools.dicom.orthanc import free_port
 
-    data_dir = tmp_path_factory.mktemp("dicom-down")
-    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
-                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
-                      SPINE_MAX_ATTEMPTS="2")  # fmt: skip
-    service = Service("dicom-down", env, data_dir)
-    service.start_worker()
-    try:
+    with spawned_service("dicom-down", tmp_path_factory.mktemp("dicom-down"), postgres_url=postgres_url,
+                         redis_url=redis_url, SPINE_DICOMWEB_URL=f"http://127.0.0.1:{free_port()}/dicom-web",
+                         SPINE_DICOMWEB_TIMEOUT_S="2", SPINE_MAX_ATTEMPTS="2") as service:  # fmt: skip
         payload = spine_payload(spacing_mm=SPACING)
         payload["study"] = {"study_instance_uid": "1.2.3", "pa_sop_instance_uid": "1.2.3.4"}
         job = service.wait(service.submit(payload)["id"], timeout=120)
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
     assert job["status"] == "failed"
     assert job["error"]["type"].endswith("/dicomweb-unavailable"), job["error"]
     assert job["attempts"] == 2  # handed back to the queue once (2 s backoff), failed on the last attempt
@@ -224,30 +210,26 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
         stop_orthanc(proc)
 
     port = free_port()  # nothing listens there until the PACS comes back
-    data_dir = tmp_path_factory.mktemp("dicom-back")
-    env = service_env(data_dir, DATABASE_URL=postgres_url, CELERY_BROKER_URL=redis_url,
-                      SPINE_DICOMWEB_URL=f"http://127.0.0.1:{port}/dicom-web", SPINE_DICOMWEB_TIMEOUT_S="2",
-                      SPINE_DICOMWEB_USERNAME=before.username, SPINE_DICOMWEB_PASSWORD=before.password,
-                      SPINE_MAX_ATTEMPTS="5")  # fmt: skip
     # 5 attempts: hand-backs after 2, 4, 8 and 16 s leave 30 s for the PACS to come back (it takes ~1 s)
-    service = Service("dicom-back", env, data_dir)
-    service.start_worker()
     back: subprocess.Popen[bytes] | None = None
-    try:
-        payload = spine_payload(spacing_mm=SPACING)
-        payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
-        job_ids = [service.submit(payload)["id"] for _ in range(2)]
-        _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
-                    "every job handed back to the queue while the PACS is down")  # fmt: skip
-        assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
-        back, server = start_orthanc(folder, port=port)
-        assert server.dicomweb_url == env["SPINE_DICOMWEB_URL"]
-        done = [service.wait(j, timeout=120) for j in job_ids]
-    finally:
-        service.stop_worker()
-        _purge_queue(redis_url, env["SPINE_QUEUE_NAME"])
-        if back is not None:
-            stop_orthanc(back)
+    with spawned_service("dicom-back", tmp_path_factory.mktemp("dicom-back"), postgres_url=postgres_url,
+                         redis_url=redis_url, SPINE_DICOMWEB_URL=f"http://127.0.0.1:{port}/dicom-web",
+                         SPINE_DICOMWEB_TIMEOUT_S="2", SPINE_DICOMWEB_USERNAME=before.username,
+                         SPINE_DICOMWEB_PASSWORD=before.password, SPINE_MAX_ATTEMPTS="5") as service:  # fmt: skip
+        try:
+            payload = spine_payload(spacing_mm=SPACING)
+            payload["study"] = {"study_instance_uid": image.StudyInstanceUID,
+                                "pa_sop_instance_uid": image.SOPInstanceUID}  # fmt: skip
+            job_ids = [service.submit(payload)["id"] for _ in range(2)]
+            _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
+                        "every job handed back to the queue while the PACS is down")  # fmt: skip
+            assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
+            back, server = start_orthanc(folder, port=port)
+            assert server.dicomweb_url == service.env["SPINE_DICOMWEB_URL"]
+            done = [service.wait(j, timeout=120) for j in job_ids]
+        finally:
+            if back is not None:
+                stop_orthanc(back)
     log = service.worker_log()
     for job in done:
         assert job["status"] == "succeeded", (job.get("error"), log[-3000:])
@@ -296,7 +278,7 @@ def test_python_client_and_cli_get_the_sr(
     assert "wrote" in capsys.readouterr().err
 
 
-def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
+def test_sweep_publishes_an_overdue_stow_once_per_due_time(tmp_path: Path, redis_url: str) -> None:
     """A STOW-RS attempt whose message was never published (attempt 0) or was lost is published by the
     reconciler's sweep once overdue, as the next attempt; out of attempts, the job is left alone."""
     import uuid as uuid_module
@@ -305,11 +287,11 @@ def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redi
     import redis
     from sqlalchemy import update
 
-    from services.core.jobqueue import make_celery
+    from services.core.jobqueue import STORE_DICOM, make_celery
     from services.db import jobs as jobs_repo
     from services.db.engine import session_scope
     from services.db.models import Job, utcnow
-    from services.dicom import store
+    from services.worker import dicom_tasks
 
     queue = f"spine-test-{uuid_module.uuid4().hex[:8]}"
     settings = Settings(data_dir=tmp_path, CELERY_BROKER_URL=redis_url, queue_name=queue,
@@ -326,17 +308,17 @@ def test_sweep_publishes_an_overdue_store_once_per_due_time(tmp_path: Path, redi
     broker = redis.Redis.from_url(redis_url)
     app = make_celery(settings)
     try:
-        assert store.sweep(settings, app) == 1
+        assert dicom_tasks.sweep(settings, app) == 1
         assert broker.llen(settings.dicom_queue) == 1
         message = json.loads(broker.lindex(settings.dicom_queue, 0))  # type: ignore[arg-type]
-        assert message["headers"]["task"] == store.STORE and message["headers"]["argsrepr"] == f"['{job.id}', 1]"
-        assert store.sweep(settings, app) == 0  # due again only SPINE_DICOMWEB_SWEEP_AFTER_S later
+        assert message["headers"]["task"] == STORE_DICOM and message["headers"]["argsrepr"] == f"['{job.id}', 1]"
+        assert dicom_tasks.sweep(settings, app) == 0  # due again only SPINE_DICOMWEB_SWEEP_AFTER_S later
         with session_scope(settings) as session:
             due = session.get(Job, job.id).dicom_store_due_at  # type: ignore[union-attr]
             assert due is not None and due > utcnow() + timedelta(seconds=250)
             stores = [{**attempt0, "attempt": n} for n in (1, 2, 3)]
             session.execute(update(Job).where(Job.id == job.id).values(dicom_stores=stores, dicom_store_due_at=past))
-        assert store.sweep(settings, app) == 0  # out of attempts: cleared, not published
+        assert dicom_tasks.sweep(settings, app) == 0  # out of attempts: cleared, not published
         with session_scope(settings) as session:
             assert session.get(Job, job.id).dicom_store_due_at is None  # type: ignore[union-attr]
         assert broker.llen(settings.dicom_queue) == 1

@@ -18,14 +18,13 @@ import pytest
 from pydicom.dataset import Dataset
 
 from services.db.job_forms import JobForms
-from services.dicom import synthetic
 from services.dicom.results import job_figure_sc, job_sr
 from services.dicom.sc import build_sc
 from services.dicom.sr import (
     COBB_ANGLE,
     PRIVATE_SCHEME,
     VERTEBRA_CODES,
-    P,
+    PrivateCodes,
     SourceImage,
     StudyIdentity,
     build_sr,
@@ -36,8 +35,8 @@ from services.dicom.sr import (
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
-
-from .conftest import spine_payload
+from tests.conftest import spine_payload
+from tools.dicom import synthetic
 
 SPACING = 0.15
 JOB = uuid.UUID("0b4f6c1e-8f7a-4a77-9a53-7d6ad0a3f0c1")
@@ -109,7 +108,7 @@ def test_sr_reads_back_with_cobb_items_equal_to_the_result(case: dict[str, Any],
             (VERTEBRA_CODES[curve["lower"]][0], "Inferior"),
             (VERTEBRA_CODES[curve["apex"]][0], "Apical"),
         ]
-        assert m.method.value == P.MEASURED.value
+        assert m.method.value == PrivateCodes.MEASURED.value
         assert group.tracking_identifier == COBB_TOOL  # on the PA image: the adapters' CobbAngle
     first = cobbs[0][1]
     uncertainty = {item.ConceptNameCodeSequence[0].CodeValue: (item.MeasuredValueSequence[0].NumericValue,
@@ -173,10 +172,10 @@ def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path)
         for m in group.get_measurements():
             methods.setdefault(m.name.value, set()).add(m.method.value)
     assert methods[COBB_ANGLE.value] == {"MEASURED"}
-    assert methods[P.KYPHOSIS_T4_T12.value] == {"MODEL-BASED"}
-    assert methods[P.LORDOSIS_L1_L5.value] == {"MODEL-BASED"}
-    assert methods[P.AXIAL_ROTATION.value] == {"MODEL-BASED"}
-    assert methods[P.FRONTAL_BENDING.value] == {"MEASURED"}
+    assert methods[PrivateCodes.KYPHOSIS_T4_T12.value] == {"MODEL-BASED"}
+    assert methods[PrivateCodes.LORDOSIS_L1_L5.value] == {"MODEL-BASED"}
+    assert methods[PrivateCodes.AXIAL_ROTATION.value] == {"MODEL-BASED"}
+    assert methods[PrivateCodes.FRONTAL_BENDING.value] == {"MEASURED"}
 
 
 def test_landmarks_are_scoord_on_the_source_image(case: dict[str, Any], tmp_path: Path) -> None:

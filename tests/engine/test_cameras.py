@@ -1,4 +1,4 @@
-"""Perspective and joint-projection derivatives against finite differences (issue #10, items 2 and 3).
+"""Perspective and joint-projection derivatives against finite differences.
 
 The cameras' analytic derivatives (``fit.cameras``) and the whole Jacobian of a problem whose views'
 projections are estimated with the spine, every vertebra free, soft poses and camera priors

@@ -13,17 +13,17 @@ import pytest
 from benches.truth import payload_from_truth
 from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.errors import InvalidInput
+from spine_engine.fit import RegistrationProblem
 from spine_engine.frames import axial_rotation_deg
 from spine_engine.measures import aasce_major_angle, major_first_curves
 from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import (
     UNRELIABLE_SD_FRACTION,
-    build_problem,
     patient_rest_model,
+    prepare_inputs,
     register,
     rod_parameters,
 )
-from spine_engine.registration import RegistrationProblem
 from spine_engine.rotations import exp_so3
 from spine_engine.synthetic import generate_spine, generate_spines
 from spine_engine.tilt_prior import load_tilt_prior, predict_tilts_deg
@@ -61,11 +61,11 @@ def test_corner_and_pedicle_rows_of_a_payload_have_exact_jacobians(spine: Any) -
         spine.positions, spine.rotations, ALL, corner_levels=ALL[::2], pedicle_levels=ALL[1::3], noise_mm=0.4, rng=RNG
     )
     profile = load_profile()
-    problem = build_problem(validate_payload(payload), profile)
-    view = problem.views[0]
+    inputs = prepare_inputs(validate_payload(payload), profile)
+    view = inputs.views[0]
     assert view.n_tilts == 9 and view.n_offsets == 9 + 2 * 6  # inferior midpoints + pedicle pairs
-    prob = RegistrationProblem(rod_parameters(patient_rest_model(profile, problem)), problem.views,
-                               None, None, pose_priors=problem.pose_priors)  # fmt: skip
+    prob = RegistrationProblem(rod_parameters(patient_rest_model(profile, inputs)), inputs.views,
+                               None, None, pose_priors=inputs.pose_priors)  # fmt: skip
     r = spine.positions + RNG.normal(0, 1.5, spine.positions.shape)
     R = spine.rotations @ exp_so3(RNG.normal(0, 0.05, (17, 3)))
     J = prob.jacobian(r, R)

@@ -88,7 +88,7 @@ def test_old_payloads_stay_valid() -> None:
 
 
 def test_one_pixel_to_mm_conversion_for_head_up_images() -> None:
-    """The figure and the fit read a head-up image's corners the same way (issue #10, item 8): the
+    """The figure and the fit read a head-up image's corners the same way: the
     superior endplate is the bottom pair when rows run toward the head, in px × pixel spacing."""
     from spine_engine.clinical import landmark_arrays
     from spine_engine.figures import _detector_mm

@@ -1,4 +1,4 @@
-"""The clinic's setting (issue #10, items 1, 2 and 4): no boundary, uncalibrated films, partial views.
+"""The clinic's setting: no boundary, uncalibrated films, partial views.
 
 Truths are real spines, not made by the fit: VerSe dev vertebral-body centroids shipped in
 ``tests/data/verse_dev.csv`` (CC BY-SA 4.0, credited in ``tests/data/README.md``), directors from
@@ -113,7 +113,7 @@ def test_a_rigid_motion_of_the_truth_leaves_the_shape_unchanged() -> None:
 
 
 def test_lateral_from_t4_down_is_accepted() -> None:
-    """The shoulders hide T1–T3 on the lateral: accepted (it was refused before issue #10)."""
+    """The shoulders hide T1–T3 on the lateral: accepted."""
     _, truth = SPINES[5]
     result = register(series(truth, 1.0, 5, lateral_from=3))
     assert next(r["level"] for r in result["fit"]["residuals"] if r["view"] == "lateral") == "T4"

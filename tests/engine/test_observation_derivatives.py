@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from benches.perf import placeholder_parameters, synthetic_spine
+from spine_engine.fit import RegistrationProblem, ViewData, fit, initial_configuration
 from spine_engine.projection import image_axes, project
-from spine_engine.registration import RegistrationProblem, ViewData, fit, initial_configuration
 from spine_engine.rotations import exp_so3
 
 RNG = np.random.default_rng(5)

@@ -67,7 +67,7 @@ def test_3d_result_invariant_to_image_scale_and_translation(spines: list[Any]) -
     a = register(payload_from_truth(s.positions, s.rotations, ALL, scale=1.0, translation=(0.0, 0.0)))
     b = register(payload_from_truth(s.positions, s.rotations, ALL, scale=2.7, translation=(-310.0, 845.0)))
     np.testing.assert_allclose(positions_of(a), positions_of(b), atol=1e-6)
-    # the projection is estimated jointly with the spine (issue #10): the boundary and the landmarks fix it
+    # the projection is estimated jointly with the spine: the boundary and the landmarks fix it
     assert b["fit"]["pa"]["scale"] == pytest.approx(2.7, rel=1e-4)
 
 
@@ -128,9 +128,9 @@ def test_real_spines_from_ct_error_bounds(real_spines: list[tuple[str, np.ndarra
 
 def test_projected_arc_scale_counts_the_landmark_polyline() -> None:
     """Rest rod straight down (16 segments of 25 mm); landmarks on an arc twice as long."""
+    from spine_engine.fit import ViewData
     from spine_engine.projection import image_axes
     from spine_engine.reconstruction import projected_arc_scale
-    from spine_engine.registration import ViewData
 
     rest = np.zeros((17, 3))
     rest[:, 2] = -25.0 * np.arange(17)

@@ -152,20 +152,20 @@ def _series_payloads() -> tuple[dict[str, object], dict[str, object]]:
 def test_lateral_rows_only_lower_the_variances() -> None:
     """At one optimum, the Laplace SDs with the lateral film's rows are never larger than with
     the PA rows alone (fewer rows: a smaller H in the Loewner order, so a larger gᵀH⁻¹g for every
-    g), and the depth (y) of every vertebra is at least twice as certain (measured: 11.5 times or
-    more with the calibrated prior weight of 2026-12-02, 7.1 with that of 2026-12-01).
+    g), and the depth (y) of every vertebra is at least twice as certain (measured with the
+    shipped prior weight: 11.5 times or more).
 
     Without its rows the lateral film's scale and translation have no curvature at all: H is
     singular, and ``functional_variances`` would add its ridge (1e-9 × the largest diagonal entry)
-    to every direction, which lowers the PA-only SDs (x by up to 1.8 % with the 2026-12-02 prior
+    to every direction, which lowers the PA-only SDs (x by up to 1.8 % with the shipped prior
     weight, enough to break the inequality). One unit row on each of those columns, which no other
     row touches, makes H definite without changing any other variance."""
     from spine_engine.anatomy import load_profile
-    from spine_engine.reconstruction import build_problem, solve_solution
+    from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
     from spine_engine.validation import validate_payload
 
     profile = load_profile("default")
-    solution, _ = solve_solution(build_problem(validate_payload(_series_payloads()[0]), profile), profile)
+    solution, _ = fit_patient_rod(prepare_inputs(validate_payload(_series_payloads()[0]), profile), profile)
     lateral = np.array([kind.endswith(":lateral") for kind in solution.row_kinds])
     assert lateral.any()
     jacobian = solution.jacobian[~lateral]
@@ -183,11 +183,10 @@ def test_lateral_rows_only_lower_the_variances() -> None:
 
 def test_two_views_are_more_certain_than_one() -> None:
     """The same spine's vertebrae: with the lateral film every vertebra's depth (y, which the PA
-    film does not see) is at least twice as certain as from the PA film alone (measured: 8 times
-    or more; 13 with the constants of 2026-12-02), and no coordinate is more than 10 % less
-    certain (the two fits' optima and estimated scales differ, so their curvatures do; measured:
-    none less certain; with the constants of 2026-12-02 one 0.02 % less; with an earlier prior
-    strength x was up to 5 % less). The result carries the calibrated scale."""
+    film does not see) is at least twice as certain as from the PA film alone (measured with
+    the shipped constants: 13 times or more), and no coordinate is more than 10 % less certain (the
+    two fits' optima and estimated scales differ, so their curvatures do; measured: one 0.02 % less).
+    The result carries the calibrated scale."""
     from spine_engine import register
 
     both, pa_only = (register(p) for p in _series_payloads())
@@ -221,9 +220,8 @@ def test_calibration_file_round_trip(tmp_path: Path) -> None:
 def test_sds_follow_the_declared_landmark_sd() -> None:
     """The same films (the paper's case f: T1/L5 given, two calibrated views, where the landmarks
     decide) declared with landmark_sd_mm 0.5 instead of 1: the position SDs shrink to between 0.45
-    and 0.7 of theirs (half for the landmarks' part; the rod's prior does not shrink; measured
-    0.50–0.58; 0.50–0.52 with the constants of 2026-12-02). Before the energy unit was made
-    independent of σ they stayed the same."""
+    and 0.7 of theirs (half for the landmarks' part; the rod's prior does not shrink; measured with
+    the shipped constants 0.50–0.52)."""
     from spine_engine import register
     truth = clinic.synthetic_truths(1, seed=11)[0]
     series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)

@@ -92,7 +92,7 @@ def test_directors_left_handed() -> None:
 
 
 def test_boundary_levels_are_not_required() -> None:
-    """Any subset of levels (issue #10, item 4): T1 and L5 need no landmark, on either view."""
+    """Any subset of levels: T1 and L5 need no landmark, on either view."""
     p = good()
     del p["pa"]["landmarks"][2]  # L5
     validate_payload(p)

@@ -24,9 +24,9 @@ from standardwebhooks import Webhook
 
 from services.core.jobqueue import make_celery
 from services.db import jobs as jobs_repo
+from services.db.deliveries import job_ended, message_id
 from services.db.engine import session_scope
 from services.fhir.export import LOCAL_CODE_SYSTEM
-from services.webhooks.delivery import job_ended, message_id
 from spine_client import (
     IdempotencyConflict,
     InvalidRequest,

@@ -93,7 +93,7 @@ def bench_env(tmp_path: Path, postgres_store_url: str, redis_url: str) -> Iterat
 def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, bench_env: dict[str, str], fault: str,
                                                 submission: list[str]) -> None:  # fmt: skip
     """The bench against a spawned distributed service (PostgreSQL + Redis + a `spine worker`), with
-    its fault injection (issue 11): a worker killed by SIGKILL while single POSTs come, or the
+    its fault injection: a worker killed by SIGKILL while single POSTs come, or the
     bench's own Redis restarted for 3 s while batches come; every job ends once, within 30 s of
     the last submission (the target of docs/reliability.md, "Recovery time under faults"), and the
     report carries the rates and CPU figures docs/performance.md quotes."""

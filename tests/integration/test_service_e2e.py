@@ -86,8 +86,9 @@ def test_the_reconciler_recovers_a_lost_message_and_a_dead_run(service: Service)
         stranded, _ = repo.create_job(s, spine_payload())  # its worker died mid-fit
         hopeless, _ = repo.create_job(s, spine_payload())  # died on its last allowed attempt
         s.execute(update(Job).where(Job.id == lost.id).values(enqueued_at=long_ago))
-        s.execute(update(Job).where(Job.id == stranded.id).values(status="running", attempts=1, started_at=long_ago))
-        s.execute(update(Job).where(Job.id == hopeless.id).values(status="running", attempts=2, started_at=long_ago))
+        dead = {"status": "running", "started_at": long_ago, "lease_expires_at": long_ago}  # no renewal since
+        s.execute(update(Job).where(Job.id == stranded.id).values(attempts=1, **dead))
+        s.execute(update(Job).where(Job.id == hopeless.id).values(attempts=2, **dead))
     assert service.wait(str(lost.id), 30)["status"] == "succeeded"
     recovered = service.wait(str(stranded.id), 30)
     assert (recovered["status"], recovered["attempts"]) == ("succeeded", 2)

@@ -29,8 +29,9 @@ from services.core.webhook_policy import (
     destination_problem,
     parse_allow_list,
 )
+from services.db.deliveries import message_id
 from services.db.migrate import upgrade
-from services.dicom.sr import PRIVATE_SCHEME_VERSION, P
+from services.dicom.sr import PRIVATE_SCHEME_VERSION, PrivateCodes
 from services.fhir.export import (
     COBB_ANGLE,
     LOCAL_CODE_SYSTEM,
@@ -39,7 +40,7 @@ from services.fhir.export import (
     effective_date_time,
     observation_bundle,
 )
-from services.webhooks.delivery import message_id, retry_delay
+from services.webhooks.delivery import retry_delay
 from services.webhooks.signing import signed_headers
 from spine_client import tables
 from spine_client.client import retry_after_seconds
@@ -215,7 +216,7 @@ def test_fhir_observations_are_coded_and_keep_their_text(result: dict[str, Any])
 
 def test_fhir_local_codes_are_the_srs_private_codes() -> None:
     """One meaning, one code value, in DICOM (99SPINE) and in FHIR (``LOCAL_CODE_SYSTEM``)."""
-    sr_codes = {c.value: c.meaning for c in vars(P).values() if hasattr(c, "scheme_designator")}
+    sr_codes = {c.value: c.meaning for c in vars(PrivateCodes).values() if hasattr(c, "scheme_designator")}
     assert {code: sr_codes.get(code) for code in LOCAL_CODES} == LOCAL_CODES
     assert LOCAL_CODE_SYSTEM_VERSION == PRIVATE_SCHEME_VERSION
     uuid_urn = r"urn:uuid:[0-9a-f]{8}-[0-9a-f]{4}-5[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}"  # RFC 9562 version 5
@@ -402,7 +403,7 @@ def test_fhir_of_unknown_or_unfinished_jobs(api: TestClient) -> None:
 
 
 def test_fhir_observations_carry_the_results_sd(result: dict[str, Any]) -> None:
-    """Each measure with an SD in the result has it as a component in degrees (issue #13: every number
+    """Each measure with an SD in the result has it as a component in degrees (every number
     with its trust), equal to the result's value."""
     sds = copy.deepcopy(result)
     sds["measures"]["thoracic_kyphosis_t4_t12_sd_deg"] = 2.5

@@ -23,7 +23,7 @@ from services.db import deliveries as store
 from services.db import jobs as repo
 from services.db.engine import session_scope
 from services.db.models import WebhookDelivery, utcnow
-from services.webhooks import delivery
+from services.worker import webhook_tasks
 from tests.conftest import spine_payload
 from tests.interop_helpers import Receiver
 
@@ -65,21 +65,22 @@ def test_an_unpublished_webhook_is_recorded_and_swept_once(db_settings: Settings
     settle_earlier_tests(settings)
     job_id = cancelled_job_with_callback(settings)
     unreachable = make_celery(settings.model_copy(update={"broker_url": "redis://127.0.0.1:1/0"}))
-    assert not delivery.job_ended(settings, job_id, "cancelled", url=URL, celery=unreachable)
+    assert not store.job_ended(settings, job_id, "cancelled", url=URL, celery=unreachable)
     [row] = rows(settings, job_id)
     assert (row.attempt, row.status_code, row.url, row.event) == (0, None, URL, "job.cancelled")
     assert row.error is not None and row.error.startswith("not published: ")
-    assert row.message_id == delivery.message_id(job_id, "cancelled") and row.next_attempt_at is not None
+    assert row.message_id == store.message_id(job_id, "cancelled") and row.next_attempt_at is not None
 
     broker = make_celery(settings)  # the embedded broker: a real queue, no server needed
     queue = settings.webhook_queue
-    assert delivery.sweep(settings.model_copy(update={"webhook_sweep_after_s": 3600.0}), broker) == 0  # not yet due
+    not_yet_due = settings.model_copy(update={"webhook_sweep_after_s": 3600.0})
+    assert webhook_tasks.sweep(not_yet_due, broker) == 0
     [due] = rows(settings, job_id)
     assert due.next_attempt_at == row.next_attempt_at
     wait_past(due.next_attempt_at, 1.05)  # due: published again; then not before 1 s more, however slow this machine
-    assert delivery.sweep(settings, broker) == 1
+    assert webhook_tasks.sweep(settings, broker) == 1
     assert queue_depth(broker, queue) == 1
-    assert delivery.sweep(settings, broker) == 0  # postponed: published once
+    assert webhook_tasks.sweep(settings, broker) == 0  # postponed: published once
     [postponed] = rows(settings, job_id)
     assert postponed.next_attempt_at is not None and postponed.next_attempt_at > row.next_attempt_at  # type: ignore[operator]
 
@@ -89,32 +90,32 @@ def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -
     settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05})
     settle_earlier_tests(settings)
     job_id = cancelled_job_with_callback(settings)
-    mid = delivery.message_id(job_id, "cancelled")
+    mid = store.message_id(job_id, "cancelled")
     now = utcnow()
     base = {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "url": URL, "attempted_at": now,
             "status_code": None, "duration_ms": None}  # fmt: skip
     record(settings, {**base, "attempt": 1}, error="HTTP 500", next_attempt_at=now)
     record(settings, {**base, "attempt": 2}, error="HTTP 503", next_attempt_at=now)
     old = cancelled_job_with_callback(settings)  # due two days ago: outside the sweep's window
-    record(settings, {**base, "job_id": old, "message_id": delivery.message_id(old, "cancelled"),
+    record(settings, {**base, "job_id": old, "message_id": store.message_id(old, "cancelled"),
                                 "attempt": 1}, error="HTTP 500", next_attempt_at=now - timedelta(days=2))  # fmt: skip
     wait_past(now, 0.1)
     broker = make_celery(settings)
-    assert delivery.sweep(settings, broker) == 1  # attempt 2's retry never came; attempt 1's did
+    assert webhook_tasks.sweep(settings, broker) == 1  # attempt 2's retry never came; attempt 1's did
     assert queue_depth(broker, settings.webhook_queue) == 1
     with session_scope(settings) as session:  # attempt 3 accepted: nothing is overdue any more
         session.execute(update(WebhookDelivery).where(WebhookDelivery.attempt == 2).values(next_attempt_at=now))
     record(settings, {**base, "attempt": 3, "status_code": 204})
-    assert delivery.sweep(settings, broker) == 0
+    assert webhook_tasks.sweep(settings, broker) == 0
 
 
 @BACKENDS
 def test_a_repeated_attempt_is_dropped_before_any_request(db_settings: Settings) -> None:
     job_id = cancelled_job_with_callback(db_settings)
-    mid = delivery.message_id(job_id, "cancelled")
+    mid = store.message_id(job_id, "cancelled")
     record(db_settings, {"job_id": job_id, "message_id": mid, "event": "job.cancelled", "attempt": 2,
                                    "url": URL, "attempted_at": utcnow()}, error="HTTP 500")  # fmt: skip
-    assert delivery.deliver_once(db_settings, job_id, "cancelled", 2) is None
+    assert webhook_tasks.deliver_once(db_settings, job_id, "cancelled", 2) is None
     with session_scope(db_settings) as session:
         mine = select(func.count()).select_from(WebhookDelivery).where(WebhookDelivery.job_id == job_id)
         count = session.scalar(mine)
@@ -146,9 +147,9 @@ def slow_receiver() -> Iterator[Receiver]:
 
 @BACKENDS
 def test_two_deliveries_of_one_attempt_make_one_request(db_settings: Settings, slow_receiver: Receiver) -> None:
-    """The CI failure of 2026-12-01: attempt 2 of a message ran twice (its retry and a sweep), both
-    passed the check-then-insert, and the receiver got it twice. The claim is now an insert under a
-    unique index, so exactly one of the racing deliveries makes the request."""
+    """Attempt 2 of a message run twice at once (its retry and a sweep): a check-then-insert would
+    let both through and the receiver get it twice; the claim is an insert under a unique index, so
+    exactly one of the racing deliveries makes the request."""
     url = slow_receiver.url(f"/hooks/{uuid.uuid4().hex}")
     secret = SecretStr("whsec_" + "A" * 43 + "=")
     settings = db_settings.model_copy(update={"webhook_allowed_urls": url, "webhook_secret": secret})
@@ -161,7 +162,7 @@ def test_two_deliveries_of_one_attempt_make_one_request(db_settings: Settings, s
 
     def deliver(_: int) -> float | None:
         start.wait()
-        return delivery.deliver_once(settings, job.id, "cancelled", 2)
+        return webhook_tasks.deliver_once(settings, job.id, "cancelled", 2)
 
     with ThreadPoolExecutor(2) as pool:
         assert list(pool.map(deliver, range(2))) == [None, None]

@@ -25,10 +25,9 @@ from services.api.schemas import (
 )
 from services.core.problems import problem, validation_problem
 from services.db import jobs as jobs_repo
-from services.db.deliveries import deliveries
+from services.db.deliveries import deliveries, job_ended
 from services.db.jobs import MAX_BATCH_KEY_LENGTH
 from services.db.runs import publish
-from services.webhooks.delivery import job_ended
 from spine_engine.errors import FieldError, InvalidInput
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])

@@ -25,7 +25,6 @@ from services.core.problems import problem
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import InstanceNotFound, PacsUnavailable, TransferSyntaxUnavailable
 from services.dicom.results import PART10_MEDIA_TYPE, part10
-from services.dicom.store import dicomweb_config
 
 router = APIRouter(prefix="/v1/pacs", tags=["dicom"])
 RETRY_AFTER_S = 10
@@ -53,7 +52,7 @@ NOT_CONFIGURED = (
 @contextmanager
 def _pacs(settings: Settings) -> Iterator[Pacs]:
     """The configured PACS, its errors turned into the problems their types name (``DicomError.problem``)."""
-    config = dicomweb_config(settings)
+    config = settings.dicomweb
     if config is None:
         raise ProblemError(problem("dicomweb-not-configured",
                                    "the service is not connected to a PACS: set SPINE_DICOMWEB_URL"))  # fmt: skip
@@ -76,7 +75,7 @@ def _pacs(settings: Settings) -> Iterator[Pacs]:
     description="`configured` is true when SPINE_DICOMWEB_URL is set; the PACS is not contacted.",
 )
 def pacs_status(settings: SettingsDep, access: AccessDep) -> PacsStatus:
-    return PacsStatus(configured=dicomweb_config(settings) is not None)
+    return PacsStatus(configured=settings.dicomweb is not None)
 
 
 @router.get(

@@ -19,15 +19,21 @@ from __future__ import annotations
 
 import itertools
 import math
-import uuid
-from datetime import date, datetime
-from typing import Annotated, Any, Literal
+from datetime import date
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Path
-from pydantic import BaseModel, Field
 
 from services.api.deps import AccessDep, SessionDep
-from services.api.schemas import problem_responses
+from services.api.schemas import (
+    MEASURES,
+    Change,
+    MeasureName,
+    MeasureValue,
+    PatientMeasures,
+    Visit,
+    problem_responses,
+)
 from services.db import jobs as jobs_repo
 from services.db.job_forms import job_study
 from services.db.models import Job
@@ -39,68 +45,6 @@ CONVENTION_DEG = 5.0
 """A change of a Cobb angle is called progression only beyond 5° (inter-observer variability)."""
 Z95 = 1.96
 """Two-sided 95 % quantile of the normal distribution."""
-
-MeasureName = Literal["major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation"]
-MEASURES: tuple[MeasureName, ...] = (
-    "major_cobb",
-    "minor_cobb",
-    "kyphosis_t4_t12",
-    "lordosis_l1_l5",
-    "apex_axial_rotation",
-)
-
-
-class MeasureValue(BaseModel):
-    value_deg: float = Field(description="The measure, degrees.")
-    sd_deg: float | None = Field(None, description="1 SD of the measure, degrees; null when the job has none.")
-    levels: str | None = Field(
-        None, description="For a Cobb angle its end vertebrae and apex (e.g. 'T5–T12, apex T8'); for the apex "
-        "rotation the apex vertebra."
-    )  # fmt: skip
-
-
-class Visit(BaseModel):
-    job_id: uuid.UUID
-    study_date: date | None = Field(
-        description="Study Date (0008,0020); null when neither payload nor header gives it."
-    )
-    study_instance_uid: str | None = None
-    accession_number: str | None = None
-    finished_at: datetime | None = None
-    major_cobb: MeasureValue | None = Field(None, description="The major (largest) frontal Cobb angle.")
-    minor_cobb: MeasureValue | None = Field(None, description="The largest other frontal curve; null with one curve.")
-    kyphosis_t4_t12: MeasureValue = Field(description="Thoracic kyphosis T4–T12.")
-    lordosis_l1_l5: MeasureValue = Field(description="Lumbar lordosis L1–L5.")
-    apex_axial_rotation: MeasureValue | None = Field(
-        None, description="Axial rotation of the major curve's apex vertebra (SD: that vertebra's)."
-    )
-
-
-class Change(BaseModel):
-    measure: MeasureName
-    from_job: uuid.UUID
-    to_job: uuid.UUID
-    from_date: date
-    to_date: date
-    change_deg: float = Field(description="Later minus earlier value, degrees.")
-    combined_sd_deg: float | None = Field(description="√(sd₁² + sd₂²), degrees; null when a visit has no SD.")
-    threshold_deg: float = Field(description="max(5°, 1.96 × combined SD): |change| must exceed it to be flagged.")
-    flagged: bool = Field(description="|change| exceeds both 5° and 1.96 × the combined SD.")
-    decided_by: Literal["convention_5deg", "combined_sd"] = Field(
-        description="The larger threshold, the one that decided: the 5° convention or 1.96 × the combined SD."
-    )
-
-
-class PatientMeasures(BaseModel):
-    patient_id: str
-    visits: list[Visit] = Field(
-        description="The caller's succeeded jobs of the patient by study date (jobs without one last, by creation)."
-    )
-    changes: list[Change] = Field(
-        description="Per measure, the change between consecutive visits that have a study date and the measure."
-    )
-    rule: str = Field(description="The flagging rule in words.")
-
 
 RULE = (
     "A change between consecutive visits is flagged when it exceeds both 5° (the convention for progression) "

@@ -42,7 +42,7 @@ def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
     return 0.5 * (outer + np.swapaxes(outer, 1, 2)) - np.einsum("ij,ij->i", omega, b)[:, None, None] * np.eye(3)
 
 
-class Observations:
+class PoseRows:
     """The offset-point and tilt observations of every view, stacked (module docstring)."""
 
     @staticmethod

@@ -1,10 +1,10 @@
 """Timing of the DICOM layer: read a header (file, and WADO-RS metadata from a local Orthanc), build
-the SR and the figure's SC, push both by STOW-RS. ``python -m services.dicom.bench [--repeat N]``.
+the SR and the figure's SC, push both by STOW-RS. ``python -m tools.dicom.bench [--repeat N]``.
 
 Inputs: a synthetic DX radiograph of 3000 × 2500 pixels at 16 bits (15 MB of pixel data; the header
 read stops before the pixels), the 17-level C-curve payload of the tests, its registered result, and
 its figure (spine_engine.figures, 110 dpi). The PACS is a throwaway Orthanc on loopback
-(``services.dicom.orthanc``), so network time is near zero: a hospital PACS adds its round trips.
+(``tools.dicom.orthanc``), so network time is near zero: a hospital PACS adds its round trips.
 Prints a Markdown table of median, 90th percentile and minimum per step, in milliseconds.
 """
 
@@ -22,16 +22,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from services.core.config import DicomwebConfig
+from services.dicom.dicomweb import Pacs
+from services.dicom.results import part10
+from services.dicom.sc import build_sc
+from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
-
-from . import synthetic
-from .dicomweb import DicomwebConfig, Pacs
-from .orthanc import orthanc_missing, start_orthanc, stop_orthanc
-from .results import part10
-from .sc import build_sc
-from .sr import SourceImage, StudyIdentity, build_sr
+from tools.dicom import synthetic
+from tools.dicom.orthanc import orthanc_missing, start_orthanc, stop_orthanc
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -70,7 +70,7 @@ def _row(name: str, samples: list[float]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.dicom.bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.dicom.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20, help="timed runs per step (after one warm-up)")
     args = parser.parse_args(argv)
 

@@ -1,0 +1,138 @@
+"""The worker's side of DICOM storage: the STOW-RS push of a succeeded job's SR and figure, with every
+attempt recorded on the job (``jobs.dicom_stores``), retried with backoff on the
+``<SPINE_QUEUE_NAME>.dicom`` queue.
+
+Push: ``job_succeeded`` publishes attempt 1 of ``spine.dicom_store``; the task builds the SR and the
+SC and stores both in one STOW-RS request (``services.dicom.results.store_job_results``), appends the
+attempt to the job, and when the PACS was unavailable or refused, publishes the next attempt after 2,
+4, 8 … s (at most 60 s), up to ``SPINE_DICOMWEB_MAX_ATTEMPTS``. The instances' UIDs derive from the
+job, so a repeated attempt stores the same instances again (PACS replace or ignore them; none is
+duplicated).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from datetime import datetime, timedelta
+
+from celery import Celery
+
+from services.core.config import Settings
+from services.core.jobqueue import STORE_DICOM, publish_dicom_store
+from services.core.retry import TRANSIENT
+from services.db import dicom_stores
+from services.db.dicom_stores import DicomStoreAttempt
+from services.db.engine import session_scope
+from services.db.models import utcnow
+from services.dicom.errors import DicomwebError
+from services.dicom.results import store_job_results
+from spine_client.dicom.errors import DicomError
+
+log = logging.getLogger(__name__)
+
+RETRY_BASE_S = 2.0
+RETRY_MAX_S = 60.0
+"""Backoff between STOW-RS attempts (and between runs of a job whose PACS was unavailable): 2 s
+doubling, capped at 60 s (5 attempts span about 30 s: a PACS restart; longer outages are
+SPINE_DICOMWEB_MAX_ATTEMPTS' business)."""
+
+
+def retry_delay_s(attempt: int) -> float:
+    """Seconds before attempt ``attempt + 1``: 2 s doubling, at most 60 s."""
+    return float(min(RETRY_MAX_S, RETRY_BASE_S * 2 ** (attempt - 1)))
+
+
+def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None = None) -> bool:
+    """Publish the first STOW-RS attempt of a succeeded job when results are to be stored. Never
+    raises; a message that cannot be published is recorded as attempt 0 on the job, and the
+    reconciler's ``sweep`` publishes it once ``SPINE_DICOMWEB_SWEEP_AFTER_S`` overdue."""
+    if not settings.stores_dicom_results:
+        return False
+    sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
+    try:
+        with session_scope(settings) as session:
+            dicom_stores.set_due(session, job_id, utcnow() + sweep_after)
+    except Exception as exc:
+        log.warning("could not mark the STOW-RS of job %s as due: %s", job_id, exc)
+    try:
+        publish_dicom_store(settings, job_id, 1, celery=celery)
+        return True
+    except Exception as exc:
+        log.warning("could not publish the STOW-RS of job %s: %s", job_id, exc)
+        try:
+            _record(settings, job_id, DicomStoreAttempt(attempt=0, attempted_at=utcnow(), ok=False,
+                                                        error=f"not published: {type(exc).__name__}"))  # fmt: skip
+        except Exception as db_exc:
+            log.error("STOW-RS of job %s neither published nor recorded: %s", job_id, db_exc)
+        return False
+
+
+def _record(settings: Settings, job_id: uuid.UUID, attempt: DicomStoreAttempt) -> None:
+    with session_scope(settings) as session:
+        dicom_stores.record(session, job_id, attempt, timedelta(seconds=settings.dicomweb_sweep_after_s))
+
+
+def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:
+    """Publish the STOW-RS attempt of every job whose attempt is overdue (``dicom_store_due_at`` past:
+    its message was never published or was lost), as the next attempt number, and push its due time
+    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts is cleared. Returns how many."""
+    if not settings.stores_dicom_results:
+        return 0
+    now = utcnow()
+    sent = 0
+    with session_scope(settings) as session:
+        for job_id, attempt in dicom_stores.overdue(session, now, batch):
+            due: datetime | None = now + timedelta(seconds=settings.dicomweb_sweep_after_s)
+            if attempt > settings.dicomweb_max_attempts:
+                due = None
+            else:
+                publish_dicom_store(settings, job_id, attempt, celery=app)
+                sent += 1
+            dicom_stores.set_due(session, job_id, due)
+    if sent:
+        log.info("STOW-RS sweep: published %d overdue attempts", sent)
+    return sent
+
+
+def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStoreAttempt:
+    """One STOW-RS attempt of the job's SR and SC; recorded on the job. Raises nothing from the PACS."""
+    config = settings.dicomweb
+    with session_scope(settings) as session:
+        source = dicom_stores.store_source(session, job_id)
+    if source is None or config is None:
+        raise LookupError(f"job {job_id} has no result to store (or no SPINE_DICOMWEB_URL)")
+    started = time.perf_counter()
+    outcome = DicomStoreAttempt(attempt=attempt, attempted_at=utcnow(), ok=False)
+    try:
+        outcome.stored = store_job_results(config, job_id, source.forms, source.finished_at)
+        outcome.ok = True
+    except DicomwebError as exc:
+        outcome.problem_type, outcome.error = exc.problem, str(exc)
+    except DicomError as exc:  # a result that cannot be put in DICOM: not retried
+        outcome.problem_type, outcome.error = exc.problem, str(exc)
+        attempt = settings.dicomweb_max_attempts
+    outcome.duration_ms = (time.perf_counter() - started) * 1000.0
+    if not outcome.ok and attempt < settings.dicomweb_max_attempts:
+        outcome.next_attempt_at = outcome.attempted_at + timedelta(seconds=retry_delay_s(attempt))
+    _record(settings, job_id, outcome)
+    return outcome
+
+
+def register_dicom_tasks(app: Celery, settings: Settings) -> None:
+    """The ``spine.dicom_store`` task on ``app``."""
+
+    @app.task(name=STORE_DICOM, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
+              max_retries=10)  # fmt: skip
+    def dicom_store(job_id: str, attempt: int) -> None:
+        parsed = uuid.UUID(job_id)
+        try:
+            outcome = store_once(settings, parsed, int(attempt))
+        except LookupError as exc:
+            log.warning("STOW-RS skipped: %s", exc)
+            return
+        if outcome.next_attempt_at is not None:
+            publish_dicom_store(settings, parsed, outcome.attempt + 1, countdown=retry_delay_s(outcome.attempt),
+                                celery=app)  # fmt: skip
+        log.info("STOW-RS of job %s attempt %d: %s", job_id, outcome.attempt, "stored" if outcome.ok else outcome.error)

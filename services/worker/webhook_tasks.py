@@ -1,0 +1,126 @@
+"""The worker's side of webhooks: the ``spine.deliver_webhook`` task and the reconciler's sweep.
+
+The task POSTs the job (``services.webhooks.delivery``), records the attempt in
+``webhook_deliveries`` and, unless the receiver answered 2xx (or 410 Gone), publishes the next attempt
+with exponential backoff (``Retry-After`` honoured), up to ``SPINE_WEBHOOK_MAX_ATTEMPTS``. The first
+attempt is published by ``services.db.deliveries.job_ended`` as the job ends.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from datetime import timedelta
+from typing import Any
+
+from celery import Celery
+
+from services.core.config import Settings
+from services.core.jobqueue import DELIVER_WEBHOOK, publish_webhook
+from services.core.retry import TRANSIENT
+from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
+from services.db import deliveries
+from services.db.engine import session_scope
+from services.db.models import utcnow
+from services.webhooks.delivery import post, retry_delay, webhook_body
+from services.webhooks.signing import secret_for, signed_headers
+
+log = logging.getLogger(__name__)
+
+
+def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days=1)) -> int:
+    """Publish again every attempt that was due ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ago and never came.
+
+    Such an attempt's message was not published (attempt 0: the broker was down when the job
+    ended) or was lost with a broker. Each one found is published and its row's due time moved
+    ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ahead, so it is published again only if this one is lost too.
+    Looks back ``window``. Returns how many were published.
+    """
+    after = timedelta(seconds=settings.webhook_sweep_after_s)
+    now = utcnow()
+    with session_scope(settings) as session:
+        rows = deliveries.overdue(session, due_before=now - after, due_after=now - window)
+        published = 0
+        for row in rows:
+            status = row.event.removeprefix("job.")
+            try:
+                publish_webhook(settings, row.job_id, status, row.attempt + 1, celery=celery)
+            except Exception as exc:
+                log.warning("webhook sweep: could not publish for job %s: %s", row.job_id, exc)
+                break
+            deliveries.postpone(session, row.id, now + after)
+            published += 1
+    if published:
+        log.info("webhook sweep: published %d overdue webhook attempts", published)
+    return published
+
+
+def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float | None:
+    """Make attempt ``attempt`` of the job's webhook; return the delay before the next one, or None.
+
+    The attempt's row is claimed before the request (``deliveries.claim``): a second delivery of the
+    same attempt finds it and does nothing. Until the outcome is written, the row's
+    ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after it started),
+    so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
+    """
+    mid = deliveries.message_id(job_id, status)
+    attempted_at = utcnow()
+    with session_scope(settings) as session:
+        job = deliveries.delivery_job(session, job_id)
+        if job is None or deliveries.delivered(session, mid):
+            return None
+        url = job.callback_url
+        row_id = deliveries.claim(
+            session, job_id=job_id, message_id=mid, event=f"job.{status}", attempt=attempt, url=url,
+            attempted_at=attempted_at, next_attempt_at=attempted_at + timedelta(seconds=settings.webhook_timeout_s),
+        )  # fmt: skip
+        if row_id is None:  # published twice (a repeated cancel, a sweep, a redelivery)
+            return None
+        body = webhook_body(job.data, status, job.finished_at)
+        key = secret_for(session, job.owner, settings)
+    try:
+        refused = destination_problem(url, allow_list(settings.webhook_allowed_urls))
+    except WebhooksDisabled as exc:
+        refused = str(exc)
+    if refused is None and key is None:
+        refused = "no webhook signing secret is configured"
+    if refused is not None:  # the operator changed the settings since the job was submitted
+        _finish(settings, row_id, error=f"not sent: {refused}")
+        return None
+    assert key is not None
+    sent = post(url, body, signed_headers(key, mid, int(time.time()), body), settings.webhook_timeout_s)
+    if sent.accepted:
+        _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms)
+        return None
+    if sent.status_code == 410 or attempt >= settings.webhook_max_attempts:
+        final = "the receiver says the resource is gone" if sent.status_code == 410 else "no attempt left"
+        _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms,
+                error=f"{sent.error}; {final}")  # fmt: skip
+        return None
+    delay = retry_delay(settings, attempt, sent.retry_after)
+    _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms, error=sent.error,
+            next_attempt_at=attempted_at + timedelta(seconds=delay))  # fmt: skip
+    return delay
+
+
+def _finish(settings: Settings, row_id: int, **values: Any) -> None:
+    with session_scope(settings) as session:
+        deliveries.finish(session, row_id, **{"status_code": None, "error": None, "duration_ms": None,
+                                              "next_attempt_at": None, **values})  # fmt: skip
+
+
+def register_webhook_tasks(app: Celery, settings: Settings) -> None:
+    """Define ``spine.deliver_webhook`` on the worker's Celery app, signing with per-key secrets."""
+
+    @app.task(name=DELIVER_WEBHOOK, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
+              retry_backoff_max=60, max_retries=10)  # fmt: skip
+    def deliver_webhook(job_id: str, status: str, attempt: int) -> None:
+        try:
+            parsed = uuid.UUID(job_id)
+        except ValueError:
+            log.error("dropping a webhook message with a malformed job id %r", job_id)
+            return
+        delay = deliver_once(settings, parsed, status, attempt)
+        if delay is not None:
+            publish_webhook(settings, parsed, status, attempt + 1, countdown=delay, celery=app)
