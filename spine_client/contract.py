@@ -518,6 +518,7 @@ class ViewProvenance(OpenModel):
     pixel_spacing_calibration: str | None = None
     cornerstone_calibration_type: str | None = None
     orientation_assumed: bool = False
+    film_datetime: str | None = None
     read: list[AttributeRead] = Field(default_factory=list)
     warnings: list[str] = Field(default_factory=list)
 

@@ -140,6 +140,11 @@ class RadiographHeader:
     accession_number: str | None
     study_date: date | None
     study_time: str | None
+    film_datetime: str | None
+    """When the film was taken, ISO 8601 (date, or date and time to the second): Acquisition DateTime
+    (0008,002A), else Acquisition Date (0008,0022) with Acquisition Time (0008,0032), else Content Date
+    (0008,0023) with Content Time (0008,0033) (PS3.3 C.7.6.1 General Image Module); a time zone only
+    from Timezone Offset From UTC (0008,0201) or the DT value's own offset. None when none is given."""
     study_id: str | None
     patient_birth_date: str | None
     patient_sex: str | None
@@ -308,6 +313,31 @@ def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...
             attributes=(keyword,),
         )
     return numbers
+
+
+def _film_datetime(ds: Dataset) -> str | None:
+    """``RadiographHeader.film_datetime`` (its docstring): DA YYYYMMDD, TM HHMMSS[.F], DT
+    YYYYMMDDHHMMSS[.F][&ZZXX] (PS3.5 §6.2) read into ISO 8601; malformed values are skipped."""
+    offset = _text(ds, "TimezoneOffsetFromUTC")
+    dt = _text(ds, "AcquisitionDateTime")
+    candidates = []
+    if dt is not None and len(dt) >= 8 and dt[:8].isdigit():
+        zone = next((dt[i:] for i in range(8, len(dt)) if dt[i] in "+-"), None)
+        candidates.append((dt[:8], dt[8:].split("+")[0].split("-")[0], zone))
+    for d_key, t_key in (("AcquisitionDate", "AcquisitionTime"), ("ContentDate", "ContentTime")):
+        d = _text(ds, d_key)
+        if d is not None and len(d) == 8 and d.isdigit():
+            candidates.append((d, _text(ds, t_key) or "", offset))
+    for d, t, zone in candidates:
+        try:
+            day = date(int(d[0:4]), int(d[4:6]), int(d[6:8]))
+        except ValueError:
+            continue
+        digits = t.split(".")[0]
+        if len(digits) < 6 or not digits.isdigit() or zone is None or not re.fullmatch(r"[+-]\d{4}", zone):
+            return day.isoformat()  # a time without a zone is not a FHIR dateTime: the date alone
+        return f"{day.isoformat()}T{digits[0:2]}:{digits[2:4]}:{digits[4:6]}{zone[:3]}:{zone[3:]}"
+    return None
 
 
 def _study_date(ds: Dataset) -> date | None:
@@ -528,6 +558,7 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         accession_number=_text(ds, "AccessionNumber"),
         study_date=_study_date(ds),
         study_time=_identity(ds, "StudyTime", "study_time"),
+        film_datetime=_film_datetime(ds),
         study_id=_identity(ds, "StudyID", "study_id"),
         patient_birth_date=_identity(ds, "PatientBirthDate", "patient_birth_date"),
         patient_sex=_identity(ds, "PatientSex", "patient_sex"),

@@ -50,6 +50,10 @@ class ViewProvenance(BaseModel):
         None, description="Cornerstone3D's calibration type for the same header (Calibrated, ERMF, Proj, Unknown)."
     )
     orientation_assumed: bool = False
+    film_datetime: str | None = Field(
+        None, description="When the film was taken (Acquisition DateTime, else Acquisition or Content Date and Time), "
+        "ISO 8601: the FHIR Observations' effectiveDateTime when the study has no date."
+    )
     read: list[AttributeRead] = Field(default_factory=list)
     warnings: list[str] = Field(default_factory=list)
 
@@ -124,7 +128,8 @@ def merge_view(
         sop_instance_uid=header.sop_instance_uid, sop_class_uid=header.sop_class_uid, rows=header.rows,
         columns=header.columns, pixel_spacing_calibration=header.pixel_spacing_calibration,
         cornerstone_calibration_type=header.cornerstone_calibration_type,
-        orientation_assumed=header.orientation_assumed, warnings=list(header.warnings),
+        orientation_assumed=header.orientation_assumed, film_datetime=header.film_datetime,
+        warnings=list(header.warnings),
     )  # fmt: skip
     merger = _Merger(provenance)
     if header.pixel_spacing is not None:

@@ -130,7 +130,7 @@ def test_68_corner_clicks_5_px_apart_take_their_roles(
     assert page.get_attribute("#pa-canvas", "data-next") == "L5 complete"
     assert "L5 is complete" in (page.text_content("#pa-prompt") or "")
     placed = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"]
-    assert [lm["level"] for lm in placed] == LEVELS
+    assert [lm["level"] for lm in placed] == list(LEVELS)
     tolerance = 1.0 / scale  # one CSS px: a mouse event lands on the nearest CSS px
     for lm, quad in zip(placed, corners, strict=True):
         for got, want in zip(lm["corners"], quad, strict=True):

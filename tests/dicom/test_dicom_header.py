@@ -324,3 +324,27 @@ def test_study_fields_validate() -> None:
         Study.model_validate({"study_instance_uid": "1.2", "patient_id": "a\\b"})
     study = Study.model_validate({"study_instance_uid": "1.2", "study_date": "2026-11-30", "patient_name": "Doe^J"})
     assert study.study_date == date(2026, 11, 30)
+
+
+@pytest.mark.parametrize(
+    ("attributes", "expected"),
+    [
+        ({"AcquisitionDateTime": "20261115093012.5+0100"}, "2026-11-15T09:30:12+01:00"),
+        ({"AcquisitionDate": "20261115", "AcquisitionTime": "093012", "TimezoneOffsetFromUTC": "-0500"},
+         "2026-11-15T09:30:12-05:00"),
+        ({"AcquisitionDate": "20261115", "AcquisitionTime": "093012"}, "2026-11-15"),  # no zone: the date
+        ({"ContentDate": "20261116", "ContentTime": "101500"}, "2026-11-16"),
+        ({"AcquisitionDate": "2026111"}, None),  # malformed DA: skipped
+        ({}, None),
+    ],
+)
+def test_the_films_date_time_is_read_for_the_fhir_export(attributes: dict[str, str], expected: str | None) -> None:
+    """Acquisition DateTime, else Acquisition or Content Date and Time (PS3.3 C.7.6.1), as ISO 8601 with a
+    time only when a zone is known (a FHIR dateTime with a time needs one)."""
+    ds = synthetic.radiograph()
+    for keyword in ("ContentDate", "ContentTime"):  # the synthetic film dates its content as its study
+        if keyword in ds:
+            delattr(ds, keyword)
+    for keyword, value in attributes.items():
+        setattr(ds, keyword, value)
+    assert read_header(ds).film_datetime == expected

@@ -422,3 +422,13 @@ def test_fhir_observations_carry_the_results_sd(result: dict[str, Any]) -> None:
     cobb = [v for k, v in found.items() if k.startswith("Cobb angle")]
     assert cobb and all(v == 1.25 for v in cobb)
     assert "Thoracic kyphosis T5–T12 (sagittal Cobb angle)" not in found  # no SD in the result: none invented
+
+
+def test_the_fhir_route_takes_the_pa_films_date_time_else_the_laterals() -> None:
+    """``routes.fhir.film_datetime``: what the header read recorded in the job's ``dicom`` block."""
+    from services.api.routes.fhir import film_datetime
+
+    assert film_datetime(None) is None and film_datetime({"pa": {"film_datetime": None}}) is None
+    both = {"pa": {"film_datetime": "2026-11-15"}, "lateral": {"film_datetime": "2026-11-16"}}
+    assert film_datetime(both) == "2026-11-15"
+    assert film_datetime({"lateral": {"film_datetime": "2026-11-16"}}) == "2026-11-16"

@@ -36,9 +36,19 @@ DESCRIPTION = (
     "measures no standard code names. With a `study` in the payload, each Observation's `derivedFrom` names the "
     "ImagingStudy by its DICOM Study Instance UID. With a patient ID (typed in or read from the image header), "
     "`subject` is the Patient by identifier, its `system` the setting `SPINE_PATIENT_ID_SYSTEM`. "
-    "`effectiveDateTime` is the study's date, else the job's creation. 404 for an unknown job; 409 "
+    "`effectiveDateTime` is the study's date, else the PA film's (or the lateral's) acquisition date, else the "
+    "job's creation. 404 for an unknown job; 409 "
     "(`job-has-no-result`) unless the job succeeded." + CONDITIONAL
 )
+
+
+def film_datetime(provenance: dict[str, object] | None) -> str | None:
+    """The PA film's date-time read from its header (``ViewProvenance.film_datetime``), else the lateral's."""
+    for role in ("pa", "lateral"):
+        view = (provenance or {}).get(role)
+        if isinstance(view, dict) and isinstance(view.get("film_datetime"), str):
+            return str(view["film_datetime"])
+    return None
 
 
 @router.get(
@@ -68,6 +78,7 @@ def job_fhir(
             finished_at=job.finished_at or utcnow(),
             study=study,
             created_at=job.created_at,
+            film_datetime=film_datetime(job.dicom),
             patient_id_system=settings.patient_id_system,
         )
         return json.dumps(bundle, ensure_ascii=False).encode()
