@@ -104,7 +104,7 @@ class Settings(BaseSettings):
         300.0, gt=0, description="Window of finished jobs over which /metrics reports duration quantiles."
     )
     log_level: str = Field("INFO", description="Log level of API and worker.")
-    # Security (services/api/security.py, services/auth.py): API keys, headers, CORS, limits.
+    # Security (services/api/security.py, services/db/keys.py): API keys, headers, CORS, limits.
     api_key_cache_s: float = Field(
         5.0,
         ge=0,

@@ -23,7 +23,7 @@ Content (PS3.16 TID 1500 → TID 1501 / TID 1410 groups, each measurement a TID 
   px coordinates are taken in that convention unchanged.
 
 Every measurement carries: its method (private ``MEASURED`` or ``MODEL_BASED``: model-based when
-``fit.unreliable`` names its quantity, CONTRACT.md), its standard deviation when the engine gives
+``fit.unreliable`` names its quantity, DESIGN.md), its standard deviation when the engine gives
 one (``*_sd_deg``) as TID 310 upper and lower measurement uncertainty (371886008 / 371885007 SCT)
 both equal to one SD; each group carries the algorithm identification (TID 4019: name, version,
 profile), once per group rather than once per measurement (TID 1501 row 5 and TID 300 row 9 both

@@ -1,4 +1,4 @@
-"""The round's contract additions (CONTRACT.md): new optional payload fields, result fields, and the
+"""The contract's payload and result fields (openapi.yaml): new optional payload fields, result fields, and the
 deprecated bending names, which must equal the new names by plane."""
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ export interface VertebraResult {
   v: Vec3 | null;
   pa_bending_deg: number | null;
   lateral_bending_deg: number | null;
-  /** New names (CONTRACT.md); pa_/lateral_bending_deg stay as deprecated aliases. */
+  /** The contract's names (openapi.yaml); pa_/lateral_bending_deg stay as deprecated aliases. */
   sagittal_bending_deg?: number | null;
   frontal_bending_deg?: number | null;
   twist_deg: number | null;
