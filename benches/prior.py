@@ -146,11 +146,12 @@ def temperature(profile: Profile) -> float:
 
 
 def sample_prior(
-    profile: Profile, n: int, seed: int, size_sd: float, size_mean: float = 1.0
+    profile: Profile, n: int, seed: int, size: tuple[float, float] = (1.0, 0.0)
 ) -> dict[str, np.ndarray]:
     """Measures of ``n`` spines drawn from the profile's rod prior with no landmark (module docstring).
-    Length scale ~ N(``size_mean``, ``size_sd``²) times the generic spine's (in a fit the PA film
-    sets it, ``clinical.size_factor``)."""
+    Length scale ~ N(mean, SD²), ``size`` = (mean, SD), times the generic spine's (in a fit the PA
+    film sets it, ``clinical.size_factor``)."""
+    size_mean, size_sd = size
     rest = rest_model(profile, 1.0)
     prior = population_prior(profile)
     tau = prior.temperature_nmm if prior is not None else temperature(profile)
@@ -236,14 +237,14 @@ def calibrate(profile: Profile, pop: Population, samples: int, seed: int) -> Pro
     """The profile with a population prior whose predictive matches ``pop`` (module docstring)."""
     length_mean, length_sd = pop.measures["length_t1_l5_mm"]
     base = _with_prior(profile, pop, (1.0, 1.0), 1.0, (1.0, 0.0))
-    generic = sample_prior(base, samples, seed, 0.0)["length_t1_l5_mm"]
+    generic = sample_prior(base, samples, seed)["length_t1_l5_mm"]
     size_mean = length_mean / float(np.mean(generic))
     stretch_only = float(np.std(generic) / np.mean(generic))
     size = (size_mean, float(np.sqrt(max((length_sd / length_mean) ** 2 - stretch_only**2, 0.0))))
 
     def drawn(f_sag: tuple[float, float], f_front: float, name: str) -> np.ndarray:
         calibrating = _with_prior(profile, pop, f_sag, f_front, size, loosening=1.0)
-        return sample_prior(calibrating, samples, seed, *size[::-1])[name]
+        return sample_prior(calibrating, samples, seed, size)[name]
 
     kyph_sd = pop.measures["kyphosis_t4_t12_deg"][1]
     f_thoracic = _bisect(lambda f: float(np.std(drawn((f, 1.0), 1.0, "kyphosis_t4_t12_deg"))), 0.05, 5.0, kyph_sd)
@@ -261,9 +262,14 @@ def _size(profile: Profile) -> tuple[float, float]:
     return float(data.get("size_mean", 1.0)), float(data.get("size_sd", 0.0))
 
 
-def check(profile: Profile, pop: Population, samples: int, seed: int) -> list[dict[str, Any]]:
-    """Prior predictive against the population, one row per measure, with whether each band holds."""
-    drawn = sample_prior(profile, samples, seed, *_size(profile)[::-1])
+def predictive(profile: Profile, samples: int, seed: int) -> dict[str, np.ndarray]:
+    """The profile's prior predictive: ``sample_prior`` with the size of its population prior."""
+    return sample_prior(profile, samples, seed, _size(profile))
+
+
+def check(drawn: dict[str, np.ndarray], pop: Population) -> list[dict[str, Any]]:
+    """The prior predictive ``drawn`` against the population, one row per measure, with whether each
+    band holds."""
     rows = []
     for name, (mean, sd) in pop.measures.items():
         m, s = float(np.mean(drawn[name])), float(np.std(drawn[name], ddof=1))
@@ -277,8 +283,8 @@ def check(profile: Profile, pop: Population, samples: int, seed: int) -> list[di
     return rows
 
 
-def plot(profile: Profile, pop: Population, samples: int, seed: int, path: Path) -> None:
-    drawn = sample_prior(profile, samples, seed, *_size(profile)[::-1])
+def plot(drawn: dict[str, np.ndarray], pop: Population, path: Path) -> None:
+    """Histograms of the prior predictive ``drawn`` over the population's normal fits."""
     fig, axes = subplots(1, 4, figsize=(14, 3.2))
     for ax, (name, (mean, sd)) in zip(axes, pop.measures.items(), strict=True):
         ax.hist(drawn[name], bins=30, density=True, alpha=0.6, label="prior predictive")
@@ -318,7 +324,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
         profile = dataclasses.replace(calibrated, name=ns.write)
         save_profile(profile, PROFILES_DIR / f"{ns.write}.json")
-    rows = check(profile, pop, ns.samples, ns.seed)
+    drawn = predictive(profile, ns.samples, ns.seed)
+    rows = check(drawn, pop)
     print(format_table(
         ["measure", "pop mean", "pop SD", "prior mean", "prior SD", "mean ok", "SD ok"],
         [[r["measure"], r["population_mean"], r["population_sd"], r["prior_mean"], r["prior_sd"],
@@ -328,7 +335,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_json(ns.out / "prior.json", {"command": "spine bench prior " + " ".join(argv or sys.argv[2:]),
                                       "profile": ns.profile, "samples": ns.samples, "seed": ns.seed,
                                       "bands": BANDS, "rows": rows, "ok": ok})
-    plot(profile, pop, ns.samples, ns.seed, ns.out / "prior.png")
+    plot(drawn, pop, ns.out / "prior.png")
     print(f"wrote {ns.out / 'prior.json'} and prior.png; prior predictive {'within' if ok else 'OUTSIDE'} the bands")
     return 0 if ok else 1
 

@@ -25,7 +25,7 @@ def test_prior_predictive_means_match_dev() -> None:
     profile = load_profile()
     data = profile.population_prior
     assert data is not None
-    drawn = prior.sample_prior(profile, 1500, 1, data["size_sd"], data["size_mean"])
+    drawn = prior.sample_prior(profile, 1500, 1, (data["size_mean"], data["size_sd"]))
     dev = np.array([kyphosis_lordosis_deg(frames_from_centreline(p)) for _, p in SPINES])
     assert abs(drawn["kyphosis_t4_t12_deg"].mean() - dev[:, 0].mean()) <= 2.0
     assert abs(drawn["lordosis_l1_l5_deg"].mean() - dev[:, 2].mean()) <= 2.0
