@@ -1,1 +1,1 @@
-"""Alembic migrations of the job store; they run on SQLite and PostgreSQL alike."""
+"""Alembic migrations of the service's database; they run on SQLite and PostgreSQL alike."""

@@ -124,7 +124,7 @@ def postgres_url() -> Iterator[str]:
 
 @pytest.fixture(scope="session")
 def postgres_store_url() -> Iterator[str]:
-    """Another fresh PostgreSQL database, with no worker on it, for tests of the job store."""
+    """Another fresh PostgreSQL database, with no worker on it, for tests of the jobs table."""
     with _postgres_database("store") as url:
         yield url
 

@@ -285,7 +285,7 @@ def spawned() -> Iterator[tuple[str, Keys]]:
     spine = [sys.executable, "-m", "services.cli"]
     settings = Settings(data_dir=data_dir)
     upgrade(settings, quiet=True)
-    with session_scope(settings) as session:  # the store `spine keys create|revoke` writes to
+    with session_scope(settings) as session:  # the database `spine keys create|revoke` writes to
         client, other, revoked = (create_key(session, name)[1]
                                   for name in ("bad-input-client", "another-client", "revoked-client"))  # fmt: skip
         revoke(session, "revoked-client")

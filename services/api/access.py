@@ -94,7 +94,7 @@ class Access:
             session.commit()
 
     def created(self, session: Session, job_ids: list[uuid.UUID]) -> None:
-        """The create hook of the job store: audit rows in the transaction that stores the jobs."""
+        """The create hook of the jobs table: audit rows in the transaction that stores the jobs."""
         self.record(session, "create", job_ids, commit=False)
 
     def admit(self, session: Session, n: int) -> None:

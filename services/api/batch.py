@@ -1,6 +1,6 @@
 """``POST /v1/jobs/batch`` with an ``Idempotency-Key``: a retried batch never makes two jobs.
 
-The store is ``services.db.jobs.create_jobs_idempotent`` (payload ``i`` under ``K#i``); an entry
+The write is ``services.db.jobs.create_jobs_idempotent`` (payload ``i`` under ``K#i``); an entry
 whose body differs from the one first sent under ``K#i`` gets an ``idempotency-conflict`` problem.
 """
 

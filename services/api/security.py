@@ -138,7 +138,7 @@ class AuthMiddleware:
             caller = await self.verify(token)
         except (OperationalError, InterfaceError) as exc:
             log.warning("key lookup: the database is unreachable: %s", type(exc).__name__)
-            body = problem("service-unavailable", "the key store is unreachable; retry later")
+            body = problem("service-unavailable", "the API key database is unreachable; retry later")
             await _problem(scope, body, {"Retry-After": "5"})(scope, receive, send)
             return
         if caller is None:

@@ -1,8 +1,8 @@
-"""The queue's retry policy: which faults are transient, and how a store is retried.
+"""The queue's retry policy: which faults are transient, and how the worker's write of an outcome is retried.
 
 A fault of an unreachable database or broker is transient: the Celery task that met it is
-retried with backoff (``autoretry_for=TRANSIENT``), and the worker's final store of a fit's
-outcome is retried in place (``store_retry``: 0.5 s doubling up to 10 s, 6 tries, ~30 s in all)
+retried with backoff (``autoretry_for=TRANSIENT``), and the worker's final write of a fit's
+outcome is retried in place (``write_retry``: 0.5 s doubling up to 10 s, 6 tries, ~30 s in all)
 so that a fit is not thrown away by a database restart of a few seconds.
 """
 
@@ -15,10 +15,10 @@ from tenacity import retry, retry_if_exception_type, stop_after_attempt, wait_ex
 TRANSIENT = (OperationalError, InterfaceError, BrokerError, ConnectionError, TimeoutError)
 """Faults of an unreachable database or broker: the task is retried with backoff."""
 
-store_retry = retry(
+write_retry = retry(
     retry=retry_if_exception_type(TRANSIENT),
     wait=wait_exponential(multiplier=0.5, max=10),
     stop=stop_after_attempt(6),
     reraise=True,
 )
-"""Decorator: retry a store on a transient fault (0.5, 1, 2, 4, 8 s between the 6 tries)."""
+"""Decorator: retry a database write on a transient fault (0.5, 1, 2, 4, 8 s between the 6 tries)."""

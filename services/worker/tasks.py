@@ -32,7 +32,7 @@ import spine_engine
 from services.core.config import DicomwebConfig, Settings
 from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_depth
 from services.core.problems import problem, validation_problem
-from services.core.retry import TRANSIENT, store_retry
+from services.core.retry import TRANSIENT, write_retry
 from services.db import deliveries, runs, stats
 from services.db.engine import session_scope, worker_connection
 from services.db.job_forms import apply_reads, engine_payload
@@ -187,15 +187,15 @@ def _reference_reads(
     return resolved
 
 
-@store_retry
-def _store(
+@write_retry
+def _save_outcome(
     settings: Settings,
     claim: runs.Claim,
     result: RegistrationResult | None,
     error: dict[str, Any] | None,
     engine_version: str | None,
 ) -> bool:
-    """The run's outcome stored (``runs.finish_job``), retried in place on a transient fault."""
+    """The run's outcome written to the jobs table (``runs.finish_job``), retried in place on a transient fault."""
     with worker_connection(settings) as connection:
         return runs.finish_job(connection, claim, result=result, error=error, engine_version=engine_version)
 
@@ -218,8 +218,8 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     finally:
         keeper.release(claim)
     engine_version = result.engine.version if result is not None else None
-    stored = _store(settings, claim, result, error, engine_version)
-    if not stored:
+    saved = _save_outcome(settings, claim, result, error, engine_version)
+    if not saved:
         return "superseded"
     status = "succeeded" if error is None else "failed"
     url = claim.callback_url

@@ -1,4 +1,4 @@
-"""The job store's state changes on real SQLite and PostgreSQL: one outcome per job, whatever races.
+"""The jobs' state changes on real SQLite and PostgreSQL: one outcome per job, whatever races.
 
 These call the repository functions the API and the worker use, on migrated databases.
 """
@@ -327,7 +327,7 @@ def test_the_reconcilers_queued_count_equals_the_count_by_status(db_settings: Se
     """``stats.count_all_queued`` (the reconciler's broker check, read through the status index)
     counts what the full count by status counts: here 3 jobs stored, one claimed, one cancelled."""
     with session_scope(db_settings) as s:
-        before = stats.count_all_queued(s)  # the store database is shared by this module's tests
+        before = stats.count_all_queued(s)  # the database is shared by this module's tests
     ids = [new_job(db_settings) for _ in range(3)]
     with session_scope(db_settings) as s:
         assert runs.claim_job(s, ids[0], "1.0") is not None
