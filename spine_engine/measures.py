@@ -15,7 +15,7 @@ from typing import Literal, cast
 import numpy as np
 import numpy.typing as npt
 
-from .frames import axial_rotation_deg
+from .frames import axial_rotation_deg, frames_from_centreline
 from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
 from .models import AasceMajorAngle, CobbCurve, LenkeCurve, LenkeInputs, Measures
 
@@ -50,7 +50,27 @@ def kyphosis_lordosis_deg(rotations: npt.ArrayLike) -> tuple[float, float, float
     Kyphosis = β_T4 − β_T12 (resp. β_T5 − β_T12), positive when convex posteriorly;
     lordosis = β_L5 − β_L1, positive when convex anteriorly (β: ``sagittal_inclination_deg``).
     """
-    beta = sagittal_inclination_deg(rotations)
+    return _kyphosis_lordosis(sagittal_inclination_deg(rotations))
+
+
+def sagittal_inclinations(
+    positions: npt.ArrayLike, rotations: npt.ArrayLike, observed: npt.ArrayLike | None = None
+) -> FloatArray:
+    """β (17,) the sagittal measures read: the director's (``sagittal_inclination_deg``) where
+    ``observed`` (17,) bool, the vertebrae whose sagittal tilt a lateral view's corners observed, and
+    elsewhere the tangent's, of the frames ``frames_from_centreline`` builds on the positions.
+
+    Without lateral corners no film sees a director's sagittal tilt: its departure from the tangent
+    is the rod's shear and bending prior alone, which pulls it toward the rest shape (on synthetic
+    spines with lordosis 30–65°, 9–10° of lordosis with both films). The tangent is what the
+    landmarks determine, and what the reported SDs are of (``fit.uncertainty``)."""
+    beta = sagittal_inclination_deg(frames_from_centreline(positions))
+    if observed is None:
+        return beta
+    return np.where(np.asarray(observed, dtype=bool), sagittal_inclination_deg(rotations), beta)
+
+
+def _kyphosis_lordosis(beta: FloatArray) -> tuple[float, float, float]:
     i = LEVEL_INDEX
     return (
         float(beta[i["T4"]] - beta[i["T12"]]),
@@ -310,9 +330,9 @@ def regional_kyphosis_deg(rotations: npt.ArrayLike, upper: str, lower: str) -> f
     return float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])
 
 
-def lenke_inputs(cobb: list[CobbCurve], rotations: npt.ArrayLike) -> LenkeInputs:
-    """The Lenke classification inputs a reconstruction supports (model estimates)."""
-    beta = sagittal_inclination_deg(rotations)
+def lenke_inputs(cobb: list[CobbCurve], beta: FloatArray) -> LenkeInputs:
+    """The Lenke classification inputs a reconstruction supports (model estimates); ``beta``: the
+    sagittal inclinations (``sagittal_inclinations``)."""
     t2_t5, t5_t12, t10_l2 = (
         float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])  # regional_kyphosis_deg, β computed once
         for upper, lower in (("T2", "T5"), ("T5", "T12"), ("T10", "L2"))
@@ -368,6 +388,7 @@ def compute_measures(
     *,
     observed_tilt_deg: npt.ArrayLike | None = None,
     observed_endplate_tilt_deg: npt.ArrayLike | None = None,
+    observed_sagittal: npt.ArrayLike | None = None,
 ) -> Measures:
     """Frontal Cobb curves with their 3D descriptors, kyphosis, lordosis and Lenke inputs.
 
@@ -377,7 +398,10 @@ def compute_measures(
     when any curve reaches ``min_cobb_deg``. ``observed_endplate_tilt_deg`` (17, 2): the superior
     and inferior endplate tilts from corners where finite, else the vertebra's tilt (the model has
     one frame per vertebra: both endplates are perpendicular to d3). With observed tilts on all 17
-    levels ``aasce2019`` holds the AASCE script's major angle. Definitions: ``docs/measures.md``.
+    levels ``aasce2019`` holds the AASCE script's major angle. Kyphosis, lordosis and the Lenke
+    kyphosis values read ``sagittal_inclinations``: the centreline's tangent, or the director where
+    ``observed_sagittal`` (17,) says a lateral view's corners observed it. Definitions:
+    ``docs/measures.md``.
     """
     p = np.asarray(positions, dtype=float)
     R = np.asarray(rotations, dtype=float)
@@ -417,12 +441,13 @@ def compute_measures(
     if observed.all():
         angle, upper, lower = aasce_major_angle(tilt)
         aasce = AasceMajorAngle(angle_deg=angle, upper=cast(Level, LEVELS[upper]), lower=cast(Level, LEVELS[lower]))
-    k4, k5, lordosis = kyphosis_lordosis_deg(R)
+    beta = sagittal_inclinations(p, R, observed_sagittal)
+    k4, k5, lordosis = _kyphosis_lordosis(beta)
     return Measures(
         cobb=cobb,
         thoracic_kyphosis_t4_t12_deg=k4,
         thoracic_kyphosis_t5_t12_deg=k5,
         lumbar_lordosis_l1_l5_deg=lordosis,
         aasce2019=aasce,
-        lenke=lenke_inputs(cobb, R),
+        lenke=lenke_inputs(cobb, beta),
     )

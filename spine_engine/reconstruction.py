@@ -129,6 +129,8 @@ class RegistrationInputs:
     """(17,) frontal tilt of the PA corner lines, NaN where a level has no corners (None: no corners)."""
     observed_endplate_tilt_deg: np.ndarray | None = None
     """(17, 2) superior and inferior endplate tilts from the PA corners, NaN where none."""
+    observed_sagittal: np.ndarray | None = None
+    """(17,) bool: the vertebrae whose sagittal tilt the lateral view's corners observe (None: none)."""
     boundary: str = "given"
     """"given" (T1 and L5 exact), "soft" (with SDs) or "estimated" (none: every vertebra free)."""
     pose_priors: tuple[PosePrior, ...] = ()
@@ -413,6 +415,10 @@ def prepare_inputs(
         )
     pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
+    observed_sagittal = None
+    if lateral_arrays is not None and lateral_arrays.has_corners.any():
+        observed_sagittal = np.zeros(len(LEVELS), dtype=bool)
+        observed_sagittal[lateral_arrays.indices[lateral_arrays.has_corners]] = True
     unreliable = [] if placement is None else list(placement.unreliable)
     return RegistrationInputs(
         views=views,
@@ -426,6 +432,7 @@ def prepare_inputs(
         offset_sources=offsets,
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
+        observed_sagittal=observed_sagittal,
         boundary=boundary,
         pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
@@ -664,6 +671,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         out.rotations,
         observed_tilt_deg=inputs.observed_tilt_deg,
         observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg,
+        observed_sagittal=inputs.observed_sagittal,
     )
     uncertainty: Uncertainty | None
     try:
