@@ -438,24 +438,32 @@ TABLE_COLUMNS = [
     ("scale_error_abs_pct", "|scale| %"),
     ("shape_error_mm", "shape mm"),
     ("sagittal_lean_rms_deg", "lean°"),
-    ("kyphosis_t4_t12_mae_deg", "kyph°"),
+    ("reported_kyphosis_t4_t12", "kyph°"),
     ("floor_kyphosis", "floor"),
-    ("lordosis_l1_l5_mae_deg", "lord°"),
+    ("reported_lordosis_l1_l5", "lord°"),
     ("floor_lordosis", "floor"),
-    ("major_cobb_mae_deg", "Cobb°"),
+    ("reported_major_cobb", "Cobb°"),
+    ("major_cobb_mae_deg", "Cobb° cl"),
     ("coverage_positions", "cov pos"),
-    ("coverage_kyphosis_t4_t12", "cov kyph"),
-    ("coverage_lordosis_l1_l5", "cov lord"),
-    ("coverage_cobb", "cov Cobb"),
+    ("covreported_kyphosis_t4_t12", "cov kyph"),
+    ("covreported_lordosis_l1_l5", "cov lord"),
+    ("covreported_cobb", "cov Cobb"),
     ("coverage_axial_rotation", "cov rot"),
 ]
+"""The measures are the result's (``reported_…``: what a user reads, and the coverage of its
+intervals); "Cobb° cl" is the major Cobb angle of the result's centreline, as the truth's is measured."""
 
 
 def _value(row: dict[str, Any], key: str) -> Any:
-    """A row's entry; ``floor_<measure>``: the population-mean estimator's MAE on the same spines."""
+    """A row's entry; ``floor_<measure>``: the population-mean estimator's MAE on the same spines;
+    ``reported_<measure>`` / ``covreported_<measure>``: the MAE / coverage of the result's measure."""
     if key.startswith("floor_"):
         measure = "kyphosis_t4_t12" if key == "floor_kyphosis" else "lordosis_l1_l5"
         return row["floor_mae_deg"].get(measure)
+    if key.startswith("reported_"):
+        return row["reported_mae_deg"].get(key.removeprefix("reported_"))
+    if key.startswith("covreported_"):
+        return row["coverage_reported"].get(key.removeprefix("covreported_"))
     return row[key]
 
 
@@ -480,7 +488,8 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table for docs/accuracy.md."""
     head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "lean RMS (°)",
             "kyphosis MAE (°)", "population mean's", "lordosis MAE (°)", "population mean's",
-            "major Cobb MAE (°)", "coverage positions", "kyphosis", "lordosis", "Cobb", "axial rotation"]
+            "major Cobb MAE (°)", "centreline's", "coverage positions", "kyphosis", "lordosis", "Cobb",
+            "axial rotation"]
     lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |"]
     for r in rows:
         cells = [r["dataset"], f"({r['case']}) {r['title']}", f"{r['reconstructed']}/{r['spines']}"]
@@ -488,7 +497,7 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
             v = _value(r, key)
             if v is None:
                 cells.append("–")
-            elif key.startswith("coverage"):
+            elif key.startswith(("coverage", "covreported")):
                 cells.append(f"{100 * v:.1f} %")
             else:
                 cells.append(f"{v:.2f}")

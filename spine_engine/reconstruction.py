@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -681,6 +682,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
     if uncertainty is not None:
         measures = _measures_with_sds(measures, uncertainty)
+        tilts = tilt_prior if tilt_prior is not None else load_tilt_prior()
+        measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
         if "kyphosis" in inputs.unreliable:
             measures = _with_prior_floor(measures, profile)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
@@ -707,6 +710,25 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
         }
     )
+
+
+MODEL_TILT_ENDS = {"corners": 0, "mixed": 1, "model": 2}
+"""End vertebrae of a Cobb curve whose tilt is the model's, by ``CobbCurve.tilt_source``."""
+
+
+def _with_model_tilt_sd(measures: Measures, sigma_deg: float) -> Measures:
+    """Each Cobb angle's SD with the endplates' turn from the centreline where no corner observed them:
+    SD² = SD_Laplace² + (m/2) σ², m the curve's end vertebrae with a model tilt (``MODEL_TILT_ENDS``),
+    σ the tilt prior's calibrated ``cobb_sd_deg`` (degrees), which is a whole curve's (m = 2)."""
+    if sigma_deg <= 0.0:
+        return measures
+    cobb = []
+    for c in measures.cobb:
+        share = MODEL_TILT_ENDS[c.tilt_source or "model"] / 2.0
+        if c.angle_sd_deg is not None and share > 0.0:
+            c = c.model_copy(update={"angle_sd_deg": math.sqrt(c.angle_sd_deg**2 + share * sigma_deg**2)})
+        cobb.append(c)
+    return measures.model_copy(update={"cobb": cobb})
 
 
 def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:

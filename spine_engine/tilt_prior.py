@@ -56,6 +56,17 @@ class TiltPrior:
     provenance: dict[str, Any] = field(default_factory=dict)
     placement: str = "clipped"
     """How the window meets the ends of the spine: "clipped" or "shifted" (``chord_windows``)."""
+    cobb_sd_deg: dict[str, float] = field(default_factory=dict)
+    """SD (degrees) a Cobb angle gains when no corner observed its end vertebrae's tilts, added in
+    quadrature to its Laplace SD (``reconstruction``): "tilt_prior" when this prior's observations set
+    those tilts, "no_tilt_prior" when only the rod did (``options.tilt_prior`` false). The Laplace SD
+    is of the landmarks' centreline; how far a vertebra's endplate turns from it on a real radiograph
+    is this residual. Calibrated on AASCE training so that the major angle's 95 % interval covers 95 %
+    (``spine bench aasce --calibrate-cobb-sd``); empty: no term."""
+
+    def model_tilt_cobb_sd_deg(self, with_prior: bool) -> float:
+        """``cobb_sd_deg`` of a curve whose two end tilts are the model's (0 when not calibrated)."""
+        return float(self.cobb_sd_deg.get("tilt_prior" if with_prior else "no_tilt_prior", 0.0))
 
 
 def chord_windows(window: tuple[int, ...] = WINDOW, placement: str = "clipped") -> npt.NDArray[np.intp]:
@@ -134,6 +145,7 @@ def save_tilt_prior(prior: TiltPrior, path: Path) -> None:
         "placement": prior.placement,
         "coefficients": np.round(prior.coefficients, 6).tolist(),
         "weight_fraction": prior.weight_fraction,
+        "cobb_sd_deg": prior.cobb_sd_deg,
         "provenance": prior.provenance,
     }
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -156,4 +168,5 @@ def load_tilt_prior(name: str = DEFAULT_PRIOR) -> TiltPrior:
         float(data["weight_fraction"]),
         data.get("provenance", {}),
         data.get("placement", "clipped"),
+        {str(k): float(v) for k, v in data.get("cobb_sd_deg", {}).items()},
     )
