@@ -50,7 +50,7 @@ from .fit import (
     solve,
 )
 from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
-from .fit.uncertainty import Uncertainty, reported_uncertainty
+from .fit.uncertainty import AXIAL_ROTATION_SD_CAP_DEG, Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVELS
 from .measures import compute_measures, frontal_tilts
@@ -686,6 +686,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
         if "kyphosis" in inputs.unreliable:
             measures = _with_prior_floor(measures, profile)
+        if not _has_pedicles(inputs):
+            uncertainty = _with_axial_rotation_floor(uncertainty, measures)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty),
@@ -710,6 +712,35 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
         }
     )
+
+
+AXIAL_ROTATION_PER_COBB = 0.39
+"""SD of a vertebra's axial rotation that no pedicle observed, per degree of the Cobb angle of the curve
+it lies in: the population's root mean square apical rotation over its mean Cobb angle, standing AIS
+patients before surgery (Brink et al., Scoliosis Spinal Disord 2017;12:6,
+doi:10.1186/s13013-017-0111-5: upright apical rotation 22° ± 12° at a thoracic Cobb angle of
+68° ± 15°, √(22² + 12²)/68 = 0.37; lumbar 11° ± 13° at 44° ± 17°, 0.39, the larger taken). Apical
+rotation grows with the Cobb angle (r = 0.68, Morrison et al., Eur Spine J 2015;24:306–312)."""
+
+
+def _has_pedicles(inputs: RegistrationInputs) -> bool:
+    """Whether a PA landmark carried pedicles (the only observation of axial rotation)."""
+    return any(source != "inferior_midpoint" for source in inputs.offset_sources.get("pa", []))
+
+
+def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures) -> Uncertainty:
+    """Without pedicles the vertebrae's axial rotations come from the rod's twist prior alone, whose
+    Laplace SD (a few degrees) knows nothing of how far real vertebrae turn, and whose mechanics turn
+    a kyphotic segment's body toward the concavity where real bodies turn toward the convexity. Each
+    SD is then √(SD² + (k·C)²), C the largest Cobb angle of the curves the vertebra lies in (0 outside
+    every curve), k = ``AXIAL_ROTATION_PER_COBB``."""
+    cobb = np.zeros(len(LEVELS))
+    index = {level: i for i, level in enumerate(LEVELS)}
+    for c in measures.cobb:
+        span = slice(index[c.upper], index[c.lower] + 1)
+        cobb[span] = np.maximum(cobb[span], c.angle_deg)
+    sd = np.hypot(uncertainty.axial_rotation_sd_deg, AXIAL_ROTATION_PER_COBB * cobb)
+    return uncertainty._replace(axial_rotation_sd_deg=np.minimum(sd, AXIAL_ROTATION_SD_CAP_DEG))
 
 
 MODEL_TILT_ENDS = {"corners": 0, "mixed": 1, "model": 2}

@@ -37,7 +37,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -367,12 +367,18 @@ ROLES = (("api", "services.cli serve"), ("worker", "services.cli worker"), ("pos
 """Which process does what, by a piece of its command line (this machine's processes only)."""
 
 
-def cpu_seconds_by_role() -> dict[str, float]:
+SPAWNED_ROLES = ("api", "worker")
+"""Roles whose processes a ``--spawn`` run started itself (each in its own session)."""
+
+
+def cpu_seconds_by_role(sessions: Collection[int] = ()) -> dict[str, float]:
     """CPU time (user + system, s) used so far by this machine's processes of each role.
 
-    Read from ``/proc/<pid>/stat``; the load generator is this process. Processes that exit
-    between two readings take their time with them (none should during a phase). Empty where
-    there is no ``/proc``.
+    Read from ``/proc/<pid>/stat``; the load generator is this process. With ``sessions`` (the
+    session ids of the processes a ``--spawn`` run started) the API and worker roles count only the
+    processes of those sessions: another service on the machine (a test running beside the bench)
+    neither adds its time nor, by exiting, takes it away. Processes that exit between two readings
+    take their time with them (none should during a phase). Empty where there is no ``/proc``.
     """
     proc = Path("/proc")
     if not proc.is_dir():
@@ -386,6 +392,10 @@ def cpu_seconds_by_role() -> dict[str, float]:
         except OSError:
             continue
         role = next((r for r, marker in ROLES if marker in cmdline), None)
+        if role in SPAWNED_ROLES and sessions:
+            fields = proc_stat(int(entry.name))
+            if fields is None or int(fields[3]) not in sessions:
+                continue
         if role is not None:
             totals[role] += cpu_seconds_of([int(entry.name)])
     mine = os.times()
@@ -434,7 +444,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         for phase_name in args.phases:
             histogram_before = await server_histogram(client)
             load_before = os.getloadavg()
-            cpu_before = cpu_seconds_by_role()
+            cpu_before = cpu_seconds_by_role(args.service_sessions)
             since = datetime.now().astimezone()
             fault: Fault | None = None
             if phase_name == "latency":
@@ -446,7 +456,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
                                   redis=args.own_redis_server)  # fmt: skip
                 phase = await flood(client, args.jobs, args.concurrency, args.batch, deadline, fault)
             await wait_final(client, since, deadline)
-            cpu_after = cpu_seconds_by_role()  # before the read-back, which is not the service's load
+            cpu_after = cpu_seconds_by_role(args.service_sessions)  # before the read-back (not the service's load)
             for role, seconds in fault.cpu_s_of_killed.items() if fault is not None else ():
                 cpu_after[role] += seconds
             first = await read_back(client, since)
@@ -545,6 +555,7 @@ def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[
             cmd.append("--no-beat")
         procs.append(_start(cmd, env, log_dir / f"worker-{w}.log"))
         args.worker_procs.append(procs[-1])
+    args.service_sessions = [p.pid for p in procs]  # each started its own session (``_start``)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         if api_ready(args.url):
@@ -594,6 +605,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.jobs = min(args.jobs, 100_000)
     args.worker_procs = []
+    args.service_sessions = []
     args.own_redis_server = None
     check_loopback(args.url)
     if args.fault != "none" and not args.spawn:
@@ -615,7 +627,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if args.own_redis_server is not None:
             args.own_redis_server.stop()
-    hidden = ("api_key", "worker_procs", "own_redis_server")  # no secret nor process in reports
+    hidden = ("api_key", "worker_procs", "service_sessions", "own_redis_server")  # no secret nor process in reports
     report["settings"] = {k: str(v) for k, v in vars(args).items() if k not in hidden}
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
