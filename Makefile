@@ -29,7 +29,7 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 test: $(STAMP) lint browser pacs node-deps
-	$(BIN)/python -m pytest -ra --durations=15
+	$(BIN)/python -m pytest -n 2 --dist loadfile -ra --durations=15
 
 bench-paper: $(STAMP)
 	$(BIN)/spine bench paper
