@@ -80,9 +80,13 @@ def reconstruct_spine(
         positions, rotations, pa_levels, lateral_levels, noise_mm=noise_mm, rng=rng, **extra  # type: ignore[arg-type]
     )
     model = validate_payload(payload)
-    out = fit_patient_rod(prepare_inputs(model, profile), profile)[0].output
+    inputs = prepare_inputs(model, profile)
+    out = fit_patient_rod(inputs, profile)[0].output  # a Profile object: ``spine bench calibrate``'s draws
     truth_m = compute_measures(positions, rotations)
-    recon_m = compute_measures(out.positions, out.rotations)
+    recon_m = compute_measures(  # as ``register`` measures the fit
+        out.positions, out.rotations, observed_tilt_deg=inputs.observed_tilt_deg,
+        observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg, observed_sagittal=inputs.observed_sagittal,
+    )
     return SpineOutcome(
         spine_id=spine_id,
         per_level_mm=np.linalg.norm(out.positions - positions, axis=1),

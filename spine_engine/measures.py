@@ -57,8 +57,9 @@ def sagittal_inclinations(
     positions: npt.ArrayLike, rotations: npt.ArrayLike, observed: npt.ArrayLike | None = None
 ) -> FloatArray:
     """β (17,) the sagittal measures read: the director's (``sagittal_inclination_deg``) where
-    ``observed`` (17,) bool, the vertebrae whose sagittal tilt a lateral view's corners observed, and
-    elsewhere the tangent's, of the frames ``frames_from_centreline`` builds on the positions.
+    ``observed`` (17,) bool, the vertebrae whose sagittal tilt a lateral view's corners observed or
+    the boundary gave, and elsewhere the tangent's, of the frames ``frames_from_centreline`` builds
+    on the positions.
 
     Without lateral corners no film sees a director's sagittal tilt: its departure from the tangent
     is the rod's shear and bending prior alone, which pulls it toward the rest shape (on synthetic

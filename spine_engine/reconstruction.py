@@ -131,7 +131,8 @@ class RegistrationInputs:
     observed_endplate_tilt_deg: np.ndarray | None = None
     """(17, 2) superior and inferior endplate tilts from the PA corners, NaN where none."""
     observed_sagittal: np.ndarray | None = None
-    """(17,) bool: the vertebrae whose sagittal tilt the lateral view's corners observe (None: none)."""
+    """(17,) bool: the vertebrae whose sagittal tilt is observed: the lateral view's corners, or T1
+    and L5 given exactly (``boundary`` "given")."""
     boundary: str = "given"
     """"given" (T1 and L5 exact), "soft" (with SDs) or "estimated" (none: every vertebra free)."""
     pose_priors: tuple[PosePrior, ...] = ()
@@ -416,10 +417,11 @@ def prepare_inputs(
         )
     pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
-    observed_sagittal = None
-    if lateral_arrays is not None and lateral_arrays.has_corners.any():
-        observed_sagittal = np.zeros(len(LEVELS), dtype=bool)
+    observed_sagittal = np.zeros(len(LEVELS), dtype=bool)
+    if lateral_arrays is not None:
         observed_sagittal[lateral_arrays.indices[lateral_arrays.has_corners]] = True
+    if boundary == "given":  # T1's and L5's directors are given exactly
+        observed_sagittal[[0, len(LEVELS) - 1]] = True
     unreliable = [] if placement is None else list(placement.unreliable)
     return RegistrationInputs(
         views=views,
