@@ -20,8 +20,9 @@ PATIENT_LEFT = np.array([1.0, 0.0, 0.0])
 _DEGENERATE = 1e-9
 
 
-def _tangents(positions: FloatArray) -> FloatArray:
-    """Unit tangents: central differences p_{i+1} − p_{i−1} inside, one-sided differences at the ends."""
+def centreline_tangents(positions: FloatArray) -> FloatArray:
+    """Unit tangents (N,3): central differences p_{i+1} − p_{i−1} inside, one-sided differences at the
+    ends (the d3 of ``frames_from_centreline``). Raises ValueError where neighbouring points coincide."""
     diff = np.empty_like(positions)
     diff[1:-1] = positions[2:] - positions[:-2]
     diff[0] = positions[1] - positions[0]
@@ -54,7 +55,7 @@ def frames_from_centreline(positions: npt.ArrayLike, axial_rotation_rad: npt.Arr
         raise ValueError(f"positions must have shape (N, 3) with N >= 2, got {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ValueError("positions must be finite")
-    d3 = _tangents(p)
+    d3 = centreline_tangents(p)
     d1 = PATIENT_LEFT[None, :] - (d3 @ PATIENT_LEFT)[:, None] * d3
     n1 = np.linalg.norm(d1, axis=1)
     if np.any(n1 < 1e-6):

@@ -15,7 +15,7 @@ from typing import Literal, cast
 import numpy as np
 import numpy.typing as npt
 
-from .frames import axial_rotation_deg, frames_from_centreline
+from .frames import axial_rotation_deg, centreline_tangents
 from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
 from .models import AasceMajorAngle, CobbCurve, LenkeCurve, LenkeInputs, Measures
 
@@ -65,7 +65,8 @@ def sagittal_inclinations(
     is the rod's shear and bending prior alone, which pulls it toward the rest shape (on synthetic
     spines with lordosis 30–65°, 9–10° of lordosis with both films). The tangent is what the
     landmarks determine, and what the reported SDs are of (``fit.uncertainty``)."""
-    beta = sagittal_inclination_deg(frames_from_centreline(positions))
+    t = centreline_tangents(np.asarray(positions, dtype=float))
+    beta = np.degrees(np.arctan2(t[:, 1], -t[:, 2]))  # ``sagittal_inclination_deg`` of d3 = t
     if observed is None:
         return beta
     return np.where(np.asarray(observed, dtype=bool), sagittal_inclination_deg(rotations), beta)
