@@ -450,7 +450,10 @@ class VertebraResult(BaseModel):
         "approximation at the fit's optimum, times fit.uncertainty_scale). Null when not computed.",
     )
     axial_rotation_sd_deg: float | None = Field(
-        None, description="1 SD of axial_rotation_deg, degrees (as position_sd_mm). Null when not computed."
+        None,
+        description="1 SD of axial_rotation_deg, degrees (as position_sd_mm); without pedicles it includes the "
+        "population's spread of axial rotation at the Cobb angle of the vertebra's curve (docs/measures.md). "
+        "Null when not computed.",
     )
 
     @model_validator(mode="after")
@@ -472,7 +475,10 @@ class CobbCurve(BaseModel):
     apex: Level
     angle_deg: float = Field(description="Frontal Cobb angle, degrees.")
     angle_sd_deg: float | None = Field(
-        None, description="1 SD of angle_deg, degrees (Laplace approximation, calibrated). Null when not computed."
+        None,
+        description="1 SD of angle_deg, degrees (Laplace approximation, calibrated), with the spread of real "
+        "endplates about the centreline when no corner observed an end vertebra (docs/engine.md). Null when not "
+        "computed.",
     )
     major: bool = Field(description="True for the largest curve; exactly one when any curve exists.")
     convexity: Literal["left", "right"]
@@ -544,9 +550,12 @@ class Measures(BaseModel):
     """Clinical measures computed from the reconstruction (definitions in docs/measures.md)."""
 
     cobb: list[CobbCurve]
-    thoracic_kyphosis_t4_t12_deg: float
-    thoracic_kyphosis_t5_t12_deg: float
-    lumbar_lordosis_l1_l5_deg: float
+    thoracic_kyphosis_t4_t12_deg: float = Field(
+        description="T4–T12 kyphosis, degrees, on the reconstructed centreline (a vertebra's own tilt where a lateral "
+        "film's corners or the boundary gave it; docs/measures.md)."
+    )
+    thoracic_kyphosis_t5_t12_deg: float = Field(description="T5–T12 kyphosis, degrees, as the T4–T12 one.")
+    lumbar_lordosis_l1_l5_deg: float = Field(description="L1–L5 lordosis, degrees, as the kyphosis.")
     thoracic_kyphosis_t4_t12_sd_deg: float | None = Field(
         None, description="1 SD of thoracic_kyphosis_t4_t12_deg, degrees (Laplace, calibrated); null when not computed."
     )
