@@ -36,11 +36,10 @@ from services.core.config import Settings
 from services.db.engine import session_scope
 from services.db.keys import create_key, revoke
 from services.db.migrate import upgrade
+from spine_client.landmarks import LEVELS  # the contract's level names (a client's view)
 from tools.loadbench import check_loopback
 from tools.processes import run_tool, stop_processes
 
-LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
-          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
 PROBLEMS = "https://spine.example/problems/"
 

@@ -47,11 +47,10 @@ from urllib.parse import urlparse
 import aiohttp
 import httpx
 
+from spine_client.landmarks import LEVELS  # the contract's level names (a client's view)
 from tools.processes import run_tool, stop_processes
 
 FINAL = {"succeeded", "failed", "cancelled"}
-LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
-          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
 
 

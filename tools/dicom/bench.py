@@ -34,11 +34,10 @@ from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
+from spine_engine.levels import LEVELS
 from tools.dicom import synthetic
 from tools.dicom.orthanc import OrthancServer, orthanc_missing, start_orthanc, stop_orthanc
 
-LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
-          "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
 SPACING_MM = 0.15
 
 
