@@ -1,11 +1,12 @@
 """Timing of the DICOM layer: read a header (file, and WADO-RS metadata from a local Orthanc), build
-the SR and the figure's SC, push both by STOW-RS. ``python -m tools.dicom.bench [--repeat N]``.
+the SR and the figure's SC, push both by STOW-RS. ``python -m tools.dicom.bench [--repeat N] [--out FILE]``.
 
 Inputs: a synthetic DX radiograph of 3000 × 2500 pixels at 16 bits (15 MB of pixel data; the header
 read stops before the pixels), the 17-level C-curve payload of the tests, its registered result, and
 its figure (spine_engine.figures, 110 dpi). The PACS is a throwaway Orthanc on loopback
 (``tools.dicom.orthanc``), so network time is near zero: a hospital PACS adds its round trips.
-Prints a Markdown table of median, 90th percentile and minimum per step, in milliseconds.
+Prints a Markdown table of median, 90th percentile and minimum per step, in milliseconds; ``--out``
+also writes them as JSON, with the command and the versions of Orthanc and its DICOMweb plug-in.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import requests
+
+from benches.report import write_json
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
 from services.dicom.results import part10
@@ -31,7 +35,7 @@ from spine_client.dicom.header import read_header
 from spine_engine import register
 from spine_engine.figures import render_figure
 from tools.dicom import synthetic
-from tools.dicom.orthanc import orthanc_missing, start_orthanc, stop_orthanc
+from tools.dicom.orthanc import OrthancServer, orthanc_missing, start_orthanc, stop_orthanc
 
 LEVELS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12",
           "L1", "L2", "L3", "L4", "L5"]  # fmt: skip
@@ -63,16 +67,37 @@ def _time(fn: Callable[[], Any], repeat: int) -> list[float]:
     return out
 
 
-def _row(name: str, samples: list[float]) -> str:
+def _row(name: str, samples: list[float]) -> dict[str, Any]:
+    """One step's figures: median, 90th percentile (nearest rank), minimum (ms) and number of runs."""
     ordered = sorted(samples)
     p90 = ordered[min(len(ordered) - 1, math.ceil(0.9 * len(ordered)) - 1)]
-    return f"| {name} | {statistics.median(ordered):.1f} | {p90:.1f} | {ordered[0]:.1f} | {len(ordered)} |"
+    return {"step": name, "median_ms": statistics.median(ordered), "p90_ms": p90, "min_ms": ordered[0],
+            "runs": len(ordered)}  # fmt: skip
+
+
+def _line(row: dict[str, Any]) -> str:
+    return f"| {row['step']} | {row['median_ms']:.1f} | {row['p90_ms']:.1f} | {row['min_ms']:.1f} | {row['runs']} |"
+
+
+def _versions(server: OrthancServer) -> dict[str, str | None]:
+    """Versions of the Orthanc under test and of its DICOMweb plug-in, as its REST API reports them."""
+
+    def version(path: str) -> str | None:
+        try:
+            answer = requests.get(f"{server.url}{path}", auth=server.auth(), timeout=5)
+            return str(answer.json()["Version"]) if answer.ok else None
+        except (requests.RequestException, ValueError, KeyError):
+            return None
+
+    return {"version": version("/system"), "dicomweb_plugin": version("/plugins/dicom-web")}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.dicom.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20, help="timed runs per step (after one warm-up)")
+    parser.add_argument("--out", type=Path, help="also write the figures as JSON to this file")
     args = parser.parse_args(argv)
+    versions: dict[str, str | None] | None = None
 
     image = synthetic.radiograph(rows=3000, columns=2500, imager_pixel_spacing=(SPACING_MM, SPACING_MM))
     data = part10(image)
@@ -102,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory(prefix="spine-dicom-bench-") as folder:
             proc, server = start_orthanc(Path(folder))
             try:
+                versions = _versions(server)
                 with Pacs(DicomwebConfig(server.dicomweb_url, server.username, server.password)) as pacs:
                     pacs.store([image])
                     sop, study, series = image.SOPInstanceUID, image.StudyInstanceUID, image.SeriesInstanceUID
@@ -116,8 +142,12 @@ def main(argv: list[str] | None = None) -> int:
                 stop_orthanc(proc)
     out = io.StringIO()
     out.write("| step | median ms | p90 ms | min ms | runs |\n| --- | --- | --- | --- | --- |\n")
-    out.write("\n".join(rows) + "\n")
+    out.write("\n".join(_line(row) for row in rows) + "\n")
     sys.stdout.write(out.getvalue())
+    if args.out:
+        command = " ".join(["python -m tools.dicom.bench", *(sys.argv[1:] if argv is None else argv)])
+        write_json(args.out, {"command": command, "settings": {"repeat": args.repeat}, "orthanc": versions,
+                              "steps": rows})  # fmt: skip
     return 0
 
 
