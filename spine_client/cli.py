@@ -1,6 +1,6 @@
 """The client's command line: ``spine submit | submit-dir | get | list | cancel | fhir``.
 
-Exit codes (README "Python client and CLI"), for scripts:
+Exit codes (docs/client.md), for scripts:
 
     0  success (with --wait / submit-dir: every job succeeded)
     1  a job failed or was cancelled

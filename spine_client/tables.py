@@ -1,5 +1,5 @@
 """CSV views of a job's result: one row per vertebra, or one row per measure, and the summary of
-``spine submit-dir``. Column names carry their units (README "Python client and CLI").
+``spine submit-dir``. Column names carry their units (docs/client.md).
 
 Every number with its trust, as in the page's CSVs (web/src/csv.ts, web/src/results.ts): the
 standard deviations the result gives (``position_sd_*_mm``, ``axial_rotation_sd_deg``; a measure's

@@ -254,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("rest", nargs=argparse.REMAINDER)
     bench.set_defaults(func=cmd_bench)
 
-    for name, text in CLIENT_COMMANDS.items():  # handed to spine_client.cli (README "Python client and CLI")
+    for name, text in CLIENT_COMMANDS.items():  # handed to spine_client.cli (docs/client.md)
         client = sub.add_parser(name, help=text, add_help=False)
         client.add_argument("rest", nargs=argparse.REMAINDER)
         client.set_defaults(func=cmd_client, client_command=name)

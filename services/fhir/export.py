@@ -15,7 +15,7 @@ translations of one meaning (FHIR R4 CodeableConcept.coding), so the broader "Co
 on the sagittal angles. Those, and the components with a concept of their own, are coded in the
 service's local code system ``LOCAL_CODE_SYSTEM`` (a ``urn:uuid``: FHIR R4 §4.1 "Using Codes" allows
 a UUID as the system of a code system without a URL), whose codes are the SR's private ``99SPINE``
-code values with the same meanings (``LOCAL_CODES``, documented in the README). The other codes used
+code values with the same meanings (``LOCAL_CODES``, documented in docs/fhir.md). The other codes used
 are FHIR's category ``imaging`` (http://terminology.hl7.org/CodeSystem/observation-category) and
 UCUM ``deg``. The input images' DICOM Study Instance UID, when the payload had a ``study``, is
 referenced in ``derivedFrom`` as an ImagingStudy identifier (system ``urn:dicom:uid``, value

@@ -135,7 +135,7 @@ def test_idempotency_keys_are_per_client(tenants: Tenants) -> None:
 
 def test_a_revoked_key_is_trusted_for_the_cache_window_then_refused(tmp_path: Path) -> None:
     """SPINE_API_KEY_CACHE_S: a verified key is trusted that long without a database read, so a key
-    revoked meanwhile still passes inside the window and is refused after it (README, "API keys")."""
+    revoked meanwhile still passes inside the window and is refused after it (docs/security.md, "API keys")."""
     window_s = 1.5
     settings, client = _app(tmp_path, api_key_cache_s=window_s)
     headers = {"Authorization": f"Bearer {make_key(settings, 'clinic-w')}"}

@@ -32,7 +32,7 @@ DESCRIPTION = (
     "the Cobb angle of every frontal curve (end and apex vertebrae, convexity, apical axial rotation and plane "
     "of maximum curvature as components), thoracic kyphosis T4–T12 and T5–T12, lumbar lordosis L1–L5, and the "
     'apical axial rotation of the major curve. `code` keeps its text and is coded: SNOMED CT 285285000 "Cobb '
-    'angle" for the frontal Cobb angles, the service\'s local code system (README, "FHIR export") for the '
+    'angle" for the frontal Cobb angles, the service\'s local code system (docs/fhir.md) for the '
     "measures no standard code names. With a `study` in the payload, each Observation's `derivedFrom` names the "
     "ImagingStudy by its DICOM Study Instance UID. With a patient ID (typed in or read from the image header), "
     "`subject` is the Patient by identifier, its `system` the setting `SPINE_PATIENT_ID_SYSTEM`. "
