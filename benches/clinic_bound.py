@@ -60,7 +60,7 @@ from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
 
 TARGETS_MM = {"a": 1.2, "b": 2.0, "c": 1.5}
-"""Issue #10's targets for the mean 3D error on VerSe test, 1 mm noise, no boundary."""
+"""The clinic's targets for the mean 3D error on VerSe test, 1 mm noise, no boundary."""
 BOUND_CASES = "abcde"
 """The cases without boundary ((f) has T1/L5 given: its rotation is known)."""
 FILM_PARAMETERS = 5

@@ -1,6 +1,6 @@
 """``spine bench noise-weight``: the prior's strength for noisy landmarks, by Monte Carlo on VerSe dev.
 
-Issue #10, item 5. The landmarks weigh w·(σ_ref/σ)² (σ a view's ``landmark_sd_mm``, σ_ref = 1 mm,
+The landmarks weigh w·(σ_ref/σ)² (σ a view's ``landmark_sd_mm``, σ_ref = 1 mm,
 ``models.LANDMARK_SD_MM_DEFAULT``) against the rod's potential energy, so the profile's
 ``fit_weight_pa`` / ``fit_weight_lateral`` w set how strongly the elastic prior smooths landmark
 noise. This command scores a grid of multipliers of the current weights on the VerSe ``dev`` spines

@@ -377,7 +377,7 @@ function missing(): string[] {
   if (!v.pa) {
     if (source !== "image" || panels.pa.hasFilm()) out.push("Place landmarks on the PA film: the PA view is required.");
   } else if (caps?.acquisition) {
-    // The engine that takes any levels (issue 10): at least 2 on the PA film, 3 on a lateral one
+    // The engine takes any levels: at least 2 on the PA film, 3 on a lateral one
     // (spine_engine.validation.MIN_LEVELS_PA / MIN_LEVELS_LATERAL), none required by name.
     if (v.pa.landmarks.length < 2 && !v.pa.projection) out.push("Place at least two vertebrae on the PA film: with one, the film's position of the spine is undetermined.");
     const n = v.lateral?.landmarks.length ?? 0;
