@@ -1,4 +1,5 @@
-"""No issue numbers in code, docs or shipped data: "issue #10" means nothing to a reader of the repository.
+"""No issue numbers in code, docs or shipped data: the word "issue" and a tracker's number mean nothing to a
+reader of the repository.
 History lives in CHANGELOG.md; a third party's issue (another project's tracker) names its project."""
 
 from __future__ import annotations
