@@ -732,10 +732,10 @@ def _has_pedicles(inputs: RegistrationInputs) -> bool:
 
 def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures) -> Uncertainty:
     """Without pedicles the vertebrae's axial rotations come from the rod's twist prior alone, whose
-    Laplace SD (a few degrees) knows nothing of how far real vertebrae turn, and whose mechanics turn
-    a kyphotic segment's body toward the concavity where real bodies turn toward the convexity. Each
-    SD is then √(SD² + (k·C)²), C the largest Cobb angle of the curves the vertebra lies in (0 outside
-    every curve), k = ``AXIAL_ROTATION_PER_COBB``."""
+    Laplace SD (a few degrees) knows nothing of how far real vertebrae turn (on the synthetic spines of
+    ``spine bench clinic``, rotated toward the convexity as real ones are, the rod's apex often turned
+    the other way). Each SD is then √(SD² + (k·C)²), C the largest Cobb angle of the curves the
+    vertebra lies in (0 outside every curve), k = ``AXIAL_ROTATION_PER_COBB``."""
     cobb = np.zeros(len(LEVELS))
     index = {level: i for i, level in enumerate(LEVELS)}
     for c in measures.cobb:
