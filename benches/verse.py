@@ -28,7 +28,7 @@ from spine_engine.anatomy import Profile, load_profile
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures
-from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
+from spine_engine.reconstruction import fit_patient_rod, measure_fit, prepare_inputs
 from spine_engine.validation import validate_payload
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -83,10 +83,7 @@ def reconstruct_spine(
     inputs = prepare_inputs(model, profile)
     out = fit_patient_rod(inputs, profile)[0].output  # a Profile object: ``spine bench calibrate``'s draws
     truth_m = compute_measures(positions, rotations)
-    recon_m = compute_measures(  # as ``register`` measures the fit
-        out.positions, out.rotations, observed_tilt_deg=inputs.observed_tilt_deg,
-        observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg, observed_sagittal=inputs.observed_sagittal,
-    )
+    recon_m = measure_fit(inputs, out)  # as ``register`` measures the fit
     return SpineOutcome(
         spine_id=spine_id,
         per_level_mm=np.linalg.norm(out.positions - positions, axis=1),

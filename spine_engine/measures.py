@@ -39,9 +39,12 @@ def sagittal_inclination_deg(rotations: npt.ArrayLike) -> FloatArray:
     """Sagittal inclination β_i = atan2(d3_y, −d3_z) of the caudal tangent d3 projected on the
     sagittal (y, z) plane, from the caudal vertical, positive when the spine runs posteriorly
     going down (17,)."""
-    R = np.asarray(rotations, dtype=float)
-    d3 = R[..., :, 2]
-    return np.degrees(np.arctan2(d3[..., 1], -d3[..., 2]))
+    return _inclination_deg(np.asarray(rotations, dtype=float)[..., :, 2])
+
+
+def _inclination_deg(caudal: FloatArray) -> FloatArray:
+    """β = atan2(t_y, −t_z) of caudal directions t (..., 3), degrees."""
+    return np.degrees(np.arctan2(caudal[..., 1], -caudal[..., 2]))
 
 
 def kyphosis_lordosis_deg(rotations: npt.ArrayLike) -> tuple[float, float, float]:
@@ -65,8 +68,7 @@ def sagittal_inclinations(
     is the rod's shear and bending prior alone, which pulls it toward the rest shape (on synthetic
     spines with lordosis 30–65°, 9–10° of lordosis with both films). The tangent is what the
     landmarks determine, and what the reported SDs are of (``fit.uncertainty``)."""
-    t = centreline_tangents(np.asarray(positions, dtype=float))
-    beta = np.degrees(np.arctan2(t[:, 1], -t[:, 2]))  # ``sagittal_inclination_deg`` of d3 = t
+    beta = _inclination_deg(centreline_tangents(np.asarray(positions, dtype=float)))
     if observed is None:
         return beta
     return np.where(np.asarray(observed, dtype=bool), sagittal_inclination_deg(rotations), beta)
@@ -326,17 +328,11 @@ LENKE_MODIFIER_DEG = (10.0, 40.0)
 """Lenke 2001 sagittal thoracic modifier on T5–T12 kyphosis: '-' below 10°, 'N' 10–40°, '+' above."""
 
 
-def regional_kyphosis_deg(rotations: npt.ArrayLike, upper: str, lower: str) -> float:
-    """β_upper − β_lower (``sagittal_inclination_deg``): positive when convex posteriorly."""
-    beta = sagittal_inclination_deg(rotations)
-    return float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])
-
-
 def lenke_inputs(cobb: list[CobbCurve], beta: FloatArray) -> LenkeInputs:
     """The Lenke classification inputs a reconstruction supports (model estimates); ``beta``: the
     sagittal inclinations (``sagittal_inclinations``)."""
     t2_t5, t5_t12, t10_l2 = (
-        float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])  # regional_kyphosis_deg, β computed once
+        float(beta[LEVEL_INDEX[upper]] - beta[LEVEL_INDEX[lower]])  # regional kyphosis (+: convex posteriorly)
         for upper, lower in (("T2", "T5"), ("T5", "T12"), ("T10", "L2"))
     )
     curves = []

@@ -52,7 +52,7 @@ from .fit import (
 from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
 from .fit.uncertainty import AXIAL_ROTATION_SD_CAP_DEG, Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
-from .levels import LEVELS
+from .levels import LEVEL_INDEX, LEVELS
 from .measures import compute_measures, frontal_tilts
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
@@ -669,13 +669,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         )
     if not (np.isfinite(out.positions).all() and np.isfinite(out.rotations).all()):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
-    measures = compute_measures(
-        out.positions,
-        out.rotations,
-        observed_tilt_deg=inputs.observed_tilt_deg,
-        observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg,
-        observed_sagittal=inputs.observed_sagittal,
-    )
+    measures = measure_fit(inputs, out)
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
@@ -696,6 +690,18 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         measures=measures,
         fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
+    )
+
+
+def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
+    """The measures of a fit, read as its inputs allow (``measures.compute_measures``): the corner
+    lines' tilts where given, the directors' sagittal tilt only where observed. No SDs."""
+    return compute_measures(
+        out.positions,
+        out.rotations,
+        observed_tilt_deg=inputs.observed_tilt_deg,
+        observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg,
+        observed_sagittal=inputs.observed_sagittal,
     )
 
 
@@ -737,9 +743,8 @@ def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures) -> 
     the other way). Each SD is then √(SD² + (k·C)²), C the largest Cobb angle of the curves the
     vertebra lies in (0 outside every curve), k = ``AXIAL_ROTATION_PER_COBB``."""
     cobb = np.zeros(len(LEVELS))
-    index = {level: i for i, level in enumerate(LEVELS)}
     for c in measures.cobb:
-        span = slice(index[c.upper], index[c.lower] + 1)
+        span = slice(LEVEL_INDEX[c.upper], LEVEL_INDEX[c.lower] + 1)
         cobb[span] = np.maximum(cobb[span], c.angle_deg)
     sd = np.hypot(uncertainty.axial_rotation_sd_deg, AXIAL_ROTATION_PER_COBB * cobb)
     return uncertainty._replace(axial_rotation_sd_deg=np.minimum(sd, AXIAL_ROTATION_SD_CAP_DEG))

@@ -391,12 +391,12 @@ def cpu_seconds_by_role(sessions: Collection[int] = ()) -> dict[str, float]:
         except OSError:
             continue
         role = next((r for r, marker in ROLES if marker in cmdline), None)
-        if role in SPAWNED_ROLES and sessions:
-            fields = proc_stat(int(entry.name))
-            if fields is None or int(fields[3]) not in sessions:
-                continue
-        if role is not None:
-            totals[role] += cpu_seconds_of([int(entry.name)])
+        if role is None:
+            continue
+        fields = proc_stat(int(entry.name))
+        if fields is None or (role in SPAWNED_ROLES and sessions and int(fields[3]) not in sessions):
+            continue
+        totals[role] += cpu_seconds_in(fields)
     mine = os.times()
     totals["load generator"] = mine.user + mine.system
     return totals
@@ -405,13 +405,12 @@ def cpu_seconds_by_role(sessions: Collection[int] = ()) -> dict[str, float]:
 def cpu_seconds_of(pids: Sequence[int]) -> float:
     """CPU time (user + system, s) used so far by these processes (``/proc/<pid>/stat`` fields 14
     and 15, in clock ticks); a process already gone counts 0."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0.0
-    for pid in pids:
-        fields = proc_stat(pid)
-        if fields is not None:
-            total += (int(fields[11]) + int(fields[12])) / tick
-    return total
+    return sum(cpu_seconds_in(fields) for fields in map(proc_stat, pids) if fields is not None)
+
+
+def cpu_seconds_in(fields: list[str]) -> float:
+    """CPU time (user + system, s) of one ``proc_stat`` reading (fields 14 and 15, clock ticks)."""
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def cpu_ms_per_job(before: dict[str, float], after: dict[str, float], jobs: int) -> dict[str, float]:
