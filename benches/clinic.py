@@ -25,6 +25,8 @@ Metrics per spine, then averaged (``summarise``):
   boundary and calibration the lean is a near gauge: the lateral film's in-plane rotation ψ turns its
   image exactly as a lean of the spine does, so only the PA film (through the heights' small
   dependence on depth) and ψ's prior fix it;
+* shape error with the scale removed too (``similarity_difference``): what two uncalibrated films
+  leave beside the spine's size, which neither film states;
 * kyphosis T4–T12, T5–T12, lordosis L1–L5 and the major Cobb angle computed the same way on truth
   and result: ``measures.compute_measures`` on the positions with the frames
   ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
@@ -91,6 +93,8 @@ class Outcome:
     scale_error_pct: float = float("nan")
     shape_error_mm: float = float("nan")
     """Mean 3D error after removing the best rigid motion (translation and rotation), mm."""
+    similarity_error_mm: float = float("nan")
+    """Mean 3D error after removing the best similarity (rigid motion and a uniform scale), mm."""
     rotation_error_deg: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
     """That rotation's vector (about x, y, z, LPS), degrees."""
     sagittal_lean_deg: float = float("nan")
@@ -137,6 +141,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     rms_ratio = np.sqrt(np.mean(np.sum(dr**2, axis=1)) / np.mean(np.sum(dt_**2, axis=1)))
     out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
     out.shape_error_mm, out.rotation_error_deg = rigid_difference(r, t)
+    out.similarity_error_mm = similarity_difference(r, t)
     out.sagittal_lean_deg = float(out.rotation_error_deg[0])
     # "computed the same way": the measures of the centreline frames of the positions, on both
     truth_m = compute_measures(t, frames_from_centreline(t))
@@ -196,6 +201,17 @@ def rigid_difference(r: FloatArray, t: FloatArray) -> tuple[float, FloatArray]:
     dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
     turn, _ = Rotation.align_vectors(dt_, dr)
     return float(np.mean(np.linalg.norm(turn.apply(dr) - dt_, axis=1))), turn.as_rotvec(degrees=True)
+
+
+def similarity_difference(r: FloatArray, t: FloatArray) -> float:
+    """mean |c Q(r_i − r̄) − (t_i − t̄)| in mm, with Q as in ``rigid_difference`` and c the least-squares
+    scale c = Σ (Q d_i)·e_i / Σ |d_i|² (d the centred result, e the centred truth): the shape error that
+    remains when the result's size is also corrected."""
+    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
+    turn, _ = Rotation.align_vectors(dt_, dr)
+    turned = turn.apply(dr)
+    c = float(np.sum(turned * dt_) / np.sum(turned * turned))
+    return float(np.mean(np.linalg.norm(c * turned - dt_, axis=1)))
 
 
 Registrar = Callable[[dict[str, Any]], dict[str, Any]]
@@ -283,6 +299,7 @@ def summarise(
         "max_3d_error_mm": float(per_level.max()) if ok else None,
         "scale_error_abs_pct": _mean([abs(o.scale_error_pct) for o in ok]),
         "shape_error_mm": _mean([o.shape_error_mm for o in ok]),
+        "similarity_error_mm": _mean([o.similarity_error_mm for o in ok]),
         "sagittal_lean_rms_deg": float(np.sqrt(np.mean([o.sagittal_lean_deg**2 for o in ok]))) if ok else None,
         "rotation_error_rms_deg_xyz": rms_rotation_error(ok),
         "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
@@ -437,6 +454,7 @@ TABLE_COLUMNS = [
     ("mean_3d_error_mm", "3D mm"),
     ("scale_error_abs_pct", "|scale| %"),
     ("shape_error_mm", "shape mm"),
+    ("similarity_error_mm", "no-scale mm"),
     ("sagittal_lean_rms_deg", "lean°"),
     ("reported_kyphosis_t4_t12", "kyph°"),
     ("floor_kyphosis", "floor"),
@@ -486,7 +504,8 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table for docs/accuracy.md."""
-    head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "lean RMS (°)",
+    head = ["data", "case", "ok", "3D error (mm)", "|scale| (%)", "shape error (mm)", "scale removed too (mm)",
+            "lean RMS (°)",
             "kyphosis MAE (°)", "population mean's", "lordosis MAE (°)", "population mean's",
             "major Cobb MAE (°)", "centreline's", "coverage positions", "kyphosis", "lordosis", "Cobb",
             "axial rotation"]

@@ -23,6 +23,8 @@ prior, so the prior must predict the population (DESIGN.md, "What the films cann
   own T1–L5 length; the size (T1–L5 length) has dev's SD;
 * the set-up: SD of T1's and L5's sagittal inclination over dev (the lean of a standing patient
   includes it), and the rotation about the vertical (``SPIN_SD_DEG``).
+* the size: dev's mean L/P, the T1–L5 length over its PA projection's, by which the engine scales
+  a patient's rest length from the PA film (``anatomy.length_correction``).
 
 The stiffnesses follow (``anatomy.PopulationPrior``): α_i = 2 τ Δs_i / θ_sd,i², β_3 = 2τ/(Δs σ_v²),
 with τ the fit's temperature at the reference magnification.
@@ -49,7 +51,15 @@ import numpy as np
 from benches.aasce import frontal_tilt_deg_of_corners, read_split
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import read_verse
-from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, population_prior, rest_model, save_profile
+from spine_engine.anatomy import (
+    PROFILES_DIR,
+    Profile,
+    length_over_pa_projection,
+    load_profile,
+    population_prior,
+    rest_model,
+    save_profile,
+)
 from spine_engine.frames import frames_from_centreline
 from spine_engine.measures import aasce_major_angle, frontal_tilt_deg, kyphosis_lordosis_deg, sagittal_inclination_deg
 from spine_engine.rod import configuration_from_strains, strains
@@ -86,11 +96,16 @@ class Population:
     """(T1, L5) sagittal inclination SDs over VerSe dev."""
     measures: dict[str, tuple[float, float]]
     """name → (mean, SD) over the population (degrees; length in mm)."""
+    length_over_pa_projection: tuple[float, float]
+    """(mean, SD) over VerSe dev of L/P, the T1–L5 length over its PA projection's
+    (``anatomy.length_over_pa_projection``)."""
 
 
-def _verse_statistics(spines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, tuple[float, float], dict[str, Any]]:
+def _verse_statistics(
+    spines: list[np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, tuple[float, float], dict[str, Any], tuple[float, float]]:
     generic_ds = rest_model(load_profile(), 1.0).ds
-    angles, stretch, incl, kyph, lord, length = [], [], [], [], [], []
+    angles, stretch, incl, kyph, lord, length, ratio = [], [], [], [], [], [], []
     for pos in spines:
         R = frames_from_centreline(pos)
         ds = np.linalg.norm(np.diff(pos, axis=0), axis=1)
@@ -103,20 +118,22 @@ def _verse_statistics(spines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray,
         kyph.append(k4)
         lord.append(lo)
         length.append(ds.sum())
+        ratio.append(length_over_pa_projection(pos))
     inc = np.array(incl)
     measures = {
         "kyphosis_t4_t12_deg": (float(np.mean(kyph)), float(np.std(kyph, ddof=1))),
         "lordosis_l1_l5_deg": (float(np.mean(lord)), float(np.std(lord, ddof=1))),
         "length_t1_l5_mm": (float(np.mean(length)), float(np.std(length, ddof=1))),
     }
+    ratios = (float(np.mean(ratio)), float(np.std(ratio, ddof=1)))
     sd_inc = (float(np.std(inc[:, 0], ddof=1)), float(np.std(inc[:, 1], ddof=1)))
-    return np.std(angles, axis=0, ddof=1), np.std(stretch, axis=0, ddof=1), sd_inc, measures
+    return np.std(angles, axis=0, ddof=1), np.std(stretch, axis=0, ddof=1), sd_inc, measures, ratios
 
 
 def population(verse_dev: Path, aasce_training: Path) -> Population:
     """Spreads and measures of VerSe dev (sagittal, stretch, size) and AASCE training (frontal)."""
     spines = [pos for _, pos in read_verse(verse_dev)]
-    sag, stretch, inc, measures = _verse_statistics(spines)
+    sag, stretch, inc, measures, ratios = _verse_statistics(spines)
     rads = read_split(aasce_training)
     tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in rads])
     major = np.array([r.angles[0] for r in rads])
@@ -124,7 +141,7 @@ def population(verse_dev: Path, aasce_training: Path) -> Population:
     measures["major_cobb_deg"] = (float(major[keep].mean()), float(major[keep].std(ddof=1)))
     frontal = np.std(np.diff(tilts[keep], axis=1), axis=0, ddof=1)
     shear = np.std([_frontal_shear(r.corners) for r in rads], axis=0, ddof=1)
-    return Population(sag, frontal, stretch, shear, inc, measures)
+    return Population(sag, frontal, stretch, shear, inc, measures, ratios)
 
 
 def _frontal_shear(corners: np.ndarray) -> np.ndarray:
@@ -218,6 +235,7 @@ def _with_prior(
             "kyphosis_t4_t12_deg": pop.measures["kyphosis_t4_t12_deg"][1],
             "lordosis_l1_l5_deg": pop.measures["lordosis_l1_l5_deg"][1],
         },
+        "length_over_pa_projection": pop.length_over_pa_projection[0],
     }
     return dataclasses.replace(profile, population_prior=data)
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from .anatomy import Profile, RestShapeKey, rest_shape_key, rest_shape_unit, rest_shape_unit_of
+from .anatomy import Profile, RestShapeKey, length_correction, rest_shape_key, rest_shape_unit, rest_shape_unit_of
 from .fit import FloatArray, Pose, ViewData
 from .frames import frames_from_centreline
 from .levels import LEVEL_INDEX, N_LEVELS
@@ -171,7 +171,7 @@ def size_factor(profile: Profile, view: ViewData) -> float:
         return 1.0
     patient = polyline_length(np.asarray(view.points) / view.scale)
     model = generic_projected_length(profile, view.indices, view.e_c, view.e_r)
-    return patient / model if patient > 0.0 and model > 0.0 else 1.0
+    return patient / model * length_correction(profile) if patient > 0.0 and model > 0.0 else 1.0
 
 
 def projected_length(points: FloatArray, e_c: FloatArray, e_r: FloatArray) -> float:

@@ -20,7 +20,15 @@ import numpy as np
 from pydantic import TypeAdapter
 from threadpoolctl import ThreadpoolController
 
-from .anatomy import Profile, RestModel, load_profile, population_prior, rest_model, rest_shape_unit
+from .anatomy import (
+    Profile,
+    RestModel,
+    length_correction,
+    load_profile,
+    population_prior,
+    rest_model,
+    rest_shape_unit,
+)
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
@@ -465,12 +473,13 @@ def patient_rest_model(profile: Profile, inputs: RegistrationInputs) -> RestMode
 
     It is turned rigidly so that its T1→L5 chord has the direction of the patient's (known from
     the boundary), then scaled so that its projection on the PA view is as long as the PA
-    landmarks' polyline. Strains do not depend on the turn; the scale sets the rest lengths.
+    landmarks' polyline, times the population's ``anatomy.length_correction``. Strains do not
+    depend on the turn; the scale sets the rest lengths.
     """
     generic = rest_shape_unit(profile)[1]
     turn = rotation_between(generic[-1] - generic[0], inputs.bottom[0] - inputs.top[0])
     turned = generic @ turn.T
-    scale = projected_arc_scale(turned, inputs.views[0])
+    scale = projected_arc_scale(turned, inputs.views[0]) * length_correction(profile)
     scaled = rest_model(profile, length_scale=scale)
     return dataclasses.replace(
         scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)

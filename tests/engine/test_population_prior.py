@@ -92,3 +92,23 @@ def test_a_measure_whose_sd_is_a_large_part_of_the_populations_is_unreliable() -
         update={"thoracic_kyphosis_t4_t12_sd_deg": 1.01 * UNRELIABLE_SD_FRACTION * population}
     )
     assert _unreliable_by_sd(wide, profile, []) == ["kyphosis"]
+
+
+def test_rest_length_from_the_pa_film_is_not_short() -> None:
+    """The rest rod scaled from a noise-free PA film of each dev spine (``patient_rest_model``, with
+    the PA magnification the film was made with): its mean length over the spines' own T1–L5 length
+    is within 0.5 % of 1. Scaled by the mean shape's L/P alone it was 1.1 % short (the mean shape is
+    straighter than the spines it averages, ``anatomy.length_correction``); 0.5 % is half that."""
+    from spine_engine.anatomy import length_correction
+    from spine_engine.reconstruction import patient_rest_model, prepare_inputs
+
+    profile = load_profile()
+    assert length_correction(profile) > 1.0
+    ratios = []
+    for spine_id, positions in SPINES:
+        truth = clinic_films.Truth(spine_id, positions, frames_from_centreline(positions))
+        series = clinic_films.simulate_series(truth, noise_mm=0.0, seed=0)
+        body = clinic_films.build_payload(series, clinic_films.CASES["e"])
+        rest = patient_rest_model(profile, prepare_inputs(body, profile))
+        ratios.append(rest.ds.sum() / np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+    assert abs(np.mean(ratios) - 1.0) <= 0.005

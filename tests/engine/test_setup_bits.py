@@ -4,7 +4,7 @@ normalisation in ``rotation_between`` gives the bits of ``np.linalg.norm``."""
 import numpy as np
 import pytest
 
-from spine_engine.anatomy import list_profiles, load_profile, rest_shape_unit
+from spine_engine.anatomy import length_correction, list_profiles, load_profile, rest_shape_unit
 from spine_engine.clinical import polyline_length, size_factor
 from spine_engine.fit import ViewData
 from spine_engine.fit.banded import UPPER3
@@ -64,7 +64,8 @@ def test_rotation_between_normalises_with_the_bits_of_linalg_norm():
 @pytest.mark.parametrize("name", list_profiles())
 def test_size_factor_matches_the_uncached_formula(name: str):
     """``size_factor`` with the generic spine's projected length cached per rest shape, levels and
-    axes gives the bits of the per-call computation, for every shipped profile and two layouts."""
+    axes gives the bits of the per-call computation (times the population's length correction), for
+    every shipped profile and two layouts."""
     profile = load_profile(name)
     rng = np.random.default_rng(5)
     for orientation in (("L", "F"), ("A", "F")):
@@ -74,6 +75,6 @@ def test_size_factor_matches_the_uncached_formula(name: str):
             view = ViewData("pa", indices, points, e_c, e_r, 0.87, np.zeros(2), 1.0)
             generic = rest_shape_unit(profile)[1][indices]
             model = polyline_length(np.stack([generic @ e_c, generic @ e_r], axis=1))
-            expected = polyline_length(points / 0.87) / model
+            expected = polyline_length(points / 0.87) / model * length_correction(profile)
             assert size_factor(profile, view) == expected
             assert size_factor(profile, view) == expected  # from the cache
