@@ -27,10 +27,6 @@ Metrics per spine, then averaged (``summarise``):
   dependence on depth) and ψ's prior fix it;
 * shape error with the scale removed too (``similarity_difference``): what two uncalibrated films
   leave beside the spine's size, which neither film states;
-* the spin about the vertical with the truth's depths (``spin_depths_given_rms_deg``): the best
-  rotation's z component once the result's y coordinates are the truth's. With one PA film the
-  best rotation also turns to absorb a wrong sagittal shape (a lumbar curve to the side and a
-  lordosis error trade by a turn about the vertical); this one is the turn of the spine itself;
 * kyphosis T4–T12, T5–T12, lordosis L1–L5 and the major Cobb angle computed the same way on truth
   and result: ``measures.compute_measures`` on the positions with the frames
   ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
@@ -99,9 +95,6 @@ class Outcome:
     """Mean 3D error after removing the best rigid motion (translation and rotation), mm."""
     similarity_error_mm: float = float("nan")
     """Mean 3D error after removing the best similarity (rigid motion and a uniform scale), mm."""
-    spin_depths_given_deg: float = float("nan")
-    """The best rotation's component about the vertical when the result's depths (y) are replaced by
-    the truth's: the turn that is not there to absorb an error of the sagittal shape, degrees."""
     rotation_error_deg: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
     """That rotation's vector (about x, y, z, LPS), degrees."""
     sagittal_lean_deg: float = float("nan")
@@ -149,9 +142,6 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     out.scale_error_pct = 100.0 * (float(rms_ratio) - 1.0)
     out.shape_error_mm, out.rotation_error_deg = rigid_difference(r, t)
     out.similarity_error_mm = similarity_difference(r, t)
-    depths_given = r.copy()
-    depths_given[:, 1] = t[:, 1] - t[:, 1].mean() + r[:, 1].mean()
-    out.spin_depths_given_deg = float(rigid_difference(depths_given, t)[1][2])
     out.sagittal_lean_deg = float(out.rotation_error_deg[0])
     # "computed the same way": the measures of the centreline frames of the positions, on both
     truth_m = compute_measures(t, frames_from_centreline(t))
@@ -312,7 +302,6 @@ def summarise(
         "similarity_error_mm": _mean([o.similarity_error_mm for o in ok]),
         "sagittal_lean_rms_deg": float(np.sqrt(np.mean([o.sagittal_lean_deg**2 for o in ok]))) if ok else None,
         "rotation_error_rms_deg_xyz": rms_rotation_error(ok),
-        "spin_depths_given_rms_deg": float(np.sqrt(np.mean([o.spin_depths_given_deg**2 for o in ok]))) if ok else None,
         "kyphosis_t4_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t4_t12", np.nan)) for o in ok]),
         "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
         "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),

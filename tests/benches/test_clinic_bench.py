@@ -111,6 +111,18 @@ def test_rigid_difference_removes_a_rigid_motion_and_reads_the_lean() -> None:
     assert 0.8 < shape < 2.0  # the mean of |N(0, I₃)| is 1.60; aligning removes a little of it
 
 
+def test_similarity_difference_also_removes_the_size() -> None:
+    """A truth scaled by 1.02, turned and moved: no shape error once the scale is removed too, while
+    the rigid shape error keeps 2 % of the points' mean distance from their centroid."""
+    truth = clinic.synthetic_truths(1, seed=3)[0].positions
+    a = np.radians(2.0)
+    spin = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    moved = 1.02 * truth @ spin.T + np.array([4.0, 1.0, -7.0])
+    assert clinic.similarity_difference(moved, truth) < 1e-9
+    spread = np.mean(np.linalg.norm(truth - truth.mean(axis=0), axis=1))
+    assert clinic.rigid_difference(moved, truth)[0] == pytest.approx(0.02 * spread, rel=0.02)
+
+
 @needs_verse
 def test_coverage_on_held_out_spines() -> None:
     """The calibrated 95 % intervals (constants fitted on VerSe dev only) cover the truth's
