@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from .initial import initial_configuration
 from .problem import RegistrationProblem, State
-from .solver import MAX_ITERATIONS, solve
+from .solver import MAX_ITERATIONS, linearise, solve
 from .types import (
     Camera,
     FitOutput,
@@ -72,6 +72,7 @@ __all__ = [
     "as_pose",
     "fit",
     "initial_configuration",
+    "linearise",
     "nearest_rotation",
     "solve",
     "weak_camera",

@@ -33,7 +33,8 @@ from numpy.typing import ArrayLike
 
 from .banded import KD, BorderedSystem, band_to_dense, solve_bordered
 from .problem import RegistrationProblem, State
-from .types import Solution
+from .rod_rows import RodCache
+from .types import FitOutput, FloatArray, PointRows, Solution
 
 XTOL_MM = 1e-6
 """Convergence: a step moving no position by more than this (mm) ..."""
@@ -170,7 +171,24 @@ def solve(
             nu *= 2.0
         if converged or not accepted:
             break
-    out = problem.output(state, res, cache, iterations, converged)
+    return _solution(problem, state, res, cache, rows, problem.output(state, res, cache, iterations, converged))
+
+
+def linearise(problem: RegistrationProblem, fitted: Solution) -> Solution:
+    """``problem``'s ``Solution`` at the configuration and camera values of ``fitted``, a solution of
+    the same problem with some camera parameters held fixed: the residuals and Jacobian there, for a
+    Laplace approximation that counts the held parameters' uncertainty under their priors. The rows'
+    reference scales are ``problem``'s (its cameras' initial values, as in the fit)."""
+    start = problem.initial_state(fitted.positions, fitted.rotations)
+    values = tuple(np.array(fitted.cameras[view.name], dtype=float) for view in problem.views)
+    state = State(start.r, start.R, values)
+    res, cache, rows = problem.evaluate(state)
+    return _solution(problem, state, res, cache, rows, fitted.output)
+
+
+def _solution(
+    problem: RegistrationProblem, state: State, res: FloatArray, cache: RodCache, rows: PointRows, out: FitOutput
+) -> Solution:
     J = problem.jacobian_state(state, (cache, rows))
     x = np.zeros(problem.n_params)
     for cam, values, cols in zip(problem.cameras, state.cameras, problem._cam_cols, strict=True):
@@ -190,4 +208,4 @@ def solve(
     )
 
 
-__all__ = ["band_to_dense", "solve"]
+__all__ = ["band_to_dense", "linearise", "solve"]

@@ -57,3 +57,33 @@ def test_a_rod_started_near_its_saddle_converges_to_a_buckled_minimum(bow_mm):
     assert np.linalg.eigvalsh(H).min() > 0.0
     _, H_straight = problem.gradient_and_hessian(r, R)
     assert np.linalg.eigvalsh(H_straight).min() < 0.0
+
+
+def test_linearise_at_the_optimum_is_the_solvers_solution() -> None:
+    """``linearise`` of a problem at its own solution gives ``solve``'s residuals, Jacobian and layout;
+    at the solution of the same problem with the PA's scale held, the rows of the free problem there
+    (the scale's prior row included)."""
+    import dataclasses
+
+    from spine_engine.fit import linearise, solve
+    from tests.engine.test_cameras import _joint_problem
+
+    prob, r, R = _joint_problem()
+    solution = solve(prob, r, R)
+    same = linearise(prob, solution)
+    np.testing.assert_allclose(same.residuals, solution.residuals, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(same.jacobian, solution.jacobian, rtol=0, atol=1e-12 * np.abs(solution.jacobian).max())
+    np.testing.assert_allclose(same.x, solution.x, rtol=0, atol=0)
+    assert same.layout == solution.layout and same.row_kinds == solution.row_kinds
+    pa = prob.views[0]
+    held_free = pa.camera.free.copy()
+    held_free[0] = False
+    held = dataclasses.replace(pa, camera=dataclasses.replace(pa.camera, free=held_free))
+    pinned = type(prob)(prob.params, [held, *prob.views[1:]], None, None, pose_priors=prob.pose_priors,
+                        energy_unit=prob.energy_unit)  # fmt: skip
+    fitted = solve(pinned, r, R)
+    free = linearise(prob, fitted)
+    assert free.jacobian.shape == (len(solution.residuals), prob.n_params)
+    assert fitted.jacobian.shape[1] == prob.n_params - 1
+    s_row = next(k for k, kind in enumerate(free.row_kinds) if kind == "camera")
+    assert free.jacobian[s_row].any()  # the scale's prior row, absent from the held problem's columns
