@@ -56,6 +56,7 @@ from .fit import (
     as_pose,
     initial_configuration,
     linearise,
+    minimise,
     nearest_rotation,
     solve,
 )
@@ -512,7 +513,7 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
     pinned = _pa_scale_pinned(inputs.views)
     if pinned is None:
         return solve(problem(inputs.views), init_r, init_R), rest
-    return linearise(problem(inputs.views), solve(problem(pinned), init_r, init_R)), rest
+    return linearise(problem(inputs.views), minimise(problem(pinned), init_r, init_R)), rest
 
 
 def _pa_scale_pinned(views: Sequence[ViewData]) -> list[ViewData] | None:

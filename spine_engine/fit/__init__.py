@@ -10,7 +10,7 @@ Kept apart as PyElastica keeps its kernels from its time-stepper:
 | ``pose_rows`` | the offset-point and tilt rows (observations that touch one vertebra's pose) |
 | ``problem`` | ``RegistrationProblem``: all rows, the parameter layout, normal equations |
 | ``banded`` | LAPACK band storage and the bordered (arrow) solve |
-| ``solver`` | the Levenberg–Marquardt / Newton loop, returning a ``Solution`` |
+| ``solver`` | the Levenberg–Marquardt / Newton loop (``minimise``); the ``Solution`` (``solve``, ``linearise``) |
 | ``initial`` | the initial configuration |
 
 ``fit(...)`` registers with T1 and L5 exact (the paper); ``fit_free(...)`` with every vertebra free.
@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from .initial import initial_configuration
 from .problem import RegistrationProblem, State
-from .solver import MAX_ITERATIONS, linearise, solve
+from .solver import MAX_ITERATIONS, Minimum, linearise, minimise, solve
 from .types import (
     Camera,
     FitOutput,
@@ -61,6 +61,7 @@ __all__ = [
     "Camera",
     "FitOutput",
     "FloatArray",
+    "Minimum",
     "ParameterLayout",
     "Pose",
     "PosePrior",
@@ -73,6 +74,7 @@ __all__ = [
     "fit",
     "initial_configuration",
     "linearise",
+    "minimise",
     "nearest_rotation",
     "solve",
     "weak_camera",

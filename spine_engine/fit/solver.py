@@ -28,6 +28,8 @@ ends the search unconverged.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -109,10 +111,31 @@ class _Trial:
         self.E = float(self.res @ self.res)
 
 
+class Minimum(NamedTuple):
+    """Where ``minimise`` stopped: the configuration, each view's camera values and the fit's report,
+    with the residual rows there (for ``solve``'s Jacobian)."""
+
+    positions: FloatArray
+    rotations: FloatArray
+    cameras: dict[str, FloatArray]
+    output: FitOutput
+    state: State
+    evaluated: tuple[FloatArray, RodCache, PointRows]
+
+
 def solve(
     problem: RegistrationProblem, positions: ArrayLike, rotations: ArrayLike, max_iterations: int = MAX_ITERATIONS
 ) -> Solution:
-    """Minimise E from (positions, rotations) and the cameras' initial values (module docstring)."""
+    """Minimise E from (positions, rotations) and the cameras' initial values (module docstring), with
+    the Jacobian at the optimum."""
+    m = minimise(problem, positions, rotations, max_iterations)
+    return _solution(problem, m.state, *m.evaluated, m.output)
+
+
+def minimise(
+    problem: RegistrationProblem, positions: ArrayLike, rotations: ArrayLike, max_iterations: int = MAX_ITERATIONS
+) -> Minimum:
+    """``solve``'s minimisation alone (no Jacobian at the optimum)."""
     state = problem.initial_state(positions, rotations)
     res, cache, rows = problem.evaluate(state)
     E = float(res @ res)
@@ -171,11 +194,13 @@ def solve(
             nu *= 2.0
         if converged or not accepted:
             break
-    return _solution(problem, state, res, cache, rows, problem.output(state, res, cache, iterations, converged))
+    cameras = {view.name: values for view, values in zip(problem.views, state.cameras, strict=True)}
+    out = problem.output(state, res, cache, iterations, converged)
+    return Minimum(state.r, state.R, cameras, out, state, (res, cache, rows))
 
 
-def linearise(problem: RegistrationProblem, fitted: Solution) -> Solution:
-    """``problem``'s ``Solution`` at the configuration and camera values of ``fitted``, a solution of
+def linearise(problem: RegistrationProblem, fitted: Minimum | Solution) -> Solution:
+    """``problem``'s ``Solution`` at the configuration and camera values of ``fitted``, a minimum of
     the same problem with some camera parameters held fixed: the residuals and Jacobian there, for a
     Laplace approximation that counts the held parameters' uncertainty under their priors. The rows'
     reference scales are ``problem``'s (its cameras' initial values, as in the fit)."""
@@ -208,4 +233,4 @@ def _solution(
     )
 
 
-__all__ = ["band_to_dense", "linearise", "solve"]
+__all__ = ["Minimum", "band_to_dense", "linearise", "minimise", "solve"]
