@@ -524,10 +524,9 @@ def _pa_scale_pinned(views: Sequence[ViewData]) -> list[ViewData] | None:
     smaller makes the same images, so only the prior (``clinical.PA_MAGNIFICATION_PRIOR``) knows it
     and the mean of the posterior is the prior's. Estimated with the spine, it was pulled by the rod
     instead: by the rest length, which the PA film had already set at that mean, and by the shear
-    rows, which shrink with the spine (VerSe test, two films: the result 0.7 % too small, shape
-    error 1.55 mm against 1.09 mm pinned). The fit holds s at the mean; its uncertainty is still
-    read with s free under the prior (``linearise``). With one film s stays free: pinned, the PA
-    film's kyphosis was farther from the truth (VerSe test 4.93° → 5.20°)."""
+    rows, which shrink with the spine (docs/engine.md). The fit holds s at the mean; its uncertainty
+    is still read with s free under the prior (``linearise``). With one film s stays free: held, the
+    PA film's kyphosis was farther from the truth on VerSe (docs/engine.md)."""
     names = [view.name for view in views]
     pa = views[names.index("pa")] if "pa" in names else None
     if pa is None or "lateral" not in names or pa.camera is None:
