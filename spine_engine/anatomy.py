@@ -511,9 +511,10 @@ def length_correction(profile: Profile) -> float:
     (``PopulationPrior.length_over_pa_projection``) and L₀/P₀ the rest shape's; 1 without it.
 
     The rest shape is the population's mean shape, and a mean shape is straighter than the spines it
-    averages (E[1/cos β] > 1/cos E[β]): scaled so that its PA projection is as long as a patient's,
-    it was shorter than the patient by about 1 % on VerSe dev (L/P 1.038 against the rest shape's
-    1.027), which the fit made up by a larger magnification and flatter sagittal curves."""
+    averages (E[1/cos β] > 1/cos E[β]): scaled only so that its PA projection is as long as a
+    patient's, it would be about 1 % shorter than the patient on VerSe dev (L/P 1.038 against the rest
+    shape's 1.027), and the fit would make that up by a larger magnification and flatter sagittal
+    curves."""
     prior = population_prior(profile)
     if prior is None or prior.length_over_pa_projection is None:
         return 1.0
