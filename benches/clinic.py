@@ -193,23 +193,28 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     return out
 
 
+def _aligned(r: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray, Rotation]:
+    """(Q(r_i − r̄), t_i − t̄, Q) with Q the rotation that best aligns the centred result r on the
+    centred truth t (least squares, Kabsch)."""
+    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
+    turn, _ = Rotation.align_vectors(dt_, dr)
+    return turn.apply(dr), dt_, turn
+
+
 def rigid_difference(r: FloatArray, t: FloatArray) -> tuple[float, FloatArray]:
     """(mean |Q(r_i − r̄) − (t_i − t̄)| in mm, Q's rotation vector in degrees) with Q the rotation
     that best aligns the centred result r on the centred truth t (least squares, Kabsch). The
     vector's x component is how far the result leans forward or back, its z component how far it is
     turned about the vertical."""
-    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
-    turn, _ = Rotation.align_vectors(dt_, dr)
-    return float(np.mean(np.linalg.norm(turn.apply(dr) - dt_, axis=1))), turn.as_rotvec(degrees=True)
+    turned, dt_, turn = _aligned(r, t)
+    return float(np.mean(np.linalg.norm(turned - dt_, axis=1))), turn.as_rotvec(degrees=True)
 
 
 def similarity_difference(r: FloatArray, t: FloatArray) -> float:
     """mean |c Q(r_i − r̄) − (t_i − t̄)| in mm, with Q as in ``rigid_difference`` and c the least-squares
     scale c = Σ (Q d_i)·e_i / Σ |d_i|² (d the centred result, e the centred truth): the shape error that
     remains when the result's size is also corrected."""
-    dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
-    turn, _ = Rotation.align_vectors(dt_, dr)
-    turned = turn.apply(dr)
+    turned, dt_, _ = _aligned(r, t)
     c = float(np.sum(turned * dt_) / np.sum(turned * turned))
     return float(np.mean(np.linalg.norm(c * turned - dt_, axis=1)))
 

@@ -500,9 +500,11 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
     first = inputs.views[0]
     weight = profile.fit_weight_pa if first.name == "pa" else profile.fit_weight_lateral
 
+    params = rod_parameters(rest)
+
     def problem(views: Sequence[ViewData]) -> RegistrationProblem:
         return RegistrationProblem(
-            rod_parameters(rest),
+            params,
             views,
             inputs.top if exact else None,
             inputs.bottom if exact else None,

@@ -112,15 +112,25 @@ class _Trial:
 
 
 class Minimum(NamedTuple):
-    """Where ``minimise`` stopped: the configuration, each view's camera values and the fit's report,
-    with the residual rows there (for ``solve``'s Jacobian)."""
+    """Where ``minimise`` stopped: the state, the residual rows there (for ``solve``'s Jacobian) and
+    the fit's report; positions, rotations and each view's camera values as a ``Solution`` names them."""
 
-    positions: FloatArray
-    rotations: FloatArray
-    cameras: dict[str, FloatArray]
-    output: FitOutput
     state: State
     evaluated: tuple[FloatArray, RodCache, PointRows]
+    output: FitOutput
+    view_names: tuple[str, ...]
+
+    @property
+    def positions(self) -> FloatArray:
+        return self.state.r
+
+    @property
+    def rotations(self) -> FloatArray:
+        return self.state.R
+
+    @property
+    def cameras(self) -> dict[str, FloatArray]:
+        return dict(zip(self.view_names, self.state.cameras, strict=True))
 
 
 def solve(
@@ -194,9 +204,8 @@ def minimise(
             nu *= 2.0
         if converged or not accepted:
             break
-    cameras = {view.name: values for view, values in zip(problem.views, state.cameras, strict=True)}
     out = problem.output(state, res, cache, iterations, converged)
-    return Minimum(state.r, state.R, cameras, out, state, (res, cache, rows))
+    return Minimum(state, (res, cache, rows), out, tuple(view.name for view in problem.views))
 
 
 def linearise(problem: RegistrationProblem, fitted: Minimum | Solution) -> Solution:
