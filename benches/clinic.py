@@ -6,7 +6,7 @@ entry point (``spine_engine.register`` on a ``JobPayload``), as a hospital would
 * truth: the VerSe CT spines (``dev`` to tune, ``test`` to report; centroids, directors from
   ``frames.frames_from_centreline``) and synthetic spines built geometrically by
   ``spine_engine.synthetic`` (curve angles, kyphosis, lordosis and axial rotation drawn, never
-  made by the fit);
+  made by the fit), other spines for each split (``SYNTHETIC_SEED_OF_SPLIT``);
 * films and cases (``clinic_films``): a simulated PA and lateral radiograph of each spine
   (``simulate_series``: landmark noise, magnifications, film turn and offsets drawn) and what the
   clinic sends of them in each case (``CASES``, ``build_payload``): (a) uncalibrated PA + full
@@ -250,11 +250,17 @@ def verse_truths(split: str, data: Path | None = None) -> list[Truth]:
     return [Truth(sid, pos, frames_from_centreline(pos)) for sid, pos in read_verse(path)]
 
 
-def synthetic_truths(n: int, seed: int) -> list[Truth]:
-    """``n`` synthetic spines of ``spine_engine.synthetic`` (geometric, with axial rotation)."""
+SYNTHETIC_SEED_OF_SPLIT = {"test": 0, "dev": 10_000}
+"""Added to ``--seed`` to draw the synthetic spines of each split: the spines tuned on (``--split dev``)
+are not the spines reported (``--split test``), as for VerSe."""
+
+
+def synthetic_truths(n: int, seed: int, split: str = "test") -> list[Truth]:
+    """``n`` synthetic spines of ``spine_engine.synthetic`` (geometric, with axial rotation), drawn
+    for ``split`` (``SYNTHETIC_SEED_OF_SPLIT``)."""
     return [
         Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
-        for s in generate_spines(n, seed=seed)
+        for s in generate_spines(n, seed=seed + SYNTHETIC_SEED_OF_SPLIT[split])
     ]
 
 
@@ -627,7 +633,7 @@ def main(argv: list[str] | None = None) -> int:
         calibrated = calibrate_and_write(command, args.split, verse, cases, args.noise_mm, args.seed, args.profile)
     datasets = {f"verse-{args.split}": verse}
     if args.synthetic > 0 and not args.calibrate_uncertainty:
-        datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed)
+        datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed, args.split)
     if args.seeds is not None:
         return _sweep_main(args, command, datasets, cases)
     rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)

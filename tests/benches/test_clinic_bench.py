@@ -96,6 +96,18 @@ def test_bench_runs_on_a_tiny_case(tmp_path: Path, capsys: pytest.CaptureFixture
     assert (tmp_path / "clinic-test.json").is_file() and (tmp_path / "clinic-test.png").is_file()
 
 
+def test_dev_and_test_draw_different_synthetic_spines() -> None:
+    """The synthetic spines tuned on (``--split dev``) are not the ones reported (``--split test``),
+    and each split's are the same on every run."""
+    dev = clinic.synthetic_truths(4, seed=0, split="dev")
+    test = clinic.synthetic_truths(4, seed=0, split="test")
+    assert not {t.spine_id for t in dev} & {t.spine_id for t in test}
+    for d in dev:
+        assert all(not np.allclose(d.positions, t.positions) for t in test)
+    again = clinic.synthetic_truths(4, seed=0, split="dev")
+    assert all(np.array_equal(a.positions, d.positions) for a, d in zip(again, dev, strict=True))
+
+
 def test_rigid_difference_removes_a_rigid_motion_and_reads_the_lean() -> None:
     """A truth turned 1.5° about x (leaning) and moved: shape error 0, rotation vector (−1.5°, 0, 0)
     (the rotation that brings it back); noise added after the turn leaves a shape error of the noise's size."""
