@@ -68,7 +68,7 @@ from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_p
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
-from spine_engine.anatomy import load_profile
+from spine_engine.anatomy import load_profile, rest_model
 from spine_engine.errors import SpineEngineError
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
@@ -106,6 +106,9 @@ class Outcome:
     """Signed error of the result's reported measure (its directors) against the same truth."""
     truth_deg: dict[str, float] = field(default_factory=dict)
     """The truth's measures computed the same way (the trivial estimator's errors are measured on them)."""
+    floor_rotation_deg: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
+    """The best rotation (as ``rotation_error_deg``) of the trivial answer of one PA film
+    (``population_sagittal_answer``) onto the truth."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
     position_z: FloatArray | None = None
@@ -236,7 +239,26 @@ def run_one(series: Series, case: Case, profile: str = "default", registrar: Reg
         result = registrar(payload)
     except SpineEngineError as exc:
         return Outcome(series.truth.spine_id, case.key, ok=False, error=f"{type(exc).__name__}: {exc}"[:300])
-    return compare(result, series.truth, case.key, (time.perf_counter() - start) * 1e3)
+    out = compare(result, series.truth, case.key, (time.perf_counter() - start) * 1e3)
+    trivial = population_sagittal_answer(series.truth.positions, profile)
+    out.floor_rotation_deg = rigid_difference(trivial, series.truth.positions)[1]
+    return out
+
+
+def population_sagittal_answer(truth: FloatArray, profile: str = "default") -> FloatArray:
+    """The trivial answer of one PA film (17, 3) mm: the truth's frontal curve (x, z) exactly, and as
+    depth y the profile's rest shape (the population's mean sagittal shape) at the same height,
+    scaled to the truth's T1–L5 height: what a PA film shows, completed by the population.
+
+    Its best rotation onto the truth (``rigid_difference``) is the floor of the rotation RMS: a
+    sagittal shape unlike the population's reads as a turn about the vertical even when nothing turned."""
+    rest = rest_model(load_profile(profile)).positions
+    height = truth[0, 2] - truth[-1, 2]
+    scale = height / (rest[0, 2] - rest[-1, 2])
+    depth = np.interp(truth[0, 2] - truth[:, 2], (rest[0, 2] - rest[:, 2]) * scale, rest[:, 1] * scale)
+    answer = np.array(truth, dtype=float)
+    answer[:, 1] = truth[0, 1] + depth - depth[0]
+    return answer
 
 
 # ---------------------------------------------------------------- data sets and summaries
@@ -340,6 +362,9 @@ def summarise(
     }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
+    row["floor_rotation_rms_deg_xyz"] = (
+        np.sqrt(np.mean([o.floor_rotation_deg**2 for o in ok], axis=0)).round(3).tolist() if ok else None
+    )
     row["floor_mae_deg"] = {
         name: _mean([abs(mean - o.truth_deg[name]) for o in ok if name in o.truth_deg])
         for name, mean in (floor or {}).items()

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from benches import clinic, clinic_films, uncertainty_calibration
+from spine_engine.anatomy import load_profile, rest_model
 from spine_engine.projection import image_axes, project
 
 VERSE = clinic.shared_data_dir("verse")
@@ -133,6 +134,17 @@ def test_similarity_difference_also_removes_the_size() -> None:
     assert clinic.similarity_difference(moved, truth) < 1e-9
     spread = np.mean(np.linalg.norm(truth - truth.mean(axis=0), axis=1))
     assert clinic.rigid_difference(moved, truth)[0] == pytest.approx(0.02 * spread, rel=0.02)
+
+
+def test_population_sagittal_answer_keeps_the_frontal_curve_and_takes_the_rest_depth() -> None:
+    """The trivial PA-only answer has the truth's x and z exactly; on the rest shape itself (scaled) it
+    is the rest shape, so its best rotation onto it is 0 (the floor is not a turn of its own)."""
+    truth = clinic.synthetic_truths(1, seed=3)[0].positions
+    answer = clinic.population_sagittal_answer(truth)
+    np.testing.assert_array_equal(answer[:, [0, 2]], truth[:, [0, 2]])
+    rest = 0.95 * rest_model(load_profile()).positions + np.array([3.0, -2.0, 40.0])
+    np.testing.assert_allclose(clinic.population_sagittal_answer(rest), rest, atol=1e-9)
+    assert np.allclose(clinic.rigid_difference(clinic.population_sagittal_answer(rest), rest)[1], 0.0, atol=1e-6)
 
 
 @needs_verse
