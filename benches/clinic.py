@@ -32,7 +32,8 @@ Metrics per spine, then averaged (``summarise``):
   ``frames.frames_from_centreline`` puts on them (the truth has no other frames: VerSe gives
   centroids); the Cobb angle between the result's major curve's end vertebrae. Absolute errors.
   The JSON also has the errors of the result's reported measures (its directors, which the rod's
-  shear lets leave the centreline's tangent) against the same truth (``reported_mae_deg``);
+  shear lets leave the centreline's tangent) against the same truth (``reported_mae_deg``) and their
+  mean signed error, result − truth (``reported_bias_deg``);
 * coverage of the 95 % intervals (±1.96 SD): per coordinate of every position relative to the
   centroid (``position_sd_mm``), of each measure with an SD (kyphosis, lordosis, every Cobb curve;
   the value computed the same way as above, whose SD ``fit.uncertainty`` propagates; the JSON's
@@ -342,6 +343,10 @@ def summarise(
         "reported_mae_deg": {
             name: _mean([abs(o.reported_errors_deg.get(name, np.nan)) for o in ok])
             for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb")
+        },
+        "reported_bias_deg": {
+            name: _mean([o.reported_errors_deg.get(name, np.nan) for o in ok])
+            for name in ("kyphosis_t4_t12", "lordosis_l1_l5", "major_cobb")
         },
         "median_runtime_ms": float(np.median([o.runtime_ms for o in ok])) if ok else None,
         "per_level_mean_mm": dict(zip(LEVELS, per_level.mean(axis=0).round(3).tolist(), strict=True)) if ok else None,

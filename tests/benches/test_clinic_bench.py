@@ -147,6 +147,22 @@ def test_population_sagittal_answer_keeps_the_frontal_curve_and_takes_the_rest_d
     assert np.allclose(clinic.rigid_difference(clinic.population_sagittal_answer(rest), rest)[1], 0.0, atol=1e-6)
 
 
+def test_summary_reports_the_signed_bias_and_the_rotation_floor() -> None:
+    """``reported_bias_deg`` is the mean signed error (errors of opposite signs cancel, unlike the MAE);
+    ``floor_rotation_rms_deg_xyz`` the RMS of the spines' floor rotations."""
+    outcomes = []
+    for kyphosis_error, floor_spin in ((3.0, 6.0), (-1.0, 8.0)):
+        o = clinic.Outcome("s", "e", ok=True, rotation_error_deg=np.zeros(3))
+        o.reported_errors_deg = {"kyphosis_t4_t12": kyphosis_error, "lordosis_l1_l5": -2.0}
+        o.floor_rotation_deg = np.array([0.0, 0.0, floor_spin])
+        outcomes.append(o)
+    row = clinic.summarise("d", clinic_films.CASES["e"], outcomes)
+    assert row["reported_bias_deg"]["kyphosis_t4_t12"] == pytest.approx(1.0)
+    assert row["reported_bias_deg"]["lordosis_l1_l5"] == pytest.approx(-2.0)
+    assert row["reported_mae_deg"]["kyphosis_t4_t12"] == pytest.approx(2.0)
+    assert row["floor_rotation_rms_deg_xyz"][2] == pytest.approx(np.sqrt(50.0), abs=1e-3)
+
+
 @needs_verse
 def test_coverage_on_held_out_spines() -> None:
     """The calibrated 95 % intervals (constants fitted on VerSe dev only) cover the truth's
