@@ -12,10 +12,13 @@ anterior (−y), lateral beam right → left (+x, the patient's left side at the
 ``CASES`` are what the clinic sends of such a series (``build_payload``): (a) uncalibrated PA +
 full lateral, weak perspective, nothing given; (b) the same with the lateral from T4 down; (c)
 perspective films (pinhole: magnification SID/d with d the source distance of each point) with
-``acquisition`` giving SID, SOD and the central ray; (d) the same films without ``acquisition``;
+``acquisition`` giving SID, SOD and the central ray; (d) the same films without their geometry, stated
+as point-source films (``acquisition.projection_model`` "perspective", as the DICOM layer sends a CR
+film without SID);
 (e) the PA film of (a) only; (f) the paper's case: T1 and L5 given from the truth, both views' weak
 perspective given, films not turned; (g) the films of (c) with SID and SOD but no central ray (a DX
-header), the ray farther from the spine (``RAY_OFFSET_SD_MM``).
+header), the ray farther from the spine (``RAY_OFFSET_SD_MM``); (h) the films of (d) without
+``projection_model``, as a client that does not say they come from a point source sends them.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from spine_engine.levels import LEVELS, N_LEVELS
-from spine_engine.models import LATERAL_ORIENTATION, PA_ORIENTATION, JobPayload, LateralView, PAView
+from spine_engine.models import LATERAL_ORIENTATION, PA_ORIENTATION, Acquisition, JobPayload, LateralView, PAView
 from spine_engine.projection import image_axes
 
 FloatArray = npt.NDArray[np.float64]
@@ -81,6 +84,8 @@ class Case:
     ray_offset_sd_mm: float = 0.0
     """SD per image axis of an extra offset of the central ray from the spine, mm (patient plane),
     drawn per spine apart from the series' own draws (``ray_offset``)."""
+    point_source: bool = False
+    """The views state ``acquisition.projection_model`` "perspective" (a film read from DICOM)."""
 
 
 CASES: dict[str, Case] = {
@@ -89,11 +94,12 @@ CASES: dict[str, Case] = {
         Case("a", "PA + full lateral, uncalibrated"),
         Case("b", "PA + lateral T4-L5, uncalibrated", lateral_from=3),
         Case("c", "perspective PA + lateral, geometry given", perspective=True, acquisition=True),
-        Case("d", "perspective PA + lateral, geometry unknown", perspective=True),
+        Case("d", "perspective PA + lateral, geometry unknown", perspective=True, point_source=True),
         Case("e", "PA only, uncalibrated", lateral_from=None),
         Case("f", "paper: T1/L5 given, calibrated PA + lateral", boundary=True, calibrated=True),
         Case("g", "perspective PA + lateral, SID/SOD without central ray, ray ~40 mm off", perspective=True,
              acquisition=True, central_ray=False, ray_offset_sd_mm=RAY_OFFSET_SD_MM),
+        Case("h", "perspective PA + lateral, geometry unknown, not said to be a point source", perspective=True),
     )
 }
 
@@ -196,9 +202,9 @@ def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
     return Series(truth, films[0], films[1], pa_noise, lateral_noise, noise_mm)
 
 
-def supports(field_name: str, view: type[PAView] | type[LateralView] = PAView) -> bool:
-    """Whether this engine's payload model has ``field_name`` on a view (the bench sends only what
-    the engine knows)."""
+def supports(field_name: str, view: type[PAView] | type[LateralView] | type[Acquisition] = PAView) -> bool:
+    """Whether this engine's payload model has ``field_name`` on a view or its acquisition (the bench
+    sends only what the engine knows)."""
     return field_name in view.model_fields
 
 
@@ -238,6 +244,8 @@ def _view_payload(series: Series, film: Film, noise: FloatArray, levels: list[in
         }
         if case.central_ray:
             view["acquisition"]["central_ray"] = [float(film.central_ray[0]), float(film.central_ray[1])]
+    if case.point_source and supports("projection_model", Acquisition):
+        view.setdefault("acquisition", {})["projection_model"] = "perspective"
     return view
 
 

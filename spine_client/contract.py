@@ -42,6 +42,7 @@ class Acquisition(OpenModel):
     distance_source_to_patient_mm: float | None = None
     central_ray: tuple[float, float] | None = None
     image_size: tuple[float, float] | None = None
+    projection_model: Literal["perspective", "weak_perspective"] | None = None
 
 
 class Assumption(OpenModel):
@@ -53,6 +54,7 @@ class Assumption(OpenModel):
         "magnification_prior",
         "standing_orientation",
         "population_sagittal_shape",
+        "full_spine_geometry",
     ]
     view: Literal["pa", "lateral"] | None = None
     reason: str

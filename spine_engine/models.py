@@ -99,7 +99,8 @@ PixelSpacingCalibration = Literal["calibrated", "projection", "detector", "unkno
 
 class Acquisition(_Strict):
     """How a radiograph was taken, when known (all optional). SID and SOD together give a pinhole
-    (perspective) projection; otherwise the view is fitted with a weak perspective."""
+    (perspective) projection, as does projection_model "perspective" with the geometry it lacks assumed;
+    otherwise the view is fitted with a weak perspective."""
 
     magnification: PositiveFactor | None = Field(
         None,
@@ -130,6 +131,16 @@ class Acquisition(_Strict):
         "Used with SID and SOD when central_ray is absent: the central ray is taken to meet the detector at the "
         "image's centre (SID is measured to the detector's centre, DICOM PS3.3 C.8.7.6 and C.8.11.5).",
     )
+    projection_model: Literal["perspective", "weak_perspective"] | None = Field(
+        None,
+        description="How the film projects the patient. perspective: from a point source, as every "
+        "radiograph (CR, DX) is: SID and SOD when given, else those of full-spine radiography (SID 1800 mm, the "
+        "spine's mid-plane 200 mm before the detector; SOD = SID / magnification when an ERMF is given), the "
+        "spine's distance from the source then held by a prior (SD 50 mm on the PA, 100 mm on the lateral; "
+        "fit.assumed names full_spine_geometry). weak_perspective: parallel rays scaled by one magnification, "
+        "refused with SID and SOD. Absent: perspective when SID and SOD are given, else weak_perspective. "
+        "The DICOM layer and the page send perspective for a film read from DICOM.",
+    )
 
     @model_validator(mode="after")
     def _geometry(self) -> Acquisition:
@@ -138,12 +149,28 @@ class Acquisition(_Strict):
             raise ValueError(
                 f"distance_source_to_patient_mm ({sod:g}) must be smaller than distance_source_to_detector_mm ({sid:g})"
             )
+        if self.projection_model == "perspective" and self.magnification is not None and not self.magnification > 1.0:
+            raise ValueError(
+                f"magnification ({self.magnification:g}) must exceed 1 with projection_model perspective: a point "
+                "source magnifies the spine on the detector behind it"
+            )
+        if self.projection_model == "weak_perspective" and self.perspective:
+            raise ValueError(
+                "projection_model weak_perspective contradicts distance_source_to_detector_mm and "
+                "distance_source_to_patient_mm, which give a pinhole: send one or the other"
+            )
         return self
 
     @property
     def perspective(self) -> bool:
-        """True when SID and SOD are both given (pinhole projection)."""
+        """True when SID and SOD are both given (pinhole projection of known geometry)."""
         return self.distance_source_to_detector_mm is not None and self.distance_source_to_patient_mm is not None
+
+    @property
+    def point_source(self) -> bool:
+        """True when the view is projected from a point source: SID and SOD given, or projection_model
+        "perspective" (the geometry it lacks then assumed, ``clinical.pinhole_geometry``)."""
+        return self.perspective or self.projection_model == "perspective"
 
 
 class _View(_Strict):
@@ -609,14 +636,15 @@ class ViewProjection(BaseModel):
     estimated: bool = Field(description="True when any of scale, translation or rotation was estimated.")
     model: Literal["weak_perspective", "perspective"] = Field(
         "weak_perspective",
-        description="weak_perspective p = s·Rot(ψ)(e_c·r, e_r·r) + T; perspective: pinhole from acquisition SID/SOD.",
+        description="weak_perspective p = s·Rot(ψ)(e_c·r, e_r·r) + T; perspective: pinhole from acquisition SID/SOD "
+        "(given, or assumed with projection_model perspective).",
     )
     rotation_deg: float = Field(0.0, description="In-plane film rotation ψ, degrees (estimated; 0 when given).")
     scale_source: Literal["given", "acquisition", "prior", "estimated"] = Field(
         "given",
         description="Where s comes from: the payload's projection ('given'), the acquisition's magnification or "
-        "geometry ('acquisition'), the model's prior on magnification ('prior': fit.unreliable then lists "
-        "'scale'), or the fit with the other views ('estimated').",
+        "geometry ('acquisition'), the model's prior on magnification or the assumed full-spine geometry "
+        "('prior': fit.unreliable then lists 'scale'), or the fit with the other views ('estimated').",
     )
     pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
         None, description="Carried from the payload's view (which calibration gave the mm)."
@@ -625,7 +653,7 @@ class ViewProjection(BaseModel):
 
 AssumptionName = Literal[
     "central_ray_at_image_centre", "central_ray_near_landmarks", "magnification_prior", "standing_orientation",
-    "population_sagittal_shape",
+    "population_sagittal_shape", "full_spine_geometry",
 ]
 
 
@@ -639,7 +667,9 @@ class Assumption(BaseModel):
         "magnification_prior (the PA's magnification from the full-spine prior 1.125 ± 0.035); "
         "standing_orientation (no lateral film: the spine's lean and spin about the vertical from the prior "
         "of a standing patient facing the detector); population_sagittal_shape (no lateral film: kyphosis "
-        "and lordosis from the population prior, with its SD)."
+        "and lordosis from the population prior, with its SD); full_spine_geometry (projection_model "
+        "perspective without SID or SOD: those of full-spine radiography, the spine's distance from the source "
+        "under a prior)."
     )
     view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
     reason: str = Field(description="In plain words: what was missing and what was taken instead.")

@@ -33,10 +33,12 @@ from .anatomy import (
 from .clinical import (
     PA_MAGNIFICATION_PRIOR,
     LandmarkArrays,
+    PinholeGeometry,
     calibrated_magnification,
     detector_spacing,
     landmark_arrays,
     observed_frontal_tilts,
+    pinhole_geometry,
     place_without_boundary,
     polyline_length,
     projected_length,
@@ -60,7 +62,7 @@ from .fit import (
     nearest_rotation,
     solve,
 )
-from .fit.types import CENTRAL_RAY_PRIOR_SD_MM
+from .fit.types import CENTRAL_RAY_PRIOR_SD_MM, DEPTH_PRIOR_SD_MM
 from .fit.uncertainty import AXIAL_ROTATION_SD_CAP_DEG, Uncertainty, reported_uncertainty
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
@@ -194,10 +196,12 @@ def make_camera(
     """The view's camera (None: the weak perspective ``initial``, fixed) and how it was set up.
 
     * ``projection`` given: that weak perspective, fixed ("given");
-    * ``acquisition`` with SID and SOD: a pinhole (``fit.cameras``), magnification SID/SOD at the plane
+    * ``acquisition`` with SID and SOD, or ``projection_model`` "perspective" (the geometry it lacks
+      assumed, ``clinical.pinhole_geometry``; "prior"): a pinhole (``fit.cameras``), magnification SID/SOD at the plane
       through o; c = the central ray when given, else the centre of ``acquisition.image_size`` (recorded as
       assumed, ``_ray_at_centre``), else estimated (o then moves along the beam only),
-      o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, 30²), d̄ = ``mid_plane_offset`` of
+      o estimated ("acquisition") with the prior b·(r_mid − o) ~ N(d̄, σ²), σ 30 mm, or the assumed SOD's
+      ``clinical.ASSUMED_DEPTH_SD_MM``, d̄ = ``mid_plane_offset`` of
       ``profile`` (the spine's mid-plane at SOD), o starting there (``mid_depth``: r_mid's initial b·r);
     * else a weak perspective with T estimated and s from the acquisition's magnification (fixed,
       "acquisition"), else estimated: on the PA with the prior ``clinical.PA_MAGNIFICATION_PRIOR``
@@ -212,17 +216,17 @@ def make_camera(
     s0, T0 = float(initial[0]), np.asarray(initial[1], dtype=float)
     rotate = name != "pa"
     acq = view.acquisition
-    if acq is not None and acq.perspective:
-        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
-        sid, sod = acq.distance_source_to_detector_mm, acq.distance_source_to_patient_mm
+    geometry = pinhole_geometry(view, name)
+    if acq is not None and geometry is not None:
+        sid, sod = geometry.sid_mm, geometry.sod_mm
         m0 = sid / sod
         b = BEAMS[name]
         E = np.stack((e_c, e_r))
         ray = acq.central_ray
-        assumed: tuple[Assumption, ...] = ()
+        assumed: tuple[Assumption, ...] = (_geometry_assumed(name, geometry),) if geometry.assumed else ()
         if ray is None and acq.image_size is not None:
             ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
-            assumed = (_ray_at_centre(name, ray, view.units),)
+            assumed = (*assumed, _ray_at_centre(name, ray, view.units))
         if ray is not None:
             c = np.asarray(ray, dtype=float) * detector_spacing(view)
             o_plane = (c - T0) / m0
@@ -235,12 +239,14 @@ def make_camera(
         o = E.T @ o_plane + b * (mid_depth - mid_offset)
         ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
         if ray_prior is not None:
-            assumed = (_assumption("central_ray_near_landmarks", name),)
+            assumed = (*assumed, _assumption("central_ray_near_landmarks", name))
+        depth_sd = DEPTH_PRIOR_SD_MM if geometry.depth_prior_sd_mm is None else geometry.depth_prior_sd_mm
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
-            depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior,
+            depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior, depth_prior_sd_mm=depth_sd,
+            depth_from_prior=geometry.depth_prior_sd_mm is not None,
         )
-        return camera, ViewSetup("perspective", "acquisition", spc, assumed)
+        return camera, ViewSetup("perspective", "prior" if geometry.assumed else "acquisition", spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
@@ -269,6 +275,17 @@ _ASSUMPTION_REASONS = {
 def _assumption(name: str, view: str | None) -> Assumption:
     """The record of a prior that decided a number (``FitReport.assumed``), with its reason in words."""
     return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
+
+
+def _geometry_assumed(name: str, geometry: PinholeGeometry) -> Assumption:
+    """The record of a point-source film whose SID or SOD was assumed (``clinical.pinhole_geometry``)."""
+    return Assumption(
+        name="full_spine_geometry",
+        view=name,  # type: ignore[arg-type]
+        reason=f"projection_model perspective without SID or SOD: the film was projected from a point source "
+        f"with SID {geometry.sid_mm:g} mm and SOD {geometry.sod_mm:g} mm (full-spine radiography), the spine's "
+        f"distance from the source held within {geometry.depth_prior_sd_mm or DEPTH_PRIOR_SD_MM:g} mm (SD)",
+    )
 
 
 def _ray_at_centre(name: str, ray: tuple[float, float], units: str) -> Assumption:
@@ -518,6 +535,11 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
     return linearise(problem(inputs.views), minimise(problem(pinned), init_r, init_R)), rest
 
 
+PINNED_DEPTH_SD_MM = 0.1
+"""SD of the depth prior that holds a point-source PA film's spine at its assumed distance from the
+source with two films (``_pa_scale_pinned``), mm: 0.1 mm at 1600 mm is a magnification held to 0.006 %."""
+
+
 def _pa_scale_pinned(views: Sequence[ViewData]) -> list[ViewData] | None:
     """The views with the PA's magnification held at its prior's mean, when two uncalibrated films
     (weak perspective, no geometry) leave it to that prior; else None.
@@ -534,6 +556,9 @@ def _pa_scale_pinned(views: Sequence[ViewData]) -> list[ViewData] | None:
     if pa is None or "lateral" not in names or pa.camera is None:
         return None
     cam = pa.camera
+    if cam.kind == "perspective" and cam.depth_from_prior:
+        held_camera = dataclasses.replace(cam, depth_prior_sd_mm=PINNED_DEPTH_SD_MM)
+        return [dataclasses.replace(pa, camera=held_camera) if view.name == "pa" else view for view in views]
     if cam.kind != "weak" or not cam.free[0] or cam.scale_prior is None:
         return None
     free = np.array(cam.free, dtype=bool)

@@ -46,6 +46,10 @@ interest (PS3.3 §C.8.11.7), so its SOD is the one wanted;
 or those times the column and row spacing in mm (``view_acquisition``: the view's units decide): with
 SID and SOD but no central ray the engine puts the ray at the image's centre (the pixel data's extent,
 PS3.3 §C.7.6.3; SID is measured to the detector's centre, PS3.3 §C.8.7.6).
+``projection_model`` = "perspective" for a projection radiograph's SOP class (CR, DX and the
+other X-ray image storage classes, ``PROJECTION_RADIOGRAPH_SOP_CLASSES``): its image is cast from a point
+source, so without SID or SOD the engine takes full-spine radiography's; not for millimetres already
+in the patient plane whose magnification the header does not give (``calibrated`` without ERMF).
 
 Orientation: Patient Orientation (0020,0020) (PS3.3 §C.7.6.1.1.1: the patient directions of the
 image's rows and columns, the first letter of a combination being the main one); without it View
@@ -177,6 +181,8 @@ class RadiographHeader:
         spacing the view uses (none in mm: no image_size). Each key's source is in ``sources``
         (``acquisition.<key>``)."""
         fields: dict[str, Any] = dict(self.acquisition.as_payload())
+        if "acquisition.projection_model" in self.sources:
+            fields["projection_model"] = "perspective"
         if self.rows is None or self.columns is None:
             return fields
         if units == "px":
@@ -542,6 +548,12 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
     if orientation is not None:
         sources["patient_orientation"] = orientation_source
     sources.update(acquisition_sources)
+    if _text(ds, "SOPClassUID") in PROJECTION_RADIOGRAPH_SOP_CLASSES and (
+        spacing.calibration != "calibrated" or acquisition.magnification is not None
+    ):
+        sources["acquisition.projection_model"] = (
+            f"{attribute_label('SOPClassUID')}: a projection radiograph, from a point source"
+        )
     rows, columns = ds.get("Rows"), ds.get("Columns")
     if rows is not None and columns is not None:
         sources["acquisition.image_size"] = (

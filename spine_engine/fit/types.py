@@ -109,6 +109,9 @@ class Camera:
     central_ray_prior: tuple[FloatArray, float] | None = None
     """Perspective with c free: (mean (2,), SD) of a Gaussian prior on the central ray's foot c,
     detector mm (``CENTRAL_RAY_PRIOR_SD_MM``)."""
+    depth_from_prior: bool = False
+    """Perspective: the spine's distance from the source is known only from the depth prior (its SOD
+    was assumed, ``clinical.pinhole_geometry``), as a weak view's magnification from ``scale_prior``."""
 
     def beam_direction(self, e_c: ArrayLike, e_r: ArrayLike) -> FloatArray:
         """b: ``beam`` or e_c × e_r."""

@@ -151,6 +151,10 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
         if "image_size" in spec["components"]["schemas"]["Acquisition"]["properties"]:  # the film's [columns, rows]
             assert body_sent["pa"]["acquisition"]["image_size"] == list(FILM_SIZE)
             assert body_sent["lateral"]["acquisition"]["image_size"] == list(FILM_SIZE)
+        if "projection_model" in spec["components"]["schemas"]["Acquisition"]["properties"]:
+            # a DX film comes from a point source; the lateral's mm are in the patient plane (no magnification)
+            assert body_sent["pa"]["acquisition"]["projection_model"] == "perspective"
+            assert "projection_model" not in body_sent["lateral"]["acquisition"]
         assert body_sent["pa"]["pixel_spacing_calibration"] == "detector"
         assert body_sent["lateral"]["pixel_spacing_calibration"] == "calibrated"
     else:

@@ -228,6 +228,31 @@ def test_source_to_patient_beyond_detector() -> None:
 # ------------------------------------------------------------------ merge
 
 
+@pytest.mark.parametrize(
+    ("film", "expected"),
+    [
+        ({"modality": "DX"}, "perspective"),
+        ({"modality": "CR"}, "perspective"),
+        ({"modality": "DX", "pixel_spacing": (0.1, 0.1), "calibration_type": "FIDUCIAL"}, None),
+        ({"modality": "DX", "pixel_spacing": (0.1, 0.1), "calibration_type": "FIDUCIAL", "ermf": 1.2}, "perspective"),
+        ({"modality": "DX", "extra": {"SOPClassUID": "1.2.840.10008.5.1.4.1.1.7"}}, None),
+    ],
+)
+def test_a_projection_radiograph_is_sent_as_a_point_source_film(film: dict[str, Any], expected: str | None) -> None:
+    """A CR or DX film without SID: acquisition.projection_model "perspective", its source the SOP class;
+    not for millimetres in the patient plane without an ERMF (their magnification is unknown), nor for a
+    Secondary Capture image (not a projection radiograph)."""
+    header = read_header(synthetic.radiograph(**film))
+    payload = {"pa": {"units": "px", "pixel_spacing": [0.15, 0.15], "landmarks": []}}
+    merged, provenance = apply_headers(payload, {"pa": header}, source="file")
+    assert (merged["pa"].get("acquisition") or {}).get("projection_model") == expected
+    reads = {r.field: r for r in provenance.pa.read}
+    if expected is None:
+        assert "pa.acquisition.projection_model" not in reads
+    else:
+        assert reads["pa.acquisition.projection_model"].attribute.startswith("SOPClassUID (0008,0016)")
+
+
 def test_merge_fills_missing_and_reports_conflicts() -> None:
     pa = read_header(synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), ermf=1.25, sid=1800.0))
     lateral_ds = synthetic.radiograph(patient_orientation=("A", "F"), view_position="LL",
@@ -245,6 +270,7 @@ def test_merge_fills_missing_and_reports_conflicts() -> None:
     assert merged["pa"]["patient_orientation"] == ["L", "F"]
     assert merged["pa"]["acquisition"] == {"magnification": 1.25, "distance_source_to_detector_mm": 1800.0,
                                            "distance_source_to_patient_mm": pytest.approx(1440.0),
+                                           "projection_model": "perspective",
                                            "image_size": [32.0, 64.0]}  # fmt: skip
     assert merged["lateral"]["pixel_spacing"] == [0.2, 0.2]  # the payload wins
     assert "pixel_spacing_calibration" not in merged["lateral"]  # the header's calibration is not of this spacing

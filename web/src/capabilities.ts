@@ -5,6 +5,8 @@ export interface Capabilities {
   acquisition: boolean;
   /** acquisition.image_size: the film's [columns, rows], for the central ray at the image's centre. */
   imageSize: boolean;
+  /** acquisition.projection_model: a CR or DX film sent as projected from a point source. */
+  projectionModel: boolean;
   calibration: boolean;
   studyFields: Set<string>;
   jobFilters: Set<string>;
@@ -23,7 +25,7 @@ export interface Capabilities {
   followUp: boolean;
 }
 
-const NONE: Capabilities = { acquisition: false, imageSize: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false, figureDcm: false, fhirExport: false, pacsRoutes: false, followUp: false, needsKey: false };
+const NONE: Capabilities = { acquisition: false, imageSize: false, projectionModel: false, calibration: false, studyFields: new Set(["study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid"]), jobFilters: new Set(), dicomRoutes: false, srExport: false, figureDcm: false, fhirExport: false, pacsRoutes: false, followUp: false, needsKey: false };
 
 let cached: Promise<Capabilities> | null = null;
 
@@ -38,6 +40,7 @@ export function readCapabilities(spec: unknown): Capabilities {
   return {
     acquisition: "acquisition" in view,
     imageSize: "image_size" in (schemas.Acquisition?.properties ?? {}),
+    projectionModel: "projection_model" in (schemas.Acquisition?.properties ?? {}),
     calibration: "pixel_spacing_calibration" in view,
     studyFields: study.length ? new Set(study) : NONE.studyFields,
     jobFilters: new Set(list.map((p) => p.name).filter((n) => ["study_instance_uid", "accession_number", "patient_id"].includes(n))),

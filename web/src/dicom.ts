@@ -20,6 +20,8 @@ export interface Acquisition {
   distance_source_to_patient_mm?: number;
   /** [columns, rows] of the image in the view's units (px here): DICOM Columns (0028,0011), Rows (0028,0010). */
   image_size?: [number, number];
+  /** "perspective" for a CR or DX film: projected from a point source, its SID and SOD assumed when missing. */
+  projection_model?: "perspective" | "weak_perspective";
 }
 
 export interface DicomStudy {

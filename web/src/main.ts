@@ -209,7 +209,7 @@ function applyBoundary(boundary: unknown): void {
 /** The views of the payload: from the films, or from the CSV / JSON draft. */
 function views(): { pa: ViewPayload | null; lateral: ViewPayload | null } {
   if (source !== "image") return { pa: draft?.pa ?? null, lateral: draft?.lateral ?? null };
-  const accepts = { acquisition: !!caps?.acquisition, calibration: !!caps?.calibration, imageSize: !!caps?.imageSize };
+  const accepts = { acquisition: !!caps?.acquisition, calibration: !!caps?.calibration, imageSize: !!caps?.imageSize, projectionModel: !!caps?.projectionModel };
   return { pa: panels.pa.payload(accepts), lateral: panels.lateral.payload(accepts) };
 }
 

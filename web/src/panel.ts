@@ -8,6 +8,8 @@ import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 export type ViewName = "pa" | "lateral";
 const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "Lateral film" };
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
+/** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
+const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
 
 function el<K extends keyof HTMLElementTagNameMap>(tag: K, attrs: Record<string, string> = {}, text?: string): HTMLElementTagNameMap[K] {
   const node = document.createElement(tag);
@@ -256,7 +258,7 @@ export class FilmPanel {
   }
 
   /** The view of the payload, or null without landmarks. Optional members only when the service takes them. */
-  payload(accepts: { acquisition: boolean; calibration: boolean; imageSize: boolean }): ViewPayload | null {
+  payload(accepts: { acquisition: boolean; calibration: boolean; imageSize: boolean; projectionModel: boolean }): ViewPayload | null {
     const landmarks = this.editor.landmarks();
     if (!landmarks.length) return null;
     if (this.reopened && !this.editor.source) {
@@ -270,6 +272,12 @@ export class FilmPanel {
       const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
       // The film's extent in px (the payload's units): with SID and SOD, the central ray at its centre.
       if (accepts.imageSize) acq.image_size = [d.width, d.height];
+      // A CR or DX film comes from a point source (DICOM PS3.3 C.7.3.1.1.1 Modality); millimetres already in
+      // the patient plane, or a magnification that does not magnify, leave it a weak perspective.
+      const magnifies = acq.magnification === undefined || acq.magnification > 1;
+      if (accepts.projectionModel && d.spacing.calibration !== "calibrated" && magnifies && POINT_SOURCE_MODALITIES.has(d.modality ?? "")) {
+        acq.projection_model = "perspective";
+      }
       if (Object.keys(acq).length) view.acquisition = acq;
     }
     return view;
