@@ -66,6 +66,8 @@ def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServ
     by_reference["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
     typed = spine_payload(spacing_mm=SPACING)
     typed["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    # what the DX header fills besides the spacing: a point-source film of the image's [columns, rows]
+    typed["pa"]["acquisition"] = {"projection_model": "perspective", "image_size": [1200.0, 3200.0]}
     ref_job = pacs_service.submit(by_reference)
     typed_job = pacs_service.submit(typed)
     done = pacs_service.wait(ref_job["id"], timeout=120)
@@ -80,6 +82,7 @@ def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServ
     read = {r["field"]: r for r in dicom["pa"]["read"]}
     assert read["pa.pixel_spacing"]["value"] == [SPACING, SPACING] and read["pa.pixel_spacing"]["used"]
     assert read["pa.pixel_spacing"]["attribute"] == "ImagerPixelSpacing (0018,1164)"
+    assert read["pa.acquisition.projection_model"]["value"] == "perspective"
     assert dicom["pa"]["source"] == "dicomweb" and dicom["conflicts"] == []
     assert "pixel_spacing" not in done["payload"]["pa"]  # the payload stays as posted
 
