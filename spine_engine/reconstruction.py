@@ -246,7 +246,8 @@ def make_camera(
             depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior, depth_prior_sd_mm=depth_sd,
             depth_from_prior=geometry.depth_prior_sd_mm is not None,
         )
-        return camera, ViewSetup("perspective", "prior" if geometry.assumed else "acquisition", spc, assumed)
+        source = "prior" if geometry.depth_prior_sd_mm is not None else "acquisition"  # an assumed SOD sets the scale
+        return camera, ViewSetup("perspective", source, spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
