@@ -69,7 +69,7 @@ from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_p
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
-from spine_engine.anatomy import load_profile, rest_model
+from spine_engine.anatomy import load_profile, rest_shape_unit
 from spine_engine.errors import SpineEngineError
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
@@ -253,7 +253,7 @@ def population_sagittal_answer(truth: FloatArray, profile: str = "default") -> F
 
     Its best rotation onto the truth (``rigid_difference``) is the floor of the rotation RMS: a
     sagittal shape unlike the population's reads as a turn about the vertical even when nothing turned."""
-    rest = rest_model(load_profile(profile)).positions
+    rest = rest_shape_unit(load_profile(profile))[1]
     height = truth[0, 2] - truth[-1, 2]
     scale = height / (rest[0, 2] - rest[-1, 2])
     depth = np.interp(truth[0, 2] - truth[:, 2], (rest[0, 2] - rest[:, 2]) * scale, rest[:, 1] * scale)

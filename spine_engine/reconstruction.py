@@ -223,7 +223,9 @@ def make_camera(
         b = BEAMS[name]
         E = np.stack((e_c, e_r))
         ray = acq.central_ray
-        assumed: tuple[Assumption, ...] = (_geometry_assumed(name, geometry),) if geometry.assumed else ()
+        sod_assumed = geometry.depth_prior_sd_mm is not None
+        depth_sd = geometry.depth_prior_sd_mm if geometry.depth_prior_sd_mm is not None else DEPTH_PRIOR_SD_MM
+        assumed: tuple[Assumption, ...] = (_geometry_assumed(name, geometry, depth_sd),) if geometry.assumed else ()
         if ray is None and acq.image_size is not None:
             ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
             assumed = (*assumed, _ray_at_centre(name, ray, view.units))
@@ -240,14 +242,13 @@ def make_camera(
         ray_prior = None if not free[0] else (np.asarray(landmark_centre, dtype=float), CENTRAL_RAY_PRIOR_SD_MM)
         if ray_prior is not None:
             assumed = (*assumed, _assumption("central_ray_near_landmarks", name))
-        depth_sd = DEPTH_PRIOR_SD_MM if geometry.depth_prior_sd_mm is None else geometry.depth_prior_sd_mm
         camera = Camera(
             "perspective", np.array([c[0], c[1], *o, 0.0]), free, sid_mm=sid, sod_mm=sod, beam=b,
             depth_prior_mean_mm=mid_offset, central_ray_prior=ray_prior, depth_prior_sd_mm=depth_sd,
-            depth_from_prior=geometry.depth_prior_sd_mm is not None,
+            depth_from_prior=sod_assumed,
         )
-        source = "prior" if geometry.depth_prior_sd_mm is not None else "acquisition"  # an assumed SOD sets the scale
-        return camera, ViewSetup("perspective", source, spc, assumed)
+        # an assumed SOD sets the scale; an ERMF without SID leaves only the SID assumed
+        return camera, ViewSetup("perspective", "prior" if sod_assumed else "acquisition", spc, assumed)
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
@@ -278,14 +279,15 @@ def _assumption(name: str, view: str | None) -> Assumption:
     return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
 
 
-def _geometry_assumed(name: str, geometry: PinholeGeometry) -> Assumption:
-    """The record of a point-source film whose SID or SOD was assumed (``clinical.pinhole_geometry``)."""
+def _geometry_assumed(name: str, geometry: PinholeGeometry, depth_sd_mm: float) -> Assumption:
+    """The record of a point-source film whose SID or SOD was assumed (``clinical.pinhole_geometry``),
+    the spine's distance from the source held with ``depth_sd_mm``."""
     return Assumption(
         name="full_spine_geometry",
         view=name,  # type: ignore[arg-type]
         reason=f"projection_model perspective without SID or SOD: the film was projected from a point source "
         f"with SID {geometry.sid_mm:g} mm and SOD {geometry.sod_mm:g} mm (full-spine radiography), the spine's "
-        f"distance from the source held within {geometry.depth_prior_sd_mm or DEPTH_PRIOR_SD_MM:g} mm (SD)",
+        f"distance from the source held within {depth_sd_mm:g} mm (SD)",
     )
 
 
@@ -543,7 +545,9 @@ source with two films (``_pa_scale_pinned``), mm: 0.1 mm at 1600 mm is a magnifi
 
 def _pa_scale_pinned(views: Sequence[ViewData]) -> list[ViewData] | None:
     """The views with the PA's magnification held at its prior's mean, when two uncalibrated films
-    (weak perspective, no geometry) leave it to that prior; else None.
+    (weak perspective, no geometry) leave it to that prior, or the PA's spine held at its assumed
+    distance from the source (``PINNED_DEPTH_SD_MM``) when two point-source films do not state their
+    SOD (``Camera.depth_from_prior``); else None.
 
     Neither film states the magnification: a spine c times larger under a magnification c times
     smaller makes the same images, so only the prior (``clinical.PA_MAGNIFICATION_PRIOR``) knows it

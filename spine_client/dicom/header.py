@@ -548,7 +548,8 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
     if orientation is not None:
         sources["patient_orientation"] = orientation_source
     sources.update(acquisition_sources)
-    if _text(ds, "SOPClassUID") in PROJECTION_RADIOGRAPH_SOP_CLASSES and (
+    sop_class = _uid(ds, "SOPClassUID", required=False)
+    if sop_class in PROJECTION_RADIOGRAPH_SOP_CLASSES and (
         spacing.calibration != "calibrated" or acquisition.magnification is not None
     ):
         sources["acquisition.projection_model"] = (
@@ -561,7 +562,7 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         )
     name = ds.get("PatientName")
     return RadiographHeader(
-        sop_class_uid=_uid(ds, "SOPClassUID", required=False),
+        sop_class_uid=sop_class,
         sop_instance_uid=sop_uid,
         series_instance_uid=_uid(ds, "SeriesInstanceUID", required=False),
         study_instance_uid=study_uid,
