@@ -89,15 +89,19 @@ def calibrated_magnification(view: PAView | LateralView) -> float | None:
     """For a view whose mm are in the patient plane (``pixel_spacing_calibration`` 'calibrated', PS3.3
     §10.7.1.1), the factor M that takes them to the detector (detector mm = M · patient mm): the
     acquisition's ERMF (0018,1114), else SID/SOD, else 1 (the calibration already removed the
-    magnification, whose value is then unknown and not needed). None for detector-plane mm."""
+    magnification, whose value is then unknown and not needed), or, for a point-source film
+    (``projection_model`` "perspective") that gives neither, the SID/SOD it is projected with
+    (``pinhole_geometry``), so that the pinhole's magnification at the spine gives back the calibrated
+    size. None for detector-plane mm."""
     if view.pixel_spacing_calibration != "calibrated":
         return None
     acq = view.acquisition
     if acq is not None and acq.magnification is not None:
         return float(acq.magnification)
-    if acq is not None and acq.perspective:
-        assert acq.distance_source_to_detector_mm is not None and acq.distance_source_to_patient_mm is not None
-        return acq.distance_source_to_detector_mm / acq.distance_source_to_patient_mm
+    if acq is not None and acq.point_source:
+        geometry = pinhole_geometry(view, "pa")
+        assert geometry is not None
+        return geometry.sid_mm / geometry.sod_mm
     return 1.0
 
 
@@ -330,7 +334,9 @@ def pinhole_geometry(view: PAView | LateralView, name: str) -> PinholeGeometry |
     """The view's point-source geometry, or None for a weak perspective (``models.Acquisition``):
     SID and SOD when the acquisition gives both; with ``projection_model`` "perspective", SID = the given
     one else ``FULL_SPINE_SID_MM``, SOD = the given one, else SID / the given ERMF, else SID −
-    ``SPINE_TO_DETECTOR_MM``, and an assumed SOD held with ``ASSUMED_DEPTH_SD_MM[name]``."""
+    ``SPINE_TO_DETECTOR_MM``, and an assumed SOD held with ``ASSUMED_DEPTH_SD_MM[name]``, unless the
+    view's mm are 'calibrated' (in the spine's plane): its size is then known, the spine held at the SOD
+    by the camera's default depth prior as for a given SOD, and only the perspective's strength assumed."""
     acq = view.acquisition
     if acq is None or not acq.point_source:
         return None
@@ -340,6 +346,8 @@ def pinhole_geometry(view: PAView | LateralView, name: str) -> PinholeGeometry |
         sod, depth_sd = given_sod, None
     elif acq.magnification is not None:
         sod, depth_sd = sid / acq.magnification, None
+    elif view.pixel_spacing_calibration == "calibrated":
+        sod, depth_sd = sid - SPINE_TO_DETECTOR_MM, None
     else:
         sod, depth_sd = sid - SPINE_TO_DETECTOR_MM, ASSUMED_DEPTH_SD_MM[name]
     assumed = given_sid is None or (given_sod is None and acq.magnification is None)

@@ -204,8 +204,9 @@ class _View(_Strict):
         "'calibrated' mm in the patient plane ((0028,0030) after a calibration, or imager spacing divided by the "
         "ERMF or SID/SOD); 'projection' ((0028,0030) equal to (0018,1164)) and 'detector' ((0018,1164) only) mm at "
         "the detector; 'unknown' or null: taken as detector mm. With 'calibrated' the engine multiplies the mm by "
-        "the acquisition's magnification (ERMF, else SID/SOD) to reach the detector, and without one it takes the "
-        "magnification as 1 (not the prior). Carried to fit.<view>.pixel_spacing_calibration.",
+        "the acquisition's magnification (ERMF, else SID/SOD; with projection_model perspective and neither, the "
+        "assumed SID/SOD of full-spine radiography, the spine held at that SOD) to reach the detector, and without "
+        "one it takes the magnification as 1 (not the prior). Carried to fit.<view>.pixel_spacing_calibration.",
     )
 
     @field_validator("patient_orientation")

@@ -155,3 +155,28 @@ def test_two_point_source_films_hold_the_pa_at_its_assumed_distance() -> None:
     # held out of the Laplace the prior could not move them at all (ratio 1); the size moves the heights
     # most (1.24 here: the rest length, set from the PA film, still ties the size)
     assert wide[:, 2].max() > 1.1 * sd[:, 2].max()
+
+
+def test_calibrated_point_source_films_keep_their_calibrated_size() -> None:
+    """Films whose mm were calibrated to the spine's plane (``pixel_spacing_calibration`` 'calibrated',
+    PS3.3 §10.7.1.1) and said to come from a point source without SID, SOD or ERMF: the calibration states
+    the spine's size, so the assumed pinhole magnifies the mm by its SID/SOD (``clinical.calibrated_magnification``)
+    and the size comes back. Read as detector mm at SID/SOD 1800/1600 it would come out 1/1.125 too small
+    (12.5 %); the bound, 2 %, lies between that and the size a perspective film's depth leaves."""
+    truth = clinic.synthetic_truths(1, seed=7)[0]
+    series = clinic_films.simulate_series(truth, noise_mm=0.0, seed=0)
+    payload = clinic_films.build_payload(series, clinic_films.CASES["d"]).model_dump(mode="json", exclude_none=True)
+    for name, film in (("pa", series.pa), ("lateral", series.lateral)):
+        view = payload[name]
+        view["pixel_spacing_calibration"] = "calibrated"
+        for lm in view["landmarks"]:
+            lm["point"] = [c / film.magnification for c in lm["point"]]
+    result = register(payload)
+    r = np.array([v["position"] for v in result["vertebrae"]])
+    length = float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
+    true_length = float(np.linalg.norm(np.diff(truth.positions, axis=0), axis=1).sum())
+    assert abs(length / true_length - 1.0) < 0.02
+    fit = result["fit"]
+    assert fit["pa"]["model"] == "perspective" and fit["pa"]["scale_source"] == "acquisition"
+    assert fit["pa"]["pixel_spacing_calibration"] == "calibrated"
+    assert ("full_spine_geometry", "pa") in [(x["name"], x["view"]) for x in fit["assumed"]]
