@@ -10,7 +10,10 @@ centroid (``fit.uncertainty``):
    (e), where the prior decides the depth, covers ``target`` (95 %) with c = 1; bisection on
    log10 λ in [−2, 6] (coverage falls as λ grows: the prior then holds the spine tighter);
 2. c (``uncertainty_scale``): with that λ, the factor for which ±1.96·c·SD covers ``target`` of
-   the coordinates of all cases pooled, each case weighing the same (``calibrated_scale``).
+   the coordinates of all cases pooled, each case weighing the same (``calibrated_scale``);
+3. how the sagittal measures one PA film leaves to the prior are reported (``prior_only_readings``):
+   on case (e), the film's reading plus the median of truth − reading where the reading predicts the
+   truth (one-sided p < 0.05), else the population's mean.
 
 Tune on dev only: the test split is reported, never used here.
 """
@@ -22,14 +25,25 @@ from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
+from scipy import stats
 
 from benches.clinic_films import Case, FloatArray, Truth, simulate_series
 from benches.clinic_films import build_payload as clinic_payload
 from spine_engine.anatomy import load_profile
 from spine_engine.errors import SpineEngineError
 from spine_engine.fit.types import Solution
-from spine_engine.fit.uncertainty import Calibration, solution_uncertainty, write_calibration
-from spine_engine.reconstruction import fit_patient_rod, prepare_inputs
+from spine_engine.fit.uncertainty import (
+    PRIOR_ONLY_ALPHA,
+    PRIOR_ONLY_MEASURES,
+    Calibration,
+    PriorOnlyReading,
+    solution_uncertainty,
+    write_calibration,
+)
+from spine_engine.frames import frames_from_centreline
+from spine_engine.measures import compute_measures
+from spine_engine.models import Measures
+from spine_engine.reconstruction import fit_patient_rod, measure_fit, prepare_inputs
 from spine_engine.validation import validate_payload
 
 LOG10_PRIOR_WEIGHT_RANGE = (-2.0, 6.0)
@@ -63,6 +77,8 @@ class Sample(NamedTuple):
     case: str
     truth: Truth
     solution: Solution
+    measures: Measures
+    """The fit's measures as ``register`` reads them before any offset (``reconstruction.measure_fit``)."""
 
 
 def collect(truths: Sequence[Truth], cases: Sequence[Case], noise_mm: float, seed: int, profile: str) -> list[Sample]:
@@ -74,11 +90,12 @@ def collect(truths: Sequence[Truth], cases: Sequence[Case], noise_mm: float, see
         for case in cases:
             try:
                 model = validate_payload(clinic_payload(series, case).model_dump(mode="json", exclude_none=True))
-                solution, _ = fit_patient_rod(prepare_inputs(model, prof), prof)
+                inputs = prepare_inputs(model, prof)
+                solution, _ = fit_patient_rod(inputs, prof)
             except (SpineEngineError, ValueError, ArithmeticError, np.linalg.LinAlgError):
                 continue  # refused (e.g. a subset this engine does not take) or broken down: not a sample
             if solution.output.converged:
-                out.append(Sample(case.key, truth, solution))
+                out.append(Sample(case.key, truth, solution, measure_fit(inputs, solution.output)))
     return out
 
 
@@ -117,7 +134,29 @@ def calibrate(
         "coordinates": {k: len(v) for k, v in sorted(z.items())},
         "plain_laplace_coverage": {k: coverage(v) for k, v in sorted(position_z(samples, 1.0).items())},
     }
-    return Calibration(scale, prior_weight, {}), diagnostics
+    readings = prior_only_readings([s for s in samples if s.case == PRIOR_CASE])
+    return Calibration(scale, prior_weight, {}, readings), diagnostics
+
+
+def prior_only_readings(samples: Sequence[Sample]) -> dict[str, PriorOnlyReading]:
+    """``Calibration.prior_only`` from ``samples`` (the PA-only case): per sagittal measure the
+    correlation of the fit's reading y with the truth (Pearson, one-sided p), the median of truth − y
+    and the truth's mean, the truth's measured on its centreline frames as the clinic bench measures
+    it; {} without samples (``fit.uncertainty.PriorOnlyReading``)."""
+    if len(samples) < 3:
+        return {}
+    pairs = [(compute_measures(s.truth.positions, frames_from_centreline(s.truth.positions)), s.measures)
+             for s in samples]
+    out = {}
+    for name, key in PRIOR_ONLY_MEASURES.items():
+        truth = np.array([getattr(t, key) for t, _ in pairs], dtype=float)
+        film = np.array([getattr(f, key) for _, f in pairs], dtype=float)
+        test = stats.pearsonr(film, truth, alternative="greater")
+        out[name] = PriorOnlyReading(
+            bool(test.pvalue < PRIOR_ONLY_ALPHA), float(np.median(truth - film)), float(truth.mean()),
+            float(test.statistic), float(test.pvalue),
+        )
+    return out
 
 
 def provenance(command: str, split: str, n_spines: int, cases: Sequence[Case], noise_mm: float, seed: int,
@@ -127,7 +166,9 @@ def provenance(command: str, split: str, n_spines: int, cases: Sequence[Case], n
         "method": "Laplace approximation at the fit's optimum; prior_weight: the rod rows' weight in the Hessian at "
         "which the PA-only case (e) covers 95 % with scale 1 (bisection on log10); uncertainty_scale: then the "
         "factor on every SD for 95 % coverage of the centroid-relative position coordinates of all cases pooled, "
-        "each case weighing the same (benches.uncertainty_calibration)",
+        "each case weighing the same; prior_only: on the PA-only case (e), per sagittal measure, the Pearson "
+        "correlation of the fit's reading with the truth (one-sided p; film_predicts when p < 0.05), the median of "
+        "truth − reading (offset_deg) and the truth's mean (population_mean_deg) (benches.uncertainty_calibration)",
         "command": command,
         "training_set": f"VerSe {split} split ({n_spines} spines), {split}.csv; simulated series of "
         "benches.clinic_films",
@@ -150,6 +191,7 @@ def calibrate_and_write(
     return {
         "uncertainty_scale": constants.uncertainty_scale,
         "prior_weight": constants.prior_weight,
+        "prior_only": {k: r._asdict() for k, r in constants.prior_only.items()},
         "calibration_file": str(path),
         "calibration": diagnostics,
     }

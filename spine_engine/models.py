@@ -580,7 +580,9 @@ class Measures(BaseModel):
     cobb: list[CobbCurve]
     thoracic_kyphosis_t4_t12_deg: float = Field(
         description="T4–T12 kyphosis, degrees, on the reconstructed centreline (a vertebra's own tilt where a lateral "
-        "film's corners or the boundary gave it; docs/measures.md)."
+        "film's corners or the boundary gave it; docs/measures.md). Without a lateral film (fit.assumed "
+        "population_sagittal_shape) as calibrated on VerSe dev: the centreline's reading plus an offset where "
+        "one PA film predicts the measure, else the population's mean (docs/engine.md)."
     )
     thoracic_kyphosis_t5_t12_deg: float = Field(description="T5–T12 kyphosis, degrees, as the T4–T12 one.")
     lumbar_lordosis_l1_l5_deg: float = Field(description="L1–L5 lordosis, degrees, as the kyphosis.")
@@ -668,7 +670,8 @@ class Assumption(BaseModel):
         "magnification_prior (the PA's magnification from the full-spine prior 1.125 ± 0.035); "
         "standing_orientation (no lateral film: the spine's lean and spin about the vertical from the prior "
         "of a standing patient facing the detector); population_sagittal_shape (no lateral film: kyphosis "
-        "and lordosis from the population prior, with its SD); full_spine_geometry (projection_model "
+        "and lordosis from the population prior, with its SD; the population's mean where one PA film does not "
+        "predict them); full_spine_geometry (projection_model "
         "perspective without SID or SOD: those of full-spine radiography, the spine's distance from the source "
         "under a prior)."
     )

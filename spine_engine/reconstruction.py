@@ -63,7 +63,14 @@ from .fit import (
     solve,
 )
 from .fit.types import CENTRAL_RAY_PRIOR_SD_MM, DEPTH_PRIOR_SD_MM
-from .fit.uncertainty import AXIAL_ROTATION_SD_CAP_DEG, Uncertainty, reported_uncertainty
+from .fit.uncertainty import (
+    AXIAL_ROTATION_SD_CAP_DEG,
+    PRIOR_ONLY_MEASURES,
+    PriorOnlyReading,
+    Uncertainty,
+    calibration,
+    reported_uncertainty,
+)
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
 from .measures import compute_measures, frontal_tilts
@@ -270,7 +277,8 @@ _ASSUMPTION_REASONS = {
     "standing_orientation": "no lateral film: the spine's lean and its turn about the vertical come from the "
     "prior of a standing patient facing the detector (SD about 11° and 5°)",
     "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
-    "their SDs are at least the population's",
+    "their SDs are at least the population's, and a measure one PA film does not predict is the population's "
+    "mean",
 }
 
 
@@ -746,6 +754,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     if not (np.isfinite(out.positions).all() and np.isfinite(out.rotations).all()):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
     measures = measure_fit(inputs, out)
+    if "kyphosis" in inputs.unreliable:
+        measures = _prior_only_reported(measures, calibration().prior_only)
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
@@ -843,6 +853,18 @@ def _with_model_tilt_sd(measures: Measures, sigma_deg: float) -> Measures:
             c = c.model_copy(update={"angle_sd_deg": math.sqrt(c.angle_sd_deg**2 + share * sigma_deg**2)})
         cobb.append(c)
     return measures.model_copy(update={"cobb": cobb})
+
+
+def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReading]) -> Measures:
+    """Sagittal measures that no film determined (no lateral view) as calibrated on dev
+    (``fit.uncertainty.PriorOnlyReading.reported``): the film's reading plus its offset where the
+    film predicts the measure, else the population's mean, degrees."""
+    update = {
+        PRIOR_ONLY_MEASURES[name]: reading.reported(value)
+        for name, reading in readings.items()
+        if (value := getattr(measures, PRIOR_ONLY_MEASURES[name])) is not None
+    }
+    return measures.model_copy(update=update)
 
 
 def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:

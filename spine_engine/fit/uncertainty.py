@@ -120,9 +120,46 @@ class Calibration(NamedTuple):
     accuracy, not as a population prior: at λ = 1 the PA-only depth SDs are ten times the errors
     (docs/accuracy.md, "The clinic's setting")."""
     provenance: dict[str, Any]
+    prior_only: dict[str, PriorOnlyReading]
+    """How a sagittal measure that no film determined (one PA film) is reported, by
+    ``PRIOR_ONLY_MEASURES`` name; a name absent: the fit's reading as it is."""
 
 
-UNCALIBRATED = Calibration(1.0, 1.0, {})
+class PriorOnlyReading(NamedTuple):
+    """The report of a sagittal measure that one PA film leaves to the prior, calibrated on dev.
+
+    The film's reading y (the fitted centreline's) is reported as y + ``offset_deg`` when, on dev, y
+    predicts the truth (``film_predicts``: Pearson correlation > 0 at one-sided p < ``PRIOR_ONLY_ALPHA``);
+    else the population's mean ``population_mean_deg`` is reported (what the film tells of it is noise).
+    ``offset_deg``: the median on dev of truth − y, so that the reported value's median error is 0 (the
+    MAE's best shift): the fitted centreline reads less lordosis than the population's because the rod's
+    rest shape, whose chords take the mean inclinations, reads less than the mean of the measures."""
+
+    film_predicts: bool
+    offset_deg: float
+    population_mean_deg: float
+    correlation: float
+    p_value: float
+
+    def reported(self, film_deg: float) -> float:
+        """The value reported for the film's reading ``film_deg``, degrees."""
+        return film_deg + self.offset_deg if self.film_predicts else self.population_mean_deg
+
+
+PRIOR_ONLY_ALPHA = 0.05
+"""One-sided significance at which dev must show that a PA film's reading of a sagittal measure
+predicts the truth before the film's value is reported (``PriorOnlyReading``)."""
+
+
+UNCALIBRATED = Calibration(1.0, 1.0, {}, {})
+
+PRIOR_ONLY_MEASURES = {
+    "kyphosis_t4_t12": "thoracic_kyphosis_t4_t12_deg",
+    "kyphosis_t5_t12": "thoracic_kyphosis_t5_t12_deg",
+    "lordosis_l1_l5": "lumbar_lordosis_l1_l5_deg",
+}
+"""The sagittal measures that one PA film leaves to the prior: ``Calibration.prior_only``'s
+keys, and the ``models.Measures`` field each offsets."""
 
 
 @lru_cache(maxsize=1)
@@ -130,7 +167,11 @@ def _calibration(path: str) -> Calibration:
     with open(path) as fh:
         data: dict[str, Any] = json.load(fh)
     return Calibration(float(data["uncertainty_scale"]), float(data.get("prior_weight", 1.0)),
-                       dict(data.get("provenance", {})))
+                       dict(data.get("provenance", {})),
+                       {k: PriorOnlyReading(bool(v["film_predicts"]), float(v["offset_deg"]),
+                                            float(v["population_mean_deg"]), float(v["correlation"]),
+                                            float(v["p_value"]))
+                        for k, v in data.get("prior_only", {}).items()})
 
 
 def calibration(path: Path | None = None) -> Calibration:
@@ -146,8 +187,14 @@ def write_calibration(constants: Calibration, path: Path | None = None) -> Path:
         value = getattr(constants, name)
         if not (np.isfinite(value) and value > 0.0):
             raise ValueError(f"{name} must be positive and finite, got {value}")
+    unknown = set(constants.prior_only) - set(PRIOR_ONLY_MEASURES)
+    values = [(r.offset_deg, r.population_mean_deg) for r in constants.prior_only.values()]
+    if unknown or not np.all(np.isfinite(values)):
+        raise ValueError(f"prior_only takes finite readings of {list(PRIOR_ONLY_MEASURES)}")
+    record = constants._asdict()
+    record["prior_only"] = {k: r._asdict() for k, r in constants.prior_only.items()}
     file = path or CALIBRATION_FILE
-    file.write_text(json.dumps(constants._asdict(), indent=2) + "\n")
+    file.write_text(json.dumps(record, indent=2) + "\n")
     _calibration.cache_clear()
     return file
 

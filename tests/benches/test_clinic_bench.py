@@ -178,3 +178,31 @@ def test_coverage_on_held_out_spines() -> None:
     n = sum(r["coverage_positions_n"] for r in rows)
     assert n == 1224
     assert 0.90 <= inside / n <= 0.98
+
+
+def test_prior_only_readings_follow_what_the_film_predicts() -> None:
+    """``uncertainty_calibration.prior_only_readings`` on 12 VerSe dev spines whose "film" readings are made
+    up: readings equal to the truth less 3° predict it (offset +3°); readings in the reverse order of the
+    truth's (correlation < 0) do not, and the population's mean is then the truth's."""
+    from benches.truth import read_verse
+    from benches.uncertainty_calibration import Sample, prior_only_readings
+    from spine_engine.fit.uncertainty import PRIOR_ONLY_MEASURES
+    from spine_engine.frames import frames_from_centreline
+    from spine_engine.measures import compute_measures
+
+    spines = read_verse(Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv")[:12]
+    truths = [clinic_films.Truth(sid, p, frames_from_centreline(p)) for sid, p in spines]
+    measured = [compute_measures(t.positions, t.rotations) for t in truths]
+    key = PRIOR_ONLY_MEASURES["lordosis_l1_l5"]
+    values = np.array([getattr(m, key) for m in measured])
+
+    def samples(film: np.ndarray) -> list[Sample]:
+        return [Sample("e", t, None, m.model_copy(update={key: float(f)}))  # type: ignore[arg-type]
+                for t, m, f in zip(truths, measured, film, strict=True)]
+
+    tracking = prior_only_readings(samples(values - 3.0))["lordosis_l1_l5"]
+    assert tracking.film_predicts and tracking.offset_deg == pytest.approx(3.0)
+    order = np.argsort(values)
+    reversed_ = values[order[::-1]][np.argsort(order)]  # the largest truth read for the smallest
+    silent = prior_only_readings(samples(reversed_))["lordosis_l1_l5"]
+    assert not silent.film_predicts and silent.population_mean_deg == pytest.approx(values.mean())

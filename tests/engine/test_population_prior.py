@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from benches import clinic_films
 from benches.truth import read_verse
@@ -112,3 +113,43 @@ def test_rest_length_from_the_pa_film_is_not_short() -> None:
         rest = patient_rest_model(profile, prepare_inputs(body, profile))
         ratios.append(rest.ds.sum() / np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
     assert abs(np.mean(ratios) - 1.0) <= 0.005
+
+
+def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean() -> None:
+    """One PA film: each sagittal measure is reported as the shipped calibration says
+    (``fit.uncertainty.PriorOnlyReading``): the population's mean where the film does not predict it on
+    dev, the centreline's reading plus the offset where it does; with a lateral film, the reading as it is."""
+    from spine_engine.fit.uncertainty import PRIOR_ONLY_MEASURES, calibration
+    from spine_engine.frames import frames_from_centreline as frames
+    from spine_engine.measures import compute_measures
+
+    readings = calibration().prior_only
+    assert set(readings) == set(PRIOR_ONLY_MEASURES)
+    positions, spine_id = SPINES[1][1], SPINES[1][0]
+    result = register(_pa_only(positions, spine_id))
+    r = np.array([v["position"] for v in result["vertebrae"]])
+    centreline = compute_measures(r, frames(r))
+    for name, key in PRIOR_ONLY_MEASURES.items():
+        reading = readings[name]
+        film = getattr(centreline, key)
+        expected = film + reading.offset_deg if reading.film_predicts else reading.population_mean_deg
+        assert result["measures"][key] == pytest.approx(expected, abs=1e-6)
+    truth = clinic_films.Truth(spine_id, positions, frames_from_centreline(positions))
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
+    both = register(
+        clinic_films.build_payload(series, clinic_films.CASES["a"]).model_dump(mode="json", exclude_none=True)
+    )
+    r = np.array([v["position"] for v in both["vertebrae"]])
+    assert both["measures"]["lumbar_lordosis_l1_l5_deg"] == pytest.approx(
+        compute_measures(r, frames(r)).lumbar_lordosis_l1_l5_deg, abs=1e-6
+    )
+
+
+def test_prior_only_reading_rule() -> None:
+    """``PriorOnlyReading.reported``: the film's value plus the offset when the film predicts, else the
+    population's mean whatever the film reads."""
+    from spine_engine.fit.uncertainty import PriorOnlyReading
+
+    assert PriorOnlyReading(True, 2.0, 23.0, 0.5, 0.01).reported(20.0) == 22.0
+    silent = PriorOnlyReading(False, 2.0, 23.0, 0.1, 0.3)
+    assert silent.reported(20.0) == silent.reported(40.0) == 23.0

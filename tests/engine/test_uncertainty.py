@@ -207,10 +207,14 @@ def test_calibration_file_round_trip(tmp_path: Path) -> None:
     """The constants and their provenance are written and read back; the shipped file has both
     constants positive and says how they were made."""
     path = tmp_path / "c.json"
-    unc.write_calibration(unc.Calibration(1.25, 40.0, {"command": "x"}), path)
-    assert unc.calibration(path) == unc.Calibration(1.25, 40.0, {"command": "x"})
+    reading = unc.PriorOnlyReading(False, 2.5, 23.0, 0.2, 0.2)
+    constants = unc.Calibration(1.25, 40.0, {"command": "x"}, {"lordosis_l1_l5": reading})
+    unc.write_calibration(constants, path)
+    assert unc.calibration(path) == constants
     with pytest.raises(ValueError):
-        unc.write_calibration(unc.Calibration(0.0, 1.0, {}), path)
+        unc.write_calibration(unc.Calibration(0.0, 1.0, {}, {}), path)
+    with pytest.raises(ValueError, match="prior_only"):
+        unc.write_calibration(unc.Calibration(1.0, 1.0, {}, {"cobb": reading}), path)
     shipped = unc.calibration()
     assert shipped.uncertainty_scale > 0 and shipped.prior_weight > 0
     assert "--calibrate-uncertainty" in shipped.provenance["command"]
