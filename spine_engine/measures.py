@@ -328,6 +328,12 @@ LENKE_MODIFIER_DEG = (10.0, 40.0)
 """Lenke 2001 sagittal thoracic modifier on T5–T12 kyphosis: '-' below 10°, 'N' 10–40°, '+' above."""
 
 
+def lenke_modifier(t5_t12_kyphosis_deg: float) -> Literal["-", "N", "+"]:
+    """Lenke's sagittal thoracic modifier of a T5–T12 kyphosis (``LENKE_MODIFIER_DEG``)."""
+    lo, hi = LENKE_MODIFIER_DEG
+    return "-" if t5_t12_kyphosis_deg < lo else ("+" if t5_t12_kyphosis_deg > hi else "N")
+
+
 def lenke_inputs(cobb: list[CobbCurve], beta: FloatArray) -> LenkeInputs:
     """The Lenke classification inputs a reconstruction supports (model estimates); ``beta``: the
     sagittal inclinations (``sagittal_inclinations``)."""
@@ -354,14 +360,12 @@ def lenke_inputs(cobb: list[CobbCurve], beta: FloatArray) -> LenkeInputs:
                 structural_by_kyphosis=kyphosis >= LENKE_STRUCTURAL_KYPHOSIS_DEG,
             )
         )
-    lo, hi = LENKE_MODIFIER_DEG
-    modifier = "-" if t5_t12 < lo else ("+" if t5_t12 > hi else "N")
     return LenkeInputs(
         curves=curves,
         t2_t5_kyphosis_deg=t2_t5,
         t5_t12_kyphosis_deg=t5_t12,
         t10_l2_kyphosis_deg=t10_l2,
-        sagittal_thoracic_modifier=modifier,
+        sagittal_thoracic_modifier=lenke_modifier(t5_t12),
         not_supported=["side_bending_cobb", "lumbar_modifier_csvl"],
     )
 

@@ -73,7 +73,7 @@ from .fit.uncertainty import (
 )
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
-from .measures import compute_measures, frontal_tilts
+from .measures import compute_measures, frontal_tilts, lenke_modifier
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
     Assumption,
@@ -858,12 +858,18 @@ def _with_model_tilt_sd(measures: Measures, sigma_deg: float) -> Measures:
 def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReading]) -> Measures:
     """Sagittal measures that no film determined (no lateral view) as calibrated on dev
     (``fit.uncertainty.PriorOnlyReading.reported``): the film's reading plus its offset where the
-    film predicts the measure, else the population's mean, degrees."""
-    update = {
+    film predicts the measure, else the population's mean, degrees; the Lenke inputs' T5–T12
+    kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
+    update: dict[str, Any] = {
         PRIOR_ONLY_MEASURES[name]: reading.reported(value)
         for name, reading in readings.items()
         if (value := getattr(measures, PRIOR_ONLY_MEASURES[name])) is not None
     }
+    t5_t12 = update.get(PRIOR_ONLY_MEASURES["kyphosis_t5_t12"])
+    if measures.lenke is not None and t5_t12 is not None:  # Lenke's T5–T12 is the reported one
+        update["lenke"] = measures.lenke.model_copy(
+            update={"t5_t12_kyphosis_deg": t5_t12, "sagittal_thoracic_modifier": lenke_modifier(t5_t12)}
+        )
     return measures.model_copy(update=update)
 
 

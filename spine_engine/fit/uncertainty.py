@@ -75,8 +75,10 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
 CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "priors" / "uncertainty_calibration.json"
-"""The calibrated scale c and its provenance (written by ``write_calibration``). Beside the tilt
-prior in ``priors/`` rather than in ``profiles/``, whose every file is an elastic profile."""
+"""The calibrated constants of the reported uncertainty (c, λ), the readings of the sagittal measures
+one PA film leaves to the prior (``PriorOnlyReading``) and their provenance (written by
+``write_calibration``). Beside the tilt prior in ``priors/`` rather than in ``profiles/``, whose every
+file is an elastic profile."""
 
 _DEG = 180.0 / np.pi
 

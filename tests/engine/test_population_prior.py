@@ -118,10 +118,11 @@ def test_rest_length_from_the_pa_film_is_not_short() -> None:
 def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean() -> None:
     """One PA film: each sagittal measure is reported as the shipped calibration says
     (``fit.uncertainty.PriorOnlyReading``): the population's mean where the film does not predict it on
-    dev, the centreline's reading plus the offset where it does; with a lateral film, the reading as it is."""
+    dev, the centreline's reading plus the offset where it does; with a lateral film, the reading as it is.
+    The Lenke inputs' T5–T12 kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
     from spine_engine.fit.uncertainty import PRIOR_ONLY_MEASURES, calibration
     from spine_engine.frames import frames_from_centreline as frames
-    from spine_engine.measures import compute_measures
+    from spine_engine.measures import compute_measures, lenke_modifier
 
     readings = calibration().prior_only
     assert set(readings) == set(PRIOR_ONLY_MEASURES)
@@ -134,6 +135,9 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
         film = getattr(centreline, key)
         expected = film + reading.offset_deg if reading.film_predicts else reading.population_mean_deg
         assert result["measures"][key] == pytest.approx(expected, abs=1e-6)
+    lenke = result["measures"]["lenke"]
+    assert lenke["t5_t12_kyphosis_deg"] == result["measures"]["thoracic_kyphosis_t5_t12_deg"]
+    assert lenke["sagittal_thoracic_modifier"] == lenke_modifier(lenke["t5_t12_kyphosis_deg"])
     truth = clinic_films.Truth(spine_id, positions, frames_from_centreline(positions))
     series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
     both = register(
