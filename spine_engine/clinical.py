@@ -99,7 +99,7 @@ def calibrated_magnification(view: PAView | LateralView) -> float | None:
     if acq is not None and acq.magnification is not None:
         return float(acq.magnification)
     if acq is not None and acq.point_source:
-        geometry = pinhole_geometry(view, "pa")
+        geometry = pinhole_geometry(view, "lateral" if isinstance(view, LateralView) else "pa")
         assert geometry is not None
         return geometry.sid_mm / geometry.sod_mm
     return 1.0

@@ -754,7 +754,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     if not (np.isfinite(out.positions).all() and np.isfinite(out.rotations).all()):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
     measures = measure_fit(inputs, out)
-    if "kyphosis" in inputs.unreliable:
+    sagittal_from_prior = "kyphosis" in inputs.unreliable  # no lateral film determined it
+    if sagittal_from_prior:
         measures = _prior_only_reported(measures, calibration().prior_only)
     uncertainty: Uncertainty | None
     try:
@@ -766,7 +767,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         measures = _measures_with_sds(measures, uncertainty)
         tilts = tilt_prior if tilt_prior is not None else load_tilt_prior()
         measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
-        if "kyphosis" in inputs.unreliable:
+        if sagittal_from_prior:
             measures = _with_prior_floor(measures, profile)
         if not _has_pedicles(inputs):
             uncertainty = _with_axial_rotation_floor(uncertainty, measures)
@@ -861,9 +862,8 @@ def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReadin
     film predicts the measure, else the population's mean, degrees; the Lenke inputs' T5–T12
     kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
     update: dict[str, Any] = {
-        PRIOR_ONLY_MEASURES[name]: reading.reported(value)
+        PRIOR_ONLY_MEASURES[name]: reading.reported(getattr(measures, PRIOR_ONLY_MEASURES[name]))
         for name, reading in readings.items()
-        if (value := getattr(measures, PRIOR_ONLY_MEASURES[name])) is not None
     }
     t5_t12 = update.get(PRIOR_ONLY_MEASURES["kyphosis_t5_t12"])
     if measures.lenke is not None and t5_t12 is not None:  # Lenke's T5–T12 is the reported one

@@ -170,10 +170,7 @@ def _calibration(path: str) -> Calibration:
         data: dict[str, Any] = json.load(fh)
     return Calibration(float(data["uncertainty_scale"]), float(data.get("prior_weight", 1.0)),
                        dict(data.get("provenance", {})),
-                       {k: PriorOnlyReading(bool(v["film_predicts"]), float(v["offset_deg"]),
-                                            float(v["population_mean_deg"]), float(v["correlation"]),
-                                            float(v["p_value"]))
-                        for k, v in data.get("prior_only", {}).items()})
+                       {k: PriorOnlyReading(**v) for k, v in data.get("prior_only", {}).items()})
 
 
 def calibration(path: Path | None = None) -> Calibration:
