@@ -1,0 +1,179 @@
+"""``spine bench pa-bound``: how much of the sagittal profile one PA film carries, for a learner.
+
+With one PA film (case (e) of ``spine bench clinic``) the depth of the spine is not seen, but a
+segment inclined by β out of the frontal plane images ds·cos β long: the film's foreshortening
+carries some of the kyphosis and lordosis, against the spread of the vertebrae's own heights. This
+command measures how much, with an estimator the engine does not have: ridge regression
+trained on spines of the population it is then tested on.
+
+* features: the PA film's 16 projected segment lengths over their sum (the film's landmarks as the
+  clinic sends them, ``clinic_films.build_payload`` of case (e): invariant to the film's offset,
+  turn and magnification), standardised;
+* targets: the truth's kyphosis T4–T12 and lordosis L1–L5, measured as ``spine bench clinic``
+  measures a truth (``measures.compute_measures`` on the centreline frames);
+* ridge, its penalty chosen by 5-fold cross-validation on the training spines (``RIDGE_GRID``);
+* populations: synthetic spines (``spine_engine.synthetic``), trained on ``--train`` spines drawn
+  apart from the benches' (``TRAIN_SEED``) and tested on the clinic bench's synthetic test spines
+  (the same films: noise seed ``--seed``) and on ``--held-out`` more (``HELD_OUT_SEED``); VerSe,
+  trained on ``dev`` (its 24 spines) and tested on ``test``.
+
+Beside it, the clinic bench's floor (VerSe dev's means, ``clinic.population_means``) and the
+training spines' own mean. The learner knows the population it is tested on, which a patient's
+answer cannot; its figure says what the films allow in that population, not what an engine
+calibrated on VerSe dev can reach there. The JSON is ``pa-bound.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benches.clinic import population_means, synthetic_truths, verse_truths
+from benches.clinic_films import CASES, FloatArray, Truth, build_payload, simulate_series
+from benches.report import format_table, shared_data_dir, write_json
+from spine_engine.frames import frames_from_centreline
+from spine_engine.measures import compute_measures
+from spine_engine.synthetic import generate_spines
+
+TRAIN_SEED = 20_000
+"""``generate_spines`` seed of the synthetic training spines: apart from the clinic bench's test (0)
+and dev (10 000) spines."""
+HELD_OUT_SEED = 30_000
+"""``generate_spines`` seed of the extra held-out synthetic spines."""
+RIDGE_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
+"""Ridge penalties tried (on standardised features; n·λ added to XᵀX)."""
+MEASURES = ("kyphosis_t4_t12", "lordosis_l1_l5")
+
+
+@dataclass(frozen=True)
+class Films:
+    """Features (n, 16) of the PA films and the truths' measures (n, 2), degrees."""
+
+    features: FloatArray
+    truth: FloatArray
+
+
+def pa_features(points: FloatArray) -> FloatArray:
+    """(16,) projected segment lengths over their sum of 17 PA landmarks (17, 2), any unit."""
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return np.asarray(lengths / lengths.sum())
+
+
+def film(truths: Sequence[Truth], noise_mm: float, seeds: Sequence[int]) -> Films:
+    """The PA film of case (e) of each truth (``simulate_series`` with its noise seed) as the clinic
+    sends it, and the truth's measures."""
+    features, truth = [], []
+    for t, seed in zip(truths, seeds, strict=True):
+        payload = build_payload(simulate_series(t, noise_mm, seed), CASES["e"])
+        assert payload.pa is not None
+        points = np.array([lm.point for lm in payload.pa.landmarks], dtype=float)
+        features.append(pa_features(points))
+        m = compute_measures(t.positions, frames_from_centreline(t.positions))
+        truth.append((m.thoracic_kyphosis_t4_t12_deg, m.lumbar_lordosis_l1_l5_deg))
+    return Films(np.array(features), np.array(truth, dtype=float))
+
+
+@dataclass(frozen=True)
+class Ridge:
+    """y ≈ ȳ + ((x − x̄)/s_x) w, per target column."""
+
+    x_mean: FloatArray
+    x_sd: FloatArray
+    y_mean: FloatArray
+    weights: FloatArray
+    penalty: float
+
+    def predict(self, X: FloatArray) -> FloatArray:
+        return np.asarray(self.y_mean + ((X - self.x_mean) / self.x_sd) @ self.weights)
+
+
+def fit_ridge(X: FloatArray, Y: FloatArray, penalty: float) -> Ridge:
+    """Ridge on standardised features: w = (ZᵀZ + nλI)⁻¹ Zᵀ(Y − Ȳ), Z = (X − X̄)/s_X."""
+    mean, sd = X.mean(axis=0), X.std(axis=0) + 1e-12
+    Z = (X - mean) / sd
+    y_mean = Y.mean(axis=0)
+    w = np.linalg.solve(Z.T @ Z + len(X) * penalty * np.eye(X.shape[1]), Z.T @ (Y - y_mean))
+    return Ridge(mean, sd, y_mean, w, penalty)
+
+
+def cross_validated_ridge(X: FloatArray, Y: FloatArray, folds: int = 5, seed: int = 0) -> Ridge:
+    """``fit_ridge`` on all of X with the penalty of ``RIDGE_GRID`` whose ``folds``-fold CV mean absolute
+    error (summed over the targets) is lowest."""
+    fold = np.random.default_rng(seed).permutation(len(X)) % folds
+
+    def cv_error(penalty: float) -> float:
+        err = 0.0
+        for f in range(folds):
+            model = fit_ridge(X[fold != f], Y[fold != f], penalty)
+            err += float(np.abs(model.predict(X[fold == f]) - Y[fold == f]).sum())
+        return err
+    return fit_ridge(X, Y, min(RIDGE_GRID, key=cv_error))
+
+
+def rows_of(population: str, train: Films, tests: dict[str, Films], floor: FloatArray) -> list[dict[str, Any]]:
+    """MAE of the floor, of the training mean and of the ridge on each test set."""
+    model = cross_validated_ridge(train.features, train.truth)
+    rows = []
+    for name, test in tests.items():
+        for estimator, answer in (
+            ("floor (VerSe dev mean)", np.broadcast_to(floor, test.truth.shape)),
+            ("training spines' mean", np.broadcast_to(train.truth.mean(axis=0), test.truth.shape)),
+            (f"ridge on the PA segment lengths (λ {model.penalty:g})", model.predict(test.features)),
+        ):
+            mae = np.abs(answer - test.truth).mean(axis=0)
+            rows.append({"population": population, "train": len(train.truth), "test": name,
+                         "spines": len(test.truth), "estimator": estimator,
+                         **{f"{m}_mae_deg": float(v) for m, v in zip(MEASURES, mae, strict=True)}})
+    return rows
+
+
+def run(train_n: int, held_out: int, noise_mm: float, seed: int, verse: Path | None) -> list[dict[str, Any]]:
+    """Every row of the command (module docstring)."""
+    means = population_means()
+    floor = np.array([means[m] for m in MEASURES])
+    train_spines = [Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
+                    for s in generate_spines(train_n, seed=TRAIN_SEED)]
+    train = film(train_spines, noise_mm, range(train_n))
+    bench_test = synthetic_truths(20, seed, "test")
+    tests = {"clinic bench's synthetic test": film(bench_test, noise_mm, [seed] * len(bench_test))}
+    if held_out:
+        extra = [Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
+                 for s in generate_spines(held_out, seed=HELD_OUT_SEED)]
+        tests[f"{held_out} more synthetic"] = film(extra, noise_mm, [seed] * held_out)
+    rows = rows_of("synthetic", train, tests, floor)
+    if verse is not None:
+        dev, test = verse_truths("dev", verse), verse_truths("test", verse)
+        rows += rows_of("VerSe", film(dev, noise_mm, [seed] * len(dev)),
+                        {"VerSe test": film(test, noise_mm, [seed] * len(test))}, floor)
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="spine bench pa-bound", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--train", type=int, default=1500, help="synthetic training spines (default 1500)")
+    parser.add_argument("--held-out", type=int, default=500, help="extra held-out synthetic spines (0: none)")
+    parser.add_argument("--noise-mm", type=float, default=1.0, help="landmark noise SD, detector mm (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed of the test films (the clinic bench's)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="VerSe folder with dev.csv and test.csv (default: the shared data, if present)")
+    parser.add_argument("--no-verse", action="store_true", help="synthetic spines only")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/pa-bound"), help="folder of the JSON")
+    ns = parser.parse_args(argv)
+    verse = None if ns.no_verse else (ns.data or shared_data_dir("verse"))
+    rows = run(ns.train, ns.held_out, ns.noise_mm, ns.seed, verse)
+    print(format_table(
+        ["population", "test", "spines", "estimator", "kyphosis MAE", "lordosis MAE"],
+        [[r["population"], r["test"], r["spines"], r["estimator"], r["kyphosis_t4_t12_mae_deg"],
+          r["lordosis_l1_l5_mae_deg"]] for r in rows],
+    ))
+    write_json(ns.out / "pa-bound.json", {"command": "spine bench pa-bound " + " ".join(argv or sys.argv[2:]),
+                                         "train": ns.train, "held_out": ns.held_out, "noise_mm": ns.noise_mm,
+                                         "seed": ns.seed, "rows": rows})
+    print(f"wrote {ns.out / 'pa-bound.json'}")
+    return 0

@@ -1,0 +1,61 @@
+"""``spine bench pa-bound``: the PA features ignore what the film does not fix, the ridge recovers a
+linear law, foreshortening is what the features see, and the command on a few spines."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benches import pa_bound
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
+
+
+def test_features_ignore_the_films_offset_turn_and_magnification() -> None:
+    rng = np.random.default_rng(3)
+    points = np.cumsum(rng.normal([0.0, 25.0], [3.0, 2.0], size=(17, 2)), axis=0)
+    c, s = np.cos(0.3), np.sin(0.3)
+    moved = 1.2 * points @ np.array([[c, -s], [s, c]]).T + np.array([40.0, -7.0])
+    np.testing.assert_allclose(pa_bound.pa_features(moved), pa_bound.pa_features(points), atol=1e-12)
+    assert pa_bound.pa_features(points).sum() == pytest.approx(1.0)
+
+
+def test_a_segment_inclined_out_of_the_film_images_shorter_by_its_cosine() -> None:
+    """Straight vertebrae 25 mm apart; inclining segment 5 by β out of the frontal plane shortens its
+    image to 25 cos β, against the other 15 segments."""
+    positions = np.zeros((17, 3))
+    positions[:, 2] = -25.0 * np.arange(17)
+    beta = np.radians(30.0)
+    positions[6:, 1] += 25.0 * np.sin(beta)
+    positions[6:, 2] += 25.0 * (1.0 - np.cos(beta))
+    f = pa_bound.pa_features(positions[:, [0, 2]])
+    assert f[5] / f[4] == pytest.approx(np.cos(beta))
+
+
+def test_ridge_recovers_a_linear_law() -> None:
+    """Noise-free targets: CV picks the smallest penalty λ, which shrinks the weights by about
+    1/(1 + λ) = 1 % on standardised features, so predictions are within 2 % of the targets' spread."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(200, 5))
+    Y = np.stack([1.0 + X @ [2.0, 0.0, -1.0, 0.5, 0.0], 3.0 - X[:, 1]], axis=1)
+    model = pa_bound.cross_validated_ridge(X, Y)
+    assert model.penalty == min(pa_bound.RIDGE_GRID)
+    spread = np.abs(Y - Y.mean(axis=0)).max()
+    assert np.abs(model.predict(X) - Y).max() <= 0.02 * spread
+
+
+def test_command_on_a_few_spines(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    shutil.copy(DATA, tmp_path / "dev.csv")
+    (tmp_path / "test.csv").write_text("\n".join(DATA.read_text().splitlines()[:4]) + "\n")
+    code = pa_bound.main(["--train", "30", "--held-out", "0", "--data", str(tmp_path), "--out", str(tmp_path)])
+    assert code == 0
+    report = json.loads((tmp_path / "pa-bound.json").read_text())
+    tests = {(r["population"], r["test"]) for r in report["rows"]}
+    assert tests == {("synthetic", "clinic bench's synthetic test"), ("VerSe", "VerSe test")}
+    floor = [r for r in report["rows"] if r["estimator"].startswith("floor")]
+    assert all(r["kyphosis_t4_t12_mae_deg"] > 0.0 for r in floor)
+    assert "ridge on the PA segment lengths" in capsys.readouterr().out
