@@ -37,9 +37,13 @@ Metrics per spine, then averaged (``summarise``):
 * coverage of the 95 % intervals (±1.96 SD): per coordinate of every position relative to the
   centroid (``position_sd_mm``), of each measure with an SD (kyphosis, lordosis, every Cobb curve;
   the value computed the same way as above, whose SD ``fit.uncertainty`` propagates; the JSON's
-  ``coverage_reported`` uses the reported values) and of every vertebra's axial rotation (the
-  directors' against the truth's); the fraction of truths inside. A result without SDs has no
-  coverage (reported as null / "-").
+  ``coverage_reported`` uses the reported values) and of every vertebra's reported axial rotation
+  against the truth's; the fraction of truths inside. A result without SDs has no coverage
+  (reported as null / "-");
+* axial rotation (synthetic spines only: VerSe's frames are the centreline's, whose axial rotation is
+  a convention): the mean over the vertebrae of |reported − truth| (``axial_rotation_mae_deg``),
+  beside its floor, answering 0 (``floor_mae_deg["axial_rotation"]``), and the same of the result's
+  directors (``directors_axial_rotation_mae_deg``; reported only where pedicles observed them).
 
 ``--seeds N`` runs the convergence sweep instead (``convergence_sweep``): every case, and the
 sweep's extra valid forms (``SWEEP_EXTRA_CASES``), on every spine over N noise seeds; each failure
@@ -110,6 +114,13 @@ class Outcome:
     floor_rotation_deg: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
     """The best rotation (as ``rotation_error_deg``) of the trivial answer of one PA film
     (``population_sagittal_answer``) onto the truth."""
+    axial_rotation_mae_deg: float = float("nan")
+    """Mean over the vertebrae of |reported axial rotation − truth's|, where the truth's is known."""
+    directors_axial_rotation_mae_deg: float = float("nan")
+    """The same of the result's directors' axial rotation (a diagnostic: reported only where pedicles
+    observed it)."""
+    truth_axial_rotation_mean_abs_deg: float = float("nan")
+    """Mean |truth's axial rotation|: the error of answering 0 (the trivial answer)."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
     position_z: FloatArray | None = None
@@ -135,7 +146,6 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     """Metrics of one ``register`` result against its truth (module docstring)."""
     vertebrae = result["vertebrae"]
     r = np.array([v["position"] for v in vertebrae], dtype=float)
-    R = np.array([np.asarray(v["directors"], dtype=float).T for v in vertebrae])
     t = truth.positions
     dr, dt_ = r - r.mean(axis=0), t - t.mean(axis=0)
     diff = dr - dt_
@@ -180,13 +190,19 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
             z = _z(e, curve.get("angle_sd_deg"))
             if z is not None:
                 z_store.setdefault("cobb", []).append(z)
-    psi_truth = axial_rotation_deg(truth.rotations)
-    psi = axial_rotation_deg(R)
-    for i, v in enumerate(vertebrae):
-        d = float((psi[i] - psi_truth[i] + 180.0) % 360.0 - 180.0)
-        z = _z(d, v.get("axial_rotation_sd_deg"))
-        if z is not None:
-            out.measure_z.setdefault("axial_rotation", []).append(z)
+    if truth.axial_rotation_known:
+        psi_truth = axial_rotation_deg(truth.rotations)
+        psi = np.array([v["axial_rotation_deg"] for v in vertebrae], dtype=float)
+        d = (psi - psi_truth + 180.0) % 360.0 - 180.0
+        out.axial_rotation_mae_deg = float(np.mean(np.abs(d)))
+        R = np.array([np.asarray(v["directors"], dtype=float).T for v in vertebrae])
+        d_directors = (axial_rotation_deg(R) - psi_truth + 180.0) % 360.0 - 180.0
+        out.directors_axial_rotation_mae_deg = float(np.mean(np.abs(d_directors)))
+        out.truth_axial_rotation_mean_abs_deg = float(np.mean(np.abs(psi_truth)))
+        for i, v in enumerate(vertebrae):
+            z = _z(float(d[i]), v.get("axial_rotation_sd_deg"))
+            if z is not None:
+                out.measure_z.setdefault("axial_rotation", []).append(z)
     sds = [v.get("position_sd_mm") for v in vertebrae]
     if all(s is not None for s in sds):
         sd = np.asarray(sds, dtype=float)
@@ -270,7 +286,7 @@ def verse_truths(split: str, data: Path | None = None) -> list[Truth]:
     path = (data or shared_data_dir("verse")) / f"{split}.csv"
     if not path.is_file():
         raise FileNotFoundError(f"VerSe split not found at {path} (pass --data or set SPINE_SHARED_DATA)")
-    return [Truth(sid, pos, frames_from_centreline(pos)) for sid, pos in read_verse(path)]
+    return [Truth(sid, pos, frames_from_centreline(pos), axial_rotation_known=False) for sid, pos in read_verse(path)]
 
 
 SYNTHETIC_SEED_OF_SPLIT = {"test": 0, "dev": 10_000}
@@ -340,6 +356,8 @@ def summarise(
         "kyphosis_t5_t12_mae_deg": _mean([abs(o.errors_deg.get("kyphosis_t5_t12", np.nan)) for o in ok]),
         "lordosis_l1_l5_mae_deg": _mean([abs(o.errors_deg.get("lordosis_l1_l5", np.nan)) for o in ok]),
         "major_cobb_mae_deg": _mean([abs(o.errors_deg.get("major_cobb", np.nan)) for o in ok]),
+        "axial_rotation_mae_deg": _mean([o.axial_rotation_mae_deg for o in ok]),
+        "directors_axial_rotation_mae_deg": _mean([o.directors_axial_rotation_mae_deg for o in ok]),
         "reported_mae_deg": {
             name: _mean([abs(o.reported_errors_deg.get(name, np.nan)) for o in ok])
             for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb")
@@ -374,6 +392,7 @@ def summarise(
         name: _mean([abs(mean - o.truth_deg[name]) for o in ok if name in o.truth_deg])
         for name, mean in (floor or {}).items()
     }
+    row["floor_mae_deg"]["axial_rotation"] = _mean([o.truth_axial_rotation_mean_abs_deg for o in ok])
     return row
 
 
@@ -508,6 +527,8 @@ TABLE_COLUMNS = [
     ("covreported_lordosis_l1_l5", "cov lord"),
     ("covreported_cobb", "cov Cobb"),
     ("coverage_axial_rotation", "cov rot"),
+    ("axial_rotation_mae_deg", "rot°"),
+    ("floor_axial_rotation", "floor"),
 ]
 """The measures are the result's (``reported_…``: what a user reads, and the coverage of its
 intervals); "Cobb° cl" is the major Cobb angle of the result's centreline, as the truth's is measured."""
@@ -517,7 +538,7 @@ def _value(row: dict[str, Any], key: str) -> Any:
     """A row's entry; ``floor_<measure>``: the population-mean estimator's MAE on the same spines;
     ``reported_<measure>`` / ``covreported_<measure>``: the MAE / coverage of the result's measure."""
     if key.startswith("floor_"):
-        measure = "kyphosis_t4_t12" if key == "floor_kyphosis" else "lordosis_l1_l5"
+        measure = {"floor_kyphosis": "kyphosis_t4_t12", "floor_lordosis": "lordosis_l1_l5"}.get(key, key[6:])
         return row["floor_mae_deg"].get(measure)
     if key.startswith("reported_"):
         return row["reported_mae_deg"].get(key.removeprefix("reported_"))
@@ -559,6 +580,8 @@ MARKDOWN_COLUMNS = [
     ("covreported_lordosis_l1_l5", "cov. lordosis"),
     ("covreported_cobb", "cov. Cobb"),
     ("coverage_axial_rotation", "cov. axial rot."),
+    ("axial_rotation_mae_deg", "axial rot. MAE (°)"),
+    ("floor_axial_rotation", "floor"),
 ]
 """The columns of ``markdown_table`` after data, case and ok: docs/accuracy.md's clinic table."""
 

@@ -111,6 +111,9 @@ class Truth:
     spine_id: str
     positions: FloatArray
     rotations: FloatArray
+    axial_rotation_known: bool = True
+    """False where the rotations are the centreline's frames only (VerSe gives centroids): their axial
+    rotation is a convention, not a measurement, and is not compared."""
 
 
 @dataclass(frozen=True)

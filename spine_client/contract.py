@@ -55,6 +55,7 @@ class Assumption(OpenModel):
         "standing_orientation",
         "population_sagittal_shape",
         "full_spine_geometry",
+        "population_axial_rotation",
     ]
     view: Literal["pa", "lateral"] | None = None
     reason: str

@@ -464,7 +464,9 @@ class VertebraResult(BaseModel):
     )
     twist_deg: float | None = Field(description="Twist u3·Δs about d3, degrees.")
     axial_rotation_deg: float = Field(
-        description="Axial rotation in the transverse plane, degrees (docs/measures.md)."
+        description="Axial rotation in the transverse plane, degrees (docs/measures.md). Without pedicles it is "
+        "the population's mean given the frontal curves, toward each curve's convexity (fit.assumed "
+        "population_axial_rotation), not the directors' turn."
     )
     frontal_tilt_deg: float | None = Field(
         None,
@@ -656,7 +658,7 @@ class ViewProjection(BaseModel):
 
 AssumptionName = Literal[
     "central_ray_at_image_centre", "central_ray_near_landmarks", "magnification_prior", "standing_orientation",
-    "population_sagittal_shape", "full_spine_geometry",
+    "population_sagittal_shape", "full_spine_geometry", "population_axial_rotation",
 ]
 
 
@@ -673,7 +675,8 @@ class Assumption(BaseModel):
         "and lordosis from the population prior, with its SD; the population's mean where one PA film does not "
         "predict them); full_spine_geometry (projection_model "
         "perspective without SID or SOD: those of full-spine radiography, the spine's distance from the source "
-        "under a prior)."
+        "under a prior); population_axial_rotation (no pedicles: each vertebra's axial rotation is the "
+        "population's mean given the frontal curves, toward each curve's convexity, with the population's SD)."
     )
     view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
     reason: str = Field(description="In plain words: what was missing and what was taken instead.")

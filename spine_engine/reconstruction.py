@@ -279,6 +279,9 @@ _ASSUMPTION_REASONS = {
     "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
     "their SDs are at least the population's, and a measure one PA film does not predict is the population's "
     "mean",
+    "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
+    "the frontal curves (toward each curve's convexity, about a third of its Cobb angle at the apex, 0 at its "
+    "end vertebrae), with the population's SD; the directors stay the fit's",
 }
 
 
@@ -594,9 +597,11 @@ def _vertebrae(
     rest: RestModel,
     observed_tilt_deg: np.ndarray | None = None,
     uncertainty: Uncertainty | None = None,
+    axial_rotation: np.ndarray | None = None,
 ) -> list[VertebraResult]:
     """The 17 vertebra results: pose, strains u, v of the segment below (rad/mm, none for L5), its
-    bending and twist angles u·Δs (degrees), axial rotation, frontal tilt and, with ``uncertainty``
+    bending and twist angles u·Δs (degrees), axial rotation (the directors', or ``axial_rotation``
+    (17,) degrees where given), frontal tilt and, with ``uncertainty``
     (``fit.uncertainty.reported_uncertainty``), the SDs of position and axial rotation."""
     n = len(LEVELS)
     angles = np.degrees(out.u * rest.ds[:, None]).tolist()
@@ -628,7 +633,7 @@ def _vertebrae(
                 out.positions.tolist(),
                 np.swapaxes(out.rotations, 1, 2).tolist(),
                 segment,
-                axial_rotation_deg(out.rotations).tolist(),
+                (axial_rotation_deg(out.rotations) if axial_rotation is None else axial_rotation).tolist(),
                 tilt.tolist(),
                 from_corners.tolist(),
                 position_sd,
@@ -704,7 +709,9 @@ def _fit_report(
             if src in ("image_left", "image_right")
         ],
         uncertainty_scale=uncertainty_scale,
-        assumed=[a for setup in inputs.setups.values() for a in setup.assumed] + _sagittal_assumptions(inputs),
+        assumed=[a for setup in inputs.setups.values() for a in setup.assumed]
+        + _sagittal_assumptions(inputs)
+        + ([] if _has_pedicles(inputs) else [_assumption("population_axial_rotation", None)]),
     )
 
 
@@ -757,6 +764,9 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     sagittal_from_prior = "kyphosis" in inputs.unreliable  # no lateral film determined it
     if sagittal_from_prior:
         measures = _prior_only_reported(measures, calibration().prior_only)
+    axial_rotation = None if _has_pedicles(inputs) else population_axial_rotation_deg(measures)
+    if axial_rotation is not None:
+        measures = _with_population_axial_rotation(measures, axial_rotation)
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
@@ -773,7 +783,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
             uncertainty = _with_axial_rotation_floor(uncertainty, measures)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
     return RegistrationResult(
-        vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty),
+        vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty, axial_rotation),
         measures=measures,
         fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
         engine=EngineInfo(version=__version__, profile=profile.name),
@@ -809,13 +819,48 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
     )
 
 
-AXIAL_ROTATION_PER_COBB = 0.39
-"""SD of a vertebra's axial rotation that no pedicle observed, per degree of the Cobb angle of the curve
-it lies in: the population's root mean square apical rotation over its mean Cobb angle, standing AIS
-patients before surgery (Brink et al., Scoliosis Spinal Disord 2017;12:6,
-doi:10.1186/s13013-017-0111-5: upright apical rotation 22° ± 12° at a thoracic Cobb angle of
-68° ± 15°, √(22² + 12²)/68 = 0.37; lumbar 11° ± 13° at 44° ± 17°, 0.39, the larger taken). Apical
+APICAL_ROTATION_PER_COBB = {"thoracic": 22.0 / 68.0, "lumbar": 11.0 / 44.0}
+"""Mean axial rotation of a curve's apical vertebra toward its convexity per degree of its Cobb angle,
+standing AIS patients before surgery, thoracic and (thoraco)lumbar curves (Brink et al., Scoliosis
+Spinal Disord 2017;12:6, doi:10.1186/s13013-017-0111-5: upright apical rotation 22° ± 12° at a
+thoracic Cobb angle of 68° ± 15°, 11° ± 13° at a lumbar 44° ± 17°; the ratio of the means). Apical
 rotation grows with the Cobb angle (r = 0.68, Morrison et al., Eur Spine J 2015;24:306–312)."""
+THORACIC_APEX_LOWEST = "T11"
+"""Lowest apex of a thoracic curve for ``APICAL_ROTATION_PER_COBB`` (SRS: thoracic apex T2 to the
+T11–T12 disc; thoracolumbar T12–L1, lumbar below, Lenke et al., J Bone Joint Surg Am 2001;83:1169)."""
+AXIAL_ROTATION_PER_COBB = 0.30
+"""SD of a vertebra's axial rotation that no pedicle observed about the population's mean
+(``population_axial_rotation_deg``), per degree of the Cobb angle of the curve it lies in: Brink et
+al.'s SD over mean Cobb angle (above), 12/68 = 0.18 thoracic, 13/44 = 0.30 lumbar, the larger taken."""
+
+
+def population_axial_rotation_deg(measures: Measures) -> np.ndarray:
+    """(17,) the population's mean axial rotation of each vertebra given the frontal curves, degrees
+    (``frames.axial_rotation_deg``'s sense: > 0 toward patient left). Within a curve, k·C toward its
+    convexity at the apex (C its Cobb angle, k = ``APICAL_ROTATION_PER_COBB`` of its region), falling
+    linearly with the level to 0 at its end vertebrae (the apical vertebra the most rotated, the end
+    vertebrae the least: a modelling choice of the profile's shape); 0 outside every curve; where
+    curves meet, the larger in magnitude."""
+    levels = np.arange(len(LEVELS))
+    psi = np.zeros(len(LEVELS))
+    for c in measures.cobb:
+        upper, apex, lower = LEVEL_INDEX[c.upper], LEVEL_INDEX[c.apex], LEVEL_INDEX[c.lower]
+        region = "thoracic" if apex <= LEVEL_INDEX[THORACIC_APEX_LOWEST] else "lumbar"
+        peak = APICAL_ROTATION_PER_COBB[region] * c.angle_deg * (1.0 if c.convexity == "left" else -1.0)
+        rising = (levels - upper) / max(apex - upper, 1)
+        falling = (lower - levels) / max(lower - apex, 1)
+        taper = np.clip(np.where(levels <= apex, rising, falling), 0.0, 1.0)
+        value = np.where((levels >= upper) & (levels <= lower), peak * taper, 0.0)
+        psi = np.where(np.abs(value) > np.abs(psi), value, psi)
+    return psi
+
+
+def _with_population_axial_rotation(measures: Measures, psi_deg: np.ndarray) -> Measures:
+    """``measures`` whose curves' apex axial rotations are ``psi_deg`` at their apexes."""
+    cobb = [
+        c.model_copy(update={"apex_axial_rotation_deg": float(psi_deg[LEVEL_INDEX[c.apex]])}) for c in measures.cobb
+    ]
+    return measures.model_copy(update={"cobb": cobb})
 
 
 def _has_pedicles(inputs: RegistrationInputs) -> bool:
@@ -824,11 +869,10 @@ def _has_pedicles(inputs: RegistrationInputs) -> bool:
 
 
 def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures) -> Uncertainty:
-    """Without pedicles the vertebrae's axial rotations come from the rod's twist prior alone, whose
-    Laplace SD (a few degrees) knows nothing of how far real vertebrae turn (on the synthetic spines of
-    ``spine bench clinic``, rotated toward the convexity as real ones are, the rod's apex often turned
-    the other way). Each SD is then √(SD² + (k·C)²), C the largest Cobb angle of the curves the
-    vertebra lies in (0 outside every curve), k = ``AXIAL_ROTATION_PER_COBB``."""
+    """Without pedicles the vertebrae's axial rotations are the population's (``population_axial_rotation_deg``),
+    whose spread the rod's Laplace SD (a few degrees, of its twist) does not know. Each SD is then
+    √(SD² + (k·C)²), C the largest Cobb angle of the curves the vertebra lies in (0 outside every
+    curve), k = ``AXIAL_ROTATION_PER_COBB``."""
     cobb = np.zeros(len(LEVELS))
     for c in measures.cobb:
         span = slice(LEVEL_INDEX[c.upper], LEVEL_INDEX[c.lower] + 1)

@@ -14,6 +14,9 @@ from spine_engine import register
 from spine_engine.errors import InvalidInput
 from spine_engine.validation import validate_payload
 
+NO_PEDICLES = ("population_axial_rotation", None)
+"""``fit.assumed`` of a payload without pedicles: the axial rotations are the population's."""
+
 
 def _case_c(units: str) -> dict[str, Any]:
     """The clinic bench's case (c) (perspective PA + lateral, SID, SOD and central ray given) of one
@@ -47,9 +50,9 @@ def test_the_central_ray_defaults_to_the_image_centre(units: str) -> None:
     a, b = register(given), register(centred)
     np.testing.assert_allclose(_positions(b), _positions(a), rtol=0, atol=1e-9)
     assert b["measures"]["thoracic_kyphosis_t4_t12_deg"] == pytest.approx(a["measures"]["thoracic_kyphosis_t4_t12_deg"])
-    assert a["fit"]["assumed"] == []
+    assert [x["name"] for x in a["fit"]["assumed"]] == ["population_axial_rotation"]  # no pedicles
     assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [
-        ("central_ray_at_image_centre", "pa"), ("central_ray_at_image_centre", "lateral"),
+        ("central_ray_at_image_centre", "pa"), ("central_ray_at_image_centre", "lateral"), NO_PEDICLES,
     ]
     assert units in b["fit"]["assumed"][0]["reason"]
 
@@ -61,27 +64,30 @@ def test_a_given_central_ray_wins_and_weak_perspective_ignores_the_size() -> Non
     sized["pa"]["acquisition"]["image_size"] = [350.0, 900.0]
     a, b = register(given), register(sized)
     np.testing.assert_array_equal(_positions(b), _positions(a))
-    assert b["fit"]["assumed"] == []
+    assert b["fit"]["assumed"] == a["fit"]["assumed"]
     for payload in (given, sized):
         for name in ("pa", "lateral"):
             payload[name]["acquisition"] = {"image_size": [350.0, 900.0]} if payload is sized else {}
     a, b = register(given), register(sized)
     np.testing.assert_array_equal(_positions(b), _positions(a))
     assert b["fit"]["assumed"] == a["fit"]["assumed"]
-    assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [("magnification_prior", "pa")]
+    assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [("magnification_prior", "pa"), NO_PEDICLES]
 
 
 def test_priors_that_decide_are_named() -> None:
     """SID and SOD alone (no central ray, no image size): the ray's prior is named per view; one PA
-    film alone: the standing orientation and the population's sagittal shape are named."""
+    film alone: the standing orientation and the population's sagittal shape are named; without
+    pedicles, the population's axial rotation."""
     bare = _case_c("mm")
     for name in ("pa", "lateral"):
         bare[name]["acquisition"].pop("central_ray")
     names = [(x["name"], x["view"]) for x in register(bare)["fit"]["assumed"]]
-    assert names == [("central_ray_near_landmarks", "pa"), ("central_ray_near_landmarks", "lateral")]
+    assert names == [("central_ray_near_landmarks", "pa"), ("central_ray_near_landmarks", "lateral"), NO_PEDICLES]
     del bare["lateral"]
     names = [x["name"] for x in register(bare)["fit"]["assumed"]]
-    assert names == ["central_ray_near_landmarks", "standing_orientation", "population_sagittal_shape"]
+    assert names == [
+        "central_ray_near_landmarks", "standing_orientation", "population_sagittal_shape", "population_axial_rotation",
+    ]
 
 
 @pytest.mark.parametrize("bad", [0.0, -10.0])

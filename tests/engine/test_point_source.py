@@ -16,6 +16,9 @@ from spine_engine.errors import InvalidInput
 from spine_engine.models import PAView
 from spine_engine.validation import validate_payload
 
+NO_PEDICLES = ("population_axial_rotation", None)
+"""``fit.assumed`` of a payload without pedicles: the axial rotations are the population's."""
+
 
 def _films(seed: int, case: str = "d", noise_mm: float = 1.0) -> tuple[clinic_films.Truth, dict[str, Any]]:
     """A synthetic spine and the clinic bench's payload of its perspective films in ``case``."""
@@ -76,7 +79,7 @@ def test_a_point_source_film_without_geometry_is_projected_in_perspective_and_sa
         assert fit[name]["scale_source"] == "prior"
     assert [(x["name"], x["view"]) for x in fit["assumed"]] == [
         ("full_spine_geometry", "pa"), ("central_ray_near_landmarks", "pa"),
-        ("full_spine_geometry", "lateral"), ("central_ray_near_landmarks", "lateral"),
+        ("full_spine_geometry", "lateral"), ("central_ray_near_landmarks", "lateral"), NO_PEDICLES,
     ]
     assert "SID 1800 mm and SOD 1600 mm" in fit["assumed"][0]["reason"]
     assert "scale" in fit["unreliable"]
