@@ -142,6 +142,11 @@ def _z(error: float, sd: float | None) -> float | None:
     return abs(error) / sd
 
 
+def _turn_deg(a: FloatArray, b: FloatArray) -> FloatArray:
+    """a − b wrapped into [−180, 180), degrees."""
+    return np.asarray((a - b + 180.0) % 360.0 - 180.0)
+
+
 def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) -> Outcome:
     """Metrics of one ``register`` result against its truth (module docstring)."""
     vertebrae = result["vertebrae"]
@@ -193,11 +198,10 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     if truth.axial_rotation_known:
         psi_truth = axial_rotation_deg(truth.rotations)
         psi = np.array([v["axial_rotation_deg"] for v in vertebrae], dtype=float)
-        d = (psi - psi_truth + 180.0) % 360.0 - 180.0
+        d = _turn_deg(psi, psi_truth)
         out.axial_rotation_mae_deg = float(np.mean(np.abs(d)))
         R = np.array([np.asarray(v["directors"], dtype=float).T for v in vertebrae])
-        d_directors = (axial_rotation_deg(R) - psi_truth + 180.0) % 360.0 - 180.0
-        out.directors_axial_rotation_mae_deg = float(np.mean(np.abs(d_directors)))
+        out.directors_axial_rotation_mae_deg = float(np.mean(np.abs(_turn_deg(axial_rotation_deg(R), psi_truth))))
         out.truth_axial_rotation_mean_abs_deg = float(np.mean(np.abs(psi_truth)))
         for i, v in enumerate(vertebrae):
             z = _z(float(d[i]), v.get("axial_rotation_sd_deg"))
@@ -297,9 +301,14 @@ are not the spines reported (``--split test``), as for VerSe."""
 def synthetic_truths(n: int, seed: int, split: str = "test") -> list[Truth]:
     """``n`` synthetic spines of ``spine_engine.synthetic`` (geometric, with axial rotation), drawn
     for ``split`` (``SYNTHETIC_SEED_OF_SPLIT``)."""
+    return generated_truths(n, seed + SYNTHETIC_SEED_OF_SPLIT[split])
+
+
+def generated_truths(n: int, seed: int) -> list[Truth]:
+    """``generate_spines(n, seed)`` as truths."""
     return [
         Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
-        for s in generate_spines(n, seed=seed + SYNTHETIC_SEED_OF_SPLIT[split])
+        for s in generate_spines(n, seed=seed)
     ]
 
 

@@ -34,12 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from benches.clinic import population_means, synthetic_truths, verse_truths
+from benches.clinic import generated_truths, population_means, synthetic_truths, verse_truths
 from benches.clinic_films import CASES, FloatArray, Truth, build_payload, simulate_series
 from benches.report import format_table, shared_data_dir, write_json
 from spine_engine.frames import frames_from_centreline
 from spine_engine.measures import compute_measures
-from spine_engine.synthetic import generate_spines
 
 TRAIN_SEED = 20_000
 """``generate_spines`` seed of the synthetic training spines: apart from the clinic bench's test (0)
@@ -137,14 +136,11 @@ def run(train_n: int, held_out: int, noise_mm: float, seed: int, verse: Path | N
     """Every row of the command (module docstring)."""
     means = population_means()
     floor = np.array([means[m] for m in MEASURES])
-    train_spines = [Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
-                    for s in generate_spines(train_n, seed=TRAIN_SEED)]
-    train = film(train_spines, noise_mm, range(train_n))
+    train = film(generated_truths(train_n, TRAIN_SEED), noise_mm, range(train_n))
     bench_test = synthetic_truths(20, seed, "test")
     tests = {"clinic bench's synthetic test": film(bench_test, noise_mm, [seed] * len(bench_test))}
     if held_out:
-        extra = [Truth(f"synthetic-{s.seed}", np.asarray(s.positions), np.asarray(s.rotations))
-                 for s in generate_spines(held_out, seed=HELD_OUT_SEED)]
+        extra = generated_truths(held_out, HELD_OUT_SEED)
         tests[f"{held_out} more synthetic"] = film(extra, noise_mm, [seed] * held_out)
     rows = rows_of("synthetic", train, tests, floor)
     if verse is not None:

@@ -764,8 +764,9 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     sagittal_from_prior = "kyphosis" in inputs.unreliable  # no lateral film determined it
     if sagittal_from_prior:
         measures = _prior_only_reported(measures, calibration().prior_only)
-    axial_rotation = None if _has_pedicles(inputs) else population_axial_rotation_deg(measures)
-    if axial_rotation is not None:
+    axial_rotation = None  # the directors' where pedicles observed it, else the population's
+    if not _has_pedicles(inputs):
+        axial_rotation = population_axial_rotation_deg(measures)
         measures = _with_population_axial_rotation(measures, axial_rotation)
     uncertainty: Uncertainty | None
     try:
@@ -779,7 +780,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
         measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
         if sagittal_from_prior:
             measures = _with_prior_floor(measures, profile)
-        if not _has_pedicles(inputs):
+        if axial_rotation is not None:
             uncertainty = _with_axial_rotation_floor(uncertainty, measures)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
     return RegistrationResult(
