@@ -29,6 +29,14 @@ prior, so the prior must predict the population (DESIGN.md, "What the films cann
 The stiffnesses follow (``anatomy.PopulationPrior``): α_i = 2 τ Δs_i / θ_sd,i², β_3 = 2τ/(Δs σ_v²),
 with τ the fit's temperature at the reference magnification.
 
+**Coupling** (``--coupling``): the prior's segments are independent. Would a prior that couples them
+(the population's covariance) predict what a film does not see from what it sees? For case (b) of
+``spine bench clinic`` (the lateral film from T4 down), T1–T4's summed sagittal bending from
+T4–L5's, on VerSe dev leave one spine out: the Gaussian conditional mean of the other spines'
+covariance shrunk toward its diagonal by ``COUPLING_SHRINKAGE`` (1: the diagonal, whose conditional
+mean is the population's mean, the independent prior's answer); the RMS error, degrees, per
+shrinkage (``prior-coupling.json``).
+
 **Prior predictive** (always printed): ``--samples`` spines drawn from the prior with no landmark
 (strains u_i ~ N(u⁰_i, 2τ/(Δs_i α_i)), v_i likewise, the size from the population), measured as the
 benches measure a truth (kyphosis and lordosis of centreline frames, T1–L5 polyline length, the
@@ -101,6 +109,42 @@ class Population:
     (``anatomy.length_over_pa_projection``)."""
 
 
+def sagittal_angles_deg(positions: np.ndarray) -> np.ndarray:
+    """(16,) sagittal bending angle θ_i = Δs_i u1_i of each segment of a centreline's frames
+    (``frames.frames_from_centreline``), degrees."""
+    R = frames_from_centreline(positions)
+    ds = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    u, _ = strains(positions, R, ds)
+    return np.asarray(np.degrees(u[:, 0] * ds))
+
+
+COUPLING_SHRINKAGE = (0.0, 0.3, 0.6, 0.9, 1.0)
+"""Weights a of the covariance's diagonal in ``sagittal_coupling``: (1 − a) S + a diag(S)."""
+UNSEEN_BY_LATERAL_FROM_T4 = slice(0, 3)
+"""Segments T1–T2, T2–T3, T3–T4: the sagittal bending that case (b)'s lateral film does not see."""
+
+
+def sagittal_coupling(spines: list[np.ndarray], unseen: slice = UNSEEN_BY_LATERAL_FROM_T4) -> list[dict[str, float]]:
+    """Leave-one-out RMS error (degrees) of the summed sagittal bending of the ``unseen`` segments
+    predicted from the other segments' by the Gaussian conditional mean μ_u + S_uo S_oo⁻¹ (θ_o − μ_o)
+    of the remaining spines' mean and shrunk covariance S, per ``COUPLING_SHRINKAGE`` (module
+    docstring, "Coupling")."""
+    theta = np.array([sagittal_angles_deg(pos) for pos in spines])
+    seen = np.setdiff1d(np.arange(theta.shape[1]), np.arange(theta.shape[1])[unseen])
+    rows = []
+    for a in COUPLING_SHRINKAGE:
+        errors = []
+        for k in range(len(theta)):
+            rest = np.delete(theta, k, axis=0)
+            mu, S = rest.mean(axis=0), np.cov(rest.T)
+            S = (1.0 - a) * S + a * np.diag(np.diag(S))
+            gain = np.linalg.solve(S[np.ix_(seen, seen)], S[np.ix_(seen, np.arange(theta.shape[1])[unseen])]).T
+            predicted = mu[unseen] + gain @ (theta[k, seen] - mu[seen])
+            errors.append(float(np.sum(predicted - theta[k, unseen])))
+        rows.append({"shrinkage": a, "rms_error_deg": float(np.sqrt(np.mean(np.square(errors))))})
+    return rows
+
+
 def _verse_statistics(
     spines: list[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, tuple[float, float], dict[str, Any], tuple[float, float]]:
@@ -109,8 +153,7 @@ def _verse_statistics(
     for pos in spines:
         R = frames_from_centreline(pos)
         ds = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-        u, _ = strains(pos, R, ds)
-        angles.append(np.degrees(u[:, 0] * ds))
+        angles.append(sagittal_angles_deg(pos))
         stretch.append(ds / (generic_ds * ds.sum() / generic_ds.sum()) - 1.0)
         beta = sagittal_inclination_deg(R)
         incl.append((beta[0], beta[-1]))
@@ -315,6 +358,14 @@ def plot(drawn: dict[str, np.ndarray], pop: Population, path: Path) -> None:
     save_figure(fig, path)
 
 
+def _print_coupling(verse_dev: Path, out: Path) -> None:
+    rows = sagittal_coupling([pos for _, pos in read_verse(verse_dev)])
+    print("T1-T4 summed sagittal bending from T4-L5's, VerSe dev leave-one-out (shrinkage 1: the mean)")
+    print(format_table(["shrinkage", "RMS error (deg)"], [[r["shrinkage"], r["rms_error_deg"]] for r in rows]))
+    write_json(out / "prior-coupling.json", {"command": "spine bench prior --coupling", "data": verse_dev.name,
+                                             "unseen_segments": "T1-T2, T2-T3, T3-T4", "rows": rows})
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="spine bench prior", description=__doc__.split("\n\n")[0])
     parser.add_argument("--verse", type=Path, default=shared_data_dir("verse") / "dev.csv",
@@ -326,7 +377,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--write", metavar="PROFILE", help="calibrate and write the prior into this profile")
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="folder of the JSON and PNG")
+    parser.add_argument("--coupling", action="store_true",
+                        help="only check whether coupling the sagittal segments would predict case (b)'s unseen T1-T4")
     ns = parser.parse_args(argv)
+    if ns.coupling:
+        _print_coupling(ns.verse, ns.out)
+        return 0
     pop = population(ns.verse, ns.aasce)
     profile = load_profile(ns.profile)
     if ns.write:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from benches import prior
 from benches.truth import read_verse
@@ -35,3 +36,15 @@ def test_prior_predictive_means_match_dev() -> None:
     # the prior is at least as wide as the population in the sagittal plane: never tighter
     assert drawn["kyphosis_t4_t12_deg"].std() >= 0.8 * dev[:, 0].std(ddof=1)
     assert drawn["lordosis_l1_l5_deg"].std() >= 0.8 * dev[:, 2].std(ddof=1)
+
+
+def test_coupling_check_of_the_independent_prior_is_the_mean() -> None:
+    """``sagittal_coupling``'s shrinkage 1 keeps the covariance's diagonal, whose conditional mean is
+    the other spines' mean: its row is the leave-one-out error of that mean, computed here apart;
+    shrinkage 0 conditions on the full covariance and answers otherwise."""
+    rows = prior.sagittal_coupling([pos for _, pos in SPINES])
+    assert [r["shrinkage"] for r in rows] == list(prior.COUPLING_SHRINKAGE)
+    theta = np.array([prior.sagittal_angles_deg(pos) for _, pos in SPINES])[:, prior.UNSEEN_BY_LATERAL_FROM_T4]
+    loo = [np.delete(theta, k, axis=0).mean(axis=0).sum() - theta[k].sum() for k in range(len(theta))]
+    assert rows[-1]["rms_error_deg"] == pytest.approx(float(np.sqrt(np.mean(np.square(loo)))), rel=1e-12)
+    assert abs(rows[0]["rms_error_deg"] - rows[-1]["rms_error_deg"]) > 0.1
