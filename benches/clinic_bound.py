@@ -14,7 +14,7 @@ exact shape and size and only has to place it. From the same simulated films
 
 with the engine's priors (``Priors``): μ_PA ~ N(0, (0.035/1.125)²) (``clinical.PA_MAGNIFICATION_PRIOR``)
 unless the geometry is given (μ then known), ψ_lateral ~ N(0, σ_ψ²), the component of τ along the
-beam of a perspective film ~ N(0, 30²) (``fit.types.DEPTH_PRIOR_SD_MM``), optionally ω ~ N(0, diag σ_ω²).
+beam of a perspective film ~ N(0, 30²) (``fit.types.DEPTH_PRIOR_SD_MM``), and ω ~ N(0, diag σ_ω²).
 
 Linearised at the truth θ = 0, the images are p(θ) ≈ p(0) + Jθ with J the Jacobian of
 ``clinic_films.Film.image`` (central differences, step 10⁻⁶), so the posterior of θ is Gaussian
@@ -25,10 +25,11 @@ its rotation block. The posterior mean is then the best estimate under every sym
     bound = E[ mean_i |(R(δω) − I)(t_i − t̄)| ],   δω ~ N(0, Σ_ω)   (mm; Monte Carlo),
 
 which no estimator that knows less (the shape) can beat on average, up to the linearisation.
-Three prior settings are reported: the engine's (σ_ψ = 2°, ``fit.types.FILM_TURN_PRIOR_SD_DEG``),
-σ_ψ = the RMS of the bench's own turns (|ψ| uniform in ``clinic_films.LATERAL_TURN_DEG``: the best
-Gaussian prior for these films), and that plus a prior on ω with the spread of the VerSe **dev**
-spines' orientations (``orientation_spread``; the CT frames the truths come in).
+Three prior settings are reported: the engine's (σ_ψ = 2°, ``fit.types.FILM_TURN_PRIOR_SD_DEG``, and
+σ_ω of its standing orientation, ``engine_orientation_sd_deg``), then σ_ψ = the RMS of the bench's
+own turns (|ψ| uniform in ``clinic_films.LATERAL_TURN_DEG``: the best Gaussian prior for these
+films), then that with σ_ω the spread of the VerSe **dev** spines' orientations instead
+(``orientation_spread``; the CT frames the truths come in).
 
 Beside the bound, for comparison: the engine's own result on the same films (``clinic.run_one``:
 3D error, shape error and the RMS of its best rotation about x, y, z) and a floor estimate, the
@@ -56,6 +57,7 @@ from scipy.spatial.transform import Rotation
 from benches.clinic import run_one, verse_truths
 from benches.clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
 from benches.report import format_table, write_json
+from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
 
@@ -76,7 +78,7 @@ class Priors:
     film_turn_sd_deg: float = FILM_TURN_PRIOR_SD_DEG
     """σ_ψ of the lateral film's turn."""
     orientation_sd_deg: tuple[float, float, float] | None = None
-    """σ_ω about x, y, z of the spine's rotation, or None (no prior, as in the engine)."""
+    """σ_ω about x, y, z of the spine's rotation, or None (no prior)."""
 
 
 def bench_turn_rms_deg() -> float:
@@ -252,12 +254,25 @@ def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Prio
     return rows
 
 
+def engine_orientation_sd_deg() -> tuple[float, float, float]:
+    """σ_ω about x, y, z (degrees) of the engine's orientation prior for a rigid turn of the spine: it
+    holds T1's and L5's directors about d1, d2, d3 (≈ x, y, z) with SDs σ_T1 and σ_L5
+    (``anatomy.PopulationPrior.orientation_sd_deg``), and a rigid turn moves both, so its precision
+    about each axis is 1/σ_T1² + 1/σ_L5²."""
+    prior = population_prior(load_profile())
+    if prior is None:
+        raise ValueError("the default profile has no population prior")
+    top, bottom = (np.asarray(prior.orientation_sd_deg[level], dtype=float) for level in ("T1", "L5"))
+    sd = 1.0 / np.sqrt(1.0 / top**2 + 1.0 / bottom**2)
+    return float(sd[0]), float(sd[1]), float(sd[2])
+
+
 def prior_settings(orientation_sd_deg: tuple[float, float, float]) -> dict[str, Priors]:
     """The three settings of the module docstring, by name."""
     bench = bench_turn_rms_deg()
     return {
-        "engine_priors": Priors(),
-        "bench_turn": Priors(film_turn_sd_deg=bench),
+        "engine_priors": Priors(orientation_sd_deg=engine_orientation_sd_deg()),
+        "bench_turn": Priors(film_turn_sd_deg=bench, orientation_sd_deg=engine_orientation_sd_deg()),
         "bench_turn_and_orientation": Priors(film_turn_sd_deg=bench, orientation_sd_deg=orientation_sd_deg),
     }
 
@@ -307,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "draws": args.draws,
         "film_turn_sd_deg": {"engine": FILM_TURN_PRIOR_SD_DEG, "bench_rms": bench_turn_rms_deg()},
+        "engine_orientation_sd_deg_xyz": list(engine_orientation_sd_deg()),
         "dev_orientation_sd_deg_xyz": list(spread),
         "seconds": round(time.perf_counter() - start, 1),
         "rows": rows,

@@ -12,6 +12,7 @@ import pytest
 
 from benches import clinic_bound, clinic_films
 from benches.truth import read_verse
+from spine_engine.anatomy import load_profile, population_prior
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.projection import image_axes
 
@@ -104,3 +105,16 @@ def test_command_on_two_spines(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert np.isfinite(a["engine_mean_3d_error_mm"]) and np.isfinite(a["floor_estimate_mm"])
     assert (tmp_path / "clinic-bound-test.json").is_file()
     assert clinic_bound.main(["--data", str(tmp_path), "--cases", "f"]) == 2
+
+
+def test_the_engine_setting_holds_the_rigid_turn_with_t1s_and_l5s_orientation_priors() -> None:
+    """A rigid turn moves T1's and L5's directors alike, so the engine's two orientation priors add
+    their precisions about each axis: σ = (σ_T1⁻² + σ_L5⁻²)^(−1/2), from the shipped profile."""
+    prior = population_prior(load_profile())
+    assert prior is not None
+    top, bottom = np.asarray(prior.orientation_sd_deg["T1"]), np.asarray(prior.orientation_sd_deg["L5"])
+    expected = 1.0 / np.sqrt(1.0 / top**2 + 1.0 / bottom**2)
+    assert clinic_bound.engine_orientation_sd_deg() == pytest.approx(tuple(expected), rel=1e-12)
+    settings = clinic_bound.prior_settings((3.0, 2.0, 9.0))
+    assert settings["engine_priors"].orientation_sd_deg == pytest.approx(tuple(expected))
+    assert settings["engine_priors"].film_turn_sd_deg == clinic_bound.FILM_TURN_PRIOR_SD_DEG
