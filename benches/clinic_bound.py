@@ -36,6 +36,14 @@ Beside the bound, for comparison: the engine's own result on the same films (``c
 bound's rotations added to the engine's error vectors in the paper's case (f), T1/L5 given and
 the films calibrated (more information than any of (a)–(e)): E[mean_i |e_i^(f) + (R(δω) − I)(t_i − t̄)|].
 That one is an estimate, not a bound: it uses the engine's shape errors.
+
+**What case (b)'s lateral film leaves unseen** (its row's ``unseen_top_shape``): the lateral film
+from T4 down does not show T1–T3, whose depths the PA film's foreshortening and a prior must give. An
+oracle that knows the shape but the sagittal bends at T4, T3 and T2 (``bent``; prior: their
+covariance over VerSe dev, ``top_prior_covariance``) places the spine and bends it under the
+engine's priors as above; its bends' posterior, drawn, gives the shape error (after the best rigid
+motion, ``shape_errors``) that no estimator knowing less avoids, and, added to the engine's own
+case (a) errors on the same spine, a floor estimate of case (b)'s shape error.
 """
 
 from __future__ import annotations
@@ -109,13 +117,29 @@ def _films(series: Series, case: Case) -> list[tuple[Film, int]]:
     return films
 
 
+def bent(positions: FloatArray, beta: FloatArray, joints: Sequence[int]) -> FloatArray:
+    """The positions (N, 3) with the vertebrae above each joint J (``joints``, lowest first) turned
+    by β_J (rad) about the left–right axis (x) through r_J: a sagittal bend at J."""
+    out = np.array(positions, dtype=float)
+    for angle, j in zip(beta, joints, strict=True):
+        c, s = np.cos(angle), np.sin(angle)
+        rel = out[:j] - out[j]
+        out[:j, 1] = out[j, 1] + c * rel[:, 1] - s * rel[:, 2]
+        out[:j, 2] = out[j, 2] + s * rel[:, 1] + c * rel[:, 2]
+    return out
+
+
 def simulated_images(
-    theta: FloatArray, truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool
+    theta: FloatArray, truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool,
+    joints: Sequence[int] = (),
 ) -> FloatArray:
     """The films' noise-free images (detector mm, flattened) of the truth moved by θ (module
     docstring): r = R(ω)(t − t̄) + t̄ + τ_k on film k, the image scaled by e^μ_k about the central
-    ray and the film turned by ψ_k more."""
+    ray and the film turned by ψ_k more; with ``joints``, θ ends with a sagittal bend β_J at each
+    (``bent``), applied before the rigid motion."""
     t = truth.positions
+    if joints:
+        t = bent(t, theta[len(theta) - len(joints) :], joints)
     centre = t.mean(axis=0)
     moved = (t - centre) @ Rotation.from_rotvec(theta[:3]).as_matrix().T + centre
     out = []
@@ -127,15 +151,17 @@ def simulated_images(
     return np.concatenate(out)
 
 
-def image_jacobian(truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool) -> FloatArray:
-    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films)."""
-    n = 3 + FILM_PARAMETERS * len(films)
+def image_jacobian(
+    truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool, joints: Sequence[int] = ()
+) -> FloatArray:
+    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films + joints)."""
+    n = 3 + FILM_PARAMETERS * len(films) + len(joints)
     columns = []
     for j in range(n):
         step = np.zeros(n)
         step[j] = STEP
-        plus = simulated_images(step, truth, films, perspective)
-        minus = simulated_images(-step, truth, films, perspective)
+        plus = simulated_images(step, truth, films, perspective, joints)
+        minus = simulated_images(-step, truth, films, perspective, joints)
         columns.append((plus - minus) / (2.0 * STEP))
     return np.stack(columns, axis=1)
 
@@ -143,9 +169,21 @@ def image_jacobian(truth: Truth, films: Sequence[tuple[Film, int]], perspective:
 def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArray:
     """Σ_ω (3, 3), rad²: the rotation block of (JᵀJ/σ² + P)⁻¹ over the parameters the case leaves
     free (module docstring)."""
+    return posterior_covariance(series, case, priors)[:3, :3]
+
+
+def posterior_covariance(
+    series: Series, case: Case, priors: Priors, joints: Sequence[int] = (), joint_covariance: FloatArray | None = None
+) -> FloatArray:
+    """(JᵀJ/σ² + P)⁻¹ over the parameters the case leaves free, in θ's order (ω first, the joints'
+    bends last, ``simulated_images``), rad² and mm²; ``joint_covariance`` (len(joints)²) is the bends'
+    prior covariance."""
     films = _films(series, case)
-    J = image_jacobian(series.truth, films, case.perspective)
+    J = image_jacobian(series.truth, films, case.perspective, joints)
     precision = J.T @ J / series.noise_mm**2
+    if joints:
+        assert joint_covariance is not None
+        precision[-len(joints) :, -len(joints) :] += np.linalg.inv(joint_covariance)
     prior = np.zeros(J.shape[1])
     free = np.ones(J.shape[1], dtype=bool)
     if priors.orientation_sd_deg is not None:
@@ -166,8 +204,57 @@ def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArra
         else:
             prior[base + 4] = 1.0 / np.radians(priors.film_turn_sd_deg) ** 2
     keep = np.flatnonzero(free)
-    covariance = np.linalg.inv(precision[np.ix_(keep, keep)] + np.diag(prior[keep]))
-    return np.asarray(covariance[:3, :3])
+    return np.asarray(np.linalg.inv(precision[np.ix_(keep, keep)] + np.diag(prior[keep])))
+
+
+UNSEEN_TOP_JOINTS = (3, 2, 1)
+"""T4, T3, T2 (lowest first, ``bent``): a sagittal bend at each moves vertebrae that case (b)'s lateral
+film (T4–L5) does not show, T1–T3."""
+
+
+def joint_angles(positions: FloatArray, joints: Sequence[int] = UNSEEN_TOP_JOINTS) -> FloatArray:
+    """Sagittal bend at each joint J, rad: a_{J−1} − a_J with a_c = atan2(Δy, −Δz) the sagittal
+    inclination of the chord from vertebra c to c + 1 (a bend β at J, ``bent``, adds β to it)."""
+    d = np.diff(np.asarray(positions, dtype=float), axis=0)
+    a = np.arctan2(d[:, 1], -d[:, 2])
+    return np.array([a[j - 1] - a[j] for j in joints])
+
+
+def top_prior_covariance(truths: Sequence[Truth]) -> FloatArray:
+    """(3, 3) rad²: the covariance over ``truths`` (VerSe dev) of the bends at ``UNSEEN_TOP_JOINTS``,
+    the oracle's prior on what the lateral film of case (b) does not see. A prior that conditions on
+    the rest of the spine predicts no better on dev (``spine bench prior --coupling``)."""
+    return np.asarray(np.cov(np.array([joint_angles(t.positions) for t in truths]).T))
+
+
+def shape_errors(moved: FloatArray, truth: FloatArray) -> FloatArray:
+    """(draws,) mean over vertebrae of |R m_i + c − t_i| after the best rigid motion (Kabsch, by
+    batched SVD) of each configuration ``moved`` (draws, N, 3) onto ``truth`` (N, 3), mm."""
+    t = truth - truth.mean(axis=0)
+    m = moved - moved.mean(axis=1, keepdims=True)
+    u, _, vt = np.linalg.svd(np.einsum("dni,nj->dij", m, t))
+    d = np.sign(np.linalg.det(u @ vt))
+    u[:, :, -1] *= d[:, None]
+    aligned = np.einsum("dni,dij->dnj", m, u @ vt)
+    return np.asarray(np.linalg.norm(aligned - t[None], axis=2).mean(axis=1))
+
+
+def unseen_top_shape(series: Series, case: Case, priors: Priors, top_covariance: FloatArray,
+                     engine_a_errors: FloatArray | None, draws: int, seed: int) -> tuple[float, float]:
+    """(bound, floor estimate), mm, of the shape error that T1–T3's sagittal bends leave in case (b):
+    an oracle that knows the spine's shape but those bends (prior ``top_covariance``) and places it
+    (``posterior_covariance``); its bends' posterior drawn, the spine bent by them (``bent``) and
+    compared after the best rigid motion. The floor estimate adds the engine's case (a) errors on the
+    same spine (a full lateral film) before the comparison (NaN without them)."""
+    joints = UNSEEN_TOP_JOINTS
+    cov = posterior_covariance(series, case, priors, joints, top_covariance)[-len(joints) :, -len(joints) :]
+    betas = np.random.default_rng(seed).multivariate_normal(np.zeros(len(joints)), cov, draws)
+    t = series.truth.positions
+    moved = np.array([bent(t, b, joints) for b in betas])
+    bound = float(shape_errors(moved, t).mean())
+    if engine_a_errors is None:
+        return bound, float("nan")
+    return bound, float(shape_errors(moved + engine_a_errors[None], t).mean())
 
 
 def mean_error(errors: FloatArray) -> float:
@@ -220,26 +307,44 @@ def bound_one(series: Series, case: Case, settings: dict[str, Priors], paper_err
     )
 
 
-def paper_case_errors(series: Series) -> FloatArray | None:
-    """The engine's (17, 3) error vectors in case (f) on these films (None if it failed)."""
-    outcome = run_one(series, CASES["f"])
-    return outcome.error_vectors if outcome.ok else None
-
-
 def _rms(vectors: Sequence[FloatArray]) -> list[float]:
     """Component-wise RMS of (3,) vectors, NaN (a failed fit) left out."""
     return np.sqrt(np.nanmean(np.square(vectors), axis=0)).round(3).tolist()
 
 
+def engine_case_errors(series: Series, key: str) -> FloatArray | None:
+    """The engine's (17, 3) error vectors in case ``key`` on these films (None if it failed)."""
+    outcome = run_one(series, CASES[key])
+    return outcome.error_vectors if outcome.ok else None
+
+
+def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: FloatArray, draws: int,
+                   seed: int) -> dict[str, Any]:
+    """Case (b)'s ``unseen_top_shape`` over the spines: the bound and floor estimate (means, mm), the
+    prior's and the posterior's SDs of the bends (RMS over the spines, degrees)."""
+    found = [unseen_top_shape(s, CASES["b"], priors, top_covariance, engine_case_errors(s, "a"), draws, seed)
+             for s in series]
+    posterior = [np.sqrt(np.diag(posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS, top_covariance)
+                                 [-len(UNSEEN_TOP_JOINTS) :, -len(UNSEEN_TOP_JOINTS) :])) for s in series]
+    return {
+        "joints": ["T4", "T3", "T2"],
+        "prior_sd_deg": np.degrees(np.sqrt(np.diag(top_covariance))).round(3).tolist(),
+        "posterior_sd_deg": _rms([np.degrees(p) for p in posterior]),
+        "bound_mm": float(np.mean([f[0] for f in found])),
+        "floor_estimate_mm": float(np.nanmean([f[1] for f in found])),
+    }
+
+
 def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Priors], noise_mm: float,
-        seed: int, draws: int) -> list[dict[str, Any]]:
-    """One summary row per case: means over the spines (RMS for angles)."""
+        seed: int, draws: int, top_covariance: FloatArray | None = None) -> list[dict[str, Any]]:
+    """One summary row per case: means over the spines (RMS for angles); case (b)'s row also has the
+    shape its lateral film leaves unseen (``unseen_top_row``) when ``top_covariance`` is given."""
     series = [simulate_series(t, noise_mm, seed) for t in truths]
-    paper = [paper_case_errors(s) for s in series]
+    paper = [engine_case_errors(s, "f") for s in series]
     rows = []
     for case in cases:
         found = [bound_one(s, case, settings, p, draws, seed) for s, p in zip(series, paper, strict=True)]
-        rows.append({
+        row = {
             "case": case.key,
             "title": case.title,
             "spines": len(found),
@@ -250,7 +355,10 @@ def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Prio
             "engine_mean_3d_error_mm": float(np.nanmean([f.engine_error_mm for f in found])),
             "engine_shape_error_mm": float(np.nanmean([f.engine_shape_mm for f in found])),
             "engine_rotation_rms_deg_xyz": _rms([f.engine_rotation_deg for f in found]),
-        })
+        }
+        if case.key == "b" and top_covariance is not None:
+            row["unseen_top_shape"] = unseen_top_row(series, settings["engine_priors"], top_covariance, draws, seed)
+        rows.append(row)
     return rows
 
 
@@ -308,12 +416,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         truths = verse_truths(args.split, args.data)
-        spread = orientation_spread(verse_truths("dev", args.data))
+        dev = verse_truths("dev", args.data)
+        spread = orientation_spread(dev)
     except FileNotFoundError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     start = time.perf_counter()
-    rows = run(truths, [CASES[c] for c in args.cases], prior_settings(spread), args.noise_mm, args.seed, args.draws)
+    rows = run(truths, [CASES[c] for c in args.cases], prior_settings(spread), args.noise_mm, args.seed, args.draws,
+               top_prior_covariance(dev))
     report = {
         "command": "spine bench clinic-bound " + " ".join(argv if argv is not None else sys.argv[1:]),
         "date": dt.date.today().isoformat(),
@@ -332,5 +442,11 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(report, indent=2))
     else:
         print(table(rows))
+        for row in rows:
+            if "unseen_top_shape" in row:
+                top = row["unseen_top_shape"]
+                print(f"case (b), T1-T3's sagittal bends unseen: bend SD prior {top['prior_sd_deg']} -> posterior "
+                      f"{top['posterior_sd_deg']} deg; shape bound {top['bound_mm']:.3f} mm, floor estimate with "
+                      f"the engine's (a) errors {top['floor_estimate_mm']:.3f} mm")
     return 0
 

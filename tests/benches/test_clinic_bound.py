@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from benches import clinic_bound, clinic_films
 from benches.truth import read_verse
@@ -118,3 +119,51 @@ def test_the_engine_setting_holds_the_rigid_turn_with_t1s_and_l5s_orientation_pr
     settings = clinic_bound.prior_settings((3.0, 2.0, 9.0))
     assert settings["engine_priors"].orientation_sd_deg == pytest.approx(tuple(expected))
     assert settings["engine_priors"].film_turn_sd_deg == clinic_bound.FILM_TURN_PRIOR_SD_DEG
+
+
+def test_a_bend_at_a_joint_turns_what_is_above_it_and_reads_as_that_joints_angle() -> None:
+    """``bent`` moves the vertebrae above joint J rigidly (their distances kept, the rest fixed), and
+    ``joint_angles`` of the bent spine is the truth's plus β at J alone (a chord above J and the one
+    below meet at J; chords both above or both below turn together)."""
+    positions = _first_dev_spine()[0]
+    for k, j in enumerate(clinic_bound.UNSEEN_TOP_JOINTS):
+        beta = np.zeros(3)
+        beta[k] = 0.1
+        moved = clinic_bound.bent(positions, beta, clinic_bound.UNSEEN_TOP_JOINTS)
+        np.testing.assert_array_equal(moved[j:], positions[j:])
+        above = positions[: j + 1]
+        np.testing.assert_allclose(np.linalg.norm(moved[: j + 1, None] - moved[None, : j + 1], axis=2),
+                                   np.linalg.norm(above[:, None] - above[None], axis=2), atol=1e-9)
+        np.testing.assert_allclose(clinic_bound.joint_angles(moved) - clinic_bound.joint_angles(positions), beta,
+                                   atol=1e-12)
+
+
+def test_shape_errors_remove_the_best_rigid_motion() -> None:
+    """A rigidly moved spine has no shape error; a deformed one has Kabsch's (scipy's align_vectors)."""
+    truth = _first_dev_spine()[0]
+    rng = np.random.default_rng(3)
+    turn = Rotation.from_rotvec([0.2, -0.1, 0.3])
+    rigid = turn.apply(truth) + np.array([5.0, -3.0, 8.0])
+    deformed = truth + rng.normal(scale=2.0, size=truth.shape)
+    errors = clinic_bound.shape_errors(np.stack([rigid, deformed]), truth)
+    assert errors[0] == pytest.approx(0.0, abs=1e-9)
+    centred = deformed - deformed.mean(axis=0)
+    best, _ = Rotation.align_vectors(truth - truth.mean(axis=0), centred)
+    expected = np.linalg.norm(best.apply(centred) - (truth - truth.mean(axis=0)), axis=1).mean()
+    assert errors[1] == pytest.approx(expected, rel=1e-9)
+
+
+def test_the_unseen_tops_bound_grows_with_its_prior_and_the_films_narrow_it() -> None:
+    """The bends' posterior SD is below their prior's (the PA film's foreshortening tells some of
+    T1–T3's depth), and a wider prior leaves a larger shape bound (Loewner order, as the turn's)."""
+    series = clinic_films.simulate_series(clinic_films.Truth("dev0", *_first_dev_spine()), noise_mm=1.0, seed=0)
+    case = clinic_films.CASES["b"]
+    priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
+    narrow, wide = np.diag(np.radians([3.0, 3.0, 3.0]) ** 2), np.diag(np.radians([10.0, 10.0, 10.0]) ** 2)
+    joints = clinic_bound.UNSEEN_TOP_JOINTS
+    post = clinic_bound.posterior_covariance(series, case, priors, joints, wide)[-3:, -3:]
+    assert np.all(np.sqrt(np.diag(post)) < np.radians(10.0))
+    small = clinic_bound.unseen_top_shape(series, case, priors, narrow, None, 2000, 0)
+    large = clinic_bound.unseen_top_shape(series, case, priors, wide, None, 2000, 0)
+    assert 0.0 < small[0] < large[0]
+    assert np.isnan(small[1])
