@@ -38,12 +38,15 @@ the films calibrated (more information than any of (a)–(e)): E[mean_i |e_i^(f)
 That one is an estimate, not a bound: it uses the engine's shape errors.
 
 **What case (b)'s lateral film leaves unseen** (its row's ``unseen_top_shape``): the lateral film
-from T4 down does not show T1–T3, whose depths the PA film's foreshortening and a prior must give. An
-oracle that knows the shape but the sagittal bends at T4, T3 and T2 (``bent``; prior: their
-covariance over VerSe dev, ``top_prior_covariance``) places the spine and bends it under the
-engine's priors as above; its bends' posterior, drawn, gives the shape error (after the best rigid
-motion, ``shape_errors``) that no estimator knowing less avoids, and, added to the engine's own
-case (a) errors on the same spine, a floor estimate of case (b)'s shape error.
+from T4 down does not show T1–T3, whose depths the PA film's foreshortening and a prior must give;
+the foreshortening reads an inclination only as well as the segment's length is known. An oracle
+that knows the shape but the sagittal bends at T4, T3 and T2 and the lengths of the three chords
+above T4 (``deformed_top``; prior: their covariance over VerSe dev, lengths relative to the
+profile's rest lengths scaled to the spine's, ``top_prior_covariance``) places and deforms the spine
+under the engine's priors as above; the posterior of those six, drawn, gives the shape error (after
+the best rigid motion, ``shape_errors``) that no estimator knowing less avoids, and, added to the
+engine's own case (a) errors on the same spine (T1–T3 carrying T4's), a floor estimate of case
+(b)'s shape error.
 """
 
 from __future__ import annotations
@@ -65,7 +68,7 @@ from scipy.spatial.transform import Rotation
 from benches.clinic import run_one, verse_truths
 from benches.clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
 from benches.report import format_table, write_json
-from spine_engine.anatomy import load_profile, population_prior
+from spine_engine.anatomy import load_profile, population_prior, rest_model
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
 
@@ -129,17 +132,33 @@ def bent(positions: FloatArray, beta: FloatArray, joints: Sequence[int]) -> Floa
     return out
 
 
+def stretched(positions: FloatArray, stretch: FloatArray, joints: Sequence[int]) -> FloatArray:
+    """The positions (N, 3) with the chord from each joint J up to J − 1 lengthened by the fraction
+    ``stretch``[k] (J = ``joints``[k], lowest first), the vertebrae above it carried along."""
+    out = np.array(positions, dtype=float)
+    for fraction, j in zip(stretch, joints, strict=True):
+        out[:j] += fraction * (out[j - 1] - out[j])
+    return out
+
+
+def deformed_top(positions: FloatArray, params: FloatArray, joints: Sequence[int]) -> FloatArray:
+    """``stretched`` by params[k:] then ``bent`` by params[:k], k = len(joints): the top of the spine
+    with other bends and chord lengths at the joints."""
+    k = len(joints)
+    return bent(stretched(positions, params[k:], joints), params[:k], joints)
+
+
 def simulated_images(
     theta: FloatArray, truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool,
     joints: Sequence[int] = (),
 ) -> FloatArray:
     """The films' noise-free images (detector mm, flattened) of the truth moved by θ (module
     docstring): r = R(ω)(t − t̄) + t̄ + τ_k on film k, the image scaled by e^μ_k about the central
-    ray and the film turned by ψ_k more; with ``joints``, θ ends with a sagittal bend β_J at each
-    (``bent``), applied before the rigid motion."""
+    ray and the film turned by ψ_k more; with ``joints``, θ ends with a sagittal bend β_J at each and
+    the stretch of the chord above each (``deformed_top``), applied before the rigid motion."""
     t = truth.positions
     if joints:
-        t = bent(t, theta[len(theta) - len(joints) :], joints)
+        t = deformed_top(t, theta[len(theta) - 2 * len(joints) :], joints)
     centre = t.mean(axis=0)
     moved = (t - centre) @ Rotation.from_rotvec(theta[:3]).as_matrix().T + centre
     out = []
@@ -154,8 +173,8 @@ def simulated_images(
 def image_jacobian(
     truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool, joints: Sequence[int] = ()
 ) -> FloatArray:
-    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films + joints)."""
-    n = 3 + FILM_PARAMETERS * len(films) + len(joints)
+    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films + 2·joints)."""
+    n = 3 + FILM_PARAMETERS * len(films) + 2 * len(joints)
     columns = []
     for j in range(n):
         step = np.zeros(n)
@@ -176,14 +195,14 @@ def posterior_covariance(
     series: Series, case: Case, priors: Priors, joints: Sequence[int] = (), joint_covariance: FloatArray | None = None
 ) -> FloatArray:
     """(JᵀJ/σ² + P)⁻¹ over the parameters the case leaves free, in θ's order (ω first, the joints'
-    bends last, ``simulated_images``), rad² and mm²; ``joint_covariance`` (len(joints)²) is the bends'
-    prior covariance."""
+    bends and stretches last, ``simulated_images``), rad² and mm²; ``joint_covariance``
+    (2·len(joints))² is their prior covariance."""
     films = _films(series, case)
     J = image_jacobian(series.truth, films, case.perspective, joints)
     precision = J.T @ J / series.noise_mm**2
     if joints:
         assert joint_covariance is not None
-        precision[-len(joints) :, -len(joints) :] += np.linalg.inv(joint_covariance)
+        precision[-2 * len(joints) :, -2 * len(joints) :] += np.linalg.inv(joint_covariance)
     prior = np.zeros(J.shape[1])
     free = np.ones(J.shape[1], dtype=bool)
     if priors.orientation_sd_deg is not None:
@@ -212,19 +231,25 @@ UNSEEN_TOP_JOINTS = (3, 2, 1)
 film (T4–L5) does not show, T1–T3."""
 
 
-def joint_angles(positions: FloatArray, joints: Sequence[int] = UNSEEN_TOP_JOINTS) -> FloatArray:
-    """Sagittal bend at each joint J, rad: a_{J−1} − a_J with a_c = atan2(Δy, −Δz) the sagittal
-    inclination of the chord from vertebra c to c + 1 (a bend β at J, ``bent``, adds β to it)."""
+def top_parameters(positions: FloatArray, rest_ds: FloatArray, joints: Sequence[int] = UNSEEN_TOP_JOINTS) -> FloatArray:
+    """(2·len(joints),): the sagittal bend at each joint J, a_{J−1} − a_J (rad) with a_c = atan2(Δy, −Δz)
+    the sagittal inclination of the chord from vertebra c to c + 1 (a bend β at J, ``bent``, adds β
+    to it), then the chord from J − 1 to J over its rest length scaled to the spine's T1–L5 length,
+    minus 1 (``stretched``'s fraction). ``rest_ds`` (N − 1,): the rest chord lengths."""
     d = np.diff(np.asarray(positions, dtype=float), axis=0)
     a = np.arctan2(d[:, 1], -d[:, 2])
-    return np.array([a[j - 1] - a[j] for j in joints])
+    length = np.linalg.norm(d, axis=1)
+    relative = length / (rest_ds * length.sum() / rest_ds.sum()) - 1.0
+    return np.array([a[j - 1] - a[j] for j in joints] + [relative[j - 1] for j in joints])
 
 
 def top_prior_covariance(truths: Sequence[Truth]) -> FloatArray:
-    """(3, 3) rad²: the covariance over ``truths`` (VerSe dev) of the bends at ``UNSEEN_TOP_JOINTS``,
-    the oracle's prior on what the lateral film of case (b) does not see. A prior that conditions on
-    the rest of the spine predicts no better on dev (``spine bench prior --coupling``)."""
-    return np.asarray(np.cov(np.array([joint_angles(t.positions) for t in truths]).T))
+    """(6, 6): the covariance over ``truths`` (VerSe dev) of ``top_parameters`` at ``UNSEEN_TOP_JOINTS``
+    (rad², and fractions² for the chords' lengths against the profile's rest lengths), the oracle's
+    prior on what the lateral film of case (b) does not see. A prior that conditions on the rest of
+    the spine predicts the bends no better on dev (``spine bench prior --coupling``)."""
+    rest_ds = rest_model(load_profile()).ds
+    return np.asarray(np.cov(np.array([top_parameters(t.positions, rest_ds) for t in truths]).T))
 
 
 def shape_errors(moved: FloatArray, truth: FloatArray) -> FloatArray:
@@ -241,20 +266,24 @@ def shape_errors(moved: FloatArray, truth: FloatArray) -> FloatArray:
 
 def unseen_top_shape(series: Series, case: Case, priors: Priors, top_covariance: FloatArray,
                      engine_a_errors: FloatArray | None, draws: int, seed: int) -> tuple[float, float]:
-    """(bound, floor estimate), mm, of the shape error that T1–T3's sagittal bends leave in case (b):
-    an oracle that knows the spine's shape but those bends (prior ``top_covariance``) and places it
-    (``posterior_covariance``); its bends' posterior drawn, the spine bent by them (``bent``) and
-    compared after the best rigid motion. The floor estimate adds the engine's case (a) errors on the
-    same spine (a full lateral film) before the comparison (NaN without them)."""
+    """(bound, floor estimate), mm, of the shape error that T1–T3's unseen sagittal bends and chord
+    lengths leave in case (b): an oracle that knows the rest of the spine's shape (prior of those six:
+    ``top_covariance``) and places it (``posterior_covariance``); their posterior, drawn, deforms the
+    spine (``deformed_top``), compared after the best rigid motion. The floor estimate adds the
+    engine's case (a) errors on the same spine (a full lateral film) before the comparison, T1–T3
+    carrying T4's (the top hangs off T4; NaN without them)."""
     joints = UNSEEN_TOP_JOINTS
-    cov = posterior_covariance(series, case, priors, joints, top_covariance)[-len(joints) :, -len(joints) :]
-    betas = np.random.default_rng(seed).multivariate_normal(np.zeros(len(joints)), cov, draws)
+    k = 2 * len(joints)
+    cov = posterior_covariance(series, case, priors, joints, top_covariance)[-k:, -k:]
+    params = np.random.default_rng(seed).multivariate_normal(np.zeros(k), cov, draws)
     t = series.truth.positions
-    moved = np.array([bent(t, b, joints) for b in betas])
+    moved = np.array([deformed_top(t, p, joints) for p in params])
     bound = float(shape_errors(moved, t).mean())
     if engine_a_errors is None:
         return bound, float("nan")
-    return bound, float(shape_errors(moved + engine_a_errors[None], t).mean())
+    carried = np.array(engine_a_errors, dtype=float)
+    carried[: joints[0]] = carried[joints[0]]
+    return bound, float(shape_errors(moved + carried[None], t).mean())
 
 
 def mean_error(errors: FloatArray) -> float:
@@ -321,15 +350,21 @@ def engine_case_errors(series: Series, key: str) -> FloatArray | None:
 def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: FloatArray, draws: int,
                    seed: int) -> dict[str, Any]:
     """Case (b)'s ``unseen_top_shape`` over the spines: the bound and floor estimate (means, mm), the
-    prior's and the posterior's SDs of the bends (RMS over the spines, degrees)."""
+    prior's and the posterior's SDs of the bends (degrees) and chord lengths (per cent; RMS over the
+    spines)."""
     found = [unseen_top_shape(s, CASES["b"], priors, top_covariance, engine_case_errors(s, "a"), draws, seed)
              for s in series]
-    posterior = [np.sqrt(np.diag(posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS, top_covariance)
-                                 [-len(UNSEEN_TOP_JOINTS) :, -len(UNSEEN_TOP_JOINTS) :])) for s in series]
+    k = len(UNSEEN_TOP_JOINTS)
+    scale = np.concatenate([np.full(k, np.degrees(1.0)), np.full(k, 100.0)])
+    posterior = [scale * np.sqrt(np.diag(posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS,
+                                                               top_covariance)[-2 * k :, -2 * k :]))
+                 for s in series]
+    prior = scale * np.sqrt(np.diag(top_covariance))
     return {
         "joints": ["T4", "T3", "T2"],
-        "prior_sd_deg": np.degrees(np.sqrt(np.diag(top_covariance))).round(3).tolist(),
-        "posterior_sd_deg": _rms([np.degrees(p) for p in posterior]),
+        "prior_sd": {"bend_deg": prior[:k].round(3).tolist(), "chord_length_pct": prior[k:].round(3).tolist()},
+        "posterior_sd": {"bend_deg": _rms([p[:k] for p in posterior]),
+                         "chord_length_pct": _rms([p[k:] for p in posterior])},
         "bound_mm": float(np.mean([f[0] for f in found])),
         "floor_estimate_mm": float(np.nanmean([f[1] for f in found])),
     }
@@ -445,8 +480,8 @@ def main(argv: list[str] | None = None) -> int:
         for row in rows:
             if "unseen_top_shape" in row:
                 top = row["unseen_top_shape"]
-                print(f"case (b), T1-T3's sagittal bends unseen: bend SD prior {top['prior_sd_deg']} -> posterior "
-                      f"{top['posterior_sd_deg']} deg; shape bound {top['bound_mm']:.3f} mm, floor estimate with "
-                      f"the engine's (a) errors {top['floor_estimate_mm']:.3f} mm")
+                print(f"case (b), T1-T3 unseen: SD prior {top['prior_sd']} -> posterior {top['posterior_sd']}; "
+                      f"shape bound {top['bound_mm']:.3f} mm, floor estimate with the engine's (a) errors "
+                      f"{top['floor_estimate_mm']:.3f} mm")
     return 0
 

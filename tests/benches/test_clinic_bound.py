@@ -121,21 +121,32 @@ def test_the_engine_setting_holds_the_rigid_turn_with_t1s_and_l5s_orientation_pr
     assert settings["engine_priors"].film_turn_sd_deg == clinic_bound.FILM_TURN_PRIOR_SD_DEG
 
 
-def test_a_bend_at_a_joint_turns_what_is_above_it_and_reads_as_that_joints_angle() -> None:
-    """``bent`` moves the vertebrae above joint J rigidly (their distances kept, the rest fixed), and
-    ``joint_angles`` of the bent spine is the truth's plus β at J alone (a chord above J and the one
-    below meet at J; chords both above or both below turn together)."""
+def test_a_bend_or_a_stretch_at_a_joint_moves_only_what_is_above_it() -> None:
+    """``bent`` turns the vertebrae above joint J rigidly (their distances kept, the rest fixed) and
+    ``top_parameters`` reads the truth's bends plus β at J alone (a chord above J and the one below
+    meet at J; chords both above or both below turn together); ``stretched`` lengthens the chord
+    from J up by its fraction, every other chord and every bend kept."""
     positions = _first_dev_spine()[0]
-    for k, j in enumerate(clinic_bound.UNSEEN_TOP_JOINTS):
+    rest_ds = np.ones(16)  # the bends do not depend on the rest lengths
+    joints = clinic_bound.UNSEEN_TOP_JOINTS
+    chords = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    for k, j in enumerate(joints):
         beta = np.zeros(3)
         beta[k] = 0.1
-        moved = clinic_bound.bent(positions, beta, clinic_bound.UNSEEN_TOP_JOINTS)
+        moved = clinic_bound.bent(positions, beta, joints)
         np.testing.assert_array_equal(moved[j:], positions[j:])
         above = positions[: j + 1]
         np.testing.assert_allclose(np.linalg.norm(moved[: j + 1, None] - moved[None, : j + 1], axis=2),
                                    np.linalg.norm(above[:, None] - above[None], axis=2), atol=1e-9)
-        np.testing.assert_allclose(clinic_bound.joint_angles(moved) - clinic_bound.joint_angles(positions), beta,
-                                   atol=1e-12)
+        delta = clinic_bound.top_parameters(moved, rest_ds) - clinic_bound.top_parameters(positions, rest_ds)
+        np.testing.assert_allclose(delta[:3], beta, atol=1e-12)
+        longer = clinic_bound.stretched(positions, 0.5 * beta, joints)
+        ratio = np.linalg.norm(np.diff(longer, axis=0), axis=1) / chords
+        expected = np.ones(16)
+        expected[j - 1] = 1.05
+        np.testing.assert_allclose(ratio, expected, rtol=1e-12)
+        np.testing.assert_allclose(clinic_bound.top_parameters(longer, rest_ds)[:3],
+                                   clinic_bound.top_parameters(positions, rest_ds)[:3], atol=1e-12)
 
 
 def test_shape_errors_remove_the_best_rigid_motion() -> None:
@@ -154,15 +165,15 @@ def test_shape_errors_remove_the_best_rigid_motion() -> None:
 
 
 def test_the_unseen_tops_bound_grows_with_its_prior_and_the_films_narrow_it() -> None:
-    """The bends' posterior SD is below their prior's (the PA film's foreshortening tells some of
-    T1–T3's depth), and a wider prior leaves a larger shape bound (Loewner order, as the turn's)."""
+    """The bends' and chord lengths' posterior SDs are below their prior's (the PA film's
+    foreshortening tells some of T1–T3's depth), and a wider prior leaves a larger shape bound."""
     series = clinic_films.simulate_series(clinic_films.Truth("dev0", *_first_dev_spine()), noise_mm=1.0, seed=0)
     case = clinic_films.CASES["b"]
     priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
-    narrow, wide = np.diag(np.radians([3.0, 3.0, 3.0]) ** 2), np.diag(np.radians([10.0, 10.0, 10.0]) ** 2)
-    joints = clinic_bound.UNSEEN_TOP_JOINTS
-    post = clinic_bound.posterior_covariance(series, case, priors, joints, wide)[-3:, -3:]
-    assert np.all(np.sqrt(np.diag(post)) < np.radians(10.0))
+    sd = np.concatenate([np.radians([3.0, 3.0, 3.0]), [0.02, 0.02, 0.02]])
+    narrow, wide = np.diag(sd**2), np.diag((3.0 * sd) ** 2)
+    post = clinic_bound.posterior_covariance(series, case, priors, clinic_bound.UNSEEN_TOP_JOINTS, wide)[-6:, -6:]
+    assert np.all(np.sqrt(np.diag(post)) < 3.0 * sd)
     small = clinic_bound.unseen_top_shape(series, case, priors, narrow, None, 2000, 0)
     large = clinic_bound.unseen_top_shape(series, case, priors, wide, None, 2000, 0)
     assert 0.0 < small[0] < large[0]
