@@ -350,15 +350,14 @@ def engine_case_errors(series: Series, key: str) -> FloatArray | None:
 def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: FloatArray, draws: int,
                    seed: int) -> dict[str, Any]:
     """Case (b)'s ``unseen_top_shape`` over the spines: the bound and floor estimate (means, mm), the
-    prior's and the posterior's SDs of the bends (degrees) and chord lengths (per cent; RMS over the
-    spines)."""
+    prior's and the posterior's SDs of the bends (degrees) and chord lengths (per cent), and the
+    rotation SD of that oracle, which does not know T1–T3 (degrees; RMS over the spines)."""
     found = [unseen_top_shape(s, CASES["b"], priors, top_covariance, engine_case_errors(s, "a"), draws, seed)
              for s in series]
     k = len(UNSEEN_TOP_JOINTS)
     scale = np.concatenate([np.full(k, np.degrees(1.0)), np.full(k, 100.0)])
-    posterior = [scale * np.sqrt(np.diag(posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS,
-                                                               top_covariance)[-2 * k :, -2 * k :]))
-                 for s in series]
+    covariances = [posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS, top_covariance) for s in series]
+    posterior = [scale * np.sqrt(np.diag(c[-2 * k :, -2 * k :])) for c in covariances]
     prior = scale * np.sqrt(np.diag(top_covariance))
     return {
         "joints": ["T4", "T3", "T2"],
@@ -367,6 +366,7 @@ def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: Flo
                          "chord_length_pct": _rms([p[k:] for p in posterior])},
         "bound_mm": float(np.mean([f[0] for f in found])),
         "floor_estimate_mm": float(np.nanmean([f[1] for f in found])),
+        "oracle_rotation_sd_deg_xyz": _rms([np.degrees(np.sqrt(np.diag(c[:3, :3]))) for c in covariances]),
     }
 
 
@@ -482,6 +482,7 @@ def main(argv: list[str] | None = None) -> int:
                 top = row["unseen_top_shape"]
                 print(f"case (b), T1-T3 unseen: SD prior {top['prior_sd']} -> posterior {top['posterior_sd']}; "
                       f"shape bound {top['bound_mm']:.3f} mm, floor estimate with the engine's (a) errors "
-                      f"{top['floor_estimate_mm']:.3f} mm")
+                      f"{top['floor_estimate_mm']:.3f} mm; oracle rotation SD x,y,z "
+                      f"{top['oracle_rotation_sd_deg_xyz']} deg")
     return 0
 

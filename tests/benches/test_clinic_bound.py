@@ -178,3 +178,20 @@ def test_the_unseen_tops_bound_grows_with_its_prior_and_the_films_narrow_it() ->
     large = clinic_bound.unseen_top_shape(series, case, priors, wide, None, 2000, 0)
     assert 0.0 < small[0] < large[0]
     assert np.isnan(small[1])
+
+
+def test_an_oracle_that_does_not_know_the_top_places_the_spine_less_well() -> None:
+    """More unknowns, the same data: the rotation block of the posterior with T1–T3's bends and chord
+    lengths unknown exceeds the one with them known (Loewner order, eigenvalues ≥ −10⁻¹²), and the
+    lean (about x) grows most: the PA film's rows see the lean through the depths of the sagittal
+    curve, T1–T3's among them (docs/engine.md)."""
+    series = clinic_films.simulate_series(clinic_films.Truth("dev0", *_first_dev_spine()), noise_mm=1.0, seed=0)
+    case = clinic_films.CASES["b"]
+    priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
+    sd = np.concatenate([np.radians([7.0, 8.0, 6.5]), [0.06, 0.05, 0.07]])
+    known = clinic_bound.rotation_covariance(series, case, priors)
+    unknown = clinic_bound.posterior_covariance(series, case, priors, clinic_bound.UNSEEN_TOP_JOINTS,
+                                                np.diag(sd**2))[:3, :3]
+    assert np.linalg.eigvalsh(unknown - known).min() > -1e-12
+    growth = np.diag(unknown - known)
+    assert growth[0] > 0.0 and growth[0] == growth.max()
