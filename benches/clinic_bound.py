@@ -264,26 +264,23 @@ def shape_errors(moved: FloatArray, truth: FloatArray) -> FloatArray:
     return np.asarray(np.linalg.norm(aligned - t[None], axis=2).mean(axis=1))
 
 
-def unseen_top_shape(series: Series, case: Case, priors: Priors, top_covariance: FloatArray,
-                     engine_a_errors: FloatArray | None, draws: int, seed: int) -> tuple[float, float]:
+def unseen_top_shape(truth: FloatArray, top_posterior: FloatArray, engine_a_errors: FloatArray | None,
+                     draws: int, seed: int) -> tuple[float, float]:
     """(bound, floor estimate), mm, of the shape error that T1–T3's unseen sagittal bends and chord
-    lengths leave in case (b): an oracle that knows the rest of the spine's shape (prior of those six:
-    ``top_covariance``) and places it (``posterior_covariance``); their posterior, drawn, deforms the
-    spine (``deformed_top``), compared after the best rigid motion. The floor estimate adds the
-    engine's case (a) errors on the same spine (a full lateral film) before the comparison, T1–T3
+    lengths leave in case (b) (module docstring): ``draws`` of their posterior ``top_posterior``
+    (the last six rows and columns of ``posterior_covariance`` with ``UNSEEN_TOP_JOINTS``) deform the
+    spine ``truth`` (``deformed_top``), compared after the best rigid motion. The floor estimate adds
+    the engine's case (a) errors on the same spine (a full lateral film) before the comparison, T1–T3
     carrying T4's (the top hangs off T4; NaN without them)."""
     joints = UNSEEN_TOP_JOINTS
-    k = 2 * len(joints)
-    cov = posterior_covariance(series, case, priors, joints, top_covariance)[-k:, -k:]
-    params = np.random.default_rng(seed).multivariate_normal(np.zeros(k), cov, draws)
-    t = series.truth.positions
-    moved = np.array([deformed_top(t, p, joints) for p in params])
-    bound = float(shape_errors(moved, t).mean())
+    params = np.random.default_rng(seed).multivariate_normal(np.zeros(len(top_posterior)), top_posterior, draws)
+    moved = np.array([deformed_top(truth, p, joints) for p in params])
+    bound = float(shape_errors(moved, truth).mean())
     if engine_a_errors is None:
         return bound, float("nan")
     carried = np.array(engine_a_errors, dtype=float)
     carried[: joints[0]] = carried[joints[0]]
-    return bound, float(shape_errors(moved + carried[None], t).mean())
+    return bound, float(shape_errors(moved + carried[None], truth).mean())
 
 
 def mean_error(errors: FloatArray) -> float:
@@ -352,11 +349,11 @@ def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: Flo
     """Case (b)'s ``unseen_top_shape`` over the spines: the bound and floor estimate (means, mm), the
     prior's and the posterior's SDs of the bends (degrees) and chord lengths (per cent), and the
     rotation SD of that oracle, which does not know T1–T3 (degrees; RMS over the spines)."""
-    found = [unseen_top_shape(s, CASES["b"], priors, top_covariance, engine_case_errors(s, "a"), draws, seed)
-             for s in series]
     k = len(UNSEEN_TOP_JOINTS)
-    scale = np.concatenate([np.full(k, np.degrees(1.0)), np.full(k, 100.0)])
     covariances = [posterior_covariance(s, CASES["b"], priors, UNSEEN_TOP_JOINTS, top_covariance) for s in series]
+    found = [unseen_top_shape(s.truth.positions, c[-2 * k :, -2 * k :], engine_case_errors(s, "a"), draws, seed)
+             for s, c in zip(series, covariances, strict=True)]
+    scale = np.concatenate([np.full(k, np.degrees(1.0)), np.full(k, 100.0)])
     posterior = [scale * np.sqrt(np.diag(c[-2 * k :, -2 * k :])) for c in covariances]
     prior = scale * np.sqrt(np.diag(top_covariance))
     return {

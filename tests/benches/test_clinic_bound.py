@@ -172,10 +172,12 @@ def test_the_unseen_tops_bound_grows_with_its_prior_and_the_films_narrow_it() ->
     priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
     sd = np.concatenate([np.radians([3.0, 3.0, 3.0]), [0.02, 0.02, 0.02]])
     narrow, wide = np.diag(sd**2), np.diag((3.0 * sd) ** 2)
-    post = clinic_bound.posterior_covariance(series, case, priors, clinic_bound.UNSEEN_TOP_JOINTS, wide)[-6:, -6:]
-    assert np.all(np.sqrt(np.diag(post)) < 3.0 * sd)
-    small = clinic_bound.unseen_top_shape(series, case, priors, narrow, None, 2000, 0)
-    large = clinic_bound.unseen_top_shape(series, case, priors, wide, None, 2000, 0)
+    joints = clinic_bound.UNSEEN_TOP_JOINTS
+    post_narrow, post_wide = (clinic_bound.posterior_covariance(series, case, priors, joints, c)[-6:, -6:]
+                              for c in (narrow, wide))
+    assert np.all(np.sqrt(np.diag(post_wide)) < 3.0 * sd)
+    small = clinic_bound.unseen_top_shape(series.truth.positions, post_narrow, None, 2000, 0)
+    large = clinic_bound.unseen_top_shape(series.truth.positions, post_wide, None, 2000, 0)
     assert 0.0 < small[0] < large[0]
     assert np.isnan(small[1])
 
