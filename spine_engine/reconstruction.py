@@ -668,8 +668,11 @@ def _sagittal_assumptions(inputs: RegistrationInputs) -> list[Assumption]:
 
 
 def _fit_report(
-    inputs: RegistrationInputs, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None
+    inputs: RegistrationInputs, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None,
+    population_axial_rotation: bool = False,
 ) -> FitReport:
+    """The fit's report; ``population_axial_rotation``: the axial rotations reported are the
+    population's (``population_axial_rotation_deg``), which ``assumed`` then names."""
     residuals = _RESIDUAL_LIST.validate_python(
         [
             {"view": view.name, "level": LEVELS[idx], "residual_mm": res}
@@ -711,7 +714,7 @@ def _fit_report(
         uncertainty_scale=uncertainty_scale,
         assumed=[a for setup in inputs.setups.values() for a in setup.assumed]
         + _sagittal_assumptions(inputs)
-        + ([] if _has_pedicles(inputs) else [_assumption("population_axial_rotation", None)]),
+        + ([_assumption("population_axial_rotation", None)] if population_axial_rotation else []),
     )
 
 
@@ -786,7 +789,8 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty, axial_rotation),
         measures=measures,
-        fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale),
+        fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale,
+                        population_axial_rotation=axial_rotation is not None),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
 
