@@ -130,7 +130,8 @@ def sagittal_coupling(spines: list[np.ndarray], unseen: slice = UNSEEN_BY_LATERA
     of the remaining spines' mean and shrunk covariance S, per ``COUPLING_SHRINKAGE`` (module
     docstring, "Coupling")."""
     theta = np.array([sagittal_angles_deg(pos) for pos in spines])
-    seen = np.setdiff1d(np.arange(theta.shape[1]), np.arange(theta.shape[1])[unseen])
+    hidden = np.arange(theta.shape[1])[unseen]
+    seen = np.setdiff1d(np.arange(theta.shape[1]), hidden)
     rows = []
     for a in COUPLING_SHRINKAGE:
         errors = []
@@ -138,9 +139,9 @@ def sagittal_coupling(spines: list[np.ndarray], unseen: slice = UNSEEN_BY_LATERA
             rest = np.delete(theta, k, axis=0)
             mu, S = rest.mean(axis=0), np.cov(rest.T)
             S = (1.0 - a) * S + a * np.diag(np.diag(S))
-            gain = np.linalg.solve(S[np.ix_(seen, seen)], S[np.ix_(seen, np.arange(theta.shape[1])[unseen])]).T
-            predicted = mu[unseen] + gain @ (theta[k, seen] - mu[seen])
-            errors.append(float(np.sum(predicted - theta[k, unseen])))
+            gain = np.linalg.solve(S[np.ix_(seen, seen)], S[np.ix_(seen, hidden)]).T
+            predicted = mu[hidden] + gain @ (theta[k, seen] - mu[seen])
+            errors.append(float(np.sum(predicted - theta[k, hidden])))
         rows.append({"shrinkage": a, "rms_error_deg": float(np.sqrt(np.mean(np.square(errors))))})
     return rows
 
