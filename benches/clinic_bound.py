@@ -67,6 +67,7 @@ from scipy.spatial.transform import Rotation
 
 from benches.clinic import run_one, verse_truths
 from benches.clinic_films import CASES, LATERAL_TURN_DEG, Case, Film, FloatArray, Series, Truth, simulate_series
+from benches.prior import relative_segment_lengths
 from benches.report import format_table, write_json
 from spine_engine.anatomy import load_profile, population_prior, rest_model
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
@@ -238,8 +239,7 @@ def top_parameters(positions: FloatArray, rest_ds: FloatArray, joints: Sequence[
     minus 1 (``stretched``'s fraction). ``rest_ds`` (N − 1,): the rest chord lengths."""
     d = np.diff(np.asarray(positions, dtype=float), axis=0)
     a = np.arctan2(d[:, 1], -d[:, 2])
-    length = np.linalg.norm(d, axis=1)
-    relative = length / (rest_ds * length.sum() / rest_ds.sum()) - 1.0
+    relative = relative_segment_lengths(positions, rest_ds)
     return np.array([a[j - 1] - a[j] for j in joints] + [relative[j - 1] for j in joints])
 
 

@@ -118,6 +118,13 @@ def sagittal_angles_deg(positions: np.ndarray) -> np.ndarray:
     return np.asarray(np.degrees(u[:, 0] * ds))
 
 
+def relative_segment_lengths(positions: np.ndarray, rest_ds: np.ndarray) -> np.ndarray:
+    """(16,) each segment's length over its rest length ``rest_ds`` scaled to the spine's own T1–L5
+    length, minus 1: the stretch of the segment once the patient's size is set."""
+    ds = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    return np.asarray(ds / (rest_ds * ds.sum() / rest_ds.sum()) - 1.0)
+
+
 COUPLING_SHRINKAGE = (0.0, 0.3, 0.6, 0.9, 1.0)
 """Weights a of the covariance's diagonal in ``sagittal_coupling``: (1 − a) S + a diag(S)."""
 UNSEEN_BY_LATERAL_FROM_T4 = slice(0, 3)
@@ -155,7 +162,7 @@ def _verse_statistics(
         R = frames_from_centreline(pos)
         ds = np.linalg.norm(np.diff(pos, axis=0), axis=1)
         angles.append(sagittal_angles_deg(pos))
-        stretch.append(ds / (generic_ds * ds.sum() / generic_ds.sum()) - 1.0)
+        stretch.append(relative_segment_lengths(pos, generic_ds))
         beta = sagittal_inclination_deg(R)
         incl.append((beta[0], beta[-1]))
         k4, _, lo = kyphosis_lordosis_deg(R)
