@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf openapi loadtest clean web browser pacs node-deps
+.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf calibrate openapi loadtest clean web browser pacs node-deps
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -43,6 +43,10 @@ bench-verse: $(STAMP)
 
 bench-perf: $(STAMP)
 	$(BIN)/spine bench perf
+
+# the calibrations that follow the engine, in order (needs ../shared/data: VerSe dev, AASCE training)
+calibrate: $(STAMP)
+	$(BIN)/spine bench recalibrate
 
 openapi: $(STAMP)
 	$(BIN)/spine openapi > openapi.yaml

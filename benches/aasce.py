@@ -432,11 +432,22 @@ def choose_blend(
 
 
 def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: int | None) -> TiltPrior:
-    """Fit the tilt prior on ``training`` (plausible radiographs, major < 90°): least-squares
+    """Fit the tilt prior on ``training`` (``fit_tilt_prior``) and write it as the shipped prior."""
+    prior = fit_tilt_prior(data, fractions, limit)
+    path = PRIORS_DIR / f"{DEFAULT_PRIOR}.json"
+    save_tilt_prior(prior, path)
+    load_tilt_prior.cache_clear()
+    write_json(out_dir / "calibration.json", {"weight_fraction": prior.weight_fraction, "provenance": prior.provenance})
+    print(f"chosen weight fraction {prior.weight_fraction}; wrote {path}")
+    return prior
+
+
+def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) -> TiltPrior:
+    """The tilt prior of ``training`` (plausible radiographs, major < 90°): least-squares
     coefficients on the chords of ``CAL_WINDOW`` ("shifted"), blended toward the chord-normal tilt by
-    the β that 5-fold CV of the prior's own major angle chooses; check the result by 5-fold CV; choose
-    its weight fraction through the reconstruction (among the fractions with the fewest failed fits,
-    the smallest within ``FRACTION_TIE_DEG`` of the lowest training MAE); write it."""
+    the β that 5-fold CV of the prior's own major angle chooses; checked by 5-fold CV; its weight
+    fraction chosen through the reconstruction (among the fractions with the fewest failed fits,
+    the smallest within ``FRACTION_TIE_DEG`` of the lowest training MAE). Writes nothing."""
     rads = read_split(data / "training")
     keep = [r for r in rads if plausible(r) and r.angles[0] < 90.0]
     e_c, e_r = image_axes(PA_ORIENTATION)
@@ -460,7 +471,6 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
     coefficients = toward_chord_normal(
         fit_coefficients(tilts, chords, CAL_WINDOW, RIDGE, CAL_PLACEMENT), CAL_WINDOW, CAL_PLACEMENT, blend
     )
-    path = PRIORS_DIR / f"{DEFAULT_PRIOR}.json"
     subset = keep if limit is None else keep[:limit]
     truth = np.array([r.angles[0] for r in subset])
     scores: dict[float, float] = {}
@@ -499,15 +509,11 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
         "data": "AASCE 2019 / SpineWeb dataset 16 (Wu et al., MICCAI 2017; Med Image Anal 2018); evaluation use only",
         "date": DATE,
     }
-    prior = TiltPrior(DEFAULT_PRIOR, CAL_WINDOW, coefficients, best, provenance, CAL_PLACEMENT)
-    save_tilt_prior(prior, path)
-    load_tilt_prior.cache_clear()
-    write_json(out_dir / "calibration.json", {"weight_fraction": best, "provenance": provenance})
     print(
         f"5-fold CV of the prior alone on training (blend chosen inside each fold): major MAE "
-        f"{np.mean(np.abs(cv_err)):.2f}°, bias {np.mean(cv_err):+.2f}°; chosen weight fraction {best}; wrote {path}"
+        f"{np.mean(np.abs(cv_err)):.2f}°, bias {np.mean(cv_err):+.2f}°"
     )
-    return prior
+    return TiltPrior(DEFAULT_PRIOR, CAL_WINDOW, coefficients, best, provenance, CAL_PLACEMENT)
 
 
 def frontal_tilt_deg_of_corners(corners: np.ndarray) -> np.ndarray:
@@ -526,12 +532,13 @@ def evaluate_midpoints(rad: Radiograph, prior: TiltPrior | None = None) -> float
         return float("nan")
 
 
-def calibrate_cobb_sd(data: Path, limit: int | None) -> TiltPrior:
-    """Set the shipped prior's ``cobb_sd_deg`` on ``training`` and write it: for the midpoints with and
-    without the tilt prior, the smallest σ (bisection, 0.01°) at which the major angle's interval,
-    SD = √(SD_Laplace² + (m/2) σ²) with m its model-tilt ends (``reconstruction.MODEL_TILT_ENDS``),
-    covers 95 % of the plausible training radiographs whose fit finds a major curve. SD_Laplace is the
-    reported SD with the current term taken out, so the result does not depend on it."""
+def cobb_sd_on_training(data: Path, limit: int | None) -> tuple[dict[str, float], dict[str, dict[str, float]], int]:
+    """(σ per key, checks per key, radiographs): for the midpoints with ("tilt_prior") and without
+    ("no_tilt_prior") the shipped tilt prior, the smallest σ (bisection, 0.01°) at which the major
+    angle's interval, SD = √(SD_Laplace² + (m/2) σ²) with m its model-tilt ends
+    (``reconstruction.MODEL_TILT_ENDS``), covers 95 % of the plausible training radiographs (major <
+    90°) whose fit finds a major curve. SD_Laplace is the reported SD with the current term taken
+    out, so the result does not depend on it. Writes nothing."""
     rads = [r for r in read_split(data / "training") if plausible(r) and r.angles[0] < 90.0][:limit]
     prior = load_tilt_prior()
     sigmas: dict[str, float] = {}
@@ -568,6 +575,13 @@ def calibrate_cobb_sd(data: Path, limit: int | None) -> TiltPrior:
         print(f"{key}: σ = {sigmas[key]:.2f}° over {len(e)} radiographs; 95 % coverage "
               f"{checks[key]['coverage_laplace_only']:.3f} with the Laplace SD alone, "
               f"{checks[key]['coverage_calibrated']:.3f} with σ")  # fmt: skip
+    return sigmas, checks, len(rads)
+
+
+def calibrate_cobb_sd(data: Path, limit: int | None) -> TiltPrior:
+    """Set the shipped prior's ``cobb_sd_deg`` on ``training`` (``cobb_sd_on_training``) and write it."""
+    prior = load_tilt_prior()
+    sigmas, checks, radiographs = cobb_sd_on_training(data, limit)
     provenance = {
         **prior.provenance,
         "cobb_sd": {
@@ -576,7 +590,7 @@ def calibrate_cobb_sd(data: Path, limit: int | None) -> TiltPrior:
             "major curve, midpoints through register() with the tilt prior on and off "
             "(benches.aasce.calibrate_cobb_sd)",
             "command": "spine bench aasce --calibrate-cobb-sd" + (f" --limit {limit}" if limit else ""),
-            "training_set": f"AASCE 2019 training split, the {len(rads)} plausible radiographs of major < 90°; "
+            "training_set": f"AASCE 2019 training split, the {radiographs} plausible radiographs of major < 90°; "
             "never the test split",
             "checks": checks,
             "date": DATE,

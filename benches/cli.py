@@ -18,6 +18,10 @@ COMMANDS = {
         "benches.clinic_bound",
         "the clinic's setting: the error that an oracle knowing the shape cannot avoid",
     ),
+    "recalibrate": (
+        "benches.recalibrate",
+        "re-run the calibrations that follow the engine (population prior, tilt prior, uncertainty, Cobb SD)",
+    ),
     "pa-bound": (
         "benches.pa_bound",
         "one PA film: the kyphosis and lordosis a learner trained on the tested population reads",
