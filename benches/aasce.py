@@ -11,7 +11,10 @@ radiograph, with no boundary conditions (the data has no 3D):
 * (b) **midpoints**: only the 17 superior endplate midpoints (the paper's form), through the
   reconstruction with the tilt prior (``spine_engine.tilt_prior``, calibrated on ``training``);
 * (b-no-prior) the same without the prior, and (b-line) the straight-chord baseline: each
-  vertebra perpendicular to the chords of its midpoints (mean of the chords above and below).
+  vertebra perpendicular to the chords of its midpoints (mean of the chords above and below);
+* (b-largest) the fit of (b), read in ``measures.largest_cobb``: the largest frontal angle
+  whatever its size, where (b) reads 0 for a spine whose curves are all below the 10° reporting
+  threshold (the data set's angles are measured on every spine, without threshold).
 
 Reported: the mean absolute error of the major angle and the challenge's SMAPE over the three
 angles (per radiograph Σ|a − b| / Σ(a + b) × 100, averaged), the latter with the dataset script's
@@ -309,6 +312,14 @@ def evaluate(rad: Radiograph) -> Outcome:
             curve = major_curve(b)
             if curve is not None and curve["angle_sd_deg"] is not None:
                 major_sd[method] = float(curve["angle_sd_deg"])
+            largest = b["measures"].get("largest_cobb") if method == "midpoints" else None
+            if largest is not None:
+                major["midpoints_largest"] = float(largest["angle_deg"])
+                three["midpoints_largest"] = three[method]
+                if largest["angle_sd_deg"] is not None:
+                    major_sd["midpoints_largest"] = float(largest["angle_sd_deg"])
+        elif method == "midpoints":
+            failed.append("midpoints_largest")
     lv, lm = line_axes(rad)
     three["line"] = aasce_angles(lv, lm, rad.height_px)
     major["line"] = float(three["line"][0])
@@ -325,6 +336,7 @@ METHODS = {
     "corners_model": "(a-model) 4 corners: reconstructed d1",
     "midpoints": "(b) midpoints + tilt prior, reconstructed d1",
     "midpoints_no_prior": "(b-no-prior) midpoints, reconstructed d1",
+    "midpoints_largest": "(b-largest) midpoints + tilt prior, measures.largest_cobb (also below 10°)",
     "line": "(b-line) midpoints, chord-perpendicular tilts",
 }
 

@@ -265,6 +265,21 @@ class Landmark(OpenModel):
     pedicles: tuple[tuple[float, float], tuple[float, float]] | None = None
 
 
+class LargestCobbAngle(OpenModel):
+    """The spine's largest frontal Cobb angle whatever its size: what ``cobb`` reports as the major"""
+
+    upper: Literal[
+        "T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12", "L1", "L2", "L3", "L4", "L5"
+    ]
+    lower: Literal[
+        "T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8", "T9", "T10", "T11", "T12", "L1", "L2", "L3", "L4", "L5"
+    ]
+    angle_deg: float
+    angle_sd_deg: float | None = None
+    tilt_source: Literal["corners", "model", "mixed"]
+    reported_as_curve: bool
+
+
 class LateralView(OpenModel):
     """An optional lateral radiograph and its landmarks (any subset of levels)."""
 
@@ -321,6 +336,7 @@ class Measures(OpenModel):
     """Clinical measures computed from the reconstruction (definitions in docs/measures.md)."""
 
     cobb: list[CobbCurve]
+    largest_cobb: LargestCobbAngle | None = None
     thoracic_kyphosis_t4_t12_deg: float
     thoracic_kyphosis_t5_t12_deg: float
     lumbar_lordosis_l1_l5_deg: float

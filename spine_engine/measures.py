@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from .frames import axial_rotation_deg, centreline_tangents
 from .levels import LEVEL_INDEX, LEVELS, N_LEVELS, Level
-from .models import AasceMajorAngle, CobbCurve, LenkeCurve, LenkeInputs, Measures
+from .models import AasceMajorAngle, CobbCurve, LargestCobbAngle, LenkeCurve, LenkeInputs, Measures
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -179,6 +179,22 @@ def frontal_curves(
     return curves
 
 
+def most_tilted_pair(tilt_deg: npt.ArrayLike) -> tuple[int, int, float] | None:
+    """(upper, lower, angle): the two vertebrae most tilted relative to each other, the pair i < j
+    with the largest |θ_i − θ_j| (first pair in row-major order on a tie, as the AASCE 2019
+    script's argmax), and that angle, max θ − min θ (degrees). None for fewer than two tilts or a
+    flat sequence (all tilts equal)."""
+    t = np.asarray(tilt_deg, dtype=float)
+    n = len(t)
+    if n < 2:
+        return None
+    diff = np.abs(t[:, None] - t[None, :])
+    if float(diff.max()) <= 0.0:
+        return None
+    upper, lower = sorted(divmod(int(np.argmax(diff)), n))
+    return upper, lower, float(diff[upper, lower])
+
+
 def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> list[tuple[int, int, float]]:
     """Frontal curves (upper, lower, Cobb angle in degrees) of a tilt sequence, top to bottom.
 
@@ -194,11 +210,11 @@ def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> l
     """
     t = np.asarray(tilt_deg, dtype=float)
     n = len(t)
-    diff = np.abs(t[:, None] - t[None, :])
-    if n < 2 or float(diff.max()) <= 0.0:
+    largest = most_tilted_pair(t)
+    if largest is None:
         return []
-    upper, lower = sorted(divmod(int(np.argmax(diff)), n))
-    curves = [(upper, lower, float(diff[upper, lower]))]
+    upper, lower, _ = largest
+    curves = [largest]
     end = upper
     while end > 0:
         above = np.abs(t[:end] - t[end])
@@ -397,7 +413,8 @@ def compute_measures(
     positions (17,3) mm and rotations (17,3,3) (directors as columns), T1..L5. The curves come
     from the frontal tilts (``major_first_curves``): ``observed_tilt_deg`` (17,), the tilts of the
     corner lines where finite, else the model's d1. Exactly one curve is ``major`` (the largest)
-    when any curve reaches ``min_cobb_deg``. ``observed_endplate_tilt_deg`` (17, 2): the superior
+    when any curve reaches ``min_cobb_deg``; ``largest_cobb`` is the largest angle (``most_tilted_pair``)
+    whatever its size. ``observed_endplate_tilt_deg`` (17, 2): the superior
     and inferior endplate tilts from corners where finite, else the vertebra's tilt (the model has
     one frame per vertebra: both endplates are perpendicular to d3). With observed tilts on all 17
     levels ``aasce2019`` holds the AASCE script's major angle. Kyphosis, lordosis and the Lenke
@@ -439,6 +456,17 @@ def compute_measures(
                 tilt_source=("model", "mixed", "corners")[n_observed],
             )
         )
+    largest = None
+    pair = most_tilted_pair(tilt)
+    if pair is not None:
+        n_observed = int(observed[pair[0]]) + int(observed[pair[1]])
+        largest = LargestCobbAngle(
+            upper=cast(Level, LEVELS[pair[0]]),
+            lower=cast(Level, LEVELS[pair[1]]),
+            angle_deg=pair[2],
+            tilt_source=("model", "mixed", "corners")[n_observed],
+            reported_as_curve=any(c.major for c in cobb),
+        )
     aasce = None
     if observed.all():
         angle, upper, lower = aasce_major_angle(tilt)
@@ -447,6 +475,7 @@ def compute_measures(
     k4, k5, lordosis = _kyphosis_lordosis(beta)
     return Measures(
         cobb=cobb,
+        largest_cobb=largest,
         thoracic_kyphosis_t4_t12_deg=k4,
         thoracic_kyphosis_t5_t12_deg=k5,
         lumbar_lordosis_l1_l5_deg=lordosis,

@@ -528,6 +528,26 @@ class CobbCurve(BaseModel):
     )
 
 
+class LargestCobbAngle(BaseModel):
+    """The spine's largest frontal Cobb angle whatever its size: what ``cobb`` reports as the major
+    curve when it reaches the reporting threshold, and what it leaves out below it."""
+
+    upper: Level
+    lower: Level
+    angle_deg: float = Field(
+        description="Frontal Cobb angle between the two vertebrae most tilted relative to each other (max θ − min "
+        "θ of the frontal tilts, docs/measures.md), degrees; equals the major curve's angle_deg when `cobb` has one."
+    )
+    angle_sd_deg: float | None = Field(
+        None, description="1 SD of angle_deg, degrees, as a curve's angle_sd_deg. Null when not computed."
+    )
+    tilt_source: Literal["corners", "model", "mixed"] = Field(description="Where the two vertebrae's tilts come from.")
+    reported_as_curve: bool = Field(
+        description="True when the angle reaches the reporting threshold (10°) and `cobb` lists it as the major "
+        "curve; false for a spine whose frontal curves are all below it (no curve is then listed)."
+    )
+
+
 class AasceMajorAngle(BaseModel):
     """The major angle of the AASCE 2019 challenge's Cobb script, from four corners on every level."""
 
@@ -580,6 +600,12 @@ class Measures(BaseModel):
     """Clinical measures computed from the reconstruction (definitions in docs/measures.md)."""
 
     cobb: list[CobbCurve]
+    largest_cobb: LargestCobbAngle | None = Field(
+        None,
+        description="The largest frontal Cobb angle whatever its size, also below the 10° threshold under which "
+        "`cobb` lists no curve (for follow-up of mild curves and comparison with data sets that measure every "
+        "spine). Null in results stored before it existed.",
+    )
     thoracic_kyphosis_t4_t12_deg: float = Field(
         description="T4–T12 kyphosis, degrees, on the reconstructed centreline (a vertebra's own tilt where a lateral "
         "film's corners or the boundary gave it; docs/measures.md). Without a lateral film (fit.assumed "

@@ -774,7 +774,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> Registra
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            uncertainty = reported_uncertainty(solution, [(c.upper, c.lower) for c in measures.cobb])
+            uncertainty = reported_uncertainty(solution, _sd_pairs(measures))
     except (ArithmeticError, FloatingPointError, ValueError, np.linalg.LinAlgError):
         uncertainty = None  # the SDs stay null when the curvature at the optimum is not usable
     if uncertainty is not None:
@@ -807,16 +807,31 @@ def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     )
 
 
+def _sd_pairs(measures: Measures) -> list[tuple[str, str]]:
+    """The (upper, lower) end levels whose Cobb angle SDs a result reports: each curve of
+    ``measures.cobb`` in order, then the largest angle's when no curve lists it (below the threshold)."""
+    pairs: list[tuple[str, str]] = [(c.upper, c.lower) for c in measures.cobb]
+    largest = measures.largest_cobb
+    if largest is not None and not largest.reported_as_curve:
+        pairs.append((largest.upper, largest.lower))
+    return pairs
+
+
 def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures:
     """``measures`` with the SDs of kyphosis, lordosis and each Cobb angle (in the order of
-    ``measures.cobb``, as given to ``reported_uncertainty``) filled in."""
-    cobb = [
-        c.model_copy(update={"angle_sd_deg": sd})
-        for c, sd in zip(measures.cobb, uncertainty.cobb_sd_deg, strict=True)
-    ]
+    ``_sd_pairs``, as given to ``reported_uncertainty``) filled in; the largest angle's is its major
+    curve's when ``cobb`` lists it."""
+    sds = list(uncertainty.cobb_sd_deg)
+    cobb = [c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(measures.cobb, sds, strict=False)]
+    largest = measures.largest_cobb
+    if largest is not None:
+        major_sd = next((c.angle_sd_deg for c in cobb if c.major), None)
+        sd = major_sd if largest.reported_as_curve else sds[len(cobb)]
+        largest = largest.model_copy(update={"angle_sd_deg": sd})
     return measures.model_copy(
         update={
             "cobb": cobb,
+            "largest_cobb": largest,
             "thoracic_kyphosis_t4_t12_sd_deg": uncertainty.kyphosis_t4_t12_sd_deg,
             "thoracic_kyphosis_t5_t12_sd_deg": uncertainty.kyphosis_t5_t12_sd_deg,
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
@@ -896,13 +911,16 @@ def _with_model_tilt_sd(measures: Measures, sigma_deg: float) -> Measures:
     σ the tilt prior's calibrated ``cobb_sd_deg`` (degrees), which is a whole curve's (m = 2)."""
     if sigma_deg <= 0.0:
         return measures
-    cobb = []
-    for c in measures.cobb:
-        share = MODEL_TILT_ENDS[c.tilt_source or "model"] / 2.0
-        if c.angle_sd_deg is not None and share > 0.0:
-            c = c.model_copy(update={"angle_sd_deg": math.sqrt(c.angle_sd_deg**2 + share * sigma_deg**2)})
-        cobb.append(c)
-    return measures.model_copy(update={"cobb": cobb})
+
+    def widened(sd: float | None, source: str | None) -> float | None:
+        share = MODEL_TILT_ENDS[source or "model"] / 2.0
+        return sd if sd is None or share <= 0.0 else math.sqrt(sd**2 + share * sigma_deg**2)
+
+    cobb = [c.model_copy(update={"angle_sd_deg": widened(c.angle_sd_deg, c.tilt_source)}) for c in measures.cobb]
+    largest = measures.largest_cobb
+    if largest is not None:
+        largest = largest.model_copy(update={"angle_sd_deg": widened(largest.angle_sd_deg, largest.tilt_source)})
+    return measures.model_copy(update={"cobb": cobb, "largest_cobb": largest})
 
 
 def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReading]) -> Measures:

@@ -207,7 +207,12 @@ class Visit(BaseModel):
     study_instance_uid: str | None = None
     accession_number: str | None = None
     finished_at: datetime | None = None
-    major_cobb: MeasureValue | None = Field(None, description="The major (largest) frontal Cobb angle.")
+    major_cobb: MeasureValue | None = Field(
+        None,
+        description="The major (largest) frontal Cobb angle; for a spine whose curves are all below the 10° "
+        "reporting threshold, its largest frontal angle (measures.largest_cobb; levels say 'below 10°'), so that a "
+        "mild curve is followed. Null for a result stored before largest_cobb existed and without a curve.",
+    )
     minor_cobb: MeasureValue | None = Field(None, description="The largest other frontal curve; null with one curve.")
     kyphosis_t4_t12: MeasureValue = Field(description="Thoracic kyphosis T4–T12.")
     lordosis_l1_l5: MeasureValue = Field(description="Lumbar lordosis L1–L5.")

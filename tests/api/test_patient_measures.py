@@ -12,7 +12,9 @@ from urllib.parse import quote
 
 import pytest
 
-from services.api.routes.patients import MeasureValue, Visit, change
+from services.api.routes.patients import MeasureValue, Visit, change, visit
+from services.db.models import Job
+from spine_engine import register
 from tests.conftest import Service, make_key, spine_payload
 
 MEASURES = ("major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation")
@@ -41,6 +43,23 @@ def test_a_change_is_flagged_beyond_both_5_deg_and_1_96_combined_sd(
     assert c.change_deg == pytest.approx(after - before)
     assert c.flagged is flagged and c.decided_by == decided_by
     assert c.combined_sd_deg == (None if sd is None else pytest.approx(math.hypot(sd, sd)))
+
+
+def test_a_spine_below_the_threshold_is_followed_by_its_largest_angle() -> None:
+    """A nearly straight spine (no frontal curve of 10°): its visit's major Cobb angle is the
+    result's ``largest_cobb``, with its SD and 'below 10°' in the levels; a curved one's is its
+    major curve's."""
+    curved, mild = register(spine_payload()), register(spine_payload(curve_mm=1.5))
+    assert curved["measures"]["cobb"] and not mild["measures"]["cobb"]
+    for result, expected in ((curved, next(c for c in curved["measures"]["cobb"] if c["major"])),
+                             (mild, mild["measures"]["largest_cobb"])):  # fmt: skip
+        job = Job(id=uuid.uuid4(), payload={"study": {"study_date": "2025-01-01"}}, result=result)
+        major = visit(job).major_cobb
+        assert major is not None
+        assert major.value_deg == pytest.approx(expected["angle_deg"])
+        assert major.sd_deg == pytest.approx(expected["angle_sd_deg"])
+        assert major.levels is not None and major.levels.startswith(f"{expected['upper']}–{expected['lower']}")
+        assert ("below 10°" in major.levels) is (result is mild)
 
 
 def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distributed_service: Service) -> None:

@@ -64,3 +64,30 @@ def test_corner_lines_add_nothing() -> None:
     assert all(c["tilt_source"] == "corners" for c in curves)
     assert all(c["angle_sd_deg"] < load_tilt_prior().cobb_sd_deg["tilt_prior"] for c in curves)
     assert not math.isnan(sum(c["angle_sd_deg"] for c in curves))
+
+
+def test_a_curve_below_the_threshold_has_its_angle_and_sd() -> None:
+    """A nearly straight spine (its frontal curves all below 10°): ``cobb`` is empty and
+    ``largest_cobb`` holds the angle, with a Laplace SD widened by the endplates' spread as a
+    curve's is; with a curve listed, ``largest_cobb`` is its major curve, SD included."""
+    truth = clinic.synthetic_truths(1, seed=7)[0]
+    series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
+    body = clinic_films.build_payload(series, clinic_films.CASES["e"]).model_dump(mode="json")
+    curved = register(body)["measures"]
+    major = next(c for c in curved["cobb"] if c["major"])
+    largest = curved["largest_cobb"]
+    assert largest["reported_as_curve"]
+    assert (largest["upper"], largest["lower"]) == (major["upper"], major["lower"])
+    assert largest["angle_deg"] == pytest.approx(major["angle_deg"], abs=1e-12)
+    assert largest["angle_sd_deg"] == pytest.approx(major["angle_sd_deg"], abs=1e-12)
+    points = np.array([lm["point"] for lm in body["pa"]["landmarks"]], dtype=float)
+    column = points[:, 0].mean() + 0.1 * (points[:, 0] - points[:, 0].mean())  # a tenth of the frontal curves
+    for lm, c in zip(body["pa"]["landmarks"], column, strict=True):
+        lm["point"] = [float(c), lm["point"][1]]
+    mild = register(body)["measures"]
+    assert mild["cobb"] == []
+    largest = mild["largest_cobb"]
+    assert not largest["reported_as_curve"]
+    assert 0.0 < largest["angle_deg"] < 10.0
+    assert largest["tilt_source"] == "model"
+    assert largest["angle_sd_deg"] >= load_tilt_prior().cobb_sd_deg["tilt_prior"] - 1e-9

@@ -102,6 +102,25 @@ def test_no_curve_and_exactly_one_major() -> None:
     assert [c.major for c in curves] == [False, True, False, False, False]  # ties: the upper one
 
 
+def test_the_largest_angle_is_the_major_curve_or_the_one_below_the_threshold() -> None:
+    """``largest_cobb``: the major curve's ends and angle when ``cobb`` lists it; below the
+    threshold, the same pair (max θ − min θ), with ``reported_as_curve`` false; none on a flat spine."""
+    p, R = _from_tilts(TILTS)
+    largest = compute_measures(p, R).largest_cobb
+    assert largest is not None
+    got = (largest.upper, largest.lower, round(largest.angle_deg, 9), largest.reported_as_curve)
+    assert got == ("T5", "L1", 37.0, True)
+    assert largest.tilt_source == "model"
+    mild = [0.4 * t for t in TILTS]  # a 14.8° curve T5–L1, the others below 7°
+    above = compute_measures(*_from_tilts(mild), min_cobb_deg=15.0)
+    assert above.cobb == []
+    assert above.largest_cobb is not None
+    got = (above.largest_cobb.upper, above.largest_cobb.lower, round(above.largest_cobb.angle_deg, 9))
+    assert got == ("T5", "L1", 14.8)
+    assert not above.largest_cobb.reported_as_curve
+    assert compute_measures(*_from_tilts([3.0] * 17)).largest_cobb is None
+
+
 @pytest.mark.parametrize("alpha", [30.0, 75.0, -45.0])
 def test_rigid_rotation_about_vertical_moves_the_plane_of_maximum_curvature(alpha: float) -> None:
     p, R = _from_tilts([0, -2, -5, -10, -15, -12, -9, -6, 0, 6, 12, 18, 22, 20, 15, 10, 6])

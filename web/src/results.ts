@@ -44,7 +44,16 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
   const u = unreliable(result);
   const rows: MeasureRow[] = [];
   const byLevel = new Map(result.vertebrae.map((v) => [v.level, v]));
-  if (!m.cobb.length) rows.push({ name: "Frontal curves", value: "none found", model: false });
+  if (!m.cobb.length) rows.push({ name: "Frontal curves", value: "none of 10° or more", model: false });
+  const largest = m.largest_cobb;
+  if (largest && !largest.reported_as_curve) {
+    rows.push({
+      name: `Largest frontal angle ${largest.upper}–${largest.lower}`,
+      value: withSd(largest.angle_deg, largest.angle_sd_deg),
+      model: false,
+      note: "below the 10° of a scoliotic curve",
+    });
+  }
   for (const c of m.cobb) {
     rows.push({
       name: `${c.major ? "Major" : "Minor"} curve ${c.upper}–${c.lower}, Cobb angle`,

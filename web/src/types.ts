@@ -104,6 +104,14 @@ export interface RegistrationResult {
   vertebrae: VertebraResult[];
   measures: {
     cobb: CobbCurve[];
+    largest_cobb?: {
+      upper: Level;
+      lower: Level;
+      angle_deg: number;
+      angle_sd_deg?: number | null;
+      tilt_source: "corners" | "model" | "mixed";
+      reported_as_curve: boolean;
+    } | null;
     thoracic_kyphosis_t4_t12_deg: number;
     thoracic_kyphosis_t5_t12_deg: number;
     lumbar_lordosis_l1_l5_deg: number;

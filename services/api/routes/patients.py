@@ -37,7 +37,7 @@ from services.api.schemas import (
 from services.db import jobs as jobs_repo
 from services.db.job_forms import job_study
 from services.db.models import Job
-from spine_engine.models import CobbCurve, RegistrationResult
+from spine_engine.models import CobbCurve, LargestCobbAngle, RegistrationResult
 
 router = APIRouter(prefix="/v1/patients", tags=["jobs"])
 
@@ -73,6 +73,14 @@ def _cobb(curve: CobbCurve | None) -> MeasureValue | None:
     return MeasureValue(value_deg=curve.angle_deg, sd_deg=curve.angle_sd_deg, levels=levels)
 
 
+def _below_threshold(largest: LargestCobbAngle | None) -> MeasureValue | None:
+    """The largest frontal angle of a spine whose curves are all below the reporting threshold."""
+    if largest is None or largest.reported_as_curve:
+        return None
+    levels = f"{largest.upper}–{largest.lower}, below 10°"
+    return MeasureValue(value_deg=largest.angle_deg, sd_deg=largest.angle_sd_deg, levels=levels)
+
+
 def visit(job: Job) -> Visit:
     """One visit: the job's study identifiers and its measures from the stored result."""
     result = RegistrationResult.model_validate(job.result)
@@ -92,7 +100,7 @@ def visit(job: Job) -> Visit:
         study_instance_uid=study.get("study_instance_uid"),
         accession_number=study.get("accession_number"),
         finished_at=job.finished_at,
-        major_cobb=_cobb(major),
+        major_cobb=_cobb(major) or _below_threshold(measures.largest_cobb),
         minor_cobb=_cobb(minor),
         kyphosis_t4_t12=MeasureValue(value_deg=measures.thoracic_kyphosis_t4_t12_deg,
                                      sd_deg=measures.thoracic_kyphosis_t4_t12_sd_deg),
