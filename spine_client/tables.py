@@ -110,6 +110,10 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
             {"measure": "max_curvature", "value": c["max_curvature_deg"], "unit": "deg", **where,
              "model_estimate": plane},
         ]  # fmt: skip
+    largest = measures.get("largest_cobb")
+    if largest and not largest.get("reported_as_curve"):  # no curve of 10°: the page's "largest frontal angle"
+        rows.append({"measure": "largest_cobb_angle", "value": largest["angle_deg"], "sd": largest.get("angle_sd_deg"),
+                     "unit": "deg", "upper": largest["upper"], "lower": largest["lower"]})  # fmt: skip
     for name, upper, lower, quantity in (
         ("thoracic_kyphosis_t4_t12", "T4", "T12", "kyphosis"),
         ("thoracic_kyphosis_t5_t12", "T5", "T12", "kyphosis"),
@@ -126,7 +130,8 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
 
 def measures_csv(result: dict[str, Any]) -> str:
     """One row per measure: every Cobb curve (angle, apical rotation, plane and magnitude of maximum
-    curvature), kyphosis, lordosis and the mean registration error, each with its SD and mark."""
+    curvature), the largest frontal angle when no curve reaches 10°, kyphosis, lordosis and the mean
+    registration error, each with its SD and mark."""
     return _csv(MEASURE_COLUMNS, measure_rows(result))
 
 

@@ -157,6 +157,9 @@ def _summary(result: Mapping[str, Any]) -> str:
         angle = _with_trust(major["angle_deg"], major.get("angle_sd_deg"), False)
         where = f"{major['upper']}–{major['lower']}, apex {major['apex']}, {major['convexity']}"
         parts.append(f"major Cobb {angle} ({where})")
+    elif largest := measures.get("largest_cobb"):
+        angle = _with_trust(largest["angle_deg"], largest.get("angle_sd_deg"), False)
+        parts.append(f"no frontal curve of 10°: largest angle {angle} ({largest['upper']}–{largest['lower']})")
     else:
         parts.append("no frontal curve")
     for key, name, flag in (("thoracic_kyphosis_t4_t12", "kyphosis T4–T12", "kyphosis"),

@@ -57,6 +57,16 @@ def test_lateral_view_and_pixel_units_are_drawn() -> None:
     assert ET.fromstring(render_figure(result, payload, "svg")).tag == SVG_ROOT
 
 
+def test_the_title_of_a_spine_below_the_threshold_gives_its_largest_angle() -> None:
+    """No curve of 10°: the title says so and gives ``largest_cobb`` (the SVG holds its text)."""
+    payload = spine_payload(curve_mm=1.5)
+    result = register(payload)
+    assert result["measures"]["cobb"] == []
+    largest = result["measures"]["largest_cobb"]
+    text = f"largest angle {largest['angle_deg']:.1f}° ± {largest['angle_sd_deg']:.1f}°"
+    assert text in render_figure(result, payload, "svg").decode()
+
+
 def test_unknown_format_is_refused(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
     with pytest.raises(ValueError, match="unknown figure format"):
         render_figure(*fitted, "gif")  # type: ignore[arg-type]

@@ -292,6 +292,19 @@ def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
     assert measures[-1]["measure"] == "mean_registration_error" and measures[-1]["unit"] == "mm"
 
 
+def test_the_measures_csv_of_a_spine_below_the_threshold_has_its_largest_angle(result: dict[str, Any]) -> None:
+    """No curve of 10°: one ``largest_cobb_angle`` row (the page's "Largest frontal angle") with its SD
+    and ends; a curved spine's measures have none (its major curve is the largest angle)."""
+    mild = register(spine_payload(curve_mm=1.5))
+    largest = mild["measures"]["largest_cobb"]
+    rows = [r for r in csv.DictReader(io.StringIO(tables.measures_csv(mild))) if r["measure"] == "largest_cobb_angle"]
+    assert len(rows) == 1
+    assert float(rows[0]["value"]) == pytest.approx(largest["angle_deg"])
+    assert float(rows[0]["sd"]) == pytest.approx(largest["angle_sd_deg"])
+    assert (rows[0]["upper"], rows[0]["lower"]) == (largest["upper"], largest["lower"])
+    assert "largest_cobb_angle" not in {r["measure"] for r in csv.DictReader(io.StringIO(tables.measures_csv(result)))}
+
+
 def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result: dict[str, Any]) -> None:
     """The columns and meanings of the page's CSVs (web/src/csv.ts, web/src/results.ts): SDs from the
     result, and the model-estimate mark on what ``fit.unreliable`` names."""
