@@ -197,3 +197,21 @@ def test_an_oracle_that_does_not_know_the_top_places_the_spine_less_well() -> No
     assert np.linalg.eigvalsh(unknown - known).min() > -1e-12
     growth = np.diag(unknown - known)
     assert growth[0] > 0.0 and growth[0] == growth.max()
+
+
+def test_seeds_are_pooled_as_means_and_root_mean_squares() -> None:
+    """``pooled``: millimetres averaged, angle vectors (RMS over the same spines) pooled as the √ of
+    the mean of their squares, names kept, nested rows field by field, and each seed's engine
+    rotation RMS beside the pooled one."""
+    def row(mm: float, rms: list[float]) -> dict:
+        return {"case": "b", "spines": 17, "bound_mm": {"engine_priors": mm}, "engine_shape_error_mm": mm,
+                "engine_rotation_rms_deg_xyz": rms, "unseen_top_shape": {"joints": ["T4"], "bound_mm": mm}}
+
+    rows = clinic_bound.pooled([[row(1.0, [3.0, 0.0, 1.0])], [row(2.0, [4.0, 0.0, 1.0])]])
+    assert len(rows) == 1
+    got = rows[0]
+    assert got["case"] == "b" and got["spines"] == 17
+    assert got["bound_mm"] == {"engine_priors": 1.5} and got["engine_shape_error_mm"] == 1.5
+    assert got["engine_rotation_rms_deg_xyz"] == pytest.approx([np.sqrt(12.5), 0.0, 1.0], abs=1e-3)
+    assert got["unseen_top_shape"] == {"joints": ["T4"], "bound_mm": 1.5}
+    assert got["engine_rotation_rms_deg_xyz_by_seed"] == [[3.0, 0.0, 1.0], [4.0, 0.0, 1.0]]
