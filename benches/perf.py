@@ -17,10 +17,12 @@ import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy
 
+from benches.clinic_films import CASES, Truth, build_payload, simulate_series
 from benches.truth import payload_from_truth, read_verse
 from spine_engine.fit import RodParameters, ViewData, fit, initial_configuration
 from spine_engine.frames import frames_from_centreline
@@ -179,13 +181,29 @@ def run(repeats: int = 200, lateral: bool = False, warmup: int = 10) -> dict[str
 REAL_SPINES = Path(__file__).resolve().parents[1] / "tests" / "data" / "verse_dev.csv"
 
 
-def run_register(repeats: int, spines_csv: Path = REAL_SPINES) -> dict[str, object]:
+def clinic_payloads(case: str, spines_csv: Path = REAL_SPINES) -> list[dict[str, Any]]:
+    """The payloads of ``spine bench clinic``'s case ``case`` for the VerSe dev spines (its simulated
+    series, 1 mm noise, seed 0): no boundary, the films as a clinic sends them."""
+    truths = [Truth(sid, pos, frames_from_centreline(pos), axial_rotation_known=False)
+              for sid, pos in read_verse(spines_csv)]  # fmt: skip
+    return [build_payload(simulate_series(t, 1.0, 0), CASES[case]).model_dump(mode="json", exclude_none=True)
+            for t in truths]  # fmt: skip
+
+
+def run_register(repeats: int, spines_csv: Path = REAL_SPINES, case: str | None = None) -> dict[str, object]:
     """Time the public ``register(payload)`` end to end (validation, patient rest rod, fit,
     measures, result model) with the calibrated default profile, cycling over real spines (VerSe
-    dev, 17 PA landmarks projected from CT); also the fit alone as the result reports it."""
-    payloads = [
-        payload_from_truth(r, frames_from_centreline(r), list(range(17))) for _, r in read_verse(spines_csv)
-    ]
+    dev): 17 PA landmarks projected from CT with T1 and L5 given (the paper's case), or, with
+    ``case``, the payloads of that clinic case (``clinic_payloads``); also the fit alone as the
+    result reports it."""
+    if case is None:
+        payloads = [
+            payload_from_truth(r, frames_from_centreline(r), list(range(17))) for _, r in read_verse(spines_csv)
+        ]
+        problem = f"register(), {len(payloads)} real spines, 17 PA"
+    else:
+        payloads = clinic_payloads(case, spines_csv)
+        problem = f"register(), clinic ({case}), {len(payloads)} real spines"
     for payload in payloads[:5]:
         register(payload)
     total, fit_ms, iterations = [], [], []
@@ -196,7 +214,7 @@ def run_register(repeats: int, spines_csv: Path = REAL_SPINES) -> dict[str, obje
         fit_ms.append(result["fit"]["runtime_ms"])
         iterations.append(result["fit"]["iterations"])
     return {
-        "problem": f"register(), {len(payloads)} real spines, 17 PA",
+        "problem": problem,
         "iterations": f"{np.median(iterations):.0f}",
         "initial_plus_fit": _stats(fit_ms),
         "register_total": _stats(total),
@@ -211,12 +229,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="also write the results as JSON to this file")
     parser.add_argument("--register", action="store_true",
                         help="also time the public register() with the calibrated profile on real spines")
+    parser.add_argument("--clinic", default="", metavar="CASES",
+                        help="also time register() on these cases of spine bench clinic (e.g. adeg): no boundary")
     args = parser.parse_args(argv)
+    unknown = [c for c in args.clinic if c not in CASES]
+    if unknown:
+        parser.error(f"--clinic: unknown cases {unknown} (known: {''.join(CASES)})")
     results = [run(args.repeats)]
     if args.lateral:
         results.append(run(args.repeats, lateral=True))
     if args.register:
         results.append(run_register(args.repeats))
+    results += [run_register(args.repeats, case=case) for case in args.clinic]
     environment = {
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -231,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(report)
         return 0
-    print(f"{'problem':<28} {'timed':<22} {'median ms':>10} {'p90 ms':>8} {'mean ms':>8} {'iter':>5}")
+    print(f"{'problem':<36} {'timed':<22} {'median ms':>10} {'p90 ms':>8} {'mean ms':>8} {'iter':>5}")
     for res in results:
         for key, label in (("initial_plus_fit", "initial config + fit"), ("fit_only", "fit only"),
                            ("register_total", "whole register()")):
@@ -240,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
             st = res[key]
             assert isinstance(st, dict)
             print(
-                f"{res['problem']!s:<28} {label:<22} {st['median_ms']:>10.2f} {st['p90_ms']:>8.2f} "
+                f"{res['problem']!s:<36} {label:<22} {st['median_ms']:>10.2f} {st['p90_ms']:>8.2f} "
                 f"{st['mean_ms']:>8.2f} {res['iterations']!s:>5}"
             )
     return 0

@@ -94,6 +94,18 @@ def exp_so3(phi: ArrayLike) -> FloatArray:
     return out.reshape(*phi.shape[:-1], 3, 3)
 
 
+def cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """a × b over the last axis (length 3), broadcast as ``np.cross``, whose axis handling costs more
+    than the product itself on the engine's small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
 def log_so3(R: ArrayLike) -> FloatArray:
     """Rotation vector φ with exp(hat φ) = R and θ = ‖φ‖ ∈ [0, π]; shape (..., 3, 3) → (..., 3).
 

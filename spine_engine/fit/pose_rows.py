@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..rotations import vector_norms
+from ..rotations import cross, vector_norms
 from .cameras import project
 from .types import FloatArray, PointRows, ViewData
 
@@ -167,7 +167,7 @@ class PoseRows:
         R = state.R
         Rs = R[self._tilt_idx]
         W = np.einsum("nji,nkj->nki", Rs, self._tilt_E)  # W[n, k] = R_jᵀ E_k
-        A = np.cross(self._tilt_e[:, None, :], W)
+        A = cross(self._tilt_e[:, None, :], W)
         a = self._tilt_projection(R)
         ga = np.stack((-a[:, 1], a[:, 0]), axis=1) / np.einsum("ij,ij->i", a, a)[:, None]
         Jv = np.zeros((m, 6))

@@ -121,6 +121,24 @@ def _check_view(view: ViewData, n: int) -> None:
     PoseRows.check_view(view, n)
 
 
+_EYE3 = np.eye(3)
+
+
+def _pose_prior_arrays(
+    priors: Sequence[PosePrior], energy_unit: float
+) -> tuple[np.ndarray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The pose priors as arrays (k priors): vertebrae (k,), mean positions (k, 3), mean rotations
+    transposed (k, 3, 3), a = √(κ/2)/σ_r (k,) and b = √(κ/2)/σ_θ (k, 3) per axis."""
+    half_k = np.sqrt(0.5 * energy_unit)
+    idx = np.array([p.vertebra for p in priors], dtype=np.intp)
+    mean_r = np.array([p.pose.position for p in priors], dtype=float).reshape(-1, 3)
+    mean_RT = np.array([p.pose.rotation.T for p in priors], dtype=float).reshape(-1, 3, 3)
+    a = half_k / np.array([p.position_sd_mm for p in priors], dtype=float)
+    b = half_k / np.array([np.broadcast_to(np.asarray(p.rotation_sd_rad, dtype=float), (3,)) for p in priors],
+                          dtype=float).reshape(-1, 3)  # fmt: skip
+    return idx, mean_r, mean_RT, a, b
+
+
 class RegistrationProblem:
     """Residual vector ρ, its analytic Jacobian and the normal equations, for fixed data (module docstring).
 
@@ -165,6 +183,7 @@ class RegistrationProblem:
             else (2.0 * first.weight / first.scale**2 if first is not None and first.weight > 0 else 1.0)
         )
         self.pose_priors = tuple(pose_priors)
+        self._pose_prior_arrays = _pose_prior_arrays(self.pose_priors, self.energy_unit)
         self.depth_reference = (n - 1) // 2 if depth_reference is None else depth_reference
 
         # Cameras and the border's columns.
@@ -183,6 +202,11 @@ class RegistrationProblem:
         """Each camera's estimated parameters (positions in its ``values``)."""
         self._cam_border = [cols - self.n_vertebra_params for cols in self._cam_cols]
         """Their columns in the border (0..n_border−1)."""
+        self._cam_border_of = [
+            {int(p): int(c) for p, c in zip(free, cols, strict=True)}
+            for free, cols in zip(self._cam_free, self._cam_border, strict=True)
+        ]
+        """Per camera, the border column of each estimated parameter (by its position in ``values``)."""
         self.n_params = col
         position = np.full((n, 3), -1, dtype=np.intp)
         rotation = np.full((n, 3), -1, dtype=np.intp)
@@ -324,22 +348,21 @@ class RegistrationProblem:
                     assert part.second is not None
                     second[rows] = part.second
                 start = rows.stop
-        # pose priors
-        half_k = np.sqrt(0.5 * self.energy_unit)
-        for prior in self.pose_priors:
-            j = prior.vertebra
-            a = half_k / prior.position_sd_mm
-            b = half_k / np.broadcast_to(np.asarray(prior.rotation_sd_rad, dtype=float), (3,))
-            phi = log_so3(prior.pose.rotation.T @ R[j])
-            rho_all[start : start + 3] = a * (r[j] - prior.pose.position)
-            rho_all[start + 3 : start + 6] = b * phi
-            Jv_all[start : start + 3, :3] = a * np.eye(3)
-            Jv_all[start + 3 : start + 6, 3:] = b[:, None] * jr_inverse(phi[None])[0]
-            start += 6
+        # pose priors, all at once: rows (r − r̄)·a and b·log(R̄ᵀR) per prior
+        if self.pose_priors:
+            idx, mean_r, mean_RT, a, b = self._pose_prior_arrays
+            phi = log_so3(mean_RT @ R[idx])
+            stop = start + 6 * len(idx)
+            rho_all[start:stop] = np.concatenate((a[:, None] * (r[idx] - mean_r), b * phi), axis=1).ravel()
+            blocks = Jv_all[start:stop].reshape(len(idx), 6, 6)
+            blocks[:, :3, :3] = a[:, None, None] * _EYE3
+            blocks[:, 3:, 3:] = b[:, :, None] * jr_inverse(phi)
+            start = stop
         # camera priors
+        half_k = np.sqrt(0.5 * self.energy_unit)
         for k, p, mean, sd in self._camera_prior_rows:
             cam = self.cameras[k]
-            cols = dict(zip(self._cam_free[k], self._cam_border[k], strict=True))
+            cols = self._cam_border_of[k]
             if p >= 0:
                 rho_all[start] = half_k * (cams[k][p] - mean) / sd
                 Jb_all[start, cols[p]] = half_k / sd

@@ -12,6 +12,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..rotations import cross
+
 FloatArray = NDArray[np.float64]
 """The one float array type of the engine's numerics."""
 IntArray = NDArray[np.intp]
@@ -117,7 +119,7 @@ class Camera:
         """b: ``beam`` or e_c × e_r."""
         if self.beam is not None:
             return np.asarray(self.beam, dtype=float)
-        return np.cross(np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float))
+        return cross(np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spine_engine.rotations import (
+    cross,
     exp_so3,
     hat,
     left_jacobian_inv,
@@ -141,3 +142,11 @@ def test_rotation_between_and_slerp():
     np.testing.assert_allclose(path[-1], R1, atol=1e-14)
     total = _angle_between(R0, R1)
     np.testing.assert_allclose(_angle_between(R0, path), t * total, atol=1e-14)
+
+
+def test_cross_is_numpys_with_broadcasting() -> None:
+    """``rotations.cross`` (the engine's hot paths) equals ``np.cross`` exactly, broadcast."""
+    rng = np.random.default_rng(3)
+    for a_shape, b_shape in (((3,), (3,)), ((5, 1, 3), (5, 2, 3)), ((4, 3), (3,))):
+        a, b = rng.normal(size=a_shape), rng.normal(size=b_shape)
+        np.testing.assert_array_equal(cross(a, b), np.cross(a, b))
