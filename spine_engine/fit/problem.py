@@ -239,6 +239,10 @@ class RegistrationProblem:
         kinds += [f"tilt:{name}" for name, sl in self.obs.tilt_slices.items() for _ in range(sl.stop - sl.start)]
         kinds += ["pose"] * (6 * len(self.pose_priors))
         self._camera_prior_rows = self._camera_priors()
+        self._beams = [cam.beam_direction(v.e_c, v.e_r) for v, cam in zip(self.views, self.cameras, strict=True)]
+        """Each view's beam direction b (perspective depth rows)."""
+        self._camera_prior_sd = np.array([sd for *_, sd in self._camera_prior_rows], dtype=float)
+        self._camera_prior_Jv, self._camera_prior_Jb = self._camera_prior_jacobians()
         self._point_vertebra = self._point_rows_vertebra()
         kinds += ["camera"] * len(self._camera_prior_rows)
         self.row_kinds = tuple(kinds)
@@ -358,24 +362,36 @@ class RegistrationProblem:
             blocks[:, :3, :3] = a[:, None, None] * _EYE3
             blocks[:, 3:, 3:] = b[:, :, None] * jr_inverse(phi)
             start = stop
-        # camera priors
+        # camera priors: their Jacobians are constant (``_camera_prior_jacobians``), their ρ are not
+        if self._camera_prior_rows:
+            half_k = np.sqrt(0.5 * self.energy_unit)
+            stop = start + len(self._camera_prior_rows)
+            Jv_all[start:stop], Jb_all[start:stop] = self._camera_prior_Jv, self._camera_prior_Jb
+            rho = np.empty(stop - start)
+            for i, (k, p, mean, _) in enumerate(self._camera_prior_rows):
+                if p >= 0:
+                    rho[i] = cams[k][p] - mean
+                else:
+                    rho[i] = float(self._beams[k] @ (r[self.depth_reference] - cams[k][2:5])) - mean
+            rho_all[start:stop] = half_k * rho / self._camera_prior_sd
+        return PointRows(rho_all, self._point_vertebra, Jv_all, Jb_all, second)
+
+    def _camera_prior_jacobians(self) -> tuple[FloatArray, FloatArray]:
+        """(Jv, Jb) of the camera prior rows, constant: √(κ/2)/σ on the parameter's column, and for a
+        depth row √(κ/2) b/σ on the reference vertebra's position and −√(κ/2) b/σ on the source's."""
         half_k = np.sqrt(0.5 * self.energy_unit)
-        for k, p, mean, sd in self._camera_prior_rows:
-            cam = self.cameras[k]
+        Jv = np.zeros((len(self._camera_prior_rows), 6))
+        Jb = np.zeros((len(self._camera_prior_rows), self.n_border))
+        for i, (k, p, _, sd) in enumerate(self._camera_prior_rows):
             cols = self._cam_border_of[k]
             if p >= 0:
-                rho_all[start] = half_k * (cams[k][p] - mean) / sd
-                Jb_all[start, cols[p]] = half_k / sd
-            else:
-                view = self.views[k]
-                b_dir = cam.beam_direction(view.e_c, view.e_r)
-                rho_all[start] = half_k * (float(b_dir @ (r[self.depth_reference] - cams[k][2:5])) - mean) / sd
-                Jv_all[start, :3] = half_k * b_dir / sd
-                for axis in range(3):
-                    if (2 + axis) in cols:
-                        Jb_all[start, cols[2 + axis]] = -half_k * b_dir[axis] / sd
-            start += 1
-        return PointRows(rho_all, self._point_vertebra, Jv_all, Jb_all, second)
+                Jb[i, cols[p]] = half_k / sd
+                continue
+            Jv[i, :3] = half_k * self._beams[k] / sd
+            for axis in range(3):
+                if (2 + axis) in cols:
+                    Jb[i, cols[2 + axis]] = -half_k * self._beams[k][axis] / sd
+        return Jv, Jb
 
     def _point_rows_vertebra(self) -> np.ndarray:
         """The vertebra of each non-rod row (−1: none), in ``point_rows`` order; fixed for the problem."""
