@@ -43,7 +43,7 @@ from .observations import (
     transverse_director,
 )
 from .projection import image_axes
-from .rotations import exp_so3
+from .rotations import cross, exp_so3
 from .tilt_prior import TiltPrior, predict_tilts_deg
 
 _X = np.array([1.0, 0.0, 0.0])
@@ -423,7 +423,7 @@ def place_without_boundary(
     any subset of levels on each view (module docstring). The fit then frees every vertebra and
     estimates the projections; this is its starting point."""
     e_c, e_r = image_axes(model.pa.patient_orientation)
-    normal = np.cross(e_c, e_r)
+    normal = cross(e_c, e_r)
     generic = rest_shape_unit(profile)[1]
     s, from_prior = _scale_prior(model.pa)
     pa_estimated = model.pa.projection is None

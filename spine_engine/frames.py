@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from .rotations import cross
+
 FloatArray = npt.NDArray[np.float64]
 
 PATIENT_LEFT = np.array([1.0, 0.0, 0.0])
@@ -62,7 +64,7 @@ def frames_from_centreline(positions: npt.ArrayLike, axial_rotation_rad: npt.Arr
         bad = int(np.argmin(n1))
         raise ValueError(f"tangent at point {bad} is parallel to the patient-left axis: d1 is undefined")
     d1 /= n1[:, None]
-    d2 = np.cross(d3, d1)
+    d2 = cross(d3, d1)
     if axial_rotation_rad is not None:
         psi = np.broadcast_to(np.asarray(axial_rotation_rad, dtype=float), (len(p),))
         c, s = np.cos(psi)[:, None], np.sin(psi)[:, None]

@@ -38,8 +38,11 @@ def _rot(psi: float) -> tuple[FloatArray, FloatArray]:
     return np.array([[c, -s], [s, c]]), np.array([[-s, -c], [c, -s]])
 
 
-def project(camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r: ArrayLike) -> Projected:
-    """Project points r (k, 3) with the camera's parameters ``values`` (module docstring)."""
+def project(
+    camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r: ArrayLike, beam: FloatArray | None = None
+) -> Projected:
+    """Project points r (k, 3) with the camera's parameters ``values`` (module docstring); ``beam``:
+    the camera's ``beam_direction`` when the caller holds it (a perspective camera's, computed once)."""
     pi = np.asarray(values, dtype=float)
     r = np.asarray(r, dtype=float).reshape(-1, 3)
     E = np.array((e_c, e_r), dtype=float)
@@ -58,7 +61,7 @@ def project(camera: Camera, values: ArrayLike, r: ArrayLike, e_c: ArrayLike, e_r
         d_params[:, 1, 2] = 1.0
         d_params[:, :, 3] = s * (q @ dRot.T)
         return Projected(points, d_r, d_params)
-    b = camera.beam_direction(E[0], E[1])
+    b = camera.beam_direction(E[0], E[1]) if beam is None else beam
     d = r - pi[2:5]
     q = d @ E.T
     z = d @ b

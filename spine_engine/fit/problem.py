@@ -334,7 +334,7 @@ class RegistrationProblem:
             if not len(idx):
                 continue
             view, cam = self.views[k], self.cameras[k]
-            pr = project(cam, cams[k], r[idx], view.e_c, view.e_r)
+            pr = project(cam, cams[k], r[idx], view.e_c, view.e_r, self._beams[k])
             stop = start + 2 * len(idx)
             rows = slice(start, stop)
             rho_all[rows] = (c * (pr.points - points)).ravel()
