@@ -8,7 +8,8 @@ Perspective (pinhole), π = [c_c, c_r, o_x, o_y, o_z, ψ]: with d = r − o, q =
     p = c + m Rot(ψ) q,
     ∂p/∂r = m Rot(ψ) E − (m² / SID) (Rot(ψ) q) bᵀ = −∂p/∂o,  ∂p/∂c = I,  ∂p/∂ψ = m Rot'(ψ) q,
 with Rot'(ψ) = dRot/dψ = [[−sin ψ, −cos ψ], [cos ψ, −sin ψ]]. The derivatives are checked against
-finite differences in ``tests/engine/test_cameras.py``.
+finite differences in ``tests/engine/test_cameras.py``. Both are computed point by point in one numba
+kernel (``_project_kernel``), compiled by ``warmup.warm_up``'s weak-perspective fit.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from .types import Camera, FloatArray
@@ -33,9 +35,65 @@ class Projected(NamedTuple):
     """(k, 2, P) ∂p/∂π over all the camera's parameters (4 weak, 6 perspective)."""
 
 
-def _rot(psi: float) -> tuple[FloatArray, FloatArray]:
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([[c, -s], [s, c]]), np.array([[-s, -c], [c, -s]])
+@njit(cache=True)
+def _project_kernel(
+    r: FloatArray, E: FloatArray, psi: float, pi: FloatArray, b: FloatArray, sid: float, sod: float, perspective: bool
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(points, ∂p/∂r, ∂p/∂π) of the module docstring, point by point (the small arrays' numpy calls
+    cost more than their arithmetic). Weak: π = [s, T_c, T_r, ψ]; perspective: [c_c, c_r, o, ψ]."""
+    k = r.shape[0]
+    cos, sin = math.cos(psi), math.sin(psi)
+    rot = ((cos, -sin), (sin, cos))
+    d_rot = ((-sin, -cos), (cos, -sin))
+    RE = np.empty((2, 3))
+    for a in range(2):
+        for j in range(3):
+            RE[a, j] = rot[a][0] * E[0, j] + rot[a][1] * E[1, j]
+    points = np.empty((k, 2))
+    d_r = np.empty((k, 2, 3))
+    d_params = np.zeros((k, 2, 6 if perspective else 4))
+    for i in range(k):
+        if perspective:
+            d0, d1, d2 = r[i, 0] - pi[2], r[i, 1] - pi[3], r[i, 2] - pi[4]
+        else:
+            d0, d1, d2 = r[i, 0], r[i, 1], r[i, 2]
+        q0 = d0 * E[0, 0] + d1 * E[0, 1] + d2 * E[0, 2]
+        q1 = d0 * E[1, 0] + d1 * E[1, 1] + d2 * E[1, 2]
+        u0 = rot[0][0] * q0 + rot[0][1] * q1
+        u1 = rot[1][0] * q0 + rot[1][1] * q1
+        v0 = d_rot[0][0] * q0 + d_rot[0][1] * q1
+        v1 = d_rot[1][0] * q0 + d_rot[1][1] * q1
+        if perspective:
+            m = sid / (sod + d0 * b[0] + d1 * b[1] + d2 * b[2])
+            w = m * m / sid
+            points[i, 0] = pi[0] + m * u0
+            points[i, 1] = pi[1] + m * u1
+            for j in range(3):
+                d_r[i, 0, j] = m * RE[0, j] - w * u0 * b[j]
+                d_r[i, 1, j] = m * RE[1, j] - w * u1 * b[j]
+                d_params[i, 0, 2 + j] = -d_r[i, 0, j]
+                d_params[i, 1, 2 + j] = -d_r[i, 1, j]
+            d_params[i, 0, 0] = 1.0
+            d_params[i, 1, 1] = 1.0
+            d_params[i, 0, 5] = m * v0
+            d_params[i, 1, 5] = m * v1
+        else:
+            s = pi[0]
+            points[i, 0] = s * u0 + pi[1]
+            points[i, 1] = s * u1 + pi[2]
+            for j in range(3):
+                d_r[i, 0, j] = s * RE[0, j]
+                d_r[i, 1, j] = s * RE[1, j]
+            d_params[i, 0, 0] = u0
+            d_params[i, 1, 0] = u1
+            d_params[i, 0, 1] = 1.0
+            d_params[i, 1, 2] = 1.0
+            d_params[i, 0, 3] = s * v0
+            d_params[i, 1, 3] = s * v1
+    return points, d_r, d_params
+
+
+_NO_BEAM = np.zeros(3)
 
 
 def project(
@@ -43,35 +101,10 @@ def project(
 ) -> Projected:
     """Project points r (k, 3) with the camera's parameters ``values`` (module docstring); ``beam``:
     the camera's ``beam_direction`` when the caller holds it (a perspective camera's, computed once)."""
-    pi = np.asarray(values, dtype=float)
-    r = np.asarray(r, dtype=float).reshape(-1, 3)
+    pi = np.ascontiguousarray(values, dtype=float)  # C-contiguous throughout: one compiled signature
+    r = np.ascontiguousarray(r, dtype=float).reshape(-1, 3)
     E = np.array((e_c, e_r), dtype=float)
-    k = len(r)
-    Rot, dRot = _rot(float(pi[-1]))
     if camera.kind == "weak":
-        s = float(pi[0])
-        q = r @ E.T
-        u = q @ Rot.T
-        points = s * u + pi[1:3]
-        d_r = np.empty((k, 2, 3))
-        d_r[:] = s * (Rot @ E)
-        d_params = np.zeros((k, 2, 4))
-        d_params[:, :, 0] = u
-        d_params[:, 0, 1] = 1.0
-        d_params[:, 1, 2] = 1.0
-        d_params[:, :, 3] = s * (q @ dRot.T)
-        return Projected(points, d_r, d_params)
-    b = camera.beam_direction(E[0], E[1]) if beam is None else beam
-    d = r - pi[2:5]
-    q = d @ E.T
-    z = d @ b
-    m = camera.sid_mm / (camera.sod_mm + z)
-    u = q @ Rot.T
-    points = pi[:2] + m[:, None] * u
-    d_r = m[:, None, None] * (Rot @ E)[None] - ((m * m / camera.sid_mm)[:, None] * u)[:, :, None] * b[None, None, :]
-    d_params = np.zeros((k, 2, 6))
-    d_params[:, 0, 0] = 1.0
-    d_params[:, 1, 1] = 1.0
-    d_params[:, :, 2:5] = -d_r
-    d_params[:, :, 5] = m[:, None] * (q @ dRot.T)
-    return Projected(points, d_r, d_params)
+        return Projected(*_project_kernel(r, E, float(pi[-1]), pi, _NO_BEAM, 1.0, 1.0, False))
+    b = np.ascontiguousarray(camera.beam_direction(E[0], E[1]) if beam is None else beam, dtype=float)
+    return Projected(*_project_kernel(r, E, float(pi[-1]), pi, b, float(camera.sid_mm), float(camera.sod_mm), True))
