@@ -267,6 +267,17 @@ def observation_bundle(
                         curve["angle_deg"], coding=COBB_ANGLE, notes=[note], components=components,
                         sd=curve.get("angle_sd_deg"))
         )  # fmt: skip
+    largest = measures.get("largest_cobb")
+    if not curves and largest and not largest.get("reported_as_curve"):
+        ends = f"{largest['upper']}–{largest['lower']}"
+        note = f"No frontal curve of 10° or more; the largest frontal angle, between {ends}, the most tilted vertebrae."
+        observations.append(
+            observation(f"cobb:largest:{largest['upper']}-{largest['lower']}",
+                        "Cobb angle, frontal plane, largest (below the 10° of a scoliotic curve)",
+                        largest["angle_deg"], coding=COBB_ANGLE, notes=[note], sd=largest.get("angle_sd_deg"),
+                        components=[_component("Upper end vertebra", valueString=largest["upper"]),
+                                    _component("Lower end vertebra", valueString=largest["lower"])])
+        )  # fmt: skip
     major = next((c for c in curves if c.get("major")), None)
     for key, name, field, flag, code in (
         ("kyphosis-t4-t12", "Thoracic kyphosis T4–T12 (sagittal Cobb angle)", "thoracic_kyphosis_t4_t12_deg",

@@ -189,6 +189,23 @@ def test_fhir_bundle_without_curves_has_no_cobb_or_apical_rotation(result: dict[
     assert len(texts) == 3 and not any("Cobb angle, frontal" in t or "Apical" in t for t in texts)
 
 
+def test_fhir_bundle_of_a_spine_below_the_threshold_has_its_largest_cobb_angle() -> None:
+    """No curve of 10°: one SNOMED "Cobb angle" Observation of ``largest_cobb`` (value, SD, ends, a
+    note saying it is below the threshold), and no apical rotation."""
+    mild = register(spine_payload(curve_mm=1.5))
+    largest = mild["measures"]["largest_cobb"]
+    bundle = observation_bundle(uuid.uuid4(), mild, finished_at=datetime.now(UTC))
+    cobb = [e["resource"] for e in bundle["entry"] if e["resource"]["code"]["coding"][0]["code"] == "285285000"]
+    assert len(cobb) == 1
+    obs = cobb[0]
+    assert obs["valueQuantity"]["value"] == pytest.approx(largest["angle_deg"], abs=0.005)  # to 0.01°
+    parts = {c["code"]["text"]: c for c in obs["component"]}
+    assert parts["Upper end vertebra"]["valueString"] == largest["upper"]
+    assert parts["Lower end vertebra"]["valueString"] == largest["lower"]
+    assert any("No frontal curve of 10°" in n["text"] for n in obs["note"])
+    assert not any("Apical" in e["resource"]["code"]["text"] for e in bundle["entry"])
+
+
 def test_fhir_observations_are_coded_and_keep_their_text(result: dict[str, Any]) -> None:
     """The frontal Cobb angles carry SNOMED CT 285285000 (PS3.16 CID 7550, as the SR); the sagittal
     angles, the apical rotation and the curves' components carry the local code system's codes; every
