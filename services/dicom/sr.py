@@ -372,6 +372,14 @@ def build_sr(
             lines=_cobb_lines(result, payload, c, images.get("pa"), cobb),
         )  # fmt: skip
 
+    largest = measures.get("largest_cobb")
+    if not measures.get("cobb") and largest and not largest.get("reported_as_curve"):
+        sites = [vertebra(largest["upper"], SUPERIOR), vertebra(largest["lower"], INFERIOR)]
+        cobb = b.measurement(COBB_ANGLE, largest["angle_deg"], sd=largest.get("angle_sd_deg"), sites=sites)
+        b.group(f"Largest frontal angle {largest['upper']}-{largest['lower']}, below 10°", [cobb], sites=sites,
+                evaluations=[hd.sr.QualitativeEvaluation(PrivateCodes.MAJOR_CURVE, codes.SCT.No)],
+                lines=_cobb_lines(result, payload, largest, images.get("pa"), cobb))  # fmt: skip
+
     fit = result.get("fit") or {}
     b.group("Sagittal measures", [
         b.measurement(PrivateCodes.KYPHOSIS_T4_T12, measures.get("thoracic_kyphosis_t4_t12_deg"), quantity="kyphosis",

@@ -142,6 +142,51 @@ def test_cobb_lines_on_the_pa_image(case: dict[str, Any], tmp_path: Path) -> Non
         assert angle == pytest.approx(curve["angle_deg"], abs=1e-3)  # GraphicData is float32 (FL)
 
 
+@pytest.fixture(scope="module")
+def mild(case: dict[str, Any]) -> tuple[dict[str, Any], Dataset]:
+    """A nearly straight spine on the case's film (no frontal curve of 10°): its result and SR."""
+    payload = spine_payload(curve_mm=1.5, spacing_mm=SPACING)
+    payload["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    result = register(payload)
+    assert result["measures"]["cobb"] == [] and not result["measures"]["largest_cobb"]["reported_as_curve"]
+    sr = build_sr(result, payload, JOB, case["identity"], {"pa": case["source"]},
+                  content_datetime=datetime(2026, 12, 1, 12, 0, 0))  # fmt: skip
+    return result, sr
+
+
+def test_the_sr_of_a_spine_below_the_threshold_passes_dciodvfy_and_dsrdump(
+    mild: tuple[dict[str, Any], Dataset], tmp_path: Path
+) -> None:
+    if shutil.which("dciodvfy") is None or shutil.which("dsrdump") is None:
+        pytest.skip("dicom3tools' dciodvfy or dcmtk's dsrdump is not installed (apt-get install dicom3tools dcmtk)")
+    path = _write(mild[1], tmp_path / "sr.dcm")
+    run = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True, timeout=60)
+    assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
+    run = subprocess.run(["dsrdump", "-v", str(path)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "E:" not in run.stderr and "W:" not in run.stderr, run.stderr
+    assert 'NUM:(,,"Cobb angle")' in run.stdout
+
+
+def test_a_spine_below_the_threshold_has_its_largest_angle_drawn(
+    mild: tuple[dict[str, Any], Dataset], tmp_path: Path
+) -> None:
+    """No curve of 10°: one Cobb angle group, ``largest_cobb`` (value, its two end vertebrae, not the
+    major curve), drawn on the PA image as the adapters' CobbAngle, its lines meeting at the angle."""
+    largest = mild[0]["measures"]["largest_cobb"]
+    sr = hd.sr.srread(_write(mild[1], tmp_path / "sr.dcm"))
+    groups = [g for g in sr.content.get_planar_roi_measurement_groups() if g.tracking_identifier == COBB_TOOL]
+    assert len(groups) == 1
+    [num] = groups[0].get_measurements(name=COBB_ANGLE)
+    assert num.value == pytest.approx(largest["angle_deg"], rel=1e-12)
+    sites = [s.value.value for s in num.finding_sites]
+    assert sites == [VERTEBRA_CODES[largest["upper"]][0], VERTEBRA_CODES[largest["lower"]][0]]
+    [lines] = [item for item in num[0].ContentSequence if item.ValueType == "SCOORD"]
+    p = np.asarray(lines.GraphicData, dtype=float).reshape(4, 2) * SPACING
+    a, b = p[1] - p[0], p[3] - p[2]
+    angle = np.degrees(np.arccos(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b)))
+    assert angle == pytest.approx(largest["angle_deg"], abs=1e-3)
+
+
 def test_sr_identity_series_and_scheme(case: dict[str, Any]) -> None:
     sr = _sr(case)
     image = case["image"]
