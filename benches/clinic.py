@@ -290,6 +290,12 @@ def verse_truths(split: str, data: Path | None = None) -> list[Truth]:
     path = (data or shared_data_dir("verse")) / f"{split}.csv"
     if not path.is_file():
         raise FileNotFoundError(f"VerSe split not found at {path} (pass --data or set SPINE_SHARED_DATA)")
+    return truths_of_csv(path)
+
+
+def truths_of_csv(path: Path) -> list[Truth]:
+    """The spines of a VerSe CSV (``benches.truth.read_verse``) with directors from the centreline;
+    their axial rotation is the centreline's convention, not a measurement."""
     return [Truth(sid, pos, frames_from_centreline(pos), axial_rotation_known=False) for sid, pos in read_verse(path)]
 
 

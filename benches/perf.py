@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import scipy
 
-from benches.clinic_films import CASES, Truth, build_payload, simulate_series
+from benches.clinic import truths_of_csv
+from benches.clinic_films import CASES, build_payload, simulate_series
 from benches.truth import payload_from_truth, read_verse
 from spine_engine.fit import RodParameters, ViewData, fit, initial_configuration
 from spine_engine.frames import frames_from_centreline
@@ -184,10 +185,8 @@ REAL_SPINES = Path(__file__).resolve().parents[1] / "tests" / "data" / "verse_de
 def clinic_payloads(case: str, spines_csv: Path = REAL_SPINES) -> list[dict[str, Any]]:
     """The payloads of ``spine bench clinic``'s case ``case`` for the VerSe dev spines (its simulated
     series, 1 mm noise, seed 0): no boundary, the films as a clinic sends them."""
-    truths = [Truth(sid, pos, frames_from_centreline(pos), axial_rotation_known=False)
-              for sid, pos in read_verse(spines_csv)]  # fmt: skip
     return [build_payload(simulate_series(t, 1.0, 0), CASES[case]).model_dump(mode="json", exclude_none=True)
-            for t in truths]  # fmt: skip
+            for t in truths_of_csv(spines_csv)]  # fmt: skip
 
 
 def run_register(repeats: int, spines_csv: Path = REAL_SPINES, case: str | None = None) -> dict[str, object]:

@@ -399,6 +399,15 @@ def frontal_tilts(
     return np.where(mask, observed, model), mask
 
 
+TiltSource = Literal["model", "mixed", "corners"]
+_TILT_SOURCES: tuple[TiltSource, TiltSource, TiltSource] = ("model", "mixed", "corners")
+
+
+def _tilt_source(observed: npt.NDArray[np.generic], upper: int, lower: int) -> TiltSource:
+    """Where the tilts of two end vertebrae come from: corners for neither ("model"), one ("mixed") or both."""
+    return _TILT_SOURCES[int(observed[upper]) + int(observed[lower])]
+
+
 def compute_measures(
     positions: npt.ArrayLike,
     rotations: npt.ArrayLike,
@@ -440,7 +449,6 @@ def compute_measures(
     for k, (upper, lower, angle) in enumerate(found):
         apex, convexity = _apex(p, upper, lower, tilt)
         phi, max_angle = plane_of_max_curvature(R[upper], R[lower])
-        n_observed = int(observed[upper]) + int(observed[lower])
         cobb.append(
             CobbCurve(
                 upper=cast(Level, LEVELS[upper]),
@@ -453,18 +461,17 @@ def compute_measures(
                 plane_of_max_curvature_deg=phi,
                 max_curvature_deg=max_angle,
                 endplate_angle_deg=float(abs(endplates[upper, 0] - endplates[lower, 1])),
-                tilt_source=("model", "mixed", "corners")[n_observed],
+                tilt_source=_tilt_source(observed, upper, lower),
             )
         )
     largest = None
     pair = most_tilted_pair(tilt)
     if pair is not None:
-        n_observed = int(observed[pair[0]]) + int(observed[pair[1]])
         largest = LargestCobbAngle(
             upper=cast(Level, LEVELS[pair[0]]),
             lower=cast(Level, LEVELS[pair[1]]),
             angle_deg=pair[2],
-            tilt_source=("model", "mixed", "corners")[n_observed],
+            tilt_source=_tilt_source(observed, pair[0], pair[1]),
             reported_as_curve=any(c.major for c in cobb),
         )
     aasce = None

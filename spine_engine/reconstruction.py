@@ -821,12 +821,13 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
     """``measures`` with the SDs of kyphosis, lordosis and each Cobb angle (in the order of
     ``_sd_pairs``, as given to ``reported_uncertainty``) filled in; the largest angle's is its major
     curve's when ``cobb`` lists it."""
-    sds = list(uncertainty.cobb_sd_deg)
-    cobb = [c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(measures.cobb, sds, strict=False)]
+    n = len(measures.cobb)
+    curve_sds, unlisted_sds = list(uncertainty.cobb_sd_deg[:n]), list(uncertainty.cobb_sd_deg[n:])
+    cobb = [c.model_copy(update={"angle_sd_deg": sd}) for c, sd in zip(measures.cobb, curve_sds, strict=True)]
     largest = measures.largest_cobb
     if largest is not None:
         major_sd = next((c.angle_sd_deg for c in cobb if c.major), None)
-        sd = major_sd if largest.reported_as_curve else sds[len(cobb)]
+        [sd] = [major_sd] if largest.reported_as_curve else unlisted_sds
         largest = largest.model_copy(update={"angle_sd_deg": sd})
     return measures.model_copy(
         update={

@@ -373,7 +373,7 @@ def build_sr(
         )  # fmt: skip
 
     largest = measures.get("largest_cobb")
-    if not measures.get("cobb") and largest and not largest.get("reported_as_curve"):
+    if largest and not largest.get("reported_as_curve"):  # no curve of 10°: `cobb` is empty
         sites = [vertebra(largest["upper"], SUPERIOR), vertebra(largest["lower"], INFERIOR)]
         cobb = b.measurement(COBB_ANGLE, largest["angle_deg"], sd=largest.get("angle_sd_deg"), sites=sites)
         b.group(f"Largest frontal angle {largest['upper']}-{largest['lower']}, below 10°", [cobb], sites=sites,

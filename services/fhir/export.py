@@ -268,7 +268,7 @@ def observation_bundle(
                         sd=curve.get("angle_sd_deg"))
         )  # fmt: skip
     largest = measures.get("largest_cobb")
-    if not curves and largest and not largest.get("reported_as_curve"):
+    if largest and not largest.get("reported_as_curve"):  # no curve of 10°: `cobb` is empty
         ends = f"{largest['upper']}–{largest['lower']}"
         note = f"No frontal curve of 10° or more; the largest frontal angle, between {ends}, the most tilted vertebrae."
         observations.append(

@@ -202,11 +202,6 @@ class RegistrationProblem:
         """Each camera's estimated parameters (positions in its ``values``)."""
         self._cam_border = [cols - self.n_vertebra_params for cols in self._cam_cols]
         """Their columns in the border (0..n_border−1)."""
-        self._cam_border_of = [
-            {int(p): int(c) for p, c in zip(free, cols, strict=True)}
-            for free, cols in zip(self._cam_free, self._cam_border, strict=True)
-        ]
-        """Per camera, the border column of each estimated parameter (by its position in ``values``)."""
         self.n_params = col
         position = np.full((n, 3), -1, dtype=np.intp)
         rotation = np.full((n, 3), -1, dtype=np.intp)
@@ -383,7 +378,7 @@ class RegistrationProblem:
         Jv = np.zeros((len(self._camera_prior_rows), 6))
         Jb = np.zeros((len(self._camera_prior_rows), self.n_border))
         for i, (k, p, _, sd) in enumerate(self._camera_prior_rows):
-            cols = self._cam_border_of[k]
+            cols = dict(zip(self._cam_free[k].tolist(), self._cam_border[k].tolist(), strict=True))
             if p >= 0:
                 Jb[i, cols[p]] = half_k / sd
                 continue

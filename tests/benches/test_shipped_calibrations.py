@@ -17,12 +17,10 @@ import numpy as np
 import pytest
 
 from benches import aasce, clinic, prior
-from benches.clinic_films import CASES, Truth
-from benches.truth import read_verse
+from benches.clinic_films import CASES
 from benches.uncertainty_calibration import calibrate, collect
 from spine_engine.anatomy import load_profile
 from spine_engine.fit.uncertainty import calibration
-from spine_engine.frames import frames_from_centreline
 from spine_engine.tilt_prior import load_tilt_prior
 
 VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
@@ -38,10 +36,7 @@ def test_uncertainty_calibration_is_current() -> None:
     their ranges; the fits are deterministic) and the same PA-only readings."""
     shipped = calibration()
     noise_mm, seed = shipped.provenance["noise_mm"], shipped.provenance["seed"]
-    truths = [
-        Truth(sid, pos, frames_from_centreline(pos), axial_rotation_known=False) for sid, pos in read_verse(VERSE_DEV)
-    ]
-    today, _ = calibrate(collect(truths, list(CASES.values()), noise_mm, seed, "default"))
+    today, _ = calibrate(collect(clinic.truths_of_csv(VERSE_DEV), list(CASES.values()), noise_mm, seed, "default"))
     assert today.prior_weight == pytest.approx(shipped.prior_weight, rel=1e-6)
     assert today.uncertainty_scale == pytest.approx(shipped.uncertainty_scale, rel=1e-6)
     assert today.prior_only.keys() == shipped.prior_only.keys()
