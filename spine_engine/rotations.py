@@ -32,7 +32,6 @@ _HAT = np.array(
     dtype=float,
 )
 _VEE = 0.5 * _HAT.T
-_TRACE = np.array([0.5, 0, 0, 0, 0.5, 0, 0, 0, 0.5])
 
 
 def hat(w: ArrayLike) -> FloatArray:
@@ -106,6 +105,34 @@ def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     return out
 
 
+@njit(cache=True)
+def _log_kernel(R: FloatArray, out: FloatArray) -> None:
+    """log of each rotation R (k, 3, 3) into out (k, 3) (``log_so3``)."""
+    for n in range(R.shape[0]):
+        w0 = 0.5 * (R[n, 2, 1] - R[n, 1, 2])
+        w1 = 0.5 * (R[n, 0, 2] - R[n, 2, 0])
+        w2 = 0.5 * (R[n, 1, 0] - R[n, 0, 1])
+        c = 0.5 * (R[n, 0, 0] + R[n, 1, 1] + R[n, 2, 2]) - 0.5
+        s = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        theta = math.atan2(s, c)
+        if c >= _NEAR_PI_COS:
+            f = theta / s if s > 0.0 else 1.0
+            out[n, 0], out[n, 1], out[n, 2] = f * w0, f * w1, f * w2
+            continue
+        j = 0
+        best = -math.inf
+        for i in range(3):
+            mii = (R[n, i, i] - c) / (1.0 - c)
+            if mii > best:
+                best, j = mii, i
+        norm = math.sqrt(best)
+        a0 = (0.5 * (R[n, 0, j] + R[n, j, 0]) - (c if j == 0 else 0.0)) / (1.0 - c) / norm
+        a1 = (0.5 * (R[n, 1, j] + R[n, j, 1]) - (c if j == 1 else 0.0)) / (1.0 - c) / norm
+        a2 = (0.5 * (R[n, 2, j] + R[n, j, 2]) - (c if j == 2 else 0.0)) / (1.0 - c) / norm
+        sign = -1.0 if a0 * w0 + a1 * w1 + a2 * w2 < 0.0 else 1.0
+        out[n, 0], out[n, 1], out[n, 2] = sign * theta * a0, sign * theta * a1, sign * theta * a2
+
+
 def log_so3(R: ArrayLike) -> FloatArray:
     """Rotation vector φ with exp(hat φ) = R and θ = ‖φ‖ ∈ [0, π]; shape (..., 3, 3) → (..., 3).
 
@@ -113,27 +140,13 @@ def log_so3(R: ArrayLike) -> FloatArray:
     and φ = (θ / sin θ) w. Near π (cos θ < −0.7), where sin θ → 0, the axis a is taken from the
     symmetric part instead: aaᵀ = (½(R + Rᵀ) − cos θ I)/(1 − cos θ), the column of largest
     diagonal entry normalised, with its sign chosen so that a·w ≥ 0. At θ = π exactly both
-    signs are valid and either may be returned.
+    signs are valid and either may be returned (one compiled loop over the stack).
     """
     R = np.asarray(R, dtype=float)
-    flat = R.reshape(*R.shape[:-2], 9)
-    w = flat @ _VEE.T
-    c = flat @ _TRACE - 0.5
-    s = _angle(w)
-    theta = np.arctan2(s, c)
-    phi = (theta / np.where(s > 0.0, s, 1.0))[..., None] * w
-    near_pi = c < _NEAR_PI_COS
-    if near_pi.any():
-        Rn, cn, wn, tn = R[near_pi], c[near_pi], w[near_pi], theta[near_pi]
-        M = 0.5 * (Rn + np.swapaxes(Rn, -1, -2))
-        M[..., [0, 1, 2], [0, 1, 2]] -= cn[..., None]
-        M /= (1.0 - cn)[..., None, None]
-        j = np.argmax(np.diagonal(M, axis1=-2, axis2=-1), axis=-1)
-        idx = np.arange(len(j))
-        axis = M[idx, :, j] / np.sqrt(M[idx, j, j])[..., None]
-        sign = np.where(np.einsum("ni,ni->n", axis, wn) < 0.0, -1.0, 1.0)
-        phi[near_pi] = (sign * tn)[..., None] * axis
-    return phi
+    flat = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    out = np.empty((len(flat), 3))
+    _log_kernel(flat, out)
+    return out.reshape(*R.shape[:-2], 3)
 
 
 def _jr_coefficients(theta: FloatArray) -> tuple[FloatArray, FloatArray]:

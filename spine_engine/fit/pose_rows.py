@@ -19,14 +19,16 @@ derivative of cᵀR exp(hat δθ) b is ½(ω bᵀ + b ωᵀ) − (ω·b) I with 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 
-from ..rotations import cross, vector_norms
+from ..rotations import vector_norms
 from .cameras import project
-from .types import FloatArray, PointRows, ViewData
+from .types import FloatArray, IntArray, PointRows, ViewData
 
 if TYPE_CHECKING:
     from .problem import RegistrationProblem, State
@@ -40,6 +42,51 @@ def rotational(omega: FloatArray, b: FloatArray) -> FloatArray:
     """½(ω bᵀ + b ωᵀ) − (ω·b) I per row: the second derivative of cᵀR exp(hat δθ) b (ω = Rᵀc)."""
     outer = omega[:, :, None] * b[:, None, :]
     return 0.5 * (outer + np.swapaxes(outer, 1, 2)) - np.einsum("ij,ij->i", omega, b)[:, None, None] * np.eye(3)
+
+
+@njit(cache=True)
+def _tilt_kernel(
+    R: FloatArray, idx: IntArray, E: FloatArray, e: FloatArray, c: FloatArray, sw: FloatArray, second_order: bool
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(ρ (m,), ∂ρ/∂(δr, δθ) (m, 6), ∇²_θθ ρ·ρ (m, 3, 3), zero unless ``second_order``) of the tilt rows
+    (module docstring), tilt by tilt (the small arrays' numpy calls cost more than their arithmetic):
+    W_k = R_jᵀ E_k, A_k = e × W_k, a_k = W_k·e, g = a⊥/|a|², ∂ρ/∂δθ = √w Σ_k g_k A_k, ρ = √w α."""
+    m = idx.shape[0]
+    rho = np.empty(m)
+    Jv = np.zeros((m, 6))
+    S = np.zeros((m, 3, 3))
+    W = np.empty((2, 3))
+    A = np.empty((2, 3))
+    om = np.empty(3)
+    for n in range(m):
+        j = idx[n]
+        for k in range(2):
+            for i in range(3):
+                W[k, i] = R[j, 0, i] * E[n, k, 0] + R[j, 1, i] * E[n, k, 1] + R[j, 2, i] * E[n, k, 2]
+            A[k, 0] = e[n, 1] * W[k, 2] - e[n, 2] * W[k, 1]
+            A[k, 1] = e[n, 2] * W[k, 0] - e[n, 0] * W[k, 2]
+            A[k, 2] = e[n, 0] * W[k, 1] - e[n, 1] * W[k, 0]
+        x = W[0, 0] * e[n, 0] + W[0, 1] * e[n, 1] + W[0, 2] * e[n, 2]
+        y = W[1, 0] * e[n, 0] + W[1, 1] * e[n, 1] + W[1, 2] * e[n, 2]
+        r2 = x * x + y * y
+        g0, g1 = -y / r2, x / r2
+        rho[n] = sw[n] * math.atan2(c[n, 0] * y - c[n, 1] * x, c[n, 0] * x + c[n, 1] * y)
+        for i in range(3):
+            Jv[n, 3 + i] = sw[n] * (A[0, i] * g0 + A[1, i] * g1)
+        if second_order:
+            r4 = r2 * r2
+            h00 = 2.0 * x * y / r4
+            h01 = (y * y - x * x) / r4
+            scale = rho[n] * sw[n]
+            for i in range(3):
+                om[i] = W[0, i] * g0 + W[1, i] * g1
+            om_e = om[0] * e[n, 0] + om[1] * e[n, 1] + om[2] * e[n, 2]
+            for i in range(3):
+                for l in range(3):
+                    ha = A[0, i] * (h00 * A[0, l] + h01 * A[1, l]) + A[1, i] * (h01 * A[0, l] - h00 * A[1, l])
+                    rot = 0.5 * (om[i] * e[n, l] + e[n, i] * om[l]) - (om_e if i == l else 0.0)
+                    S[n, i, l] = scale * (ha + rot)
+    return rho, Jv, S
 
 
 class PoseRows:
@@ -83,7 +130,7 @@ class PoseRows:
                 m = view.n_tilts
                 E = np.array((view.e_c, view.e_r), dtype=float)
                 d = np.asarray(view.tilt_directions, dtype=float)
-                t_idx.append(np.asarray(view.tilt_indices, dtype=int))
+                t_idx.append(np.asarray(view.tilt_indices, dtype=np.intp))
                 t_e.append(np.repeat(np.asarray(view.tilt_director, dtype=float)[None], m, axis=0))
                 t_E.append(np.repeat(E[None], m, axis=0))
                 t_c.append(d / vector_norms(d)[:, None])
@@ -92,7 +139,7 @@ class PoseRows:
                 m0 += m
         self.n_offsets = q0
         self.n_tilts = m0
-        self._tilt_idx = np.concatenate(t_idx) if t_idx else np.zeros(0, dtype=int)
+        self._tilt_idx = np.concatenate(t_idx) if t_idx else np.zeros(0, dtype=np.intp)
         self._tilt_e = np.concatenate(t_e) if t_e else np.zeros((0, 3))
         self._tilt_E = np.concatenate(t_E) if t_E else np.zeros((0, 2, 3))
         self._tilt_c = np.concatenate(t_c) if t_c else np.zeros((0, 2))
@@ -164,27 +211,10 @@ class PoseRows:
         m = self.n_tilts
         if not m:
             return None
-        R = state.R
-        Rs = R[self._tilt_idx]
-        W = np.einsum("nji,nkj->nki", Rs, self._tilt_E)  # W[n, k] = R_jᵀ E_k
-        A = cross(self._tilt_e[:, None, :], W)
-        a = self._tilt_projection(R)
-        ga = np.stack((-a[:, 1], a[:, 0]), axis=1) / np.einsum("ij,ij->i", a, a)[:, None]
-        Jv = np.zeros((m, 6))
-        Jv[:, 3:] = self._tilt_sw[:, None] * np.einsum("nki,nk->ni", A, ga)
-        rho = self._tilt_sw * self._tilt_angles(R)
-        S = None
-        if second_order:
-            x, y = a[:, 0], a[:, 1]
-            r4 = np.einsum("ij,ij->i", a, a) ** 2
-            Ha = np.empty((m, 2, 2))
-            Ha[:, 0, 0] = 2.0 * x * y / r4
-            Ha[:, 1, 1] = -Ha[:, 0, 0]
-            Ha[:, 0, 1] = Ha[:, 1, 0] = (y * y - x * x) / r4
-            omega_t = np.einsum("nji,nkj,nk->ni", Rs, self._tilt_E, ga)
-            hess = np.swapaxes(A, 1, 2) @ Ha @ A + rotational(omega_t, self._tilt_e)
-            S = (rho * self._tilt_sw)[:, None, None] * hess
-        return PointRows(rho, self._tilt_idx, Jv, np.zeros((m, problem.n_border)), S)
+        R = np.ascontiguousarray(state.R, dtype=float)
+        rho, Jv, S = _tilt_kernel(R, self._tilt_idx, self._tilt_E, self._tilt_e, self._tilt_c, self._tilt_sw,
+                                  second_order)  # fmt: skip
+        return PointRows(rho, self._tilt_idx, Jv, np.zeros((m, problem.n_border)), S if second_order else None)
 
     # ------------------------------------------------------------------ report
 

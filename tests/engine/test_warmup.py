@@ -8,9 +8,10 @@ import subprocess
 import sys
 
 KERNELS = {
-    "spine_engine.rotations": ["_exp_kernel"],
+    "spine_engine.rotations": ["_exp_kernel", "_log_kernel"],
     "spine_engine.fit.problem": ["_assemble_normal"],
     "spine_engine.fit.cameras": ["_project_kernel"],
+    "spine_engine.fit.pose_rows": ["_tilt_kernel"],
     "spine_engine.fit.rod_rows": ["jr_inv_coefficients", "_local_jacobian_kernel", "_normal_blocks_kernel"],
     "spine_engine.fit.uncertainty": ["_axial_rotation_rows", "_centreline_angle_rows", "weighted_gram"],
 }
