@@ -420,8 +420,20 @@ def pooled(runs: Sequence[Sequence[dict[str, Any]]]) -> list[dict[str, Any]]:
     for by_seed in zip(*runs, strict=True):
         row = _pool(list(by_seed))
         row["engine_rotation_rms_deg_xyz_by_seed"] = [r["engine_rotation_rms_deg_xyz"] for r in by_seed]
+        row["engine_to_oracle_xyz"], row["engine_to_oracle_se_xyz"] = rotation_ratio(by_seed, row)
         rows.append(row)
     return rows
+
+
+def rotation_ratio(by_seed: Sequence[dict[str, Any]], pooled_row: dict[str, Any]) -> tuple[list[float], list[float]]:
+    """(pooled engine RMS / pooled oracle SD about x, y, z; its standard error), the error from the
+    seeds' own ratios: SE = SD_s(RMS_s / SD_s) / √S over the S seeds (None with one seed)."""
+    ratio = np.asarray(pooled_row["engine_rotation_rms_deg_xyz"]) / np.asarray(pooled_row["oracle_rotation_sd_deg_xyz"])
+    per_seed = np.array(
+        [np.asarray(r["engine_rotation_rms_deg_xyz"]) / np.asarray(r["oracle_rotation_sd_deg_xyz"]) for r in by_seed]
+    )
+    se = per_seed.std(axis=0, ddof=1) / np.sqrt(len(per_seed)) if len(per_seed) > 1 else np.full(3, np.nan)
+    return ratio.round(3).tolist(), [None if np.isnan(v) else round(float(v), 3) for v in se]
 
 
 def engine_orientation_sd_deg() -> tuple[float, float, float]:
@@ -450,12 +462,14 @@ def prior_settings(orientation_sd_deg: tuple[float, float, float]) -> dict[str, 
 def table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as an aligned text table."""
     head = ["case", "target mm", "bound: engine priors", "bench turn", "+ orientation", "floor est.",
-            "engine 3D mm", "engine shape mm", "oracle SD x,y,z °", "engine RMS x,y,z °"]
+            "engine 3D mm", "engine shape mm", "oracle SD x,y,z °", "engine RMS x,y,z °", "engine/oracle (± SE)"]
     body = [
         [r["case"], r["target_mm"] if r["target_mm"] is not None else "-", *r["bound_mm"].values(),
          r["floor_estimate_mm"], r["engine_mean_3d_error_mm"], r["engine_shape_error_mm"],
          " ".join(f"{v:.2f}" for v in r["oracle_rotation_sd_deg_xyz"]),
-         " ".join(f"{v:.2f}" for v in r["engine_rotation_rms_deg_xyz"])]
+         " ".join(f"{v:.2f}" for v in r["engine_rotation_rms_deg_xyz"]),
+         " ".join(f"{v:.2f}" + (f"±{e:.2f}" if e is not None else "")
+                  for v, e in zip(r["engine_to_oracle_xyz"], r["engine_to_oracle_se_xyz"], strict=True))]
         for r in rows
     ]
     return format_table(head, body)

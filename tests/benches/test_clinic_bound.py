@@ -205,7 +205,8 @@ def test_seeds_are_pooled_as_means_and_root_mean_squares() -> None:
     rotation RMS beside the pooled one."""
     def row(mm: float, rms: list[float]) -> dict:
         return {"case": "b", "spines": 17, "bound_mm": {"engine_priors": mm}, "engine_shape_error_mm": mm,
-                "engine_rotation_rms_deg_xyz": rms, "unseen_top_shape": {"joints": ["T4"], "bound_mm": mm}}
+                "engine_rotation_rms_deg_xyz": rms, "oracle_rotation_sd_deg_xyz": [2.0, 1.0, 1.0],
+                "unseen_top_shape": {"joints": ["T4"], "bound_mm": mm}}
 
     rows = clinic_bound.pooled([[row(1.0, [3.0, 0.0, 1.0])], [row(2.0, [4.0, 0.0, 1.0])]])
     assert len(rows) == 1
@@ -215,3 +216,13 @@ def test_seeds_are_pooled_as_means_and_root_mean_squares() -> None:
     assert got["engine_rotation_rms_deg_xyz"] == pytest.approx([np.sqrt(12.5), 0.0, 1.0], abs=1e-3)
     assert got["unseen_top_shape"] == {"joints": ["T4"], "bound_mm": 1.5}
     assert got["engine_rotation_rms_deg_xyz_by_seed"] == [[3.0, 0.0, 1.0], [4.0, 0.0, 1.0]]
+    # ratio of the pooled values; SE from the seeds' ratios 1.5 and 2.0 about x: SD 0.354, / √2
+    assert got["engine_to_oracle_xyz"] == pytest.approx([np.sqrt(12.5) / 2.0, 0.0, 1.0], abs=1e-3)
+    assert got["engine_to_oracle_se_xyz"] == pytest.approx([0.25, 0.0, 0.0], abs=1e-3)
+
+
+def test_one_seed_has_no_ratio_error() -> None:
+    """With a single seed the ratio has no standard error (None), not a zero one."""
+    row = {"engine_rotation_rms_deg_xyz": [1.0, 1.0, 1.0], "oracle_rotation_sd_deg_xyz": [1.0, 2.0, 4.0]}
+    ratio, se = clinic_bound.rotation_ratio([row], row)
+    assert ratio == [1.0, 0.5, 0.25] and se == [None, None, None]
