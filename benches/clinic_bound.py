@@ -425,7 +425,9 @@ def pooled(runs: Sequence[Sequence[dict[str, Any]]]) -> list[dict[str, Any]]:
     return rows
 
 
-def rotation_ratio(by_seed: Sequence[dict[str, Any]], pooled_row: dict[str, Any]) -> tuple[list[float], list[float]]:
+def rotation_ratio(
+    by_seed: Sequence[dict[str, Any]], pooled_row: dict[str, Any]
+) -> tuple[list[float], list[float | None]]:
     """(pooled engine RMS / pooled oracle SD about x, y, z; its standard error), the error from the
     seeds' own ratios: SE = SD_s(RMS_s / SD_s) / √S over the S seeds (None with one seed)."""
     ratio = np.asarray(pooled_row["engine_rotation_rms_deg_xyz"]) / np.asarray(pooled_row["oracle_rotation_sd_deg_xyz"])
