@@ -362,6 +362,7 @@ def summarise(
                 "label": label,
                 "radiographs": len(ok),
                 "major_mae_deg": float(np.mean(np.abs(err))),
+                "major_mae_se_deg": float(np.std(np.abs(err), ddof=1) / np.sqrt(len(err))) if len(err) > 1 else None,
                 "major_bias_deg": float(np.mean(err)),
                 "major_median_ae_deg": float(np.median(np.abs(err))),
                 "smape_pct": smape(three, truth[ok]),
@@ -454,6 +455,16 @@ def calibrate(data: Path, out_dir: Path, fractions: tuple[float, ...], limit: in
     return prior
 
 
+def tilt_training_arrays(rads: list[Radiograph]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the tilt prior learns from: each radiograph's corner-line frontal tilts (n, 17), the
+    frontal angles of the chords of its superior endplate midpoints (n, 16) and its major Cobb
+    angle (n,), degrees."""
+    e_c, e_r = image_axes(PA_ORIENTATION)
+    tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in rads])
+    chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in rads])
+    return tilts, chords, np.array([r.angles[0] for r in rads])
+
+
 def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) -> TiltPrior:
     """The tilt prior of ``training`` (plausible radiographs, major < 90°): least-squares
     coefficients on the chords of ``CAL_WINDOW`` ("shifted"), blended toward the chord-normal tilt by
@@ -462,10 +473,7 @@ def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) 
     the smallest within ``FRACTION_TIE_DEG`` of the lowest training MAE). Writes nothing."""
     rads = read_split(data / "training")
     keep = [r for r in rads if plausible(r) and r.angles[0] < 90.0]
-    e_c, e_r = image_axes(PA_ORIENTATION)
-    tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in keep])
-    chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in keep])
-    major = np.array([r.angles[0] for r in keep])
+    tilts, chords, major = tilt_training_arrays(keep)
     blend, blend_scores = choose_blend(tilts, chords, major, CAL_WINDOW, CAL_PLACEMENT)
     print("blend toward the chord normal, prior-only 5-fold CV major MAE: "
           + ", ".join(f"{b:g}: {v:.3f}°" for b, v in blend_scores.items()) + f"; chosen {blend:g}")
@@ -665,10 +673,7 @@ def cross_validate(
     radiograph of the fold is reconstructed from its midpoints with it. Major-angle MAE and bias over
     the in-order radiographs (refused ones excluded, failed fits counted) and over the plausible ones."""
     rads = read_split(data / "training")
-    e_c, e_r = image_axes(PA_ORIENTATION)
-    tilts = np.array([frontal_tilt_deg_of_corners(r.corners) for r in rads])
-    chords = np.array([chord_angles_deg(0.5 * (r.corners[:, 0] + r.corners[:, 1]), e_c, e_r) for r in rads])
-    truth = np.array([r.angles[0] for r in rads])
+    tilts, chords, truth = tilt_training_arrays(rads)
     fit_on = np.array([plausible(r) and r.angles[0] < 90.0 for r in rads])
     scored = np.flatnonzero([in_order(r) for r in rads])
     rows: list[dict[str, Any]] = []
@@ -776,6 +781,7 @@ def main(argv: list[str] | None = None) -> int:
         "method",
         "radiographs",
         "major_mae_deg",
+        "major_mae_se_deg",
         "major_bias_deg",
         "major_median_ae_deg",
         "smape_pct",

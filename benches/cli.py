@@ -22,6 +22,10 @@ COMMANDS = {
         "benches.recalibrate",
         "re-run the calibrations that follow the engine (population prior, tilt prior, uncertainty, Cobb SD)",
     ),
+    "aasce-bound": (
+        "benches.aasce_bound",
+        "AASCE training: the major Cobb angle learners read from the endplate midpoints (cross-validated)",
+    ),
     "pa-bound": (
         "benches.pa_bound",
         "one PA film: the kyphosis and lordosis a learner trained on the tested population reads",
