@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from numpy.typing import ArrayLike
 
 from .initial import initial_configuration
-from .problem import RegistrationProblem, State
+from .problem import RegistrationProblem
 from .solver import MAX_ITERATIONS, Minimum, linearise, minimise, solve
 from .types import (
     Camera,
@@ -34,6 +34,7 @@ from .types import (
     PosePrior,
     RodParameters,
     Solution,
+    State,
     ViewData,
     as_pose,
     nearest_rotation,

@@ -21,17 +21,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from ..rotations import vector_norms
 from .cameras import project
-from .types import FloatArray, IntArray, PointRows, ViewData
-
-if TYPE_CHECKING:
-    from .problem import RegistrationProblem, State
+from .types import Camera, FloatArray, IntArray, PointRows, State, ViewData
 
 
 def _shape(a: np.ndarray | None) -> tuple[int, ...]:
@@ -152,8 +148,8 @@ class PoseRows:
 
     # ------------------------------------------------------------------ offsets
 
-    def _offset_view(self, k: int, view: ViewData, state: State, problem: RegistrationProblem) -> tuple:
-        cam = problem.cameras[k]
+    @staticmethod
+    def _offset_view(k: int, view: ViewData, state: State, cam: Camera) -> tuple:
         j = np.asarray(view.offset_indices, dtype=int)
         o = np.asarray(view.offset_vectors, dtype=float)
         Rj = state.R[j]
@@ -163,24 +159,31 @@ class PoseRows:
         diff = pr.points[:, 0] - np.asarray(view.offset_columns, dtype=float)
         return cam, j, o, Rj, pr, c, diff
 
-    def offset_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
-        """Rows, Jacobians (and θθ second-order terms) of the offset points (module docstring)."""
+    def offset_rows(
+        self,
+        state: State,
+        cameras: Sequence[Camera],
+        border_columns: Sequence[IntArray],
+        n_border: int,
+        second_order: bool,
+    ) -> PointRows | None:
+        """Rows, Jacobians (and θθ second-order terms) of the offset points (module docstring);
+        ``border_columns[k]``: the border columns (0..``n_border``) of camera k's free parameters."""
         if not self.n_offsets:
             return None
-        P = problem.n_border
+        P = n_border
         rho_l, idx_l, Jv_l, Jb_l, S_l = [], [], [], [], []
         for k, view in enumerate(self.views):
             if not view.n_offsets:
                 continue
-            cam, j, o, Rj, pr, c, diff = self._offset_view(k, view, state, problem)
+            cam, j, o, Rj, pr, c, diff = self._offset_view(k, view, state, cameras[k])
             g = c * pr.d_r[:, 0, :]
             omega = np.einsum("nji,nj->ni", Rj, g)
             rho = c * diff
             Jv = np.concatenate((g, np.cross(o, omega)), axis=1)
             Jb = np.zeros((len(j), P))
-            cols = problem._cam_cols[k]
-            if len(cols):
-                Jb[:, cols - problem.n_vertebra_params] = c * pr.d_params[:, 0, cam.free]
+            if len(border_columns[k]):
+                Jb[:, border_columns[k]] = c * pr.d_params[:, 0, cam.free]
             rho_l.append(rho)
             idx_l.append(j)
             Jv_l.append(Jv)
@@ -206,7 +209,7 @@ class PoseRows:
         c = self._tilt_c
         return np.arctan2(c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0], np.einsum("ij,ij->i", c, a))
 
-    def tilt_rows(self, state: State, problem: RegistrationProblem, second_order: bool) -> PointRows | None:
+    def tilt_rows(self, state: State, n_border: int, second_order: bool) -> PointRows | None:
         """Rows, Jacobians (and θθ second-order terms) of the tilts (module docstring)."""
         m = self.n_tilts
         if not m:
@@ -214,19 +217,19 @@ class PoseRows:
         R = np.ascontiguousarray(state.R, dtype=float)
         rho, Jv, S = _tilt_kernel(R, self._tilt_idx, self._tilt_E, self._tilt_e, self._tilt_c, self._tilt_sw,
                                   second_order)  # fmt: skip
-        return PointRows(rho, self._tilt_idx, Jv, np.zeros((m, problem.n_border)), S if second_order else None)
+        return PointRows(rho, self._tilt_idx, Jv, np.zeros((m, n_border)), S if second_order else None)
 
     # ------------------------------------------------------------------ report
 
     def unweighted(
-        self, state: State, problem: RegistrationProblem
+        self, state: State, cameras: Sequence[Camera]
     ) -> tuple[dict[str, FloatArray], dict[str, FloatArray]]:
         """Per view, the offset points' signed column residuals (patient mm: detector mm / s₀) and the
         tilts' signed angles (degrees); unweighted, so a zero weight does not hide them."""
         offsets: dict[str, FloatArray] = {}
         for k, view in enumerate(self.views):
             if view.n_offsets:
-                cam, *_, diff = self._offset_view(k, view, state, problem)
+                cam, *_, diff = self._offset_view(k, view, state, cameras[k])
                 offsets[view.name] = diff / cam.reference_scale
         tilt = np.degrees(self._tilt_angles(state.R)) if self.n_tilts else np.zeros(0)
         tilts = {name: tilt[sl].copy() for name, sl in self.tilt_slices.items()}

@@ -24,7 +24,6 @@ vertebra block of JᵀJ stays banded (half-bandwidth 11) and the camera paramete
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -44,6 +43,7 @@ from .types import (
     Pose,
     PosePrior,
     RodParameters,
+    State,
     ViewData,
     as_pose,
 )
@@ -97,14 +97,6 @@ def _assemble_normal(
 
 _NO_SECOND = np.zeros((0, 3, 3))
 """Stand-in for absent second-order terms (the assembly kernel takes arrays only)."""
-
-
-class State(NamedTuple):
-    """A configuration: positions (N, 3), rotations (N, 3, 3) and each view's camera parameters."""
-
-    r: FloatArray
-    R: FloatArray
-    cameras: tuple[FloatArray, ...]
 
 
 def _check_view(view: ViewData, n: int) -> None:
@@ -337,7 +329,8 @@ class RegistrationProblem:
             if len(self._cam_cols[k]):
                 Jb_all[rows, self._cam_border[k]] = (c * pr.d_params[:, :, cam.free]).reshape(2 * len(idx), -1)
             start = stop
-        for part in (self.obs.offset_rows(state, self, second_order), self.obs.tilt_rows(state, self, second_order)):
+        offsets = self.obs.offset_rows(state, self.cameras, self._cam_border, self.n_border, second_order)
+        for part in (offsets, self.obs.tilt_rows(state, self.n_border, second_order)):
             if part is not None:
                 rows = slice(start, start + len(part.rho))
                 rho_all[rows] = part.rho
@@ -491,7 +484,7 @@ class RegistrationProblem:
             pr = project(cam, state.cameras[k], state.r[idx], view.e_c, view.e_r)
             diff = (pr.points - np.asarray(view.points, dtype=float)) / cam.reference_scale
             distances[view.name] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        offsets, tilts = self.obs.unweighted(state, self)
+        offsets, tilts = self.obs.unweighted(state, self.cameras)
         return FitOutput(
             positions=state.r,
             rotations=state.R,

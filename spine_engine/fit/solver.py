@@ -34,9 +34,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .banded import KD, BorderedSystem, band_to_dense, solve_bordered
-from .problem import RegistrationProblem, State
+from .problem import RegistrationProblem
 from .rod_rows import RodCache
-from .types import FitOutput, FloatArray, PointRows, Solution
+from .types import FitOutput, FloatArray, PointRows, Solution, State
 
 XTOL_MM = 1e-6
 """Convergence: a step moving no position by more than this (mm) ..."""

@@ -26,6 +26,14 @@ class Pose(NamedTuple):
     rotation: FloatArray
 
 
+class State(NamedTuple):
+    """A configuration: positions (N, 3), rotations (N, 3, 3) and each view's camera parameters."""
+
+    r: FloatArray
+    R: FloatArray
+    cameras: tuple[FloatArray, ...]
+
+
 def as_pose(pose: Any, name: str = "pose") -> Pose:
     """The one pose helper: a ``Pose`` of float copies from a (position, rotation) pair, a ``Pose``, or a
     payload ``models.Pose`` (whose ``directors`` are rows [d1, d2, d3], so R = directorsᵀ)."""
