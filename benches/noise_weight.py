@@ -49,6 +49,25 @@ def score(profile: Profile, truths: list[Truth], cases: str, noise_mm: float, se
         reconstruction.load_profile = original
 
 
+def grid_scores(
+    base: Profile, truths: list[Truth], grid: list[float], cases: str, noise_mm: float, seed: int
+) -> list[dict[str, Any]]:
+    """One row per multiplier m of ``base``'s landmark weights: the weights m·w, each case's mean 3D
+    error (``score``) and their mean, the score the command minimises; printed as they come."""
+    rows: list[dict[str, Any]] = []
+    for mult in grid:
+        prof = dataclasses.replace(
+            base, fit_weight_pa=base.fit_weight_pa * mult, fit_weight_lateral=base.fit_weight_lateral * mult
+        )
+        errors = score(prof, truths, cases, noise_mm, seed)
+        rows.append({"multiplier": mult, "fit_weight_pa": prof.fit_weight_pa, "mean_3d_error_mm": errors,
+                     "score_mm": float(np.mean(list(errors.values())))})  # fmt: skip
+        print(f"x{mult:<6g} w = {prof.fit_weight_pa:9.4g} N/mm  "
+              + "  ".join(f"({k}) {v:.3f}" for k, v in errors.items()) + f"  score {rows[-1]['score_mm']:.3f}",
+              flush=True)  # fmt: skip
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="spine bench noise-weight", description=__doc__)
     parser.add_argument("--data", type=Path, default=None, help="VerSe folder (only dev.csv is read)")
@@ -63,17 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     truths = clinic.verse_truths("dev", args.data)
     base = load_profile(args.profile)
     grid = [float(x) for x in args.grid.split(",")]
-    rows: list[dict[str, Any]] = []
-    for mult in grid:
-        prof = dataclasses.replace(
-            base, fit_weight_pa=base.fit_weight_pa * mult, fit_weight_lateral=base.fit_weight_lateral * mult
-        )
-        errors = score(prof, truths, args.cases, args.noise_mm, args.seed)
-        rows.append({"multiplier": mult, "fit_weight_pa": prof.fit_weight_pa, "mean_3d_error_mm": errors,
-                     "score_mm": float(np.mean(list(errors.values())))})  # fmt: skip
-        print(f"x{mult:<6g} w = {prof.fit_weight_pa:9.4g} N/mm  "
-              + "  ".join(f"({k}) {v:.3f}" for k, v in errors.items()) + f"  score {rows[-1]['score_mm']:.3f}",
-              flush=True)  # fmt: skip
+    rows = grid_scores(base, truths, grid, args.cases, args.noise_mm, args.seed)
     best = min(rows, key=lambda r: r["score_mm"])
     print(f"best: x{best['multiplier']:g} (w = {best['fit_weight_pa']:.4g} N/mm), {time.perf_counter() - start:.0f} s")
     if args.write:

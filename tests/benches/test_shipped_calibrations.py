@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benches import aasce, clinic, prior
+from benches import aasce, clinic, noise_weight, prior
 from benches.clinic_films import CASES
 from benches.uncertainty_calibration import calibrate, collect
 from spine_engine.anatomy import load_profile
@@ -28,6 +28,19 @@ AASCE = clinic.shared_data_dir("aasce2019")
 needs_aasce = pytest.mark.skipif(
     not (AASCE / "training").is_dir(), reason=f"AASCE 2019 training not found at {AASCE} (tuning data)"
 )
+
+
+def test_landmark_weight_is_current() -> None:
+    """``spine bench noise-weight --write default`` (its default grid of multipliers, on VerSe dev with
+    the shipped provenance's noise, seed and cases) keeps the shipped weights: ×1 scores best. The
+    profile's weights came from a grid around earlier ones (``started_from``); a change to the
+    engine that moves the optimum past the grid's neighbours (×3, ×0.3) fails here."""
+    profile = load_profile()
+    shipped = profile.provenance["noise_calibration"]
+    rows = noise_weight.grid_scores(profile, clinic.truths_of_csv(VERSE_DEV), list(noise_weight.DEFAULT_GRID),
+                                    shipped["cases"], shipped["noise_mm"], shipped["seed"])  # fmt: skip
+    best = min(rows, key=lambda r: r["score_mm"])
+    assert best["multiplier"] == 1.0, [(r["multiplier"], round(r["score_mm"], 4)) for r in rows]
 
 
 def test_uncertainty_calibration_is_current() -> None:
