@@ -171,7 +171,6 @@ class PoseRows:
         ``border_columns[k]``: the border columns (0..``n_border``) of camera k's free parameters."""
         if not self.n_offsets:
             return None
-        P = n_border
         rho_l, idx_l, Jv_l, Jb_l, S_l = [], [], [], [], []
         for k, view in enumerate(self.views):
             if not view.n_offsets:
@@ -181,7 +180,7 @@ class PoseRows:
             omega = np.einsum("nji,nj->ni", Rj, g)
             rho = c * diff
             Jv = np.concatenate((g, np.cross(o, omega)), axis=1)
-            Jb = np.zeros((len(j), P))
+            Jb = np.zeros((len(j), n_border))
             if len(border_columns[k]):
                 Jb[:, border_columns[k]] = c * pr.d_params[:, 0, cam.free]
             rho_l.append(rho)
@@ -200,14 +199,10 @@ class PoseRows:
 
     # ------------------------------------------------------------------ tilts
 
-    def _tilt_projection(self, R: FloatArray) -> FloatArray:
-        """a = E R_j e (m, 2): the image direction of each observed vertebra's director."""
-        return (self._tilt_E @ (R[self._tilt_idx] @ self._tilt_e[:, :, None]))[:, :, 0]
-
     def _tilt_angles(self, R: FloatArray) -> FloatArray:
-        a = self._tilt_projection(R)
-        c = self._tilt_c
-        return np.arctan2(c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0], np.einsum("ij,ij->i", c, a))
+        """α (m,), radians: each tilt's signed angle from the observed direction to the projected director."""
+        return _tilt_kernel(np.ascontiguousarray(R, dtype=float), self._tilt_idx, self._tilt_E, self._tilt_e,
+                            self._tilt_c, np.ones(self.n_tilts), False)[0]  # fmt: skip
 
     def tilt_rows(self, state: State, n_border: int, second_order: bool) -> PointRows | None:
         """Rows, Jacobians (and θθ second-order terms) of the tilts (module docstring)."""
