@@ -24,8 +24,9 @@ import numpy as np
 
 from benches import clinic
 from benches.clinic_films import CASES, Truth, simulate_series
-from spine_engine import reconstruction
 from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, save_profile
+from spine_engine.reconstruction import register_model
+from spine_engine.validation import validate_payload
 
 DEFAULT_GRID = (3.0, 1.0, 0.3, 0.1, 0.03)
 DEFAULT_CASES = "abce"
@@ -33,20 +34,15 @@ DEFAULT_CASES = "abce"
 
 def score(profile: Profile, truths: list[Truth], cases: str, noise_mm: float, seed: int) -> dict[str, float]:
     """Mean 3D error (mm, translation removed) per case with ``profile``'s weights."""
-    original = reconstruction.load_profile
-    def fixed(name: str = "default") -> Profile:
-        return profile
+    def registrar(payload: dict[str, Any]) -> dict[str, Any]:
+        return register_model(validate_payload(payload), profile=profile).model_dump(mode="json")
 
-    reconstruction.load_profile = fixed
-    try:
-        out = {}
-        for key in cases:
-            runs = [clinic.run_one(simulate_series(t, noise_mm, seed), CASES[key]) for t in truths]
-            ok = [r for r in runs if r.ok]
-            out[key] = float(np.mean([r.per_level_mm.mean() for r in ok])) if ok else float("inf")
-        return out
-    finally:
-        reconstruction.load_profile = original
+    out = {}
+    for key in cases:
+        runs = [clinic.run_one(simulate_series(t, noise_mm, seed), CASES[key], registrar=registrar) for t in truths]
+        ok = [r for r in runs if r.ok]
+        out[key] = float(np.mean([r.per_level_mm.mean() for r in ok])) if ok else float("inf")
+    return out
 
 
 def grid_scores(

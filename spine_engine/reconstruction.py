@@ -733,18 +733,21 @@ def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
     return blas.limit(limits=1, user_api="blas")
 
 
-def register_model(model: JobPayload, tilt_prior: TiltPrior | None = None) -> RegistrationResult:
+def register_model(
+    model: JobPayload, tilt_prior: TiltPrior | None = None, profile: Profile | None = None
+) -> RegistrationResult:
     """Reconstruct the spine of a validated payload; raise ``FitFailed`` when it does not converge.
-    ``tilt_prior``: as ``prepare_inputs``'s (None: the shipped prior).
+    ``tilt_prior``: as ``prepare_inputs``'s (None: the shipped prior); ``profile``: the rod's profile
+    (None: the one the payload's ``options.profile`` names), for calibrations that score a profile
+    before writing it.
 
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
     with _one_blas_thread():
-        return _register_model(model, tilt_prior)
+        return _register_model(model, tilt_prior, profile or load_profile(model.options.profile))
 
 
-def _register_model(model: JobPayload, tilt_prior: TiltPrior | None) -> RegistrationResult:
-    profile = load_profile(model.options.profile)
+def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Profile) -> RegistrationResult:
     start = time.perf_counter()
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):

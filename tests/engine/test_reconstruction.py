@@ -1,5 +1,6 @@
 """spine_engine.register end to end: contract, invariances, and accuracy on synthetic and real spines."""
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -8,11 +9,13 @@ import numpy as np
 import pytest
 
 from benches.truth import errors, landmark_subset, payload_from_truth, read_verse
+from spine_engine.anatomy import load_profile
 from spine_engine.errors import InvalidInput
 from spine_engine.frames import frames_from_centreline
 from spine_engine.models import RegistrationResult
-from spine_engine.reconstruction import register
+from spine_engine.reconstruction import register, register_model
 from spine_engine.synthetic import generate_spines
+from spine_engine.validation import validate_payload
 
 DATA = Path(__file__).parents[1] / "data"
 ALL = list(range(17))
@@ -146,3 +149,20 @@ def test_projected_arc_scale_counts_the_landmark_polyline() -> None:
     ends = ViewData(name="pa", indices=np.array([0, 16]), points=view.points[[0, 16]], e_c=e_c, e_r=e_r,
                     scale=scale, translation=view.translation, weight=1.0)
     assert projected_arc_scale(rest, ends) == pytest.approx(chord_ratio)
+
+
+def test_a_profile_passed_to_register_model_replaces_the_named_one(spines: list[Any]) -> None:
+    """``register_model(..., profile=P)`` fits with P (the calibrations score unsaved profiles this
+    way): the shipped profile passed explicitly gives the same result as naming it, a profile with
+    its landmark weights divided by 30 (a prior 30 times stronger) a different one."""
+    spine = spines[0]
+    model = validate_payload(payload_from_truth(spine.positions, spine.rotations, ALL, [], boundary=False))
+    named = register_model(model).model_dump(mode="json")
+    shipped = load_profile()
+    passed = register_model(model, profile=shipped).model_dump(mode="json")
+    assert positions_of(passed) == pytest.approx(positions_of(named), abs=1e-12)
+    weak = dataclasses.replace(
+        shipped, fit_weight_pa=shipped.fit_weight_pa / 30, fit_weight_lateral=shipped.fit_weight_lateral / 30
+    )
+    other = register_model(model, profile=weak).model_dump(mode="json")
+    assert np.abs(positions_of(other) - positions_of(named)).max() > 0.01
