@@ -465,6 +465,18 @@ def tilt_training_arrays(rads: list[Radiograph]) -> tuple[np.ndarray, np.ndarray
     return tilts, chords, np.array([r.angles[0] for r in rads])
 
 
+def prior_major_angles(tilts: np.ndarray, chords: np.ndarray, major: np.ndarray, new_chords: np.ndarray) -> np.ndarray:
+    """The tilt prior fitted on (tilts, chords, major) as ``fit_tilt_prior`` fits it (blend chosen by
+    ``choose_blend`` on them), applied to ``new_chords`` (m, 16) alone: the largest difference of its
+    predicted tilts (m,), degrees, as the prior's own cross-validation reads the major angle."""
+    blend, _ = choose_blend(tilts, chords, major, CAL_WINDOW, CAL_PLACEMENT)
+    coefficients = toward_chord_normal(
+        fit_coefficients(tilts, chords, CAL_WINDOW, RIDGE, CAL_PLACEMENT), CAL_WINDOW, CAL_PLACEMENT, blend
+    )
+    predicted = predict_tilts_deg(TiltPrior("cv", CAL_WINDOW, coefficients, 1.0, {}, CAL_PLACEMENT), new_chords)
+    return np.asarray(predicted.max(axis=1) - predicted.min(axis=1))
+
+
 def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) -> TiltPrior:
     """The tilt prior of ``training`` (plausible radiographs, major < 90°): least-squares
     coefficients on the chords of ``CAL_WINDOW`` ("shifted"), blended toward the chord-normal tilt by
@@ -481,13 +493,8 @@ def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) 
     cv_err = np.empty(len(keep))
     for f in range(5):  # the whole procedure, β included, checked on folds it did not see
         train = folds != f
-        b, _ = choose_blend(tilts[train], chords[train], major[train], CAL_WINDOW, CAL_PLACEMENT)
-        fitted = fit_coefficients(tilts[train], chords[train], CAL_WINDOW, RIDGE, CAL_PLACEMENT)
-        prior = TiltPrior(
-            "cv", CAL_WINDOW, toward_chord_normal(fitted, CAL_WINDOW, CAL_PLACEMENT, b), 1.0, {}, CAL_PLACEMENT
-        )
-        predicted = predict_tilts_deg(prior, chords[folds == f])
-        cv_err[folds == f] = predicted.max(axis=1) - predicted.min(axis=1) - major[folds == f]
+        angles = prior_major_angles(tilts[train], chords[train], major[train], chords[folds == f])
+        cv_err[folds == f] = angles - major[folds == f]
     coefficients = toward_chord_normal(
         fit_coefficients(tilts, chords, CAL_WINDOW, RIDGE, CAL_PLACEMENT), CAL_WINDOW, CAL_PLACEMENT, blend
     )

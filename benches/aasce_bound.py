@@ -6,9 +6,9 @@ chords' angles fitted on AASCE 2019 ``training``. This command asks whether a le
 does not have reads the major Cobb angle from the same midpoints better, in k-fold
 cross-validation on ``training`` only (the test split is never read):
 
-* **tilt prior**: the shipped procedure (``aasce.fit_tilt_prior``'s coefficients, its blend toward
-  the chord normal chosen inside the training folds); the angle is the largest difference of its
-  predicted tilts, as in the prior's own cross-validation;
+* **tilt prior**: the shipped procedure (``aasce.prior_major_angles``: ``fit_tilt_prior``'s
+  coefficients, its blend toward the chord normal chosen inside the training folds); the angle is
+  the largest difference of its predicted tilts, as in the prior's own cross-validation;
 * **direct**: the major angle regressed, by least absolute deviations, on the tilt prior's angle
   (itself cross-validated inside the training folds, ``INNER_FOLDS``) and on the range of the chord
   angles smoothed over 1 to ``SMOOTHING_MAX`` chords (the Cobb angle of the midpoints' line at six
@@ -29,18 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from benches.aasce import (
-    CAL_PLACEMENT,
-    CAL_WINDOW,
-    RIDGE,
-    choose_blend,
-    default_data_dir,
-    plausible,
-    read_split,
-    tilt_training_arrays,
-)
+from benches.aasce import default_data_dir, plausible, prior_major_angles, read_split, tilt_training_arrays
 from benches.report import format_table, write_json
-from spine_engine.tilt_prior import TiltPrior, fit_coefficients, predict_tilts_deg, toward_chord_normal
 
 SMOOTHING_MAX = 6
 """The chord angles are smoothed by moving means of 1 to this many chords."""
@@ -49,17 +39,6 @@ INNER_FOLDS = 5
 LAD_ITERATIONS = 50
 LAD_FLOOR_DEG = 0.5
 """Iteratively reweighted least squares for least absolute deviations: weights 1/max(|r|, this)."""
-
-
-def prior_angles(tilts: np.ndarray, chords: np.ndarray, major: np.ndarray, new_chords: np.ndarray) -> np.ndarray:
-    """The tilt prior fitted on (tilts, chords, major) as ``aasce.fit_tilt_prior`` fits it, applied to
-    ``new_chords`` (m, 16): the largest difference of the predicted tilts (m,), degrees."""
-    blend, _ = choose_blend(tilts, chords, major, CAL_WINDOW, CAL_PLACEMENT)
-    coefficients = toward_chord_normal(
-        fit_coefficients(tilts, chords, CAL_WINDOW, RIDGE, CAL_PLACEMENT), CAL_WINDOW, CAL_PLACEMENT, blend
-    )
-    predicted = predict_tilts_deg(TiltPrior("bound", CAL_WINDOW, coefficients, 1.0, {}, CAL_PLACEMENT), new_chords)
-    return np.asarray(predicted.max(axis=1) - predicted.min(axis=1))
 
 
 def chord_ranges(chords: np.ndarray) -> np.ndarray:
@@ -103,9 +82,9 @@ def cross_validated_errors(
         inner_angles = np.empty(len(m))
         for g in range(INNER_FOLDS):
             held = inner == g
-            inner_angles[held] = prior_angles(t[~held], c[~held], m[~held], c[held])
+            inner_angles[held] = prior_major_angles(t[~held], c[~held], m[~held], c[held])
         coefficients = lad_fit(np.column_stack([inner_angles, chord_ranges(c)]), m)
-        angles = prior_angles(t, c, m, chords[test])
+        angles = prior_major_angles(t, c, m, chords[test])
         errors["tilt_prior"][test] = angles - major[test]
         direct = lad_predict(coefficients, np.column_stack([angles, chord_ranges(chords[test])]))
         errors["direct"][test] = direct - major[test]
