@@ -38,7 +38,7 @@ the films calibrated (more information than any of (a)–(e)): E[mean_i |e_i^(f)
 That one is an estimate, not a bound: it uses the engine's shape errors.
 
 ``--seeds N`` draws the films with N noise seeds and pools the figures (``pooled``): one seed's
-spines give the engine's rotation RMS to within about ±20 %, too coarse to judge its ratio to the
+spines give the engine's rotation RMS to within about ±30 %, too coarse to judge its ratio to the
 oracle's SD; each seed's is kept beside the pooled one.
 
 **What case (b)'s lateral film leaves unseen** (its row's ``unseen_top_shape``): the lateral film
@@ -445,7 +445,7 @@ def _pool(values: Sequence[Any]) -> Any:
 def pooled(runs: Sequence[Sequence[dict[str, Any]]]) -> list[dict[str, Any]]:
     """``run``'s rows over several noise seeds, pooled case by case (``_pool``), with each seed's
     engine rotation RMS beside them (``engine_rotation_rms_deg_xyz_by_seed``): one seed's 17 spines
-    give it to within about ±20 %, so a ratio to the oracle's SD is judged on the pooled value."""
+    give it to within about ±30 %, so a ratio to the oracle's SD is judged on the pooled value."""
     rows = []
     for by_seed in zip(*runs, strict=True):
         row = _pool(list(by_seed))
