@@ -68,6 +68,8 @@ DATE = "2026-12-03"
 PLAUSIBLE_CHORD_DEG = 60.0
 """A radiograph whose superior endplate midpoints make a chord steeper than this (or going up) has
 a misplaced landmark (e.g. an L5 annotated at the top of the image): left out of calibration."""
+MAJOR_LIMIT_DEG = 90.0
+"""Training radiographs with a major angle at or above this are left out of calibration (``tunes_the_prior``)."""
 WEIGHT_FRACTIONS = (0.3, 1.0, 3.0, 10.0, 30.0)
 """Candidate weights of the prior's tilts relative to corner tilts, tried on ``training`` (below 0.3 the
 MAE only grows: 3.47° at 0.3 up to 12.6° at 0.001 with the window −2..+1, clipped)."""
@@ -186,6 +188,12 @@ def plausible(rad: Radiograph) -> bool:
     e_c, e_r = image_axes(PA_ORIENTATION)
     mids = 0.5 * (rad.corners[:, 0] + rad.corners[:, 1])
     return bool(np.all(np.abs(chord_angles_deg(mids, e_c, e_r)) <= PLAUSIBLE_CHORD_DEG))
+
+
+def tunes_the_prior(rad: Radiograph) -> bool:
+    """A training radiograph the tilt prior and its Cobb SD are fitted on: ``plausible`` and a major
+    angle below ``MAJOR_LIMIT_DEG``."""
+    return plausible(rad) and rad.angles[0] < MAJOR_LIMIT_DEG
 
 
 # ---------------------------------------------------------------- reconstructions
@@ -484,7 +492,7 @@ def fit_tilt_prior(data: Path, fractions: tuple[float, ...], limit: int | None) 
     fraction chosen through the reconstruction (among the fractions with the fewest failed fits,
     the smallest within ``FRACTION_TIE_DEG`` of the lowest training MAE). Writes nothing."""
     rads = read_split(data / "training")
-    keep = [r for r in rads if plausible(r) and r.angles[0] < 90.0]
+    keep = [r for r in rads if tunes_the_prior(r)]
     tilts, chords, major = tilt_training_arrays(keep)
     blend, blend_scores = choose_blend(tilts, chords, major, CAL_WINDOW, CAL_PLACEMENT)
     print("blend toward the chord normal, prior-only 5-fold CV major MAE: "
@@ -566,7 +574,7 @@ def cobb_sd_on_training(data: Path, limit: int | None) -> tuple[dict[str, float]
     (``reconstruction.MODEL_TILT_ENDS``), covers 95 % of the plausible training radiographs (major <
     90°) whose fit finds a major curve. SD_Laplace is the reported SD with the current term taken
     out, so the result does not depend on it. Writes nothing."""
-    rads = [r for r in read_split(data / "training") if plausible(r) and r.angles[0] < 90.0][:limit]
+    rads = [r for r in read_split(data / "training") if tunes_the_prior(r)][:limit]
     prior = load_tilt_prior()
     sigmas: dict[str, float] = {}
     checks: dict[str, dict[str, float]] = {}
@@ -681,7 +689,7 @@ def cross_validate(
     the in-order radiographs (refused ones excluded, failed fits counted) and over the plausible ones."""
     rads = read_split(data / "training")
     tilts, chords, truth = tilt_training_arrays(rads)
-    fit_on = np.array([plausible(r) and r.angles[0] < 90.0 for r in rads])
+    fit_on = np.array([tunes_the_prior(r) for r in rads])
     scored = np.flatnonzero([in_order(r) for r in rads])
     rows: list[dict[str, Any]] = []
     for variant in variants:

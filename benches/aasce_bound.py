@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from benches.aasce import default_data_dir, plausible, prior_major_angles, read_split, tilt_training_arrays
+from benches.aasce import default_data_dir, prior_major_angles, read_split, tilt_training_arrays, tunes_the_prior
 from benches.report import format_table, write_json
 
 SMOOTHING_MAX = 6
@@ -94,7 +94,7 @@ def cross_validated_errors(
 def run(data: Path, seeds: tuple[int, ...], folds: int) -> dict[str, Any]:
     """Every learner's cross-validated major-angle MAE and bias on ``training``'s plausible
     radiographs (major < 90°), per seed and averaged."""
-    rads = [r for r in read_split(data / "training") if plausible(r) and r.angles[0] < 90.0]
+    rads = [r for r in read_split(data / "training") if tunes_the_prior(r)]
     tilts, chords, major = tilt_training_arrays(rads)
     by_seed = [cross_validated_errors(tilts, chords, major, seed, folds) for seed in seeds]
     learners = {}

@@ -24,9 +24,8 @@ import scipy
 
 from benches.clinic import truths_of_csv
 from benches.clinic_films import CASES, build_payload, simulate_series
-from benches.truth import payload_from_truth, read_verse
+from benches.truth import payload_from_truth
 from spine_engine.fit import RodParameters, ViewData, fit, initial_configuration
-from spine_engine.frames import frames_from_centreline
 from spine_engine.projection import image_axes, project
 from spine_engine.reconstruction import register
 from spine_engine.rod import strains
@@ -196,9 +195,7 @@ def run_register(repeats: int, spines_csv: Path = REAL_SPINES, case: str | None 
     ``case``, the payloads of that clinic case (``clinic_payloads``); also the fit alone as the
     result reports it."""
     if case is None:
-        payloads = [
-            payload_from_truth(r, frames_from_centreline(r), list(range(17))) for _, r in read_verse(spines_csv)
-        ]
+        payloads = [payload_from_truth(t.positions, t.rotations, list(range(17))) for t in truths_of_csv(spines_csv)]
         problem = f"register(), {len(payloads)} real spines, 17 PA"
     else:
         payloads = clinic_payloads(case, spines_csv)

@@ -15,7 +15,8 @@ VerSe dev, AASCE training):
    Cobb SD, which holds λ and c of 3 (step 2 also sets it, before 3 has moved them).
 
 Upstream of these, the rest shape, Y, G (``spine bench calibrate``) and the landmark weight
-(``spine bench noise-weight``) were chosen once by searches and are kept (docs/engine.md).
+(``spine bench noise-weight``) were chosen once by searches and are kept (docs/engine.md); the test
+checks that the weight is still the best of ``noise-weight``'s grid.
 
 Exit code 0 when every step ran; the prior predictive's bands are printed by step 1, whose sagittal
 SDs are wider than the population's by design (docs/accuracy.md).

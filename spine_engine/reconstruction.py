@@ -744,7 +744,7 @@ def register_model(
     BLAS runs on one thread here: the fit's matrices are about 110 × 110, too small to share, and a
     threaded BLAS spinning on both cores made a call 5–6 times dearer in CPU (docs/performance.md)."""
     with _one_blas_thread():
-        return _register_model(model, tilt_prior, profile or load_profile(model.options.profile))
+        return _register_model(model, tilt_prior, load_profile(model.options.profile) if profile is None else profile)
 
 
 def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Profile) -> RegistrationResult:
