@@ -14,9 +14,11 @@ VerSe dev, AASCE training):
 4. the tilt prior's ``cobb_sd_deg`` (``spine bench aasce --calibrate-cobb-sd``): from the reported
    Cobb SD, which holds λ and c of 3 (step 2 also sets it, before 3 has moved them).
 
-Upstream of these, the rest shape, Y, G (``spine bench calibrate``) and the landmark weight
-(``spine bench noise-weight``) were chosen once by searches and are kept (docs/engine.md); the test
-checks that the weight is still the best of ``noise-weight``'s grid.
+Upstream of these, the rest shape and the stretch stiffness (``spine bench calibrate``) and the
+landmark weight (``spine bench noise-weight``) were chosen once by searches and are kept
+(docs/engine.md); the test checks that the rest shape is VerSe dev's mean and that the weight is
+still the best of ``noise-weight``'s grid (``spine bench calibrate --check`` shows where the
+stretch factor sits).
 
 Exit code 0 when every step ran; the prior predictive's bands are printed by step 1, whose sagittal
 SDs are wider than the population's by design (docs/accuracy.md).

@@ -222,10 +222,11 @@ class Profile:
     rest_shape: ``None`` for the normal literature profile (kyphosis/lordosis of healthy controls),
     else a calibrated sagittal rest shape ``{"sagittal_inclination_deg": [17 values, T1 = 0],
     "length_fractions": [16 values summing to 1], "source": ...}``. provenance: where each value
-    comes from. population_prior: ``None`` (bending and stretch stiffness from Y, G and the
-    sections), else the rod's prior calibrated on the population (``PopulationPrior``, written by
-    ``spine bench prior``): it sets the sagittal and frontal bending and the stretch stiffness so
-    that the prior alone predicts the population, and the set-up priors of the fit.
+    comes from. population_prior: ``None`` (every stiffness from Y, G and the sections), else the
+    rod's prior calibrated on the population (``PopulationPrior``, written by ``spine bench prior``):
+    it sets the bending, twist and shear stiffnesses so that the prior alone predicts the
+    population, and the set-up priors of the fit; Y then acts only in the stretch stiffness
+    stretch_factor·Y·A, and G nowhere.
     """
 
     name: str

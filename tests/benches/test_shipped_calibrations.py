@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 
 from benches import aasce, clinic, noise_weight, prior
+from benches.calibrate import mean_sagittal_shape
 from benches.clinic_films import CASES
+from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate, collect
 from spine_engine.anatomy import load_profile
 from spine_engine.fit.uncertainty import calibration
@@ -28,6 +30,16 @@ AASCE = clinic.shared_data_dir("aasce2019")
 needs_aasce = pytest.mark.skipif(
     not (AASCE / "training").is_dir(), reason=f"AASCE 2019 training not found at {AASCE} (tuning data)"
 )
+
+
+def test_rest_shape_is_current() -> None:
+    """``spine bench calibrate``'s first step, VerSe dev's mean sagittal shape, is the shipped rest
+    shape (stored rounded to 4 and 6 decimals, as the step rounds it)."""
+    shipped = load_profile().rest_shape
+    assert shipped is not None
+    today = mean_sagittal_shape(read_verse(VERSE_DEV))
+    assert today["sagittal_inclination_deg"] == shipped["sagittal_inclination_deg"]
+    assert today["length_fractions"] == shipped["length_fractions"]
 
 
 def test_landmark_weight_is_current() -> None:

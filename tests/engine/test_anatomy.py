@@ -136,6 +136,20 @@ def test_default_profile_is_calibrated_with_provenance() -> None:
     np.testing.assert_allclose(rest.alpha[:, 0], expected)
 
 
+def test_with_a_population_prior_only_the_stretch_stiffness_reads_y_and_g_none() -> None:
+    """With a population prior the rod's stiffnesses are the prior's but the stretch's,
+    stretch_factor·Y·A: G changes nothing, and Y and the stretch factor act only as their product
+    (so ``spine bench calibrate`` draws only the stretch factor from such a profile)."""
+    default = load_profile("default")
+    rest = rest_model(default)
+    softer_shear = rest_model(dataclasses.replace(default, shear_modulus_mpa=default.shear_modulus_mpa * 10))
+    traded = rest_model(dataclasses.replace(default, youngs_modulus_mpa=default.youngs_modulus_mpa * 4,
+                                            stretch_factor=default.stretch_factor / 4))  # fmt: skip
+    for other in (softer_shear, traded):
+        np.testing.assert_allclose(other.alpha, rest.alpha, rtol=1e-12)
+        np.testing.assert_allclose(other.beta, rest.beta, rtol=1e-12)
+
+
 def test_profile_rest_shape_is_checked() -> None:
     base = load_profile("literature")
     with pytest.raises(ValueError, match="rest_shape"):
