@@ -10,14 +10,19 @@ trained on spines of the population it is then tested on.
   clinic sends them, ``clinic_films.build_payload`` of case (e): invariant to the film's offset,
   turn and magnification), standardised;
 * targets: the truth's kyphosis T4–T12 and lordosis L1–L5, measured as ``spine bench clinic``
-  measures a truth (``measures.compute_measures`` on the centreline frames);
+  measures a truth (``measures.compute_measures`` on the centreline frames); and, by a second
+  ridge, its depth profile (y_i − y_T1 over the T1–L5 height, 17 values), from which the answer
+  is the truth's frontal curve (x, z) with that depth: its best rotation onto the truth
+  (``clinic.rigid_difference``) is read as the clinic bench reads the engine's spin about the
+  vertical (z) and lean (x);
 * ridge, its penalty chosen by 5-fold cross-validation on the training spines (``RIDGE_GRID``);
 * populations: synthetic spines (``spine_engine.synthetic``), trained on ``--train`` spines drawn
   apart from the benches' (``TRAIN_SEED``) and tested on the clinic bench's synthetic test spines
   (the same films: noise seed ``--seed``) and on ``--held-out`` more (``HELD_OUT_SEED``); VerSe,
   trained on ``dev`` (its 24 spines) and tested on ``test``.
 
-Beside it, the clinic bench's floor (VerSe dev's means, ``clinic.population_means``) and the
+Beside it, the clinic bench's floor (VerSe dev's means, ``clinic.population_means``; for the
+rotation, ``clinic.population_sagittal_answer``, VerSe dev's mean sagittal shape as depth) and the
 training spines' own mean. The learner knows the population it is tested on, which a patient's
 answer cannot; its figure says what the films allow in that population, not what an engine
 calibrated on VerSe dev can reach there. The JSON is ``pa-bound.json``.
@@ -34,7 +39,14 @@ from typing import Any
 
 import numpy as np
 
-from benches.clinic import generated_truths, population_means, synthetic_truths, verse_truths
+from benches.clinic import (
+    generated_truths,
+    population_means,
+    population_sagittal_answer,
+    rigid_difference,
+    synthetic_truths,
+    verse_truths,
+)
 from benches.clinic_films import CASES, FloatArray, Truth, build_payload, simulate_series
 from benches.report import format_table, shared_data_dir, write_json
 from spine_engine.frames import frames_from_centreline
@@ -52,10 +64,27 @@ MEASURES = ("kyphosis_t4_t12", "lordosis_l1_l5")
 
 @dataclass(frozen=True)
 class Films:
-    """Features (n, 16) of the PA films and the truths' measures (n, 2), degrees."""
+    """Features (n, 16) of the PA films, the truths' measures (n, 2), degrees, and positions (n, 17, 3), mm."""
 
     features: FloatArray
     truth: FloatArray
+    positions: FloatArray
+
+    @property
+    def depth(self) -> FloatArray:
+        """(n, 17) each truth's depth y_i − y_T1 over its T1–L5 height z_T1 − z_L5."""
+        p = self.positions
+        return np.asarray((p[:, :, 1] - p[:, :1, 1]) / (p[:, 0, 2] - p[:, -1, 2])[:, None])
+
+    def rotation_rms_deg(self, depth: FloatArray) -> FloatArray:
+        """(3,) RMS over the spines of the rotation vector (degrees, about x, y, z) that best aligns
+        each answer, the truth's (x, z) with ``depth`` (n, 17, over the height) as y, on the truth."""
+        turns = []
+        for p, d in zip(self.positions, depth, strict=True):
+            answer = p.copy()
+            answer[:, 1] = p[0, 1] + d * (p[0, 2] - p[-1, 2])
+            turns.append(rigid_difference(answer, p)[1])
+        return np.sqrt(np.mean(np.square(turns), axis=0))
 
 
 def pa_features(points: FloatArray) -> FloatArray:
@@ -75,7 +104,7 @@ def film(truths: Sequence[Truth], noise_mm: float, seeds: Sequence[int]) -> Film
         features.append(pa_features(points))
         m = compute_measures(t.positions, frames_from_centreline(t.positions))
         truth.append((m.thoracic_kyphosis_t4_t12_deg, m.lumbar_lordosis_l1_l5_deg))
-    return Films(np.array(features), np.array(truth, dtype=float))
+    return Films(np.array(features), np.array(truth, dtype=float), np.array([t.positions for t in truths]))
 
 
 @dataclass(frozen=True)
@@ -116,19 +145,26 @@ def cross_validated_ridge(X: FloatArray, Y: FloatArray, folds: int = 5, seed: in
 
 
 def rows_of(population: str, train: Films, tests: dict[str, Films], floor: FloatArray) -> list[dict[str, Any]]:
-    """MAE of the floor, of the training mean and of the ridge on each test set."""
+    """MAE of the floor, of the training mean and of the ridge on each test set, and the rotation RMS
+    of their depth answers."""
     model = cross_validated_ridge(train.features, train.truth)
+    depth_model = cross_validated_ridge(train.features, train.depth)
     rows = []
     for name, test in tests.items():
-        for estimator, answer in (
-            ("floor (VerSe dev mean)", np.broadcast_to(floor, test.truth.shape)),
-            ("training spines' mean", np.broadcast_to(train.truth.mean(axis=0), test.truth.shape)),
-            (f"ridge on the PA segment lengths (λ {model.penalty:g})", model.predict(test.features)),
+        floor_rotation = np.sqrt(np.mean([rigid_difference(population_sagittal_answer(p), p)[1] ** 2
+                                          for p in test.positions], axis=0))  # fmt: skip
+        for estimator, answer, rotation in (
+            ("floor (VerSe dev mean)", np.broadcast_to(floor, test.truth.shape), floor_rotation),
+            ("training spines' mean", np.broadcast_to(train.truth.mean(axis=0), test.truth.shape),
+             test.rotation_rms_deg(np.broadcast_to(train.depth.mean(axis=0), test.depth.shape))),
+            (f"ridge on the PA segment lengths (λ {model.penalty:g}; depth λ {depth_model.penalty:g})",
+             model.predict(test.features), test.rotation_rms_deg(depth_model.predict(test.features))),
         ):
             mae = np.abs(answer - test.truth).mean(axis=0)
             rows.append({"population": population, "train": len(train.truth), "test": name,
                          "spines": len(test.truth), "estimator": estimator,
-                         **{f"{m}_mae_deg": float(v) for m, v in zip(MEASURES, mae, strict=True)}})
+                         **{f"{m}_mae_deg": float(v) for m, v in zip(MEASURES, mae, strict=True)},
+                         "rotation_rms_deg_xyz": np.round(rotation, 3).tolist()})
     return rows
 
 
@@ -164,9 +200,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     verse = None if ns.no_verse else (ns.data or shared_data_dir("verse"))
     rows = run(ns.train, ns.held_out, ns.noise_mm, ns.seed, verse)
     print(format_table(
-        ["population", "test", "spines", "estimator", "kyphosis MAE", "lordosis MAE"],
+        ["population", "test", "spines", "estimator", "kyphosis MAE", "lordosis MAE", "rotation RMS x/y/z"],
         [[r["population"], r["test"], r["spines"], r["estimator"], r["kyphosis_t4_t12_mae_deg"],
-          r["lordosis_l1_l5_mae_deg"]] for r in rows],
+          r["lordosis_l1_l5_mae_deg"], "/".join(f"{v:.2f}" for v in r["rotation_rms_deg_xyz"])] for r in rows],
     ))
     write_json(ns.out / "pa-bound.json", {"command": "spine bench pa-bound " + " ".join(argv or sys.argv[2:]),
                                          "train": ns.train, "held_out": ns.held_out, "noise_mm": ns.noise_mm,

@@ -48,6 +48,16 @@ def test_ridge_recovers_a_linear_law() -> None:
     assert np.abs(model.predict(X) - Y).max() <= 0.02 * spread
 
 
+def test_the_truths_own_depth_reads_no_turn_and_a_flat_one_reads_its_curves_as_one() -> None:
+    """The depth answer of ``Films.rotation_rms_deg`` is the truth itself for the truth's depth (no
+    rotation); answering no depth at all (a flat spine) turns the alignment, mostly about x and z."""
+    truths = pa_bound.generated_truths(3, 5)
+    films = pa_bound.film(truths, 1.0, [0, 1, 2])
+    np.testing.assert_allclose(films.rotation_rms_deg(films.depth), 0.0, atol=1e-9)
+    flat = films.rotation_rms_deg(np.zeros_like(films.depth))
+    assert flat.max() > 1.0 and flat[1] < max(flat[0], flat[2])
+
+
 def test_command_on_a_few_spines(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     shutil.copy(DATA, tmp_path / "dev.csv")
     (tmp_path / "test.csv").write_text("\n".join(DATA.read_text().splitlines()[:4]) + "\n")
@@ -58,4 +68,5 @@ def test_command_on_a_few_spines(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert tests == {("synthetic", "clinic bench's synthetic test"), ("VerSe", "VerSe test")}
     floor = [r for r in report["rows"] if r["estimator"].startswith("floor")]
     assert all(r["kyphosis_t4_t12_mae_deg"] > 0.0 for r in floor)
+    assert all(len(r["rotation_rms_deg_xyz"]) == 3 for r in report["rows"])
     assert "ridge on the PA segment lengths" in capsys.readouterr().out
