@@ -129,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="score the start profile's stretch factor on a grid of multipliers, write nothing")
     parser.add_argument("--out", type=Path, default=None, help="with --check: folder of calibrate-check.json")
     args = parser.parse_args(argv)
+    if args.out is not None and not args.check:
+        parser.error("--out goes with --check (the search writes a profile, not a JSON)")
     path = (args.data or default_data_dir()) / "dev.csv"
     if not path.is_file():
         print(f"error: VerSe dev split not found at {path} (pass --data or set SPINE_SHARED_DATA)")

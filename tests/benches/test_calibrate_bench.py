@@ -75,3 +75,9 @@ def test_check_scores_the_shipped_stretch_factor_on_both_scores(dev_folder: Path
         assert row["clinic_score_mm"] == pytest.approx(np.mean(list(row["clinic_mm"].values())))
         assert row["paper_score_mm"] == pytest.approx(sum(row["paper_mm"].values()))
     assert data["searched"] == ["stretch_factor"]
+
+
+def test_out_without_check_is_a_usage_error(dev_folder: Path, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as exc:
+        calibrate.main(["--data", str(dev_folder), "--out", str(tmp_path)])
+    assert exc.value.code == 2
