@@ -9,7 +9,7 @@ COMMANDS = {
     "paper": ("benches.paper", "the paper's experiments on 30 synthetic spines"),
     "verse": ("benches.verse", "3D error on real spines from CT (VerSe)"),
     "perf": ("benches.perf", "time single 17-landmark fits"),
-    "calibrate": ("benches.calibrate", "Monte Carlo calibration of Y and G on VerSe dev"),
+    "calibrate": ("benches.calibrate", "rest shape and Monte Carlo over Y, G, stretch (VerSe dev); --check"),
     "aasce": ("benches.aasce", "Cobb angles on real PA radiographs (AASCE 2019): corners, midpoints"),
     "noise-weight": ("benches.noise_weight", "prior strength, noisy landmarks (VerSe dev)"),
     "prior": ("benches.prior", "calibrate the population prior and check its prior predictive"),

@@ -47,8 +47,9 @@ Metrics per spine, then averaged (``summarise``):
 
 ``--seeds N`` runs the convergence sweep instead (``convergence_sweep``): every case, and the
 sweep's extra valid forms (``SWEEP_EXTRA_CASES``), on every spine over N noise seeds; each failure
-(``FitFailed`` or any exception) is listed by data set, spine, case and seed in
-``clinic-sweep-<split>.json`` and a table, and the command exits 1 if there is one.
+(``FitFailed``, a refusal or any exception) is listed by data set, spine, case and seed in
+``clinic-sweep-<split>.json`` and a table, and the command exits 1 if there is one. With
+``--drop-levels`` each payload keeps a random subset of each view's landmarks (``drop_landmarks``).
 
 ``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
 pooled 95 % intervals of positions cover 95 % on dev (``fit.uncertainty``).
@@ -61,6 +62,7 @@ import datetime as dt
 import json
 import sys
 import time
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -466,6 +468,28 @@ def sweep_payload(series: Series, sweep_case: SweepCase) -> dict[str, Any]:
     return payload
 
 
+MIN_KEPT = 3
+"""Fewest landmarks ``drop_landmarks`` keeps in a view."""
+
+
+def drop_landmarks(payload: dict[str, Any], rng: np.random.Generator) -> dict[str, list[str]]:
+    """Keep in each view of ``payload`` (in place) a random subset of its landmarks, at least half of
+    them and at least 3 (``MIN_KEPT``), in their order; returns the levels kept per view. A spine's
+    landmarks with levels left out are as valid as all of them: a film may not show every vertebra."""
+    kept = {}
+    for name in ("pa", "lateral"):
+        view = payload.get(name)
+        if not view:
+            continue
+        n = len(view["landmarks"])
+        size = int(rng.integers(min(n, max(MIN_KEPT, -(-n // 2))), n + 1))
+        keep = np.sort(rng.choice(n, size=size, replace=False))
+        view["landmarks"] = [view["landmarks"][k] for k in keep]
+        kept[name] = [lm["level"] for lm in view["landmarks"]]
+    return kept
+
+
+
 def convergence_sweep(
     datasets: dict[str, list[Truth]],
     cases: Sequence[SweepCase],
@@ -473,10 +497,13 @@ def convergence_sweep(
     noise_mm: float,
     profile: str = "default",
     registrar: Registrar = register,
+    drop_levels: bool = False,
 ) -> dict[str, Any]:
     """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed)``):
     the runs per case and every failure (``FitFailed``, ``InvalidInput`` or any other exception:
-    each payload is valid, so each failure is a defect) with its data set, spine, case and seed."""
+    each payload is valid, so each failure is a defect) with its data set, spine, case and seed.
+    ``drop_levels``: each payload keeps a random subset of each view's landmarks (``drop_landmarks``,
+    drawn from the seed, the spine and the case), listed with a failure."""
     failures: list[dict[str, Any]] = []
     per_case: dict[str, dict[str, Any]] = {
         sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0} for sc in cases
@@ -488,6 +515,8 @@ def convergence_sweep(
                 for sc in cases:
                     payload = sweep_payload(series, sc)
                     payload.setdefault("options", {})["profile"] = profile
+                    draw = np.random.default_rng([seed, zlib.crc32(truth.spine_id.encode()), *sc.case.key.encode()])
+                    kept = drop_landmarks(payload, draw) if drop_levels else None
                     row = per_case[sc.case.key]
                     row["runs"] += 1
                     try:
@@ -496,12 +525,13 @@ def convergence_sweep(
                         row["failures"] += 1
                         failures.append({
                             "dataset": name, "spine": truth.spine_id, "case": sc.case.key, "seed": seed,
-                            "error": f"{type(exc).__name__}: {exc}"[:300],
+                            "error": f"{type(exc).__name__}: {exc}"[:300], **({"levels": kept} if kept else {}),
                         })  # fmt: skip
                         continue
                     row["max_iterations"] = max(row["max_iterations"], int(result["fit"]["iterations"]))
     runs = sum(r["runs"] for r in per_case.values())
-    return {"seeds": list(seeds), "runs": runs, "failed": len(failures), "per_case": per_case, "failures": failures}
+    return {"seeds": list(seeds), "drop_levels": drop_levels, "runs": runs, "failed": len(failures),
+            "per_case": per_case, "failures": failures}
 
 
 def sweep_table(sweep: dict[str, Any]) -> str:
@@ -668,6 +698,9 @@ def main(argv: list[str] | None = None) -> int:
         help="convergence sweep: run every case (and the sweep's extra forms, SWEEP_EXTRA_CASES) over N noise "
         "seeds from --seed on, report each failure; exit code 1 if any",
     )
+    parser.add_argument("--drop-levels", action="store_true",
+                        help="with --seeds: each payload keeps a random subset of each view's landmarks "
+                             "(at least half, at least 3)")
     parser.add_argument("--profile", default="default")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
@@ -741,7 +774,7 @@ def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list
     extra = [sc for sc in SWEEP_EXTRA_CASES if sc.case.key[0] in args.cases]
     sweep = convergence_sweep(
         datasets, [SweepCase(c) for c in cases] + extra, range(args.seed, args.seed + args.seeds), args.noise_mm,
-        args.profile,
+        args.profile, drop_levels=args.drop_levels,
     )
     report = {"command": command, "noise_mm": args.noise_mm, "profile": args.profile,
               "seconds": round(time.perf_counter() - start, 1), **sweep}  # fmt: skip

@@ -55,3 +55,31 @@ def test_sweep_reports_failures_per_case_and_seed() -> None:
         ("verse127", "a", 4, "RuntimeError: boom"), ("verse127", "a", 5, "RuntimeError: boom"),
     ]
     assert "failures (2 of 2 runs)" in clinic.sweep_table(sweep)
+
+
+def test_spines_with_levels_left_out_are_taken_at_two_and_three_mm() -> None:
+    """``--drop-levels``: verse097 leans its upper thoracic spine far out of the PA film (T1–T2 and
+    T2–T3 8 mm on the projection); with levels left out and 2 mm of noise (seed 2) its films read
+    T1–T2 at 0.21 × the median spacing, and with 3 mm (seed 2) 0.15 ×. Each of the sweep's
+    payloads is a real spine's: none is refused, none fails."""
+    dev = [Truth(sid, pos, frames_from_centreline(pos)) for sid, pos in read_verse(VERSE_DEV) if sid == "verse097"]
+    cases = [clinic.SweepCase(c) for c in CASES.values()] + list(clinic.SWEEP_EXTRA_CASES)
+    for noise_mm in (2.0, 3.0):
+        sweep = clinic.convergence_sweep({"verse-dev": dev}, cases, [2], noise_mm=noise_mm, drop_levels=True)
+        assert sweep["runs"] == len(cases) and sweep["drop_levels"]
+        assert sweep["failures"] == [], clinic.sweep_table(sweep)
+
+
+def test_drop_landmarks_keeps_at_least_half_and_three_in_order() -> None:
+    levels = [f"L{i}" for i in range(17)]
+    for seed in range(50):
+        payload = {"pa": {"landmarks": [{"level": lv} for lv in levels]},
+                   "lateral": {"landmarks": [{"level": lv} for lv in levels[:4]]}}  # fmt: skip
+        kept = clinic.drop_landmarks(payload, np.random.default_rng(seed))
+        assert 9 <= len(kept["pa"]) <= 17 and 3 <= len(kept["lateral"]) <= 4
+        for name, view in payload.items():
+            assert [lm["level"] for lm in view["landmarks"]] == kept[name]
+            assert kept[name] == sorted(kept[name], key=levels.index)
+    first, again = ({"pa": {"landmarks": [{"level": lv} for lv in levels]}} for _ in range(2))
+    kept_first = clinic.drop_landmarks(first, np.random.default_rng(7))
+    assert kept_first == clinic.drop_landmarks(again, np.random.default_rng(7))

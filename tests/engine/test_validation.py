@@ -260,6 +260,27 @@ def test_two_labels_on_one_vertebra_are_refused_whatever_the_scale() -> None:
     assert (path, kind) == ("pa.landmarks[16]", "implausible_distance") and "L4 and L5" in msg
 
 
+def test_a_short_projected_segment_within_its_noise_is_not_refused() -> None:
+    """VerSe dev's verse097 leans its upper thoracic spine far out of the film: T2–T3 is 8.0 mm on
+    the PA projection against 18.8 mm in 3D. At magnification 1.1 with 1 mm of landmark noise the pair
+    may read up to 3√2 mm shorter: 4.8 mm, 0.23 × the spine's median spacing, is a real spine's film
+    (the scale-free check refused it when it ignored the noise), also in pixels before its header's
+    spacing is known; T2 on T3 (0.5 mm) is still refused."""
+    positions = dict(read_verse(VERSE_DEV))["verse097"]
+    points = {lv: [1.1 * float(r[0]), -1.1 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
+    t2, t3 = np.array(points["T2"]), np.array(points["T3"])
+    film = float(np.linalg.norm(t3 - t2))
+    assert 8.5 < film < 9.0
+    shorter = t2 + (t3 - t2) * (film - 0.95 * 3 * np.sqrt(2.0)) / film
+    validate_payload({"pa": _view({**points, "T3": shorter.tolist()})})
+    on_t3 = t2 + (t3 - t2) * 0.5 / film
+    [(path, kind, msg)] = errors_of({"pa": _view({**points, "T3": on_t3.tolist()})})
+    assert (path, kind) == ("pa.landmarks[2]", "implausible_distance") and "T2 and T3" in msg
+    # the same film by reference, in 0.15 mm pixels checked with the API's stand-in spacing of 1 mm
+    px = {lv: [c / 0.15 for c in p] for lv, p in {**points, "T3": shorter.tolist()}.items()}
+    validate_payload({"pa": _view(px, units="px", pixel_spacing=[1.0, 1.0])}, unscaled_views=("pa",))
+
+
 def test_distance_bounds_come_from_verse_dev() -> None:
     """MEAN_SEGMENT_MM and VERSE_DISTANCE_RATIO recomputed from tests/data/verse_dev.csv."""
     spines = np.array([p for _, p in read_verse(VERSE_DEV)])
