@@ -489,7 +489,6 @@ def drop_landmarks(payload: dict[str, Any], rng: np.random.Generator) -> dict[st
     return kept
 
 
-
 def convergence_sweep(
     datasets: dict[str, list[Truth]],
     cases: Sequence[SweepCase],
@@ -515,8 +514,10 @@ def convergence_sweep(
                 for sc in cases:
                     payload = sweep_payload(series, sc)
                     payload.setdefault("options", {})["profile"] = profile
-                    draw = np.random.default_rng([seed, zlib.crc32(truth.spine_id.encode()), *sc.case.key.encode()])
-                    kept = drop_landmarks(payload, draw) if drop_levels else None
+                    kept = None
+                    if drop_levels:
+                        draw = np.random.default_rng([seed, zlib.crc32(truth.spine_id.encode()), *sc.case.key.encode()])
+                        kept = drop_landmarks(payload, draw)
                     row = per_case[sc.case.key]
                     row["runs"] += 1
                     try:
