@@ -62,17 +62,25 @@ def _reference_row(landmark: dict[str, Any]) -> float | None:
     return None
 
 
-def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
+def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """On an upright view (rows toward F or H) the levels must follow each other head to feet.
 
-    A vertebra drawn above the one cranial to it is an annotation error (swapped or misplaced
-    landmarks) that no spine can have; it is refused rather than reconstructed into nonsense.
-    Locations use the payload's own indices.
+    A vertebra drawn above the one cranial to it, by more than its landmarks' noise allows
+    (``NOISE_SDS``·√2·σ, σ the view's landmark SD, in rows through the view's row spacing), is an
+    annotation error (swapped or misplaced landmarks) that no spine can have; it is refused rather
+    than reconstructed into nonsense. Within the noise it is a real spine's film: a segment leaning
+    far out of the film (VerSe dev's verse097, T1–T2 8 mm high on the PA) reads reversed under 3 mm
+    of noise. Without a known row spacing (px without one, or ``scaled`` False: a stand-in spacing
+    until the header is read) the order is held strictly. Locations use the payload's own indices.
     """
     row_direction = view.patient_orientation[1]
     if row_direction not in _UPRIGHT_ROWS or not isinstance(raw, dict) or not isinstance(raw.get("landmarks"), list):
         return []
     toward_feet = 1.0 if row_direction == "F" else -1.0
+    allowance = 0.0
+    if scaled and (view.units == "mm" or view.pixel_spacing is not None):
+        sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+        allowance = NOISE_SDS * math.sqrt(2.0) * sigma / _mm_per_unit(view)[1]
     placed = sorted(
         (LEVEL_INDEX[lm["level"]], i, row)
         for i, lm in enumerate(raw["landmarks"])
@@ -80,12 +88,14 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any) -> list[Field
     )
     errors = []
     for (_, _, upper_row), (lower, i, lower_row) in itertools.pairwise(placed):
-        if (lower_row - upper_row) * toward_feet <= 0:
+        step = (lower_row - upper_row) * toward_feet
+        if step < -allowance or (allowance == 0.0 and step == 0.0):
+            noise = f" by more than its landmarks' noise allows ({allowance:g} rows)" if allowance else ""
             errors.append(
                 FieldError(
                     (name, "landmarks", i),
-                    f"level {LEVELS[lower]} (row {lower_row:g}) is not below the level above it (row {upper_row:g}): "
-                    f"on an image whose rows run toward {row_direction}, landmarks must run head to feet",
+                    f"level {LEVELS[lower]} (row {lower_row:g}) is not below the level above it (row {upper_row:g})"
+                    f"{noise}: on an image whose rows run toward {row_direction}, landmarks must run head to feet",
                     "landmarks_out_of_order",
                 )
             )
@@ -205,8 +215,9 @@ SPACING_RATIO = (0.25, 2.5)
 median q of the view's pairs. VerSe dev's within-spine extremes are 0.41–1.21 on the PA projection
 and 0.80–1.20 on the lateral, synthetic severe curves (``spine_engine.synthetic``, Cobb up to 80°)
 reach 0.51–1.30 on the lateral, and the AASCE 2019 training radiographs' well-formed annotations
-0.36–1.82 (clicked corners, cropped films); widened beyond all three. Below it are two labels on
-one vertebra (three AASCE annotations: 0.03–0.07)."""
+0.36–1.82 (clicked corners, cropped films); widened beyond all three, so the bounds hold landmarks
+clicked about 1 mm off (``LANDMARK_SD_MM_DEFAULT``; a larger stated noise widens them,
+``_distance_errors``). Below it are two labels on one vertebra (three AASCE annotations: 0.03–0.07)."""
 
 
 def _mm_per_unit(view: PAView | LateralView) -> Point:
@@ -259,15 +270,17 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
     millimetres may be nominal (e.g. a spacing spread over a cassette's height when the image has
     none), so with three or more landmarked levels the pairs are also compared with each other:
     q = d / A_ij over the median q of the view's pairs must lie within ``SPACING_RATIO`` for some
-    distance within the noise allowance n of d: refused when (d + n)/A_ij < SPACING_RATIO[0]·median or
-    (d − n)/A_ij > SPACING_RATIO[1]·median (a segment leaning far out of the film, VerSe dev's
-    upper thoracic 8 mm on the PA against 19 mm of arc, reads at 1 mm of noise as 4.5 mm: 0.21 ×
-    without the allowance). A label on the wrong vertebra (a click meant as L5 labelled T2) breaks
-    both checks whatever the scale, and two labels on one vertebra the scale-free one.
+    distance within e of d: refused when (d + e)/A_ij < SPACING_RATIO[0]·median or
+    (d − e)/A_ij > SPACING_RATIO[1]·median. The ratio's bounds hold clicks of the default 1 mm
+    (``SPACING_RATIO``), so e allows for the stated noise beyond it, e = NOISE_SDS·√(2(σ² − 1 mm²)):
+    a segment leaning far out of the film (VerSe dev's verse097, upper thoracic 8 mm on the PA
+    against 19 mm of arc) reads under 2–3 mm of noise below a quarter of the median. A label on the
+    wrong vertebra (a click meant as L5 labelled T2) breaks both checks whatever the scale, and two
+    labels on one vertebra the scale-free one.
     The error names both levels, at the lower level's landmark. Locations use the payload's indices.
     ``scaled`` False (a stand-in spacing until the image's header is read): the scale-free check only,
-    its n in the view's units taken at the smallest magnification of ``MAGNIFICATION_RANGE``
-    (n · median / 0.9: the median q is film mm per patient mm over the unknown spacing).
+    its e in the view's units taken at the smallest magnification of ``MAGNIFICATION_RANGE``
+    (e · median / 0.9: the median q is film mm per patient mm over the unknown spacing).
     """
     raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
     if not isinstance(raw_landmarks, list):
@@ -293,9 +306,10 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
         for (i, p), (j, q) in itertools.pairwise(zip(levels, points, strict=True))
     ]
     median = statistics.median(d / a for _, _, d, a in pairs) if len(pairs) >= 2 else None
-    # in a stand-in spacing's units: n mm over the film mm per unit, which the median spacing gives at
+    excess = NOISE_SDS * math.sqrt(2.0 * max(sigma**2 - LANDMARK_SD_MM_DEFAULT**2, 0.0))
+    # in a stand-in spacing's units: mm over the film mm per unit, which the median spacing gives at
     # the smallest magnification (the most lenient reading)
-    n_units = noise if scaled or median is None else noise * median / MAGNIFICATION_RANGE[0]
+    n_units = excess if scaled or median is None else excess * median / MAGNIFICATION_RANGE[0]
     errors = []
     for i, j, d, a in pairs:
         upper, lower = LEVELS[i], LEVELS[j]
@@ -311,9 +325,9 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
                       f"{m_min:.3g}")
         elif (median is not None and median > 0.0
               and ((d + n_units) / a / median < SPACING_RATIO[0] or (d - n_units) / a / median > SPACING_RATIO[1])):
+            stated = f", give or take {excess:.1f} mm for the stated landmark noise" if excess else ""
             reason = (f"are {d / a / median:.2f} times as far apart as the other landmarks' spacing predicts; no "
-                      f"spine's spacing varies that much (allowed {SPACING_RATIO[0]:g}–{SPACING_RATIO[1]:g}, "
-                      f"give or take {noise:.1f} mm of landmark noise)")
+                      f"spine's spacing varies that much (allowed {SPACING_RATIO[0]:g}–{SPACING_RATIO[1]:g}{stated})")
         if reason is not None:
             errors.append(
                 FieldError(
@@ -401,11 +415,12 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
         ) from None
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
     errors = _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
-    errors += _order_errors("pa", model.pa, payload.get("pa")) + _corner_errors("pa", payload.get("pa"))
+    errors += _order_errors("pa", model.pa, payload.get("pa"), "pa" not in unscaled_views)
+    errors += _corner_errors("pa", payload.get("pa"))
     if model.lateral is not None:
         errors += _view_errors("lateral", model.lateral, exact)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
-        errors += _order_errors("lateral", model.lateral, payload.get("lateral"))
+        errors += _order_errors("lateral", model.lateral, payload.get("lateral"), "lateral" not in unscaled_views)
         errors += _corner_errors("lateral", payload.get("lateral"))
     if not errors:  # distances need the spacing and well-formed landmarks
         for name, view in (("pa", model.pa), ("lateral", model.lateral)):

@@ -262,23 +262,40 @@ def test_two_labels_on_one_vertebra_are_refused_whatever_the_scale() -> None:
 
 def test_a_short_projected_segment_within_its_noise_is_not_refused() -> None:
     """VerSe dev's verse097 leans its upper thoracic spine far out of the film: T2–T3 is 8.0 mm on
-    the PA projection against 18.8 mm in 3D. At magnification 1.1 with 1 mm of landmark noise the pair
-    may read up to 3√2 mm shorter: 4.8 mm, 0.23 × the spine's median spacing, is a real spine's film
-    (the scale-free check refused it when it ignored the noise), also in pixels before its header's
-    spacing is known; T2 on T3 (0.5 mm) is still refused."""
+    the PA projection against 18.8 mm in 3D. At magnification 1.1 with 2 mm of landmark noise stated,
+    the pair may read 3√(2(2² − 1²)) = 7.3 mm shorter than the 1 mm clicks the ratio's bounds hold:
+    2.0 mm, 0.1 × the spine's median spacing, is a real spine's film (refused while the check ignored
+    the stated noise), also in pixels before its header's spacing is known. At the default 1 mm the
+    same film is refused (two labels on one vertebra: the test above)."""
     positions = dict(read_verse(VERSE_DEV))["verse097"]
     points = {lv: [1.1 * float(r[0]), -1.1 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
     t2, t3 = np.array(points["T2"]), np.array(points["T3"])
     film = float(np.linalg.norm(t3 - t2))
     assert 8.5 < film < 9.0
-    shorter = t2 + (t3 - t2) * (film - 0.95 * 3 * np.sqrt(2.0)) / film
-    validate_payload({"pa": _view({**points, "T3": shorter.tolist()})})
-    on_t3 = t2 + (t3 - t2) * 0.5 / film
-    [(path, kind, msg)] = errors_of({"pa": _view({**points, "T3": on_t3.tolist()})})
-    assert (path, kind) == ("pa.landmarks[2]", "implausible_distance") and "T2 and T3" in msg
+    shorter = {**points, "T3": (t2 + (t3 - t2) * 2.0 / film).tolist()}
+    validate_payload({"pa": _view(shorter, landmark_sd_mm=2.0)})
     # the same film by reference, in 0.15 mm pixels checked with the API's stand-in spacing of 1 mm
-    px = {lv: [c / 0.15 for c in p] for lv, p in {**points, "T3": shorter.tolist()}.items()}
-    validate_payload({"pa": _view(px, units="px", pixel_spacing=[1.0, 1.0])}, unscaled_views=("pa",))
+    px = {lv: [c / 0.15 for c in p] for lv, p in shorter.items()}
+    by_reference = _view(px, units="px", pixel_spacing=[1.0, 1.0], landmark_sd_mm=2.0)
+    validate_payload({"pa": by_reference}, unscaled_views=("pa",))
+    [(path, kind, msg)] = errors_of({"pa": _view(shorter)})
+    assert (path, kind) == ("pa.landmarks[2]", "implausible_distance") and "T2 and T3" in msg
+
+
+def test_a_reversal_within_the_stated_noise_is_not_refused() -> None:
+    """verse097's T1–T2 is 8.8 mm high on a PA at magnification 1.1; with 3 mm of landmark noise
+    stated, T2 drawn 2.7 mm above T1 is within the noise (3√2·3 = 12.7 mm) and the film is taken; at
+    the default 1 mm (4.2 mm allowed) 5 mm above is refused, naming T2, and so are swapped labels."""
+    positions = dict(read_verse(VERSE_DEV))["verse097"]
+    points = {lv: [1.1 * float(r[0]), -1.1 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
+    points = {lv: [p[0], p[1] - points["T1"][1] + 100.0] for lv, p in points.items()}  # rows toward F from 100
+    t1_row = points["T1"][1]
+    assert 8.5 < points["T2"][1] - t1_row < 9.0
+    validate_payload({"pa": _view({**points, "T2": [points["T2"][0], t1_row - 2.7]}, landmark_sd_mm=3.0)})
+    [(path, kind, msg)] = errors_of({"pa": _view({**points, "T2": [points["T2"][0], t1_row - 5.0]})})
+    assert (path, kind) == ("pa.landmarks[1]", "landmarks_out_of_order") and "level T2" in msg and "noise" in msg
+    swapped = {**points, "T1": points["T2"], "T2": points["T1"]}
+    assert ("pa.landmarks[1]", "landmarks_out_of_order") in [e[:2] for e in errors_of({"pa": _view(swapped)})]
 
 
 def test_distance_bounds_come_from_verse_dev() -> None:
