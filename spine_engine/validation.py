@@ -16,6 +16,7 @@ _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corner
 
 _UPRIGHT_ROWS = ("H", "F")
 _FRONTAL_COLUMNS = ("L", "R")
+Point = tuple[float, float]
 
 
 def _clean_loc(loc: tuple[Any, ...], kind: str = "") -> tuple[str | int, ...]:
@@ -53,12 +54,14 @@ def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> li
     return errors
 
 
-def _reference_row(landmark: dict[str, Any]) -> float | None:
-    """Image row of a raw landmark's top endplate midpoint: its point, or the mean of its top corners."""
+def _reference_point(landmark: dict[str, Any]) -> Point | None:
+    """Image (column, row) of a raw landmark's top endplate midpoint: its point, or the mean of its
+    top corners."""
     if landmark.get("point") is not None:
-        return float(landmark["point"][1])
+        return float(landmark["point"][0]), float(landmark["point"][1])
     if landmark.get("corners") is not None:
-        return 0.5 * (float(landmark["corners"][0][1]) + float(landmark["corners"][1][1]))
+        (c0, r0), (c1, r1) = landmark["corners"][0], landmark["corners"][1]
+        return 0.5 * (float(c0) + float(c1)), 0.5 * (float(r0) + float(r1))
     return None
 
 
@@ -70,24 +73,31 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     annotation error (swapped or misplaced landmarks) that no spine can have; it is refused rather
     than reconstructed into nonsense. Within the noise it is a real spine's film: a segment leaning
     far out of the film (VerSe dev's verse097, T1–T2 8 mm high on the PA) reads reversed under 3 mm
-    of noise. Without a known row spacing (px without one, or ``scaled`` False: a stand-in spacing
-    until the header is read) the order is held strictly. Locations use the payload's own indices.
+    of noise. With ``scaled`` False (a stand-in spacing until the header is read) the allowance is
+    taken in the view's units as the scale-free distance check takes it (the median spacing over
+    VerSe dev's mean arcs at the smallest magnification); px without a spacing (refused apart) and
+    fewer than three levels without a scale are held strictly. Locations use the payload's own
+    indices.
     """
     row_direction = view.patient_orientation[1]
     if row_direction not in _UPRIGHT_ROWS or not isinstance(raw, dict) or not isinstance(raw.get("landmarks"), list):
         return []
     toward_feet = 1.0 if row_direction == "F" else -1.0
+    placed = sorted(
+        (LEVEL_INDEX[lm["level"]], i, point)
+        for i, lm in enumerate(raw["landmarks"])
+        if (point := _reference_point(lm)) is not None
+    )
+    noise_mm = NOISE_SDS * math.sqrt(2.0) * (view.landmark_sd_mm or LANDMARK_SD_MM_DEFAULT)
     allowance = 0.0
     if scaled and (view.units == "mm" or view.pixel_spacing is not None):
-        sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
-        allowance = NOISE_SDS * math.sqrt(2.0) * sigma / _mm_per_unit(view)[1]
-    placed = sorted(
-        (LEVEL_INDEX[lm["level"]], i, row)
-        for i, lm in enumerate(raw["landmarks"])
-        if (row := _reference_row(lm)) is not None
-    )
+        allowance = noise_mm / _mm_per_unit(view)[1]
+    elif not scaled and len(placed) >= 3:
+        spacing = statistics.median(math.dist(p, q) / (_ARC[j] - _ARC[i]) for (i, _, p), (j, _, q) in
+                                    itertools.pairwise(placed))  # fmt: skip
+        allowance = noise_mm * spacing / MAGNIFICATION_RANGE[0]
     errors = []
-    for (_, _, upper_row), (lower, i, lower_row) in itertools.pairwise(placed):
+    for (_, _, (_, upper_row)), (lower, i, (_, lower_row)) in itertools.pairwise(placed):
         step = (lower_row - upper_row) * toward_feet
         if step < -allowance or (allowance == 0.0 and step == 0.0):
             noise = f" by more than its landmarks' noise allows ({allowance:g} rows)" if allowance else ""
@@ -135,9 +145,6 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
                 )
             )
     return errors
-
-
-Point = tuple[float, float]
 
 
 def _minus(a: Point, b: Point) -> Point:

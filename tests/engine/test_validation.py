@@ -285,7 +285,8 @@ def test_a_short_projected_segment_within_its_noise_is_not_refused() -> None:
 def test_a_reversal_within_the_stated_noise_is_not_refused() -> None:
     """verse097's T1–T2 is 8.8 mm high on a PA at magnification 1.1; with 3 mm of landmark noise
     stated, T2 drawn 2.7 mm above T1 is within the noise (3√2·3 = 12.7 mm) and the film is taken; at
-    the default 1 mm (4.2 mm allowed) 5 mm above is refused, naming T2, and so are swapped labels."""
+    the default 1 mm (4.2 mm allowed) 5 mm above is refused, naming T2, and so are swapped labels;
+    the same in pixels before the header's spacing is known (the API's stand-in spacing)."""
     positions = dict(read_verse(VERSE_DEV))["verse097"]
     points = {lv: [1.1 * float(r[0]), -1.1 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
     points = {lv: [p[0], p[1] - points["T1"][1] + 100.0] for lv, p in points.items()}  # rows toward F from 100
@@ -296,6 +297,15 @@ def test_a_reversal_within_the_stated_noise_is_not_refused() -> None:
     assert (path, kind) == ("pa.landmarks[1]", "landmarks_out_of_order") and "level T2" in msg and "noise" in msg
     swapped = {**points, "T1": points["T2"], "T2": points["T1"]}
     assert ("pa.landmarks[1]", "landmarks_out_of_order") in [e[:2] for e in errors_of({"pa": _view(swapped)})]
+    # by reference, in 0.15 mm pixels under the API's stand-in spacing: the same allowance in pixels
+    reversed_t2 = {**points, "T2": [points["T2"][0], t1_row - 2.7]}
+    px = {lv: [c / 0.15 for c in p] for lv, p in reversed_t2.items()}
+    by_reference = _view(px, units="px", pixel_spacing=[1.0, 1.0], landmark_sd_mm=3.0)
+    validate_payload({"pa": by_reference}, unscaled_views=("pa",))
+    swapped_px = {lv: [c / 0.15 for c in p] for lv, p in swapped.items()}
+    with pytest.raises(InvalidInput) as info:
+        validate_payload({"pa": _view(swapped_px, units="px", pixel_spacing=[1.0, 1.0])}, unscaled_views=("pa",))
+    assert ("pa.landmarks[1]", "landmarks_out_of_order") in [(e.path, e.type) for e in info.value.errors]
 
 
 def test_distance_bounds_come_from_verse_dev() -> None:
