@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput
 from .levels import LEVEL_INDEX, LEVELS
-from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, LateralView, PAView
+from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, Landmark, LateralView, PAView
 
 _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
 """Errors raised by a model validator on a whole landmark, and the field their location names."""
@@ -54,15 +54,28 @@ def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> li
     return errors
 
 
-def _reference_point(landmark: dict[str, Any]) -> Point | None:
-    """Image (column, row) of a raw landmark's top endplate midpoint: its point, or the mean of its
-    top corners."""
-    if landmark.get("point") is not None:
-        return float(landmark["point"][0]), float(landmark["point"][1])
-    if landmark.get("corners") is not None:
-        (c0, r0), (c1, r1) = landmark["corners"][0], landmark["corners"][1]
-        return 0.5 * (float(c0) + float(c1)), 0.5 * (float(r0) + float(r1))
-    return None
+def _top_midpoint(landmark: Landmark) -> Point:
+    """Image (column, row) of a landmark's top endplate midpoint: its point, or the mean of its top
+    corners (the model requires one of the two)."""
+    if landmark.point is not None:
+        return float(landmark.point[0]), float(landmark.point[1])
+    assert landmark.corners is not None
+    (c0, r0), (c1, r1) = landmark.corners[0], landmark.corners[1]
+    return 0.5 * (c0 + c1), 0.5 * (r0 + r1)
+
+
+def _payload_index(raw: Any) -> dict[Any, int] | None:
+    """Each level's index in the payload's own landmark list (errors name it), or None when the view
+    has no list."""
+    landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
+    if not isinstance(landmarks, list):
+        return None
+    return {lm.get("level"): i for i, lm in enumerate(landmarks) if isinstance(lm, dict)}
+
+
+def _landmark_sd_mm(view: PAView | LateralView) -> float:
+    """σ, detector mm: the view's ``landmark_sd_mm`` or the default."""
+    return view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
 
 
 def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
@@ -80,30 +93,26 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     indices.
     """
     row_direction = view.patient_orientation[1]
-    if row_direction not in _UPRIGHT_ROWS or not isinstance(raw, dict) or not isinstance(raw.get("landmarks"), list):
+    index = _payload_index(raw)
+    if row_direction not in _UPRIGHT_ROWS or index is None:
         return []
     toward_feet = 1.0 if row_direction == "F" else -1.0
-    placed = sorted(
-        (LEVEL_INDEX[lm["level"]], i, point)
-        for i, lm in enumerate(raw["landmarks"])
-        if (point := _reference_point(lm)) is not None
-    )
-    noise_mm = NOISE_SDS * math.sqrt(2.0) * (view.landmark_sd_mm or LANDMARK_SD_MM_DEFAULT)
+    levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
+    points = [_top_midpoint(lm) for lm in view.landmarks]
+    noise_mm = NOISE_SDS * math.sqrt(2.0) * _landmark_sd_mm(view)
     allowance = 0.0
     if scaled and (view.units == "mm" or view.pixel_spacing is not None):
         allowance = noise_mm / _mm_per_unit(view)[1]
-    elif not scaled and len(placed) >= 3:
-        spacing = statistics.median(math.dist(p, q) / (_ARC[j] - _ARC[i]) for (i, _, p), (j, _, q) in
-                                    itertools.pairwise(placed))  # fmt: skip
-        allowance = noise_mm * spacing / MAGNIFICATION_RANGE[0]
+    elif not scaled and (spacing := _median_spacing(_consecutive_pairs(levels, points))) is not None:
+        allowance = _in_stand_in_units(noise_mm, spacing)
     errors = []
-    for (_, _, (_, upper_row)), (lower, i, (_, lower_row)) in itertools.pairwise(placed):
+    for (_, (_, upper_row)), (lower, (_, lower_row)) in itertools.pairwise(zip(levels, points, strict=True)):
         step = (lower_row - upper_row) * toward_feet
         if step < -allowance or (allowance == 0.0 and step == 0.0):
             noise = f" by more than its landmarks' noise allows ({allowance:g} rows)" if allowance else ""
             errors.append(
                 FieldError(
-                    (name, "landmarks", i),
+                    (name, "landmarks", index.get(LEVELS[lower], 0)),
                     f"level {LEVELS[lower]} (row {lower_row:g}) is not below the level above it (row {upper_row:g})"
                     f"{noise}: on an image whose rows run toward {row_direction}, landmarks must run head to feet",
                     "landmarks_out_of_order",
@@ -256,6 +265,26 @@ def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
     return known * (1.0 - MAGNIFICATION_SPREAD), known * (1.0 + MAGNIFICATION_SPREAD)
 
 
+def _consecutive_pairs(levels: list[int], points: list[Point]) -> list[tuple[int, int, float, float]]:
+    """(i, j, d, A_ij) of each two consecutive landmarked levels i < j: their distance d in the
+    points' units and VerSe dev's mean arc A_ij between them (mm)."""
+    return [(i, j, math.dist(p, q), _ARC[j] - _ARC[i]) for (i, p), (j, q) in
+            itertools.pairwise(zip(levels, points, strict=True))]  # fmt: skip
+
+
+def _median_spacing(pairs: list[tuple[int, int, float, float]]) -> float | None:
+    """The view's spacing q: the median of d / A_ij over its pairs (units per patient mm of arc), None
+    below two pairs."""
+    return statistics.median(d / a for _, _, d, a in pairs) if len(pairs) >= 2 else None
+
+
+def _in_stand_in_units(mm: float, spacing: float) -> float:
+    """``mm`` of film in the units of a stand-in spacing (until the header is read), read through the
+    view's median spacing at the smallest magnification of ``MAGNIFICATION_RANGE`` (the most lenient
+    reading): mm · q / 0.9."""
+    return mm * spacing / MAGNIFICATION_RANGE[0]
+
+
 def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """Distances between consecutive landmarked levels i < j (k = j − i apart; each landmark's
     top-endplate midpoint: its point, or the mean of its top corners) that no spine has.
@@ -289,34 +318,20 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
     its e in the view's units taken at the smallest magnification of ``MAGNIFICATION_RANGE``
     (e · median / 0.9: the median q is film mm per patient mm over the unknown spacing).
     """
-    raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
-    if not isinstance(raw_landmarks, list):
+    index = _payload_index(raw)
+    if index is None:
         return []
-    index = {lm.get("level"): i for i, lm in enumerate(raw_landmarks) if isinstance(lm, dict)}
     column_mm, row_mm = _mm_per_unit(view)
-    levels, points = [], []
-    for lm in view.landmarks:  # sorted by level; the top endplate midpoint, in film mm
-        if lm.point is not None:
-            column, row = lm.point
-        else:
-            assert lm.corners is not None
-            (c0, r0), (c1, r1) = lm.corners[0], lm.corners[1]
-            column, row = 0.5 * (c0 + c1), 0.5 * (r0 + r1)
-        levels.append(LEVEL_INDEX[lm.level])
-        points.append((column * column_mm, row * row_mm))
+    levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
+    points = [(column * column_mm, row * row_mm) for column, row in map(_top_midpoint, view.landmarks)]  # film mm
     m_min, m_max = _magnification_range(view)
-    sigma = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+    sigma = _landmark_sd_mm(view)
     noise = NOISE_SDS * math.sqrt(2.0) * sigma
     lo, hi = VERSE_DISTANCE_RATIO
-    pairs = [
-        (i, j, math.dist(p, q), _ARC[j] - _ARC[i])
-        for (i, p), (j, q) in itertools.pairwise(zip(levels, points, strict=True))
-    ]
-    median = statistics.median(d / a for _, _, d, a in pairs) if len(pairs) >= 2 else None
+    pairs = _consecutive_pairs(levels, points)
+    median = _median_spacing(pairs)
     excess = NOISE_SDS * math.sqrt(2.0 * max(sigma**2 - LANDMARK_SD_MM_DEFAULT**2, 0.0))
-    # in a stand-in spacing's units: mm over the film mm per unit, which the median spacing gives at
-    # the smallest magnification (the most lenient reading)
-    n_units = excess if scaled or median is None else excess * median / MAGNIFICATION_RANGE[0]
+    n_units = excess if scaled or median is None else _in_stand_in_units(excess, median)
     errors = []
     for i, j, d, a in pairs:
         upper, lower = LEVELS[i], LEVELS[j]
