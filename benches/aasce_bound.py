@@ -44,9 +44,9 @@ LAD_FLOOR_DEG = 0.5
 def chord_ranges(chords: np.ndarray) -> np.ndarray:
     """(n, ``SMOOTHING_MAX``): max − min of the chord angles after a moving mean over w = 1, 2, …
     chords, degrees."""
+    cumulative = np.concatenate([np.zeros((len(chords), 1)), np.cumsum(chords, axis=1)], axis=1)
     columns = []
     for w in range(1, SMOOTHING_MAX + 1):
-        cumulative = np.concatenate([np.zeros((len(chords), 1)), np.cumsum(chords, axis=1)], axis=1)
         smoothed = (cumulative[:, w:] - cumulative[:, :-w]) / w
         columns.append(smoothed.max(axis=1) - smoothed.min(axis=1))
     return np.stack(columns, axis=1)

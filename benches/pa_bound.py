@@ -70,11 +70,16 @@ class Films:
     truth: FloatArray
     positions: FloatArray
 
+    @staticmethod
+    def depth_of(positions: FloatArray) -> FloatArray:
+        """(..., 17) depth y_i − y_T1 over the T1–L5 height z_T1 − z_L5 of spines (..., 17, 3)."""
+        p = np.asarray(positions)
+        return np.asarray((p[..., 1] - p[..., :1, 1]) / (p[..., 0, 2] - p[..., -1, 2])[..., None])
+
     @property
     def depth(self) -> FloatArray:
-        """(n, 17) each truth's depth y_i − y_T1 over its T1–L5 height z_T1 − z_L5."""
-        p = self.positions
-        return np.asarray((p[:, :, 1] - p[:, :1, 1]) / (p[:, 0, 2] - p[:, -1, 2])[:, None])
+        """(n, 17) each truth's ``depth_of``."""
+        return self.depth_of(self.positions)
 
     def rotation_rms_deg(self, depth: FloatArray) -> FloatArray:
         """(3,) RMS over the spines of the rotation vector (degrees, about x, y, z) that best aligns
@@ -151,8 +156,8 @@ def rows_of(population: str, train: Films, tests: dict[str, Films], floor: Float
     depth_model = cross_validated_ridge(train.features, train.depth)
     rows = []
     for name, test in tests.items():
-        floor_rotation = np.sqrt(np.mean([rigid_difference(population_sagittal_answer(p), p)[1] ** 2
-                                          for p in test.positions], axis=0))  # fmt: skip
+        floor_depth = np.array([Films.depth_of(population_sagittal_answer(p)) for p in test.positions])
+        floor_rotation = test.rotation_rms_deg(floor_depth)
         for estimator, answer, rotation in (
             ("floor (VerSe dev mean)", np.broadcast_to(floor, test.truth.shape), floor_rotation),
             ("training spines' mean", np.broadcast_to(train.truth.mean(axis=0), test.truth.shape),

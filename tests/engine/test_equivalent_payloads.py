@@ -25,9 +25,10 @@ SPACING = (0.15, 0.1)
 """[row, column] mm per pixel, as DICOM (0028,0030) orders them."""
 
 
-def _free_views(payload: dict[str, Any]) -> list[dict[str, Any]]:
-    """The views whose film coordinates the transformations move (not one with a known projection)."""
-    return [v for name in ("pa", "lateral") if (v := payload.get(name)) and not v.get("projection")]
+def _free_views(payload: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """(name, view) of the views whose film coordinates the transformations move (not one with a
+    known projection)."""
+    return [(name, v) for name in ("pa", "lateral") if (v := payload.get(name)) and not v.get("projection")]
 
 
 def _map_points(view: dict[str, Any], f: Any) -> None:
@@ -49,8 +50,7 @@ def in_pixels(payload: dict[str, Any]) -> dict[str, Any]:
 
 def mirrored(payload: dict[str, Any], width: float = 480.0) -> dict[str, Any]:
     out = copy.deepcopy(payload)
-    for view in _free_views(out):
-        name = "pa" if view is out["pa"] else "lateral"
+    for name, view in _free_views(out):
         column, row = view.get("patient_orientation", DEFAULT_ORIENTATION[name])
         view["patient_orientation"] = [FLIP[column], row]
         _map_points(view, lambda p: [width - p[0], p[1]])
@@ -59,7 +59,7 @@ def mirrored(payload: dict[str, Any], width: float = 480.0) -> dict[str, Any]:
 
 def shifted(payload: dict[str, Any], by: tuple[float, float] = (37.0, -23.0)) -> dict[str, Any]:
     out = copy.deepcopy(payload)
-    for view in _free_views(out):
+    for _, view in _free_views(out):
         _map_points(view, lambda p: [p[0] + by[0], p[1] + by[1]])
     return out
 
@@ -83,7 +83,7 @@ def test_the_same_films_described_otherwise_give_the_same_answer(truths: list[Tr
         series = simulate_series(truth, 1.0, 0)
         for key, case in CASES.items():
             payload = build_payload(series, case).model_dump(mode="json", exclude_none=True)
-            assert all("point" in lm for v in _free_views(payload) for lm in v["landmarks"])
+            assert all("point" in lm for _, v in _free_views(payload) for lm in v["landmarks"])
             positions, measures = _answer(register(payload))
             other_positions, other_measures = _answer(register(transform(payload)))
             np.testing.assert_allclose(other_positions, positions, atol=1e-6, err_msg=f"{truth.spine_id} ({key})")
