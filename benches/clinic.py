@@ -62,7 +62,6 @@ import datetime as dt
 import json
 import sys
 import time
-import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,7 +70,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, simulate_series
+from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, seed_of, simulate_series
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
@@ -516,7 +515,7 @@ def convergence_sweep(
                     payload.setdefault("options", {})["profile"] = profile
                     kept = None
                     if drop_levels:
-                        draw = np.random.default_rng([seed, zlib.crc32(truth.spine_id.encode()), *sc.case.key.encode()])
+                        draw = np.random.default_rng([seed, seed_of(truth.spine_id), *sc.case.key.encode()])
                         kept = drop_landmarks(payload, draw)
                     row = per_case[sc.case.key]
                     row["runs"] += 1

@@ -176,14 +176,15 @@ class Series:
     noise_mm: float
 
 
-def _seed_of(spine_id: str) -> int:
+def seed_of(spine_id: str) -> int:
+    """A spine's own seed, drawn with the run's seed so that each spine's draws are its own."""
     return sum((i + 1) * ord(ch) for i, ch in enumerate(spine_id))
 
 
 def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
     """Draw the series geometry and noise of one spine (module docstring), deterministic for
     (seed, spine id)."""
-    rng = np.random.default_rng([seed, _seed_of(truth.spine_id)])
+    rng = np.random.default_rng([seed, seed_of(truth.spine_id)])
     centre = truth.positions.mean(axis=0)
     films = []
     for orientation, beam, sod in (
@@ -216,7 +217,7 @@ def ray_offset(series: Series, film: Film, case: Case) -> Film:
     axis (seeded by the spine and the film's beam, apart from ``simulate_series``'s draws)."""
     if case.ray_offset_sd_mm <= 0.0:
         return film
-    rng = np.random.default_rng([_seed_of(series.truth.spine_id), int(abs(film.beam[0])), 40])
+    rng = np.random.default_rng([seed_of(series.truth.spine_id), int(abs(film.beam[0])), 40])
     e_c, e_r = image_axes(film.orientation)
     shift = rng.normal(0.0, case.ray_offset_sd_mm, 2)
     moved = film.principal_point + shift[0] * e_c + shift[1] * e_r
