@@ -9,6 +9,7 @@ caudally, d1 × d2 = d3; directors are sent as rows ``[d1, d2, d3]``.
 from __future__ import annotations
 
 import math
+import re
 from datetime import date
 from typing import Annotated, Literal
 
@@ -349,6 +350,25 @@ DICOM_SH_MAX_LENGTH = 16
 """PS3.5 §6.2: Short String (SH), at most 16 characters."""
 DICOM_PN_MAX_LENGTH = 5 * 64
 """PS3.5 §6.2: a Person Name (PN) has five components of at most 64 characters each (one group)."""
+DICOM_TEXT_PATTERN = r"^[^\\\u0000-\u001f\u007f]*$"
+"""A DICOM LO, SH or PN value as this contract takes it (PS3.5 §6.2): no backslash (5CH, the delimiter
+between the values of a multi-valued element) and no control character. The standard allows ESC
+for ISO 2022 code extensions; JSON carries the decoded Unicode text, which needs none."""
+DICOM_TEXT_REASON = "a DICOM text value holds no backslash and no control character"
+DICOM_UID_PATTERN = r"^[0-9]+(\.[0-9]+)*$"
+"""A DICOM UID's characters (PS3.5 §9.1): digits in dot-separated components (its 64-character limit
+is checked apart)."""
+DICOM_UID_REASON = "a DICOM UID is digits in dot-separated components, e.g. 1.2.840.10008.1.1"
+DICOM_UID_STRICT_PATTERN = r"^(0|[1-9][0-9]*)(\.(0|[1-9][0-9]*))*$"
+"""A DICOM UID as PS3.5 §9.1 writes it: besides ``DICOM_UID_PATTERN``, no component starts with 0 unless it is 0
+(what a PACS is asked for; the job's own UIDs are taken as ``DICOM_UID_PATTERN`` takes them)."""
+DICOM_UID_STRICT_REASON = "a DICOM UID is digits in dot-separated components without leading zeros (PS3.5 §9.1)"
+PATTERN_REASONS = {
+    DICOM_TEXT_PATTERN: DICOM_TEXT_REASON,
+    DICOM_UID_PATTERN: DICOM_UID_REASON,
+    DICOM_UID_STRICT_PATTERN: DICOM_UID_STRICT_REASON,
+}
+"""Each pattern of the contract's strings with its reason in plain words, for errors that would quote the regex."""
 
 
 class Study(_Strict):
@@ -387,8 +407,8 @@ class Study(_Strict):
         control character."""
         if value is None:
             return value
-        if "\\" in value or any(ord(ch) < 32 or ord(ch) == 127 for ch in value):
-            raise ValueError("a DICOM text value holds no backslash and no control character")
+        if not re.fullmatch(DICOM_TEXT_PATTERN, value):
+            raise ValueError(DICOM_TEXT_REASON)
         return value
 
     @field_validator("study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid")
@@ -398,8 +418,8 @@ class Study(_Strict):
             return value
         if len(value) > DICOM_UID_MAX_LENGTH:
             raise ValueError(f"a DICOM UID has at most {DICOM_UID_MAX_LENGTH} characters, this one {len(value)}")
-        if not value or not all(part.isascii() and part.isdigit() for part in value.split(".")):
-            raise ValueError("a DICOM UID is digits in dot-separated components, e.g. 1.2.840.10008.1.1")
+        if not re.fullmatch(DICOM_UID_PATTERN, value):
+            raise ValueError(DICOM_UID_REASON)
         return value
 
 

@@ -4,7 +4,8 @@ applied to that model (not to the raw JSON again).
 ``admit`` is the one place a posted payload is checked, for ``POST /v1/jobs`` and for each entry
 of ``POST /v1/jobs/batch``: the engine's contract (``spine_engine.validation.validate_payload``:
 types, finite numbers, levels, orthonormal directors...), then the magnitudes, then the
-``callback_url`` (``services.webhooks.submission``). Every failure is an ``InvalidInput`` naming
+``callback_url`` (``services.webhooks.submission``); before all, no text may hold a NUL character
+(``check_no_nul``). Every failure is an ``InvalidInput`` naming
 each offending field by its JSON path.
 
 Magnitudes: coordinates, poses, spacings and scales are millimetres or pixels: a number larger
@@ -57,30 +58,33 @@ def _with_stand_in_spacing(body: Any) -> tuple[Any, tuple[str, ...]]:
 
 MAX_MAGNITUDE = 1e6
 MAX_ERRORS = 20
+NUL = "\x00"
 
 
-def _numbers(value: Any, path: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], float]]:
-    """Every number in ``value`` (a validated model, or plain JSON) with its JSON path."""
-    if isinstance(value, bool) or value is None:
-        return
-    if isinstance(value, int | float):
-        yield path, value
-    elif isinstance(value, BaseModel):
+def _leaves(value: Any, path: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], Any]]:
+    """Every leaf of ``value`` (a validated model, or plain JSON) with its JSON path; the member names
+    of a plain JSON object are leaves too, each at its own path."""
+    if isinstance(value, BaseModel):
         for name, info in type(value).model_fields.items():
-            yield from _numbers(getattr(value, name), (*path, info.alias or name))
+            yield from _leaves(getattr(value, name), (*path, info.alias or name))
     elif isinstance(value, dict):
         for key, item in value.items():
-            yield from _numbers(item, (*path, str(key)))
+            yield (*path, str(key)), key
+            yield from _leaves(item, (*path, str(key)))
     elif isinstance(value, list | tuple):
         for index, item in enumerate(value):
-            yield from _numbers(item, (*path, index))
+            yield from _leaves(item, (*path, index))
+    else:
+        yield path, value
 
 
 def check_magnitudes(payload: BaseModel) -> None:
     """Raise ``InvalidInput`` naming (by JSON path) every number of the validated ``payload`` above
     ``MAX_MAGNITUDE`` in absolute value."""
     errors = []
-    for path, number in _numbers(payload, ()):
+    for path, number in _leaves(payload, ()):
+        if isinstance(number, bool) or not isinstance(number, int | float):
+            continue
         try:
             too_large = abs(number) > MAX_MAGNITUDE
         except OverflowError:  # an int beyond float range
@@ -93,6 +97,21 @@ def check_magnitudes(payload: BaseModel) -> None:
         raise InvalidInput(errors)
 
 
+def check_no_nul(body: Any, path: tuple[str | int, ...] = ()) -> None:
+    """Raise ``InvalidInput`` naming (by JSON path) every string of the posted JSON ``body``, member
+    names included, that holds the NUL character U+0000. The job is stored whole in PostgreSQL,
+    whose text and jsonb types cannot hold it (PostgreSQL 15 documentation, §8.3 "Character Types" and
+    §8.14 "JSON Types"); refused here, it is a 422 naming the field on every database, not a failed
+    insert."""
+    errors = [
+        FieldError(at, "holds the NUL character (U+0000), which no text of a job may hold", "nul_character")
+        for at, leaf in _leaves(body, path)
+        if isinstance(leaf, str) and NUL in leaf
+    ]
+    if errors:
+        raise InvalidInput(errors[:MAX_ERRORS])
+
+
 def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     """``POST /v1/jobs``'s body as (payload, ``dicom`` block or None). The block is what a client read
     from its image files (``spine submit --pa-dicom``; ``DicomProvenance``, every view's ``source``
@@ -101,6 +120,7 @@ def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     each wrong member by its JSON path under ``dicom``."""
     if not isinstance(body, dict) or body.get("dicom") is None:
         return (({k: v for k, v in body.items() if k != "dicom"}) if isinstance(body, dict) else body), None
+    check_no_nul(body["dicom"], ("dicom",))
     payload = {k: v for k, v in body.items() if k != "dicom"}
     try:
         provenance = DicomProvenance.model_validate(body["dicom"])
@@ -116,6 +136,7 @@ def admit(body: Any, settings: Settings, session: Session, owner: str | None,
           dicom: dict[str, Any] | None = None) -> JobPayload:  # fmt: skip
     """The payload ``body`` (completed by the client's ``dicom`` reads, ``split_dicom``) as a validated
     ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
+    check_no_nul(body)
     if dicom is not None and isinstance(body, dict):
         body = engine_payload(apply_reads(body, dicom))
     checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb is not None else (body, ())

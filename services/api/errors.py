@@ -16,6 +16,7 @@ from starlette.routing import Match
 
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
 from spine_engine.errors import FieldError
+from spine_engine.models import PATTERN_REASONS
 
 log = logging.getLogger(__name__)
 
@@ -40,13 +41,22 @@ async def _problem_error(request: Request, exc: Exception) -> JSONResponse:
     return problem_response(body, exc.headers)
 
 
+def _reason(error: dict[str, Any]) -> str:
+    """A request validation error's message; a pattern of the contract's strings said in plain words
+    (``PATTERN_REASONS``) instead of pydantic's "String should match pattern '…'"."""
+    if error.get("type") == "string_pattern_mismatch":
+        reason = PATTERN_REASONS.get(str((error.get("ctx") or {}).get("pattern", "")))
+        if reason is not None:
+            return reason
+    return str(error.get("msg", ""))
+
+
 async def _request_validation(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     errors = [
-        FieldError(tuple(p for p in e.get("loc", ()) if isinstance(p, (str, int))), str(e.get("msg", "")),
-                   str(e.get("type", "")))
+        FieldError(tuple(p for p in e.get("loc", ()) if isinstance(p, (str, int))), _reason(e), str(e.get("type", "")))
         for e in exc.errors()
-    ]  # fmt: skip
+    ]
     return problem_response(validation_problem(errors, instance=request.url.path))
 
 

@@ -37,6 +37,7 @@ EXPECTED = {
     "non-orthonormal directors": (422, "validation-error"),
     "left-handed directors": (422, "validation-error"),
     "unknown field": (422, "validation-error"),
+    "NUL character in a text": (422, "validation-error"),
     "deep nesting (parser)": (400, "malformed-json"),
     "deep nesting (in a field)": (422, "validation-error"),
     "10 MB body": (413, "payload-too-large"),
@@ -47,6 +48,7 @@ EXPECTED = {
     "no content type": (415, "unsupported-media-type"),
     "oversized Idempotency-Key": (422, "validation-error"),
     "unknown query parameter": (422, "validation-error"),
+    "control character in a DICOM filter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
     "method not allowed": ("405 (Allow: GET, POST)", "method-not-allowed"),
     "bad job id": (422, "validation-error"),
@@ -83,6 +85,8 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert "corners of T5" in details["crossed corners"]
     assert validation["duplicate key"] == "pa.units"
     assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
+    assert validation["NUL character in a text"] == "options.profile"
+    assert validation["control character in a DICOM filter"] == "query.patient_id"
 
 
 def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:

@@ -29,6 +29,13 @@ from services.db.deliveries import deliveries, job_ended
 from services.db.jobs import MAX_BATCH_KEY_LENGTH
 from services.db.runs import publish
 from spine_engine.errors import FieldError, InvalidInput
+from spine_engine.models import (
+    DICOM_LO_MAX_LENGTH,
+    DICOM_SH_MAX_LENGTH,
+    DICOM_TEXT_PATTERN,
+    DICOM_UID_MAX_LENGTH,
+    DICOM_UID_PATTERN,
+)
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -182,12 +189,20 @@ def list_jobs(
     cursor: Annotated[str | None, Query(description="next_cursor of the previous page.")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     study_instance_uid: Annotated[
-        str | None, Query(max_length=64, description="Jobs of this DICOM Study Instance UID (0020,000D).")
+        str | None,
+        Query(max_length=DICOM_UID_MAX_LENGTH, pattern=DICOM_UID_PATTERN,
+              description="Jobs of this DICOM Study Instance UID (0020,000D)."),
     ] = None,
     accession_number: Annotated[
-        str | None, Query(max_length=16, description="Jobs of this Accession Number (0008,0050).")
+        str | None,
+        Query(max_length=DICOM_SH_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
+              description="Jobs of this Accession Number (0008,0050): DICOM SH."),
     ] = None,
-    patient_id: Annotated[str | None, Query(max_length=64, description="Jobs of this Patient ID (0010,0020).")] = None,
+    patient_id: Annotated[
+        str | None,
+        Query(max_length=DICOM_LO_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
+              description="Jobs of this Patient ID (0010,0020): DICOM LO."),
+    ] = None,
 ) -> JobPage:
     def utc(value: datetime | None) -> datetime | None:
         return value.replace(tzinfo=UTC) if value is not None and value.tzinfo is None else value

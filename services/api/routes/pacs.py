@@ -25,16 +25,16 @@ from services.core.problems import problem
 from services.dicom.dicomweb import Pacs
 from services.dicom.errors import InstanceNotFound, PacsUnavailable, TransferSyntaxUnavailable
 from services.dicom.results import PART10_MEDIA_TYPE, part10
+from spine_engine.models import DICOM_UID_STRICT_PATTERN
 
 router = APIRouter(prefix="/v1/pacs", tags=["dicom"])
 RETRY_AFTER_S = 10
 """Retry-After of a 503 when the PACS did not answer (s)."""
 
-UID_PATTERN = r"^(0|[1-9][0-9]*)(\.(0|[1-9][0-9]*))*$"
 Uid = Annotated[
     str,
     Path(
-        pattern=UID_PATTERN,
+        pattern=DICOM_UID_STRICT_PATTERN,
         max_length=64,
         description="A DICOM UID (PS3.5 §9.1): digits in dot-separated components without leading zeros, "
         "at most 64 characters.",

@@ -23,6 +23,7 @@ from datetime import date
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Path
+from starlette.convertors import PathConvertor, register_url_convertor
 
 from services.api.deps import AccessDep, SessionDep
 from services.api.schemas import (
@@ -37,8 +38,18 @@ from services.api.schemas import (
 from services.db import jobs as jobs_repo
 from services.db.job_forms import job_study
 from services.db.models import Job
-from spine_engine.models import CobbCurve, LargestCobbAngle, RegistrationResult
+from spine_engine.models import DICOM_LO_MAX_LENGTH, DICOM_TEXT_PATTERN, CobbCurve, LargestCobbAngle, RegistrationResult
 
+
+class AnyTextConvertor(PathConvertor):
+    """A path segment holding any text, slashes and line breaks included: Starlette's ``path`` stops
+    at a line break (its ``.``), which made a Patient ID with one a 404 for no route instead of the
+    422 naming the parameter."""
+
+    regex = r"[\s\S]*"
+
+
+register_url_convertor("anytext", AnyTextConvertor())
 router = APIRouter(prefix="/v1/patients", tags=["jobs"])
 
 CONVENTION_DEG = 5.0
@@ -136,7 +147,7 @@ def follow_up(patient_id: str, jobs: list[Job]) -> PatientMeasures:
 
 
 @router.get(
-    "/{patient_id:path}/measures",
+    "/{patient_id:anytext}/measures",
     response_model=PatientMeasures,
     summary="A patient's measures over time (follow-up)",
     description="The caller's succeeded jobs of this Patient ID (0010,0020), by Study Date (0008,0020), each with "
@@ -147,7 +158,11 @@ def follow_up(patient_id: str, jobs: list[Job]) -> PatientMeasures:
     responses=problem_responses(422),
 )
 def patient_measures(
-    patient_id: Annotated[str, Path(min_length=1, max_length=64, description="Patient ID (0010,0020).")],
+    patient_id: Annotated[
+        str,
+        Path(min_length=1, max_length=DICOM_LO_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
+             description="Patient ID (0010,0020): DICOM LO."),
+    ],
     session: SessionDep,
     access: AccessDep,
 ) -> PatientMeasures:

@@ -1,0 +1,113 @@
+"""Text that the job database cannot store, or that no DICOM header holds, is a 422 naming the field,
+on both databases the service runs on: PostgreSQL's text and jsonb refuse the NUL character
+(PostgreSQL 15 documentation, §8.3 and §8.14), where SQLite stores it, so on PostgreSQL such a job
+was a 500 at its insert; and a DICOM LO or SH value holds no backslash and no control character
+(PS3.5 §6.2), so a filter or a follow-up asked for with one is refused, not a 404 or a 500."""
+
+from __future__ import annotations
+
+import copy
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+from urllib.parse import quote
+
+import pytest
+from fastapi.testclient import TestClient
+
+from services.api.app import create_app
+from services.core.config import Settings
+from spine_engine.models import DICOM_TEXT_REASON, DICOM_UID_REASON
+from tests.conftest import make_key, problem_of, spine_payload
+
+BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
+WITH_NUL = "x\x00y"
+FILM = {"source": "file", "study_instance_uid": "1.2.3", "sop_instance_uid": "1.2.3.4"}
+
+
+@pytest.fixture
+def client(db_settings: Settings) -> Iterator[TestClient]:
+    """The API on the database, with the key of a client of its own (the PostgreSQL database is the
+    session's, shared with other tests)."""
+    with TestClient(create_app(db_settings)) as c:
+        c.headers["Authorization"] = f"Bearer {make_key(db_settings, f'text-{uuid.uuid4().hex[:8]}')}"
+        yield c
+
+
+def _profile(p: dict[str, Any]) -> None:
+    p["options"] = {"profile": WITH_NUL}
+
+
+def _film_warning(p: dict[str, Any]) -> None:
+    p["dicom"] = {"pa": {**FILM, "warnings": [WITH_NUL]}}
+
+
+def _member_name(p: dict[str, Any]) -> None:
+    p["options"] = {WITH_NUL: 1}
+
+
+@BACKENDS
+@pytest.mark.parametrize(
+    ("edit", "path"),
+    [(_profile, "options.profile"), (_film_warning, "dicom.pa.warnings[0]"), (_member_name, "options.x\x00y")],
+    ids=["a field's value", "the client's DICOM reads", "a member's name"],
+)
+def test_a_nul_in_a_posted_text_is_a_422_naming_it_and_nothing_is_stored(
+    client: TestClient, edit: Callable[[dict[str, Any]], None], path: str
+) -> None:
+    payload = copy.deepcopy(spine_payload())
+    edit(payload)
+    problem = problem_of(client.post("/v1/jobs", json=payload))
+    assert problem["status"] == 422
+    assert [(e["path"], e["type"]) for e in problem["errors"]] == [(path, "nul_character")]
+    assert "NUL character (U+0000)" in problem["detail"]
+    assert client.get("/v1/jobs").json()["jobs"] == []
+
+
+@BACKENDS
+def test_a_nul_in_one_batch_entry_refuses_that_entry_only(client: TestClient) -> None:
+    bad = spine_payload()
+    _profile(bad)
+    answer = client.post("/v1/jobs/batch", json={"jobs": [spine_payload(), bad]})
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    assert (body["accepted"], body["rejected"]) == (1, 1)
+    assert [e["path"] for e in body["results"][1]["problem"]["errors"]] == ["jobs[1].options.profile"]
+    assert len(client.get("/v1/jobs").json()["jobs"]) == 1
+
+
+@BACKENDS
+@pytest.mark.parametrize("name", ["patient_id", "accession_number"])
+@pytest.mark.parametrize("value", ["x\x00y", "x\ny", "x\\y"], ids=["NUL", "line break", "backslash"])
+def test_a_dicom_text_filter_with_a_control_character_or_backslash_is_a_422(
+    client: TestClient, name: str, value: str
+) -> None:
+    problem = problem_of(client.get("/v1/jobs", params={name: value}))
+    assert problem["status"] == 422
+    assert [(e["path"], e["msg"]) for e in problem["errors"]] == [(f"query.{name}", DICOM_TEXT_REASON)]
+
+
+@BACKENDS
+def test_a_study_filter_that_is_no_uid_is_a_422_and_a_uid_is_taken(client: TestClient) -> None:
+    problem = problem_of(client.get("/v1/jobs", params={"study_instance_uid": "1.2.x\x00"}))
+    assert [(e["path"], e["msg"]) for e in problem["errors"]] == [("query.study_instance_uid", DICOM_UID_REASON)]
+    assert client.get("/v1/jobs", params={"study_instance_uid": "1.2.840.10008"}).status_code == 200
+
+
+@BACKENDS
+@pytest.mark.parametrize("value", ["x\x00y", "x\ny"], ids=["NUL", "line break"])
+def test_a_follow_up_asked_with_a_control_character_is_a_422_not_a_404(client: TestClient, value: str) -> None:
+    problem = problem_of(client.get(f"/v1/patients/{quote(value, safe='')}/measures"))
+    assert problem["status"] == 422
+    assert [(e["path"], e["msg"]) for e in problem["errors"]] == [("path.patient_id", DICOM_TEXT_REASON)]
+
+
+@BACKENDS
+def test_a_patient_id_with_a_slash_is_still_a_patient_id(client: TestClient) -> None:
+    """LO allows "/" (PS3.5 §6.2): percent-encoded, it names the patient, not a deeper path."""
+    payload = spine_payload()
+    payload["study"] = {"study_instance_uid": "1.2.3", "patient_id": "A/B 12"}
+    assert client.post("/v1/jobs", json=payload).status_code == 202
+    answer = client.get(f"/v1/patients/{quote('A/B 12', safe='')}/measures")
+    assert answer.status_code == 200, answer.text
+    assert answer.json()["patient_id"] == "A/B 12"
