@@ -64,6 +64,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import string
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import date
@@ -254,12 +255,37 @@ def check_uid(value: str, keyword: str) -> str:
     return value
 
 
+TEXT_PADDING = string.whitespace + "\0"
+"""Trailing and leading characters a text value is read without: the spaces DICOM pads with (PS3.5
+§6.2), and the NULs some writers pad with in their place."""
+
+
 def _text(ds: Dataset, keyword: str) -> str | None:
+    """The attribute's value as text without its padding, None when absent or empty. ``InvalidAttribute``
+    when a control character is left inside: none of the VRs read here (AE, CS, DA, DT, LO, PN, SH, TM, UI)
+    holds one but ESC (PS3.5 §6.2), which the character set's decoding removes; such a value could
+    be neither matched nor stored (PostgreSQL's text holds no NUL)."""
     value = ds.get(keyword)
     if value is None:
         return None
-    text = str(value).strip()
+    text = str(value).strip(TEXT_PADDING)
+    bad = next((ch for ch in text if ord(ch) < 32 or ord(ch) == 127), None)
+    if bad is not None:
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} is {text!r}, which holds the control character {bad!r}: a DICOM "
+            "text value holds none (PS3.5 §6.2)",
+            attributes=(keyword,),
+        )
     return text or None
+
+
+def _optional_text(ds: Dataset, keyword: str) -> str | None:
+    """``_text`` of a value the header reads only when well formed (dates, times, the SR's identity
+    values): None where ``_text`` refuses it."""
+    try:
+        return _text(ds, keyword)
+    except InvalidAttribute:
+        return None
 
 _TM = re.compile(r"^([01]\d|2[0-3])([0-5]\d([0-5]\d(\.\d{1,6})?)?)?$")
 IDENTITY_VALUES: dict[str, tuple[str, Callable[[str], bool]]] = {
@@ -285,7 +311,7 @@ def identity_problem(key: str, value: Any) -> str | None:
 
 def _identity(ds: Dataset, keyword: str, key: str) -> str | None:
     """A header's study or patient value for the SR and SC, None when absent or not as DICOM writes it."""
-    value = _text(ds, keyword)
+    value = _optional_text(ds, keyword)
     return value if value is not None and identity_problem(key, value) is None else None
 
 
@@ -324,16 +350,16 @@ def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...
 def _film_datetime(ds: Dataset) -> str | None:
     """``RadiographHeader.film_datetime`` (its docstring): DA YYYYMMDD, TM HHMMSS[.F], DT
     YYYYMMDDHHMMSS[.F][&ZZXX] (PS3.5 §6.2) read into ISO 8601; malformed values are skipped."""
-    offset = _text(ds, "TimezoneOffsetFromUTC")
-    dt = _text(ds, "AcquisitionDateTime")
+    offset = _optional_text(ds, "TimezoneOffsetFromUTC")
+    dt = _optional_text(ds, "AcquisitionDateTime")
     candidates = []
     if dt is not None and len(dt) >= 8 and dt[:8].isdigit():
         zone = next((dt[i:] for i in range(8, len(dt)) if dt[i] in "+-"), None)
         candidates.append((dt[:8], dt[8:].split("+")[0].split("-")[0], zone))
     for d_key, t_key in (("AcquisitionDate", "AcquisitionTime"), ("ContentDate", "ContentTime")):
-        d = _text(ds, d_key)
+        d = _optional_text(ds, d_key)
         if d is not None and len(d) == 8 and d.isdigit():
-            candidates.append((d, _text(ds, t_key) or "", offset))
+            candidates.append((d, _optional_text(ds, t_key) or "", offset))
     for d, t, zone in candidates:
         try:
             day = date(int(d[0:4]), int(d[4:6]), int(d[6:8]))
@@ -347,7 +373,7 @@ def _film_datetime(ds: Dataset) -> str | None:
 
 
 def _study_date(ds: Dataset) -> date | None:
-    text = _text(ds, "StudyDate")
+    text = _optional_text(ds, "StudyDate")
     if text is None:
         return None
     try:
@@ -560,14 +586,13 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         sources["acquisition.image_size"] = (
             f"[{attribute_label('Columns')}, {attribute_label('Rows')}] (× the pixel spacing in mm)"
         )
-    name = ds.get("PatientName")
     return RadiographHeader(
         sop_class_uid=sop_class,
         sop_instance_uid=sop_uid,
         series_instance_uid=_uid(ds, "SeriesInstanceUID", required=False),
         study_instance_uid=study_uid,
         patient_id=_text(ds, "PatientID"),
-        patient_name=(str(name).strip() or None) if name is not None else None,
+        patient_name=_text(ds, "PatientName"),
         accession_number=_text(ds, "AccessionNumber"),
         study_date=_study_date(ds),
         study_time=_identity(ds, "StudyTime", "study_time"),

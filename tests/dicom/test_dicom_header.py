@@ -200,6 +200,31 @@ def test_uid_not_a_uid(keyword: str, value: str, label: str) -> None:
     assert label in str(info.value) and "not a DICOM UID" in str(info.value)
 
 
+@pytest.mark.parametrize(("attribute", "value"), [
+    ("patient_id", "P\x00-1"), ("patient_name", "Doe\x00^Jane"), ("accession_number", "ACC\n42"),
+])  # fmt: skip
+def test_a_control_character_inside_a_text_refuses_the_image_naming_it(attribute: str, value: str) -> None:
+    """PS3.5 §6.2: LO, PN and SH hold no control character; carried on, a NUL would reach the job's
+    PostgreSQL row, which cannot hold it."""
+    with pytest.raises(InvalidAttribute) as info:
+        read_header(synthetic.radiograph(**{attribute: value}))
+    keyword = {"patient_id": "PatientID", "patient_name": "PatientName", "accession_number": "AccessionNumber"}
+    assert info.value.attributes == (keyword[attribute],)
+    assert "control character" in str(info.value)
+
+
+def test_text_is_read_without_its_space_or_nul_padding() -> None:
+    header = read_header(synthetic.radiograph(patient_id="P-1\x00", accession_number=" ACC-42 ",
+                                              view_position="PA\x00", patient_orientation=None))  # fmt: skip
+    assert (header.patient_id, header.accession_number) == ("P-1", "ACC-42")
+    assert header.view == "pa" and header.patient_orientation == ("L", "F")
+
+
+def test_a_malformed_optional_value_is_skipped_not_refused() -> None:
+    header = read_header(synthetic.radiograph(extra={"StudyTime": "10\x0015"}))
+    assert header.study_time is None and header.patient_id == "P-0001"
+
+
 def test_missing_study_uid() -> None:
     ds = synthetic.radiograph()
     del ds.StudyInstanceUID

@@ -131,6 +131,23 @@ def test_missing_instance_fails_the_job(pacs_service: Service, orthanc: OrthancS
     assert "1.2.826.0.1.99" in job["error"]["detail"]
 
 
+def test_a_control_character_in_the_headers_patient_id_fails_the_job_at_once(
+    pacs_service: Service, orthanc: OrthancServer
+) -> None:
+    """A PatientID holding a line break (not DICOM text, PS3.5 §6.2) fails the job on its first run,
+    the problem naming the attribute as the header has it (Orthanc cuts a value at a NUL, so a NUL
+    does not come through it; ``test_dicom_header`` holds the reader's refusal of one)."""
+    image = synthetic.radiograph(patient_id="P\nLF")
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
+    assert job["status"] == "failed" and job["attempts"] == 1, json.dumps(job.get("study"))
+    assert job["error"]["type"].endswith("/dicom-invalid-attribute"), job["error"]
+    assert "PatientID (0010,0020)" in job["error"]["detail"] and "control character" in job["error"]["detail"]
+
+
 @pytest.fixture
 def two_clients(tmp_path: Path) -> Iterator[tuple[TestClient, TestClient]]:
     settings = Settings(data_dir=tmp_path)
