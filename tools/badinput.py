@@ -186,6 +186,8 @@ def cases() -> list[Case]:
              method="GET", path="/v1/jobs", params={"patient_id": "A\nB"}, content_type=None),
         Case("number as a timestamp", "`GET /v1/jobs?created_after=0.5`", method="GET", path="/v1/jobs",
              params={"created_after": "0.5"}, content_type=None),
+        Case("timestamp beyond year 9999 in UTC", "`GET /v1/jobs?created_before=9999-12-31T23:59:59-14:00`",
+             method="GET", path="/v1/jobs", params={"created_before": "9999-12-31T23:59:59-14:00"}, content_type=None),
         Case("method not allowed", "`DELETE /v1/jobs`", method="DELETE", path="/v1/jobs", content_type=None),
         Case("bad job id", "`GET /v1/jobs/not-a-uuid`", method="GET", path="/v1/jobs/not-a-uuid", content_type=None),
         Case("another client's job", "`GET /v1/jobs/{id}` of a job another client made", method="GET",

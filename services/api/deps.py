@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 from collections import Counter
 from collections.abc import AsyncIterator
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Annotated, Any
 
 from celery import Celery
 from fastapi import Depends, Request
-from pydantic import BeforeValidator
+from pydantic import AfterValidator, BeforeValidator
 from sqlalchemy.orm import Session
 
 from services.api.access import Access, QueuedCap
@@ -116,7 +116,18 @@ def _iso_only(value: Any) -> Any:
     raise ValueError("expected an ISO 8601 date-time, e.g. 2026-11-22T10:00:00Z, not a number")
 
 
-IsoDateTime = Annotated[datetime, BeforeValidator(_iso_only)]
+def _within_utc_years(value: datetime) -> datetime:
+    """A timestamp whose UTC time lies in the years 1–9999 (Python's and so the query's range): an
+    offset can carry 0001-01-01 or 9999-12-31 beyond it (0001-01-01T00:00:00+14:00 is in year 0)."""
+    if value.tzinfo is not None:
+        try:
+            value.astimezone(UTC)
+        except OverflowError:
+            raise ValueError("expected a date-time within the years 1 to 9999 in UTC") from None
+    return value
+
+
+IsoDateTime = Annotated[datetime, BeforeValidator(_iso_only), AfterValidator(_within_utc_years)]
 """A date-time query parameter (format: date-time in the contract, and nothing else)."""
 
 

@@ -183,10 +183,13 @@ def test_list_rejects_bad_parameters_as_problems(api: TestClient) -> None:
         ({"limit": 0}, "query.limit"),
         ({"created_after": "yesterday"}, "query.created_after"),
         ({"cursor": "!!!"}, "query.cursor"),
+        ({"created_after": "0001-01-01T00:00:00+14:00"}, "query.created_after"),  # year 0 in UTC
+        ({"created_before": "9999-12-31T23:59:59-14:00"}, "query.created_before"),  # year 10000 in UTC
     ]:
         response = api.get("/v1/jobs", params=params)
         assert response.status_code == 422, params
         assert [e["path"] for e in problem_of(response)["errors"]] == [path]
+    assert api.get("/v1/jobs", params={"created_after": "0001-01-01T00:00:00-01:00"}).status_code == 200
 
 
 def test_cancel_queued_job_and_cancel_again(api: TestClient, payload: dict[str, Any]) -> None:

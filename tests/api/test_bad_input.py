@@ -50,6 +50,7 @@ EXPECTED = {
     "unknown query parameter": (422, "validation-error"),
     "control character in a DICOM filter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
+    "timestamp beyond year 9999 in UTC": (422, "validation-error"),
     "method not allowed": ("405 (Allow: GET, POST)", "method-not-allowed"),
     "bad job id": (422, "validation-error"),
     "another client's job": (404, "not-found"),
