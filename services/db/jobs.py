@@ -18,7 +18,7 @@ import hashlib
 import json
 import uuid
 from collections.abc import Callable, Sequence
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 from sqlalchemy import (
@@ -208,8 +208,8 @@ def decode_cursor(cursor: str) -> tuple[datetime, uuid.UUID]:
         when = datetime.fromisoformat(created)
         if when.tzinfo is None:
             raise ValueError("naive")
-        return when, uuid.UUID(job_id)
-    except (binascii.Error, UnicodeDecodeError, ValueError) as exc:
+        return when.astimezone(UTC), uuid.UUID(job_id)
+    except (binascii.Error, UnicodeDecodeError, ValueError, OverflowError) as exc:  # overflow: beyond year 9999 in UTC
         raise BadCursor("the cursor is not one this API returned") from exc
 
 

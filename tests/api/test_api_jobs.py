@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import uuid
@@ -177,6 +178,11 @@ def test_list_newest_first_with_filters_and_cursor(api: TestClient, payload: dic
     assert [j["id"] for j in before] == ids[:3][::-1]
 
 
+def _cursor(created: str) -> str:
+    """A cursor as ``jobs.encode_cursor`` writes one, for a job created at ``created``."""
+    return base64.urlsafe_b64encode(f"{created}|{uuid.uuid4()}".encode()).decode().rstrip("=")
+
+
 def test_list_rejects_bad_parameters_as_problems(api: TestClient) -> None:
     for params, path in [
         ({"status": "done"}, "query.status[0]"),
@@ -185,6 +191,7 @@ def test_list_rejects_bad_parameters_as_problems(api: TestClient) -> None:
         ({"cursor": "!!!"}, "query.cursor"),
         ({"created_after": "0001-01-01T00:00:00+14:00"}, "query.created_after"),  # year 0 in UTC
         ({"created_before": "9999-12-31T23:59:59-14:00"}, "query.created_before"),  # year 10000 in UTC
+        ({"cursor": _cursor("0001-01-01T00:00:00+14:00")}, "query.cursor"),  # a forged one, year 0 in UTC
     ]:
         response = api.get("/v1/jobs", params=params)
         assert response.status_code == 422, params
