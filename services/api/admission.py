@@ -5,7 +5,7 @@ applied to that model (not to the raw JSON again).
 of ``POST /v1/jobs/batch``: the engine's contract (``spine_engine.validation.validate_payload``:
 types, finite numbers, levels, orthonormal directors...), then the magnitudes, then the
 ``callback_url`` (``services.webhooks.submission``); before all, no text may hold a NUL character
-(``check_no_nul``). Every failure is an ``InvalidInput`` naming
+or an unpaired surrogate (``check_text``). Every failure is an ``InvalidInput`` naming
 each offending field by its JSON path.
 
 Magnitudes: coordinates, poses, spacings and scales are millimetres or pixels: a number larger
@@ -97,17 +97,29 @@ def check_magnitudes(payload: BaseModel) -> None:
         raise InvalidInput(errors)
 
 
-def check_no_nul(body: Any, path: tuple[str | int, ...] = ()) -> None:
+def _text_problem(text: str) -> tuple[str, str] | None:
+    """(reason, type) when ``text`` holds what no stored text may, else None."""
+    if NUL in text:
+        return "holds the NUL character (U+0000), which no text of a job may hold", "nul_character"
+    surrogate = next((ch for ch in text if "\ud800" <= ch <= "\udfff"), None)
+    if surrogate is not None:
+        return (f"holds an unpaired surrogate (U+{ord(surrogate):04X}), which is no character: JSON text holds "
+                "characters only (RFC 8259 §8.2, RFC 7493 §2.1)", "unpaired_surrogate")  # fmt: skip
+    return None
+
+
+def check_text(body: Any, path: tuple[str | int, ...] = ()) -> None:
     """Raise ``InvalidInput`` naming (by JSON path) every string of the posted JSON ``body``, member
-    names included, that holds the NUL character U+0000. The job is stored whole in PostgreSQL,
-    whose text and jsonb types cannot hold it (PostgreSQL 15 documentation, §8.3 "Character Types" and
-    §8.14 "JSON Types"); refused here, it is a 422 naming the field on every database, not a failed
+    names included, that holds the NUL character U+0000 or an unpaired surrogate (a ``\\ud800`` escape
+    alone). The job is stored whole in PostgreSQL, whose text and jsonb cannot hold a NUL (PostgreSQL 15
+    documentation, §8.3 "Character Types" and §8.14 "JSON Types") and whose json parser refuses an
+    unpaired surrogate; refused here, each is a 422 naming the field on every database, not a failed
     insert."""
-    errors = [
-        FieldError(at, "holds the NUL character (U+0000), which no text of a job may hold", "nul_character")
-        for at, leaf in _leaves(body, path)
-        if isinstance(leaf, str) and NUL in leaf
-    ]
+    errors = []
+    for at, leaf in _leaves(body, path):
+        found = _text_problem(leaf) if isinstance(leaf, str) else None
+        if found is not None:
+            errors.append(FieldError(at, *found))
     if errors:
         raise InvalidInput(errors[:MAX_ERRORS])
 
@@ -120,7 +132,7 @@ def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     each wrong member by its JSON path under ``dicom``."""
     if not isinstance(body, dict) or body.get("dicom") is None:
         return (({k: v for k, v in body.items() if k != "dicom"}) if isinstance(body, dict) else body), None
-    check_no_nul(body["dicom"], ("dicom",))
+    check_text(body["dicom"], ("dicom",))
     payload = {k: v for k, v in body.items() if k != "dicom"}
     try:
         provenance = DicomProvenance.model_validate(body["dicom"])
@@ -136,7 +148,7 @@ def admit(body: Any, settings: Settings, session: Session, owner: str | None,
           dicom: dict[str, Any] | None = None) -> JobPayload:  # fmt: skip
     """The payload ``body`` (completed by the client's ``dicom`` reads, ``split_dicom``) as a validated
     ``JobPayload`` within the service's limits; raise ``InvalidInput`` otherwise."""
-    check_no_nul(body)
+    check_text(body)
     if dicom is not None and isinstance(body, dict):
         body = engine_payload(apply_reads(body, dicom))
     checked, stood_in = _with_stand_in_spacing(body) if settings.dicomweb is not None else (body, ())

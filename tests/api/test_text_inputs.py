@@ -1,12 +1,14 @@
 """Text that the job database cannot store, or that no DICOM header holds, is a 422 naming the field,
 on both databases the service runs on: PostgreSQL's text and jsonb refuse the NUL character
-(PostgreSQL 15 documentation, §8.3 and §8.14), where SQLite stores it, so on PostgreSQL such a job
-was a 500 at its insert; and a DICOM LO or SH value holds no backslash and no control character
-(PS3.5 §6.2), so a filter or a follow-up asked for with one is refused, not a 404 or a 500."""
+(PostgreSQL 15 documentation, §8.3 and §8.14) and its json parser an unpaired surrogate, where SQLite
+stores both, so on PostgreSQL such a job was a 500 at its insert; and a DICOM LO or SH value holds
+no backslash and no control character (PS3.5 §6.2), so a filter or a follow-up asked for with one is
+refused, not a 404 or a 500."""
 
 from __future__ import annotations
 
 import copy
+import json
 import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -61,6 +63,19 @@ def test_a_nul_in_a_posted_text_is_a_422_naming_it_and_nothing_is_stored(
     assert problem["status"] == 422
     assert [(e["path"], e["type"]) for e in problem["errors"]] == [(path, "nul_character")]
     assert "NUL character (U+0000)" in problem["detail"]
+    assert client.get("/v1/jobs").json()["jobs"] == []
+
+
+@BACKENDS
+@pytest.mark.parametrize("escape", ["\\ud800", "\\udfff"], ids=["high", "low"])
+def test_an_unpaired_surrogate_is_a_422_naming_it_and_nothing_is_stored(client: TestClient, escape: str) -> None:
+    """A ``\\ud800`` escape alone decodes to no character (RFC 8259 §8.2); PostgreSQL's json parser
+    refuses it."""
+    body = json.dumps(spine_payload())[:-1] + f', "options": {{"profile": "x{escape}y"}}}}'
+    answer = client.post("/v1/jobs", content=body.encode(), headers={"Content-Type": "application/json"})
+    problem = problem_of(answer)
+    assert problem["status"] == 422
+    assert [(e["path"], e["type"]) for e in problem["errors"]] == [("options.profile", "unpaired_surrogate")]
     assert client.get("/v1/jobs").json()["jobs"] == []
 
 
