@@ -28,7 +28,7 @@ import numpy as np
 from PIL import Image
 from pydicom.valuerep import DA, DT, TM
 
-from .sr import MANUFACTURER, StudyIdentity
+from .sr import MANUFACTURER, StudyIdentity, declare_character_set
 from .uids import job_uids
 
 
@@ -67,4 +67,4 @@ def build_sc(
         sc.ContentTime = sc.InstanceCreationTime = sc.TimeOfSecondaryCapture = TM(content_datetime.time())
         for item in sc.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
             item.ContributionDateTime = DT(content_datetime)
-    return sc
+    return declare_character_set(sc)

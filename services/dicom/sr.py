@@ -30,7 +30,9 @@ profile), once per group rather than once per measurement (TID 1501 row 5 and TI
 allow it; per measurement it tripled the document's size and build time).
 
 The private coding scheme ``99SPINE`` (PS3.16 §8: designators beginning "99" are private) is
-declared in the Coding Scheme Identification Sequence (0008,0110) (PS3.3 §C.12.1.1.1).
+declared in the Coding Scheme Identification Sequence (0008,0110) (PS3.3 §C.12.1.1.1). Text beyond
+ASCII (a patient's name) is written in UTF-8, declared as Specific Character Set ``ISO_IR 192``
+(``declare_character_set``).
 """
 
 from __future__ import annotations
@@ -39,14 +41,14 @@ import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import date, datetime
-from typing import Any
+from typing import Any, TypeVar
 
 import highdicom as hd
 import numpy as np
 from highdicom.sr import CodedConcept
 from pydicom.dataset import Dataset
 from pydicom.sr.codedict import codes
-from pydicom.valuerep import DA, DT, TM
+from pydicom.valuerep import DA, DT, TM, PersonName
 
 from .cobb_lines import cobb_lines_px
 from .uids import job_uids
@@ -79,6 +81,26 @@ VERTEBRA_CODES: dict[str, tuple[str, str]] = {
 }
 """SNOMED CT codes of the 17 vertebrae, PS3.16 CID 7603 "Vertebra" (as pydicom 3.0.2's
 ``pydicom/sr/_concepts_dict.py`` lists them: ``codes.SCT.T1Vertebra`` ... ``codes.SCT.L5Vertebra``)."""
+
+
+UTF8_CHARACTER_SET = "ISO_IR 192"
+"""Specific Character Set (0008,0005) of Unicode in UTF-8 (PS3.5 §6.1.2.5.3; PS3.3 §C.12.1.1.2)."""
+
+
+AnyDataset = TypeVar("AnyDataset", bound=Dataset)
+
+
+def declare_character_set(ds: AnyDataset) -> AnyDataset:
+    """``ds`` with Specific Character Set (0008,0005) ``ISO_IR 192`` when a text value of it or of its
+    sequences is not ASCII (a patient's name "Müller^Jürgen", one in ideographs), as PS3.3 §C.12.1.1.2
+    requires of a dataset using other than the default repertoire (ISO-IR 6, ASCII): without it pydicom
+    writes such text in Latin-1 or as "?", and a reader decodes it as ASCII."""
+    for element in ds.iterall():
+        values = element.value if isinstance(element.value, list | tuple) else [element.value]
+        if any(isinstance(v, str | PersonName) and not str(v).isascii() for v in values):
+            ds.SpecificCharacterSet = UTF8_CHARACTER_SET
+            break
+    return ds
 
 
 def _private(value: str, meaning: str) -> CodedConcept:
@@ -444,4 +466,4 @@ def build_sr(
     scheme.CodingSchemeVersion = PRIVATE_SCHEME_VERSION
     scheme.CodingSchemeResponsibleOrganization = MANUFACTURER
     sr.CodingSchemeIdentificationSequence = [scheme]
-    return sr
+    return declare_character_set(sr)

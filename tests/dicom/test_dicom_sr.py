@@ -5,6 +5,7 @@ is valid; both in new series of the source study, with UIDs derived from the job
 from __future__ import annotations
 
 import copy
+import dataclasses
 import shutil
 import subprocess
 import uuid
@@ -14,6 +15,7 @@ from typing import Any
 
 import highdicom as hd
 import numpy as np
+import pydicom
 import pytest
 from pydicom.dataset import Dataset
 
@@ -287,3 +289,21 @@ def test_job_results_are_the_same_bytes_on_every_build(case: dict[str, Any]) -> 
     assert job_figure_sc(JOB, forms, finished) == job_figure_sc(JOB, forms, finished)
     without = JobForms(posted=payload, provenance=None, result=case["result"])
     assert job_sr(JOB, without, finished) != first  # without provenance: no image reference
+
+
+def test_a_name_beyond_ascii_is_written_in_utf8_and_declared(case: dict[str, Any], tmp_path: Path) -> None:
+    """PS3.3 §C.12.1.1.2: a dataset with text beyond the default repertoire (ASCII) declares its
+    character set; ISO_IR 192 (UTF-8, PS3.5 §6.1.2.5.3) holds any name. Without it an ideographic
+    name was written as "?" and a Latin one in undeclared Latin-1."""
+    identity = dataclasses.replace(case["identity"], patient_name="Müller^Jürgen=山田^太郎", patient_id="P-é1")
+    sr = build_sr(case["result"], case["payload"], JOB, identity, {"pa": case["source"]})
+    sc = build_sc(render_figure(case["result"], case["payload"], dpi=40), JOB, identity)
+    for name, ds in (("sr", sr), ("sc", sc)):
+        assert ds.SpecificCharacterSet == "ISO_IR 192"
+        back = pydicom.dcmread(_write(ds, tmp_path / f"{name}.dcm"))
+        assert (str(back.PatientName), back.PatientID) == ("Müller^Jürgen=山田^太郎", "P-é1")
+        if shutil.which("dciodvfy") is not None:
+            run = subprocess.run(["dciodvfy", str(tmp_path / f"{name}.dcm")], capture_output=True, text=True,
+                                 timeout=60)  # fmt: skip
+            assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
+    assert "SpecificCharacterSet" not in _sr(case)  # ASCII only: the default repertoire, nothing declared
