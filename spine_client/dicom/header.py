@@ -262,12 +262,21 @@ TEXT_PADDING = string.whitespace + "\0"
 
 def _text(ds: Dataset, keyword: str) -> str | None:
     """The attribute's value as text without its padding, None when absent or empty. ``InvalidAttribute``
-    when a control character is left inside: none of the VRs read here (AE, CS, DA, DT, LO, PN, SH, TM, UI)
-    holds one but ESC (PS3.5 §6.2), which the character set's decoding removes; such a value could
-    be neither matched nor stored (PostgreSQL's text holds no NUL)."""
+    when it holds several values (every attribute read so is of VM 1, PS3.6 §6: a list's text would
+    become the patient's ID), or when a control character is left inside: none of the VRs read here
+    (AE, CS, DA, DT, LO, PN, SH, TM, UI) holds one but ESC (PS3.5 §6.2), which the character set's
+    decoding removes; such a value could be neither matched nor stored (PostgreSQL's text holds no NUL)."""
     value = ds.get(keyword)
     if value is None:
         return None
+    if isinstance(value, pydicom.multival.MultiValue | list | tuple):
+        if len(value) > 1:
+            raise InvalidAttribute(
+                f"{attribute_label(keyword)} holds {len(value)} values {[str(v) for v in value][:4]}: it has one "
+                "(VM 1, PS3.6 §6)",
+                attributes=(keyword,),
+            )
+        value = value[0] if value else ""
     text = str(value).strip(TEXT_PADDING)
     bad = next((ch for ch in text if ord(ch) < 32 or ord(ch) == 127), None)
     if bad is not None:
@@ -277,6 +286,25 @@ def _text(ds: Dataset, keyword: str) -> str | None:
             attributes=(keyword,),
         )
     return text or None
+
+
+IDENTIFIER_MAX_LENGTH = {"PatientID": 64, "AccessionNumber": 16, "PatientName": 5 * 64}
+"""Longest value of the patient and study identifiers a job carries (PS3.5 §6.2: LO 64 and SH 16
+characters; PN five component groups of 64), as the contract's ``study`` takes them."""
+
+
+def _identifier(ds: Dataset, keyword: str) -> str | None:
+    """``_text`` of one of ``IDENTIFIER_MAX_LENGTH``'s attributes; ``InvalidAttribute`` when longer than its
+    VR allows (a non-conformant header: the job could neither carry it nor write it back)."""
+    text = _text(ds, keyword)
+    limit = IDENTIFIER_MAX_LENGTH[keyword]
+    if text is not None and len(text) > limit:
+        raise InvalidAttribute(
+            f"{attribute_label(keyword)} is {text[:80]!r}{'…' if len(text) > 80 else ''} ({len(text)} characters): "
+            f"its VR holds at most {limit} (PS3.5 §6.2)",
+            attributes=(keyword,),
+        )
+    return text
 
 
 def _optional_text(ds: Dataset, keyword: str) -> str | None:
@@ -345,6 +373,18 @@ def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...
             attributes=(keyword,),
         )
     return numbers
+
+
+def _dimension(ds: Dataset, keyword: str) -> int | None:
+    """Rows (0028,0010) or Columns (0028,0011): one positive integer (US, VM 1, PS3.3 §C.7.6.3), None when
+    absent; ``InvalidAttribute`` otherwise (several values, zero, a fraction)."""
+    numbers = _positive_numbers(ds, keyword, 1)
+    if numbers is None:
+        return None
+    if not numbers[0].is_integer():
+        raise InvalidAttribute(f"{attribute_label(keyword)} is {numbers[0]:g}, not a whole number of pixels",
+                               attributes=(keyword,))  # fmt: skip
+    return int(numbers[0])
 
 
 def _film_datetime(ds: Dataset) -> str | None:
@@ -581,7 +621,7 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         sources["acquisition.projection_model"] = (
             f"{attribute_label('SOPClassUID')}: a projection radiograph, from a point source"
         )
-    rows, columns = ds.get("Rows"), ds.get("Columns")
+    rows, columns = _dimension(ds, "Rows"), _dimension(ds, "Columns")
     if rows is not None and columns is not None:
         sources["acquisition.image_size"] = (
             f"[{attribute_label('Columns')}, {attribute_label('Rows')}] (× the pixel spacing in mm)"
@@ -591,9 +631,9 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         sop_instance_uid=sop_uid,
         series_instance_uid=_uid(ds, "SeriesInstanceUID", required=False),
         study_instance_uid=study_uid,
-        patient_id=_text(ds, "PatientID"),
-        patient_name=_text(ds, "PatientName"),
-        accession_number=_text(ds, "AccessionNumber"),
+        patient_id=_identifier(ds, "PatientID"),
+        patient_name=_identifier(ds, "PatientName"),
+        accession_number=_identifier(ds, "AccessionNumber"),
         study_date=_study_date(ds),
         study_time=_identity(ds, "StudyTime", "study_time"),
         film_datetime=_film_datetime(ds),
@@ -602,8 +642,8 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         patient_sex=_identity(ds, "PatientSex", "patient_sex"),
         referring_physician_name=_identity(ds, "ReferringPhysicianName", "referring_physician_name"),
         modality=_text(ds, "Modality"),
-        rows=int(rows) if rows is not None else None,
-        columns=int(columns) if columns is not None else None,
+        rows=rows,
+        columns=columns,
         photometric_interpretation=_text(ds, "PhotometricInterpretation"),
         pixel_spacing=spacing.spacing,
         pixel_spacing_calibration=spacing.calibration,

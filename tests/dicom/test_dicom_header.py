@@ -213,6 +213,26 @@ def test_a_control_character_inside_a_text_refuses_the_image_naming_it(attribute
     assert "control character" in str(info.value)
 
 
+@pytest.mark.parametrize(("tag", "element", "keyword", "reason"), [
+    ("00100020", {"vr": "LO", "Value": ["P1", "P2"]}, "PatientID", "holds 2 values"),
+    ("00080050", {"vr": "SH", "Value": ["A" * 17]}, "AccessionNumber", "17 characters"),
+    ("00100010", {"vr": "PN", "Value": [{"Alphabetic": "Doe^Jane"}, {"Alphabetic": "Roe^Ann"}]}, "PatientName",
+     "holds 2 values"),
+    ("00280010", {"vr": "US", "Value": [3200, 3200]}, "Rows", "2 value(s), expected 1"),
+    ("00280011", {"vr": "US", "Value": [0]}, "Columns", "positive"),
+])  # fmt: skip
+def test_an_identifier_or_size_its_vr_cannot_hold_refuses_the_image_naming_it(
+    tag: str, element: dict[str, Any], keyword: str, reason: str
+) -> None:
+    """PS3.6 §6: these attributes have one value; PS3.5 §6.2: SH holds 16 characters. A list used to
+    become the text "['P1', 'P2']" of the patient's ID, and a list of Rows a crash."""
+    data = synthetic.radiograph().to_json_dict()
+    data[tag] = element
+    with pytest.raises(InvalidAttribute) as info:
+        read_header(data)
+    assert info.value.attributes == (keyword,) and reason in str(info.value), str(info.value)
+
+
 def test_text_is_read_without_its_space_or_nul_padding() -> None:
     header = read_header(synthetic.radiograph(patient_id="P-1\x00", accession_number=" ACC-42 ",
                                               view_position="PA\x00", patient_orientation=None))  # fmt: skip
