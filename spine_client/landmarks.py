@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal, get_args
 
@@ -25,11 +26,24 @@ class LandmarkCsvError(ValueError):
     """A landmark CSV line that cannot be read; the message names the line."""
 
 
+def _rows_or_error(rows: Iterator[list[str]]) -> Iterator[list[str]]:
+    """The CSV's rows; ``LandmarkCsvError`` naming the line where the reader gives up (a field beyond
+    ``csv.field_size_limit``, a NUL where the reader refuses one)."""
+    while True:
+        try:
+            yield next(rows)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            line = getattr(rows, "line_num", 0)
+            raise LandmarkCsvError(f"line {line}: not readable as CSV ({exc})") from None
+
+
 def parse_landmark_csv(text: str) -> dict[str, list[dict[str, Any]]]:
     """``{"pa": [...], "lateral": [...]}`` landmarks (``{"level", "point"}``) sorted T1 → L5."""
     out: dict[str, list[dict[str, Any]]] = {"pa": [], "lateral": []}
     errors: list[str] = []
-    for number, cells in enumerate(csv.reader(io.StringIO(text)), start=1):
+    for number, cells in enumerate(_rows_or_error(csv.reader(io.StringIO(text))), start=1):
         cells = [c.strip() for c in cells]
         if not cells or not any(cells) or cells[0].startswith("#") or cells[0].lower() == "level":
             continue

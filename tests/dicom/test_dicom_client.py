@@ -95,6 +95,8 @@ def test_parse_landmark_csv() -> None:
         parse_landmark_csv("T1,1,2\nT1,1,2\n")
     with pytest.raises(LandmarkCsvError, match="no PA landmark"):
         parse_landmark_csv("T1,1,2,lateral\n")
+    with pytest.raises(LandmarkCsvError, match="line 2: not readable as CSV"):  # was csv.Error: a traceback
+        parse_landmark_csv("T1,1,2\nT2,\"" + "9" * 200_000 + "\",4\n")
 
 
 def test_python_client_builds_the_same_payload(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
