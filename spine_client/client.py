@@ -19,13 +19,16 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from datetime import datetime
 from email.utils import parsedate_to_datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import httpx
+from pydantic import BaseModel
 
 from spine_client import optional
-from spine_client.errors import ServiceUnreachable, WaitTimeout, error_for
+from spine_client.errors import ServiceUnreachable, UnexpectedResponse, WaitTimeout, error_for
 from spine_client.models import BatchEntry, BatchResult, Job, JobPage
+
+ModelT = TypeVar("ModelT", bound=BaseModel)
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 URL_ENV = "SPINE_URL"
@@ -129,16 +132,54 @@ class SpineClient:
                 continue
             if response.status_code >= 400:
                 raise error_for(response)
+            if response.status_code >= 300:  # not followed: a POST must not turn into a GET elsewhere
+                raise UnexpectedResponse(
+                    f"{method} {self.base_url}{path} answered {response.status_code}, a redirect to "
+                    f"{response.headers.get('location', '(no Location)')}: give the service's URL itself"
+                )
             return response
 
-    def _json(self, method: str, path: str, **kwargs: Any) -> Any:
-        return self.request(method, path, **kwargs).json()
+    def _json(self, method: str, path: str, *, expect: type[BaseModel] | None = None, **kwargs: Any) -> Any:
+        """The JSON body of a successful request, as sent (checked to be an ``expect`` when given);
+        ``UnexpectedResponse`` when it is not JSON, or not that."""
+        response = self.request(method, path, **kwargs)
+        try:
+            body = response.json()
+            if expect is not None:
+                expect.model_validate(body)
+        except ValueError:
+            raise self._unexpected(response, f"a {expect.__name__}" if expect is not None else "JSON") from None
+        return body
+
+    def _model(self, model: type[ModelT], method: str, path: str, **kwargs: Any) -> ModelT:
+        """The body of a successful request as the contract's ``model``; ``UnexpectedResponse`` otherwise."""
+        response = self.request(method, path, **kwargs)
+        try:
+            return model.model_validate_json(response.content)
+        except ValueError:
+            raise self._unexpected(response, f"a {model.__name__}") from None
+
+    def _content(self, method: str, path: str, media_types: tuple[str, ...], **kwargs: Any) -> bytes:
+        """The body of a successful request of one of ``media_types``; ``UnexpectedResponse`` otherwise."""
+        response = self.request(method, path, **kwargs)
+        media = response.headers.get("content-type", "").split(";", 1)[0].strip().lower()
+        if response.status_code >= 300 or media not in media_types:
+            raise self._unexpected(response, " or ".join(media_types))
+        return response.content
+
+    def _unexpected(self, response: httpx.Response, expected: str) -> UnexpectedResponse:
+        media = response.headers.get("content-type", "no content type")
+        return UnexpectedResponse(
+            f"{response.request.method} {response.request.url} answered {response.status_code} ({media}), not "
+            f"{expected} of the spine service's API: is {self.base_url} the service's URL? "
+            f"{response.text[:200]!r}"
+        )
 
     # -- jobs
     def submit(self, payload: Mapping[str, Any], *, idempotency_key: str | None = None) -> Job:
         """POST /v1/jobs; the job as queued (or as it is, when the key was used before with this body)."""
         key = idempotency_key or str(uuid.uuid4())
-        return Job.model_validate(self._json("POST", "/v1/jobs", json=payload, headers={"idempotency-key": key}))
+        return self._model(Job, "POST", "/v1/jobs", json=payload, headers={"idempotency-key": key})
 
     def submit_batch(
         self, payloads: Sequence[Mapping[str, Any]], *, idempotency_key: str | None = None, chunk: int = BATCH_CHUNK
@@ -148,19 +189,20 @@ class SpineClient:
         results: list[BatchEntry] = []
         for n, start in enumerate(range(0, len(payloads), chunk)):
             part = list(payloads[start : start + chunk])
-            body = self._json("POST", "/v1/jobs/batch", json={"jobs": part}, headers={"idempotency-key": f"{key}.{n}"})
-            for entry in BatchResult.model_validate(body).results:
+            body = self._model(BatchResult, "POST", "/v1/jobs/batch", json={"jobs": part},
+                               headers={"idempotency-key": f"{key}.{n}"})  # fmt: skip
+            for entry in body.results:
                 results.append(entry.model_copy(update={"index": entry.index + start}))
         accepted = sum(1 for e in results if e.status == 202)
         return BatchResult(accepted=accepted, rejected=len(results) - accepted, results=results)
 
     def get_json(self, job_id: uuid.UUID | str) -> dict[str, Any]:
-        """GET /v1/jobs/{id} as the server sent it."""
-        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}")
+        """GET /v1/jobs/{id} as the server sent it (checked to be a ``Job``)."""
+        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}", expect=Job)
         return body
 
     def get(self, job_id: uuid.UUID | str) -> Job:
-        return Job.model_validate(self.get_json(job_id))
+        return self._model(Job, "GET", f"/v1/jobs/{job_id}")
 
     def wait(
         self,
@@ -207,7 +249,7 @@ class SpineClient:
         params.update({k: v for k, v in dicom.items() if v is not None})
         if cursor:
             params["cursor"] = cursor
-        return JobPage.model_validate(self._json("GET", "/v1/jobs", params=params))
+        return self._model(JobPage, "GET", "/v1/jobs", params=params)
 
     def iter_jobs(self, *, page_size: int = 100, **filters: Any) -> Iterator[Job]:
         """Every job matching the filters of ``list``, following the cursor."""
@@ -221,24 +263,30 @@ class SpineClient:
 
     def cancel(self, job_id: uuid.UUID | str) -> Job:
         """POST /v1/jobs/{id}/cancel; ``JobNotCancellable`` when it already succeeded or failed."""
-        return Job.model_validate(self._json("POST", f"/v1/jobs/{job_id}/cancel"))
+        return self._model(Job, "POST", f"/v1/jobs/{job_id}/cancel")
 
     # -- exports
     def fhir(self, job_id: uuid.UUID | str) -> dict[str, Any]:
         """GET /v1/jobs/{id}/fhir: the FHIR R4 Bundle of a succeeded job's measures."""
-        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}/fhir")
+        body = self._json("GET", f"/v1/jobs/{job_id}/fhir")
+        if not isinstance(body, dict) or body.get("resourceType") != "Bundle":
+            raise UnexpectedResponse(f"GET {self.base_url}/v1/jobs/{job_id}/fhir answered JSON that is not a FHIR "
+                                     f"Bundle: {str(body)[:200]!r}")  # fmt: skip
         return body
 
     def figure(self, job_id: uuid.UUID | str, fmt: Literal["png", "svg"] = "png") -> bytes:
-        return self.request("GET", f"/v1/jobs/{job_id}/figure.{fmt}").content
+        media = {"png": ("image/png",), "svg": ("image/svg+xml",)}[fmt]
+        return self._content("GET", f"/v1/jobs/{job_id}/figure.{fmt}", media)
 
     def sr(self, job_id: uuid.UUID | str) -> bytes:
         """GET /v1/jobs/{id}/sr.dcm: the result as a DICOM SR (TID 1500 Measurement Report), Part 10 bytes."""
-        return self.request("GET", f"/v1/jobs/{job_id}/sr.dcm", headers={"accept": "application/dicom"}).content
+        return self._content("GET", f"/v1/jobs/{job_id}/sr.dcm", ("application/dicom",),
+                             headers={"accept": "application/dicom"})  # fmt: skip
 
     def figure_dicom(self, job_id: uuid.UUID | str) -> bytes:
         """GET /v1/jobs/{id}/figure.dcm: the figure as a DICOM Secondary Capture, Part 10 bytes."""
-        return self.request("GET", f"/v1/jobs/{job_id}/figure.dcm", headers={"accept": "application/dicom"}).content
+        return self._content("GET", f"/v1/jobs/{job_id}/figure.dcm", ("application/dicom",),
+                             headers={"accept": "application/dicom"})  # fmt: skip
 
     def submit_dicom(
         self,

@@ -72,6 +72,12 @@ class ServerError(ApiError):
     """5xx, still after the client's retries."""
 
 
+class UnexpectedResponse(SpineError):
+    """A response that is not one of the contract's: a success or redirect whose body is not the JSON
+    (or the media type) the operation answers with; most often a URL that is not the service's (a
+    proxy's login page, the web page, http redirected to https)."""
+
+
 class ServiceUnreachable(SpineError):
     """No HTTP answer (connection refused, timeout…), still after the client's retries."""
 

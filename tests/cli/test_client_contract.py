@@ -1,10 +1,13 @@
 """The client's models are the contract's (``spine_client/contract.py`` generated from openapi.yaml,
 which tests/api compare with the app), its imports are a tree without cycles or imports hidden in
-functions, and its retries follow ``SpineClient.retry_wait``."""
+functions, its retries follow ``SpineClient.retry_wait``, and an answer that is not the contract's
+is an ``UnexpectedResponse`` (the CLI's server exit status), not a traceback."""
 
 from __future__ import annotations
 
 import ast
+import http.server
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -13,8 +16,8 @@ import httpx
 import pytest
 import yaml
 
-from spine_client import SpineClient, contract, models
-from spine_client.errors import ServerError, ServiceUnreachable
+from spine_client import SpineClient, cli, contract, models
+from spine_client.errors import ServerError, ServiceUnreachable, UnexpectedResponse
 from tools.client_models import generate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -118,3 +121,57 @@ def test_retries_back_off_on_network_errors() -> None:
         client.get_json("x")
     # min(max_backoff, backoff·2^(n-1)) times a jitter in [0.5, 1): 1, 2, 4 s
     assert [0.5 <= w / (2**n) < 1.0 for n, w in enumerate(waits)] == [True] * 3
+
+
+JOB_ID = "00000000-0000-4000-8000-000000000000"
+
+
+@pytest.mark.parametrize(("status", "headers", "body"), [
+    (200, {"content-type": "text/html"}, b"<html>sign in</html>"),
+    (200, {"content-type": "application/json"}, b'{"unexpected": true}'),
+    (302, {"location": "https://spine.test/v1/jobs"}, b""),
+], ids=["a page", "JSON of another API", "a redirect"])  # fmt: skip
+@pytest.mark.parametrize("call", [
+    lambda c: c.get(JOB_ID), lambda c: c.get_json(JOB_ID), lambda c: c.list(), lambda c: c.cancel(JOB_ID),
+    lambda c: c.submit({}), lambda c: c.fhir(JOB_ID), lambda c: c.figure(JOB_ID), lambda c: c.sr(JOB_ID),
+], ids=["get", "get_json", "list", "cancel", "submit", "fhir", "figure", "sr"])  # fmt: skip
+def test_an_answer_that_is_not_the_contracts_is_an_unexpected_response(
+    status: int, headers: dict[str, str], body: bytes, call: Any
+) -> None:
+    """A URL that is not the service's (a proxy's sign-in page, another API, http sent on to https)
+    used to give a traceback (JSONDecodeError: exit 1, a failed job's status) or exit 0 with the
+    foreign JSON printed as the job."""
+    transport = httpx.MockTransport(lambda request: httpx.Response(status, headers=headers, content=body))
+    with SpineClient("http://spine.test", transport=transport, retries=0) as client, \
+            pytest.raises(UnexpectedResponse, match=r"spine\.test"):  # fmt: skip
+        call(client)
+
+
+class _NotTheService(http.server.BaseHTTPRequestHandler):
+    """Any GET answers 200 with a sign-in page, as a proxy in front of nothing would."""
+
+    def do_GET(self) -> None:
+        body = b"<html>sign in</html>"
+        self.send_response(200)
+        self.send_header("Content-Type", "text/html")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *_: Any) -> None:
+        pass
+
+
+def test_the_cli_exits_with_the_server_status_at_a_url_that_is_not_the_services(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    server = http.server.HTTPServer(("127.0.0.1", 0), _NotTheService)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}"
+        code = cli.main(["get", JOB_ID, "--url", url, "--retries", "0"])
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert code == cli.EXIT_SERVER
+    assert "answered 200 (text/html), not a Job" in capsys.readouterr().err
