@@ -79,6 +79,7 @@ from spine_engine.errors import SpineEngineError
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures, frontal_tilt_deg
+from spine_engine.models import LANDMARK_SD_MM_DEFAULT
 from spine_engine.reconstruction import register
 from spine_engine.synthetic import generate_spines
 
@@ -488,6 +489,19 @@ def drop_landmarks(payload: dict[str, Any], rng: np.random.Generator) -> dict[st
     return kept
 
 
+def residual_to_sd(payload: dict[str, Any], result: dict[str, Any]) -> float:
+    """The largest over the views of the landmark residual, RMS per image coordinate (√(mean d²/2),
+    d each landmark's distance to the fit, ``fit.residuals``), over the view's landmark SD (stated,
+    else ``LANDMARK_SD_MM_DEFAULT``): what ``reconstruction.LANDMARK_SD_CONTRADICTED`` bounds."""
+    ratios = []
+    for view in ("pa", "lateral"):
+        d = np.array([r["residual_mm"] for r in result["fit"]["residuals"] if r["view"] == view])
+        if view in payload and d.size:
+            sd = payload[view].get("landmark_sd_mm") or LANDMARK_SD_MM_DEFAULT
+            ratios.append(float(np.sqrt(np.mean(d**2) / 2.0)) / sd)
+    return max(ratios, default=0.0)
+
+
 def convergence_sweep(
     datasets: dict[str, list[Truth]],
     cases: Sequence[SweepCase],
@@ -504,7 +518,8 @@ def convergence_sweep(
     drawn from the seed, the spine and the case), listed with a failure."""
     failures: list[dict[str, Any]] = []
     per_case: dict[str, dict[str, Any]] = {
-        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0} for sc in cases
+        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0, "max_residual_to_sd": 0.0}
+        for sc in cases
     }
     for seed in seeds:
         for name, truths in datasets.items():
@@ -529,6 +544,7 @@ def convergence_sweep(
                         })  # fmt: skip
                         continue
                     row["max_iterations"] = max(row["max_iterations"], int(result["fit"]["iterations"]))
+                    row["max_residual_to_sd"] = max(row["max_residual_to_sd"], residual_to_sd(payload, result))
     runs = sum(r["runs"] for r in per_case.values())
     return {"seeds": list(seeds), "drop_levels": drop_levels, "runs": runs, "failed": len(failures),
             "per_case": per_case, "failures": failures}
@@ -537,8 +553,9 @@ def convergence_sweep(
 def sweep_table(sweep: dict[str, Any]) -> str:
     """The sweep as text: runs, failures and the most solver iterations per case, then each failure."""
     body = format_table(
-        ["case", "runs", "failed", "max iter", "title"],
-        [[k, r["runs"], r["failures"], r["max_iterations"], r["title"]] for k, r in sweep["per_case"].items()],
+        ["case", "runs", "failed", "max iter", "max residual / SD", "title"],
+        [[k, r["runs"], r["failures"], r["max_iterations"], f"{r['max_residual_to_sd']:.2f}", r["title"]]
+         for k, r in sweep["per_case"].items()],
     )
     if not sweep["failures"]:
         return body + f"\nno failure in {sweep['runs']} runs (seeds {sweep['seeds']})"

@@ -83,3 +83,14 @@ def test_drop_landmarks_keeps_at_least_half_and_three_in_order() -> None:
     first, again = ({"pa": {"landmarks": [{"level": lv} for lv in levels]}} for _ in range(2))
     kept_first = clinic.drop_landmarks(first, np.random.default_rng(7))
     assert kept_first == clinic.drop_landmarks(again, np.random.default_rng(7))
+
+
+def test_residual_to_sd_is_the_worst_views_rms_per_coordinate_over_its_sd() -> None:
+    """Distances 3 and 4 mm (RMS per coordinate √((9 + 16)/4) = 2.5 mm) over a stated 0.5 mm; the
+    lateral's 1 mm over the default 1 mm."""
+    payload = {"pa": {"landmark_sd_mm": 0.5}, "lateral": {}}
+    result = {"fit": {"residuals": [{"view": "pa", "residual_mm": 3.0}, {"view": "pa", "residual_mm": 4.0},
+                                    {"view": "lateral", "residual_mm": np.sqrt(2.0)}]}}  # fmt: skip
+    assert clinic.residual_to_sd(payload, result) == 5.0
+    del payload["pa"]["landmark_sd_mm"]
+    assert clinic.residual_to_sd(payload, result) == 2.5
