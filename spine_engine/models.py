@@ -197,7 +197,9 @@ class _View(_Strict):
         None,
         description="1 SD of a landmark per image coordinate on this view, detector mm; weights the view's "
         f"landmarks. Default (null): {LANDMARK_SD_MM_DEFAULT:g} mm (clinicians' landmark placement; "
-        "models.LANDMARK_SD_MM_DEFAULT cites the source).",
+        "models.LANDMARK_SD_MM_DEFAULT cites the source). When the view's landmarks lie more than 4 such SDs (RMS "
+        "per coordinate) from the spine fitted to them, the job fails with a validation problem naming this "
+        "field (landmark_sd_contradicted): the SD is too small for them.",
     )
     pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
         None,
