@@ -91,6 +91,9 @@ def _load_json(path: str) -> Any:
         text = sys.stdin.read() if path == "-" else Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"{path} is not UTF-8 text, as JSON is (RFC 8259 §8.1): byte 0x{exc.object[exc.start]:02x} "
+                         f"at offset {exc.start}") from None  # fmt: skip
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -175,3 +175,12 @@ def test_the_cli_exits_with_the_server_status_at_a_url_that_is_not_the_services(
         server.server_close()
     assert code == cli.EXIT_SERVER
     assert "answered 200 (text/html), not a Job" in capsys.readouterr().err
+
+
+def test_a_payload_file_that_is_not_utf8_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """It used to end in a traceback (UnicodeDecodeError: exit 1, a failed job's status); read before
+    any request, so no service is needed."""
+    bad = tmp_path / "payload.json"
+    bad.write_bytes(b"\xff\xfe{}")
+    assert cli.main(["submit", str(bad), "--url", "http://127.0.0.1:9", "--retries", "0"]) == cli.EXIT_USAGE
+    assert "is not UTF-8 text" in capsys.readouterr().err
