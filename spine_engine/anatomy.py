@@ -46,7 +46,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,10 +58,10 @@ from .errors import UnknownProfile
 from .frames import frames_from_centreline
 from .levels import LEVELS, N_LEVELS
 from .measures import kyphosis_lordosis_deg
+from .profile_files import PROFILE_NAME, PROFILES_DIR, list_profiles
 
 FloatArray = npt.NDArray[np.float64]
 
-PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
 
 # level: (body height H, endplate width W, endplate depth D), mm (sources in the module docstring)
 VERTEBRA_TABLE: dict[str, tuple[float, float, float]] = {
@@ -260,12 +259,6 @@ class Profile:
 
 _PROFILE_KEYS = tuple(Profile.__dataclass_fields__)
 _OPTIONAL_PROFILE_KEYS = ("stretch_factor", "rest_shape", "population_prior")
-_PROFILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
-
-
-def list_profiles() -> list[str]:
-    """Names of the profiles shipped in ``spine_engine/profiles/`` (file stems), sorted."""
-    return sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
 
 
 def profile_from_dict(data: dict[str, Any]) -> Profile:
@@ -282,7 +275,7 @@ def load_profile(name: str = "default") -> Profile:
     """The shipped profile ``spine_engine/profiles/<name>.json``; UnknownProfile if there is none.
     Read once per process (``save_profile`` forgets what was read): a profile already read costs
     no file-system call; a missing one is looked for again on every call (failures are not cached)."""
-    if not _PROFILE_NAME.match(name):
+    if not PROFILE_NAME.fullmatch(name):
         raise UnknownProfile(name, list_profiles())
     try:
         return _read_profile(name)

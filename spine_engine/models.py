@@ -336,7 +336,11 @@ class Boundary(_Strict):
 
 
 class Options(_Strict):
-    profile: str = Field("default", description="Name of the elastic-property profile to use.")
+    profile: str = Field(
+        "default",
+        description="Name of the elastic-property profile to use, one shipped with the engine "
+        "(spine_engine/profiles/); another name is refused naming this field (unknown_profile).",
+    )
     tilt_prior: bool | None = Field(
         None,
         description="Use the calibrated prior on the frontal tilt of PA vertebrae given by a point only "

@@ -7,9 +7,10 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from .errors import FieldError, InvalidInput
+from .errors import FieldError, InvalidInput, UnknownProfile
 from .levels import LEVEL_INDEX, LEVELS
 from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, Landmark, LateralView, PAView
+from .profile_files import is_profile, list_profiles
 
 _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
 """Errors raised by a model validator on a whole landmark, and the field their location names."""
@@ -413,7 +414,8 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
 
     Numbers must be finite, levels known and unique per view, directors orthonormal and
     right-handed within 1e-3, ``px`` units need ``pixel_spacing``, and each view needs at least
-    ``minimum_levels`` landmarked levels, any levels (``MIN_LEVELS_*``). A landmark has exactly
+    ``minimum_levels`` landmarked levels, any levels (``MIN_LEVELS_*``); ``options.profile`` must name a
+    shipped profile (``profile_files``). A landmark has exactly
     one of ``point`` / ``corners`` (the error names the field: ``point`` when neither is given,
     ``corners`` when both are); corners need an upright view (rows H or F), pedicles the PA view
     with columns L or R. On an upright view the landmarks must run head to feet in level order;
@@ -436,7 +438,8 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
             ]
         ) from None
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
-    errors = _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    errors = [] if is_profile(model.options.profile) else UnknownProfile(model.options.profile, list_profiles()).errors
+    errors += _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
     errors += _order_errors("pa", model.pa, payload.get("pa"), "pa" not in unscaled_views)
     errors += _corner_errors("pa", payload.get("pa"))
     if model.lateral is not None:

@@ -85,6 +85,20 @@ def spine_payload(
     return copy
 
 
+def engine_refused_payload() -> dict[str, Any]:
+    """A payload the API takes and the engine refuses, for a job that fails in the worker: a lateral
+    film whose levels lie 2 mm above and below the PA's in turn, which no spine's heights do, under a
+    stated landmark SD of 0.001 mm (``landmark_sd_contradicted``)."""
+    payload = spine_payload()
+    payload["lateral"] = {"landmarks": [
+        {"level": lm["level"], "point": [60.0, lm["point"][1] + (2.0 if i % 2 else -2.0)]}
+        for i, lm in enumerate(payload["pa"]["landmarks"])
+    ]}  # fmt: skip
+    for view in ("pa", "lateral"):
+        payload[view]["landmark_sd_mm"] = 0.001
+    return payload
+
+
 @pytest.fixture
 def payload() -> dict[str, Any]:
     return spine_payload()

@@ -163,6 +163,8 @@ def cases() -> list[Case]:
         Case("left-handed directors", "T1 directors `[[1,0,0],[0,-1,0],[0,0,1]]`",
              body=edited(_set(("boundary", "T1", "directors"), [[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]]))),
         Case("unknown field", "`\"colour\": \"blue\"` at the top", body=edited(_set(("colour",), "blue"))),
+        Case("unknown profile", "`options.profile` `\"defualt\"`",
+             body=edited(_set(("options",), {"profile": "defualt"}))),
         Case("NUL character in a text", "`options.profile` `\"x\\u0000y\"` (PostgreSQL stores no NUL)",
              body=edited(_set(("options",), {"profile": "x\x00y"}))),
         Case("deep nesting (parser)", "100,000 nested `[`", body=b"[" * 100_000 + b"]" * 100_000),

@@ -337,3 +337,15 @@ def test_every_job_view_writes_timestamps_in_one_format(api: TestClient, payload
               read["created_at"], read["finished_at"], *(j["created_at"] for j in listed)]  # fmt: skip
     assert all(TIMESTAMP.match(s) for s in stamps), stamps
     assert iso_utc(datetime(2026, 12, 1, 17, 0, 0, tzinfo=UTC)) == "2026-12-01T17:00:00.000000Z"
+
+
+def test_an_unknown_profile_is_refused_at_the_door(api: TestClient, payload: dict[str, Any]) -> None:
+    """It used to pass the API and fail the job in the worker; the problem names the field and the
+    profiles there are."""
+    payload["options"] = {"profile": "defualt"}
+    response = api.post("/v1/jobs", json=payload)
+    assert response.status_code == 422
+    errors = problem_of(response)["errors"]
+    assert [(e["path"], e["type"]) for e in errors] == [("options.profile", "unknown_profile")]
+    assert "'default'" in errors[0]["msg"]
+    assert api.get("/v1/jobs").json()["jobs"] == []

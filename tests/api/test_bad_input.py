@@ -37,6 +37,7 @@ EXPECTED = {
     "non-orthonormal directors": (422, "validation-error"),
     "left-handed directors": (422, "validation-error"),
     "unknown field": (422, "validation-error"),
+    "unknown profile": (422, "validation-error"),
     "NUL character in a text": (422, "validation-error"),
     "deep nesting (parser)": (400, "malformed-json"),
     "deep nesting (in a field)": (422, "validation-error"),
@@ -87,6 +88,7 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["duplicate key"] == "pa.units"
     assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
     assert validation["NUL character in a text"] == "options.profile"
+    assert validation["unknown profile"] == "options.profile"
     assert validation["control character in a DICOM filter"] == "query.patient_id"
 
 

@@ -40,7 +40,7 @@ from spine_client import (
 )
 from spine_client import cli as client_cli
 from spine_client.models import RegistrationResult
-from tests.conftest import _postgres_database, _purge_queue, spine_payload
+from tests.conftest import _postgres_database, _purge_queue, engine_refused_payload, spine_payload
 from tests.interop_helpers import ApiOnly, FlakyProxy, Receiver, Rule, Served, free_port, wait_until
 
 pytestmark = pytest.mark.integration
@@ -150,8 +150,7 @@ def test_client_errors_carry_the_problem(client: SpineClient) -> None:
     client.submit(spine_payload(), idempotency_key=key)
     with pytest.raises(IdempotencyConflict):
         client.submit(spine_payload(curve_mm=3.0), idempotency_key=key)
-    failing = spine_payload()
-    failing["options"] = {"profile": "no-such-profile"}  # passes the API, refused by the engine
+    failing = engine_refused_payload()  # passes the API, refused by the engine
     with pytest.raises(JobFailed) as failed:
         client.wait(client.submit(failing).id, timeout=60).raise_for_status()
     assert failed.value.job.status == "failed" and failed.value.job.error is not None
@@ -400,7 +399,7 @@ def test_webhooks_on_cancel_and_failure_and_refused_destinations(
         queued, _ = jobs_repo.create_job(session, payload)
     assert client.cancel(queued.id).status == "cancelled"
     client.cancel(queued.id)  # a second cancel sends nothing more
-    failing = dict(payload, options={"profile": "no-such-profile"})
+    failing = {**engine_refused_payload(), "callback_url": payload["callback_url"]}
     failed = client.wait(client.submit(failing).id, timeout=60)
     assert failed.status == "failed"
     _deliveries(client, queued.id, 1)

@@ -18,7 +18,7 @@ from services.db import jobs as repo
 from services.db.engine import session_scope
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from spine_engine.models import RegistrationResult
-from tests.conftest import Service, spine_payload
+from tests.conftest import Service, engine_refused_payload, spine_payload
 
 pytestmark = pytest.mark.integration
 
@@ -46,12 +46,10 @@ def test_a_job_runs_to_a_stored_result(service: Service) -> None:
 
 
 def test_an_engine_rejection_fails_the_job_with_a_problem(service: Service) -> None:
-    payload = spine_payload()
-    payload["options"] = {"profile": "no-such-profile"}  # passes the API, refused by the engine
-    done = service.wait(service.submit(payload)["id"])
+    done = service.wait(service.submit(engine_refused_payload())["id"])  # passes the API, refused by the engine
     assert done["status"] == "failed" and done["result"] is None
     assert done["error"]["type"] == PROBLEM_BASE + "validation-error"
-    assert [e["path"] for e in done["error"]["errors"]] == ["options.profile"]
+    assert [e["path"] for e in done["error"]["errors"]] == ["pa.landmark_sd_mm", "lateral.landmark_sd_mm"]
     assert done["attempts"] == 1
 
 
