@@ -80,7 +80,7 @@ from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures, frontal_tilt_deg
 from spine_engine.models import LANDMARK_SD_MM_DEFAULT
-from spine_engine.reconstruction import register
+from spine_engine.reconstruction import register, residual_per_coordinate_mm
 from spine_engine.synthetic import generate_spines
 
 # ---------------------------------------------------------------- one reconstruction
@@ -491,14 +491,15 @@ def drop_landmarks(payload: dict[str, Any], rng: np.random.Generator) -> dict[st
 
 def residual_to_sd(payload: dict[str, Any], result: dict[str, Any]) -> float:
     """The largest over the views of the landmark residual, RMS per image coordinate (√(mean d²/2),
-    d each landmark's distance to the fit, ``fit.residuals``), over the view's landmark SD (stated,
-    else ``LANDMARK_SD_MM_DEFAULT``): what ``reconstruction.LANDMARK_SD_CONTRADICTED`` bounds."""
+    d each landmark's distance to the fit, ``fit.residuals``, ``reconstruction.residual_per_coordinate_mm``),
+    over the view's landmark SD (stated, else ``LANDMARK_SD_MM_DEFAULT``): what
+    ``reconstruction.LANDMARK_SD_CONTRADICTED`` bounds."""
     ratios = []
     for view in ("pa", "lateral"):
-        d = np.array([r["residual_mm"] for r in result["fit"]["residuals"] if r["view"] == view])
-        if view in payload and d.size:
+        d = [r["residual_mm"] for r in result["fit"]["residuals"] if r["view"] == view]
+        if view in payload and d:
             sd = payload[view].get("landmark_sd_mm") or LANDMARK_SD_MM_DEFAULT
-            ratios.append(float(np.sqrt(np.mean(d**2) / 2.0)) / sd)
+            ratios.append(residual_per_coordinate_mm(d) / sd)
     return max(ratios, default=0.0)
 
 

@@ -212,6 +212,11 @@ class _View(_Strict):
         "one it takes the magnification as 1 (not the prior). Carried to fit.<view>.pixel_spacing_calibration.",
     )
 
+    @property
+    def sd_mm(self) -> float:
+        """σ, detector mm: ``landmark_sd_mm``, or ``LANDMARK_SD_MM_DEFAULT`` when the view states none."""
+        return self.landmark_sd_mm if self.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+
     @field_validator("patient_orientation")
     @classmethod
     def _orientation(cls, value: tuple[str, str]) -> tuple[str, str]:

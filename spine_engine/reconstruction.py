@@ -327,7 +327,7 @@ def _view_data(
     ``axes``: its image axes (e_c, e_r) (``projection.image_axes``)."""
     e_c, e_r = axes
     scale = camera.reference_scale if camera is not None else float(initial[0])
-    sd = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
+    sd = view.sd_mm
     return ViewData(
         name=name,
         indices=np.asarray(arrays.indices, dtype=int),
@@ -761,6 +761,11 @@ lateral ERMF 10–30 % off the PA's scale; films from a point source, not said s
 0.25 mm of stated noise)."""
 
 
+def residual_per_coordinate_mm(distances: Sequence[float] | np.ndarray) -> float:
+    """RMS per image coordinate of landmark residuals given as 2D distances d (mm): √(mean d²/2)."""
+    return math.sqrt(float(np.mean(np.square(distances))) / 2.0)
+
+
 def _check_landmark_sd(model: JobPayload, out: FitOutput) -> None:
     """Raise ``InvalidInput`` naming each view's ``landmark_sd_mm`` that its landmarks contradict
     (``LANDMARK_SD_CONTRADICTED``): the fit would report intervals as narrow as the SD says, or
@@ -771,8 +776,8 @@ def _check_landmark_sd(model: JobPayload, out: FitOutput) -> None:
         distances = out.residuals_mm.get(name)
         if view is None or distances is None or len(distances) == 0:
             continue
-        sd = view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
-        rms = math.sqrt(float(np.mean(np.square(distances))) / 2.0)
+        sd = view.sd_mm
+        rms = residual_per_coordinate_mm(distances)
         if rms > LANDMARK_SD_CONTRADICTED * sd:
             said = "stated" if view.landmark_sd_mm is not None else "assumed (the default; state landmark_sd_mm)"
             errors.append(FieldError(

@@ -74,11 +74,6 @@ def _payload_index(raw: Any) -> dict[Any, int] | None:
     return {lm.get("level"): i for i, lm in enumerate(landmarks) if isinstance(lm, dict)}
 
 
-def _landmark_sd_mm(view: PAView | LateralView) -> float:
-    """σ, detector mm: the view's ``landmark_sd_mm`` or the default."""
-    return view.landmark_sd_mm if view.landmark_sd_mm is not None else LANDMARK_SD_MM_DEFAULT
-
-
 def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """On an upright view (rows toward F or H) the levels must follow each other head to feet.
 
@@ -100,7 +95,7 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     toward_feet = 1.0 if row_direction == "F" else -1.0
     levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
     points = [_top_midpoint(lm) for lm in view.landmarks]
-    noise_mm = NOISE_SDS * math.sqrt(2.0) * _landmark_sd_mm(view)
+    noise_mm = NOISE_SDS * math.sqrt(2.0) * view.sd_mm
     allowance = 0.0
     if scaled and (view.units == "mm" or view.pixel_spacing is not None):
         allowance = noise_mm / _mm_per_unit(view)[1]
@@ -326,7 +321,7 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
     levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
     points = [(column * column_mm, row * row_mm) for column, row in map(_top_midpoint, view.landmarks)]  # film mm
     m_min, m_max = _magnification_range(view)
-    sigma = _landmark_sd_mm(view)
+    sigma = view.sd_mm
     noise = NOISE_SDS * math.sqrt(2.0) * sigma
     lo, hi = VERSE_DISTANCE_RATIO
     pairs = _consecutive_pairs(levels, points)
