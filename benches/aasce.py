@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from benches.clinic import residual_to_sd
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from spine_engine.anatomy import VERTEBRA_TABLE, rest_segment_lengths
 from spine_engine.errors import FitFailed, InvalidInput
@@ -285,6 +286,8 @@ class Outcome:
     failed: list[str]
     major_sd: dict[str, float] = dataclasses.field(default_factory=dict)
     """The reported SD of the major angle, per method that reports one (a major curve found)."""
+    residual_to_sd: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Per fitted method, the landmark residual over its SD (``clinic.residual_to_sd``)."""
 
 
 def evaluate(rad: Radiograph) -> Outcome:
@@ -295,12 +298,16 @@ def evaluate(rad: Radiograph) -> Outcome:
     vectors, mids = corner_axes(rad.corners)
     three["script"] = aasce_angles(vectors, mids, rad.height_px)
 
+    ratio: dict[str, float] = {}
+
     def run(name: str, body: dict[str, Any]) -> dict[str, Any] | None:
         try:
-            return register(body)
+            result = register(body)
         except (FitFailed, InvalidInput):  # refused annotations count as not reconstructed
             failed.append(name)
             return None
+        ratio[name] = residual_to_sd(body, result)
+        return result
 
     a = run("corners", payload(rad, "corners"))
     if a is not None:
@@ -331,7 +338,7 @@ def evaluate(rad: Radiograph) -> Outcome:
     lv, lm = line_axes(rad)
     three["line"] = aasce_angles(lv, lm, rad.height_px)
     major["line"] = float(three["line"][0])
-    return Outcome(major, three, failed, major_sd)
+    return Outcome(major, three, failed, major_sd, ratio)
 
 
 def interval_coverage(errors: np.ndarray, sds: np.ndarray) -> float:
@@ -377,6 +384,8 @@ def summarise(
                 "not_reconstructed": int(sum(method in outcomes[i].failed for i in range(len(outcomes)) if keep[i])),
                 "major_coverage_95": interval_coverage(err[with_sd], sds) if with_sd else None,
                 "major_coverage_n": len(with_sd),
+                "max_residual_to_sd": max((outcomes[i].residual_to_sd[method] for i in ok
+                                           if method in outcomes[i].residual_to_sd), default=None),
             }
         )
     return rows
@@ -802,6 +811,7 @@ def main(argv: list[str] | None = None) -> int:
         "smape_pct",
         "not_reconstructed",
         "major_coverage_95",
+        "max_residual_to_sd",
     ]
     tables = {
         "all": summarise(rads, outcomes),

@@ -754,7 +754,8 @@ from each landmark to the fitted spine's projection, detector mm), to its landma
 drawn (``spine bench clinic --split dev --seeds 3 --noise-mm N``, column "max residual / SD"; 1320 fits
 per N): at most 0.90 in every case at 0.5, 1, 2 and 3 mm, but (h), perspective films read in weak
 perspective, whose misfit of about 1 mm per coordinate reads 2.10 at 0.5 mm and 1.17 at 1 mm; all of
-AASCE training's radiographs at the default SD read at most 0.54 (midpoints) and 0.90 (corners).
+AASCE training's radiographs at the default SD read at most 0.54 (midpoints) and 0.90 (corners)
+(``spine bench aasce --split training``, column "max_residual_to_sd").
 Beyond 4 the landmarks contradict the SD: a noise stated ten or a hundred times too small (1 mm stated
 as 0.01 mm reads about 36), clicks no spine passes through, or a geometry the films do not have (a
 lateral ERMF 10–30 % off the PA's scale; films from a point source, not said so, with less than about
