@@ -288,6 +288,9 @@ class Outcome:
     """The reported SD of the major angle, per method that reports one (a major curve found)."""
     residual_to_sd: dict[str, float] = dataclasses.field(default_factory=dict)
     """Per fitted method, the landmark residual over its SD (``clinic.residual_to_sd``)."""
+    smallest_projection: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Per fitted method, the shortest projection of a vertebra's d1 on the PA (|(d1_x, d1_z)|, at most 1;
+    ``reconstruction.END_ON_PROJECTION`` refuses corners met below 0.5)."""
 
 
 def evaluate(rad: Radiograph) -> Outcome:
@@ -299,6 +302,7 @@ def evaluate(rad: Radiograph) -> Outcome:
     three["script"] = aasce_angles(vectors, mids, rad.height_px)
 
     ratio: dict[str, float] = {}
+    projection: dict[str, float] = {}
 
     def run(name: str, body: dict[str, Any]) -> dict[str, Any] | None:
         try:
@@ -307,6 +311,8 @@ def evaluate(rad: Radiograph) -> Outcome:
             failed.append(name)
             return None
         ratio[name] = residual_to_sd(body, result)
+        d1 = np.array([np.asarray(v["directors"])[0] for v in result["vertebrae"]])
+        projection[name] = float(np.min(np.hypot(d1[:, 0], d1[:, 2])))
         return result
 
     a = run("corners", payload(rad, "corners"))
@@ -338,7 +344,7 @@ def evaluate(rad: Radiograph) -> Outcome:
     lv, lm = line_axes(rad)
     three["line"] = aasce_angles(lv, lm, rad.height_px)
     major["line"] = float(three["line"][0])
-    return Outcome(major, three, failed, major_sd, ratio)
+    return Outcome(major, three, failed, major_sd, ratio, projection)
 
 
 def interval_coverage(errors: np.ndarray, sds: np.ndarray) -> float:
@@ -386,6 +392,8 @@ def summarise(
                 "major_coverage_n": len(with_sd),
                 "max_residual_to_sd": max((outcomes[i].residual_to_sd[method] for i in ok
                                            if method in outcomes[i].residual_to_sd), default=None),
+                "smallest_projection": min((outcomes[i].smallest_projection[method] for i in ok
+                                            if method in outcomes[i].smallest_projection), default=None),
             }
         )
     return rows
@@ -812,6 +820,7 @@ def main(argv: list[str] | None = None) -> int:
         "not_reconstructed",
         "major_coverage_95",
         "max_residual_to_sd",
+        "smallest_projection",
     ]
     tables = {
         "all": summarise(rads, outcomes),

@@ -387,6 +387,7 @@ class PatientMeasures(OpenModel):
     visits: list[Visit]
     changes: list[Change]
     rule: str
+    older_visits_left_out: bool = False
 
 
 class PedicleResidual(OpenModel):
@@ -522,6 +523,10 @@ class ViewProjection(OpenModel):
     rotation_deg: float = 0.0
     scale_source: Literal["given", "acquisition", "prior", "estimated"] = "given"
     pixel_spacing_calibration: Literal["calibrated", "projection", "detector", "unknown"] | None = None
+    source_to_detector_mm: float | None = None
+    source_to_patient_mm: float | None = None
+    central_ray_point_mm: tuple[float, float, float] | None = None
+    beam_direction: tuple[float, float, float] | None = None
 
 
 class ViewProvenance(OpenModel):

@@ -302,12 +302,6 @@ mid-plane 50 mm nearer or farther (patient thickness, position against the stand
 A model estimate: fit.unreliable then lists "scale" and fit.pa.scale_source is "prior"."""
 
 
-FULL_SPINE_SID_MM = 1800.0
-"""Source–image distance assumed for a point-source film that does not state it, mm: the usual
-full-spine distance of about 1.8 m (72 inches), ``PA_MAGNIFICATION_PRIOR``'s geometry."""
-SPINE_TO_DETECTOR_MM = 200.0
-"""Distance from the spine's mid-plane to the detector assumed for a point-source film that states
-no SOD and no magnification, mm (SOD = SID − 200 = 1600 at 1.8 m: ``PA_MAGNIFICATION_PRIOR``'s geometry)."""
 ASSUMED_DEPTH_SD_MM = {"pa": 50.0, "lateral": 100.0}
 """SD of the prior on the spine's distance from the source when the SOD is assumed, mm: on the PA
 the 50 mm of ``PA_MAGNIFICATION_PRIOR`` (its SD of 0.035 is that distance); on the lateral 100 mm,
@@ -332,26 +326,22 @@ class PinholeGeometry:
 
 def pinhole_geometry(view: PAView | LateralView, name: str) -> PinholeGeometry | None:
     """The view's point-source geometry, or None for a weak perspective (``models.Acquisition``):
-    SID and SOD when the acquisition gives both; with ``projection_model`` "perspective", SID = the given
-    one else ``FULL_SPINE_SID_MM``, SOD = the given one, else SID / the given ERMF, else SID −
-    ``SPINE_TO_DETECTOR_MM``, and an assumed SOD held with ``ASSUMED_DEPTH_SD_MM[name]``, unless the
-    view's mm are 'calibrated' (in the spine's plane): its size is then known, the spine held at the SOD
-    by the camera's default depth prior as for a given SOD, and only the perspective's strength assumed."""
+    SID and SOD when the acquisition gives both; with ``projection_model`` "perspective", the missing
+    ones as ``models.Acquisition.point_source_distances`` fills them (through the ERMF, else
+    ``SPINE_TO_DETECTOR_MM`` apart, else ``FULL_SPINE_SID_MM``), and an assumed SOD held with
+    ``ASSUMED_DEPTH_SD_MM[name]``, unless the view's mm are 'calibrated' (in the spine's plane): its
+    size is then known, the spine held at the SOD by the camera's default depth prior as for a given
+    SOD, and only the perspective's strength assumed."""
     acq = view.acquisition
-    if acq is None or not acq.point_source:
+    distances = None if acq is None else acq.point_source_distances()
+    if acq is None or distances is None:
         return None
+    sid, sod = distances
     given_sid, given_sod = acq.distance_source_to_detector_mm, acq.distance_source_to_patient_mm
-    sid = given_sid if given_sid is not None else FULL_SPINE_SID_MM
-    if given_sod is not None:
-        sod, depth_sd = given_sod, None
-    elif acq.magnification is not None:
-        sod, depth_sd = sid / acq.magnification, None
-    elif view.pixel_spacing_calibration == "calibrated":
-        sod, depth_sd = sid - SPINE_TO_DETECTOR_MM, None
-    else:
-        sod, depth_sd = sid - SPINE_TO_DETECTOR_MM, ASSUMED_DEPTH_SD_MM[name]
-    assumed = given_sid is None or (given_sod is None and acq.magnification is None)
-    return PinholeGeometry(float(sid), float(sod), depth_sd, assumed)
+    sod_assumed = given_sod is None and acq.magnification is None
+    depth_sd = ASSUMED_DEPTH_SD_MM[name] if sod_assumed and view.pixel_spacing_calibration != "calibrated" else None
+    assumed = given_sid is None or sod_assumed
+    return PinholeGeometry(sid, sod, depth_sd, assumed)
 
 
 @dataclass(frozen=True)

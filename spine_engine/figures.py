@@ -7,11 +7,11 @@ pyplot state, so it is safe in threads). It knows nothing of HTTP.
 The figure has four panels:
 
 - PA view, in the PA image's detector frame (column right, row down, mm): the landmarks, the
-  model's vertebrae projected by the view's weak perspective, and the residual of each landmark
-  (a line to the projected model point);
+  model's vertebrae projected as the fit projected them (``view_projection``: the view's camera,
+  weak perspective or point source, with its fitted in-plane rotation), and the residual of each
+  landmark (a line to the projected model point, as long as ``fit.residuals`` says);
 - lateral view: the lateral image's frame when the payload has one (same content as PA), else
-  the model projected laterally (``["A","F"]``) with the PA scale, its rows aligned with the PA
-  panel's;
+  the model projected laterally (``["A","F"]``) with the PA scale, its mean row the PA panel's;
 - per-level angular strain u = (u1, u2, u3) and per-level v = (v1, v2, v3).
 
 Vertebrae are drawn as the projection of a box below their top endplate midpoint, spanned by
@@ -22,7 +22,8 @@ map, as in Fig. 2 of Li et al. (CAIP 2009). L5 has no segment below it and is dr
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -35,7 +36,9 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
 from .clinical import landmark_arrays
-from .levels import LEVELS
+from .fit import Camera
+from .fit.cameras import project as project_by_camera
+from .levels import LEVEL_INDEX, LEVELS
 from .models import LATERAL_ORIENTATION, JobPayload
 from .projection import image_axes, project
 
@@ -62,6 +65,49 @@ def _detector_mm(view: Any) -> np.ndarray:
     return landmark_arrays(view).points.reshape(-1, 2)
 
 
+Projector = Callable[[np.ndarray], np.ndarray]
+"""Patient points (..., 3), mm → their image (..., 2), detector mm."""
+
+
+def view_projection(result: Mapping[str, Any], payload: JobPayload, name: str) -> Projector:
+    """The projection of view ``name`` ("pa" or "lateral") as the fit projected the model, from the
+    result's ``fit.<name>`` (``ViewProjection``) through the engine's own ``fit.cameras.project``: weak
+    perspective p = s·Rot(ψ)(e_c·r, e_r·r) + T, or the point source (``model`` "perspective")
+    p = c + m·Rot(ψ)(e_c·(r − o), e_r·(r − o)), m = SID / (SOD + b·(r − o)), with c = ``translation``,
+    o = ``central_ray_point_mm``, b = ``beam_direction``. The drawing and ``model_points`` both
+    project through it."""
+    proj = result["fit"].get(name)
+    view = payload.pa if name == "pa" else payload.lateral
+    if view is None or proj is None:
+        raise ValueError(f"the {'payload' if view is None else 'result'} has no {name} view")
+    e_c, e_r = image_axes(view.patient_orientation)
+    psi = math.radians(float(proj.get("rotation_deg", 0.0)))
+    c_c, c_r = (float(t) for t in proj["translation"])
+    if proj.get("model", "weak_perspective") == "perspective" and proj.get("central_ray_point_mm") is not None:
+        values = np.array([c_c, c_r, *(float(v) for v in proj["central_ray_point_mm"]), psi])
+        camera = Camera(
+            "perspective", values, np.zeros(6, dtype=bool), sid_mm=float(proj["source_to_detector_mm"]),
+            sod_mm=float(proj["source_to_patient_mm"]), beam=np.asarray(proj["beam_direction"], dtype=float),
+        )  # fmt: skip
+    else:  # weak perspective (a result stored before the point source was reported is drawn so too)
+        values = np.array([float(proj["scale"]), c_c, c_r, psi])
+        camera = Camera("weak", values, np.zeros(4, dtype=bool))
+
+    def projector(points: np.ndarray) -> np.ndarray:
+        points = np.asarray(points, dtype=float)
+        flat = project_by_camera(camera, values, points.reshape(-1, 3), e_c, e_r).points
+        return flat.reshape(*points.shape[:-1], 2)
+
+    return projector
+
+
+def model_points(result: Mapping[str, Any], payload: Mapping[str, Any], name: str) -> np.ndarray:
+    """(17, 2) the model's vertebrae (top endplate midpoints) on view ``name``'s detector, mm, where the
+    figure draws them (``view_projection``): each landmark's residual line ends there."""
+    positions = np.array([v["position"] for v in result["vertebrae"]], dtype=float)
+    return view_projection(result, JobPayload.model_validate(payload), name)(positions)
+
+
 def _segment_lengths(positions: np.ndarray) -> np.ndarray:
     gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
     return np.append(gaps, gaps[-1] if gaps.size else 25.0)
@@ -83,23 +129,20 @@ def _draw_view(
     positions: np.ndarray,
     directors: np.ndarray,
     across: int,
-    e_c: np.ndarray,
-    e_r: np.ndarray,
-    scale: float,
-    translation: np.ndarray,
+    projector: Projector,
     colours: np.ndarray,
     landmarks: list[tuple[str, np.ndarray]],
     residuals: Mapping[str, float],
-) -> None:
-    corners = project(_bodies(positions, directors, across), e_c, e_r, scale, translation)
+) -> np.ndarray:
+    """Draw the view; return the model's projected points (``projector`` of ``positions``)."""
+    corners = projector(_bodies(positions, directors, across))
     ax.add_collection(PolyCollection(list(corners), facecolors=colours, edgecolors="0.25", linewidths=0.6))
-    centre = project(positions, e_c, e_r, scale, translation)
+    centre = projector(positions)
     ax.plot(centre[:, 0], centre[:, 1], "-", color="0.2", linewidth=1.0, label="model (endplate midpoints)")
     ax.plot(centre[:, 0], centre[:, 1], ".", color="0.2", markersize=3)
     if landmarks:
-        index = {lv: i for i, lv in enumerate(LEVELS)}
         marks = np.array([p for _, p in landmarks])
-        segments = [[p, centre[index[lv]]] for lv, p in landmarks]
+        segments = [[p, centre[LEVEL_INDEX[lv]]] for lv, p in landmarks]
         ax.add_collection(LineCollection(segments, colors="crimson", linewidths=1.2, label="residual"))
         ax.plot(marks[:, 0], marks[:, 1], "x", color="black", markersize=5, label="landmark")
         worst = max(landmarks, key=lambda item: residuals.get(item[0], 0.0))
@@ -117,14 +160,16 @@ def _draw_view(
         if i < len(centre):
             ax.annotate(LEVELS[i], xy=tuple(centre[i]), xytext=(-30, 0), textcoords="offset points",
                         fontsize=7, va="center", ha="right")  # fmt: skip
-    ax.set_title(title, fontsize=10)
+    ax.set_title(title, fontsize=10, pad=14)  # room for the legend between the title and the plot
     ax.set_xlabel("column (mm)", fontsize=8)
     ax.set_ylabel("row (mm)", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
     ax.invert_yaxis()
-    ax.legend(loc="lower left", fontsize=6, frameon=False)
+    # above the plot, under the title: inside, it covered the L5 and worst-residual labels at its foot
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=3, fontsize=6, frameon=False, borderaxespad=0.2)
+    return centre
 
 
 def _strain_panel(ax: Axes, levels: list[str], values: np.ndarray, names: Sequence[str], title: str,
@@ -207,13 +252,11 @@ def render_figure(
         ax_v = fig.add_subplot(grid[1, 2])
 
         pa_proj = fit["pa"]
-        e_c, e_r = image_axes(model.pa.patient_orientation)
         pa_points = _detector_mm(model.pa)
-        _draw_view(
+        pa_centre = _draw_view(
             ax_pa,
             title="PA view: landmarks, model and residuals",
-            positions=positions, directors=directors, across=0, e_c=e_c, e_r=e_r,
-            scale=float(pa_proj["scale"]), translation=np.asarray(pa_proj["translation"], dtype=float),
+            positions=positions, directors=directors, across=0, projector=view_projection(result, model, "pa"),
             colours=colours,
             landmarks=[(lm.level, p) for lm, p in zip(model.pa.landmarks, pa_points, strict=True)],
             residuals=residuals["pa"],
@@ -222,25 +265,25 @@ def render_figure(
         lateral = model.lateral
         lat_proj = fit.get("lateral")
         if lateral is not None and lateral.landmarks and lat_proj is not None:
-            e_c, e_r = image_axes(lateral.patient_orientation)
             lat_points = _detector_mm(lateral)
             _draw_view(
                 ax_lat,
                 title="Lateral view: landmarks, model and residuals",
-                positions=positions, directors=directors, across=1, e_c=e_c, e_r=e_r,
-                scale=float(lat_proj["scale"]), translation=np.asarray(lat_proj["translation"], dtype=float),
+                positions=positions, directors=directors, across=1,
+                projector=view_projection(result, model, "lateral"),
                 colours=colours,
                 landmarks=[(lm.level, p) for lm, p in zip(lateral.landmarks, lat_points, strict=True)],
                 residuals=residuals["lateral"],
             )  # fmt: skip
         else:
             e_c, e_r = image_axes(LATERAL_ORIENTATION)
-            scale = float(pa_proj["scale"])
+            scale = float(pa_proj["scale"])  # a point-source PA's: SID/SOD at the spine's mid-plane
+            row = float(np.mean(pa_centre[:, 1]) - scale * np.mean(positions @ e_r))  # the PA panel's mean row
             _draw_view(
                 ax_lat,
                 title="Lateral projection of the model (anterior right)",
-                positions=positions, directors=directors, across=1, e_c=e_c, e_r=e_r,
-                scale=scale, translation=np.array([0.0, float(pa_proj["translation"][1])]),
+                positions=positions, directors=directors, across=1,
+                projector=lambda r: project(r, e_c, e_r, scale, np.array([0.0, row])),
                 colours=colours, landmarks=[], residuals={},
             )  # fmt: skip
 

@@ -29,10 +29,15 @@ Surg Am 1990;72:320–327, report a 95 % confidence interval of roughly this siz
 
 def frontal_tilt_deg(rotations: npt.ArrayLike) -> FloatArray:
     """Frontal tilt θ_i = atan2(d1_z, d1_x) of each vertebra: the angle of d1 projected on the
-    frontal (x, z) plane from patient left, positive when d1 rises toward the left (17,)."""
+    frontal (x, z) plane from patient left, positive when d1 rises toward the left (17,), degrees.
+
+    An endplate's tilt is that of a line, so θ is taken in [−90°, 90°) (θ − 180° when d1 points to
+    the patient's right, a vertebra turned 90° or more about its axis): a Cobb angle, a difference
+    of two tilts, is then below 180°, as between any two lines of the film."""
     R = np.asarray(rotations, dtype=float)
     d1 = R[..., :, 0]
-    return np.degrees(np.arctan2(d1[..., 2], d1[..., 0]))
+    theta = np.degrees(np.arctan2(d1[..., 2], d1[..., 0]))
+    return np.asarray((theta + 90.0) % 180.0 - 90.0)
 
 
 def sagittal_inclination_deg(rotations: npt.ArrayLike) -> FloatArray:
@@ -182,15 +187,15 @@ def frontal_curves(
 def most_tilted_pair(tilt_deg: npt.ArrayLike) -> tuple[int, int, float] | None:
     """(upper, lower, angle): the two vertebrae most tilted relative to each other, the pair i < j
     with the largest |θ_i − θ_j| (first pair in row-major order on a tie, as the AASCE 2019
-    script's argmax), and that angle, max θ − min θ (degrees). None for fewer than two tilts or a
-    flat sequence (all tilts equal)."""
+    script's argmax), and that angle, max θ − min θ (degrees). A flat sequence (all tilts equal) has
+    its largest angle, 0°, between its first and last vertebrae. None for fewer than two tilts."""
     t = np.asarray(tilt_deg, dtype=float)
     n = len(t)
     if n < 2:
         return None
     diff = np.abs(t[:, None] - t[None, :])
     if float(diff.max()) <= 0.0:
-        return None
+        return 0, n - 1, 0.0
     upper, lower = sorted(divmod(int(np.argmax(diff)), n))
     return upper, lower, float(diff[upper, lower])
 
@@ -211,7 +216,7 @@ def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> l
     t = np.asarray(tilt_deg, dtype=float)
     n = len(t)
     largest = most_tilted_pair(t)
-    if largest is None:
+    if largest is None or largest[2] <= 0.0:
         return []
     upper, lower, _ = largest
     curves = [largest]

@@ -98,6 +98,15 @@ benchmark noise (DESIGN.md, "The clinic's inputs")."""
 PixelSpacingCalibration = Literal["calibrated", "projection", "detector", "unknown"]
 
 
+FULL_SPINE_SID_MM = 1800.0
+"""Source–image distance assumed for a point-source film that states neither SID nor SOD, mm: the
+usual full-spine distance of about 1.8 m (72 inches), ``clinical.PA_MAGNIFICATION_PRIOR``'s geometry."""
+SPINE_TO_DETECTOR_MM = 200.0
+"""Distance from the spine's mid-plane to the detector assumed for a point-source film that states
+only one of SID and SOD and no magnification, mm (SOD = SID − 200 = 1600 at 1.8 m:
+``clinical.PA_MAGNIFICATION_PRIOR``'s geometry)."""
+
+
 class Acquisition(_Strict):
     """How a radiograph was taken, when known (all optional). SID and SOD together give a pinhole
     (perspective) projection, as does projection_model "perspective" with the geometry it lacks assumed;
@@ -136,7 +145,8 @@ class Acquisition(_Strict):
         None,
         description="How the film projects the patient. perspective: from a point source, as every "
         "radiograph (CR, DX) is: SID and SOD when given, else those of full-spine radiography (SID 1800 mm, the "
-        "spine's mid-plane 200 mm before the detector; SOD = SID / magnification when an ERMF is given), the "
+        "spine's mid-plane 200 mm before the detector; with one of the two given, the other 200 mm apart, or "
+        "through the ERMF when one is given: SID = SOD × magnification), the "
         "spine's distance from the source then held by a prior (SD 50 mm on the PA, 100 mm on the lateral; "
         "fit.assumed names full_spine_geometry). weak_perspective: parallel rays scaled by one magnification, "
         "refused with SID and SOD. Absent: perspective when SID and SOD are given, else weak_perspective. "
@@ -161,6 +171,23 @@ class Acquisition(_Strict):
                 "distance_source_to_patient_mm, which give a pinhole: send one or the other"
             )
         return self
+
+    def point_source_distances(self) -> tuple[float, float] | None:
+        """(SID, SOD) in mm of a point-source view (``point_source``), else None: the given ones; a missing
+        one from the other through the ERMF m (SID = SOD·m), else ``SPINE_TO_DETECTOR_MM`` apart; neither
+        given: ``FULL_SPINE_SID_MM`` and the SOD from it. The SOD may come out ≤ 0 (an SID of 200 mm or
+        less with nothing else), which validation refuses."""
+        if not self.point_source:
+            return None
+        sid, sod, m = self.distance_source_to_detector_mm, self.distance_source_to_patient_mm, self.magnification
+        if sid is None and sod is None:
+            sid = FULL_SPINE_SID_MM
+        if sod is None:
+            assert sid is not None
+            sod = sid / m if m is not None else sid - SPINE_TO_DETECTOR_MM
+        if sid is None:
+            sid = sod * m if m is not None else sod + SPINE_TO_DETECTOR_MM
+        return float(sid), float(sod)
 
     @property
     def perspective(self) -> bool:
@@ -710,6 +737,26 @@ class ViewProjection(BaseModel):
     )
     pixel_spacing_calibration: PixelSpacingCalibration | None = Field(
         None, description="Carried from the payload's view (which calibration gave the mm)."
+    )
+    source_to_detector_mm: float | None = Field(
+        None, description="Perspective: the SID the fit projected with, given or assumed (acquisition), mm; null in "
+        "weak perspective."
+    )
+    source_to_patient_mm: float | None = Field(
+        None, description="Perspective: the SOD, source to the spine's mid-plane, given or assumed, mm; null in weak "
+        "perspective."
+    )
+    central_ray_point_mm: tuple[float, float, float] | None = Field(
+        None,
+        description="Perspective: o, the central ray's point at SOD from the source, patient mm (the frame of the "
+        "vertebrae's positions), as fitted. With translation c, rotation_deg ψ, beam_direction b, SID and SOD it "
+        "gives the projection of a patient point r: p = c + m·Rot(ψ)·(e_c·(r − o), e_r·(r − o)), "
+        "m = SID / (SOD + b·(r − o)), e_c and e_r the image axes of the view's patient_orientation (docs/engine.md). "
+        "Null in weak perspective.",
+    )
+    beam_direction: tuple[float, float, float] | None = Field(
+        None, description="Perspective: the unit beam direction b, source to detector, patient frame; null in weak "
+        "perspective."
     )
 
 

@@ -281,7 +281,8 @@ _ASSUMPTION_REASONS = {
     "mean",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, about a third of its Cobb angle at the apex, 0 at its "
-    "end vertebrae), with the population's SD; the directors stay the fit's",
+    "end vertebrae), with the population's SD; T1 and L5 given exactly keep the payload's; the directors stay "
+    "the fit's",
 }
 
 
@@ -645,19 +646,27 @@ def _vertebrae(
 
 
 def _projection_report(inputs: RegistrationInputs, out: FitOutput, name: str) -> ViewProjection | None:
-    """The view's projection at the optimum: weak perspective s, T, ψ; perspective SID/SOD, c, ψ."""
+    """The view's projection at the optimum: weak perspective s, T, ψ; perspective SID/SOD, c, ψ, o and b,
+    so that a client (the figure, the SR's Cobb lines) projects the model as the fit did."""
     given = inputs.projections.get(name)
     view = next((v for v in inputs.views if v.name == name), None)
     if given is None or view is None or view.camera is None or name not in out.cameras:
         return given
     values = out.cameras[name]
+    update: dict[str, Any] = {"rotation_deg": float(np.degrees(values[-1]))}
     if view.camera.kind == "weak":
-        scale, translation = float(values[0]), (float(values[1]), float(values[2]))
+        update |= {"scale": float(values[0]), "translation": (float(values[1]), float(values[2]))}
     else:
-        scale, translation = view.camera.reference_scale, (float(values[0]), float(values[1]))
-    return given.model_copy(
-        update={"scale": scale, "translation": translation, "rotation_deg": float(np.degrees(values[-1]))}
-    )
+        camera = view.camera
+        update |= {
+            "scale": camera.reference_scale,
+            "translation": (float(values[0]), float(values[1])),
+            "source_to_detector_mm": float(camera.sid_mm),
+            "source_to_patient_mm": float(camera.sod_mm),
+            "central_ray_point_mm": tuple(float(v) for v in values[2:5]),
+            "beam_direction": tuple(float(v) for v in camera.beam_direction(view.e_c, view.e_r)),
+        }
+    return given.model_copy(update=update)
 
 
 def _sagittal_assumptions(inputs: RegistrationInputs) -> list[Assumption]:
@@ -793,6 +802,52 @@ def _check_landmark_sd(model: JobPayload, out: FitOutput) -> None:
         raise InvalidInput(errors)
 
 
+END_ON_PROJECTION = 0.5
+"""Shortest projection on its film, as a fraction of its length, of the director whose tilt a view's
+corners observe (d1 on the PA) that a fit takes as seen: below it the vertebra is turned 60° or more
+out of the film, end-on, where the corners' tilt says almost nothing of its pose and the tilt rows'
+derivative (∝ 1/|a|, ``fit.pose_rows``) breaks the Laplace approximation (intervals collapse to
+micrometres). Real corners stay far from it: over AASCE training's radiographs the smallest such
+projection is 0.65 (``spine bench aasce --split training``, column "smallest_projection"). A fit that
+meets corners only by turning vertebrae end-on has corners that contradict the rest of its landmarks
+(tilts tens of degrees off the curve the points draw)."""
+
+
+def _check_corner_tilts(inputs: RegistrationInputs, out: FitOutput) -> None:
+    """Raise ``InvalidInput`` naming each view whose corners the fit meets only by turning vertebrae
+    end-on to the film (``END_ON_PROJECTION``): |a| = |E R_j e| with E = [e_c; e_r] the film's axes,
+    R_j the vertebra's rotation and e the director the tilts observe."""
+    errors = []
+    for view, lengths in projected_tilt_directors(inputs, out):
+        sources = inputs.tilt_sources.get(view.name, [])
+        assert view.tilt_indices is not None
+        end_on = [LEVELS[j] for j, source, length in zip(view.tilt_indices, sources, lengths, strict=True)
+                  if source == "corners" and length < END_ON_PROJECTION]  # fmt: skip
+        if end_on:
+            errors.append(FieldError(
+                (view.name, "landmarks"),
+                f"the corners of {', '.join(end_on)} on the {'PA' if view.name == 'pa' else view.name} film tilt "
+                "so far from the curve the other landmarks draw that the fit meets them only by turning those "
+                "vertebrae end-on to the film (60° or more about their axis): check the corners' order and levels",
+                "corners_contradicted",
+            ))  # fmt: skip
+    if errors:
+        raise InvalidInput(errors)
+
+
+def projected_tilt_directors(inputs: RegistrationInputs, out: FitOutput) -> list[tuple[ViewData, np.ndarray]]:
+    """Each view with tilt observations, and the length |E R_j e| (dimensionless, at most 1) of each
+    observed vertebra's tilt director projected on the film's axes E = [e_c; e_r]."""
+    lengths = []
+    for view in inputs.views:
+        if view.n_tilts == 0 or view.tilt_director is None or view.tilt_indices is None:
+            continue
+        axes = np.stack([view.e_c, view.e_r])
+        directors = out.rotations[view.tilt_indices] @ view.tilt_director
+        lengths.append((view, np.linalg.norm(directors @ axes.T, axis=1)))
+    return lengths
+
+
 def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Profile) -> RegistrationResult:
     start = time.perf_counter()
     try:
@@ -805,6 +860,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
         raise FitFailed(f"the registration broke down numerically: {exc}") from None
     runtime_ms = (time.perf_counter() - start) * 1e3
     _check_landmark_sd(model, out)
+    _check_corner_tilts(inputs, out)
     if not out.converged:
         raise FitFailed(
             f"the registration did not converge in {out.iterations} iterations "
@@ -818,9 +874,13 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
     if sagittal_from_prior:
         measures = _prior_only_reported(measures, calibration().prior_only)
     axial_rotation = None  # the directors' where pedicles observed it, else the population's
+    exact_ends = [0, len(LEVELS) - 1] if inputs.boundary == "given" else []
     if not _has_pedicles(inputs):
         axial_rotation = population_axial_rotation_deg(measures)
+        axial_rotation[exact_ends] = axial_rotation_deg(out.rotations)[exact_ends]  # the payload's own poses
         measures = _with_population_axial_rotation(measures, axial_rotation)
+        if "axial_rotation" not in inputs.unreliable:  # T1 and L5 given: the vertebrae between are the population's
+            inputs = dataclasses.replace(inputs, unreliable=[*inputs.unreliable, "axial_rotation"])
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
@@ -834,7 +894,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
         if sagittal_from_prior:
             measures = _with_prior_floor(measures, profile)
         if axial_rotation is not None:
-            uncertainty = _with_axial_rotation_floor(uncertainty, measures)
+            uncertainty = _with_axial_rotation_floor(uncertainty, measures, exact_ends)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty, axial_rotation),
@@ -939,15 +999,17 @@ def _has_pedicles(inputs: RegistrationInputs) -> bool:
     return any(source != "inferior_midpoint" for source in inputs.offset_sources.get("pa", []))
 
 
-def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures) -> Uncertainty:
+def _with_axial_rotation_floor(uncertainty: Uncertainty, measures: Measures, exact: Sequence[int] = ()) -> Uncertainty:
     """Without pedicles the vertebrae's axial rotations are the population's (``population_axial_rotation_deg``),
     whose spread the rod's Laplace SD (a few degrees, of its twist) does not know. Each SD is then
     √(SD² + (k·C)²), C the largest Cobb angle of the curves the vertebra lies in (0 outside every
-    curve), k = ``AXIAL_ROTATION_PER_COBB``."""
+    curve), k = ``AXIAL_ROTATION_PER_COBB``; the vertebrae ``exact`` (T1 and L5 given exactly), whose
+    axial rotation is the payload's, keep their Laplace SD."""
     cobb = np.zeros(len(LEVELS))
     for c in measures.cobb:
         span = slice(LEVEL_INDEX[c.upper], LEVEL_INDEX[c.lower] + 1)
         cobb[span] = np.maximum(cobb[span], c.angle_deg)
+    cobb[list(exact)] = 0.0
     sd = np.hypot(uncertainty.axial_rotation_sd_deg, AXIAL_ROTATION_PER_COBB * cobb)
     return uncertainty._replace(axial_rotation_sd_deg=np.minimum(sd, AXIAL_ROTATION_SD_CAP_DEG))
 

@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput, UnknownProfile
 from .levels import LEVEL_INDEX, LEVELS
-from .models import LANDMARK_SD_MM_DEFAULT, JobPayload, Landmark, LateralView, PAView
+from .models import LANDMARK_SD_MM_DEFAULT, SPINE_TO_DETECTOR_MM, JobPayload, Landmark, LateralView, PAView
 from .profile_files import is_profile, list_profiles
 
 _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corners": "corners"}
@@ -117,6 +117,14 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     return errors
 
 
+def _raw_landmarks_with(raw: Any, field: str) -> list[tuple[int, dict[str, Any]]]:
+    """(index in the payload's list, landmark) of each landmark of a raw view that gives ``field``."""
+    landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
+    if not isinstance(landmarks, list):
+        return []
+    return [(i, lm) for i, lm in enumerate(landmarks) if isinstance(lm, dict) and lm.get(field) is not None]
+
+
 def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     """Each four-corner landmark must be a convex quadrilateral in the order the contract names
     (top-left, top-right, bottom-left, bottom-right as they appear in the image). Taken around the
@@ -125,13 +133,8 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
     is > 0 at each of the four corners. Two corners swapped (top-right with bottom-left, or left with
     right) make the outline cross itself or turn the other way; a reflex corner or three corners in
     a line is no vertebral body either. Locations use the payload's indices."""
-    raw_landmarks = raw.get("landmarks") if isinstance(raw, dict) else None
-    if not isinstance(raw_landmarks, list):
-        return []
     errors = []
-    for i, lm in enumerate(raw_landmarks):
-        if not isinstance(lm, dict) or lm.get("corners") is None:
-            continue
+    for i, lm in _raw_landmarks_with(raw, "corners"):
         tl, tr, bl, br = ((float(c[0]), float(c[1])) for c in lm["corners"])
         outline = (tl, tr, br, bl)
         edges = [_minus(outline[(k + 1) % 4], outline[k]) for k in range(4)]
@@ -147,6 +150,38 @@ def _corner_errors(name: str, raw: Any) -> list[FieldError]:
                     f"the corners of {lm.get('level')} {kind}: give them as they appear in the image, in the order "
                     "top-left, top-right, bottom-left, bottom-right, forming a convex quadrilateral",
                     "corners_not_convex",
+                )
+            )
+        elif not (tr[0] > tl[0] and br[0] > bl[0]):
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i, "corners"),
+                    f"the corners of {lm.get('level')} are turned by 90° or more in the image: its top edge "
+                    f"(top-left → top-right) and bottom edge (bottom-left → bottom-right) must run toward the "
+                    f"image's right, as an endplate tilted less than 90° does; give the corners as they appear",
+                    "corners_not_upright",
+                )
+            )
+    return errors
+
+
+def _pedicle_errors(name: str, raw: Any) -> list[FieldError]:
+    """A landmark's two pedicle centres are given image-left then image-right (the contract's
+    order): the first column must be smaller than the second. Swapped, the fit reads them as a
+    vertebra turned about 180° about its axis, and at one column as one turned 90° (its pedicles one
+    behind the other), so they are refused as a misplaced annotation. Locations use the payload's
+    indices."""
+    errors = []
+    for i, lm in _raw_landmarks_with(raw, "pedicles"):
+        (left, _), (right, _) = ((float(c[0]), float(c[1])) for c in lm["pedicles"])
+        if not left < right:
+            where = "at one column" if left == right else f"image-right first (columns {left:g} then {right:g})"
+            errors.append(
+                FieldError(
+                    (name, "landmarks", i, "pedicles"),
+                    f"the pedicles of {lm.get('level')} are given {where}: give the image-left pedicle's centre "
+                    "first, then the image-right one; a vertebra's two pedicles lie side by side on a PA film",
+                    "pedicles_not_in_order",
                 )
             )
     return errors
@@ -259,6 +294,123 @@ def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
     if known is None:
         return MAGNIFICATION_RANGE[0] / UNVERIFIED_SCALE, MAGNIFICATION_RANGE[1] * UNVERIFIED_SCALE
     return known * (1.0 - MAGNIFICATION_SPREAD), known * (1.0 + MAGNIFICATION_SPREAD)
+
+
+SOURCE_TO_SPINE_MIN_MM = 300.0
+"""Smallest distance from the X-ray source to the spine a radiograph can have, mm: regulations hold
+even mobile and portable radiographic systems to a source-to-skin distance of at least 30 cm (Oregon
+OAR 333-106-0310; New York 10 NYCRR 16.57(a)(6), 12 inches), and the spine lies deeper than the skin."""
+
+
+def _geometry_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
+    """A point-source view's geometry, with what it lacks filled in (``Acquisition.point_source_distances``),
+    must hold the spine at least ``SOURCE_TO_SPINE_MIN_MM`` from the source and magnify it at most as
+    much as the widest reading of unverified millimetres (``MAGNIFICATION_RANGE`` × ``UNVERIFIED_SCALE``,
+    3.5); an ERMF likewise within that reading both ways. Beyond, the fit would place a spine
+    millimetres or metres long (an SID of 150 mm, the SOD assumed 200 mm nearer the source, put it
+    behind the source)."""
+    acq = view.acquisition
+    if acq is None:
+        return []
+    low, high = MAGNIFICATION_RANGE[0] / UNVERIFIED_SCALE, MAGNIFICATION_RANGE[1] * UNVERIFIED_SCALE
+    errors = []
+    if acq.magnification is not None and not low <= acq.magnification <= high:
+        errors.append(FieldError(
+            (name, "acquisition", "magnification"),
+            f"a magnification of {acq.magnification:g} is beyond any radiograph's: the spine's image is "
+            f"{low:.2g}–{high:.2g} times its size (ERMF, DICOM (0018,1114))",
+            "implausible_geometry",
+        ))  # fmt: skip
+    errors += _outside_image_errors(name, view)
+    distances = acq.point_source_distances()
+    if distances is not None and not errors:
+        sid, sod = distances
+        stated = {"distance_source_to_detector_mm": acq.distance_source_to_detector_mm,
+                  "distance_source_to_patient_mm": acq.distance_source_to_patient_mm}  # fmt: skip
+        given = [f for f, v in stated.items() if v is not None]
+        loc = (name, "acquisition", given[0]) if len(given) == 1 else (name, "acquisition")
+        if sod < SOURCE_TO_SPINE_MIN_MM:
+            sod_assumed = acq.distance_source_to_patient_mm is None and acq.magnification is None
+            how = f"SID {sid:g} mm puts the spine" if sod_assumed else "the geometry puts the spine"
+            assumed = (f" (with no SOD or magnification given, the spine's mid-plane is taken "
+                       f"{SPINE_TO_DETECTOR_MM:g} mm before the detector)" if sod_assumed else "")  # fmt: skip
+            errors.append(FieldError(
+                loc,
+                f"{how} {sod:g} mm from the source{assumed}; a radiograph's source lies at least "
+                f"{SOURCE_TO_SPINE_MIN_MM:g} mm from the skin, the spine deeper",
+                "implausible_geometry",
+            ))  # fmt: skip
+        elif sid / sod > high:
+            errors.append(FieldError(
+                loc,
+                f"SID {sid:g} mm and SOD {sod:g} mm{' (assumed)' if len(given) < 2 else ''} magnify the spine "
+                f"{sid / sod:.3g} times; no radiograph magnifies it more than {high:.2g} times",
+                "implausible_geometry",
+            ))  # fmt: skip
+        elif (ray := _central_ray(view)) is not None and view.landmarks:
+            field_name, (ray_c, ray_r) = ray
+            column_mm, row_mm = _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1, 1)
+            farthest = max(math.hypot((c - ray_c) * column_mm, (r - ray_r) * row_mm)
+                           for c, r in map(_top_midpoint, view.landmarks))  # fmt: skip
+            if farthest > sid * math.tan(math.radians(RAY_OBLIQUITY_MAX_DEG)):
+                errors.append(FieldError(
+                    (name, "acquisition", field_name),
+                    f"the central ray{' (the image centre)' if field_name == 'image_size' else ''} meets the film "
+                    f"{farthest:.0f} mm from the farthest landmark, more than the SID ({sid:g} mm): the spine would be "
+                    f"filmed by rays more than {RAY_OBLIQUITY_MAX_DEG:g}° from the central ray, which no X-ray tube "
+                    "emits",
+                    "implausible_geometry",
+                ))  # fmt: skip
+    return errors
+
+
+def _outside_image_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
+    """With ``acquisition.image_size`` [columns, rows] given, every landmark point (top midpoint, corners,
+    pedicles) must lie on the image, (0, 0) to (columns, rows) in the view's units, give or take
+    ``NOISE_SDS`` landmark SDs: a click is on the film. Off it, the image size or the landmarks are in
+    other units (mm for px), and the image's centre, where the central ray is then taken, is wrong."""
+    acq = view.acquisition
+    if acq is None or acq.image_size is None:
+        return []
+    columns, rows = float(acq.image_size[0]), float(acq.image_size[1])
+    column_mm, row_mm = _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1.0, 1.0)
+    margin = NOISE_SDS * view.sd_mm
+    for lm in view.landmarks:
+        points = [p for p in (lm.point, *(lm.corners or ()), *(lm.pedicles or ())) if p is not None]
+        for c, r in points:
+            if not (-margin / column_mm <= c <= columns + margin / column_mm
+                    and -margin / row_mm <= r <= rows + margin / row_mm):  # fmt: skip
+                return [FieldError(
+                    (name, "acquisition", "image_size"),
+                    f"landmark {lm.level} at (column {c:g}, row {r:g}) lies off the image of {columns:g} × {rows:g} "
+                    f"(columns × rows, in {view.units}): the image size and the landmarks must be in the same units, "
+                    "the landmarks on the image",
+                    "landmark_off_image",
+                )]  # fmt: skip
+    return []
+
+
+RAY_OBLIQUITY_MAX_DEG = 45.0
+"""Largest angle at the source between the central ray and the ray to a landmark that a point-source
+view may imply: a diagnostic tube's anode angle, about 12–20°, bounds its field on the anode side
+(rays beyond it are absorbed in the anode: the heel effect; Bushberg et al., The Essential Physics
+of Medical Imaging, 3rd ed., 2012, ch. 6, anode angle and field coverage), and 45° leaves the
+cathode side and any stitched film room. A central ray or image centre farther than the SID from a
+landmark (a typo, or coordinates in other units) is refused rather than fitted: at a kilometre the
+fit reported intervals of 10⁻¹² ° or did not converge."""
+
+
+def _central_ray(view: PAView | LateralView) -> tuple[str, Point] | None:
+    """The field that places the view's central ray and where it meets the film (view units): the given
+    ``central_ray``, else the centre of ``image_size`` (``models.Acquisition``), else None."""
+    acq = view.acquisition
+    if acq is None:
+        return None
+    if acq.central_ray is not None:
+        return "central_ray", (float(acq.central_ray[0]), float(acq.central_ray[1]))
+    if acq.image_size is not None:
+        return "image_size", (0.5 * float(acq.image_size[0]), 0.5 * float(acq.image_size[1]))
+    return None
 
 
 def _consecutive_pairs(levels: list[int], points: list[Point]) -> list[tuple[int, int, float, float]]:
@@ -435,10 +587,11 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
     errors = [] if is_profile(model.options.profile) else UnknownProfile(model.options.profile, list_profiles()).errors
     errors += _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    errors += _geometry_errors("pa", model.pa)
     errors += _order_errors("pa", model.pa, payload.get("pa"), "pa" not in unscaled_views)
-    errors += _corner_errors("pa", payload.get("pa"))
+    errors += _corner_errors("pa", payload.get("pa")) + _pedicle_errors("pa", payload.get("pa"))
     if model.lateral is not None:
-        errors += _view_errors("lateral", model.lateral, exact)
+        errors += _view_errors("lateral", model.lateral, exact) + _geometry_errors("lateral", model.lateral)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"), "lateral" not in unscaled_views)
         errors += _corner_errors("lateral", payload.get("lateral"))

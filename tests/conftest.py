@@ -354,6 +354,15 @@ def api(tmp_path: Path) -> Iterator[TestClient]:
 
 
 @pytest.fixture
+def own_client(db_settings: Settings) -> Iterator[TestClient]:
+    """The API on ``db_settings``' database, with the key of a client of its own (the PostgreSQL
+    database is the session's, shared with other tests)."""
+    with TestClient(create_app(db_settings)) as c:
+        c.headers["Authorization"] = f"Bearer {make_key(db_settings, f'own-{uuid.uuid4().hex[:8]}')}"
+        yield c
+
+
+@pytest.fixture
 def db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     """Settings of a migrated database, SQLite or PostgreSQL (parametrize indirectly)."""
     kind = getattr(request, "param", "sqlite")

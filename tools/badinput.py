@@ -182,6 +182,8 @@ def cases() -> list[Case]:
              content_type=None),
         Case("oversized Idempotency-Key", "256 characters", body=json.dumps(good_payload()).encode(),
              headers={"Idempotency-Key": "k" * 256}),
+        Case("empty Idempotency-Key", "`Idempotency-Key:` with no value", body=json.dumps(good_payload()).encode(),
+             headers={"Idempotency-Key": ""}),
         Case("unknown query parameter", "`GET /v1/jobs?stauts=queued`", method="GET", path="/v1/jobs",
              params={"stauts": "queued"}, content_type=None),
         Case("control character in a DICOM filter", "`GET /v1/jobs?patient_id=A%0AB` (a line break in an LO)",

@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from services.api.schemas import BatchEntry, BatchResponse, Job, Problem
 from services.core.problems import problem
 from services.db import jobs as jobs_repo
-from services.db.jobs import InsertHook, create_jobs_idempotent, entry_key
+from services.db.jobs import AdmitHook, InsertHook, create_jobs_idempotent, entry_key
 from services.db.runs import publish
 
 
@@ -30,14 +30,17 @@ def batch_response(
     entries: list[BatchEntry | None],
     on_insert: InsertHook | None = None,
     on_accepted: Callable[[int], None] | None = None,
+    admit: AdmitHook | None = None,
 ) -> tuple[BatchResponse, bool]:
     """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones), and
     whether it only replayed jobs (then the answer carries ``Idempotent-Replayed: true``).
 
+    ``admit(n)`` gets the number of new jobs before they are inserted (the cap; replays are not counted);
     ``on_insert(session, ids)`` runs in the inserting transaction; ``on_accepted(n)`` gets the number of
     jobs made (replays are not counted).
     """
-    outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert) if valid else []
+    outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert,
+                                      admit=admit) if valid else []  # fmt: skip
     created: list[uuid.UUID] = []
     replayed = 0
     for (i, _), outcome in zip(valid, outcomes, strict=True):

@@ -43,11 +43,16 @@ async def _problem_error(request: Request, exc: Exception) -> JSONResponse:
 
 def _reason(error: dict[str, Any]) -> str:
     """A request validation error's message; a pattern of the contract's strings said in plain words
-    (``PATTERN_REASONS``) instead of pydantic's "String should match pattern '…'"."""
+    (``PATTERN_REASONS``) instead of pydantic's "String should match pattern '…'", and an empty header
+    (``Idempotency-Key:`` with no value) said to be one."""
     if error.get("type") == "string_pattern_mismatch":
         reason = PATTERN_REASONS.get(str((error.get("ctx") or {}).get("pattern", "")))
         if reason is not None:
             return reason
+    loc = error.get("loc", ())
+    if error.get("type") == "string_too_short" and len(loc) == 2 and loc[0] == "header" and not error.get("input"):
+        name = "-".join(word.capitalize() for word in str(loc[1]).split("-"))
+        return f"the {name} header is empty; give it a value or leave the header out"
     return str(error.get("msg", ""))
 
 

@@ -13,6 +13,7 @@ from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.core.status import JobStatus
 from services.db.dicom_stores import DicomStoreAttempt
 from services.db.job_forms import job_study
+from services.db.jobs import MAX_PATIENT_JOBS
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.dicomweb import StudyImage
@@ -237,11 +238,22 @@ class Change(BaseModel):
 
 
 class PatientMeasures(BaseModel):
-    patient_id: str
+    patient_id: str = Field(
+        description="The Patient ID asked for, without leading and trailing spaces (padding in a DICOM LO: "
+        "'P ' and 'P' are one patient)."
+    )
     visits: list[Visit] = Field(
-        description="The caller's succeeded jobs of the patient by study date (jobs without one last, by creation)."
+        description="One visit per study: the caller's succeeded jobs of the patient, one per Study Instance UID "
+        "(the study's latest succeeded job by finished_at, then created_at, stands for it: a film read again, e.g. "
+        "with corrected landmarks, is not a second visit); a job without a Study Instance UID is a visit of its own. "
+        "By study date (visits without one last, by creation)."
     )
     changes: list[Change] = Field(
         description="Per measure, the change between consecutive visits that have a study date and the measure."
     )
     rule: str = Field(description="The flagging rule in words.")
+    older_visits_left_out: bool = Field(
+        False,
+        description=f"True when the patient has more succeeded jobs than a follow-up reads ({MAX_PATIENT_JOBS:,}): "
+        f"the newest {MAX_PATIENT_JOBS:,} are kept, and the visits of older ones are not in visits or changes.",
+    )

@@ -41,6 +41,10 @@ from services.db.models import Job, iso_utc, utcnow
 
 InsertHook = Callable[[Session, list[uuid.UUID]], None]
 """Called with the ids of jobs just inserted, in their transaction (the API's audit rows)."""
+AdmitHook = Callable[[int], None]
+"""Called with the number of new jobs about to be inserted, after the Idempotency-Key lookup and before
+the insert, and only when there are new jobs (the API's per-client cap, which may raise): a replay makes
+nothing, so it is never refused by the cap."""
 
 
 class IdempotencyConflict(Exception):
@@ -92,11 +96,25 @@ STUDY_COLUMNS = ("study_instance_uid", "accession_number", "patient_id")
 """The payload's study identifiers kept as indexed columns for the list filters."""
 
 
+def dicom_identifier(value: str) -> str:
+    """A DICOM identifier as the columns hold it and the filters compare it: without leading and
+    trailing spaces, which are padding in an LO or SH value (PS3.5 §6.2), so "P " and "P" are one
+    Patient ID. The payload and the result keep the text as it was sent."""
+    return value.strip(" ")
+
+
+def study_column_values(study: Any) -> dict[str, str | None]:
+    """The identifier columns of a study's JSON (the payload's ``study``, or what the DICOM layer read):
+    each of ``STUDY_COLUMNS`` that is text, without its padding (``dicom_identifier``); None when it is
+    absent or only spaces."""
+    study = study if isinstance(study, dict) else {}
+    values = {name: study.get(name) for name in STUDY_COLUMNS}
+    return {name: (dicom_identifier(v) or None) if isinstance(v, str) else None for name, v in values.items()}
+
+
 def study_columns(payload: Any) -> dict[str, str | None]:
     """``study_instance_uid``, ``accession_number``, ``patient_id`` of the payload's ``study`` (None when absent)."""
-    study = payload.get("study") if isinstance(payload, dict) else None
-    study = study if isinstance(study, dict) else {}
-    return {name: study.get(name) if isinstance(study.get(name), str) else None for name in STUDY_COLUMNS}
+    return study_column_values(payload.get("study") if isinstance(payload, dict) else None)
 
 
 def callback_url_of(payload: Any) -> str | None:
@@ -113,12 +131,15 @@ def create_job(
     idempotency_key: str | None = None,
     on_insert: InsertHook | None = None,
     dicom: dict[str, Any] | None = None,
+    admit: AdmitHook | None = None,
 ) -> tuple[Job, bool]:
     """Store a queued job; return it and whether it is new (False: an idempotent replay). ``dicom``:
     what the client read from its image files (``jobs.dicom``, as the worker stores its PACS reads).
 
     Raises ``IdempotencyConflict`` when ``idempotency_key`` was used by this owner with another body.
-    ``on_insert(session, [job id])`` runs in the inserting transaction (the API's audit row).
+    ``admit(1)`` runs only when the job is new, before the insert (the API's cap: a replay is not
+    counted against it); ``on_insert(session, [job id])`` runs in the inserting transaction (the API's
+    audit row).
     """
     body = payload if dicom is None else {**payload, "dicom": dicom}
     digest = request_hash(body) if idempotency_key is not None else None
@@ -126,6 +147,8 @@ def create_job(
         existing = _by_idempotency_key(session, owner, idempotency_key)
         if existing is not None:
             return _replay(existing, digest)
+    if admit is not None:
+        admit(1)
     extra: dict[str, Any] = {"dicom": dicom} if dicom is not None else {}
     values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest, **extra)
     try:
@@ -227,18 +250,19 @@ def list_jobs(
     patient_id: str | None = None,
 ) -> tuple[list[Job], str | None]:
     """Jobs newest first (created_at, then id, descending) and the cursor of the next page; the
-    DICOM filters match the study's columns exactly (indexed with the owner)."""
+    DICOM filters match the study's columns exactly but for padding spaces (``dicom_identifier``:
+    "P " finds the jobs of "P"), indexed with the owner."""
     query = select(Job)
     if statuses:
         query = query.where(Job.status.in_(list(statuses)))
     if owner is not None:
         query = query.where(Job.owner == owner)
     if study_instance_uid is not None:
-        query = query.where(Job.study_instance_uid == study_instance_uid)
+        query = query.where(Job.study_instance_uid == dicom_identifier(study_instance_uid))
     if accession_number is not None:
-        query = query.where(Job.accession_number == accession_number)
+        query = query.where(Job.accession_number == dicom_identifier(accession_number))
     if patient_id is not None:
-        query = query.where(Job.patient_id == patient_id)
+        query = query.where(Job.patient_id == dicom_identifier(patient_id))
     if created_after is not None:
         query = query.where(Job.created_at >= created_after)
     if created_before is not None:
@@ -253,20 +277,24 @@ def list_jobs(
 
 
 MAX_PATIENT_JOBS = 1000
-"""At most this many succeeded jobs of one patient are read for a follow-up (a patient filmed every
-4 months for 20 years has 60 visits)."""
+"""At most this many succeeded jobs of one patient are read for a follow-up, the newest (a patient
+filmed every 4 months for 20 years has 60 visits); the follow-up says when older ones were left out."""
 
 
-def succeeded_jobs_of_patient(session: Session, patient_id: str, *, owner: str | None = None) -> list[Job]:
-    """The succeeded jobs of a patient (the ``patient_id`` column: the payload's study, or the one the
-    DICOM layer read from the header), of ``owner`` (None: every owner's, for an admin), oldest first
-    by creation (the caller orders them by study date, which lives in the payload or the header
-    reads). Uses the ``(owner, patient_id, created_at)`` index."""
-    query = select(Job).where(Job.patient_id == patient_id, Job.status == JobStatus.succeeded.value)
+def succeeded_jobs_of_patient(session: Session, patient_id: str, *, owner: str | None = None) -> tuple[list[Job], bool]:
+    """The newest ``MAX_PATIENT_JOBS`` succeeded jobs of a patient (the ``patient_id`` column: the
+    payload's study, or the one the DICOM layer read from the header, compared without padding:
+    ``dicom_identifier``), of ``owner`` (None: every owner's, for an admin), returned oldest first by
+    creation (the caller orders them by study date, which lives in the payload or the header reads);
+    and whether older succeeded jobs of the patient were left out. Uses the ``(owner, patient_id,
+    created_at)`` index, read backwards."""
+    query = select(Job).where(Job.patient_id == dicom_identifier(patient_id), Job.status == JobStatus.succeeded.value)
     if owner is not None:
         query = query.where(Job.owner == owner)
-    query = query.order_by(Job.created_at, Job.id).limit(MAX_PATIENT_JOBS)
-    return list(session.scalars(query))
+    limit = MAX_PATIENT_JOBS
+    query = query.order_by(Job.created_at.desc(), Job.id.desc()).limit(limit + 1)
+    newest = list(session.scalars(query))
+    return newest[:limit][::-1], len(newest) > limit
 
 
 def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None) -> tuple[Job, bool]:
@@ -308,8 +336,10 @@ def create_jobs_idempotent(
     owner: str | None,
     key: str,
     on_insert: InsertHook | None = None,
+    admit: AdmitHook | None = None,
 ) -> list[Outcome]:
-    """Store the (index, payload) pairs under ``key#index``; replay those already stored."""
+    """Store the (index, payload) pairs under ``key#index``; replay those already stored. ``admit(n)``
+    runs with the number of new jobs before they are inserted (replays are not counted)."""
     keys = [entry_key(key, i) for i, _ in payloads]
     stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys)))
     existing = {j.idempotency_key: j for j in stored}
@@ -325,17 +355,17 @@ def create_jobs_idempotent(
             continue
         slots.append(len(outcomes))
         outcomes.append(None)
-        rows.append({"id": uuid.uuid4(), "owner": owner, "status": JobStatus.queued.value, "created_at": now,
-                     "enqueued_at": now, "attempts": 0, "payload": payload, "callback_url": callback_url_of(payload),
-                     "idempotency_key": job_key, "request_hash": digest})  # fmt: skip
+        rows.append(_new_job(payload, owner, now, idempotency_key=job_key, request_hash=digest))
     if rows:
+        if admit is not None:
+            admit(len(rows))
         try:
             session.execute(insert(Job), rows)
             if on_insert is not None:
                 on_insert(session, [row["id"] for row in rows])
             session.commit()
             for slot, row in zip(slots, rows, strict=True):
-                outcomes[slot] = (_job(row), True)
+                outcomes[slot] = _detached(row), True
         except IntegrityError:  # a concurrent retry stored some of them first: one at a time
             session.rollback()
             for slot, row in zip(slots, rows, strict=True):
@@ -351,11 +381,6 @@ def _create_one(session: Session, row: dict[str, Any], owner: str | None, on_ins
         return create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"])
     return create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"],
                                 on_insert=on_insert)  # type: ignore[call-arg, unused-ignore]  # fmt: skip
-
-
-def _job(row: dict[str, Any]) -> Job:
-    return Job(**{"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
-                  "lease_expires_at": None, **row})  # fmt: skip
 
 
 # ------------------------------------------------------------------ the job's JSON view

@@ -37,6 +37,7 @@ from sqlalchemy.orm import Session
 from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
 from services.db.engine import SerializedJSON
+from services.db.jobs import study_column_values
 from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from services.db.results import measures_row, strain_rows
 from spine_engine.models import RegistrationResult
@@ -345,9 +346,8 @@ def record_dicom(session: Db, claim: Claim, provenance: dict[str, Any], study: d
     """Store what the DICOM layer read for this run (``jobs.dicom``) and the study's identifiers it
     completed (the list filters' columns), fenced by attempt."""
     values: dict[str, Any] = {"dicom": provenance}
-    for name in ("study_instance_uid", "accession_number", "patient_id"):
-        if isinstance(study.get(name), str):
-            values[name] = study[name]
+    columns = study_column_values(study)  # without their padding, as the payload's are stored
+    values.update({name: value for name, value in columns.items() if isinstance(study.get(name), str)})
     done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)

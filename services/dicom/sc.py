@@ -14,7 +14,9 @@ Body Part Examined defined terms), from which dicom3tools' dciodvfy evaluates th
 has no Laterality either: its SR Document Series Module (PS3.3 §C.17.1) has none. The patient and
 study are the source's (Patient and General Study Modules, PS3.3 §C.7.1.1, §C.7.2.1: a new series of
 the same study repeats them); the General Equipment Module (§C.7.5.1) describes the equipment that
-made the series, this service, not the film's modality.
+made the series, this service, not the film's modality. Its Content, Instance Creation and Secondary
+Capture dates and times are the job's end in UTC, with Timezone Offset From UTC (0008,0201) ``+0000``
+(``sr.stamp_utc``; PS3.3 §C.12.1.1.8).
 """
 
 from __future__ import annotations
@@ -26,9 +28,8 @@ from datetime import datetime
 import highdicom as hd
 import numpy as np
 from PIL import Image
-from pydicom.valuerep import DA, DT, TM
 
-from .sr import MANUFACTURER, StudyIdentity, declare_character_set
+from .sr import MANUFACTURER, StudyIdentity, declare_character_set, stamp_utc
 from .uids import job_uids
 
 
@@ -62,9 +63,6 @@ def build_sc(
     if "Laterality" in sc:
         del sc.Laterality
     sc.BurnedInAnnotation = "NO"
-    if content_datetime is not None:
-        sc.ContentDate = sc.InstanceCreationDate = sc.DateOfSecondaryCapture = DA(content_datetime.date())
-        sc.ContentTime = sc.InstanceCreationTime = sc.TimeOfSecondaryCapture = TM(content_datetime.time())
-        for item in sc.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
-            item.ContributionDateTime = DT(content_datetime)
+    stamp_utc(sc, content_datetime, ("ContentDate", "InstanceCreationDate", "DateOfSecondaryCapture"),
+              ("ContentTime", "InstanceCreationTime", "TimeOfSecondaryCapture"))  # fmt: skip
     return declare_character_set(sc)

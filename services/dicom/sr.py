@@ -23,7 +23,8 @@ Content (PS3.16 TID 1500 → TID 1501 / TID 1410 groups, each measurement a TID 
   px coordinates are taken in that convention unchanged.
 
 Every measurement carries: its method (private ``MEASURED`` or ``MODEL_BASED``: model-based when
-``fit.unreliable`` names its quantity, DESIGN.md), its standard deviation when the engine gives
+``fit.unreliable`` names its quantity, or for an axial rotation when ``fit.assumed`` names
+``population_axial_rotation``, ``model_based``; DESIGN.md), its standard deviation when the engine gives
 one (``*_sd_deg``) as TID 310 upper and lower measurement uncertainty (371886008 / 371885007 SCT)
 both equal to one SD; each group carries the algorithm identification (TID 4019: name, version,
 profile), once per group rather than once per measurement (TID 1501 row 5 and TID 300 row 9 both
@@ -40,7 +41,7 @@ from __future__ import annotations
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import date, datetime
+from datetime import UTC, date, datetime
 from typing import Any, TypeVar
 
 import highdicom as hd
@@ -88,6 +89,27 @@ UTF8_CHARACTER_SET = "ISO_IR 192"
 
 
 AnyDataset = TypeVar("AnyDataset", bound=Dataset)
+
+
+UTC_OFFSET = "+0000"
+"""Timezone Offset From UTC (0008,0201) of the SR and SC: their own dates and times are in UTC."""
+
+
+def stamp_utc(ds: AnyDataset, when: datetime | None, dates: Sequence[str], times: Sequence[str]) -> AnyDataset:
+    """Write ``when`` (the job's end; now when None) in UTC into the DA attributes ``dates`` and TM
+    ``times``, highdicom's Contributing Equipment entry's ContributionDateTime (a DT, with its offset),
+    and Timezone Offset From UTC (0008,0201) ``+0000``: without it a reader takes DA and TM as local
+    time (PS3.3 §C.12.1.1.8). A datetime without a zone is taken as UTC (the job's timestamps are)."""
+    when = datetime.now(UTC) if when is None else when
+    when = when.astimezone(UTC) if when.tzinfo is not None else when.replace(tzinfo=UTC)
+    for keyword in dates:
+        setattr(ds, keyword, DA(when.date()))
+    for keyword in times:
+        setattr(ds, keyword, TM(when.time().replace(tzinfo=None)))
+    for item in ds.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
+        item.ContributionDateTime = DT(when)
+    ds.TimezoneOffsetFromUTC = UTC_OFFSET
+    return ds
 
 
 def declare_character_set(ds: AnyDataset) -> AnyDataset:
@@ -207,16 +229,39 @@ def _evidence(identity: StudyIdentity, study_uid: str, image: SourceImage | None
     return ds
 
 
+EXACT_ENDS = ("T1", "L5")
+"""The vertebrae whose pose a boundary given exactly (``fit.boundary`` "given") fixes, axial rotation included."""
+
+
+def model_based(fit: Mapping[str, Any], quantity: str | None, level: str | None = None) -> bool:
+    """Whether a value of the result is a model-based estimate (``MODEL_BASED``) rather than measured:
+    ``fit.unreliable`` lists its ``quantity``, or it is an axial rotation and ``fit.assumed`` names
+    ``population_axial_rotation`` (no pedicles: the population's mean given the frontal curves); never
+    T1's and L5's axial rotation (``level``) when the boundary was given exactly (their poses are the
+    payload's).
+    The FHIR export's ``services.fhir.export.model_estimate_reason`` is the same rule with its reason
+    in words (the two layers may not import each other; a test holds them equal)."""
+    if quantity is None:
+        return False
+    if quantity == "axial_rotation" and fit.get("boundary", "given") == "given" and level in EXACT_ENDS:
+        return False
+    if quantity in set(fit.get("unreliable") or []):
+        return True
+    return quantity == "axial_rotation" and any(
+        isinstance(a, Mapping) and a.get("name") == "population_axial_rotation" for a in fit.get("assumed") or []
+    )
+
+
 class _Builder:
     def __init__(self, result: Mapping[str, Any], algorithm: hd.sr.AlgorithmIdentification, job_id: uuid.UUID):
         self.result = result
         self.algorithm = algorithm
-        self.unreliable = set((result.get("fit") or {}).get("unreliable") or [])
+        self.fit: Mapping[str, Any] = result.get("fit") or {}
         self.job_id = job_id
         self.groups: list[Any] = []
 
     def measurement(self, name: CodedConcept, value: float | None, *, unit: CodedConcept = DEGREE,
-                    quantity: str | None = None, sd: float | None = None,
+                    quantity: str | None = None, level: str | None = None, sd: float | None = None,
                     sites: Sequence[hd.sr.FindingSite] = ()) -> hd.sr.Measurement | None:  # fmt: skip
         if value is None:
             return None
@@ -227,8 +272,7 @@ class _Builder:
             for item in properties:  # highdicom writes (1, UCUM, "no units"); an SD has the value's unit
                 if item.ValueType == "NUM":
                     item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence = [unit]
-        model_based = quantity is not None and quantity in self.unreliable
-        method = PrivateCodes.MODEL_BASED if model_based else PrivateCodes.MEASURED
+        method = PrivateCodes.MODEL_BASED if model_based(self.fit, quantity, level) else PrivateCodes.MEASURED
         return hd.sr.Measurement(
             name=name, value=float(value), unit=unit, method=method, properties=properties,
             finding_sites=list(sites) or None,
@@ -274,7 +318,7 @@ def _cobb_lines(
     its pixel spacing."""
     if image is None or image.pixel_spacing is None or cobb is None:
         return None
-    points = cobb_lines_px(result, payload.get("pa") or {}, curve, image.pixel_spacing)
+    points = cobb_lines_px(result, payload, curve, image.pixel_spacing)
     if points is None:
         return None
     def source() -> hd.sr.SourceImageForRegion:
@@ -353,8 +397,8 @@ def build_sr(
     ``payload`` the job's payload (JSON), ``images`` the source radiographs by view (``pa``,
     ``lateral``) when known. Without a study UID (a job without ``study``) the SR opens a new study
     whose UID is derived from the job id. ``content_datetime`` (e.g. the job's end) is the Content
-    and Instance Creation Date/Time, so that every build of a job is the same bytes; without it they
-    are the build's time (highdicom's default)."""
+    and Instance Creation Date/Time, in UTC with Timezone Offset From UTC ``+0000`` (``stamp_utc``), so
+    that every build of a job is the same bytes; without it they are the build's time."""
     if hasattr(result, "model_dump"):
         result = result.model_dump(mode="json")
     job = uuid.UUID(str(job_id))
@@ -377,7 +421,7 @@ def build_sr(
             [
                 cobb,
                 b.measurement(PrivateCodes.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"),
-                              quantity="axial_rotation", sites=[vertebra(c["apex"], APICAL)]),
+                              quantity="axial_rotation", level=c["apex"], sites=[vertebra(c["apex"], APICAL)]),
                 b.measurement(PrivateCodes.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
                               quantity="plane_of_max_curvature"),
                 b.measurement(PrivateCodes.MAX_CURVATURE, c.get("max_curvature_deg"),
@@ -422,7 +466,7 @@ def build_sr(
         frontal = v.get("frontal_bending_deg", v.get("lateral_bending_deg"))
         b.group(f"Vertebra {level}", [
             b.measurement(PrivateCodes.AXIAL_ROTATION, v.get("axial_rotation_deg"), quantity="axial_rotation",
-                          sd=v.get("axial_rotation_sd_deg")),
+                          level=level, sd=v.get("axial_rotation_sd_deg")),
             b.measurement(PrivateCodes.SAGITTAL_BENDING, sagittal, quantity="kyphosis"),
             b.measurement(PrivateCodes.FRONTAL_BENDING, frontal),
             b.measurement(PrivateCodes.TWIST, v.get("twist_deg"), quantity="twist"),
@@ -451,11 +495,7 @@ def build_sr(
         sop_instance_uid=uids["sr"], instance_number=1, manufacturer=MANUFACTURER, is_complete=True,
         series_description="Spine reconstruction measurements",
     )  # fmt: skip
-    if content_datetime is not None:
-        sr.ContentDate = sr.InstanceCreationDate = DA(content_datetime.date())
-        sr.ContentTime = sr.InstanceCreationTime = TM(content_datetime.time())
-        for item in sr.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
-            item.ContributionDateTime = DT(content_datetime)
+    stamp_utc(sr, content_datetime, ("ContentDate", "InstanceCreationDate"), ("ContentTime", "InstanceCreationTime"))
     if not images:
         for keyword in ("CurrentRequestedProcedureEvidenceSequence", "PertinentOtherEvidenceSequence"):
             if keyword in sr:

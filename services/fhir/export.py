@@ -21,6 +21,10 @@ UCUM ``deg``. The input images' DICOM Study Instance UID, when the payload had a
 referenced in ``derivedFrom`` as an ImagingStudy identifier (system ``urn:dicom:uid``, value
 ``urn:oid:<uid>``).
 
+Model estimates: a value from the spine model's prior (``model_estimate_reason``, the SR's rule) has
+``interpretation`` the local code ``MODEL-BASED`` (the SR's method code) and a note giving the
+result's reason, on the Observation or on the Cobb Observation's component.
+
 Subject and time: ``subject`` is the Patient by identifier (DICOM Patient ID (0010,0020)) whenever a
 patient ID is known, with ``system`` the setting ``SPINE_PATIENT_ID_SYSTEM`` (the issuer's namespace;
 none when unset). Every Observation has ``effectiveDateTime`` (``effective_date_time``): the study's
@@ -57,6 +61,7 @@ LOCAL_CODES: dict[str, str] = {
     "ENDPLATE-COBB": "Cobb angle between the end vertebrae's endplates",
     "CONVEXITY": "Convexity of the curve",
     "MAJOR-CURVE": "Major curve (the largest)",
+    "MODEL-BASED": "Model-based estimate (from the spine model's prior)",
 }
 """The local code system's concepts: code -> display (the SR's ``99SPINE`` values and meanings)."""
 DICOM_UID = "urn:dicom:uid"
@@ -67,10 +72,67 @@ METHOD = (
 )
 _NAMESPACE = uuid.UUID("6f1c2a57-2a4e-5d0b-8a53-2f3f7c1b9e10")
 
-MODEL_ESTIMATE_NOTE = (
-    "Model estimate: T1 and L5 were not given, so this quantity comes from the generic spine model, "
-    "not from the images (fit.unreliable)."
-)
+EXACT_ENDS = ("T1", "L5")
+"""The vertebrae whose pose a boundary given exactly (``fit.boundary`` "given") fixes, axial rotation included."""
+
+
+def _assumption(fit: Mapping[str, Any], name: str) -> Mapping[str, Any] | None:
+    """The ``fit.assumed`` entry (``spine_engine.models.Assumption``: name, view, reason) named ``name``."""
+    return next((a for a in fit.get("assumed") or [] if isinstance(a, Mapping) and a.get("name") == name), None)
+
+
+def model_estimate_reason(fit: Mapping[str, Any], quantity: str, level: str | None = None) -> str | None:
+    """Why a value of the result comes from the model's prior rather than the films, in plain words
+    ending with the result's entry that says so; None when the films determine it.
+
+    ``quantity`` is a ``fit.unreliable`` name (``axial_rotation``, ``kyphosis``, ``lordosis``,
+    ``plane_of_max_curvature``, ``twist``...), ``level`` the vertebra an axial rotation is of. A value
+    is a model estimate when ``fit.unreliable`` lists its quantity, and an axial rotation also when
+    ``fit.assumed`` names ``population_axial_rotation`` (no pedicles: the population's mean given the
+    frontal curves); never T1's and L5's axial rotation when the boundary was given exactly (their
+    poses, the payload's). The SR's ``sr.model_based`` is the same rule (MEASURED / MODEL-BASED)."""
+    unreliable = set(fit.get("unreliable") or [])
+    boundary = fit.get("boundary", "given")
+    if quantity == "axial_rotation":
+        if boundary == "given" and level in EXACT_ENDS:
+            return None  # T1's and L5's poses are the payload's
+        prior = _assumption(fit, "population_axial_rotation")
+        if prior is not None:
+            reason = prior.get("reason") or "no pedicles: the axial rotation is the population's mean"
+            return f"{reason} (fit.assumed: population_axial_rotation)"
+        if quantity in unreliable:
+            return "no pedicle centres were given, so no film observes the vertebrae's turn about their axis; it " \
+                "comes from the spine model (fit.unreliable: axial_rotation)"
+        return None
+    if quantity not in unreliable:
+        return None
+    if quantity in ("kyphosis", "lordosis"):
+        shape = _assumption(fit, "population_sagittal_shape")
+        if shape is not None and shape.get("reason"):
+            return f"{shape['reason']} (fit.assumed: population_sagittal_shape; fit.unreliable: {quantity})"
+        if "depth" in unreliable:
+            return f"T1 and L5 were not given and fewer than 2 lateral landmarks place the spine in depth, so the " \
+                f"{quantity} comes from the spine model's prior (fit.unreliable: {quantity})"
+        films = "the lateral film's landmarks say little of it" if fit.get("lateral") else "no lateral film was given"
+        ends = {"given": "T1 and L5 given", "soft": "T1 and L5 given with SDs"}.get(str(boundary),
+                                                                                  "T1 and L5 not given")  # fmt: skip
+        return f"{films} ({ends}): its standard deviation exceeds half the population's, so it stays close to the " \
+            f"spine model's prior (fit.unreliable: {quantity})"
+    if quantity == "plane_of_max_curvature":
+        ends = " and T1 and L5 were not given" if boundary == "estimated" else ""
+        return f"fewer than 2 lateral landmarks place the spine in depth{ends}: the plane of maximum curvature and " \
+            "the Cobb angle in it come from the spine model's prior (fit.unreliable: plane_of_max_curvature)"
+    return f"the films do not determine it: it comes from the spine model's prior (fit.unreliable: {quantity})"
+
+
+def _estimate_note(reason: str, what: str | None = None) -> str:
+    return f"Model estimate{f' ({what})' if what else ''}: {reason}."
+
+
+MODEL_BASED = {"coding": [{"system": LOCAL_CODE_SYSTEM, "version": LOCAL_CODE_SYSTEM_VERSION, "code": "MODEL-BASED",
+                           "display": LOCAL_CODES["MODEL-BASED"]}], "text": "Model estimate"}  # fmt: skip
+"""``interpretation`` of an Observation or component whose value is a model estimate: the SR's method code
+``MODEL-BASED`` (99SPINE), in the local code system."""
 
 
 SD_COMPONENT = (
@@ -97,8 +159,30 @@ def _coded(text: str, coding: dict[str, Any] | None) -> dict[str, Any]:
     return {"coding": [coding], "text": text} if coding else _text(text)
 
 
-def _component(name: str, code: str | None = None, **value: Any) -> dict[str, Any]:
-    return {"code": _coded(name, _local(code) if code else None), **value}
+_ESTIMATE_KEY = "_estimate"
+"""A component's model-estimate reason while the Observation is built (``_component_estimate_notes``
+moves it into a note; never in the JSON)."""
+
+
+def _component(name: str, code: str | None = None, estimate: str | None = None, **value: Any) -> dict[str, Any]:
+    """An Observation component; ``estimate`` (why its value is a model estimate) flags it with
+    ``interpretation`` ``MODEL_BASED`` and, through ``_component_estimate_notes``, a note."""
+    component = {"code": _coded(name, _local(code) if code else None), **value}
+    if estimate:
+        component["interpretation"] = [MODEL_BASED]
+        component[_ESTIMATE_KEY] = estimate
+    return component
+
+
+def _component_estimate_notes(components: Sequence[dict[str, Any]]) -> list[str]:
+    """One note per reason of the model-estimate components (naming them), their reasons taken out of
+    the components."""
+    by_reason: dict[str, list[str]] = {}
+    for component in components:
+        reason = component.pop(_ESTIMATE_KEY, None)
+        if reason:
+            by_reason.setdefault(reason, []).append(component["code"]["text"])
+    return [_estimate_note(reason, "components: " + "; ".join(names)) for reason, names in by_reason.items()]
 
 
 def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -150,12 +234,28 @@ def _study_date_time(study: Mapping[str, Any]) -> str | None:
     return f"{day}T{hh}:{mm or '00'}:{ss or '00'}{fraction or ''}{zone}"
 
 
-def _date_time(value: datetime | date | str) -> str:
-    """A FHIR ``dateTime`` of a datetime (its date alone when it has no time zone), a date, or text
-    already in that form."""
+_PARTIAL_DATE = re.compile(r"^\d{4}(-(0[1-9]|1[0-2]))?$")
+
+
+def _date_time(value: datetime | date | str) -> str | None:
+    """A FHIR ``dateTime`` of a datetime, a date or ISO 8601 text; None when the text is no date.
+
+    FHIR R4 dateTime (datatypes §2.24.0.1) is a year, year-month or date, or a date-time to the second
+    that SHALL have a time zone: a date-time without one (a stored film's '2024-05-06T10:11:12', a
+    naive datetime) is read as its date alone, the part that is certain; a time with its zone is
+    written to the second in ``isoformat``."""
+    if isinstance(value, str):
+        text = value.strip()
+        if _PARTIAL_DATE.match(text):
+            return text
+        try:
+            parsed: datetime | date = datetime.fromisoformat(text) if len(text) > 10 else date.fromisoformat(text)
+        except ValueError:
+            return None
+        value = parsed
     if isinstance(value, datetime):
         return value.isoformat() if value.tzinfo is not None else value.date().isoformat()
-    return value.isoformat() if isinstance(value, date) else value
+    return value.isoformat()
 
 
 def effective_date_time(
@@ -163,11 +263,14 @@ def effective_date_time(
 ) -> str:
     """``effectiveDateTime``, the clinically relevant time of the measures: the study's date (and
     time, ``_study_date_time``), else the film's acquisition or content date and time, else the job's
-    creation (the landmarks' time when nothing of the films is known)."""
+    creation (the landmarks' time when nothing of the films is known). A film's date-time without a
+    time zone counts for its date; one that is no date at all (a stored job's malformed value) is
+    skipped (``_date_time``)."""
     from_study = _study_date_time(study) if study else None
     if from_study:
         return from_study
-    return _date_time(film_datetime if film_datetime is not None else created_at)
+    from_film = _date_time(film_datetime) if film_datetime is not None else None
+    return from_film or _date_time(created_at) or created_at.date().isoformat()
 
 
 def _image_note(study: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -200,7 +303,7 @@ def observation_bundle(
     and time when the DICOM layer read one (``effective_date_time``); ``patient_id_system`` is
     ``SPINE_PATIENT_ID_SYSTEM``."""
     measures = result.get("measures") or {}
-    unreliable = set((result.get("fit") or {}).get("unreliable") or [])
+    fit = result.get("fit") or {}
     version = (result.get("engine") or {}).get("version", "unknown")
     issued = finished_at.isoformat()
     derived = _derived_from(study)
@@ -209,12 +312,15 @@ def observation_bundle(
     effective = effective_date_time(study, film_datetime, created_at or finished_at)
 
     def observation(key: str, name: str, value: float, *, coding: dict[str, Any], notes: Sequence[str] = (),
-                    components: Sequence[dict[str, Any]] = (), estimate: bool = False,
+                    components: Sequence[dict[str, Any]] = (), estimate: str | None = None,
                     sd: float | None = None) -> dict[str, Any]:  # fmt: skip
+        """``estimate``: why the value is a model estimate (``model_estimate_reason``), None when measured."""
         if sd is not None:
             components = [*components, _component(SD_COMPONENT, valueQuantity=_deg(sd))]
         obs_id = str(uuid.uuid5(_NAMESPACE, f"{job_id}:{key}"))
-        texts = [{"text": n} for n in notes] + ([{"text": MODEL_ESTIMATE_NOTE}] if estimate else []) + image_note
+        estimate_notes = [_estimate_note(estimate)] if estimate else []
+        estimate_notes += _component_estimate_notes(components)
+        texts = [{"text": n} for n in [*notes, *estimate_notes]] + image_note
         body: dict[str, Any] = {
             "resourceType": "Observation",
             "id": obs_id,
@@ -227,6 +333,8 @@ def observation_bundle(
             "valueQuantity": _deg(value),
             "method": _text(f"{METHOD}; spine_engine {version}"),
         }
+        if estimate:
+            body["interpretation"] = [MODEL_BASED]
         if texts:
             body["note"] = texts
         if derived:
@@ -248,11 +356,14 @@ def observation_bundle(
             _component("Convexity (patient side)", "CONVEXITY", valueString=curve["convexity"]),
             _component("Major curve", "MAJOR-CURVE", valueBoolean=bool(curve.get("major"))),
             _component("Apical vertebral axial rotation", "APEX-AXROT",
-                       valueQuantity=_deg(curve["apex_axial_rotation_deg"])),
+                       valueQuantity=_deg(curve["apex_axial_rotation_deg"]),
+                       estimate=model_estimate_reason(fit, "axial_rotation", curve["apex"])),
             _component("Plane of maximum curvature, azimuth from the frontal plane toward anterior", "PMC-ORIENT",
-                       valueQuantity=_deg(curve["plane_of_max_curvature_deg"])),
+                       valueQuantity=_deg(curve["plane_of_max_curvature_deg"]),
+                       estimate=model_estimate_reason(fit, "plane_of_max_curvature")),
             _component("Cobb angle in the plane of maximum curvature", "PMC-COBB",
-                       valueQuantity=_deg(curve["max_curvature_deg"])),
+                       valueQuantity=_deg(curve["max_curvature_deg"]),
+                       estimate=model_estimate_reason(fit, "plane_of_max_curvature")),
         ]  # fmt: skip
         if curve.get("endplate_angle_deg") is not None:
             endplates = _deg(curve["endplate_angle_deg"])
@@ -290,7 +401,7 @@ def observation_bundle(
         if measures.get(field) is not None:
             sign = "positive when convex posteriorly" if flag == "kyphosis" else "positive when convex anteriorly"
             observations.append(observation(key, name, measures[field], coding=_local(code), notes=[f"Sign: {sign}."],
-                                            estimate=flag in unreliable,
+                                            estimate=model_estimate_reason(fit, flag),
                                             sd=measures.get(field.replace("_deg", "_sd_deg"))))  # fmt: skip
     if major is not None:
         apex = [v for v in result.get("vertebrae") or [] if v.get("level") == major["apex"]]
@@ -303,7 +414,7 @@ def observation_bundle(
                 coding=_local("APEX-AXROT"),
                 notes=[f"Apex {major['apex']}; positive toward the patient's left (SRS sense, seen from above)."],
                 components=[_component("Apex vertebra", valueString=major["apex"])],
-                estimate="axial_rotation" in unreliable,
+                estimate=model_estimate_reason(fit, "axial_rotation", major["apex"]),
                 sd=apex_sd,
             )
         )

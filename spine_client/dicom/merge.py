@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import copy
 import math
+import re
+from datetime import date, datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
@@ -224,12 +226,37 @@ def _header_field(section: str, path: str) -> bool:
     return (len(parts) == 2 and parts[1] in _VIEW_FIELDS) or (len(parts) == 3 and parts[1] == "acquisition")
 
 
+_FILM_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}$")
+_FILM_DATE_TIME = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d+)?([+-]\d{2}:\d{2}|Z)$")
+
+
+def film_datetime_problem(value: str) -> str | None:
+    """Why ``ViewProvenance.film_datetime`` is not in the form the header reader writes it
+    (``header._film_datetime``), None when it is: an ISO 8601 date (YYYY-MM-DD), or a date and time to
+    the second with its UTC offset (YYYY-MM-DDThh:mm:ss±hh:mm). It becomes the FHIR Observations'
+    ``effectiveDateTime`` when the study has no date, and a FHIR R4 dateTime with a time SHALL have a
+    time zone (datatypes §2.24.0.1)."""
+    text = value.strip()
+    form = "a date (YYYY-MM-DD) or a date and time with its UTC offset (YYYY-MM-DDThh:mm:ss+hh:mm)"
+    if _FILM_DATE.match(text) or _FILM_DATE_TIME.match(text):
+        try:
+            (date.fromisoformat if len(text) == 10 else datetime.fromisoformat)(text)
+        except ValueError:
+            return f"{value!r} is not a calendar date or time: the film's date must be {form}"
+        return None
+    if re.match(r"^\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}(:\d{2}(\.\d+)?)?$", text):
+        return (f"{value!r} has a time but no time zone: the film's date must be {form}, as the header "
+                "reader writes it (a time of unknown zone is sent as the date alone)")  # fmt: skip
+    return f"{value!r} is not a date: the film's date must be {form}"
+
+
 def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[str | int, ...], str]]:
     """What is wrong with a ``dicom`` block a client read from its image files and sends with a payload
     (``spine submit --pa-dicom``), as (JSON path within the block, reason): every view's ``source``
     is ``file`` (``dicomweb`` reads are the service's own), every read fills a field the DICOM layer
-    fills from a header (so that the block can only complete a payload as a header does), and a
-    study value the contract has no field for is as DICOM writes it."""
+    fills from a header (so that the block can only complete a payload as a header does), a study
+    value the contract has no field for is as DICOM writes it, and a view's ``film_datetime`` is as the
+    header reader writes it (``film_datetime_problem``)."""
     errors: list[tuple[tuple[str | int, ...], str]] = []
     sections: list[tuple[str, list[AttributeRead]]] = [("study", provenance.study)]
     for role in ("pa", "lateral"):
@@ -238,6 +265,10 @@ def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[st
             continue
         if record.source != "file":
             errors.append(((role, "source"), "must be 'file': the service reads the PACS itself"))
+        if record.film_datetime is not None:
+            problem = film_datetime_problem(record.film_datetime)
+            if problem is not None:
+                errors.append(((role, "film_datetime"), problem))
         sections.append((role, record.read))
     for section, reads in sections:
         base: tuple[str | int, ...] = (section,) if section == "study" else (section, "read")

@@ -317,7 +317,7 @@ def test_every_artifact_of_a_job_whose_spacing_came_from_its_film(app: App, tmp_
     from spine_client.dicom_input import payload_from_dicom
     from tools.dicom import synthetic
 
-    film = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15))
+    film = synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), rows=3200, columns=1200)  # the landmarks on it
     synthetic.write(film, tmp_path / "pa.dcm")
     points = spine_payload(curve_mm=25.0)["pa"]["landmarks"]
     (tmp_path / "lm.csv").write_text("".join(f"{p['level']},{p['point'][0] / 0.15},{p['point'][1] / 0.15}\n"

@@ -48,6 +48,7 @@ EXPECTED = {
     "form content type": (415, "unsupported-media-type"),
     "no content type": (415, "unsupported-media-type"),
     "oversized Idempotency-Key": (422, "validation-error"),
+    "empty Idempotency-Key": (422, "validation-error"),
     "unknown query parameter": (422, "validation-error"),
     "control character in a DICOM filter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
@@ -90,6 +91,8 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["NUL character in a text"] == "options.profile"
     assert validation["unknown profile"] == "options.profile"
     assert validation["control character in a DICOM filter"] == "query.patient_id"
+    assert validation["empty Idempotency-Key"] == "header.idempotency-key"
+    assert "the Idempotency-Key header is empty" in details["empty Idempotency-Key"]
 
 
 def test_another_clients_job_answers_exactly_as_an_unknown_one(rows: list[dict[str, Any]]) -> None:

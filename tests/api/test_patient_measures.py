@@ -6,16 +6,26 @@ from __future__ import annotations
 
 import math
 import uuid
-from datetime import date
+from collections.abc import Iterator
+from datetime import UTC, date, datetime, timedelta
 from typing import Any
 from urllib.parse import quote
 
 import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import update
 
+from services.api.app import create_app
 from services.api.routes.patients import MeasureValue, Visit, change, visit
+from services.core.config import Settings
+from services.db import jobs as jobs_repo
+from services.db.engine import session_factory
 from services.db.models import Job
 from spine_engine import register
 from tests.conftest import Service, make_key, spine_payload
+
+BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
+T0 = datetime(2026, 1, 1, 8, 0, tzinfo=UTC)
 
 MEASURES = ("major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation")
 
@@ -125,3 +135,124 @@ def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distribut
     assert follow_up(key_a, f"P-{uuid.uuid4().hex[:8]}")["visits"] == []
     assert follow_up(key_a, "A/B 7")["patient_id"] == "A/B 7"  # a DICOM LO may hold "/" and spaces
     assert len(follow_up(svc.api_key)["visits"]) == 5
+
+
+# ------------------------------------------------------------------ which jobs are the visits (both databases)
+
+
+@pytest.fixture(scope="module")
+def result() -> dict[str, Any]:
+    """One engine result, stored as the result of every succeeded job below (the follow-up reads it)."""
+    return register(spine_payload())
+
+
+@pytest.fixture
+def client(db_settings: Settings) -> Iterator[TestClient]:
+    """The API alone on the database (no worker: the tests below mark their jobs succeeded), with the
+    key of a client of its own (the PostgreSQL database is the session's, shared with other tests)."""
+    with TestClient(create_app(db_settings)) as c:
+        c.headers["Authorization"] = f"Bearer {make_key(db_settings, f'visits-{uuid.uuid4().hex[:8]}')}"
+        yield c
+
+
+def _study(patient: str, when: str | None, uid: str | None = None, **more: str) -> dict[str, Any]:
+    uid = uid or f"1.2.826.0.1.3680043.8.498.{uuid.uuid4().int % 10**12}"
+    return {"study_instance_uid": uid, "patient_id": patient, **({"study_date": when} if when else {}), **more}
+
+
+def _succeeded(client: TestClient, settings: Settings, result: dict[str, Any], study: dict[str, Any] | None,
+               created_s: float, finished_s: float, patient_column: str | None = None) -> str:  # fmt: skip
+    """A job of ``study`` made through the API, then marked succeeded with ``result``, created and
+    finished at these seconds after T0 (``patient_column``: the Patient ID the DICOM layer would have
+    read from a header, for a payload without a study)."""
+    payload = spine_payload()
+    if study is not None:
+        payload["study"] = study
+    answer = client.post("/v1/jobs", json=payload)
+    assert answer.status_code == 202, answer.text
+    job_id = uuid.UUID(answer.json()["id"])
+    extra = {"patient_id": patient_column} if patient_column is not None else {}
+    with session_factory(settings)() as session:
+        session.execute(update(Job).where(Job.id == job_id).values(
+            status="succeeded", result=result, created_at=T0 + timedelta(seconds=created_s),
+            started_at=T0 + timedelta(seconds=created_s), finished_at=T0 + timedelta(seconds=finished_s), **extra,
+        ))  # fmt: skip
+        session.commit()
+    return str(job_id)
+
+
+def _follow_up(client: TestClient, patient: str) -> dict[str, Any]:
+    answer = client.get(f"/v1/patients/{quote(patient, safe='')}/measures")
+    assert answer.status_code == 200, answer.text
+    body: dict[str, Any] = answer.json()
+    return body
+
+
+@BACKENDS
+def test_a_follow_up_keeps_the_newest_visits_and_says_older_ones_were_left_out(
+    client: TestClient, db_settings: Settings, result: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Past MAX_PATIENT_JOBS succeeded jobs, the follow-up kept the oldest and said nothing: a clinician
+    lost the latest visits. The limit is lowered to 3 for the test (the code reads it per request)."""
+    patient = f"P-{uuid.uuid4().hex[:8]}"
+    years = ["2021", "2022", "2023", "2024", "2025"]
+    ids = [_succeeded(client, db_settings, result, _study(patient, f"{y}-03-01"), i, i + 0.5)
+           for i, y in enumerate(years)]  # fmt: skip
+    full = _follow_up(client, patient)
+    assert [v["job_id"] for v in full["visits"]] == ids and full["older_visits_left_out"] is False
+    monkeypatch.setattr(jobs_repo, "MAX_PATIENT_JOBS", 3)
+    newest = _follow_up(client, patient)
+    assert [v["job_id"] for v in newest["visits"]] == ids[-3:]  # the newest three, oldest first
+    assert [v["study_date"] for v in newest["visits"]] == [f"{y}-03-01" for y in years[-3:]]
+    assert newest["older_visits_left_out"] is True
+    assert {c["from_job"] for c in newest["changes"]} | {c["to_job"] for c in newest["changes"]} == set(ids[-3:])
+    monkeypatch.setattr(jobs_repo, "MAX_PATIENT_JOBS", 5)
+    assert _follow_up(client, patient)["older_visits_left_out"] is False
+
+
+@BACKENDS
+def test_a_study_read_again_is_one_visit_its_latest_job(
+    client: TestClient, db_settings: Settings, result: dict[str, Any]
+) -> None:
+    """Two succeeded jobs of one Study Instance UID (a film whose landmarks were corrected and sent
+    again) were two visits and a change over 0 days; one visit per study, the job that finished last
+    standing for it (then the one made last), and a job without a Study Instance UID a visit of its own."""
+    patient = f"P-{uuid.uuid4().hex[:8]}"
+    first, second = _study(patient, "2025-01-10"), _study(patient, "2025-07-08")
+    _succeeded(client, db_settings, result, first, 0, 10)
+    reread = _succeeded(client, db_settings, result, first, 1, 11)  # read again, finished last: it stands
+    slow = _succeeded(client, db_settings, result, second, 2, 30)  # made first but finished last: it stands
+    _succeeded(client, db_settings, result, second, 3, 12)
+    tie = _study(patient, "2026-01-12")
+    _succeeded(client, db_settings, result, tie, 4, 40)
+    later = _succeeded(client, db_settings, result, tie, 5, 40)  # same finish: the one made last
+    # no study in the payload: the Patient ID only in the column (as the DICOM layer fills it from a header)
+    loose = [_succeeded(client, db_settings, result, None, 6 + i, 50, patient_column=patient) for i in range(2)]
+
+    body = _follow_up(client, patient)
+    assert [v["job_id"] for v in body["visits"]] == [reread, slow, later, *loose]
+    assert [v["study_date"] for v in body["visits"]] == ["2025-01-10", "2025-07-08", "2026-01-12", None, None]
+    majors = [(c["from_job"], c["to_job"], c["from_date"], c["to_date"])
+              for c in body["changes"] if c["measure"] == "major_cobb"]  # fmt: skip
+    assert majors == [(reread, slow, "2025-01-10", "2025-07-08"), (slow, later, "2025-07-08", "2026-01-12")]
+
+
+@BACKENDS
+def test_padding_spaces_do_not_make_another_patient(
+    client: TestClient, db_settings: Settings, result: dict[str, Any]
+) -> None:
+    """DICOM LO and SH values' leading and trailing spaces are padding (PS3.5 §6.2): "P " was another
+    patient than "P" in the DICOM filters and the follow-up. The payload keeps the text as sent."""
+    patient = f"P-{uuid.uuid4().hex[:8]}"
+    padded = _succeeded(client, db_settings, result, _study(f"{patient} ", "2025-01-10", accession_number=" A7 "), 0, 1)
+    plain = _succeeded(client, db_settings, result, _study(patient, "2025-07-08", accession_number="A7"), 2, 3)
+    assert client.get(f"/v1/jobs/{padded}").json()["study"]["patient_id"] == f"{patient} "
+    for asked in (patient, f"{patient} ", f"  {patient}"):
+        listed = {j["id"] for j in client.get("/v1/jobs", params={"patient_id": asked}).json()["jobs"]}
+        assert listed == {padded, plain}, asked
+        body = _follow_up(client, asked)
+        assert body["patient_id"] == patient
+        assert [v["job_id"] for v in body["visits"]] == [padded, plain]
+    for asked in ("A7", "A7 "):
+        listed = {j["id"] for j in client.get("/v1/jobs", params={"accession_number": asked}).json()["jobs"]}
+        assert {padded, plain} <= listed, asked

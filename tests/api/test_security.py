@@ -284,6 +284,29 @@ def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path, database_ur
     assert client.post("/v1/jobs", json=spine_payload(), headers=a).status_code == 202
 
 
+def test_a_replay_at_the_queued_cap_is_answered_not_refused(tmp_path: Path, database_url: str | None) -> None:
+    """A client at its cap that resends a request it already made (same Idempotency-Key, same body) gets
+    its replay (it makes no job), on the single and the batch route; a new key is still a 429."""
+    settings, client = _app(tmp_path, database_url, max_queued_per_client=2)
+    a = {"Authorization": f"Bearer {make_key(settings, 'clinic-a')}"}
+    payload = spine_payload()
+    made = client.post("/v1/jobs", json=payload, headers={**a, "Idempotency-Key": "k1"})
+    batch = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={**a, "Idempotency-Key": "b1"})
+    assert made.status_code == 202 and batch.status_code == 200 and batch.json()["accepted"] == 1
+    for wait in (0.0, 1.1):  # the count as accepted in this process, then as read again from the database
+        time.sleep(wait)
+        again = client.post("/v1/jobs", json=payload, headers={**a, "Idempotency-Key": "k1"})
+        assert again.status_code == 202, again.text
+        assert again.json()["id"] == made.json()["id"] and again.headers["Idempotent-Replayed"] == "true"
+        resent = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={**a, "Idempotency-Key": "b1"})
+        assert resent.status_code == 200, resent.text
+        assert resent.json()["results"] == batch.json()["results"] and resent.headers["Idempotent-Replayed"] == "true"
+        assert client.post("/v1/jobs", json=payload, headers={**a, "Idempotency-Key": "k2"}).status_code == 429
+        full = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={**a, "Idempotency-Key": "b2"})
+        assert full.status_code == 429 and problem_of(full)["type"] == PROBLEM_BASE + "too-many-queued-jobs"
+    assert len(client.get("/v1/jobs", headers=a).json()["jobs"]) == 2
+
+
 def test_spine_keys_create_list_revoke(tmp_path: Path) -> None:
     created = spine_cli("keys", "create", "--name", "clinic-x", "--role", "client", data_dir=tmp_path)
     assert created.returncode == 0, created.stderr

@@ -9,18 +9,15 @@ from __future__ import annotations
 
 import copy
 import json
-import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 from urllib.parse import quote
 
 import pytest
 from fastapi.testclient import TestClient
 
-from services.api.app import create_app
-from services.core.config import Settings
 from spine_engine.models import DICOM_TEXT_REASON, DICOM_UID_REASON
-from tests.conftest import make_key, problem_of, spine_payload
+from tests.conftest import problem_of, spine_payload
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
 WITH_NUL = "x\x00y"
@@ -28,12 +25,8 @@ FILM = {"source": "file", "study_instance_uid": "1.2.3", "sop_instance_uid": "1.
 
 
 @pytest.fixture
-def client(db_settings: Settings) -> Iterator[TestClient]:
-    """The API on the database, with the key of a client of its own (the PostgreSQL database is the
-    session's, shared with other tests)."""
-    with TestClient(create_app(db_settings)) as c:
-        c.headers["Authorization"] = f"Bearer {make_key(db_settings, f'text-{uuid.uuid4().hex[:8]}')}"
-        yield c
+def client(own_client: TestClient) -> TestClient:
+    return own_client
 
 
 def _profile(p: dict[str, Any]) -> None:

@@ -124,3 +124,29 @@ def test_submit_by_reference_prints_the_uids(tmp_path: Path, capsys: pytest.Capt
     assert payload["pa"]["units"] == "px" and "pixel_spacing" not in payload["pa"]
     code, _, err = _run(capsys, "submit", str(tmp_path / "landmarks.csv"), "--study-instance-uid", "1.2.3")
     assert code == EXIT_USAGE and "--pa-sop-instance-uid" in err
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        ("2024-05-06", None),
+        ("2024-05-06T10:11:12+02:00", None),
+        ("2024-05-06T10:11:12.5Z", None),
+        ("2024-05-06T10:11:12", "has a time but no time zone"),
+        ("2024-05-06 10:11", "has a time but no time zone"),
+        ("2024-02-30", "is not a calendar date"),
+        ("yesterday", "is not a date"),
+    ],
+)
+def test_a_client_blocks_film_datetime_is_as_the_header_reader_writes_it(value: str, reason: str | None) -> None:
+    """``client_provenance_errors``: ``dicom.<view>.film_datetime`` becomes FHIR's effectiveDateTime,
+    whose time SHALL have a zone (FHIR R4 datatypes §2.24.0.1)."""
+    from spine_client.dicom.merge import DicomProvenance, ViewProvenance, client_provenance_errors
+
+    view = ViewProvenance(source="file", study_instance_uid="1.2", sop_instance_uid="1.2.3", film_datetime=value)
+    errors = client_provenance_errors(DicomProvenance(pa=view))
+    if reason is None:
+        assert errors == []
+    else:
+        [(loc, message)] = errors
+        assert loc == ("pa", "film_datetime") and reason in message and "film's date must be" in message

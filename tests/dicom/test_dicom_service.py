@@ -443,7 +443,8 @@ def test_a_dicom_block_completes_the_payload_only_as_a_header_does(
     from spine_client.dicom_input import payload_from_dicom
 
     a, _ = two_clients
-    synthetic.write(synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING)), tmp_path / "pa.dcm")
+    film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200)  # the landmarks on it
+    synthetic.write(film, tmp_path / "pa.dcm")
     csv = tmp_path / "landmarks.csv"
     points = spine_payload(spacing_mm=SPACING)["pa"]["landmarks"]
     csv.write_text("".join(f"{lm['level']},{lm['point'][0]},{lm['point'][1]}\n" for lm in points))
@@ -471,3 +472,10 @@ def test_a_dicom_block_completes_the_payload_only_as_a_header_does(
     sex["study"][index]["value"] = "female"
     assert refused(sex) == [f"dicom.study.{index}.value"]
     assert refused({"pa": "nothing"}) == ["dicom.pa"]
+    # a film date-time is as the header reader writes it: a time without its zone is no FHIR dateTime
+    for value in ("2024-05-06T10:11:12", "06/05/2024", "2024-13-01"):
+        when = json.loads(json.dumps(dicom))
+        when["pa"]["film_datetime"] = value
+        assert refused(when) == ["dicom.pa.film_datetime"], value
+        detail = a.post("/v1/jobs", json={**payload, "dicom": when}).json()["errors"][0]["msg"]
+        assert "film's date must be a date (YYYY-MM-DD) or a date and time with its UTC offset" in detail

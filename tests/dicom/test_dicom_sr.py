@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import io
 import shutil
 import subprocess
 import uuid
-from datetime import datetime
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
@@ -213,6 +214,7 @@ def test_sr_uids_derive_from_the_job(case: dict[str, Any]) -> None:
 def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path) -> None:
     result = copy.deepcopy(case["result"])
     result["fit"]["unreliable"] = ["kyphosis", "lordosis", "axial_rotation"]
+    result["fit"]["boundary"] = "estimated"  # no vertebra's pose is the payload's
     sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
     methods: dict[str, set[str]] = {}
     for group in sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups():
@@ -307,3 +309,90 @@ def test_a_name_beyond_ascii_is_written_in_utf8_and_declared(case: dict[str, Any
                                  timeout=60)  # fmt: skip
             assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
     assert "SpecificCharacterSet" not in _sr(case)  # ASCII only: the default repertoire, nothing declared
+
+
+def _methods(sr: Dataset, tmp_path: Path) -> dict[tuple[str, str | None], set[str]]:
+    """Each measurement's method by (code value, the vertebra of its group's one finding site)."""
+    read = hd.sr.srread(_write(sr, tmp_path / "methods.dcm"))
+    methods: dict[tuple[str, str | None], set[str]] = {}
+    levels = {code: level for level, (code, _) in VERTEBRA_CODES.items()}
+    for group in read.content.get_image_measurement_groups() + read.content.get_planar_roi_measurement_groups():
+        for m in group.get_measurements():
+            sites = [levels.get(s.value.value) for s in (m.finding_sites or [])]
+            methods.setdefault((m.name.value, sites[0] if len(sites) == 1 else None), set()).add(m.method.value)
+    return methods
+
+
+def test_population_axial_rotation_is_model_based(case: dict[str, Any], tmp_path: Path) -> None:
+    """No pedicles, T1 and L5 given: ``fit.assumed`` names population_axial_rotation: every axial
+    rotation is MODEL-BASED but T1's and L5's, the boundary's own poses."""
+    fit = case["result"]["fit"]
+    assert fit["boundary"] == "given"
+    assert "population_axial_rotation" in [a["name"] for a in fit["assumed"]]
+    sr = _sr(case)
+    by_level: dict[str, set[str]] = {}
+    for group in hd.sr.srread(_write(sr, tmp_path / "sr.dcm")).content.get_image_measurement_groups():
+        if group.tracking_identifier.startswith("Vertebra "):
+            found = [m for m in group.get_measurements() if m.name.value == PrivateCodes.AXIAL_ROTATION.value]
+            by_level[group.tracking_identifier.removeprefix("Vertebra ")] = {m.method.value for m in found}
+    assert by_level.pop("T1") == by_level.pop("L5") == {"MEASURED"}
+    assert by_level and set().union(*by_level.values()) == {"MODEL-BASED"}
+    apex = {k: v for k, v in _methods(sr, tmp_path).items() if k[0] == PrivateCodes.APEX_AXIAL_ROTATION.value}
+    assert apex and set().union(*apex.values()) == {"MODEL-BASED"}
+
+
+def test_sr_and_sc_dates_and_times_are_utc_and_say_so(case: dict[str, Any], tmp_path: Path) -> None:
+    """PS3.3 §C.12.1.1.8: DA and TM without Timezone Offset From UTC (0008,0201) read as local time; the
+    job's end (23:30 in Paris, 21:30 UTC) is written in UTC with the offset +0000."""
+    finished = datetime(2026, 3, 1, 23, 30, tzinfo=timezone(timedelta(hours=2)))
+    sr = build_sr(case["result"], case["payload"], JOB, case["identity"], {"pa": case["source"]},
+                  content_datetime=finished)  # fmt: skip
+    sc = build_sc(render_figure(case["result"], case["payload"], dpi=40), JOB, case["identity"],
+                  content_datetime=finished)  # fmt: skip
+    for name, ds in (("sr", sr), ("sc", sc)):
+        back = pydicom.dcmread(_write(ds, tmp_path / f"{name}.dcm"))
+        assert back.TimezoneOffsetFromUTC == "+0000"
+        assert (back.ContentDate, back.ContentTime) == ("20260301", "213000")
+        assert (back.InstanceCreationDate, back.InstanceCreationTime) == ("20260301", "213000")
+        assert back.ContributingEquipmentSequence[0].ContributionDateTime == "20260301213000+0000"
+        if shutil.which("dciodvfy") is not None:
+            run = subprocess.run(["dciodvfy", str(tmp_path / f"{name}.dcm")], capture_output=True, text=True,
+                                 timeout=60)  # fmt: skip
+            assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
+    assert (str(sc.DateOfSecondaryCapture), str(sc.TimeOfSecondaryCapture)) == ("20260301", "213000")
+    naive = build_sr(case["result"], case["payload"], JOB, case["identity"], content_datetime=datetime(2026, 3, 1, 9))
+    assert (str(naive.ContentTime), naive.TimezoneOffsetFromUTC) == ("090000", "+0000")  # the job's UTC timestamps
+
+
+def test_an_end_vertebra_without_a_landmark_is_drawn_where_the_fit_projects_it() -> None:
+    """Landmarks on T1..T6 only, the largest angle T1–L5: the L5 line is drawn at the reconstructed L5
+    on the film (``spine_engine.figures.model_points``), not across T6's landmark."""
+    from spine_engine.figures import model_points
+    from spine_engine.levels import LEVELS
+
+    points = [[(100 + 15 * np.sin(np.pi * i / 16)) / SPACING, (50 + 420 * i / 16) / SPACING] for i in range(6)]
+    landmarks = [{"level": lv, "point": p} for lv, p in zip(LEVELS, points, strict=False)]
+    payload = {"pa": {"units": "px", "pixel_spacing": [SPACING, SPACING], "landmarks": landmarks}}
+    result = register(copy.deepcopy(payload))
+    largest = result["measures"]["largest_cobb"]
+    assert (largest["upper"], largest["lower"]) == ("T1", "L5")
+    image = SourceImage("1.2.3.4", "1.2.840.10008.5.1.4.1.1.1.1", "1.2.3", "1.2", (SPACING, SPACING))
+    sr = build_sr(result, payload, JOB, StudyIdentity(study_instance_uid="1.2"), {"pa": image})
+    [group] = [g for g in sr_groups(sr) if g.tracking_identifier == COBB_TOOL]
+    [num] = group.get_measurements(name=COBB_ANGLE)
+    [lines] = [item for item in num[0].ContentSequence if item.ValueType == "SCOORD"]
+    p = np.asarray(lines.GraphicData, dtype=float).reshape(4, 2)
+    projected = model_points(result, payload, "pa") / SPACING  # detector mm → px
+    assert p[:2].mean(axis=0) == pytest.approx(points[0], abs=1e-3)  # T1: its landmark
+    assert p[2:].mean(axis=0) == pytest.approx(projected[-1], abs=1e-2)  # L5: the model's, on the film
+    assert np.linalg.norm(p[2:].mean(axis=0) - points[5]) > 1000  # far below T6 (over 150 mm)
+    a, b = (p[1] - p[0]) * SPACING, (p[3] - p[2]) * SPACING
+    angle = np.degrees(np.arccos(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b)))
+    assert angle == pytest.approx(largest["angle_deg"], abs=1e-3)
+
+
+def sr_groups(sr: Dataset) -> list[Any]:
+    buffer = io.BytesIO()
+    sr.save_as(buffer, enforce_file_format=True)
+    buffer.seek(0)
+    return list(hd.sr.srread(buffer).content.get_planar_roi_measurement_groups())

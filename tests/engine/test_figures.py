@@ -7,15 +7,19 @@ import uuid
 import xml.etree.ElementTree as ET
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from benches.truth import payload_from_truth
 from services.core.problems import PROBLEM_BASE
 from services.db import runs as repo
 from services.db.engine import session_scope
 from spine_engine import register
-from spine_engine.figures import render_figure
-from spine_engine.models import RegistrationResult
+from spine_engine.figures import _detector_mm, model_points, render_figure
+from spine_engine.levels import LEVEL_INDEX, N_LEVELS
+from spine_engine.models import JobPayload, RegistrationResult
+from spine_engine.synthetic import generate_spine
 from tests.conftest import problem_of, spine_payload
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -70,6 +74,63 @@ def test_the_title_of_a_spine_below_the_threshold_gives_its_largest_angle() -> N
 def test_unknown_format_is_refused(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
     with pytest.raises(ValueError, match="unknown figure format"):
         render_figure(*fitted, "gif")  # type: ignore[arg-type]
+
+
+def _drawn_and_reported(payload: dict[str, Any], view: str) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """The fit of ``payload``; each ``view`` landmark's distance from the model point the figure draws
+    its residual line to (``model_points``, detector mm / the view's reported scale), and the distance
+    ``fit.residuals`` reports, patient mm."""
+    result = register(payload)
+    drawn = model_points(result, payload, view)
+    film = getattr(JobPayload.model_validate(payload), view)
+    scale = result["fit"][view]["scale"]
+    reported = {r["level"]: r["residual_mm"] for r in result["fit"]["residuals"] if r["view"] == view}
+    points = zip(film.landmarks, _detector_mm(film), strict=True)
+    lengths = [np.linalg.norm(p - drawn[LEVEL_INDEX[lm.level]]) / scale for lm, p in points]
+    return result, np.array(lengths), np.array([reported[lm.level] for lm in film.landmarks])
+
+
+def _point_source_pa(acquisition: dict[str, Any], boundary: bool) -> dict[str, Any]:
+    payload = spine_payload(curve_mm=30.0)
+    if not boundary:
+        payload.pop("boundary")
+    payload["pa"]["acquisition"] = acquisition
+    return payload
+
+
+SID_SOD = {"distance_source_to_detector_mm": 1800, "distance_source_to_patient_mm": 1600}
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        _point_source_pa(SID_SOD, boundary=False),  # central ray estimated, o along the beam
+        _point_source_pa({**SID_SOD, "central_ray": [100, 250]}, boundary=True),  # c given, o free in 3D
+        _point_source_pa({"projection_model": "perspective"}, boundary=False),  # geometry assumed
+    ],
+    ids=["sid_sod", "central_ray", "projection_model"],
+)
+def test_the_point_source_pa_residual_lines_are_the_reported_residuals(payload: dict[str, Any]) -> None:
+    """A perspective PA: the figure projects the model from the point source as the fit did (not by a
+    weak perspective through the central ray's foot, which drew L5 8.7 mm from its landmark where the
+    fit reports 0.21 mm), so each residual line is as long as ``fit.residuals`` says."""
+    result, drawn, reported = _drawn_and_reported(payload, "pa")
+    assert result["fit"]["pa"]["model"] == "perspective"
+    np.testing.assert_allclose(drawn, reported, atol=0.01)
+
+
+def test_the_lateral_residual_lines_turn_with_the_fitted_film_rotation() -> None:
+    """A weak-perspective lateral whose in-plane rotation ψ the fit estimated: the figure turns the
+    model by ψ, so each residual line is as long as ``fit.residuals`` says (the reported scale is the
+    fitted one, the residuals' the starting one: they differ by well under 0.01 mm here)."""
+    spine = generate_spine(3, "thoracic")
+    every = list(range(N_LEVELS))
+    payload = payload_from_truth(spine.positions, spine.rotations, every, every, noise_mm=1.0,
+                                 rng=np.random.default_rng(1), boundary=False)  # fmt: skip
+    result, drawn, reported = _drawn_and_reported(payload, "lateral")
+    assert result["fit"]["lateral"]["model"] == "weak_perspective"
+    assert abs(result["fit"]["lateral"]["rotation_deg"]) > 0.3
+    np.testing.assert_allclose(drawn, reported, atol=0.01)
 
 
 # ------------------------------------------------------------------ the routes

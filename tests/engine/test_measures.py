@@ -104,7 +104,8 @@ def test_no_curve_and_exactly_one_major() -> None:
 
 def test_the_largest_angle_is_the_major_curve_or_the_one_below_the_threshold() -> None:
     """``largest_cobb``: the major curve's ends and angle when ``cobb`` lists it; below the
-    threshold, the same pair (max θ − min θ), with ``reported_as_curve`` false; none on a flat spine."""
+    threshold, the same pair (max θ − min θ), with ``reported_as_curve`` false; on a flat spine 0°
+    between T1 and L5 (a largest angle of 0, not a missing one)."""
     p, R = _from_tilts(TILTS)
     largest = compute_measures(p, R).largest_cobb
     assert largest is not None
@@ -118,7 +119,10 @@ def test_the_largest_angle_is_the_major_curve_or_the_one_below_the_threshold() -
     got = (above.largest_cobb.upper, above.largest_cobb.lower, round(above.largest_cobb.angle_deg, 9))
     assert got == ("T5", "L1", 14.8)
     assert not above.largest_cobb.reported_as_curve
-    assert compute_measures(*_from_tilts([3.0] * 17)).largest_cobb is None
+    flat = compute_measures(*_from_tilts([3.0] * 17))
+    assert flat.largest_cobb is not None and flat.cobb == []
+    assert (flat.largest_cobb.upper, flat.largest_cobb.lower, flat.largest_cobb.angle_deg) == ("T1", "L5", 0.0)
+    assert not flat.largest_cobb.reported_as_curve
 
 
 @pytest.mark.parametrize("alpha", [30.0, 75.0, -45.0])

@@ -11,9 +11,9 @@ import pytest
 
 from benches import clinic, clinic_films
 from spine_engine import register
-from spine_engine.clinical import ASSUMED_DEPTH_SD_MM, FULL_SPINE_SID_MM, SPINE_TO_DETECTOR_MM, pinhole_geometry
+from spine_engine.clinical import ASSUMED_DEPTH_SD_MM, pinhole_geometry
 from spine_engine.errors import InvalidInput
-from spine_engine.models import PAView
+from spine_engine.models import FULL_SPINE_SID_MM, SPINE_TO_DETECTOR_MM, PAView
 from spine_engine.validation import validate_payload
 
 NO_PEDICLES = ("population_axial_rotation", None)

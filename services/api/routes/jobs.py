@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import uuid
 from datetime import UTC, datetime
+from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Response
@@ -57,6 +58,48 @@ def _location(job_id: uuid.UUID | str) -> str:
     return f"/v1/jobs/{job_id}"
 
 
+IDEMPOTENCY_KEY = (
+    "Makes a retry safe: the same key (1 to 255 characters, per client) with the same body returns the job it "
+    "first made, without making another and whatever the client's queued-job cap; with another body, a 409. "
+    "An empty value is refused (422)."
+)
+BATCH_IDEMPOTENCY_KEY = (
+    "Makes a retry safe: payload i is stored under <key>#i (the key 1 to 240 characters, per client), so the same "
+    "key and body return the same jobs, without making others and whatever the client's queued-job cap; an entry "
+    "whose body changed is a 409 entry. An empty value is refused (422)."
+)
+REPLAYED_HEADER: dict[str, Any] = {
+    "description": "`true` when the answer replays what an earlier request with the same Idempotency-Key made "
+    "(nothing new was stored); absent otherwise.",
+    "schema": {"type": "string", "enum": ["true"]},
+}
+SUBMIT_HEADERS: dict[int | str, dict[str, Any]] = {
+    202: {
+        "description": "Accepted: the queued job, or on a replay the job the Idempotency-Key first made.",
+        "headers": {
+            "Location": {
+                "description": "The job's URL, `/v1/jobs/{id}` (relative to the service), new or replayed.",
+                "required": True,
+                "schema": {"type": "string", "format": "uri-reference"},
+            },
+            "Idempotent-Replayed": REPLAYED_HEADER,
+        }
+    }
+}
+BATCH_HEADERS: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "One entry per payload, in order: the job (status 202) or the problem with it.",
+        "headers": {
+            "Idempotent-Replayed": {
+                **REPLAYED_HEADER,
+                "description": "`true` when the batch was sent with an Idempotency-Key and made no new job: every "
+                "accepted entry replays a job an earlier request with that key made; absent otherwise.",
+            }
+        }
+    }
+}
+
+
 @router.post(
     "",
     status_code=202,
@@ -66,7 +109,7 @@ def _location(job_id: uuid.UUID | str) -> str:
     description="Validates the payload fully, stores a queued job and enqueues it. "
     "With an Idempotency-Key, the same key and body return the same job; another body is a 409.",
     openapi_extra=PAYLOAD_BODY,
-    responses=problem_responses(400, 409, 413, 415, 422, 503),
+    responses={**SUBMIT_HEADERS, **problem_responses(400, 409, 413, 415, 422, 503)},
 )
 def submit_job(
     body: JobBody,
@@ -75,17 +118,17 @@ def submit_job(
     queue: QueueDep,
     access: AccessDep,
     settings: SettingsDep,
-    idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+    idempotency_key: Annotated[str | None, Header(min_length=1, max_length=255, description=IDEMPOTENCY_KEY)] = None,
 ) -> Job:
     try:
         payload, dicom = split_dicom(body)
         admit(payload, settings, session, access.owner, dicom)
     except InvalidInput as exc:
         raise ProblemError(validation_problem(exc.errors)) from None
-    access.admit(session, 1)
-    try:
+    try:  # the cap (access.admit) is applied after the key's lookup: a replay makes no job and is never a 429
         job, created = jobs_repo.create_job(session, payload, owner=access.owner, idempotency_key=idempotency_key,
-                                            on_insert=access.created, dicom=dicom)  # fmt: skip
+                                            on_insert=access.created, dicom=dicom,
+                                            admit=partial(access.admit, session))  # fmt: skip
     except jobs_repo.IdempotencyConflict as exc:
         raise ProblemError(
             problem(
@@ -113,7 +156,7 @@ def submit_job(
     description="Each payload is validated on its own; the answer has one entry per payload, "
     "in order: the created job (status 202) or the problem with it.",
     openapi_extra=BATCH_BODY,
-    responses=problem_responses(400, 413, 415, 422),
+    responses={**BATCH_HEADERS, **problem_responses(400, 413, 415, 422)},
 )
 def submit_batch(
     body: BatchBody,
@@ -122,7 +165,9 @@ def submit_batch(
     queue: QueueDep,
     access: AccessDep,
     settings: SettingsDep,
-    idempotency_key: Annotated[str | None, Header(max_length=MAX_BATCH_KEY_LENGTH)] = None,
+    idempotency_key: Annotated[
+        str | None, Header(min_length=1, max_length=MAX_BATCH_KEY_LENGTH, description=BATCH_IDEMPOTENCY_KEY)
+    ] = None,
 ) -> BatchResponse:
     if not isinstance(body, dict) or not isinstance(body.get("jobs"), list):
         raise ProblemError(
@@ -147,14 +192,15 @@ def submit_batch(
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
             p = validation_problem(errors, instance="/v1/jobs/batch")
             entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
-    access.admit(session, len(valid))
-    if idempotency_key is not None:
+    if idempotency_key is not None:  # the cap counts the new jobs only, after the keys' lookup
         answer, replayed_only = batch_response(session, queue, owner=access.owner, key=idempotency_key,
                                                total=len(payloads), valid=valid, entries=entries,
-                                               on_insert=access.created, on_accepted=access.accepted)  # fmt: skip
+                                               on_insert=access.created, on_accepted=access.accepted,
+                                               admit=partial(access.admit, session))  # fmt: skip
         if replayed_only:
             response.headers["Idempotent-Replayed"] = "true"
         return answer
+    access.admit(session, len(valid))
     jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=access.owner,
                                  on_insert=access.created) if valid else []  # fmt: skip
     access.accepted(len(jobs))

@@ -1,8 +1,13 @@
 """/v1/patients/{patient_id}/measures: a patient's follow-up over time, from the caller's succeeded jobs.
 
 A scoliosis patient is filmed every 4–12 months and the question is whether the curve progresses.
-Each visit is one succeeded job of the patient (Patient ID (0010,0020): the payload's ``study`` or the
-header the DICOM layer read), ordered by its study date (Study Date (0008,0020), same sources). Between
+Each visit is one study of the patient (Patient ID (0010,0020), compared without its padding spaces: the
+payload's ``study`` or the header the DICOM layer read): its succeeded jobs of one Study Instance UID
+are one visit, the latest (by finished_at, then created_at) standing for it, since a film read again
+(landmarks corrected and sent anew) is the same visit, not a progression over 0 days; a job without a
+Study Instance UID is a visit of its own. Visits are ordered by their study date (Study Date
+(0008,0020), same sources). Only the newest ``MAX_PATIENT_JOBS`` succeeded jobs are read, and the
+answer says when older ones were left out. Between
 consecutive visits with a study date, each measure's change Δ = m₂ − m₁ (degrees) is flagged when
 
     |Δ| > 5°                      (the convention for a progressing Cobb angle: the inter-observer
@@ -19,7 +24,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from datetime import date
+from datetime import date, datetime
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Path
@@ -138,23 +143,47 @@ def change(name: MeasureName, earlier: Visit, later: Visit) -> Change | None:
     )  # fmt: skip
 
 
-def follow_up(patient_id: str, jobs: list[Job]) -> PatientMeasures:
-    """The visits by study date (undated last, in creation order) and the changes between dated ones."""
-    visits = sorted((visit(j) for j in jobs), key=lambda v: (v.study_date is None, v.study_date or date.min))
+def one_job_per_study(jobs: list[Job]) -> list[Job]:
+    """The jobs that stand for a visit, in the order given: of the jobs of one Study Instance UID, the
+    latest to finish (then the latest made); every job without a Study Instance UID."""
+    uids = [_study(job).get("study_instance_uid") for job in jobs]
+    latest: dict[str, Job] = {}
+    for job, uid in zip(jobs, uids, strict=True):
+        if isinstance(uid, str) and uid and (uid not in latest or _recency(job) > _recency(latest[uid])):
+            latest[uid] = job
+    return [job for job, uid in zip(jobs, uids, strict=True)
+            if not (isinstance(uid, str) and uid) or latest[uid] is job]  # fmt: skip
+
+
+def _recency(job: Job) -> tuple[datetime, datetime]:
+    finished = job.finished_at or job.created_at
+    return finished, job.created_at
+
+
+def follow_up(patient_id: str, jobs: list[Job], *, older_left_out: bool = False) -> PatientMeasures:
+    """The visits (one per study: ``one_job_per_study``) by study date (undated last, in the order of
+    ``jobs``, creation) and the changes between dated ones."""
+    visits = sorted((visit(j) for j in one_job_per_study(jobs)),
+                    key=lambda v: (v.study_date is None, v.study_date or date.min))  # fmt: skip
     dated = [v for v in visits if v.study_date is not None]
     changes = [c for name in MEASURES for a, b in itertools.pairwise(dated) if (c := change(name, a, b))]
-    return PatientMeasures(patient_id=patient_id, visits=visits, changes=changes, rule=RULE)
+    return PatientMeasures(patient_id=patient_id, visits=visits, changes=changes, rule=RULE,
+                           older_visits_left_out=older_left_out)  # fmt: skip
 
 
 @router.get(
     "/{patient_id:anytext}/measures",
     response_model=PatientMeasures,
     summary="A patient's measures over time (follow-up)",
-    description="The caller's succeeded jobs of this Patient ID (0010,0020), by Study Date (0008,0020), each with "
-    "its major and minor Cobb angles, kyphosis T4–T12, lordosis L1–L5 and the major curve's apex axial rotation, "
-    "with their SDs; and each change between consecutive visits, flagged when it exceeds both 5° and 1.96 × the "
-    "combined SD √(sd₁² + sd₂²), saying which rule decided. Only the caller's jobs (an admin key: every job); a "
-    "patient without any is an empty list, not a 404 (the answer says nothing of other clients' patients).",
+    description="The visits of this Patient ID (0010,0020; leading and trailing spaces are padding, not part of "
+    "the ID) in the caller's succeeded jobs, by Study Date (0008,0020): one visit per Study Instance UID, the "
+    "study's latest succeeded job (by finished_at, then created_at) standing for it, so that a film read again is "
+    "not a second visit; a job without a Study Instance UID is a visit of its own. Each visit has its major and "
+    "minor Cobb angles, kyphosis T4–T12, lordosis L1–L5 and the major curve's apex axial rotation, with their SDs; "
+    "each change between consecutive visits is flagged when it exceeds both 5° and 1.96 × the combined SD "
+    f"√(sd₁² + sd₂²), saying which rule decided. The newest {jobs_repo.MAX_PATIENT_JOBS:,} succeeded jobs are read; "
+    "older_visits_left_out says when older ones were left out. Only the caller's jobs (an admin key: every job); "
+    "a patient without any is an empty list, not a 404 (the answer says nothing of other clients' patients).",
     responses=problem_responses(422),
 )
 def patient_measures(
@@ -166,6 +195,8 @@ def patient_measures(
     session: SessionDep,
     access: AccessDep,
 ) -> PatientMeasures:
-    jobs = jobs_repo.succeeded_jobs_of_patient(session, patient_id, owner=access.owner)
-    access.record(session, "list", [j.id for j in jobs])
-    return follow_up(patient_id, jobs)
+    patient_id = jobs_repo.dicom_identifier(patient_id)
+    jobs, older_left_out = jobs_repo.succeeded_jobs_of_patient(session, patient_id, owner=access.owner)
+    answer = follow_up(patient_id, jobs, older_left_out=older_left_out)
+    access.record(session, "list", [v.job_id for v in answer.visits])
+    return answer
