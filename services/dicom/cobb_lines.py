@@ -15,8 +15,8 @@ docs/measures.md), angle = |θ_upper − θ_lower|. Each line is drawn here at i
   angle T1–L5) is placed where the fit projects the reconstructed vertebra (its top endplate
   midpoint, ``position``) on the film: ``spine_engine.figures.model_points``, the view's fitted
   projection of the result's ``fit.pa`` (weak perspective s·Rot(ψ)(e_c·r, e_r·r) + T, or the point
-  source through its reported central ray with its source position recovered from the fit's
-  residuals), brought from detector mm to the view's units by ``clinical.detector_spacing``. When
+  source through its reported central ray, central-ray point, beam, SID and SOD), brought from
+  detector mm to the view's units by ``clinical.detector_spacing``. When
   that projection cannot be made (a payload the engine's model no longer validates) no line is drawn
   for such a curve: a line at a neighbouring landmark would put the vertebra elsewhere;
 - length: the line runs ``HALF_WIDTH_MM`` either side of the centre, the half-width of a vertebral
