@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 import time
 import uuid
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from spine_client import optional, tables
-from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient
+from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient, base_url_problem
 from spine_client.errors import (
     ApiError,
     Conflict,
@@ -101,7 +103,34 @@ def _load_json(path: str) -> Any:
 
 
 def _client(args: argparse.Namespace) -> SpineClient:
-    return SpineClient(args.url, args.api_key, timeout=args.request_timeout, retries=args.retries)
+    url = args.url or os.environ.get(URL_ENV) or DEFAULT_URL
+    problem = base_url_problem(url.rstrip("/"))
+    if problem is not None:
+        option = "--url" if args.url else f"${URL_ENV}"
+        raise UsageError(f"{option} is not the service's URL: {problem}")
+    return SpineClient(url, args.api_key, timeout=args.request_timeout, retries=args.retries)
+
+
+def _retries(value: str) -> int:
+    """``--retries``: a whole number, 0 or more."""
+    try:
+        number = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, 0 or more, not {value!r}") from None
+    if number < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more (0: no retry), not {number}")
+    return number
+
+
+def _seconds(value: str) -> float:
+    """``--request-timeout``: a number of seconds above 0."""
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0, not {value!r}") from None
+    if not (number > 0 and math.isfinite(number)):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0, not {value}")
+    return number
 
 
 def _job_exit(job: dict[str, Any]) -> int:
@@ -325,8 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--url", default=None, help=f"service URL (default ${URL_ENV}, else {DEFAULT_URL})")
     common.add_argument("--api-key", default=None, help=f"API key, sent as a Bearer token (default ${API_KEY_ENV})")
-    common.add_argument("--retries", type=int, default=5, help="retries of a request on network errors, 429, 5xx")
-    common.add_argument("--request-timeout", type=float, default=30.0, help="seconds per HTTP request")
+    common.add_argument("--retries", type=_retries, default=5,
+                        help="retries of a request on network errors, 429, 5xx (0 or more)")  # fmt: skip
+    common.add_argument("--request-timeout", type=_seconds, default=30.0, help="seconds per HTTP request (above 0)")
 
     parser = argparse.ArgumentParser(
         prog="spine", description="Client of the spine reconstruction service.",

@@ -20,6 +20,7 @@ from datetime import datetime
 from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any, Literal, TypeVar
+from urllib.parse import urlsplit
 
 import httpx
 from pydantic import BaseModel
@@ -53,12 +54,34 @@ def retry_after_seconds(value: str | None) -> float | None:
         return None
 
 
+def base_url_problem(url: str) -> str | None:
+    """Why ``url`` cannot be the service's base URL, or None. Never repeats the URL (it may hold a
+    password)."""
+    if any(ch.isspace() or ord(ch) < 32 for ch in url):
+        return "it contains spaces or control characters"
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 - raises ValueError for a port out of range or not a number
+    except ValueError:
+        return "it is not a URL (is the port a number from 1 to 65535?)"
+    if parts.scheme.lower() not in ("http", "https"):
+        return f"it must be an http:// or https:// URL, such as {DEFAULT_URL}"
+    if "@" in parts.netloc:
+        return ("it must not carry a user name or password (user:password@ would be sent instead of the API key; "
+                "give the key as the API key)")  # fmt: skip
+    if not parts.hostname:
+        return f"it has no host, as in {DEFAULT_URL}"
+    return None
+
+
 class SpineClient:
     """Client of one service. ``base_url`` defaults to ``$SPINE_URL`` (else http://127.0.0.1:8000)
     and ``api_key`` to ``$SPINE_API_KEY``, sent as ``Authorization: Bearer <key>``.
 
     ``retries`` is the number of attempts after the first; waits grow as ``backoff``·2ⁿ (with jitter)
-    up to ``max_backoff``; a ``Retry-After`` is honoured up to ``max_retry_after`` seconds.
+    up to ``max_backoff``; a ``Retry-After`` is honoured up to ``max_retry_after`` seconds. A base URL
+    that is not http(s), or that carries ``user:password@`` (which httpx would send as Basic
+    authentication instead of the key), is a ``ValueError`` (``base_url_problem``).
     """
 
     def __init__(
@@ -75,6 +98,11 @@ class SpineClient:
         sleep: Callable[[float], None] = time.sleep,
     ):
         self.base_url = (base_url or os.environ.get(URL_ENV) or DEFAULT_URL).rstrip("/")
+        problem = base_url_problem(self.base_url)
+        if problem is not None:
+            raise ValueError(f"the service URL is not usable: {problem}")
+        if timeout <= 0 or retries < 0:
+            raise ValueError(f"timeout must be above 0 s (not {timeout}) and retries 0 or more (not {retries})")
         key = api_key if api_key is not None else os.environ.get(API_KEY_ENV)
         headers = {"user-agent": USER_AGENT, "accept": "application/json, application/problem+json"}
         if key:

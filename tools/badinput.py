@@ -123,6 +123,18 @@ def _crossed_corners(payload: dict[str, Any]) -> None:
     payload["pa"]["landmarks"][4]["corners"] = [top_left, bottom_left, top_right, bottom_right]  # TR and BL swapped
 
 
+def _corners_upside_down(payload: dict[str, Any]) -> None:
+    column, row = payload["pa"]["landmarks"][4].pop("point")
+    top_left, top_right = [column + 15.0, row + 18.0], [column - 15.0, row + 18.0]  # the body turned 180°
+    bottom_left, bottom_right = [column + 15.0, row], [column - 15.0, row]
+    payload["pa"]["landmarks"][4]["corners"] = [top_left, top_right, bottom_left, bottom_right]
+
+
+def _pedicles_swapped(payload: dict[str, Any]) -> None:
+    column, row = payload["pa"]["landmarks"][4]["point"]
+    payload["pa"]["landmarks"][4]["pedicles"] = [[column + 12.0, row + 8.0], [column - 12.0, row + 8.0]]
+
+
 def _many_landmarks(payload: dict[str, Any]) -> None:
     payload["pa"]["landmarks"] = payload["pa"]["landmarks"] * 7  # 119 landmarks
 
@@ -157,6 +169,15 @@ def cases() -> list[Case]:
         Case("levels implausibly far apart", "PA T1 and T2 1680 px apart at 0.2 mm/px (336 mm: the click meant "
              "for L5 labelled T2)", body=edited(_t2_336_mm_below_t1)),
         Case("crossed corners", "T5's corners with top-right and bottom-left swapped", body=edited(_crossed_corners)),
+        Case("corners turned upside down", "T5's corners given turned 180° (its top edge running left)",
+             body=edited(_corners_upside_down)),
+        Case("pedicles swapped", "T5's pedicles given image-right first", body=edited(_pedicles_swapped)),
+        Case("no room for the spine", "PA `acquisition` `{\"projection_model\": \"perspective\", "
+             "\"distance_source_to_detector_mm\": 150}` (the SOD taken 200 mm before the detector)",
+             body=edited(_set(("pa", "acquisition"), {"projection_model": "perspective",
+                                                      "distance_source_to_detector_mm": 150.0}))),
+        Case("landmarks off the image", "PA `acquisition.image_size` `[100, 100]` with landmarks beyond it",
+             body=edited(_set(("pa", "acquisition"), {"image_size": [100.0, 100.0]}))),
         Case("too many landmarks", "119 landmarks in the PA view", body=edited(_many_landmarks)),
         Case("non-orthonormal directors", "T1 directors `[[2,0,0],[0,-1,0],[0,0,-1]]`",
              body=edited(_set(("boundary", "T1", "directors"), [[2.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]))),

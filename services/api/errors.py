@@ -10,11 +10,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import iter_route_contexts
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy.exc import InterfaceError, OperationalError
+from sqlalchemy.exc import InterfaceError, OperationalError, ProgrammingError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem, validation_problem
+from services.core.retry import schema_not_migrated
 from spine_engine.errors import FieldError
 from spine_engine.models import PATTERN_REASONS
 
@@ -104,24 +106,83 @@ def _allowed_methods(request: Request) -> list[str]:
     return allowed
 
 
+NOT_MIGRATED = "the database schema is not migrated: run `spine migrate`"
+NOT_MIGRATED_RETRY_AFTER_S = "30"
+
+
+def not_migrated_problem(instance: str) -> tuple[dict[str, Any], dict[str, str]]:
+    """The 503 problem (and its headers) of a request that found the schema not migrated."""
+    body = problem("service-unavailable", NOT_MIGRATED, instance=instance)
+    return body, {"Retry-After": NOT_MIGRATED_RETRY_AFTER_S}
+
+
 async def _database_down(request: Request, exc: Exception) -> JSONResponse:
+    if schema_not_migrated(exc):
+        log.error("database schema not migrated (run `spine migrate`): %s", type(exc).__name__)
+        return problem_response(*not_migrated_problem(request.url.path))
     log.warning("database unreachable: %s", exc)
     body = problem("service-unavailable", "the job database is unreachable; retry later",
                    instance=request.url.path)  # fmt: skip
     return problem_response(body, {"Retry-After": "5"})
 
 
-async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
-    log.exception("unhandled error on %s %s", request.method, request.url.path)
+async def _database_programming_error(request: Request, exc: Exception) -> JSONResponse:
+    if schema_not_migrated(exc):
+        log.error("database schema not migrated (run `spine migrate`): %s", type(exc).__name__)
+        return problem_response(*not_migrated_problem(request.url.path))
+    raise exc  # any other: an unexpected error (``UnexpectedErrors``)
+
+
+def unexpected_error_response(scope: Scope) -> JSONResponse:
+    """The 500 problem of an unhandled exception, logged (with its traceback and the request id)."""
+    log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"))
     body = problem("internal-error", "an unexpected error occurred; it has been logged",
-                   instance=request.url.path)  # fmt: skip
+                   instance=scope.get("path", ""))  # fmt: skip
     return problem_response(body)
 
 
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    """Last resort (Starlette's outermost ``ServerErrorMiddleware``): what escaped the middlewares."""
+    return unexpected_error_response(request.scope)
+
+
+class UnexpectedErrors:
+    """Turns an exception no handler took into the 500 problem, inside every other middleware: the
+    answer then gets the request id, the security headers and CORS (``services.api.security``), is
+    counted by the metrics, and its log line carries the request id. (Starlette runs a handler of
+    ``Exception`` outside all middlewares, where none of that happens.)"""
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking)
+        except Exception:
+            if started:  # too late for another answer
+                raise
+            await unexpected_error_response(scope)(scope, receive, send)
+
+
 def install_error_handlers(app: FastAPI) -> None:
+    """The problem+json handlers; call before any middleware is added (``UnexpectedErrors`` is then
+    the innermost middleware)."""
     app.add_exception_handler(ProblemError, _problem_error)
     app.add_exception_handler(RequestValidationError, _request_validation)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(OperationalError, _database_down)
     app.add_exception_handler(InterfaceError, _database_down)
+    app.add_exception_handler(ProgrammingError, _database_programming_error)
     app.add_exception_handler(Exception, _unexpected)
+    app.add_middleware(UnexpectedErrors)

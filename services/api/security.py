@@ -29,15 +29,17 @@ from typing import Any
 import anyio.to_thread
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import InterfaceError, OperationalError
+from sqlalchemy.exc import InterfaceError, OperationalError, ProgrammingError
 from starlette.datastructures import MutableHeaders
 from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.access import QueuedCap
+from services.api.errors import not_migrated_problem, unexpected_error_response
 from services.core.config import Settings
 from services.core.logs import request_id_var
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
+from services.core.retry import schema_not_migrated
 from services.db.engine import session_factory
 from services.db.keys import Caller, digest, verify_key
 
@@ -136,7 +138,13 @@ class AuthMiddleware:
             return
         try:
             caller = await self.verify(token)
-        except (OperationalError, InterfaceError) as exc:
+        except (OperationalError, InterfaceError, ProgrammingError) as exc:
+            if schema_not_migrated(exc):
+                log.error("key lookup: the database schema is not migrated (run `spine migrate`)")
+                await _problem(scope, *not_migrated_problem(scope["path"]))(scope, receive, send)
+                return
+            if isinstance(exc, ProgrammingError):
+                raise
             log.warning("key lookup: the database is unreachable: %s", type(exc).__name__)
             body = problem("service-unavailable", "the API key database is unreachable; retry later")
             await _problem(scope, body, {"Retry-After": "5"})(scope, receive, send)
@@ -196,15 +204,22 @@ class EdgeMiddleware:
         path: str = scope["path"]
         started = time.perf_counter()
         status = [500]
+        response_started = [False]
 
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
+                response_started[0] = True
                 status[0] = int(message["status"])
                 self._secure(MutableHeaders(scope=message), path, request_id)
             await send(message)
 
         try:
             await self.app(scope, receive, send_with_headers)
+        except Exception:
+            if response_started[0]:  # too late for another answer
+                raise
+            # raised by a middleware (errors.UnexpectedErrors catches the app's): still the headers
+            await unexpected_error_response(scope)(scope, receive, send_with_headers)
         finally:
             request_id_var.reset(token)
             if self.settings.access_log:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import yaml
 
+from services.cli.errors import explain
 from services.cli.keys import add_keys_parser, announce_first_key, ensure_first_key
 from services.core.config import Settings, get_settings
 from services.core.logs import configure_logging, install_celery_job_context, uvicorn_log_config
@@ -293,4 +294,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        explained = _explain(exc)
+        if explained is None:
+            raise
+        code, line = explained
+        command = " ".join(argv[:2] if argv[:1] == ["keys"] else argv[:1])
+        print(f"spine {command}: {line}", file=sys.stderr)
+        return code
+
+
+def _explain(exc: BaseException) -> tuple[int, str] | None:
+    """``services.cli.errors.explain`` of the exception or of one it came from."""
+    try:
+        url: str | None = _settings().sqlalchemy_url
+    except Exception:
+        url = None
+    seen: BaseException | None = exc
+    while seen is not None:
+        explained = explain(seen, url)
+        if explained is not None:
+            return explained
+        seen = seen.__cause__ or seen.__context__
+    return None
 

@@ -88,7 +88,11 @@ def cmd_list(_: argparse.Namespace) -> int:
 
 def cmd_revoke(args: argparse.Namespace) -> int:
     with _session(get_settings()) as session:
-        revoked = revoke(session, args.key)
+        try:
+            revoked = revoke(session, args.key)
+        except BadKeyName as exc:
+            print(f"spine keys revoke: {exc}", file=sys.stderr)
+            return 2
     if not revoked:
         print(f"spine keys revoke: no active key with id or name {args.key!r}", file=sys.stderr)
         return 1

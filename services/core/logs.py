@@ -6,7 +6,10 @@ API's security middleware) and the job id (set around each worker task, or by th
 request concerns a job) are context variables copied into every record made under them.
 
 Payload content never goes to the logs: messages carry ids, statuses and timings only, and the
-database engines hide SQL parameters in their errors (``hide_parameters``).
+database engines hide SQL parameters in their errors (``hide_parameters``). The HTTP client
+libraries' loggers (``QUIET_LOGGERS``: httpx logs every request's full URL at INFO, e.g. a
+webhook ``callback_url`` with its ``?access_token=…``; httpcore logs headers at DEBUG) are kept at
+WARNING whatever the service's level.
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from celery.signals import after_setup_logger, after_setup_task_logger, task_pos
 
 request_id_var: ContextVar[str | None] = ContextVar("spine_request_id", default=None)
 job_id_var: ContextVar[str | None] = ContextVar("spine_job_id", default=None)
+
+QUIET_LOGGERS = ("httpx", "httpcore", "hpack")
+"""Loggers of libraries that would write URLs (query strings, user info) or headers: WARNING and above only."""
 
 _RESERVED = set(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {"message", "asctime", "taskName"}
 
@@ -66,6 +72,13 @@ def configure_logging(level: str = "INFO") -> None:
         logger = logging.getLogger(name)
         logger.handlers.clear()
         logger.propagate = True
+    quiet_libraries()
+
+
+def quiet_libraries() -> None:
+    """``QUIET_LOGGERS`` at WARNING: no request URL or header of theirs reaches the logs."""
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def uvicorn_log_config(level: str) -> dict[str, Any]:
@@ -80,6 +93,7 @@ def uvicorn_log_config(level: str) -> dict[str, Any]:
             "uvicorn": {"level": level.upper(), "handlers": [], "propagate": True},
             "uvicorn.error": {"level": level.upper(), "handlers": [], "propagate": True},
             "uvicorn.access": {"level": level.upper(), "handlers": [], "propagate": True},
+            **{name: {"level": "WARNING", "handlers": [], "propagate": True} for name in QUIET_LOGGERS},
         },
     }
 

@@ -9,7 +9,7 @@ so that a fit is not thrown away by a database restart of a few seconds.
 from __future__ import annotations
 
 from kombu.exceptions import OperationalError as BrokerError
-from sqlalchemy.exc import InterfaceError, OperationalError
+from sqlalchemy.exc import InterfaceError, OperationalError, ProgrammingError
 from tenacity import retry, retry_if_exception_type, stop_after_attempt, wait_exponential
 
 TRANSIENT = (OperationalError, InterfaceError, BrokerError, ConnectionError, TimeoutError)
@@ -22,3 +22,15 @@ write_retry = retry(
     reraise=True,
 )
 """Decorator: retry a database write on a transient fault (0.5, 1, 2, 4, 8 s between the 6 tries)."""
+
+
+def schema_not_migrated(exc: BaseException) -> bool:
+    """Whether a database error says that a table or column the code needs is missing: a database
+    never migrated, or migrated to an older revision than the code's (``spine migrate`` mends it)."""
+    if not isinstance(exc, (ProgrammingError, OperationalError)):
+        return False
+    orig = getattr(exc, "orig", None)
+    if getattr(orig, "sqlstate", None) in ("42P01", "42703"):  # PostgreSQL: undefined table, undefined column
+        return True
+    text = str(orig).lower()
+    return "no such table" in text or "no such column" in text  # SQLite

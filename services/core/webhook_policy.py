@@ -6,8 +6,10 @@ network it should not reach (server-side request forgery). Prefixes are matched 
 never as raw strings: the scheme, the host (exactly, case-insensitively) and the port must be
 equal, and the URL's path must be the prefix's path or lie below it at a ``/`` boundary, so
 ``https://ris.example`` does not admit ``https://ris.example.evil.org`` and ``https://h/hooks`` does
-not admit ``https://h/hooks-admin``. Paths with dot segments or encoded dots and slashes are
-refused, so a path cannot climb out of its prefix. Redirects are never followed on delivery.
+not admit ``https://h/hooks-admin``. Paths with dot segments (``..``, and ``..;x``, which Tomcat and
+Spring read as ``..``), encoded dots, slashes and backslashes, or an encoded ``%`` (``%25``: a
+double-encoded ``%252e%252e`` decoded twice is ``..``) are refused, so a path cannot climb out of
+its prefix. Redirects are never followed on delivery.
 
 Also the form of a webhook signing secret (``decode_secret``): the settings check both when the
 service starts, so this module lives in ``services.core`` beside them.
@@ -66,8 +68,21 @@ def _port(url: SplitResult) -> int:
     return port if port is not None else DEFAULT_PORTS.get(url.scheme.lower(), -1)
 
 
-def _has_dot_segment(path: str) -> bool:
-    return any(segment in (".", "..") for segment in path.split("/"))
+def _path_problem(path: str) -> str | None:
+    """Why a URL's path could climb out of its allow-listed prefix on some receiver, or None."""
+    for segment in path.split("/"):
+        name, parameters, _ = segment.partition(";")
+        if name in (".", ".."):
+            if parameters:
+                return (f"the URL's path must not contain dot segments, even with parameters ({segment!r}: "
+                        "servers such as Tomcat and Spring read it as '..')")  # fmt: skip
+            return "the URL's path must not contain dot segments ('.' or '..')"
+    if "%25" in path:
+        return ("the URL's path must not contain an encoded '%' (%25): decoded twice, as some servers do, "
+                "it could become dot segments or slashes")  # fmt: skip
+    if _FORBIDDEN_IN_PATH.search(path):
+        return "the URL's path must not contain dot segments, backslashes or encoded dots and slashes (%2e, %2f, %5c)"
+    return None
 
 
 def url_problem(url: str) -> str | None:
@@ -85,9 +100,7 @@ def url_problem(url: str) -> str | None:
         return "the URL has no host"
     if parts.username is not None or parts.password is not None or "@" in parts.netloc:
         return "the URL must not carry credentials (user:password@)"
-    if _has_dot_segment(parts.path) or _FORBIDDEN_IN_PATH.search(parts.path):
-        return "the URL's path must not contain dot segments, backslashes or encoded dots and slashes"
-    return None
+    return _path_problem(parts.path)
 
 
 def parse_allow_list(text: str) -> list[AllowedPrefix]:

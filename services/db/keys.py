@@ -9,11 +9,13 @@ key needs no salt nor slow hash: nothing can be guessed from its digest.
 
 A key's ``name`` is the client it belongs to: it is the ``owner`` of the jobs created with the
 key, so that a client keeps its jobs when its key is rotated (a new key, same name). The
-``client`` role sees only its own jobs; ``admin`` sees every job.
+``client`` role sees only its own jobs; ``admin`` sees every job. A name belongs to one role: a key
+is not created under a name that keys of the other role use (``NameTaken``), so that an admin key
+never signs a client's webhooks nor is revoked with the client's keys.
 
 Each key also carries a Standard Webhooks signing secret (``whsec_<base64 of 32 random bytes>``),
 made with the key and stored as is (it must be, to sign): the webhooks of a client's jobs are
-signed with the secret of that client's most recent active key that has one
+signed with the secret of that client's most recent active ``client`` key that has one
 (``key_webhook_secret``, which ``services.webhooks.signing.secret_for`` reads).
 """
 
@@ -29,7 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, cast
 
-from sqlalchemy import Table, func, insert, select, update
+from sqlalchemy import Table, case, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from services.core.webhook_policy import decode_secret
@@ -85,12 +87,25 @@ class BadKeyName(ValueError):
     pass
 
 
+class NameTaken(BadKeyName):
+    """The name is used by keys of the other role (revoked ones included)."""
+
+
 def create_key(session: Session, name: str, role: str = "client") -> tuple[ApiKey, str]:
-    """Store a new key for client ``name``; return it and the whole key (shown once, never stored)."""
+    """Store a new key for client ``name``; return it and the whole key (shown once, never stored).
+
+    Raises ``BadKeyName`` for a malformed name or role, ``NameTaken`` when keys of the other role
+    (revoked ones included) use the name."""
     if not NAME_PATTERN.match(name):
         raise BadKeyName(f"a key name is 1 to 64 of A-Z a-z 0-9 . _ @ -, starting with a letter or digit: {name!r}")
     if role not in ROLES:
         raise BadKeyName(f"role must be one of {', '.join(ROLES)}, not {role!r}")
+    other = session.scalar(select(ApiKey.role).where(ApiKey.name == name, ApiKey.role != role).limit(1))
+    if other is not None:
+        raise NameTaken(
+            f"the name {name!r} is already used by {other} keys; a name belongs to one role (it owns the jobs of "
+            f"its keys and signs their webhooks): choose another name for this {role} key"
+        )
     key_id, key = new_key()
     row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow(),
                  webhook_secret=new_webhook_secret())  # fmt: skip
@@ -116,13 +131,19 @@ def list_keys(session: Session) -> list[ApiKey]:
 
 
 def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
-    """Revoke the key with this id, or else every active key of the client with this name."""
+    """Revoke the key with this id, or else every active key of the client with this name.
+
+    Raises ``NameTaken`` when the name's active keys have both roles (made before names were kept
+    to one role): those are revoked by id."""
     now = utcnow()
     by_id = session.get(ApiKey, name_or_id)
     if by_id is not None:
         targets = [by_id] if by_id.revoked_at is None else []
     else:
         targets = list(session.scalars(select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))))
+        if len({k.role for k in targets}) > 1:
+            ids = ", ".join(f"{k.id} ({k.role})" for k in targets)
+            raise NameTaken(f"the name {name_or_id!r} has both admin and client keys: {ids}; revoke them by id")
     if targets:
         session.execute(update(ApiKey).where(ApiKey.id.in_([k.id for k in targets])).values(revoked_at=now))
         session.commit()
@@ -149,7 +170,7 @@ def key_for_secret(session: Session, name_or_id: str) -> ApiKey | None:
     if by_id is not None:
         return by_id
     latest = select(ApiKey).where(ApiKey.name == name_or_id, ApiKey.revoked_at.is_(None))
-    return session.scalars(latest.order_by(ApiKey.created_at.desc(), ApiKey.id.desc()).limit(1)).first()
+    return session.scalars(latest.order_by(*_SIGNER_ORDER).limit(1)).first()
 
 
 def rotate_webhook_secret(session: Session, key: ApiKey) -> str:
@@ -159,17 +180,24 @@ def rotate_webhook_secret(session: Session, key: ApiKey) -> str:
     return key.webhook_secret
 
 
+_SIGNER_ORDER = (case((ApiKey.role == "client", 0), else_=1), ApiKey.created_at.desc(), ApiKey.id.desc())
+"""Which key of a name ``spine keys webhook-secret NAME`` shows: a client key first (a name that keys
+of both roles share, from before ``NameTaken``, signs with the client's), then the most recent."""
+
+
 def key_webhook_secret(session: Session, owner: str | None) -> bytes | None:
-    """The signing key of ``owner``'s webhooks: the secret of that client's most recent active key
-    that has one; None (the service-wide secret then) for no owner or no such key."""
+    """The signing key of ``owner``'s webhooks: the secret of that client's most recent active
+    ``client`` key that has one (jobs are owned by client keys' names; an admin key that shares
+    the name never signs); None (the service-wide secret then) for no owner or no such key."""
     if owner is None:
         return None
     latest = (
         select(ApiKey.webhook_secret)
-        .where(ApiKey.name == owner, ApiKey.revoked_at.is_(None), ApiKey.webhook_secret.is_not(None))
+        .where(ApiKey.name == owner, ApiKey.role == "client", ApiKey.revoked_at.is_(None),
+               ApiKey.webhook_secret.is_not(None))
         .order_by(ApiKey.created_at.desc(), ApiKey.id.desc())
         .limit(1)
-    )
+    )  # fmt: skip
     secret = session.scalar(latest)
     return decode_secret(secret) if secret else None
 

@@ -3,21 +3,26 @@
 ``webhook_body`` is the JSON a receiver gets; ``post`` sends it (signed by the caller with
 ``signing.signed_headers``) without following redirects and without proxies from the environment, and
 reports the receiver's status, ``Retry-After`` and any transport error; ``retry_delay`` is the backoff
-before the next attempt (``Retry-After`` honoured). Recording, retrying and publishing are the worker's
-(``services.worker.webhook_tasks``).
+before the next attempt (``Retry-After`` honoured). ``SPINE_WEBHOOK_TIMEOUT_S`` bounds the whole
+attempt (connect, send, and the receiver's answer), not each network operation: a receiver that
+drips its answer a byte at a time is cut off when the attempt's time is up. Recording, retrying and
+publishing are the worker's (``services.worker.webhook_tasks``).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import ssl
 import threading
 import time
+from contextvars import ContextVar
 from dataclasses import dataclass
 from datetime import datetime
 from email.utils import parsedate_to_datetime
 from typing import Any
 
+import httpcore
 import httpx
 
 from services.core.config import Settings
@@ -51,6 +56,88 @@ def webhook_body(job: dict[str, Any], status: str, finished_at: datetime | None)
     return json.dumps(body, separators=(",", ":"), ensure_ascii=False).encode()
 
 
+_DEADLINE: ContextVar[float | None] = ContextVar("webhook_attempt_deadline", default=None)
+"""``time.monotonic()`` by which the current attempt must be over (None: no overall limit)."""
+
+
+def _remaining(timeout: float | None, exc: type[Exception]) -> float | None:
+    """The time an operation may take: its own timeout, capped by what is left of the attempt."""
+    deadline = _DEADLINE.get()
+    if deadline is None:
+        return timeout
+    left = deadline - time.monotonic()
+    if left <= 0:
+        raise exc("the attempt's time limit passed")
+    return left if timeout is None else min(timeout, left)
+
+
+class _DeadlineStream(httpcore.NetworkStream):
+    """A connection whose every read and write ends by the attempt's deadline."""
+
+    def __init__(self, stream: httpcore.NetworkStream) -> None:
+        self._stream = stream
+
+    def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
+        return self._stream.read(max_bytes, _remaining(timeout, httpcore.ReadTimeout))
+
+    def write(self, buffer: bytes, timeout: float | None = None) -> None:
+        self._stream.write(buffer, _remaining(timeout, httpcore.WriteTimeout))
+
+    def close(self) -> None:
+        self._stream.close()
+
+    def start_tls(
+        self, ssl_context: ssl.SSLContext, server_hostname: str | None = None, timeout: float | None = None
+    ) -> httpcore.NetworkStream:
+        return _DeadlineStream(
+            self._stream.start_tls(ssl_context, server_hostname, _remaining(timeout, httpcore.ConnectTimeout))
+        )
+
+    def get_extra_info(self, info: str) -> Any:
+        return self._stream.get_extra_info(info)
+
+
+class _DeadlineBackend(httpcore.NetworkBackend):
+    """The default network backend, with connections whose operations end by the attempt's deadline."""
+
+    def __init__(self) -> None:
+        self._backend = httpcore.SyncBackend()
+
+    def connect_tcp(
+        self, host: str, port: int, timeout: float | None = None, local_address: str | None = None,
+        socket_options: Any = None,
+    ) -> httpcore.NetworkStream:  # fmt: skip
+        stream = self._backend.connect_tcp(
+            host, port, _remaining(timeout, httpcore.ConnectTimeout), local_address, socket_options
+        )
+        return _DeadlineStream(stream)
+
+    def connect_unix_socket(
+        self, path: str, timeout: float | None = None, socket_options: Any = None
+    ) -> httpcore.NetworkStream:
+        return _DeadlineStream(
+            self._backend.connect_unix_socket(path, _remaining(timeout, httpcore.ConnectTimeout), socket_options)
+        )
+
+    def sleep(self, seconds: float) -> None:
+        self._backend.sleep(seconds)
+
+
+class _DeadlineTransport(httpx.HTTPTransport):
+    """httpx's transport on ``_DeadlineBackend`` (no proxies: ``trust_env`` is off)."""
+
+    def __init__(self) -> None:
+        super().__init__(trust_env=False)
+        limits = httpx.Limits()
+        self._pool = httpcore.ConnectionPool(
+            ssl_context=httpx.create_ssl_context(trust_env=False),
+            max_connections=limits.max_connections,
+            max_keepalive_connections=limits.max_keepalive_connections,
+            keepalive_expiry=limits.keepalive_expiry,
+            network_backend=_DeadlineBackend(),
+        )
+
+
 _CLIENTS: dict[tuple[float, int], httpx.Client] = {}
 _LOCK = threading.Lock()
 
@@ -61,23 +148,35 @@ def _client(timeout: float) -> httpx.Client:
         if key not in _CLIENTS:
             # No redirects (a 3xx could point anywhere), no proxies or .netrc from the environment.
             _CLIENTS[key] = httpx.Client(
-                timeout=timeout, follow_redirects=False, trust_env=False, headers={"user-agent": USER_AGENT}
-            )
+                timeout=timeout, follow_redirects=False, trust_env=False, headers={"user-agent": USER_AGENT},
+                transport=_DeadlineTransport(),
+            )  # fmt: skip
         return _CLIENTS[key]
 
 
-def post(url: str, body: bytes, headers: dict[str, str], timeout_s: float) -> PostOutcome:
-    """POST ``body`` to ``url``; never raises for the receiver's faults (they are in the outcome)."""
+def post(url: str, body: bytes, headers: dict[str, str], timeout_s: float, *, spent_s: float = 0.0) -> PostOutcome:
+    """POST ``body`` to ``url``; never raises for the receiver's faults (they are in the outcome).
+
+    The attempt, from connecting to the receiver's status line and headers, ends ``timeout_s`` after
+    it started, ``spent_s`` ago (the caller's share of the attempt, before this call), whatever the
+    receiver does (an answer dripped a byte at a time included): it is then recorded as timed out.
+    The answer's body is never read.
+    """
     started = time.perf_counter()
     status_code: int | None = None
     retry_after: str | None = None
     error: str | None = None
+    token = _DEADLINE.set(time.monotonic() + timeout_s - max(0.0, spent_s))
     try:
         with _client(timeout_s).stream("POST", url, content=body, headers=headers) as response:
             status_code = response.status_code
             retry_after = response.headers.get("retry-after")
+    except httpx.TimeoutException as exc:
+        error = f"{type(exc).__name__}: no complete answer within {timeout_s:g} s (SPINE_WEBHOOK_TIMEOUT_S)"
     except httpx.HTTPError as exc:
         error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    finally:
+        _DEADLINE.reset(token)
     if status_code is not None and not 200 <= status_code < 300:
         error = f"HTTP {status_code}" + (" (redirects are not followed)" if 300 <= status_code < 400 else "")
     return PostOutcome(status_code, retry_after, error, (time.perf_counter() - started) * 1000)

@@ -22,7 +22,7 @@ from services.core.retry import TRANSIENT
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
 from services.db import deliveries
 from services.db.engine import session_scope
-from services.db.models import utcnow
+from services.db.models import WebhookDelivery, utcnow
 from services.webhooks.delivery import post, retry_delay, webhook_body
 from services.webhooks.signing import secret_for, signed_headers
 
@@ -33,9 +33,13 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
     """Publish again every attempt that was due ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ago and never came.
 
     Such an attempt's message was not published (attempt 0: the broker was down when the job
-    ended) or was lost with a broker. Each one found is published and its row's due time moved
-    ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ahead, so it is published again only if this one is lost too.
-    Looks back ``window``. Returns how many were published.
+    ended) or was lost with a broker, or its worker stopped during the request (the row of an
+    attempt in flight is due at the attempt's deadline, ``SPINE_WEBHOOK_TIMEOUT_S`` after it
+    started, which ``services.webhooks.delivery.post`` holds: an attempt still within it is never
+    swept). Each one found is published and its row's due time moved ``SPINE_WEBHOOK_SWEEP_AFTER_S``
+    ahead, so it is published again only if this one is lost too. A row of the last attempt
+    (``SPINE_WEBHOOK_MAX_ATTEMPTS``) publishes nothing: its due time is cleared. Looks back
+    ``window``. Returns how many were published.
     """
     after = timedelta(seconds=settings.webhook_sweep_after_s)
     now = utcnow()
@@ -43,12 +47,19 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
         rows = deliveries.overdue(session, due_before=now - after, due_after=now - window)
         published = 0
         for row in rows:
+            lost = _in_flight(row)
+            if row.attempt >= settings.webhook_max_attempts:
+                final = {"error": f"{_LOST}; no attempt left"} if lost else {}
+                deliveries.finish(session, row.id, next_attempt_at=None, **final)
+                continue
             status = row.event.removeprefix("job.")
             try:
                 publish_webhook(settings, row.job_id, status, row.attempt + 1, celery=celery)
             except Exception as exc:
                 log.warning("webhook sweep: could not publish for job %s: %s", row.job_id, exc)
                 break
+            if lost:
+                deliveries.finish(session, row.id, error=_LOST)
             deliveries.postpone(session, row.id, now + after)
             published += 1
     if published:
@@ -56,14 +67,30 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
     return published
 
 
+_LOST = "no outcome recorded: the worker stopped during the attempt"
+
+
+def _in_flight(row: WebhookDelivery) -> bool:
+    """A claimed attempt whose outcome was never written (its worker stopped mid-request)."""
+    return bool(row.attempt > 0 and row.status_code is None and row.error is None and row.duration_ms is None)
+
+
 def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float | None:
     """Make attempt ``attempt`` of the job's webhook; return the delay before the next one, or None.
+
+    An attempt beyond ``SPINE_WEBHOOK_MAX_ATTEMPTS`` (or below 1) is dropped before anything is
+    recorded or sent. The next attempt is due ``delay`` after this one ended (its row's
+    ``next_attempt_at``), when the caller publishes it with that countdown.
 
     The attempt's row is claimed before the request (``deliveries.claim``): a second delivery of the
     same attempt finds it and does nothing. Until the outcome is written, the row's
     ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after it started),
     so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
     """
+    if not 1 <= attempt <= settings.webhook_max_attempts:
+        log.warning("dropping attempt %d of the webhook of job %s (%s): SPINE_WEBHOOK_MAX_ATTEMPTS is %d",
+                    attempt, job_id, status, settings.webhook_max_attempts)  # fmt: skip
+        return None
     mid = deliveries.message_id(job_id, status)
     attempted_at = utcnow()
     with session_scope(settings) as session:
@@ -89,7 +116,8 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         _finish(settings, row_id, error=f"not sent: {refused}")
         return None
     assert key is not None
-    sent = post(url, body, signed_headers(key, mid, int(time.time()), body), settings.webhook_timeout_s)
+    spent = (utcnow() - attempted_at).total_seconds()  # the deadline claimed above holds for the request too
+    sent = post(url, body, signed_headers(key, mid, int(time.time()), body), settings.webhook_timeout_s, spent_s=spent)
     if sent.accepted:
         _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms)
         return None
@@ -98,9 +126,9 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms,
                 error=f"{sent.error}; {final}")  # fmt: skip
         return None
-    delay = retry_delay(settings, attempt, sent.retry_after)
+    delay = retry_delay(settings, attempt, sent.retry_after)  # counted from the attempt's end
     _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms, error=sent.error,
-            next_attempt_at=attempted_at + timedelta(seconds=delay))  # fmt: skip
+            next_attempt_at=utcnow() + timedelta(seconds=delay))  # fmt: skip
     return delay
 
 

@@ -33,6 +33,10 @@ EXPECTED = {
     "landmarks out of order": (422, "validation-error"),
     "levels implausibly far apart": (422, "validation-error"),
     "crossed corners": (422, "validation-error"),
+    "corners turned upside down": (422, "validation-error"),
+    "pedicles swapped": (422, "validation-error"),
+    "no room for the spine": (422, "validation-error"),
+    "landmarks off the image": (422, "validation-error"),
     "too many landmarks": (422, "validation-error"),
     "non-orthonormal directors": (422, "validation-error"),
     "left-handed directors": (422, "validation-error"),
@@ -90,6 +94,12 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
     assert validation["NUL character in a text"] == "options.profile"
     assert validation["unknown profile"] == "options.profile"
+    assert validation["corners turned upside down"] == "pa.landmarks[4].corners"
+    assert validation["pedicles swapped"] == "pa.landmarks[4].pedicles"
+    assert validation["no room for the spine"] == "pa.acquisition.distance_source_to_detector_mm"
+    assert validation["landmarks off the image"] == "pa.acquisition.image_size"
+    assert "turned by 90° or more" in details["corners turned upside down"]
+    assert "image-right first" in details["pedicles swapped"]
     assert validation["control character in a DICOM filter"] == "query.patient_id"
     assert validation["empty Idempotency-Key"] == "header.idempotency-key"
     assert "the Idempotency-Key header is empty" in details["empty Idempotency-Key"]

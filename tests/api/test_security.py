@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import select
+from sqlalchemy import select, text
 
 from services.api.app import create_app
 from services.cli.keys import ensure_first_key
@@ -364,3 +364,80 @@ def test_logs_are_json_lines_with_request_and_job_ids_and_no_payload(tmp_path: P
     assert "key_id" in created and "ts" in created and created["level"] == "INFO"
     text = stream.getvalue()
     assert "landmarks" not in text and "boundary" not in text and "oops" not in text
+
+
+def test_an_unexpected_error_is_a_500_problem_with_every_header_and_a_logged_request_id(tmp_path: Path) -> None:
+    """A route that raises (added here, not in the product): the 500 problem+json carries the
+    request id, the security headers and CORS like every other answer, and its ERROR line the id."""
+    settings, client = _app(tmp_path, cors_origins="https://pacs.example", hsts_max_age_s=600)
+
+    def explode() -> None:
+        raise RuntimeError("secret internals")
+
+    client.app.add_api_route("/v1/explode", explode)  # type: ignore[attr-defined]
+    client.app.add_api_route("/explode", explode)  # type: ignore[attr-defined]
+    client = TestClient(client.app, raise_server_exceptions=False)
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    handler.setFormatter(JsonFormatter())
+    logger = logging.getLogger("services")
+    logger.addHandler(handler)
+    key = make_key(settings)
+    try:
+        for path, headers in (("/explode", {}), ("/v1/explode", {"Authorization": f"Bearer {key}"})):
+            request_id = f"boom-{path.count('/')}"
+            response = client.get(path, headers={**headers, "X-Request-ID": request_id, "Origin": "https://pacs.example"})
+            assert response.status_code == 500, path
+            problem = problem_of(response)
+            assert problem["type"] == PROBLEM_BASE + "internal-error" and problem["instance"] == path
+            assert "secret" not in response.text and "Traceback" not in response.text
+            h = response.headers
+            assert h["x-request-id"] == request_id
+            assert h["x-content-type-options"] == "nosniff" and h["x-frame-options"] == "DENY"
+            assert h["referrer-policy"] == "no-referrer" and h["cache-control"] == "no-store"
+            assert h["content-security-policy"].startswith("default-src 'none'")
+            assert h["strict-transport-security"] == "max-age=600; includeSubDomains"
+            assert h["access-control-allow-origin"] == "https://pacs.example"
+    finally:
+        logger.removeHandler(handler)
+    lines = [json.loads(line) for line in stream.getvalue().splitlines()]
+    errors = [e for e in lines if e["level"] == "ERROR" and e["msg"].startswith("unhandled error")]
+    assert [e.get("request_id") for e in errors] == ["boom-1", "boom-2"]
+    assert all(e["exc_type"] == "RuntimeError" for e in errors)
+    access = {e["request_id"]: e["status"] for e in lines if e["logger"] == "services.access"}
+    assert access == {"boom-1": 500, "boom-2": 500}
+
+
+def test_readyz_and_v1_on_a_database_not_migrated(tmp_path: Path, database_url: str | None) -> None:
+    """Not migrated: /readyz is 503 naming the revision found and the one expected, and a /v1 request
+    is a 503 problem saying to run `spine migrate` (not a 500); migrated, both answer."""
+    settings = Settings(data_dir=tmp_path, api_key_cache_s=0, DATABASE_URL=database_url)
+    client = TestClient(create_app(settings), raise_server_exceptions=False)
+    ready = client.get("/readyz")
+    assert ready.status_code == 503
+    problem = problem_of(ready)
+    assert problem["type"] == PROBLEM_BASE + "service-unavailable"
+    assert "not migrated" in problem["detail"] and "spine migrate" in problem["detail"]
+    assert "0011_bending_by_plane" in problem["checks"]["database"]  # the code's head, expected
+    for path in ("/v1/jobs", "/v1/jobs/" + str(uuid.uuid4())):
+        answer = client.get(path, headers={"Authorization": "Bearer spine_0123456789ab_" + "x" * 43})
+        assert answer.status_code == 503, (path, answer.text)
+        assert problem_of(answer)["detail"] == "the database schema is not migrated: run `spine migrate`"
+        assert answer.headers["retry-after"] and answer.headers["x-request-id"]
+    upgrade(settings, "0010_jobs_partial_indexes", quiet=True)  # one revision behind the code
+    behind = problem_of(client.get("/readyz"))
+    assert "0010_jobs_partial_indexes" in behind["checks"]["database"] and "0011_bending_by_plane" in behind["detail"]
+    upgrade(settings, quiet=True)
+    ready = client.get("/readyz")
+    assert ready.status_code == 200 and ready.json()["checks"] == {"database": "ok", "broker": "ok"}
+    assert client.get("/v1/jobs", headers={"Authorization": f"Bearer {make_key(settings)}"}).status_code == 200
+    # a table gone under a route (the key is trusted from the cache): a 503, not a 500
+    cached = Settings(data_dir=tmp_path, api_key_cache_s=60, DATABASE_URL=database_url)
+    client = TestClient(create_app(cached), raise_server_exceptions=False)
+    key = {"Authorization": f"Bearer {make_key(cached)}"}
+    assert client.get("/v1/jobs", headers=key).status_code == 200
+    with session_factory(cached)() as session:
+        session.execute(text("DROP TABLE jobs CASCADE" if database_url else "DROP TABLE jobs"))
+        session.commit()
+    answer = client.get("/v1/jobs", headers=key)
+    assert answer.status_code == 503 and "spine migrate" in problem_of(answer)["detail"]

@@ -153,7 +153,9 @@ def test_crossed_quadrilateral_named_before_sending_and_undo_redo(
     for p in (tr, tl, bl, br):
         page.mouse.click(*screen(page, p))
     crossed = (
-        "PA film, T3: its four corners make a crossed quadrilateral (the top-left and top-right corners look swapped)"
+        "PA film, T3: the corners of T3 cross each other: give them as they appear in the image, in the order "
+        "top-left, top-right, bottom-left, bottom-right, forming a convex quadrilateral; "
+        "the top-left and top-right corners look swapped"
     )
     assert crossed in (page.text_content("#missing") or "")
     assert page.get_attribute("#pa-canvas", "data-problems") == "T3"

@@ -71,6 +71,8 @@ ALLOWED = "https://ris.hospital.example/hooks/, http://127.0.0.1:9000/cb"
         "https://ris.hospital.example/hooks",
         "http://127.0.0.1:9000/cb",
         "http://127.0.0.1:9000/cb/x",
+        "http://127.0.0.1:9000/cb/x;v=1/y",  # parameters on an ordinary segment
+        "http://127.0.0.1:9000/cb/..x/y...",  # dots that are not a dot segment
     ],
 )
 def test_allowed_destinations(url: str) -> None:
@@ -93,6 +95,11 @@ def test_allowed_destinations(url: str) -> None:
         ("https://ris.hospital.example/hooks/../admin", "dot segments"),
         ("https://ris.hospital.example/hooks/%2E%2E/admin", "dot segments"),
         ("https://ris.hospital.example/hooks/..%2fadmin", "dot segments"),
+        ("https://ris.hospital.example/hooks/..;/admin", "read it as '..'"),  # Tomcat, Spring: '..'
+        ("https://ris.hospital.example/hooks/..;jsessionid=1/admin", "even with parameters"),
+        ("https://ris.hospital.example/hooks/.;x/admin", "even with parameters"),
+        ("https://ris.hospital.example/hooks/%252e%252e/admin", "encoded '%' (%25)"),  # double-encoded '..'
+        ("https://ris.hospital.example/hooks/x%252fadmin", "encoded '%' (%25)"),
         ("ftp://ris.hospital.example/hooks/x", "scheme"),
         ("file:///etc/passwd", "scheme"),
         ("gopher://127.0.0.1:9000/cb", "scheme"),

@@ -169,3 +169,78 @@ def test_two_deliveries_of_one_attempt_make_one_request(db_settings: Settings, s
     assert [r.answered for r in slow_receiver.received] == [204]
     [row] = rows(settings, job.id)
     assert (row.attempt, row.status_code, row.error, row.next_attempt_at) == (2, 204, None, None)
+
+
+# ------------------------------------------------------------------ the maximum and attempts in flight
+
+
+@BACKENDS
+def test_the_sweep_never_publishes_past_the_last_attempt(db_settings: Settings) -> None:
+    """A row of the last attempt whose worker stopped mid-request (in flight, past its deadline) is
+    closed, not followed by one attempt more; one below the maximum is followed by the next."""
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05, "webhook_max_attempts": 3})
+    settle_earlier_tests(settings)
+    now = utcnow()
+    last, below = cancelled_job_with_callback(settings), cancelled_job_with_callback(settings)
+    for job_id, attempt in ((last, 3), (below, 2)):  # claimed, never finished: what a dead worker leaves
+        record(settings, {"job_id": job_id, "message_id": store.message_id(job_id, "cancelled"),
+                          "event": "job.cancelled", "attempt": attempt, "url": URL, "attempted_at": now},
+               next_attempt_at=now)  # fmt: skip
+    wait_past(now, 0.1)
+    broker = make_celery(settings)
+    assert webhook_tasks.sweep(settings, broker) == 1
+    assert queue_depth(broker, settings.webhook_queue) == 1
+    [closed] = rows(settings, last)
+    assert closed.next_attempt_at is None and closed.error is not None and "no attempt left" in closed.error
+    [swept] = rows(settings, below)
+    assert swept.error is not None and swept.error.startswith("no outcome recorded")
+    assert webhook_tasks.sweep(settings, broker) == 0
+
+
+@BACKENDS
+def test_an_attempt_in_flight_within_its_deadline_is_not_swept(db_settings: Settings) -> None:
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05, "webhook_timeout_s": 30.0})
+    settle_earlier_tests(settings)
+    job_id = cancelled_job_with_callback(settings)
+    now = utcnow()
+    record(settings, {"job_id": job_id, "message_id": store.message_id(job_id, "cancelled"), "event": "job.cancelled",
+                      "attempt": 1, "url": URL, "attempted_at": now},
+           next_attempt_at=now + timedelta(seconds=30))  # fmt: skip
+    wait_past(now, 0.1)
+    assert webhook_tasks.sweep(settings, make_celery(settings)) == 0
+
+
+@BACKENDS
+def test_an_attempt_past_the_maximum_is_dropped_before_any_request(db_settings: Settings) -> None:
+    receiver = Receiver()
+    try:
+        url = receiver.url(f"/hooks/{uuid.uuid4().hex}")
+        settings = db_settings.model_copy(update={"webhook_allowed_urls": url, "webhook_max_attempts": 3,
+                                                  "webhook_secret": SecretStr("whsec_" + "A" * 43 + "=")})  # fmt: skip
+        payload: dict[str, Any] = spine_payload()
+        payload["callback_url"] = url
+        with session_scope(settings) as session:
+            job, _ = repo.create_job(session, payload)
+            repo.cancel_job(session, job.id)
+        assert webhook_tasks.deliver_once(settings, job.id, "cancelled", 4) is None
+        assert webhook_tasks.deliver_once(settings, job.id, "cancelled", 0) is None
+        assert receiver.received == [] and rows(settings, job.id) == []
+    finally:
+        receiver.close()
+
+
+@BACKENDS
+def test_the_next_attempt_is_due_after_this_one_ended(db_settings: Settings, slow_receiver: Receiver) -> None:
+    url = slow_receiver.url(f"/hooks/{uuid.uuid4().hex}")
+    slow_receiver.plan[url.removeprefix(slow_receiver.url(""))] = [500]
+    settings = db_settings.model_copy(update={"webhook_allowed_urls": url, "webhook_retry_base_s": 1.0,
+                                              "webhook_secret": SecretStr("whsec_" + "A" * 43 + "=")})  # fmt: skip
+    payload: dict[str, Any] = spine_payload()
+    payload["callback_url"] = url
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, payload)
+        repo.cancel_job(session, job.id)
+    assert webhook_tasks.deliver_once(settings, job.id, "cancelled", 1) == 1.0
+    [row] = rows(settings, job.id)
+    assert row.status_code == 500 and row.next_attempt_at is not None
+    assert row.next_attempt_at - row.attempted_at >= timedelta(seconds=1.0 + 0.3)  # the receiver held it 0.3 s

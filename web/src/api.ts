@@ -49,8 +49,8 @@ export class Api {
     return headers;
   }
 
-  private async send(method: string, path: string, body?: unknown, accept?: string): Promise<Response> {
-    const extra: Record<string, string> = body === undefined ? {} : { "Content-Type": "application/json" };
+  private async send(method: string, path: string, body?: unknown, accept?: string, headers: Record<string, string> = {}): Promise<Response> {
+    const extra: Record<string, string> = body === undefined ? { ...headers } : { "Content-Type": "application/json", ...headers };
     if (accept) extra.Accept = accept;
     try {
       return await fetch(path, {
@@ -84,8 +84,11 @@ export class Api {
     return body as T;
   }
 
-  async submit(payload: JobPayload): Promise<Job> {
-    return this.json<Job>(await this.send("POST", "/v1/jobs", payload));
+  /** POST /v1/jobs; with an Idempotency-Key, the same key and body give back the job they first made
+   * (`replayed`: the service's Idempotent-Replayed: true) instead of a second one. */
+  async submit(payload: JobPayload, idempotencyKey?: string): Promise<{ job: Job; replayed: boolean }> {
+    const response = await this.send("POST", "/v1/jobs", payload, undefined, idempotencyKey ? { "Idempotency-Key": idempotencyKey } : {});
+    return { job: await this.json<Job>(response), replayed: response.headers.get("Idempotent-Replayed") === "true" };
   }
 
   async job(id: string): Promise<Job> {

@@ -1,6 +1,7 @@
-// What is wrong with landmarks placed on one film, found before anything is sent: a quadrilateral
-// of corners that is crossed or not convex, corners out of order (top below bottom, left right of
-// right), vertebrae out of order down the spine, and bodies that overlap their neighbours.
+// What is wrong with landmarks placed on one film, found before anything is sent: four corners
+// that are not a convex quadrilateral in the contract's order or are turned by 90° or more, and
+// pedicles given image-right first (the service's own rules, in its words), vertebrae out of order
+// down the spine, and bodies that overlap their neighbours.
 // Coordinates are image (column, row); "down the spine" is +row unless the film's orientation says
 // its rows run toward the head (DICOM (0020,0020) Patient Orientation, PS3.3 §C.7.6.1.1.1).
 import { LEVELS, type Level, type Vec2 } from "./types";
@@ -40,33 +41,80 @@ const CORNER_WORDS = ["top-left", "top-right", "bottom-left", "bottom-right"];
 /** The single swaps that can cross a quadrilateral: the two of one endplate, the two of one side. */
 const SWAPS: [number, number][] = [[TL, TR], [BL, BR], [TL, BL], [TR, BR]];
 
-/** Convex, and turning the way TL → TR → BR → BL turns on a film whose rows go down the spine. */
-function convexInOrder(c: Vec2[], down: number): boolean {
-  const turns = OUTLINE.map((k, i) => cross(c[k], c[OUTLINE[(i + 1) % 4]], c[OUTLINE[(i + 2) % 4]]) * down);
-  return turns.every((t) => t > 0);
+/** The turns of the outline TL → TR → BR → BL in image (column, row) coordinates, rows running down:
+ * at each corner (b − a) × (c − b), > 0 when the turn is clockwise as displayed. */
+function turns(c: Vec2[]): number[] {
+  const outline = OUTLINE.map((k) => c[k]);
+  const edges = outline.map((p, k): Vec2 => [outline[(k + 1) % 4][0] - p[0], outline[(k + 1) % 4][1] - p[1]]);
+  return edges.map((e, k) => e[0] * edges[(k + 1) % 4][1] - e[1] * edges[(k + 1) % 4][0]);
 }
 
-/** What is wrong with one set of four corners (empty when it is a convex quadrilateral in order). */
-export function cornerProblems(c: Vec2[], down = 1): [string, string][] {
+/** Convex and clockwise as displayed, in the contract's order: every turn > 0. */
+const convexInOrder = (c: Vec2[]): boolean => Math.min(...turns(c)) > 0;
+
+const GIVE_THEM = "give them as they appear in the image, in the order top-left, top-right, bottom-left, bottom-right, forming a convex quadrilateral";
+
+/**
+ * What the service refuses in one set of four corners (spine_engine/validation.py `_corner_errors`,
+ * the same rule and words): taken around the outline TL → TR → BR → BL in image (column, row)
+ * coordinates, every turn must be clockwise as displayed (corners_not_convex: they run the wrong way
+ * round, cross each other, or do not form a convex quadrilateral); then the top edge (TL → TR) and
+ * the bottom edge (BL → BR) must run toward the image's right (corners_not_upright). The film's
+ * orientation does not change the rule: corners are named as they appear in the image. The text is
+ * the service's, with the page's hint after a semicolon (which corners look swapped); returns
+ * [text, short] pairs (empty when the service accepts the corners).
+ */
+export function cornerProblems(c: Vec2[], level: string = "the vertebra"): [string, string][] {
   if (c.length !== 4) return [];
-  const out: [string, string][] = [];
-  const below = (a: Vec2, b: Vec2): boolean => (a[1] - b[1]) * down > 0;
-  if (below(c[TL], c[BL]) && below(c[TR], c[BR])) out.push(["its top corners are below its bottom corners", "top below bottom"]);
-  else if (c[TL][0] > c[TR][0] && c[BL][0] > c[BR][0]) out.push(["its left corners are right of its right corners", "left and right swapped"]);
-  else if (segmentsCross(c[TL], c[TR], c[BR], c[BL]) || segmentsCross(c[TR], c[BR], c[BL], c[TL])) {
-    const swap = SWAPS.find(([i, j]) => {
-      const d = [...c];
-      [d[i], d[j]] = [d[j], d[i]];
-      return convexInOrder(d, down);
-    });
-    out.push([
-      `its four corners make a crossed quadrilateral${swap ? ` (the ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} corners look swapped)` : ""}`,
-      `crossed${swap ? `: ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} swapped?` : ""}`,
-    ]);
-  } else if (!convexInOrder(c, down) && !convexInOrder([c[TR], c[TL], c[BR], c[BL]], down)) {
-    out.push(["its four corners make a quadrilateral that is not convex", "not convex"]);
+  const t = turns(c);
+  if (Math.min(...t) <= 0) {
+    let kind: string;
+    let short: string;
+    let hint = "";
+    if (Math.max(...t) < 0) {
+      const below = c[TL][1] > c[BL][1] && c[TR][1] > c[BR][1];
+      const mirrored = c[TL][0] > c[TR][0] && c[BL][0] > c[BR][0];
+      kind = "run the wrong way round (two corners swapped)";
+      hint = below ? "; its top corners are below its bottom ones" : mirrored ? "; its left corners are right of its right ones" : "";
+      short = below ? "wrong way round: top below bottom" : mirrored ? "wrong way round: left and right swapped" : "wrong way round";
+    } else if (segmentsCross(c[TL], c[TR], c[BR], c[BL]) || segmentsCross(c[TR], c[BR], c[BL], c[TL])) {
+      const swap = SWAPS.find(([i, j]) => {
+        const d = [...c];
+        [d[i], d[j]] = [d[j], d[i]];
+        return convexInOrder(d);
+      });
+      hint = swap ? `; the ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} corners look swapped` : "";
+      kind = "cross each other";
+      short = `crossed${swap ? `: ${CORNER_WORDS[swap[0]]} and ${CORNER_WORDS[swap[1]]} swapped?` : ""}`;
+    } else {
+      kind = "do not form a convex quadrilateral";
+      short = "not convex";
+    }
+    return [[`the corners of ${level} ${kind}: ${GIVE_THEM}${hint}`, short]];
   }
-  return out;
+  if (!(c[TR][0] > c[TL][0] && c[BR][0] > c[BL][0])) {
+    return [[
+      `the corners of ${level} are turned by 90° or more in the image: its top edge (top-left → top-right) and bottom edge (bottom-left → bottom-right) must run toward the image's right, as an endplate tilted less than 90° does; give the corners as they appear`,
+      "turned 90° or more",
+    ]];
+  }
+  return [];
+}
+
+/**
+ * What the service refuses in a PA landmark's two pedicle centres (spine_engine/validation.py
+ * `_pedicle_errors`, pedicles_not_in_order): the first (image-left) pedicle's column must be smaller
+ * than the second's.
+ */
+export function pedicleProblems(p: Vec2[], level: string = "the vertebra"): [string, string][] {
+  if (p.length !== 2) return [];
+  const [left, right] = [p[0][0], p[1][0]];
+  if (left < right) return [];
+  const where = left === right ? "at one column" : `image-right first (columns ${left} then ${right})`;
+  return [[
+    `the pedicles of ${level} are given ${where}: give the image-left pedicle's centre first, then the image-right one; a vertebra's two pedicles lie side by side on a PA film`,
+    left === right ? "pedicles at one column" : "pedicles right first",
+  ]];
 }
 
 /** Height of a body: the mean of its left and right sides, image px. */
@@ -107,7 +155,7 @@ interface Placed {
  * of consecutive placed levels (out of order down the spine; bodies overlapping by more than
  * OVERLAP_TOLERANCE of the smaller one's height).
  */
-export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[] }>, rowsTowardHead = false): MarkProblem[] {
+export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[]; pedicles?: Vec2[] }>, rowsTowardHead = false): MarkProblem[] {
   const down = rowsTowardHead ? -1 : 1;
   const out: MarkProblem[] = [];
   const placed: Placed[] = [];
@@ -115,7 +163,8 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[] 
     const m = marks.get(level);
     if (!m) continue;
     const corners = m.corners?.length === 4 ? m.corners : null;
-    if (corners) for (const [text, short] of cornerProblems(corners, down)) out.push({ level, text, short });
+    if (corners) for (const [text, short] of cornerProblems(corners, level)) out.push({ level, text, short });
+    if (m.pedicles?.length === 2) for (const [text, short] of pedicleProblems(m.pedicles, level)) out.push({ level, text, short });
     const top = m.point ?? (corners ? ([(corners[TL][0] + corners[TR][0]) / 2, (corners[TL][1] + corners[TR][1]) / 2] as Vec2) : null);
     if (top) placed.push({ level, top, corners });
   }

@@ -173,6 +173,15 @@ export function personName(pn: string | undefined): string | undefined {
   return pn?.split("=")[0].split("^").filter(Boolean).join(" ") || undefined;
 }
 
+/** The text of what dicom-parser threw: a string, an Error, or {exception, dataSet} (parseDicom wraps
+ * the reader's error with the data set read so far). */
+export function parserMessage(error: unknown): string {
+  if (typeof error === "string") return error;
+  if (error instanceof Error) return error.message;
+  if (error && typeof error === "object" && "exception" in error) return parserMessage((error as { exception: unknown }).exception);
+  return String(error);
+}
+
 export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
   let ds: DataSet;
   try {
@@ -181,8 +190,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     // Without the "DICM" prefix of a DICOM file (PS3.10 §7.1) the bytes are most likely not DICOM at all.
     const part10 = bytes.length > 132 && String.fromCharCode(...bytes.subarray(128, 132)) === "DICM";
     if (!part10) throw new DicomError(`${name} is not a DICOM file: open the radiograph as a DICOM file (.dcm), PNG or JPEG.`);
-    const why = typeof error === "string" ? error : error instanceof Error ? error.message : String(error);
-    throw new DicomError(`${name} is a damaged DICOM file: its header could not be read (${why}).`);
+    throw new DicomError(`${name} is a damaged DICOM file: its header could not be read (${parserMessage(error)}).`);
   }
   const syntax = text(ds, tags.transferSyntax) ?? "1.2.840.10008.1.2";
   if (!(syntax in UNCOMPRESSED_SYNTAXES)) {

@@ -95,7 +95,12 @@ export class FilmEditor {
 
   // ---------------------------------------------------------------- the film
 
-  setSource(source: FilmSource): void {
+  /** Show a film. A new film starts with no landmarks: those placed on another film (and their undo
+   * history) are dropped, unless ``keepLandmarks`` (a reopened job's landmarks, shown over their
+   * own film once it is opened). Returns how many vertebrae were dropped. */
+  setSource(source: FilmSource, keepLandmarks = false): number {
+    const dropped = keepLandmarks ? 0 : this.marks.size;
+    if (!keepLandmarks) this.forget();
     this.source = source;
     this.blankNote = null;
     this.extent = { width: source.width, height: source.height };
@@ -107,6 +112,31 @@ export class FilmEditor {
     this.render();
     this.cursor = [source.width / 2, source.height * 0.1];
     this.fit();
+    if (dropped) this.onChange("marks");
+    return dropped;
+  }
+
+  /** No landmarks, no undo history, back to T1. */
+  private forget(): void {
+    this.marks.clear();
+    this.undoStack = [];
+    this.redoStack = [];
+    this.selected = null;
+    this.finished = false;
+    this.notice = null;
+    this.level = "T1";
+  }
+
+  /** No film and no landmarks: the editor as the page first shows it. */
+  reset(): void {
+    this.forget();
+    this.source = null;
+    this.raster = null;
+    this.extent = null;
+    this.blankNote = null;
+    this.cursor = null;
+    this.draw();
+    this.onChange("marks");
   }
 
   /** Forget the film (the landmarks stay, on a blank frame). */
@@ -235,7 +265,8 @@ export class FilmEditor {
     this.redoStack = [];
     this.finished = false;
     const k = units === "mm" && spacing ? [1 / spacing[1], 1 / spacing[0]] : [1, 1];
-    const px = (p: Vec2): Vec2 => [round1(p[0] * k[0]), round1(p[1] * k[1])];
+    // not rounded: a reopened job is sent again with exactly its coordinates
+    const px = (p: Vec2): Vec2 => [p[0] * k[0], p[1] * k[1]];
     for (const lm of landmarks) {
       const m: Mark = {};
       if (lm.point) m.point = px(lm.point);
@@ -266,10 +297,16 @@ export class FilmEditor {
     this.onChange("level");
   }
 
+  /** Choose the level the next click places: its landmark (if any) becomes the selection, so that
+   * Delete removes the chosen level's landmark, or nothing. */
   setLevel(level: Level): void {
     this.level = level;
     this.finished = false;
     this.notice = null;
+    const m = this.marks.get(level);
+    const kinds: Mode[] = [this.mode, "point", "corners", "pedicles"];
+    const kind = m && kinds.find((k) => (k === "point" ? !!m.point : !!m[k]?.length));
+    this.selected = kind ? { level, kind, index: 0 } : null;
     this.draw();
     this.onChange("level");
   }
@@ -331,9 +368,10 @@ export class FilmEditor {
     this.onChange("marks");
   }
 
-  /** Remove the selected point's mark (a point, a set of corners or the pedicles), else the current level's. */
+  /** Remove the selected point's mark (a point, a set of corners or the pedicles); nothing when none is selected. */
   removeSelected(): void {
-    const target = this.selected ?? { level: this.level, kind: this.mode, index: 0 };
+    const target = this.selected;
+    if (!target) return;
     const m = this.marks.get(target.level);
     if (!m) return;
     this.remember();

@@ -36,6 +36,8 @@ interface Draft {
 
 let source: Source = "image";
 let draft: Draft | null = null;
+/** The reopened job's `study` and `options`, sent again with its landmarks (while a panel holds them). */
+let reopenedJob: { study?: Study; options?: unknown } | null = null;
 let caps: Capabilities | null = null;
 let currentJob: Job | null = null;
 let pollTimer: number | undefined;
@@ -148,7 +150,8 @@ $("use-csv").addEventListener("click", () => {
   const spacing = Number($<HTMLInputElement>("csv-spacing").value);
   if (!parsed.errors.length && units === "px" && !(spacing > 0)) parsed.errors.push("pixel coordinates need the pixel spacing (mm per pixel): enter it beside the units");
   if (parsed.errors.length) {
-    showInputError(`The CSV has ${parsed.errors.length} problem${parsed.errors.length === 1 ? "" : "s"}: ${parsed.errors.slice(0, 5).join("; ")}.`);
+    const dropped = dropDraft("CSV");
+    showInputError(`The CSV has ${parsed.errors.length} problem${parsed.errors.length === 1 ? "" : "s"}: ${parsed.errors.slice(0, 5).join("; ")}.${dropped}`);
     return;
   }
   showInputError(null);
@@ -156,8 +159,19 @@ $("use-csv").addEventListener("click", () => {
     units === "px" ? { units, pixel_spacing: [spacing, spacing], landmarks } : { units, landmarks };
   draft = { source: "csv", pa: view(parsed.pa), lateral: parsed.lateral.length ? view(parsed.lateral) : null, extras: {} };
   source = "csv";
+  reopenedJob = null;
   draftChanged();
 });
+
+/** After a failed import: the previous CSV or payload is no longer what the text says, so it is not
+ * sent; returns the sentence that says so (empty when there was none). */
+function dropDraft(what: "CSV" | "payload"): string {
+  if (source === "image" || !draft) return "";
+  const was = draft.source === "csv" ? "CSV" : "payload";
+  draft = null;
+  draftChanged();
+  return ` The landmarks of the ${was} used before were dropped, so that nothing is sent from it: fix this ${what} and use it again.`;
+}
 
 const jsonText = $<HTMLTextAreaElement>("json-text");
 $<HTMLInputElement>("json-file").addEventListener("change", (e) => void readFile(e.target as HTMLInputElement, jsonText));
@@ -174,22 +188,23 @@ function useJson(): void {
   try {
     value = JSON.parse(jsonText.value);
   } catch (error) {
-    showInputError(`The payload is not valid JSON: ${error instanceof Error ? error.message : String(error)}.`);
+    showInputError(`The payload is not valid JSON: ${error instanceof Error ? error.message : String(error)}.${dropDraft("payload")}`);
     return;
   }
   if (!value || typeof value !== "object" || Array.isArray(value)) {
-    showInputError("The payload must be a JSON object with pa (and optionally lateral, boundary, study).");
+    showInputError(`The payload must be a JSON object with pa (and optionally lateral, boundary, study).${dropDraft("payload")}`);
     return;
   }
   const { pa, lateral, boundary, ...extras } = value as Record<string, unknown>;
   const landmarksOf = (v: unknown): boolean => !!v && typeof v === "object" && Array.isArray((v as ViewPayload).landmarks);
   if (!landmarksOf(pa)) {
-    showInputError("The payload needs pa.landmarks: a list of {level, point} or {level, corners}.");
+    showInputError(`The payload needs pa.landmarks: a list of {level, point} or {level, corners}.${dropDraft("payload")}`);
     return;
   }
   showInputError(null);
   draft = { source: "json", pa: pa as ViewPayload, lateral: landmarksOf(lateral) ? (lateral as ViewPayload) : null, extras };
   source = "json";
+  reopenedJob = null;
   applyBoundary(boundary);
   draftChanged();
 }
@@ -360,9 +375,30 @@ function buildPayload(): JobPayload | null {
   const payload: JobPayload = { ...(source === "image" ? {} : draft?.extras), pa: v.pa };
   if (v.lateral) payload.lateral = v.lateral;
   if (giveBoundary.checked) payload.boundary = readBoundary();
-  const study = studyFromFilms();
+  // A reopened job's draft keeps its study and options while a panel holds its landmarks, unless a
+  // DICOM film of another study replaced it (then the film's study, and no options of the job).
+  const fromFilms = studyFromFilms();
+  const replaced = !!fromFilms && !!reopenedJob?.study && fromFilms.study_instance_uid !== reopenedJob.study.study_instance_uid;
+  const job = source === "image" && reopenedJob && !replaced && (panels.pa.fromJob || panels.lateral.fromJob) ? reopenedJob : null;
+  const study = job?.study ? { ...job.study, ...fromFilms } : fromFilms;
   if (study) payload.study = study;
+  if (job?.options !== undefined) payload.options = job.options as JobPayload["options"];
   return payload;
+}
+
+/** The PA and lateral DICOM films must be of one patient and one study: what says they are not. */
+function filmsOfOnePatient(): string[] {
+  const pa = panels.pa.dicom?.study;
+  const lat = panels.lateral.dicom?.study;
+  if (!pa || !lat) return [];
+  const out: string[] = [];
+  const close = "Close the film that is not this patient's (“Close film” under it) and open the right one.";
+  if (pa.patient_id && lat.patient_id && pa.patient_id !== lat.patient_id) {
+    out.push(`The films are of two patients: the PA film is of patient ID ${pa.patient_id}, the lateral film of patient ID ${lat.patient_id}. ${close}`);
+  } else if (pa.study_instance_uid && lat.study_instance_uid && pa.study_instance_uid !== lat.study_instance_uid) {
+    out.push(`The films are of two studies: the PA film is of study ${pa.study_instance_uid}, the lateral film of study ${lat.study_instance_uid}${pa.patient_id ? ` (patient ID ${pa.patient_id})` : ""}. Both films of a job come from one study: close the one that is not (“Close film” under it) and open the right one.`);
+  }
+  return out;
 }
 
 /** What stops the input from being a valid job, in plain words (the service checks again). */
@@ -371,6 +407,7 @@ function missing(): string[] {
   const v = views();
   if (caps?.needsKey && !apiKeyInput.value.trim()) out.push("Enter the API key at the top of the page: `spine keys create` makes one (the first `spine serve` prints one).");
   if (source === "image") {
+    out.push(...filmsOfOnePatient());
     out.push(...panels.pa.problems(), ...panels.lateral.problems());
     if (!panels.pa.hasFilm()) out.push("Open the PA film (DICOM, PNG or JPEG), or give the landmarks as a CSV or a payload.");
   }
@@ -447,6 +484,19 @@ function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknow
   box.append(list);
 }
 
+/** The Idempotency-Key of the draft as last sent: the same key while the payload is unchanged (an
+ * accidental second click replays the job it made), a new one after any edit. */
+let sent: { body: string; key: string } | null = null;
+function idempotencyKey(payload: JobPayload): string {
+  const body = JSON.stringify(payload);
+  if (sent?.body !== body) {
+    // crypto.getRandomValues, not randomUUID: the page may be served over plain HTTP (no secure context)
+    const bytes = crypto.getRandomValues(new Uint8Array(16));
+    sent = { body, key: `web-${[...bytes].map((b) => b.toString(16).padStart(2, "0")).join("")}` };
+  }
+  return sent.key;
+}
+
 submitButton.addEventListener("click", async () => {
   caps ??= await capabilities();
   const payload = buildPayload();
@@ -462,18 +512,24 @@ submitButton.addEventListener("click", async () => {
   submitButton.disabled = true;
   statusLine.textContent = "Submitting…";
   try {
-    const job = await api.submit(payload);
+    const { job, replayed } = await api.submit(payload, idempotencyKey(payload));
     history.replaceState(null, "", `#/jobs/${job.id}`);
     if (backdrop) URL.revokeObjectURL(backdrop.url);
     backdrop = source === "image" && !panels.pa.reopened ? await panels.pa.backdrop() : null;
+    replayedJob = replayed ? job.id : null;
     track(job);
   } catch (error) {
     statusLine.textContent = "The job was not accepted.";
     showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) }, payload);
   } finally {
     submitButton.disabled = false;
+    // A disabled button loses the focus (to the page's body): give it back when the answer is in.
+    if (document.activeElement === document.body || document.activeElement === submitButton || !document.activeElement) submitButton.focus();
   }
 });
+
+/** The job the service gave back for an unchanged draft sent again (same Idempotency-Key). */
+let replayedJob: string | null = null;
 
 cancelButton.addEventListener("click", async () => {
   if (!currentJob) return;
@@ -489,7 +545,8 @@ function track(job: Job, started = Date.now(), failures = 0): void {
   const seconds = ((Date.now() - started) / 1000).toFixed(1);
   statusLine.dataset.status = job.status;
   const final = FINAL_STATUSES.has(job.status);
-  statusLine.textContent = final ? `Job ${job.id} ${job.status}.` : `Job ${job.id} is ${job.status} (${seconds} s)…`;
+  const again = replayedJob === job.id ? " Sent again unchanged: the service gave back this same job (nothing new was made)." : "";
+  statusLine.textContent = (final ? `Job ${job.id} ${job.status}.` : `Job ${job.id} is ${job.status} (${seconds} s)…`) + again;
   cancelButton.hidden = final;
   if (job.status === "succeeded" && job.result) {
     showResult(job);
@@ -726,9 +783,13 @@ async function openJob(id: string): Promise<void> {
     const job = await api.job(id);
     backdrop = null;
     if (job.payload) {
+      // Exactly the job's payload: both panels and the draft are reset to it, whatever was open before.
       const p = job.payload;
+      draft = null;
       panels.pa.restore(p.pa);
       if (p.lateral) panels.lateral.restore(p.lateral);
+      else panels.lateral.reset();
+      reopenedJob = { ...(p.study ? { study: p.study } : {}), ...(p.options !== undefined ? { options: p.options } : {}) };
       void reopenFilms(job);
       source = "image";
       applyBoundary(p.boundary);

@@ -27,14 +27,15 @@ export function placeOf(path: string, payload?: unknown): string {
   return words.join(", ");
 }
 
-/** A message without Python list/str reprs: ['L5', 'T1'] → L5 and T1; 'px' → "px". */
+/** A message without Python list/str reprs: ['L5', 'T1'] → L5 and T1; 'px' → “px”; apostrophes (T3's) kept. */
 export function plain(message: string): string {
   return message
     .replace(/\[((?:'[^']*'(?:,\s*)?)+)\]/g, (_, items: string) => {
       const list = items.split(/,\s*/).map((s) => s.replace(/^'|'$/g, ""));
       return list.length > 1 ? `${list.slice(0, -1).join(", ")} and ${list[list.length - 1]}` : list[0];
     })
-    .replace(/'([^']*)'/g, "“$1”")
+    // a quoted span starts after a non-letter and ends before one: an apostrophe (pedicle's) is no quote
+    .replace(/(^|[^\p{L}])'([^']*)'(?![\p{L}])/gu, "$1“$2”")
     .replace(/^Value error, /, "")
     .replace(/^Input should be/, "It should be");
 }

@@ -10,6 +10,27 @@ const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "La
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
 /** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
 const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
+/** View Position (0018,5101) defined terms, PS3.3 §C.8.11.5.1.1: frontal and lateral projections. */
+const FRONTAL_POSITIONS = new Set(["PA", "AP"]);
+const LATERAL_POSITIONS = new Set(["LL", "RL", "LATERAL"]);
+
+/** When a DICOM film's header says it is the other view than the panel it was opened in: the words of
+ * a warning (View Position, else Patient Orientation's column direction), or null. Not a refusal:
+ * View Position is often missing or wrong. */
+export function viewMismatch(view: ViewName, film: DicomFilm): string | null {
+  const position = (film.viewPosition ?? "").trim().toUpperCase();
+  const column = film.orientation?.[0];
+  const other = view === "pa" ? "lateral" : "PA (frontal)";
+  const here = view === "pa" ? "PA (frontal)" : "lateral";
+  let says: string | null = null;
+  if (view === "pa" && LATERAL_POSITIONS.has(position)) says = `View Position ${position} (a lateral film)`;
+  else if (view === "lateral" && FRONTAL_POSITIONS.has(position)) says = `View Position ${position} (a frontal film)`;
+  else if (!position && view === "pa" && (column === "A" || column === "P")) says = `columns toward ${column} (a lateral film)`;
+  else if (!position && view === "lateral" && (column === "L" || column === "R")) says = `columns toward ${column} (a frontal film)`;
+  return says
+    ? `Check the film: its header says ${says}, but it is open as the ${here} film. If it is the ${other} film, open it there instead; if the header is wrong, carry on.`
+    : null;
+}
 
 function el<K extends keyof HTMLElementTagNameMap>(tag: K, attrs: Record<string, string> = {}, text?: string): HTMLElementTagNameMap[K] {
   const node = document.createElement(tag);
@@ -42,6 +63,12 @@ export class FilmPanel {
   private readonly prompt: HTMLElement;
   private readonly status: HTMLElement;
   private readonly error: HTMLElement;
+  private readonly warning: HTMLElement;
+  private readonly fileInput: HTMLInputElement;
+  /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were placed on. */
+  private dropNote: string | null = null;
+  /** The landmarks are a reopened job's (on a blank frame, or on the job's film opened under them). */
+  fromJob = false;
   private readonly zoomOut: HTMLOutputElement;
   private readonly undoButton: HTMLButtonElement;
   private readonly redoButton: HTMLButtonElement;
@@ -56,6 +83,9 @@ export class FilmPanel {
     this.header = el("dl", { id: id("header"), class: "dicom-header" });
     this.error = el("p", { id: id("error"), class: "error", role: "alert" });
     this.error.hidden = true;
+    this.warning = el("p", { id: id("warning"), class: "warning", role: "status" });
+    this.warning.hidden = true;
+    this.fileInput = file;
     this.wlCenter = el("input", { id: id("wl-center"), type: "number", step: "any" });
     this.wlWidth = el("input", { id: id("wl-width"), type: "number", step: "any", min: "1" });
     this.invert = el("input", { id: id("wl-invert"), type: "checkbox" });
@@ -104,17 +134,19 @@ export class FilmPanel {
     const redo = (this.redoButton = el("button", { type: "button", id: id("redo"), "aria-keyshortcuts": "Control+Shift+Z" }, "Redo"));
     const del = el("button", { type: "button", id: id("delete") }, "Delete selected");
     const clear = el("button", { type: "button", id: id("clear") }, "Clear all");
+    const close = el("button", { type: "button", id: id("close") }, "Close film");
     const fit = el("button", { type: "button", id: id("fit") }, "Fit film");
     const zin = el("button", { type: "button", id: id("zoom-in"), "aria-label": "Zoom in" }, "+");
     const zout = el("button", { type: "button", id: id("zoom-out"), "aria-label": "Zoom out" }, "−");
     this.zoomOut = el("output", { id: id("zoom"), "aria-live": "off" });
-    buttons.append(undo, redo, del, clear, fit, zout, zin, this.zoomOut);
+    buttons.append(undo, redo, del, clear, close, fit, zout, zin, this.zoomOut);
 
     const tools = el("div", { class: "film-tools" });
     tools.append(modes, labelled(id("level"), "Level", this.levelSelect));
     container.append(
       labelled(id("file"), `${title} (DICOM, PNG or JPEG)`, file),
       this.error,
+      this.warning,
       this.header,
       labelled(id("spacing"), "Pixel spacing (mm per pixel)", this.spacing,
         "Read from the DICOM header when it has one; a PNG or JPEG does not carry it: enter it (e.g. from the PACS)."),
@@ -123,6 +155,7 @@ export class FilmPanel {
 
     this.editor = new FilmEditor(canvas, (what) => {
       if (what !== "view") this.levelSelect.value = this.editor.level;
+      if (what === "marks" && !this.settingSource) this.dropNote = null;
       this.update();
       if (what === "marks") this.onChange();
     });
@@ -150,6 +183,7 @@ export class FilmPanel {
     redo.addEventListener("click", () => this.editor.redo());
     del.addEventListener("click", () => this.editor.removeSelected());
     clear.addEventListener("click", () => this.editor.clear());
+    close.addEventListener("click", () => this.reset());
     fit.addEventListener("click", () => this.editor.fit());
     zin.addEventListener("click", () => this.editor.zoomBy(1.25));
     zout.addEventListener("click", () => this.editor.zoomBy(0.8));
@@ -161,6 +195,11 @@ export class FilmPanel {
     this.showError(null);
     const bytes = new Uint8Array(await file.arrayBuffer());
     const isDicom = bytes.length > 132 && String.fromCharCode(...bytes.subarray(128, 132)) === "DICM";
+    // A reopened job's landmarks stay over the film opened under them (its own film, by hand or from
+    // the PACS); any other landmarks belong to the film they were placed on and go with it.
+    const keep = !!this.reopened && !this.editor.source;
+    let dropped = 0;
+    let warning: string | null = null;
     try {
       if (isDicom || /\.dcm$/i.test(file.name) || file.type === "application/dicom") {
         const film = parseFilm(bytes, file.name);
@@ -170,7 +209,8 @@ export class FilmPanel {
         this.wlWidth.value = String(round(film.window.width));
         this.invert.checked = film.monochrome1;
         this.wlRow.hidden = false;
-        this.editor.setSource({ name: file.name, width: film.width, height: film.height, dicom: film, element: null });
+        warning = viewMismatch(this.view, film);
+        dropped = this.setSource({ name: file.name, width: film.width, height: film.height, dicom: film, element: null }, keep);
         this.editor.canvas.setAttribute("aria-label",
           `${TITLES[this.view]} ${file.name}: DICOM ${film.photometric}, ${film.width} by ${film.height} pixels.`);
       } else if (/^image\/(png|jpeg)$/.test(file.type)) {
@@ -185,7 +225,7 @@ export class FilmPanel {
         this.dicom = null;
         this.spacing.value = "";
         this.wlRow.hidden = true;
-        this.editor.setSource({ name: file.name, width: element.naturalWidth, height: element.naturalHeight, dicom: null, element });
+        dropped = this.setSource({ name: file.name, width: element.naturalWidth, height: element.naturalHeight, dicom: null, element }, keep);
         this.editor.canvas.setAttribute("aria-label",
           `${TITLES[this.view]} ${file.name}: ${file.type === "image/png" ? "PNG" : "JPEG"}, ${element.naturalWidth} by ${element.naturalHeight} pixels.`);
       } else {
@@ -193,12 +233,49 @@ export class FilmPanel {
       }
       this.fileName = file.name;
       this.reopened = null;
+      if (!keep) this.fromJob = false;
+      this.warning.hidden = !warning;
+      this.warning.textContent = warning ?? "";
+      this.dropNote = dropped
+        ? `The landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} placed on the previous film were removed, with their undo history: landmarks belong to the film they were placed on. Place them again on ${file.name}.`
+        : null;
       this.fillHeader();
       this.update();
       this.onChange();
     } catch (error) {
       this.showError(error instanceof Error ? error.message : `${file.name} could not be read.`);
     }
+  }
+
+  private settingSource = false;
+
+  private setSource(source: Parameters<FilmEditor["setSource"]>[0], keep: boolean): number {
+    this.settingSource = true;
+    try {
+      return this.editor.setSource(source, keep);
+    } finally {
+      this.settingSource = false;
+    }
+  }
+
+  /** Close the film: no film, no landmarks, no header, as the page first shows the panel. */
+  reset(): void {
+    this.dicom = null;
+    this.fileName = null;
+    this.reopened = null;
+    this.fromJob = false;
+    this.dropNote = null;
+    this.fileInput.value = "";
+    this.spacing.value = "";
+    this.wlRow.hidden = true;
+    this.showError(null);
+    this.warning.hidden = true;
+    this.warning.textContent = "";
+    this.header.replaceChildren();
+    this.prompt.textContent = `Open the ${this.view === "pa" ? "PA" : "lateral"} film to start.`;
+    this.editor.canvas.setAttribute("aria-label", `${TITLES[this.view]}: no film open`);
+    this.editor.reset();
+    this.update();
   }
 
   private showError(message: string | null): void {
@@ -300,7 +377,9 @@ export class FilmPanel {
   /** A reopened job's view: its landmarks on a blank frame until its film is opened (by hand, or
    * fetched again from the PACS); ``why`` says why the film is not there, in the header and the frame. */
   restore(view: ViewPayload, why = "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."): void {
+    this.reset();
     this.reopened = { ...view, landmarks: [] };
+    this.fromJob = true;
     this.dicom = null;
     this.fileName = null;
     this.wlRow.hidden = true;
@@ -335,9 +414,9 @@ export class FilmPanel {
       placed.filter((l) => l.corners).length && `${placed.filter((l) => l.corners).length} with four corners`,
       placed.filter((l) => l.pedicles).length && `${placed.filter((l) => l.pedicles).length} with pedicles`,
     ].filter(Boolean).join(", ");
-    this.status.textContent = placed.length
+    this.status.textContent = (this.dropNote ? `${this.dropNote} ` : "") + (placed.length
       ? `${placed.length} vertebra${placed.length === 1 ? "" : "e"} on the ${this.view === "pa" ? "PA" : "lateral"} film (${levels[0]}–${levels[levels.length - 1]}): ${kinds}.`
-      : "No landmark on this film yet.";
+      : "No landmark on this film yet.");
   }
 }
 

@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+import functools
+
+from alembic.script import ScriptDirectory
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from sqlalchemy import text
+from sqlalchemy.orm import Session
 
 from services.api.deps import QueueDep, SessionDep
 from services.api.schemas import Health, problem_responses
 from services.core.jobqueue import ping_broker
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
+from services.core.retry import schema_not_migrated
+from services.db.migrate import ALEMBIC_INI
 
 router = APIRouter(tags=["operations"])
 
@@ -27,10 +33,12 @@ def healthz() -> Health:
     responses=problem_responses(503),
 )
 def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | JSONResponse:
+    # Ready when the database answers and its schema is at the code's Alembic head (`spine migrate`
+    # done), and the broker answers. (A comment: a docstring would change the contract's description.)
     checks: dict[str, str] = {}
     try:
         session.execute(text("SELECT 1"))
-        checks["database"] = "ok"
+        checks["database"] = _schema_check(session)
     except Exception as exc:
         checks["database"] = f"unreachable: {type(exc).__name__}"
     try:
@@ -40,9 +48,43 @@ def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | J
         checks["broker"] = f"unreachable: {type(exc).__name__}"
     if all(v == "ok" for v in checks.values()):
         return Health(status="ready", checks=checks)
-    down = ", ".join(k for k, v in checks.items() if v != "ok")
-    body = problem("service-unavailable", f"not ready: {down} unreachable", instance=request.url.path, checks=checks)
+    why = [f"{k} unreachable" if v.startswith("unreachable") else f"database {v}"
+           for k, v in checks.items() if v != "ok"]  # fmt: skip
+    body = problem("service-unavailable", f"not ready: {'; '.join(why)}", instance=request.url.path, checks=checks)
     return JSONResponse(body, status_code=503, media_type=PROBLEM_MEDIA_TYPE, headers={"Retry-After": "5"})
+
+
+@functools.cache
+def _scripts() -> ScriptDirectory:
+    return ScriptDirectory(str(ALEMBIC_INI.parent))
+
+
+@functools.cache
+def code_head() -> str:
+    """The Alembic head revision of the code's migrations (read once: it does not change in a process)."""
+    return ",".join(sorted(_scripts().get_heads()))
+
+
+def _schema_check(session: Session) -> str:
+    """``ok`` when the database's schema revision is the code's head, else what was found and expected
+    and what to do."""
+    expected = code_head()
+    try:
+        found = sorted(session.scalars(text("SELECT version_num FROM alembic_version")))
+    except Exception as exc:
+        session.rollback()
+        if not schema_not_migrated(exc):
+            raise
+        found = []
+    if ",".join(found) == expected:
+        return "ok"
+    if not found:
+        return f"schema not migrated (no schema revision, expected {expected}): run `spine migrate`"
+    known = {script.revision for script in _scripts().walk_revisions()}
+    if not set(found) <= known:  # a newer release migrated it: this code is the older one
+        return (f"schema at revision {','.join(found)}, unknown to this version of the service (expected "
+                f"{expected}): run the release that migrated it")  # fmt: skip
+    return f"schema not migrated (revision {','.join(found)}, expected {expected}): run `spine migrate`"
 
 
 @router.get(
