@@ -19,9 +19,29 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from pydantic import SecretStr
 
 from services.core.config import Settings
+from services.db import jobs as repo
+from services.db.engine import session_scope
+from tests.conftest import spine_payload
 from tools.processes import stop_processes
+
+TEST_WEBHOOK_SECRET = SecretStr("whsec_" + "A" * 43 + "=")
+"""The signing secret of the webhook tests' settings."""
+
+
+def cancelled_job_calling(settings: Settings, url: str, **update: Any) -> tuple[Settings, Any]:
+    """``settings`` allowing ``url`` and signing with ``TEST_WEBHOOK_SECRET`` (then ``update``), and the
+    id of a job that calls back ``url``, cancelled: its webhook is due."""
+    settings = settings.model_copy(update={"webhook_allowed_urls": url, "webhook_secret": TEST_WEBHOOK_SECRET,
+                                           **update})  # fmt: skip
+    payload: dict[str, Any] = spine_payload()
+    payload["callback_url"] = url
+    with session_scope(settings) as session:
+        job, _ = repo.create_job(session, payload)
+        repo.cancel_job(session, job.id)
+    return settings, job.id
 
 
 def free_port() -> int:

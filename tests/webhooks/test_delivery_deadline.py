@@ -9,19 +9,16 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
-from typing import Any
 
 import pytest
-from pydantic import SecretStr
 from sqlalchemy import select
 
 from services.core.config import Settings
-from services.db import jobs as repo
 from services.db.engine import session_scope
 from services.db.models import WebhookDelivery
 from services.webhooks.delivery import post
 from services.worker import webhook_tasks
-from tests.conftest import spine_payload
+from tests.interop_helpers import cancelled_job_calling
 
 ANSWER = b"HTTP/1.1 200 OK\r\nX-Pad: " + b"a" * 30 + b"\r\ncontent-length: 0\r\n\r\n"
 TIMEOUT_S = 1.0
@@ -94,22 +91,15 @@ def test_a_dripped_answer_ends_the_attempt_at_its_time_limit(dripping: DrippingR
 
 
 def test_a_timed_out_attempt_is_recorded_and_retried(db_settings: Settings, dripping: DrippingReceiver) -> None:
-    url = dripping.url(f"/hooks/{uuid.uuid4().hex}")
-    settings = db_settings.model_copy(update={
-        "webhook_allowed_urls": url, "webhook_secret": SecretStr("whsec_" + "A" * 43 + "="),
-        "webhook_timeout_s": TIMEOUT_S, "webhook_retry_base_s": 1.0, "webhook_max_attempts": 3,
-    })  # fmt: skip
-    payload: dict[str, Any] = spine_payload()
-    payload["callback_url"] = url
-    with session_scope(settings) as session:
-        job, _ = repo.create_job(session, payload)
-        repo.cancel_job(session, job.id)
+    settings, job_id = cancelled_job_calling(db_settings, dripping.url(f"/hooks/{uuid.uuid4().hex}"),
+                                             webhook_timeout_s=TIMEOUT_S, webhook_retry_base_s=1.0,
+                                             webhook_max_attempts=3)  # fmt: skip
     started = time.monotonic()
-    delay = webhook_tasks.deliver_once(settings, job.id, "cancelled", 1)
+    delay = webhook_tasks.deliver_once(settings, job_id, "cancelled", 1)
     assert time.monotonic() - started < TIMEOUT_S + SLACK_S + 0.5  # the database's share included
     assert delay == 1.0  # retried per policy
     with session_scope(settings) as session:
-        [row] = session.scalars(select(WebhookDelivery).where(WebhookDelivery.job_id == job.id))
+        [row] = session.scalars(select(WebhookDelivery).where(WebhookDelivery.job_id == job_id))
         assert row.status_code is None and row.error is not None and "Timeout" in row.error
         assert row.next_attempt_at is not None
     assert dripping.requests == 1

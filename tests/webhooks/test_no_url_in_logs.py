@@ -8,18 +8,13 @@ import io
 import logging
 import uuid
 from collections.abc import Iterator
-from typing import Any
 
 import pytest
-from pydantic import SecretStr
 
 from services.core.config import Settings
 from services.core.logs import QUIET_LOGGERS, configure_logging
-from services.db import jobs as repo
-from services.db.engine import session_scope
 from services.worker import webhook_tasks
-from tests.conftest import spine_payload
-from tests.interop_helpers import Receiver
+from tests.interop_helpers import Receiver, cancelled_job_calling
 
 TOKEN = "SECRET-TOKEN-123"
 
@@ -48,16 +43,10 @@ def test_a_callback_urls_token_is_never_logged(db_settings: Settings, service_lo
     try:
         path = f"/hooks/{uuid.uuid4().hex}?access_token={TOKEN}"
         receiver.plan[path] = [500]
-        url = receiver.url(path)
-        settings = db_settings.model_copy(update={"webhook_allowed_urls": receiver.url("/hooks"),
-                                                  "webhook_secret": SecretStr("whsec_" + "A" * 43 + "=")})  # fmt: skip
-        payload: dict[str, Any] = spine_payload()
-        payload["callback_url"] = url
-        with session_scope(settings) as session:
-            job, _ = repo.create_job(session, payload)
-            repo.cancel_job(session, job.id)
-        assert webhook_tasks.deliver_once(settings, job.id, "cancelled", 1) is not None  # 500: retried
-        assert webhook_tasks.deliver_once(settings, job.id, "cancelled", 2) is None  # 204
+        settings, job_id = cancelled_job_calling(db_settings, receiver.url(path),
+                                                 webhook_allowed_urls=receiver.url("/hooks"))  # fmt: skip
+        assert webhook_tasks.deliver_once(settings, job_id, "cancelled", 1) is not None  # 500: retried
+        assert webhook_tasks.deliver_once(settings, job_id, "cancelled", 2) is None  # 204
         assert [r.answered for r in receiver.received] == [500, 204]
         assert all(TOKEN in r.path for r in receiver.received)  # it was sent, to the receiver only
     finally:
