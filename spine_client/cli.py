@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 import uuid
@@ -27,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from spine_client import optional, tables
-from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient, base_url_problem
+from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient, base_url_problem, service_url
 from spine_client.errors import (
     ApiError,
     Conflict,
@@ -103,8 +102,8 @@ def _load_json(path: str) -> Any:
 
 
 def _client(args: argparse.Namespace) -> SpineClient:
-    url = args.url or os.environ.get(URL_ENV) or DEFAULT_URL
-    problem = base_url_problem(url.rstrip("/"))
+    url = service_url(args.url)
+    problem = base_url_problem(url)
     if problem is not None:
         option = "--url" if args.url else f"${URL_ENV}"
         raise UsageError(f"{option} is not the service's URL: {problem}")

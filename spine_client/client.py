@@ -54,6 +54,12 @@ def retry_after_seconds(value: str | None) -> float | None:
         return None
 
 
+def service_url(base_url: str | None = None) -> str:
+    """The service's base URL: ``base_url``, else ``$SPINE_URL``, else ``DEFAULT_URL``, without a
+    trailing slash."""
+    return (base_url or os.environ.get(URL_ENV) or DEFAULT_URL).rstrip("/")
+
+
 def base_url_problem(url: str) -> str | None:
     """Why ``url`` cannot be the service's base URL, or None. Never repeats the URL (it may hold a
     password)."""
@@ -97,7 +103,7 @@ class SpineClient:
         transport: httpx.BaseTransport | None = None,
         sleep: Callable[[float], None] = time.sleep,
     ):
-        self.base_url = (base_url or os.environ.get(URL_ENV) or DEFAULT_URL).rstrip("/")
+        self.base_url = service_url(base_url)
         problem = base_url_problem(self.base_url)
         if problem is not None:
             raise ValueError(f"the service URL is not usable: {problem}")

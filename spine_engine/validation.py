@@ -277,6 +277,11 @@ def _mm_per_unit(view: PAView | LateralView) -> Point:
     return 1.0, 1.0
 
 
+def _mm_per_unit_if_known(view: PAView | LateralView) -> Point:
+    """``_mm_per_unit``, or (1, 1) for px without a spacing (refused apart, ``_view_errors``)."""
+    return _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1.0, 1.0)
+
+
 def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:
     """Film mm per patient mm at the spine, lowest and highest (``MAGNIFICATION_*``): 1 ± spread for
     a 'calibrated' spacing (mm in the patient's plane, PS3.3 §10.7.1.1)."""
@@ -302,13 +307,15 @@ even mobile and portable radiographic systems to a source-to-skin distance of at
 OAR 333-106-0310; New York 10 NYCRR 16.57(a)(6), 12 inches), and the spine lies deeper than the skin."""
 
 
-def _geometry_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
+def _geometry_errors(name: str, view: PAView | LateralView, scaled: bool = True) -> list[FieldError]:
     """A point-source view's geometry, with what it lacks filled in (``Acquisition.point_source_distances``),
     must hold the spine at least ``SOURCE_TO_SPINE_MIN_MM`` from the source and magnify it at most as
     much as the widest reading of unverified millimetres (``MAGNIFICATION_RANGE`` × ``UNVERIFIED_SCALE``,
     3.5); an ERMF likewise within that reading both ways. Beyond, the fit would place a spine
     millimetres or metres long (an SID of 150 mm, the SOD assumed 200 mm nearer the source, put it
-    behind the source)."""
+    behind the source). The central ray's distance from the landmarks is a distance in film mm, so
+    with ``scaled`` False (a stand-in spacing until the header is read) it is judged once the header
+    gives the spacing, as ``_distance_errors``' absolute bound."""
     acq = view.acquisition
     if acq is None:
         return []
@@ -347,9 +354,9 @@ def _geometry_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
                 f"{sid / sod:.3g} times; no radiograph magnifies it more than {high:.2g} times",
                 "implausible_geometry",
             ))  # fmt: skip
-        elif (ray := _central_ray(view)) is not None and view.landmarks:
+        elif scaled and (ray := _central_ray(view)) is not None and view.landmarks:
             field_name, (ray_c, ray_r) = ray
-            column_mm, row_mm = _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1, 1)
+            column_mm, row_mm = _mm_per_unit_if_known(view)
             farthest = max(math.hypot((c - ray_c) * column_mm, (r - ray_r) * row_mm)
                            for c, r in map(_top_midpoint, view.landmarks))  # fmt: skip
             if farthest > sid * math.tan(math.radians(RAY_OBLIQUITY_MAX_DEG)):
@@ -373,7 +380,7 @@ def _outside_image_errors(name: str, view: PAView | LateralView) -> list[FieldEr
     if acq is None or acq.image_size is None:
         return []
     columns, rows = float(acq.image_size[0]), float(acq.image_size[1])
-    column_mm, row_mm = _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1.0, 1.0)
+    column_mm, row_mm = _mm_per_unit_if_known(view)
     margin = NOISE_SDS * view.sd_mm
     for lm in view.landmarks:
         points = [p for p in (lm.point, *(lm.corners or ()), *(lm.pedicles or ())) if p is not None]
@@ -587,11 +594,12 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
     errors = [] if is_profile(model.options.profile) else UnknownProfile(model.options.profile, list_profiles()).errors
     errors += _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
-    errors += _geometry_errors("pa", model.pa)
+    errors += _geometry_errors("pa", model.pa, "pa" not in unscaled_views)
     errors += _order_errors("pa", model.pa, payload.get("pa"), "pa" not in unscaled_views)
     errors += _corner_errors("pa", payload.get("pa")) + _pedicle_errors("pa", payload.get("pa"))
     if model.lateral is not None:
-        errors += _view_errors("lateral", model.lateral, exact) + _geometry_errors("lateral", model.lateral)
+        errors += _view_errors("lateral", model.lateral, exact)
+        errors += _geometry_errors("lateral", model.lateral, "lateral" not in unscaled_views)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"), "lateral" not in unscaled_views)
         errors += _corner_errors("lateral", payload.get("lateral"))

@@ -116,10 +116,17 @@ def not_migrated_problem(instance: str) -> tuple[dict[str, Any], dict[str, str]]
     return body, {"Retry-After": NOT_MIGRATED_RETRY_AFTER_S}
 
 
+def _not_migrated_response(request: Request, exc: Exception) -> JSONResponse | None:
+    """The 503 of a request that met the schema not migrated (``schema_not_migrated``), logged; else None."""
+    if not schema_not_migrated(exc):
+        return None
+    log.error("database schema not migrated (run `spine migrate`): %s", type(exc).__name__)
+    return problem_response(*not_migrated_problem(request.url.path))
+
+
 async def _database_down(request: Request, exc: Exception) -> JSONResponse:
-    if schema_not_migrated(exc):
-        log.error("database schema not migrated (run `spine migrate`): %s", type(exc).__name__)
-        return problem_response(*not_migrated_problem(request.url.path))
+    if (answer := _not_migrated_response(request, exc)) is not None:
+        return answer
     log.warning("database unreachable: %s", exc)
     body = problem("service-unavailable", "the job database is unreachable; retry later",
                    instance=request.url.path)  # fmt: skip
@@ -127,9 +134,8 @@ async def _database_down(request: Request, exc: Exception) -> JSONResponse:
 
 
 async def _database_programming_error(request: Request, exc: Exception) -> JSONResponse:
-    if schema_not_migrated(exc):
-        log.error("database schema not migrated (run `spine migrate`): %s", type(exc).__name__)
-        return problem_response(*not_migrated_problem(request.url.path))
+    if (answer := _not_migrated_response(request, exc)) is not None:
+        return answer
     raise exc  # any other: an unexpected error (``UnexpectedErrors``)
 
 

@@ -51,6 +51,8 @@ from pydicom.dataset import Dataset
 from pydicom.sr.codedict import codes
 from pydicom.valuerep import DA, DT, TM, PersonName
 
+from services.core.estimates import model_estimate_reason
+
 from .cobb_lines import cobb_lines_px
 from .uids import job_uids
 
@@ -229,27 +231,10 @@ def _evidence(identity: StudyIdentity, study_uid: str, image: SourceImage | None
     return ds
 
 
-EXACT_ENDS = ("T1", "L5")
-"""The vertebrae whose pose a boundary given exactly (``fit.boundary`` "given") fixes, axial rotation included."""
-
-
 def model_based(fit: Mapping[str, Any], quantity: str | None, level: str | None = None) -> bool:
     """Whether a value of the result is a model-based estimate (``MODEL_BASED``) rather than measured:
-    ``fit.unreliable`` lists its ``quantity``, or it is an axial rotation and ``fit.assumed`` names
-    ``population_axial_rotation`` (no pedicles: the population's mean given the frontal curves); never
-    T1's and L5's axial rotation (``level``) when the boundary was given exactly (their poses are the
-    payload's).
-    The FHIR export's ``services.fhir.export.model_estimate_reason`` is the same rule with its reason
-    in words (the two layers may not import each other; a test holds them equal)."""
-    if quantity is None:
-        return False
-    if quantity == "axial_rotation" and fit.get("boundary", "given") == "given" and level in EXACT_ENDS:
-        return False
-    if quantity in set(fit.get("unreliable") or []):
-        return True
-    return quantity == "axial_rotation" and any(
-        isinstance(a, Mapping) and a.get("name") == "population_axial_rotation" for a in fit.get("assumed") or []
-    )
+    ``services.core.estimates.model_estimate_reason``'s rule, which the FHIR export's notes also follow."""
+    return quantity is not None and model_estimate_reason(fit, quantity, level) is not None
 
 
 class _Builder:

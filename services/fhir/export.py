@@ -21,7 +21,8 @@ UCUM ``deg``. The input images' DICOM Study Instance UID, when the payload had a
 referenced in ``derivedFrom`` as an ImagingStudy identifier (system ``urn:dicom:uid``, value
 ``urn:oid:<uid>``).
 
-Model estimates: a value from the spine model's prior (``model_estimate_reason``, the SR's rule) has
+Model estimates: a value from the spine model's prior (``services.core.estimates.model_estimate_reason``,
+the SR's rule) has
 ``interpretation`` the local code ``MODEL-BASED`` (the SR's method code) and a note giving the
 result's reason, on the Observation or on the Cobb Observation's component.
 
@@ -40,6 +41,8 @@ from datetime import date, datetime
 from typing import Any
 
 from fhir.resources.R4B.bundle import Bundle
+
+from services.core.estimates import model_estimate_reason
 
 FHIR_MEDIA_TYPE = "application/fhir+json"
 FHIR_VERSION = "4.0.1"
@@ -71,58 +74,6 @@ METHOD = (
     "(Li, Leow, Huang and Howe, CAIP 2009)"
 )
 _NAMESPACE = uuid.UUID("6f1c2a57-2a4e-5d0b-8a53-2f3f7c1b9e10")
-
-EXACT_ENDS = ("T1", "L5")
-"""The vertebrae whose pose a boundary given exactly (``fit.boundary`` "given") fixes, axial rotation included."""
-
-
-def _assumption(fit: Mapping[str, Any], name: str) -> Mapping[str, Any] | None:
-    """The ``fit.assumed`` entry (``spine_engine.models.Assumption``: name, view, reason) named ``name``."""
-    return next((a for a in fit.get("assumed") or [] if isinstance(a, Mapping) and a.get("name") == name), None)
-
-
-def model_estimate_reason(fit: Mapping[str, Any], quantity: str, level: str | None = None) -> str | None:
-    """Why a value of the result comes from the model's prior rather than the films, in plain words
-    ending with the result's entry that says so; None when the films determine it.
-
-    ``quantity`` is a ``fit.unreliable`` name (``axial_rotation``, ``kyphosis``, ``lordosis``,
-    ``plane_of_max_curvature``, ``twist``...), ``level`` the vertebra an axial rotation is of. A value
-    is a model estimate when ``fit.unreliable`` lists its quantity, and an axial rotation also when
-    ``fit.assumed`` names ``population_axial_rotation`` (no pedicles: the population's mean given the
-    frontal curves); never T1's and L5's axial rotation when the boundary was given exactly (their
-    poses, the payload's). The SR's ``sr.model_based`` is the same rule (MEASURED / MODEL-BASED)."""
-    unreliable = set(fit.get("unreliable") or [])
-    boundary = fit.get("boundary", "given")
-    if quantity == "axial_rotation":
-        if boundary == "given" and level in EXACT_ENDS:
-            return None  # T1's and L5's poses are the payload's
-        prior = _assumption(fit, "population_axial_rotation")
-        if prior is not None:
-            reason = prior.get("reason") or "no pedicles: the axial rotation is the population's mean"
-            return f"{reason} (fit.assumed: population_axial_rotation)"
-        if quantity in unreliable:
-            return "no pedicle centres were given, so no film observes the vertebrae's turn about their axis; it " \
-                "comes from the spine model (fit.unreliable: axial_rotation)"
-        return None
-    if quantity not in unreliable:
-        return None
-    if quantity in ("kyphosis", "lordosis"):
-        shape = _assumption(fit, "population_sagittal_shape")
-        if shape is not None and shape.get("reason"):
-            return f"{shape['reason']} (fit.assumed: population_sagittal_shape; fit.unreliable: {quantity})"
-        if "depth" in unreliable:
-            return f"T1 and L5 were not given and fewer than 2 lateral landmarks place the spine in depth, so the " \
-                f"{quantity} comes from the spine model's prior (fit.unreliable: {quantity})"
-        films = "the lateral film's landmarks say little of it" if fit.get("lateral") else "no lateral film was given"
-        ends = {"given": "T1 and L5 given", "soft": "T1 and L5 given with SDs"}.get(str(boundary),
-                                                                                  "T1 and L5 not given")  # fmt: skip
-        return f"{films} ({ends}): its standard deviation exceeds half the population's, so it stays close to the " \
-            f"spine model's prior (fit.unreliable: {quantity})"
-    if quantity == "plane_of_max_curvature":
-        ends = " and T1 and L5 were not given" if boundary == "estimated" else ""
-        return f"fewer than 2 lateral landmarks place the spine in depth{ends}: the plane of maximum curvature and " \
-            "the Cobb angle in it come from the spine model's prior (fit.unreliable: plane_of_max_curvature)"
-    return f"the films do not determine it: it comes from the spine model's prior (fit.unreliable: {quantity})"
 
 
 def _estimate_note(reason: str, what: str | None = None) -> str:

@@ -158,3 +158,19 @@ def test_a_missing_distance_is_taken_200_mm_from_the_given_one() -> None:
     assert distances(distance_source_to_detector_mm=1000.0) == (1000.0, 1000.0 - SPINE_TO_DETECTOR_MM)
     assert distances(distance_source_to_patient_mm=1500.0, magnification=1.2) == pytest.approx((1800.0, 1500.0))
     assert distances(distance_source_to_detector_mm=1800.0, magnification=1.2) == pytest.approx((1800.0, 1500.0))
+
+
+def test_the_central_ray_is_judged_in_millimetres_only_once_the_spacing_is_known(spine: Any) -> None:
+    """A by-reference view is checked at admission with a stand-in spacing of 1 mm per pixel
+    (``services.api.admission``): a central ray 2,500 px from the landmarks, 250 mm on a film of
+    0.1 mm pixels, is judged when the header gives the spacing, not refused as 2,500 mm."""
+    payload = payload_from_truth(spine.positions, spine.rotations, ALL, boundary=False)
+    view = payload["pa"]
+    view["units"], view["pixel_spacing"] = "px", [1.0, 1.0]
+    top = min(lm["point"][1] for lm in view["landmarks"])
+    view["acquisition"] = {"distance_source_to_detector_mm": 1800.0, "distance_source_to_patient_mm": 1600.0,
+                           "central_ray": [view["landmarks"][0]["point"][0], top - 2500.0]}  # fmt: skip
+    validate_payload(payload, unscaled_views=("pa",))
+    with pytest.raises(InvalidInput) as caught:
+        validate_payload(payload)
+    assert [(e.path, e.type) for e in caught.value.errors] == [("pa.acquisition.central_ray", "implausible_geometry")]

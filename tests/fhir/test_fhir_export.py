@@ -123,8 +123,8 @@ FITS = [
 
 @pytest.mark.parametrize("fit", FITS)
 def test_sr_and_fhir_decide_model_estimates_by_one_rule(fit: dict[str, Any]) -> None:
-    """``sr.model_based`` and ``export.model_estimate_reason`` (the two layers may not import each
-    other) agree on every quantity and level, on every kind of fit block."""
+    """``sr.model_based`` and ``model_estimate_reason`` (``services.core.estimates``, which the FHIR
+    export notes by) agree on every quantity and level, on every kind of fit block."""
     for quantity in ("axial_rotation", "kyphosis", "lordosis", "plane_of_max_curvature", "twist", "depth"):
         for level in ("T1", "T8", "L5", None):
             assert model_based(fit, quantity, level) == (model_estimate_reason(fit, quantity, level) is not None), (
