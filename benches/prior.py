@@ -288,6 +288,7 @@ def _with_prior(
         "measure_sd_deg": {
             "kyphosis_t4_t12_deg": pop.measures["kyphosis_t4_t12_deg"][1],
             "lordosis_l1_l5_deg": pop.measures["lordosis_l1_l5_deg"][1],
+            "major_cobb_deg": pop.measures["major_cobb_deg"][1],
         },
         "length_over_pa_projection": pop.length_over_pa_projection[0],
     }

@@ -444,7 +444,10 @@ class PopulationPrior:
     ``{"T1": [about d1, about d2, about d3], "L5": [...]}`` (d1: sagittal inclination, the lean;
     d2: frontal tilt; d3: rotation about the body's long axis, the spin about the vertical).
     ``measure_sd_deg``: the population SD of each measure a film may leave undetermined, the floor of
-    its reported SD then (``reconstruction``). ``length_over_pa_projection``: the population's mean of
+    its reported SD then (``reconstruction``): kyphosis T4–T12 and lordosis L1–L5 (VerSe dev), and
+    ``major_cobb_deg``, the major Cobb angle's SD over the population the frontal prior was calibrated
+    on (AASCE 2019 training, 18.4° in ``default``; a profile without it floors no Cobb SD).
+    ``length_over_pa_projection``: the population's mean of
     L/P, L the T1–L5 polyline's length and P that of its projection on the frontal (PA) plane, which
     scales a patient's rest length from the PA film (``length_correction``); None in older profiles.
     ``provenance``: data, command and checks.
@@ -492,9 +495,10 @@ def _parse_population_prior(name: str, data: dict[str, Any]) -> PopulationPrior:
     if any(v.shape != (N_LEVELS - 1,) or not np.all(v > 0) for v in sd.values()) or shear.shape != (N_LEVELS - 1, 2):
         raise ValueError(f"profile {name!r}: population_prior needs 16 positive SDs per segment for each plane")
     orientation = {k: np.asarray(v, dtype=float) for k, v in data["orientation_sd_deg"].items()}
+    measure_sd = {k: float(v) for k, v in data["measure_sd_deg"].items()}
     return PopulationPrior(
         float(data["temperature_nmm"]), sd["sagittal_sd_deg"], sd["frontal_sd_deg"], sd["stretch_sd"], shear,
-        sd["twist_sd_deg"], orientation, {k: float(v) for k, v in data["measure_sd_deg"].items()},
+        sd["twist_sd_deg"], orientation, measure_sd,
         float(data["length_over_pa_projection"]) if "length_over_pa_projection" in data else None,
     )
 

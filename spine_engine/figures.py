@@ -38,7 +38,7 @@ from matplotlib.figure import Figure
 from .clinical import landmark_arrays
 from .fit import Camera
 from .fit.cameras import project as project_by_camera
-from .levels import LEVEL_INDEX, LEVELS
+from .levels import LEVEL_INDEX, LEVELS, apex_words
 from .models import LATERAL_ORIENTATION, JobPayload
 from .projection import image_axes, project
 
@@ -199,11 +199,12 @@ def _summary(result: Mapping[str, Any]) -> str:
     parts = []
     major = next((c for c in measures.get("cobb", []) if c.get("major")), None)
     if major:
-        angle = _with_trust(major["angle_deg"], major.get("angle_sd_deg"), False)
-        where = f"{major['upper']}–{major['lower']}, apex {major['apex']}, {major['convexity']}"
+        angle = _with_trust(major["angle_deg"], major.get("angle_sd_deg"), "cobb" in unreliable)
+        apex = apex_words(major["apex"], bool(major.get("apical_disc")))
+        where = f"{major['upper']}–{major['lower']}, apex {apex}, {major['convexity']}"
         parts.append(f"major Cobb {angle} ({where})")
     elif largest := measures.get("largest_cobb"):
-        angle = _with_trust(largest["angle_deg"], largest.get("angle_sd_deg"), False)
+        angle = _with_trust(largest["angle_deg"], largest.get("angle_sd_deg"), "cobb" in unreliable)
         parts.append(f"no frontal curve of 10°: largest angle {angle} ({largest['upper']}–{largest['lower']})")
     else:
         parts.append("no frontal curve")

@@ -137,13 +137,26 @@ class FrontalCurve:
     apex: int
     angle_deg: float
     convexity: Literal["left", "right"]
+    apical_disc: bool = False
+    """The apex is the disc between ``apex`` and ``apex + 1`` (a curve of one segment, ``_apex``)."""
 
 
-def _apex(positions: FloatArray, upper: int, lower: int, tilt: FloatArray) -> tuple[int, Literal["left", "right"]]:
-    """Vertebra between the ends farthest from their chord in the frontal (x, z) plane, and its side.
+def _apex(
+    positions: FloatArray, upper: int, lower: int, tilt: FloatArray
+) -> tuple[int, Literal["left", "right"], bool]:
+    """The curve's apex, its side and whether it is a disc: (apex, convexity, apical_disc).
 
-    Signed distance δ_i = (p_i − p_U)·n with n = (−c_z, c_x) the normal of the unit chord
-    c = (p_L − p_U)/|…| that points toward +x for a chord running caudally: δ > 0 is patient left.
+    SRS: the apex of a curve is its most laterally deviated vertebra (apical vertebra) or disc (apical
+    disc) (Scoliosis Research Society, Revised Glossary of Terms, "apical vertebra", "apical disc";
+    Stokes, Spine 1994;19:236–248). SRS measures the deviation from the vertical axis through the
+    sacrum, which the model (T1–L5) does not have; here it is taken from the chord of the end
+    vertebrae's centres in the frontal (x, z) plane: signed distance δ_i = (p_i − p_U)·n with
+    n = (−c_z, c_x) the normal of the unit chord c = (p_L − p_U)/|…| that points toward +x for a chord
+    running caudally (δ > 0: patient left). A disc lies midway between its two vertebrae, so its δ is
+    their mean and never exceeds both: the apex is the vertebra strictly between the ends with the
+    largest |δ|. A curve of one segment (lower = upper + 1) has no vertebra between its end vertebrae,
+    both on the chord: its apex is the disc between them, named by its upper vertebra with
+    ``apical_disc`` True (the contract's apex is a vertebra).
     """
     xz = positions[:, [0, 2]]
     chord = xz[lower] - xz[upper]
@@ -157,10 +170,12 @@ def _apex(positions: FloatArray, upper: int, lower: int, tilt: FloatArray) -> tu
         dist = (xz[inner] - xz[upper]) @ n
         k = int(np.argmax(np.abs(dist)))
         if abs(dist[k]) > 1e-9:
-            return int(inner[k]), "left" if dist[k] > 0 else "right"
+            return int(inner[k]), "left" if dist[k] > 0 else "right", False
     # No interior vertebra off the chord: the tilt rising caudally means convex right.
-    apex = int(inner[len(inner) // 2]) if len(inner) else upper
-    return apex, "right" if tilt[lower] > tilt[upper] else "left"
+    convexity: Literal["left", "right"] = "right" if tilt[lower] > tilt[upper] else "left"
+    if not len(inner):
+        return upper, convexity, True
+    return int(inner[len(inner) // 2]), convexity, False
 
 
 def frontal_curves(
@@ -179,8 +194,8 @@ def frontal_curves(
         angle = float(abs(tilt[upper] - tilt[lower]))
         if angle < min_cobb_deg:
             continue
-        apex, convexity = _apex(p, upper, lower, tilt)
-        curves.append(FrontalCurve(upper, lower, apex, angle, convexity))
+        apex, convexity, disc = _apex(p, upper, lower, tilt)
+        curves.append(FrontalCurve(upper, lower, apex, angle, convexity, disc))
     return curves
 
 
@@ -452,7 +467,7 @@ def compute_measures(
     psi = axial_rotation_deg(R)
     cobb = []
     for k, (upper, lower, angle) in enumerate(found):
-        apex, convexity = _apex(p, upper, lower, tilt)
+        apex, convexity, disc = _apex(p, upper, lower, tilt)
         phi, max_angle = plane_of_max_curvature(R[upper], R[lower])
         cobb.append(
             CobbCurve(
@@ -462,6 +477,7 @@ def compute_measures(
                 angle_deg=angle,
                 major=k == major,
                 convexity=convexity,
+                apical_disc=disc,
                 apex_axial_rotation_deg=float(psi[apex]),
                 plane_of_max_curvature_deg=phi,
                 max_curvature_deg=max_angle,

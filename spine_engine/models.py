@@ -386,8 +386,30 @@ DICOM_LO_MAX_LENGTH = 64
 """PS3.5 §6.2: Long String (LO), at most 64 characters."""
 DICOM_SH_MAX_LENGTH = 16
 """PS3.5 §6.2: Short String (SH), at most 16 characters."""
-DICOM_PN_MAX_LENGTH = 5 * 64
-"""PS3.5 §6.2: a Person Name (PN) has five components of at most 64 characters each (one group)."""
+DICOM_PN_GROUP_MAX_LENGTH = 64
+DICOM_PN_GROUPS = ("alphabetic", "ideographic", "phonetic")
+DICOM_PN_MAX_LENGTH = len(DICOM_PN_GROUPS) * DICOM_PN_GROUP_MAX_LENGTH + len(DICOM_PN_GROUPS) - 1
+"""PS3.5 §6.2 (Table 6.2-1) and §6.2.1: a Person Name (PN) is up to three component groups separated by
+``=`` (alphabetic, ideographic, phonetic), each of at most 64 characters and of up to five components
+separated by ``^`` (family, given, middle, prefix, suffix): at most 3 × 64 characters and two ``=``."""
+
+
+def person_name_problem(text: str) -> str | None:
+    """Why ``text`` is not a DICOM PN (``DICOM_PN_MAX_LENGTH``'s rule), None when it is. Characters, not
+    bytes, are counted, as PS3.5 §6.2 counts them. The DICOM header reader of the client, which installs
+    without the engine, applies the same rule to a film's name (``spine_client.dicom.header``)."""
+    groups = text.split("=")
+    if len(groups) > len(DICOM_PN_GROUPS):
+        return (f"has {len(groups)} component groups separated by '=': a PN has at most 3, alphabetic, "
+                "ideographic and phonetic (PS3.5 §6.2.1)")  # fmt: skip
+    for name, group in zip(DICOM_PN_GROUPS, groups, strict=False):
+        if len(group) > DICOM_PN_GROUP_MAX_LENGTH:
+            return (f"has {len(group)} characters in its {name} component group: a PN holds at most "
+                    f"{DICOM_PN_GROUP_MAX_LENGTH} per component group (PS3.5 §6.2, Table 6.2-1)")  # fmt: skip
+        if group.count("^") > 4:
+            return (f"has {group.count('^') + 1} components in its {name} component group: a PN has at most 5, "
+                    "family^given^middle^prefix^suffix (PS3.5 §6.2.1)")  # fmt: skip
+    return None
 DICOM_TEXT_PATTERN = r"^[^\\\u0000-\u001f\u007f]*$"
 """A DICOM LO, SH or PN value as this contract takes it (PS3.5 §6.2): no backslash (5CH, the delimiter
 between the values of a multi-valued element) and no control character. The standard allows ESC
@@ -428,8 +450,8 @@ class Study(_Strict):
     patient_name: str | None = Field(
         None,
         max_length=DICOM_PN_MAX_LENGTH,
-        description="Patient's Name (0010,0010) in DICOM PN form (Family^Given^Middle^Prefix^Suffix), "
-        "at most 5 × 64 characters.",
+        description="Patient's Name (0010,0010) in DICOM PN form (Family^Given^Middle^Prefix^Suffix), up to three "
+        "component groups separated by '=' (alphabetic, ideographic, phonetic), each of at most 64 characters.",
     )
     accession_number: str | None = Field(
         None,
@@ -447,6 +469,14 @@ class Study(_Strict):
             return value
         if not re.fullmatch(DICOM_TEXT_PATTERN, value):
             raise ValueError(DICOM_TEXT_REASON)
+        return value
+
+    @field_validator("patient_name")
+    @classmethod
+    def _person_name(cls, value: str | None) -> str | None:
+        problem = None if value is None else person_name_problem(value)
+        if problem is not None:
+            raise ValueError(f"the Patient's Name {problem}")
         return value
 
     @field_validator("study_instance_uid", "series_instance_uid", "pa_sop_instance_uid", "lateral_sop_instance_uid")
@@ -565,11 +595,18 @@ class CobbCurve(BaseModel):
     angle_sd_deg: float | None = Field(
         None,
         description="1 SD of angle_deg, degrees (Laplace approximation, calibrated), with the spread of real "
-        "endplates about the centreline when no corner observed an end vertebra (docs/engine.md). Null when not "
-        "computed.",
+        "endplates about the centreline when no corner observed an end vertebra, and at least the population's SD "
+        "when an end vertebra lies beyond the PA film's landmarks (docs/engine.md). Null when not computed.",
     )
     major: bool = Field(description="True for the largest curve; exactly one when any curve exists.")
     convexity: Literal["left", "right"]
+    apical_disc: bool = Field(
+        False,
+        description="True when the curve's apex is the intervertebral disc between `apex` and the vertebra below it "
+        "(SRS apical disc): a curve of one segment, whose only vertebrae are its two end vertebrae; `apex` then names "
+        "the disc's upper vertebra. False: `apex` is the apical vertebra, strictly between the end vertebrae "
+        "(docs/measures.md).",
+    )
     apex_axial_rotation_deg: float
     plane_of_max_curvature_deg: float = Field(
         description="Azimuth of the plane of maximum curvature from the frontal plane toward "
@@ -597,7 +634,9 @@ class LargestCobbAngle(BaseModel):
         "θ of the frontal tilts, docs/measures.md), degrees; equals the major curve's angle_deg when `cobb` has one."
     )
     angle_sd_deg: float | None = Field(
-        None, description="1 SD of angle_deg, degrees, as a curve's angle_sd_deg. Null when not computed."
+        None,
+        description="1 SD of angle_deg, degrees, as a curve's angle_sd_deg, and at least the population's SD when "
+        "a level lies beyond the PA film's landmarks (docs/measures.md). Null when not computed.",
     )
     tilt_source: Literal["corners", "model", "mixed"] = Field(description="Where the two vertebrae's tilts come from.")
     reported_as_curve: bool = Field(
@@ -708,7 +747,7 @@ class PedicleResidual(BaseModel):
 
 
 Unreliable = Literal[
-    "scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist"
+    "scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"
 ]
 
 
@@ -804,7 +843,10 @@ class FitReport(BaseModel):
     unreliable: list[Unreliable] = Field(
         default_factory=list,
         description="Quantities that come from the model's priors more than from the input (docs/measures.md): "
-        "what no view determines, and kyphosis or lordosis whenever its SD exceeds half the population's.",
+        "what no view determines, kyphosis or lordosis whenever its SD exceeds half the population's, and 'cobb' "
+        "(the frontal Cobb angles: `measures.cobb`, `largest_cobb`, the Lenke curves) when one depends on a level "
+        "beyond the PA film's landmarks (a curve ending there; the largest angle whenever such a level exists) or "
+        "a Cobb angle's SD exceeds half the population's.",
     )
     tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)

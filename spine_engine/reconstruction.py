@@ -153,6 +153,9 @@ class RegistrationInputs:
     observed_sagittal: np.ndarray | None = None
     """(17,) bool: the vertebrae whose sagittal tilt is observed: the lateral view's corners, or T1
     and L5 given exactly (``boundary`` "given")."""
+    frontal_observed: np.ndarray | None = None
+    """(17,) bool: the levels whose frontal tilt the input shows (``frontal_observed_levels``); a Cobb
+    angle that depends on another level is the prior's (``_unseen_cobb``). None: every level."""
     boundary: str = "given"
     """"given" (T1 and L5 exact), "soft" (with SDs) or "estimated" (none: every vertebra free)."""
     pose_priors: tuple[PosePrior, ...] = ()
@@ -466,6 +469,7 @@ def prepare_inputs(
     if boundary == "given":  # T1's and L5's directors are given exactly
         observed_sagittal[[0, len(LEVELS) - 1]] = True
     unreliable = [] if placement is None else list(placement.unreliable)
+    frontal_observed = frontal_observed_levels(pa_arrays.indices, boundary)
     return RegistrationInputs(
         views=views,
         projections=projections,
@@ -479,10 +483,30 @@ def prepare_inputs(
         observed_tilt_deg=observed,
         observed_endplate_tilt_deg=endplates,
         observed_sagittal=observed_sagittal,
+        frontal_observed=frontal_observed,
         boundary=boundary,
         pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
     )
+
+
+def frontal_observed_levels(pa_indices: np.ndarray, boundary: str) -> np.ndarray:
+    """(17,) bool: the levels whose frontal tilt the input shows: every level from the highest to the
+    lowest the PA view landmarks (the span of the film's landmarks), and T1 and L5 when the boundary
+    gives their directors exactly (``boundary`` "given").
+
+    Between two landmarked levels the rod interpolates what the film shows, and how well is in the
+    Laplace SD (``_unreliable_by_sd``). Beyond them no film shows the spine (a lateral film sees no
+    frontal coordinate): a vertebra's tilt there is the rod's extrapolation under its prior, whose
+    mean frontal shape is straight, so a Cobb angle ending there is not one the films show, nor is a
+    largest angle sought over such levels (``_unseen_cobb``)."""
+    observed = np.zeros(len(LEVELS), dtype=bool)
+    indices = np.asarray(pa_indices, dtype=int)
+    if len(indices):
+        observed[int(indices.min()) : int(indices.max()) + 1] = True
+    if boundary == "given":
+        observed[[0, len(LEVELS) - 1]] = True
+    return observed
 
 
 def rod_parameters(rest: RestModel) -> RodParameters:
@@ -881,6 +905,9 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
         measures = _with_population_axial_rotation(measures, axial_rotation)
         if "axial_rotation" not in inputs.unreliable:  # T1 and L5 given: the vertebrae between are the population's
             inputs = dataclasses.replace(inputs, unreliable=[*inputs.unreliable, "axial_rotation"])
+    unseen = _unseen_cobb(measures, inputs.frontal_observed)
+    if any(unseen) and "cobb" not in inputs.unreliable:
+        inputs = dataclasses.replace(inputs, unreliable=[*inputs.unreliable, "cobb"])
     uncertainty: Uncertainty | None
     try:
         with np.errstate(over="raise", invalid="raise", divide="raise"):
@@ -891,6 +918,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
         measures = _measures_with_sds(measures, uncertainty)
         tilts = tilt_prior if tilt_prior is not None else load_tilt_prior()
         measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
+        measures = _with_unseen_cobb_floor(measures, unseen, profile)
         if sagittal_from_prior:
             measures = _with_prior_floor(measures, profile)
         if axial_rotation is not None:
@@ -1036,6 +1064,47 @@ def _with_model_tilt_sd(measures: Measures, sigma_deg: float) -> Measures:
     return measures.model_copy(update={"cobb": cobb, "largest_cobb": largest})
 
 
+def _unseen_cobb(measures: Measures, frontal_observed: np.ndarray | None) -> list[bool]:
+    """Per Cobb angle, in the order of ``_sd_pairs`` with the largest angle last (each curve of
+    ``measures.cobb``, then ``largest_cobb``): whether it depends on frontal tilts that only the prior
+    decides, on levels the input does not show (``frontal_observed``, ``frontal_observed_levels``). A
+    curve does when an end vertebra lies on such a level; the largest angle, the largest over all 17
+    levels, whenever one level is such: even when its two vertebrae are on the film, whether a larger
+    angle lies beyond it is the prior's answer."""
+    n = len(measures.cobb) + (measures.largest_cobb is not None)
+    if frontal_observed is None:
+        return [False] * n
+    unseen = [not (frontal_observed[LEVEL_INDEX[c.upper]] and frontal_observed[LEVEL_INDEX[c.lower]])
+              for c in measures.cobb]  # fmt: skip
+    if measures.largest_cobb is not None:
+        unseen.append(not bool(np.all(frontal_observed)))
+    return unseen
+
+
+def _with_unseen_cobb_floor(measures: Measures, unseen: list[bool], profile: Profile) -> Measures:
+    """Cobb angles that depend on a level the films do not show (``unseen``, ``_unseen_cobb``) come from
+    the prior, so their SD is at least the population's (``anatomy.PopulationPrior.measure_sd_deg``
+    ``major_cobb_deg``, AASCE 2019 training: 18.4°): SD = max(SD, population SD). The rod's Laplace SD
+    of such an angle is the prior's spread read at the calibrated prior weight λ (``fit.uncertainty``),
+    which was set for the positions of one PA film, not for a tilt no film shows (16–17° with PA
+    landmarks on T1–T4, 9° with a full lateral film besides, which sees no frontal coordinate)."""
+    prior = population_prior(profile)
+    floor = None if prior is None else prior.measure_sd_deg.get("major_cobb_deg")
+    if floor is None or not any(unseen):
+        return measures
+
+    def floored(sd: float | None) -> float | None:
+        return None if sd is None else max(sd, floor)
+
+    n = len(measures.cobb)
+    cobb = [c.model_copy(update={"angle_sd_deg": floored(c.angle_sd_deg)}) if unseen[k] else c
+            for k, c in enumerate(measures.cobb)]  # fmt: skip
+    largest = measures.largest_cobb
+    if largest is not None and unseen[n]:
+        largest = largest.model_copy(update={"angle_sd_deg": floored(largest.angle_sd_deg)})
+    return measures.model_copy(update={"cobb": cobb, "largest_cobb": largest})
+
+
 def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReading]) -> Measures:
     """Sagittal measures that no film determined (no lateral view) as calibrated on dev
     (``fit.uncertainty.PriorOnlyReading.reported``): the film's reading plus its offset where the
@@ -1074,24 +1143,33 @@ def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
 
 
 UNRELIABLE_SD_FRACTION = 0.5
-"""A sagittal measure is a model estimate (``fit.unreliable``) when its SD exceeds this fraction of the
+"""A measure is a model estimate (``fit.unreliable``) when its SD exceeds this fraction of the
 population's SD (``anatomy.PopulationPrior.measure_sd_deg``): the films then removed less than three
-quarters of the population's variance (1 − 0.5² = 0.75)."""
+quarters of the population's variance (1 − 0.5² = 0.75). Sagittal measures, and each Cobb angle
+against the major Cobb angle's population SD."""
 
 
 def _unreliable_by_sd(measures: Measures, profile: Profile, unreliable: list[Unreliable]) -> list[Unreliable]:
     """``unreliable`` plus "kyphosis" / "lordosis" when their SD exceeds ``UNRELIABLE_SD_FRACTION`` of
-    the population's (order kept, no duplicates)."""
+    the population's, and "cobb" when the SD of a curve's or of the largest Cobb angle does (order
+    kept, no duplicates)."""
     prior = population_prior(profile)
     if prior is None:
         return list(unreliable)
     out = list(unreliable)
-    for name, sd, population in (
-        ("kyphosis", measures.thoracic_kyphosis_t4_t12_sd_deg, prior.measure_sd_deg["kyphosis_t4_t12_deg"]),
-        ("lordosis", measures.lumbar_lordosis_l1_l5_sd_deg, prior.measure_sd_deg["lordosis_l1_l5_deg"]),
-    ):
-        if sd is not None and sd > UNRELIABLE_SD_FRACTION * population and name not in out:
-            out.append(name)  # type: ignore[arg-type]
+    cobb_sds = [c.angle_sd_deg for c in measures.cobb]
+    if measures.largest_cobb is not None:
+        cobb_sds.append(measures.largest_cobb.angle_sd_deg)
+    checks: list[tuple[Unreliable, list[float | None], float | None]] = [
+        ("kyphosis", [measures.thoracic_kyphosis_t4_t12_sd_deg], prior.measure_sd_deg["kyphosis_t4_t12_deg"]),
+        ("lordosis", [measures.lumbar_lordosis_l1_l5_sd_deg], prior.measure_sd_deg["lordosis_l1_l5_deg"]),
+        ("cobb", cobb_sds, prior.measure_sd_deg.get("major_cobb_deg")),
+    ]
+    for name, sds, population in checks:
+        if population is None or name in out:
+            continue
+        if any(sd is not None and sd > UNRELIABLE_SD_FRACTION * population for sd in sds):
+            out.append(name)
     return out
 
 

@@ -81,6 +81,9 @@ def test_population_prior_is_current() -> None:
     assert today is not None
     for key in ("sagittal_sd_deg", "frontal_sd_deg", "stretch_sd", "shear_sd", "twist_sd_deg", "size_mean", "size_sd"):
         np.testing.assert_allclose(today[key], shipped[key], rtol=1e-9, err_msg=key)
+    assert today["measure_sd_deg"].keys() == shipped["measure_sd_deg"].keys()
+    for name, sd in today["measure_sd_deg"].items():  # the floors of prior-decided measures' SDs
+        assert sd == pytest.approx(shipped["measure_sd_deg"][name], rel=1e-9), name
 
 
 @needs_aasce

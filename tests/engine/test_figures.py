@@ -71,6 +71,23 @@ def test_the_title_of_a_spine_below_the_threshold_gives_its_largest_angle() -> N
     assert text in render_figure(result, payload, "svg").decode()
 
 
+def test_the_title_marks_a_model_estimated_cobb_angle_and_names_an_apical_disc(
+    fitted: tuple[dict[str, Any], dict[str, Any]],
+) -> None:
+    """``fit.unreliable`` ``cobb``: the title's major Cobb angle says '(model estimate)', as its
+    kyphosis does when that is listed; a one-segment curve's apex is its disc ('L4/L5 disc')."""
+    result, payload = fitted
+    major = next(c for c in result["measures"]["cobb"] if c["major"])
+    plain = render_figure(result, payload, "svg").decode()
+    angle = f"major Cobb {major['angle_deg']:.1f}° ± {major['angle_sd_deg']:.1f}°"
+    assert f"{angle} (" in plain and f"{angle} (model estimate)" not in plain
+    flagged = {**result, "fit": {**result["fit"], "unreliable": [*result["fit"]["unreliable"], "cobb"]}}
+    assert f"{angle} (model estimate)" in render_figure(flagged, payload, "svg").decode()
+    disc = {**result, "measures": {**result["measures"], "cobb": [
+        {**major, "upper": "L4", "lower": "L5", "apex": "L4", "apical_disc": True}]}}  # fmt: skip
+    assert "L4–L5, apex L4/L5 disc" in render_figure(disc, payload, "svg").decode()
+
+
 def test_unknown_format_is_refused(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
     with pytest.raises(ValueError, match="unknown figure format"):
         render_figure(*fitted, "gif")  # type: ignore[arg-type]

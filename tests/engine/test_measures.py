@@ -185,3 +185,31 @@ def test_frontal_plane_value_is_the_frontal_cobb_without_axial_rotation() -> Non
         at_zero = _plane_cobb_deg(R[LEVEL_INDEX[c.upper]], R[LEVEL_INDEX[c.lower]], [0.0])[0]
         assert at_zero == pytest.approx(c.angle_deg, abs=1e-9)
         assert c.max_curvature_deg >= c.angle_deg - 1e-9
+
+
+def test_a_curve_of_one_segment_has_its_apex_at_the_disc() -> None:
+    """SRS: a curve's apex is its most deviated vertebra or disc. A 30° curve T1–L4 and a 12° curve of
+    one segment L4–L5 (a lumbosacral-like take-off): the long curve's apex is a vertebra strictly
+    between its ends; the short one has no vertebra between its ends, so its apex is the L4–L5 disc
+    (``apical_disc``, named by L4), not an end vertebra of its own (the old engine reported L4, an end
+    vertebra, as the apical vertebra)."""
+    tilts = [*np.linspace(0.0, -30.0, 16), -18.0]
+    m = compute_measures(*_from_tilts(tilts))
+    got = [(c.upper, c.lower, round(c.angle_deg, 9), c.apical_disc) for c in m.cobb]
+    assert got == [("T1", "L4", 30.0, False), ("L4", "L5", 12.0, True)]
+    long, short = m.cobb
+    assert LEVEL_INDEX[long.upper] < LEVEL_INDEX[long.apex] < LEVEL_INDEX[long.lower]
+    assert short.apex == "L4" and short.convexity == "right"  # the tilt rises caudally across it
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_apex_lies_strictly_between_the_end_vertebrae(seed: int) -> None:
+    """On synthetic spines (3D, one or two structural curves) read with a 5° threshold, so that the small
+    curves above and below count too: every curve of two or more segments has its apex strictly
+    between its end vertebrae; only a one-segment curve has an apical disc."""
+    s = generate_spine(seed)
+    m = compute_measures(s.positions, frames_from_centreline(s.positions), min_cobb_deg=5.0)
+    for c in m.cobb:
+        upper, apex, lower = LEVEL_INDEX[c.upper], LEVEL_INDEX[c.apex], LEVEL_INDEX[c.lower]
+        assert c.apical_disc == (lower - upper == 1)
+        assert upper < apex < lower or (c.apical_disc and apex == upper)
