@@ -6,8 +6,6 @@ request without a caller here, so nothing is ever skipped silently."""
 
 from __future__ import annotations
 
-import threading
-import time
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -21,29 +19,28 @@ from services.core.problems import problem
 from services.db import stats
 from services.db.keys import AuditAction, Caller, audit
 
-REFRESH_S = 1.0
 RETRY_AFTER_S = 30
 
 
 class QueuedCap:
+    """At most ``cap`` queued jobs per client (0: no cap; admins are never capped).
+
+    The count is made under the owner's submission lock (``stats.count_queued_for_insert``), in the
+    transaction that then inserts the jobs and commits, so concurrent submissions of one client are
+    counted one after another and never pass the cap together. Nothing is cached between requests: a
+    count remembered from an earlier request would let every request of a burst pass on it."""
+
     def __init__(self, cap: int):
         self.cap = cap
-        self._lock = threading.Lock()
-        self._known: dict[str, tuple[int, float]] = {}  # owner -> (queued count, when read)
 
     def admit(self, session: Session, caller: Caller, n: int) -> None:
-        """Raise a 429 problem when ``n`` more queued jobs would put ``caller`` over the cap."""
+        """Raise a 429 problem when ``n`` more queued jobs would put ``caller`` over the cap; otherwise
+        the owner's submissions stay locked until ``session``'s transaction, which inserts them, ends."""
         if self.cap <= 0 or caller.is_admin or n <= 0:
             return
-        now = time.monotonic()
-        with self._lock:
-            known = self._known.get(caller.owner)
-        if known is None or now - known[1] > REFRESH_S:
-            known = (stats.count_queued(session, caller.owner, self.cap + 1), now)
-            with self._lock:
-                self._known[caller.owner] = known
-        queued = known[0]
+        queued = stats.count_queued_for_insert(session, caller.owner, self.cap + 1)
         if queued + n > self.cap:
+            session.rollback()  # ends the transaction: the lock is released now, not when the request ends
             raise ProblemError(
                 problem(
                     "too-many-queued-jobs",
@@ -54,15 +51,6 @@ class QueuedCap:
                 ),
                 headers={"Retry-After": str(RETRY_AFTER_S)},
             )
-
-    def accepted(self, caller: Caller, n: int) -> None:
-        """Count ``n`` jobs just stored for ``caller`` until the next read of the database."""
-        if self.cap <= 0 or caller.is_admin or n <= 0:
-            return
-        with self._lock:
-            known = self._known.get(caller.owner)
-            if known is not None:
-                self._known[caller.owner] = (known[0] + n, known[1])
 
 
 @dataclass(frozen=True)
@@ -98,9 +86,6 @@ class Access:
         self.record(session, "create", job_ids, commit=False)
 
     def admit(self, session: Session, n: int) -> None:
-        """A 429 problem when ``n`` more queued jobs would put the caller over its cap."""
+        """A 429 problem when ``n`` more queued jobs would put the caller over its cap (called in the
+        transaction that inserts them: ``QueuedCap.admit``)."""
         self.cap.admit(session, self.caller, n)
-
-    def accepted(self, n: int) -> None:
-        """Count ``n`` jobs just stored against the caller's cap."""
-        self.cap.accepted(self.caller, n)

@@ -1,13 +1,13 @@
 """``POST /v1/jobs/batch`` with an ``Idempotency-Key``: a retried batch never makes two jobs.
 
-The write is ``services.db.jobs.create_jobs_idempotent`` (payload ``i`` under ``K#i``); an entry
-whose body differs from the one first sent under ``K#i`` gets an ``idempotency-conflict`` problem.
+The write is ``services.db.jobs.create_jobs_idempotent`` (payload ``i`` under ``K#i``, apart from the
+keys of single submissions); an entry whose body differs from the one first sent under ``K#i`` gets an
+``idempotency-conflict`` problem.
 """
 
 from __future__ import annotations
 
 import uuid
-from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from services.api.schemas import BatchEntry, BatchResponse, Job, Problem
 from services.core.problems import problem
 from services.db import jobs as jobs_repo
-from services.db.jobs import AdmitHook, InsertHook, create_jobs_idempotent, entry_key
+from services.db.jobs import AdmitHook, InsertHook, create_jobs_idempotent
 from services.db.runs import publish
 
 
@@ -29,15 +29,13 @@ def batch_response(
     valid: list[tuple[int, dict[str, Any]]],
     entries: list[BatchEntry | None],
     on_insert: InsertHook | None = None,
-    on_accepted: Callable[[int], None] | None = None,
     admit: AdmitHook | None = None,
 ) -> tuple[BatchResponse, bool]:
     """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones), and
     whether it only replayed jobs (then the answer carries ``Idempotent-Replayed: true``).
 
     ``admit(n)`` gets the number of new jobs before they are inserted (the cap; replays are not counted);
-    ``on_insert(session, ids)`` runs in the inserting transaction; ``on_accepted(n)`` gets the number of
-    jobs made (replays are not counted).
+    ``on_insert(session, ids)`` runs in the inserting transaction.
     """
     outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert,
                                       admit=admit) if valid else []  # fmt: skip
@@ -45,7 +43,8 @@ def batch_response(
     replayed = 0
     for (i, _), outcome in zip(valid, outcomes, strict=True):
         if isinstance(outcome, jobs_repo.IdempotencyConflict):
-            detail = f"the Idempotency-Key {entry_key(key, i)!r} was used for job {outcome.job_id} with another body"
+            detail = (f"entry {i} of a batch sent with the Idempotency-Key {key!r} made job {outcome.job_id} "
+                      "with another body")  # fmt: skip
             p = problem("idempotency-conflict", detail, instance="/v1/jobs/batch", job=f"/v1/jobs/{outcome.job_id}")
             entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
             continue
@@ -55,8 +54,6 @@ def batch_response(
         else:
             replayed += 1
         entries[i] = BatchEntry(index=i, status=202, job=Job.summary(job))
-    if on_accepted is not None:
-        on_accepted(len(created))
     publish(session, queue, created)
     accepted = sum(1 for e in entries if e is not None and e.status == 202)
     answer = BatchResponse(accepted=accepted, rejected=total - accepted, results=entries)

@@ -68,9 +68,15 @@ async def _request_validation(request: Request, exc: Exception) -> JSONResponse:
 
 
 async def _http_error(request: Request, exc: Exception) -> JSONResponse:
+    """Starlette's own errors. Its 404 is the router's (no route has the path) or a static mount's (no
+    such file): ``route-not-found``, not the ``not-found`` of a job the path names but that is not there."""
     assert isinstance(exc, StarletteHTTPException)
-    kind = {404: "not-found", 405: "method-not-allowed", 413: "payload-too-large", 415: "unsupported-media-type"}
-    body = problem(kind.get(exc.status_code, "http-error"), str(exc.detail), status=exc.status_code,
+    kind = {404: "route-not-found", 405: "method-not-allowed", 413: "payload-too-large",
+            415: "unsupported-media-type"}  # fmt: skip
+    detail = str(exc.detail)
+    if exc.status_code == 404:
+        detail = f"nothing is served at {request.url.path}; the API's paths are listed in /openapi.json"
+    body = problem(kind.get(exc.status_code, "http-error"), detail, status=exc.status_code,
                    instance=request.url.path)  # fmt: skip
     headers = dict(exc.headers) if exc.headers else {}
     if exc.status_code == 405:  # every method the path has, not only those of the first route matched

@@ -1,8 +1,10 @@
 """RFC 9457 problem details: the catalogue of problem kinds and a builder of problem dicts.
 
 Every error the API answers and every error stored on a failed job is such a dict, with a
-stable ``type`` URI per kind (``PROBLEM_BASE`` + kind). Validation problems carry ``errors``:
-one entry per offending field with its JSON path.
+stable ``type`` URI per kind (``PROBLEM_BASE`` + kind): one kind per kind of problem, so that a client
+can act on the type alone (RFC 9457 §3.1.1). ``not-found`` is a resource the path names but that does
+not exist (a job id); ``route-not-found`` a path that names nothing (a typo in the URL). Validation
+problems carry ``errors``: one entry per offending field with its JSON path.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ KINDS: dict[str, tuple[str, int]] = {
     "unsupported-media-type": ("The request body must be application/json", 415),
     "payload-too-large": ("The request body is too large", 413),
     "not-found": ("No such resource", 404),
+    "route-not-found": ("Nothing is served at this path", 404),
     "method-not-allowed": ("Method not allowed", 405),
     "idempotency-conflict": ("The Idempotency-Key was used with another body", 409),
     "job-not-cancellable": ("The job has already finished", 409),

@@ -7,7 +7,11 @@ job a second outcome; runs (claim, finish, reconcile) are in ``services.db.runs`
 
 A batch sent with an ``Idempotency-Key`` stores payload ``i`` under the job key ``K#i`` (per owner,
 the same unique index as single submissions), so the same key and body return the same jobs; an
-entry whose body differs from the one first sent under ``K#i`` is an ``IdempotencyConflict``.
+entry whose body differs from the one first sent under ``K#i`` is an ``IdempotencyConflict``. A
+single submission's key and a batch entry's are apart (``jobs.idempotency_kind``: ``batch`` for an
+entry, NULL for a single key), so a single POST keyed ``abc#0`` and entry 0 of the batch keyed ``abc``
+never answer for each other; a key with a ``#`` stored before migration 0012 (kind ``either``: the
+row does not say which request stored it) still answers both, as it did.
 """
 
 from __future__ import annotations
@@ -170,8 +174,8 @@ def create_job(
 def _detached(values: dict[str, Any]) -> Job:
     """A Job object holding what was just inserted (no read back)."""
     row = {"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
-           "idempotency_key": None, "request_hash": None, "callback_url": None, "lease_expires_at": None,
-           "dicom": None, **values}  # fmt: skip
+           "idempotency_key": None, "idempotency_kind": None, "request_hash": None, "callback_url": None,
+           "lease_expires_at": None, "dicom": None, **values}  # fmt: skip
     return Job(**row)
 
 
@@ -185,8 +189,16 @@ def _owner_match(owner: str | None) -> ColumnElement[bool]:
     return and_(func.coalesce(Job.owner, literal_column("''")) == (owner or ""), exact)
 
 
+BATCH_ENTRY = "batch"
+"""``jobs.idempotency_kind`` of a batch entry's key ``K#i`` (NULL: a single submission's key)."""
+EITHER = "either"
+"""``jobs.idempotency_kind`` of a key with a ``#`` stored before migration 0012: a single's or an entry's."""
+
+
 def _by_idempotency_key(session: Session, owner: str | None, key: str) -> Job | None:
-    return session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key == key)).first()
+    """The job stored under a single submission's ``key`` (one stored as ``either`` included)."""
+    single = or_(Job.idempotency_kind.is_(None), Job.idempotency_kind == EITHER)
+    return session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key == key, single)).first()
 
 
 def _replay(existing: Job, digest: str | None) -> tuple[Job, bool]:
@@ -338,49 +350,51 @@ def create_jobs_idempotent(
     on_insert: InsertHook | None = None,
     admit: AdmitHook | None = None,
 ) -> list[Outcome]:
-    """Store the (index, payload) pairs under ``key#index``; replay those already stored. ``admit(n)``
-    runs with the number of new jobs before they are inserted (replays are not counted)."""
+    """Store the (index, payload) pairs under ``key#index`` (kind ``batch``); replay those already
+    stored. ``admit(n)`` runs with the number of new jobs before they are inserted, in the inserting
+    transaction (replays are not counted).
+
+    When a concurrent request stored some of the keys first (the insert breaks the unique index), the
+    keys are looked up again and the rest inserted, admitted again: every job made here passes
+    ``admit``. Each such round inserts fewer rows than the one before (a key it lost is now stored);
+    an insert refused with as many rows as the round before is not a concurrent key, and is raised."""
     keys = [entry_key(key, i) for i, _ in payloads]
-    stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys)))
-    existing = {j.idempotency_key: j for j in stored}
-    now = utcnow()
-    outcomes: list[Outcome | None] = []
-    rows: list[dict[str, Any]] = []
-    slots: list[int] = []
-    for (_, payload), job_key in zip(payloads, keys, strict=True):
-        digest = request_hash(payload)
-        found = existing.get(job_key)
-        if found is not None:
-            outcomes.append((found, False) if found.request_hash == digest else IdempotencyConflict(found.id))
-            continue
-        slots.append(len(outcomes))
-        outcomes.append(None)
-        rows.append(_new_job(payload, owner, now, idempotency_key=job_key, request_hash=digest))
-    if rows:
-        if admit is not None:
-            admit(len(rows))
-        try:
-            session.execute(insert(Job), rows)
-            if on_insert is not None:
-                on_insert(session, [row["id"] for row in rows])
-            session.commit()
+    digests = [request_hash(payload) for _, payload in payloads]
+    entries = or_(Job.idempotency_kind == BATCH_ENTRY, Job.idempotency_kind == EITHER)
+    refused_with: int | None = None
+    while True:
+        stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys), entries))
+        existing = {j.idempotency_key: j for j in stored}
+        now = utcnow()
+        outcomes: list[Outcome | None] = []
+        rows: list[dict[str, Any]] = []
+        slots: list[int] = []
+        for (_, payload), job_key, digest in zip(payloads, keys, digests, strict=True):
+            found = existing.get(job_key)
+            if found is not None:
+                outcomes.append((found, False) if found.request_hash == digest else IdempotencyConflict(found.id))
+                continue
+            slots.append(len(outcomes))
+            outcomes.append(None)
+            rows.append(_new_job(payload, owner, now, idempotency_key=job_key, idempotency_kind=BATCH_ENTRY,
+                                 request_hash=digest))  # fmt: skip
+        if rows:
+            if admit is not None:
+                admit(len(rows))
+            try:
+                session.execute(insert(Job), rows)
+                if on_insert is not None:
+                    on_insert(session, [row["id"] for row in rows])
+                session.commit()
+            except IntegrityError:
+                session.rollback()
+                if refused_with is not None and len(rows) >= refused_with:
+                    raise
+                refused_with = len(rows)
+                continue
             for slot, row in zip(slots, rows, strict=True):
                 outcomes[slot] = _detached(row), True
-        except IntegrityError:  # a concurrent retry stored some of them first: one at a time
-            session.rollback()
-            for slot, row in zip(slots, rows, strict=True):
-                try:
-                    outcomes[slot] = _create_one(session, row, owner, on_insert)
-                except IdempotencyConflict as exc:
-                    outcomes[slot] = exc
-    return [o for o in outcomes if o is not None]
-
-
-def _create_one(session: Session, row: dict[str, Any], owner: str | None, on_insert: InsertHook | None) -> Outcome:
-    if on_insert is None:
-        return create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"])
-    return create_job(session, row["payload"], owner=owner, idempotency_key=row["idempotency_key"],
-                                on_insert=on_insert)  # type: ignore[call-arg, unused-ignore]  # fmt: skip
+        return [o for o in outcomes if o is not None]
 
 
 # ------------------------------------------------------------------ the job's JSON view

@@ -118,6 +118,10 @@ class Job(Base):
     error: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, nullable=True)
     engine_version: Mapped[str | None] = mapped_column(String(64), nullable=True)
     idempotency_key: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    idempotency_kind: Mapped[str | None] = mapped_column(String(6), nullable=True)
+    """Which request's key ``idempotency_key`` is (migration 0012): NULL a single submission's (or no key),
+    ``batch`` entry i of a batch's key K (stored as ``K#i``), ``either`` a key with a ``#`` stored before
+    0012, when the two shared one namespace (``services.db.jobs``: it answers both, as it did)."""
     request_hash: Mapped[str | None] = mapped_column(String(64), nullable=True)
     callback_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
@@ -160,11 +164,13 @@ class Job(Base):
         # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
         Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
               sqlite_where=text("status = 'running'")),
-        # Unique per owner; jobs without a key have no entry (NULLs never conflict in a unique index).
+        # Unique per owner and kind (a single key and a batch entry's K#i are apart, migration 0012); jobs
+        # without a key have no entry (NULLs never conflict in a unique index).
         Index(
             "uq_jobs_owner_idempotency_key",
             func.coalesce(owner, ""),  # type: ignore[arg-type]
             idempotency_key,  # type: ignore[arg-type]
+            func.coalesce(idempotency_kind, ""),  # type: ignore[arg-type]
             unique=True,
             **_where_not_null("idempotency_key"),
         ),

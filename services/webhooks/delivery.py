@@ -4,15 +4,17 @@
 ``signing.signed_headers``) without following redirects and without proxies from the environment, and
 reports the receiver's status, ``Retry-After`` and any transport error; ``retry_delay`` is the backoff
 before the next attempt (``Retry-After`` honoured). ``SPINE_WEBHOOK_TIMEOUT_S`` bounds the whole
-attempt (connect, send, and the receiver's answer), not each network operation: a receiver that
-drips its answer a byte at a time is cut off when the attempt's time is up. Recording, retrying and
-publishing are the worker's (``services.worker.webhook_tasks``).
+attempt (resolving the receiver's name, connect, send, and the receiver's answer), not each network
+operation: a receiver that drips its answer a byte at a time, or a name server that does not answer,
+is cut off when the attempt's time is up. Recording, retrying and publishing are the worker's
+(``services.worker.webhook_tasks``).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import socket
 import ssl
 import threading
 import time
@@ -97,8 +99,37 @@ class _DeadlineStream(httpcore.NetworkStream):
         return self._stream.get_extra_info(info)
 
 
+def _resolve(host: str, port: int, timeout: float | None) -> list[tuple[Any, ...]]:
+    """The TCP addresses of ``host`` (``socket.getaddrinfo``), or ``httpcore.ConnectTimeout`` once
+    ``timeout`` seconds have passed without them (None: no limit), or ``httpcore.ConnectError`` when
+    the name does not resolve.
+
+    ``getaddrinfo`` has no timeout of its own and cannot be interrupted (the C library's resolver waits
+    as its resolv.conf says: 5 s per try and server by default, resolv.conf(5)), so it runs in a daemon
+    thread that this call stops waiting for; a lookup left behind ends when the resolver gives up, and
+    its answer is dropped."""
+    done = threading.Event()
+    found: list[list[tuple[Any, ...]] | OSError] = []
+
+    def lookup() -> None:
+        try:
+            found.append(socket.getaddrinfo(host, port, type=socket.SOCK_STREAM))
+        except OSError as exc:
+            found.append(exc)
+        finally:
+            done.set()
+
+    threading.Thread(target=lookup, name="webhook-getaddrinfo", daemon=True).start()
+    if not done.wait(timeout):
+        raise httpcore.ConnectTimeout(f"no address for {host} within the attempt's time limit")
+    if isinstance(found[0], OSError):
+        raise httpcore.ConnectError(str(found[0]))
+    return found[0]
+
+
 class _DeadlineBackend(httpcore.NetworkBackend):
-    """The default network backend, with connections whose operations end by the attempt's deadline."""
+    """The default network backend, with the receiver's name resolved and its connections' operations
+    ended by the attempt's deadline."""
 
     def __init__(self) -> None:
         self._backend = httpcore.SyncBackend()
@@ -107,10 +138,19 @@ class _DeadlineBackend(httpcore.NetworkBackend):
         self, host: str, port: int, timeout: float | None = None, local_address: str | None = None,
         socket_options: Any = None,
     ) -> httpcore.NetworkStream:  # fmt: skip
-        stream = self._backend.connect_tcp(
-            host, port, _remaining(timeout, httpcore.ConnectTimeout), local_address, socket_options
-        )
-        return _DeadlineStream(stream)
+        """Each address of ``host`` in turn, as ``socket.create_connection`` tries them, until one
+        connects; the name's lookup and every try take what is left of the attempt. (TLS still names
+        ``host``: httpcore passes it to ``start_tls`` as the server name.)"""
+        failed: httpcore.ConnectError | httpcore.ConnectTimeout | None = None
+        for *_, address in _resolve(host, port, _remaining(timeout, httpcore.ConnectTimeout)):
+            left = _remaining(timeout, httpcore.ConnectTimeout)  # raises once the attempt's time is up
+            try:
+                stream = self._backend.connect_tcp(str(address[0]), port, left, local_address, socket_options)
+            except (httpcore.ConnectError, httpcore.ConnectTimeout) as exc:
+                failed = exc
+                continue
+            return _DeadlineStream(stream)
+        raise failed or httpcore.ConnectError(f"no address for {host}")
 
     def connect_unix_socket(
         self, path: str, timeout: float | None = None, socket_options: Any = None
@@ -157,7 +197,7 @@ def _client(timeout: float) -> httpx.Client:
 def post(url: str, body: bytes, headers: dict[str, str], timeout_s: float, *, spent_s: float = 0.0) -> PostOutcome:
     """POST ``body`` to ``url``; never raises for the receiver's faults (they are in the outcome).
 
-    The attempt, from connecting to the receiver's status line and headers, ends ``timeout_s`` after
+    The attempt, from resolving the receiver's name to its status line and headers, ends ``timeout_s`` after
     it started, ``spent_s`` ago (the caller's share of the attempt, before this call), whatever the
     receiver does (an answer dripped a byte at a time included): it is then recorded as timed out.
     The answer's body is never read.

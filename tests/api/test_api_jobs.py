@@ -209,10 +209,19 @@ def test_cancel_queued_job_and_cancel_again(api: TestClient, payload: dict[str, 
 
 
 def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None:
+    """Each its own problem type (RFC 9457 §3.1.1: the type identifies the problem): an unknown route
+    had the type of an unknown job, so a client could not tell a typo in its URL from a job gone."""
     missing = uuid.uuid4()
-    for response in (api.get(f"/v1/jobs/{missing}"), api.post(f"/v1/jobs/{missing}/cancel"), api.get("/v2/x")):
+    for response in (api.get(f"/v1/jobs/{missing}"), api.post(f"/v1/jobs/{missing}/cancel")):
         assert response.status_code == 404
         assert problem_of(response)["type"] == PROBLEM_BASE + "not-found"
+        assert problem_of(response)["detail"] == f"there is no job {missing}"
+    for path in ("/v2/x", "/v1/job", f"/v1/jobs/{missing}/nothing", "/assets/no-such-file.js"):
+        response = api.get(path)
+        assert response.status_code == 404, path
+        problem = problem_of(response)
+        assert problem["type"] == PROBLEM_BASE + "route-not-found" and problem["instance"] == path
+        assert problem["title"] == "Nothing is served at this path" and path in problem["detail"]
     malformed = api.get("/v1/jobs/not-a-uuid")
     assert malformed.status_code == 422
     assert problem_of(malformed)["errors"][0]["path"] == "path.job_id"

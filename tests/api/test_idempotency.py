@@ -21,7 +21,7 @@ from tests.conftest import problem_of, spine_payload
 
 ROOT = Path(__file__).resolve().parents[2]
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
-ROW_OWN = {"id", "created_at", "enqueued_at", "idempotency_key", "request_hash"}
+ROW_OWN = {"id", "created_at", "enqueued_at", "idempotency_key", "idempotency_kind", "request_hash"}
 """Columns that differ between two jobs of one payload whatever path made them."""
 
 
@@ -112,3 +112,32 @@ def test_the_submit_answers_carry_the_headers_the_contract_documents(api: TestCl
     assert first.status_code == again.status_code == 200
     assert "Idempotent-Replayed" not in first.headers and again.headers["Idempotent-Replayed"] == "true"
     assert first.json()["results"][0]["job"]["id"] == again.json()["results"][0]["job"]["id"]
+
+
+@BACKENDS
+def test_a_single_key_and_a_batch_entry_never_answer_for_each_other(client: TestClient) -> None:
+    """A batch keyed ``abc`` stored entry 0 under ``abc#0``, in the namespace of single keys: a single
+    POST keyed ``abc#0`` got the batch's job back as its replay (or a 409 for another body), and a batch
+    whose entry key a single POST had used got a 409 entry. The draft's Idempotency-Key is any sf-string
+    (``#`` included), so the two are kept apart instead; each still replays its own request."""
+    payload, other = spine_payload(), spine_payload(curve_mm=25.0)
+    batch = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={"Idempotency-Key": "abc"})
+    assert batch.status_code == 200 and batch.json()["accepted"] == 1
+    entry = batch.json()["results"][0]["job"]["id"]
+    same = client.post("/v1/jobs", json=payload, headers={"Idempotency-Key": "abc#0"})
+    assert same.status_code == 202 and "Idempotent-Replayed" not in same.headers, same.text
+    assert same.json()["id"] != entry  # a new job, not the batch's
+    another = client.post("/v1/jobs", json=other, headers={"Idempotency-Key": "abc#1"})
+    single = client.post("/v1/jobs", json=other, headers={"Idempotency-Key": "xyz#0"})
+    assert another.status_code == single.status_code == 202, (another.text, single.text)
+    later = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={"Idempotency-Key": "xyz"})
+    assert later.status_code == 200 and later.json()["results"][0]["status"] == 202, later.text
+    assert later.json()["results"][0]["job"]["id"] != single.json()["id"]
+    # each request replays as itself
+    again = client.post("/v1/jobs/batch", json={"jobs": [payload]}, headers={"Idempotency-Key": "abc"})
+    assert again.json()["results"][0]["job"]["id"] == entry and again.headers["Idempotent-Replayed"] == "true"
+    resent = client.post("/v1/jobs", json=payload, headers={"Idempotency-Key": "abc#0"})
+    assert resent.json()["id"] == same.json()["id"] and resent.headers["Idempotent-Replayed"] == "true"
+    changed = client.post("/v1/jobs", json=other, headers={"Idempotency-Key": "abc#0"})
+    assert changed.status_code == 409 and problem_of(changed)["job"] == f"/v1/jobs/{same.json()['id']}"
+    assert len(client.get("/v1/jobs").json()["jobs"]) == 5

@@ -39,3 +39,14 @@ def test_contract_shape() -> None:
     components = schema["components"]["schemas"]
     assert {"JobPayload", "PAView", "Boundary", "Pose", "RegistrationResult", "Job", "Problem"} <= components.keys()
     assert "application/problem+json" in paths["/v1/jobs"]["post"]["responses"]["422"]["content"]
+
+
+def test_readyz_documents_the_schema_check_and_what_to_do() -> None:
+    """/readyz is not ready when the database's schema is not at the code's Alembic head, and its 503
+    then says to run `spine migrate`: the contract said only "the database and the broker are reachable"."""
+    readyz = yaml.safe_load((ROOT / "openapi.yaml").read_text())["paths"]["/readyz"]["get"]
+    assert "schema" in readyz["summary"]
+    assert "Alembic head" in readyz["description"] and "spine migrate" in readyz["description"]
+    unready = readyz["responses"]["503"]
+    assert "spine migrate" in unready["description"] and set(unready["headers"]) == {"Retry-After"}
+    assert unready["content"]["application/problem+json"]["schema"] == {"$ref": "#/components/schemas/Problem"}

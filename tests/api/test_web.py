@@ -53,7 +53,7 @@ def test_nothing_of_the_api_is_shadowed(api: TestClient) -> None:
     assert api.get("/openapi.json").status_code == 200
     assert api.get("/v1/jobs").status_code == 200
     missing = api.get("/v1/nothing-here")
-    assert missing.status_code == 404 and missing.json()["type"] == PROBLEM_BASE + "not-found"
+    assert missing.status_code == 404 and missing.json()["type"] == PROBLEM_BASE + "route-not-found"
     assert api.get("/assets/no-such-file.js").status_code == 404
     assert api.post("/").status_code == 405
     assert "/" not in api.get("/openapi.json").json()["paths"]

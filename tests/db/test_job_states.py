@@ -243,6 +243,34 @@ def test_idempotency_key_is_unique_per_owner(db_settings: Settings) -> None:
 
 
 @BACKENDS
+def test_a_batch_that_loses_a_key_to_a_concurrent_request_admits_the_rest_again(db_settings: Settings) -> None:
+    """Between a keyed batch's lookup and its insert, a concurrent request stores one of its keys (the
+    same body): the insert breaks the unique index, and the entries left are looked up again, admitted
+    again (the cap counts what they add now) and stored as batch entries; the lost one replays the other's
+    job. Before, they were stored one at a time by the single-key path, which the cap never saw."""
+    owner, key = f"c-{uuid.uuid4().hex[:8]}", "K"
+    payloads = [(0, spine_payload()), (1, spine_payload(curve_mm=3.0)), (2, spine_payload(curve_mm=4.0))]
+    admitted: list[int] = []
+    others: list[uuid.UUID] = []
+
+    def admit(n: int) -> None:
+        admitted.append(n)
+        if not others:  # the concurrent request, in a session of its own, commits first
+            with session_scope(db_settings) as other:
+                [(job, made)] = repo.create_jobs_idempotent(other, payloads[:1], owner=owner, key=key)
+                assert made
+                others.append(job.id)
+
+    with session_scope(db_settings) as s:
+        outcomes = repo.create_jobs_idempotent(s, payloads, owner=owner, key=key, admit=admit)
+        assert admitted == [3, 2]
+        made = [outcome for outcome in outcomes if isinstance(outcome, tuple)]
+        assert [created for _, created in made] == [False, True, True] and made[0][0].id == others[0]
+        kinds = s.execute(select(Job.idempotency_key, Job.idempotency_kind).where(Job.owner == owner)).all()
+        assert sorted(kinds) == [("K#0", "batch"), ("K#1", "batch"), ("K#2", "batch")]
+
+
+@BACKENDS
 def test_migrations_go_down_and_up_again(db_settings: Settings) -> None:
     downgrade(db_settings, "base")
     assert set(inspect(get_engine(db_settings)).get_table_names()) <= {"alembic_version"}

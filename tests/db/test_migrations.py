@@ -4,6 +4,7 @@ every revision goes down and up again."""
 
 from __future__ import annotations
 
+import uuid
 import warnings
 from pathlib import Path
 from typing import Any
@@ -12,11 +13,14 @@ import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, create_engine, inspect
+from sqlalchemy import Engine, create_engine, insert, inspect, select
+from sqlalchemy.orm import Session
 
 from services.core.config import Settings
+from services.db import jobs as repo
 from services.db.migrate import alembic_config, downgrade, upgrade
-from services.db.models import Base
+from services.db.models import Base, Job, utcnow
+from tests.conftest import spine_payload
 
 EXPECTED_TABLES = {"jobs", "job_measures", "vertebra_strains", "api_keys", "job_audit", "webhook_deliveries"}
 
@@ -162,5 +166,44 @@ def test_the_bending_columns_keep_their_values_across_the_rename(tmp_path: Path)
         with engine.connect() as conn:
             by_view = "SELECT pa_bending_deg, lateral_bending_deg FROM vertebra_strains"
             assert conn.exec_driver_sql(by_view).one() == (1.5, -0.25)
+    finally:
+        engine.dispose()
+
+
+def test_keys_stored_before_0012_replay_as_before_and_new_ones_are_apart(empty_db: Settings) -> None:
+    """Revision 0012 keeps a single submission's Idempotency-Key and a batch entry's (``K#i``) apart.
+    A key with a ``#`` stored before it may be either (the row does not say): it still replays both ways,
+    as it did; a key without one is a single's. Keys stored after it are apart, and going down keeps the
+    single's key where the two meet (the older unique index allows one)."""
+    upgrade(empty_db, "0011_bending_by_plane", quiet=True)
+    engine = create_engine(empty_db.sqlalchemy_url)
+    p, q, r = spine_payload(), spine_payload(curve_mm=25.0), spine_payload(curve_mm=5.0)
+    legacy = {"K#0": p, "S#1": q, "plain": r}  # a batch's entry 0, a single's key with a '#', a single's
+    ids = {key: uuid.uuid4() for key in legacy}
+    now = utcnow()
+    try:
+        with engine.begin() as conn:  # the columns of 0011: no idempotency_kind
+            conn.execute(insert(Job), [
+                {"id": ids[key], "owner": "c", "status": "queued", "created_at": now, "enqueued_at": now,
+                 "attempts": 0, "payload": payload, "idempotency_key": key, "request_hash": repo.request_hash(payload)}
+                for key, payload in legacy.items()
+            ])  # fmt: skip
+        upgrade(empty_db, quiet=True)
+        with Session(engine) as s:
+            kinds = dict(s.execute(select(Job.idempotency_key, Job.idempotency_kind).where(Job.owner == "c")).all())
+            assert kinds == {"K#0": "either", "S#1": "either", "plain": None}
+            for key, payload in (("K", p), ("S", q)):  # a batch sent again, and a single, each replayed
+                [(job, created)] = repo.create_jobs_idempotent(s, [(int(key == "S"), payload)], owner="c", key=key)
+                assert (job.id, created) == (ids[f"{key}#{int(key == 'S')}"], False)
+            for key, payload in legacy.items():
+                assert repo.create_job(s, payload, owner="c", idempotency_key=key) == (s.get(Job, ids[key]), False)
+            [(entry, created)] = repo.create_jobs_idempotent(s, [(0, p)], owner="c", key="N")
+            single, made = repo.create_job(s, q, owner="c", idempotency_key="N#0")  # another body: not a 409
+            assert created and made and entry.id != single.id
+        downgrade(empty_db, "0011_bending_by_plane")
+        with engine.connect() as conn:
+            keys = dict(conn.execute(select(Job.id, Job.idempotency_key).where(Job.owner == "c")).all())
+        assert keys[single.id] == "N#0" and keys[entry.id] is None
+        assert {keys[i] for i in ids.values()} == set(legacy)
     finally:
         engine.dispose()

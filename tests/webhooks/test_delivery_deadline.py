@@ -1,6 +1,7 @@
 """SPINE_WEBHOOK_TIMEOUT_S bounds a whole delivery attempt: a real local receiver that drips its
 answer one byte at a time (each gap shorter than the timeout) is cut off when the attempt's time is
-up, and the attempt is recorded as timed out and retried."""
+up, and the attempt is recorded as timed out and retried; the receiver's name is resolved within the
+same time (a resolver that hangs is the one function substituted, ``socket.getaddrinfo``)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 from sqlalchemy import select
@@ -23,6 +25,8 @@ from tests.interop_helpers import cancelled_job_calling
 ANSWER = b"HTTP/1.1 200 OK\r\nX-Pad: " + b"a" * 30 + b"\r\ncontent-length: 0\r\n\r\n"
 TIMEOUT_S = 1.0
 SLACK_S = 0.8
+HANG_S = 5.0
+"""How long the substituted resolver hangs (then fails, as a resolver gives up): past TIMEOUT_S + SLACK_S."""
 
 
 class DrippingReceiver:
@@ -103,3 +107,52 @@ def test_a_timed_out_attempt_is_recorded_and_retried(db_settings: Settings, drip
         assert row.status_code is None and row.error is not None and "Timeout" in row.error
         assert row.next_attempt_at is not None
     assert dripping.requests == 1
+
+
+def _hang_on(name: str, release: threading.Event) -> Callable[..., Any]:
+    """``socket.getaddrinfo``, but for ``name`` it hangs until ``release`` (at most HANG_S) and then fails
+    as a resolver that gave up does."""
+    resolve = socket.getaddrinfo
+
+    def getaddrinfo(host: Any, *args: Any, **kwargs: Any) -> Any:
+        if host == name:
+            release.wait(HANG_S)
+            raise socket.gaierror(socket.EAI_AGAIN, "Temporary failure in name resolution")
+        return resolve(host, *args, **kwargs)
+
+    return getaddrinfo
+
+
+HANGS = "hooks.hangs.example"
+"""A name under .example, reserved and never a real host (RFC 2606 §3)."""
+
+
+def test_a_name_not_resolved_in_time_ends_the_attempt_at_its_time_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The receiver's name was resolved outside the attempt's deadline (``socket.getaddrinfo`` in the
+    connect, which no timeout bounds): a resolver that hung held the attempt as long as it hung."""
+    release = threading.Event()
+    monkeypatch.setattr(socket, "getaddrinfo", _hang_on(HANGS, release))
+    started = time.monotonic()
+    try:
+        sent = post(f"http://{HANGS}:8080/hook", b"{}", {"content-type": "application/json"}, TIMEOUT_S)
+    finally:
+        took = time.monotonic() - started
+        release.set()
+    assert took < TIMEOUT_S + SLACK_S, f"the attempt took {took:.1f} s under a {TIMEOUT_S} s limit"
+    assert sent.status_code is None and sent.error is not None
+    assert sent.error.startswith("ConnectTimeout") and "SPINE_WEBHOOK_TIMEOUT_S" in sent.error, sent.error
+
+
+def test_what_the_caller_spent_leaves_the_resolution_less_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lookup gets what is left of the attempt, not a timeout of its own: an attempt of which the
+    caller already spent all but 0.2 s ends about 0.2 s later, while its name is still resolving."""
+    release = threading.Event()
+    monkeypatch.setattr(socket, "getaddrinfo", _hang_on(HANGS, release))
+    started = time.monotonic()
+    try:
+        sent = post(f"http://{HANGS}/hook", b"{}", {}, TIMEOUT_S, spent_s=TIMEOUT_S - 0.2)
+    finally:
+        took = time.monotonic() - started
+        release.set()
+    assert took < 0.2 + SLACK_S, f"the attempt took {took:.1f} s with 0.2 s left"
+    assert sent.error is not None and sent.error.startswith("ConnectTimeout"), sent.error

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 from alembic.script import ScriptDirectory
 from fastapi import APIRouter, Request
@@ -26,15 +27,30 @@ def healthz() -> Health:
     return Health(status="ok", checks={})
 
 
+READY_503: dict[int | str, dict[str, Any]] = {
+    503: {
+        **problem_responses(503)[503],
+        "description": "Not ready: a `service-unavailable` problem whose `detail` and `checks` name each "
+        "dependency that is not (`database`, `broker`) and why; a schema not migrated says to run "
+        "`spine migrate`.",
+        "headers": {
+            "Retry-After": {"description": "Seconds to wait before asking again.", "schema": {"type": "integer"}}
+        },
+    }
+}
+
+
 @router.get(
     "/readyz",
     response_model=Health,
-    summary="The database and the broker are reachable",
-    responses=problem_responses(503),
+    summary="The database (its schema migrated) and the broker are ready",
+    description="200 when the database answers and its schema is at this release's Alembic head (`spine migrate` "
+    "has run), and the broker answers. Otherwise 503 with `checks` per dependency: the database unreachable; its "
+    "schema not migrated (no revision, or an older one than this release's head: run `spine migrate`); migrated "
+    "by a newer release (run the release that migrated it); the broker unreachable.",
+    responses=READY_503,
 )
 def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | JSONResponse:
-    # Ready when the database answers and its schema is at the code's Alembic head (`spine migrate`
-    # done), and the broker answers. (A comment: a docstring would change the contract's description.)
     checks: dict[str, str] = {}
     try:
         session.execute(text("SELECT 1"))

@@ -66,7 +66,8 @@ IDEMPOTENCY_KEY = (
 BATCH_IDEMPOTENCY_KEY = (
     "Makes a retry safe: payload i is stored under <key>#i (the key 1 to 240 characters, per client), so the same "
     "key and body return the same jobs, without making others and whatever the client's queued-job cap; an entry "
-    "whose body changed is a 409 entry. An empty value is refused (422)."
+    "whose body changed is a 409 entry. These keys are apart from those of POST /v1/jobs (one keyed <key>#i is "
+    "another request). An empty value is refused (422)."
 )
 REPLAYED_HEADER: dict[str, Any] = {
     "description": "`true` when the answer replays what an earlier request with the same Idempotency-Key made "
@@ -138,7 +139,6 @@ def submit_job(
             )
         ) from None
     if created:
-        access.accepted(1)
         publish(session, queue, [job.id])
     else:
         access.record(session, "read", [job.id])
@@ -195,7 +195,7 @@ def submit_batch(
     if idempotency_key is not None:  # the cap counts the new jobs only, after the keys' lookup
         answer, replayed_only = batch_response(session, queue, owner=access.owner, key=idempotency_key,
                                                total=len(payloads), valid=valid, entries=entries,
-                                               on_insert=access.created, on_accepted=access.accepted,
+                                               on_insert=access.created,
                                                admit=partial(access.admit, session))  # fmt: skip
         if replayed_only:
             response.headers["Idempotent-Replayed"] = "true"
@@ -203,7 +203,6 @@ def submit_batch(
     access.admit(session, len(valid))
     jobs = jobs_repo.create_jobs(session, [p for _, p in valid], owner=access.owner,
                                  on_insert=access.created) if valid else []  # fmt: skip
-    access.accepted(len(jobs))
     publish(session, queue, [job.id for job in jobs])
     for (i, _), job in zip(valid, jobs, strict=True):
         entries[i] = BatchEntry(index=i, status=202, job=Job.summary(job))
