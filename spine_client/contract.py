@@ -131,6 +131,7 @@ class CobbCurve(OpenModel):
     angle_sd_deg: float | None = None
     major: bool
     convexity: Literal["left", "right"]
+    apical_disc: bool = False
     apex_axial_rotation_deg: float
     plane_of_max_curvature_deg: float
     max_curvature_deg: float
@@ -199,7 +200,7 @@ class FitReport(OpenModel):
     lateral: ViewProjection | None = None
     boundary: Literal["given", "soft", "estimated"] = "given"
     unreliable: list[
-        Literal["scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist"]
+        Literal["scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"]
     ] = Field(default_factory=list)
     tilt_prior: bool = False
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)
@@ -330,6 +331,7 @@ class MeasureValue(OpenModel):
     value_deg: float
     sd_deg: float | None = None
     levels: str | None = None
+    model_estimate: str | None = None
 
 
 class Measures(OpenModel):

@@ -14,11 +14,14 @@ import io
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+DEPRECATED_VERTEBRA_COLUMNS = ("pa_bending_deg", "lateral_bending_deg")
+"""The result contract's deprecated aliases of ``sagittal_bending_deg`` and ``frontal_bending_deg``
+(same values), kept as the last columns until the contract removes them (docs/client.md)."""
 VERTEBRA_COLUMNS = [
     "level", "x_mm", "y_mm", "z_mm", "position_sd_x_mm", "position_sd_y_mm", "position_sd_z_mm",
     "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
-    "pa_bending_deg", "lateral_bending_deg", "twist_deg", "axial_rotation_deg", "axial_rotation_sd_deg",
-    "frontal_tilt_deg", "model_estimate",
+    "sagittal_bending_deg", "frontal_bending_deg", "twist_deg", "axial_rotation_deg", "axial_rotation_sd_deg",
+    "frontal_tilt_deg", "model_estimate", *DEPRECATED_VERTEBRA_COLUMNS,
 ]  # fmt: skip
 MEASURE_COLUMNS = ["measure", "value", "sd", "unit", "upper", "lower", "apex", "convexity", "major", "model_estimate"]
 MODEL_MARK = "model estimate"
@@ -27,11 +30,10 @@ MODEL_COLUMNS: dict[str, tuple[str, ...]] = {
     "depth": ("y_mm",),
     "axial_rotation": ("axial_rotation_deg",),
     "twist": ("u3_rad_per_mm", "twist_deg"),
-    "kyphosis": ("pa_bending_deg",),
+    "kyphosis": ("sagittal_bending_deg", "pa_bending_deg"),
 }
 """The vertebra columns that come from the model's prior when ``fit.unreliable`` names the quantity
-(the page's ``MODEL_COLUMNS``; ``pa_bending_deg`` is the sagittal bending, the page's
-``sagittal_bending_deg``)."""
+(the page's ``MODEL_COLUMNS``, with the deprecated alias ``pa_bending_deg`` while it is a column)."""
 SUMMARY_COLUMNS = [
     "file", "job_id", "status", "major_cobb_deg", "major_upper", "major_lower", "major_apex", "major_convexity",
     "thoracic_kyphosis_t4_t12_deg", "lumbar_lordosis_l1_l5_deg", "mean_registration_error_mm", "problem_type",
@@ -71,12 +73,14 @@ def vertebrae_csv(result: dict[str, Any]) -> str:
         s = v.get("v") or (None, None, None)
         sd = v.get("position_sd_mm") or (None, None, None)
         x, y, z = v["position"]
+        sagittal = v.get("sagittal_bending_deg", v.get("pa_bending_deg"))
+        frontal = v.get("frontal_bending_deg", v.get("lateral_bending_deg"))
         rows.append({
             "level": v["level"], "x_mm": x, "y_mm": y, "z_mm": z,
             "position_sd_x_mm": sd[0], "position_sd_y_mm": sd[1], "position_sd_z_mm": sd[2],
             "u1_rad_per_mm": u[0], "u2_rad_per_mm": u[1], "u3_rad_per_mm": u[2], "v1": s[0], "v2": s[1], "v3": s[2],
-            "pa_bending_deg": v.get("sagittal_bending_deg", v.get("pa_bending_deg")),
-            "lateral_bending_deg": v.get("frontal_bending_deg", v.get("lateral_bending_deg")),
+            "sagittal_bending_deg": sagittal, "frontal_bending_deg": frontal,
+            "pa_bending_deg": sagittal, "lateral_bending_deg": frontal,
             "twist_deg": v.get("twist_deg"), "axial_rotation_deg": v.get("axial_rotation_deg"),
             "axial_rotation_sd_deg": v.get("axial_rotation_sd_deg"), "frontal_tilt_deg": v.get("frontal_tilt_deg"),
             "model_estimate": model,
@@ -87,8 +91,8 @@ def vertebrae_csv(result: dict[str, Any]) -> str:
 def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     """The measures' rows, each with its SD (when the result gives one) and its model-estimate mark
     (the page's ``measureRows``: the apex's rotation when ``axial_rotation`` is unreliable, the plane
-    of maximum curvature and the Cobb angle in it when ``plane_of_max_curvature`` is, kyphosis and
-    lordosis by their names)."""
+    of maximum curvature and the Cobb angle in it when ``plane_of_max_curvature`` is, the frontal Cobb
+    angles when ``cobb`` is, kyphosis and lordosis by their names)."""
     measures = result.get("measures") or {}
     unreliable = set(_unreliable(result))
 
@@ -102,7 +106,8 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
                  "major": bool(c.get("major"))}  # fmt: skip
         plane = mark("plane_of_max_curvature")
         rows += [
-            {"measure": "cobb_angle", "value": c["angle_deg"], "sd": c.get("angle_sd_deg"), "unit": "deg", **where},
+            {"measure": "cobb_angle", "value": c["angle_deg"], "sd": c.get("angle_sd_deg"), "unit": "deg", **where,
+             "model_estimate": mark("cobb")},
             {"measure": "apex_axial_rotation", "value": c["apex_axial_rotation_deg"], "sd": rotation_sd.get(c["apex"]),
              "unit": "deg", **where, "model_estimate": mark("axial_rotation")},
             {"measure": "plane_of_max_curvature", "value": c["plane_of_max_curvature_deg"], "unit": "deg", **where,
@@ -113,7 +118,8 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     largest = measures.get("largest_cobb")
     if largest and not largest.get("reported_as_curve"):  # no curve of 10°: the page's "largest frontal angle"
         rows.append({"measure": "largest_cobb_angle", "value": largest["angle_deg"], "sd": largest.get("angle_sd_deg"),
-                     "unit": "deg", "upper": largest["upper"], "lower": largest["lower"]})  # fmt: skip
+                     "unit": "deg", "upper": largest["upper"], "lower": largest["lower"],
+                     "model_estimate": mark("cobb")})  # fmt: skip
     for name, upper, lower, quantity in (
         ("thoracic_kyphosis_t4_t12", "T4", "T12", "kyphosis"),
         ("thoracic_kyphosis_t5_t12", "T5", "T12", "kyphosis"),

@@ -195,8 +195,13 @@ class MeasureValue(BaseModel):
     value_deg: float = Field(description="The measure, degrees.")
     sd_deg: float | None = Field(None, description="1 SD of the measure, degrees; null when the job has none.")
     levels: str | None = Field(
-        None, description="For a Cobb angle its end vertebrae and apex (e.g. 'T5–T12, apex T8'); for the apex "
-        "rotation the apex vertebra."
+        None, description="For a Cobb angle its end vertebrae and apex (e.g. 'T5–T12, apex T8'; 'L4–L5, apex "
+        "L4/L5 disc' for a curve of one segment); for the apex rotation the apex vertebra."
+    )  # fmt: skip
+    model_estimate: str | None = Field(
+        None, description="Why the value comes from the spine model's prior rather than the films (the job's "
+        "fit.unreliable or fit.assumed, in words, as the SR and FHIR export say it); null when the films determine "
+        "it. A change involving such a value compares model estimates."
     )  # fmt: skip
 
 

@@ -22,12 +22,12 @@ def model_estimate_reason(fit: Mapping[str, Any], quantity: str, level: str | No
     ending with the result's entry that says so; None when the films determine it.
 
     ``quantity`` is a ``fit.unreliable`` name (``axial_rotation``, ``kyphosis``, ``lordosis``,
-    ``plane_of_max_curvature``, ``twist``...), ``level`` the vertebra an axial rotation is of. A value
-    is a model estimate when ``fit.unreliable`` lists its quantity, and an axial rotation also when
-    ``fit.assumed`` names ``population_axial_rotation`` (no pedicles: the population's mean given the
-    frontal curves); never T1's and L5's axial rotation when the boundary was given exactly (their
-    poses, the payload's). The SR marks these values MODEL-BASED (``services.dicom.sr.model_based``) and
-    the FHIR export notes them (``services.fhir.export``)."""
+    ``plane_of_max_curvature``, ``twist``, ``cobb``: every frontal Cobb angle, the largest included...), ``level``
+    the vertebra an axial rotation is of. A value is a model estimate when ``fit.unreliable`` lists its quantity,
+    and an axial rotation also when ``fit.assumed`` names ``population_axial_rotation`` (no pedicles: the
+    population's mean given the frontal curves); never T1's and L5's axial rotation when the boundary was given
+    exactly (their poses, the payload's). The SR marks these values MODEL-BASED (``services.dicom.sr.model_based``)
+    and the FHIR export notes them (``services.fhir.export``)."""
     unreliable = set(fit.get("unreliable") or [])
     boundary = fit.get("boundary", "given")
     if quantity == "axial_rotation":
@@ -55,6 +55,10 @@ def model_estimate_reason(fit: Mapping[str, Any], quantity: str, level: str | No
                                                                                   "T1 and L5 not given")  # fmt: skip
         return f"{films} ({ends}): its standard deviation exceeds half the population's, so it stays close to the " \
             f"spine model's prior (fit.unreliable: {quantity})"
+    if quantity == "cobb":
+        return "the PA film's landmarks do not reach every level from T1 to L5, or a Cobb angle's standard deviation " \
+            "exceeds half the population's: the frontal Cobb angles depend on the spine model's prior where no " \
+            "landmark is, and each such angle's SD is at least the population's (fit.unreliable: cobb)"
     if quantity == "plane_of_max_curvature":
         ends = " and T1 and L5 were not given" if boundary == "estimated" else ""
         return f"fewer than 2 lateral landmarks place the spine in depth{ends}: the plane of maximum curvature and " \

@@ -15,8 +15,9 @@ has no Laterality either: its SR Document Series Module (PS3.3 §C.17.1) has non
 study are the source's (Patient and General Study Modules, PS3.3 §C.7.1.1, §C.7.2.1: a new series of
 the same study repeats them); the General Equipment Module (§C.7.5.1) describes the equipment that
 made the series, this service, not the film's modality. Its Content, Instance Creation and Secondary
-Capture dates and times are the job's end in UTC, with Timezone Offset From UTC (0008,0201) ``+0000``
-(``sr.stamp_utc``; PS3.3 §C.12.1.1.8).
+Capture dates and times are the job's end, in the film's zone with its Timezone Offset From UTC
+(0008,0201) when the study gives one, else in UTC with ``+0000`` (``sr.stamp_content_time``; PS3.3
+§C.12.1.1.8).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import highdicom as hd
 import numpy as np
 from PIL import Image
 
-from .sr import MANUFACTURER, StudyIdentity, declare_character_set, stamp_utc
+from .sr import MANUFACTURER, StudyIdentity, declare_character_set, stamp_content_time
 from .uids import job_uids
 
 
@@ -63,6 +64,7 @@ def build_sc(
     if "Laterality" in sc:
         del sc.Laterality
     sc.BurnedInAnnotation = "NO"
-    stamp_utc(sc, content_datetime, ("ContentDate", "InstanceCreationDate", "DateOfSecondaryCapture"),
-              ("ContentTime", "InstanceCreationTime", "TimeOfSecondaryCapture"))  # fmt: skip
+    stamp_content_time(sc, content_datetime, ("ContentDate", "InstanceCreationDate", "DateOfSecondaryCapture"),
+                       ("ContentTime", "InstanceCreationTime", "TimeOfSecondaryCapture"),
+                       identity.timezone_offset_from_utc)  # fmt: skip
     return declare_character_set(sc)

@@ -52,6 +52,7 @@ from pydicom.sr.codedict import codes
 from pydicom.valuerep import DA, DT, TM, PersonName
 
 from services.core.estimates import model_estimate_reason
+from spine_client.dicom.datetimes import format_utc_offset, parse_utc_offset
 
 from .cobb_lines import cobb_lines_px
 from .uids import job_uids
@@ -94,24 +95,40 @@ AnyDataset = TypeVar("AnyDataset", bound=Dataset)
 
 
 UTC_OFFSET = "+0000"
-"""Timezone Offset From UTC (0008,0201) of the SR and SC: their own dates and times are in UTC."""
+"""Timezone Offset From UTC (0008,0201) of the SR and SC when the study's offset is not known."""
 
 
-def stamp_utc(ds: AnyDataset, when: datetime | None, dates: Sequence[str], times: Sequence[str]) -> AnyDataset:
-    """Write ``when`` (the job's end; now when None) in UTC into the DA attributes ``dates`` and TM
-    ``times``, highdicom's Contributing Equipment entry's ContributionDateTime (a DT, with its offset),
-    and Timezone Offset From UTC (0008,0201) ``+0000``: without it a reader takes DA and TM as local
-    time (PS3.3 §C.12.1.1.8). A datetime without a zone is taken as UTC (the job's timestamps are)."""
+def stamp_content_time(ds: AnyDataset, when: datetime | None, dates: Sequence[str], times: Sequence[str],
+                       study_offset: str | None = None) -> AnyDataset:  # fmt: skip
+    """Write ``when`` (the job's end; now when None) into the DA attributes ``dates`` and TM ``times``,
+    highdicom's Contributing Equipment entry's ContributionDateTime (a DT, with its own offset), and
+    Timezone Offset From UTC (0008,0201). That attribute dates every DA and TM of the instance (PS3.3
+    §C.12.1.1.8), the Study Date and Time copied from the film included, so: with the film's own offset
+    ``study_offset`` (a valid ``&ZZXX``, ``datetimes.parse_utc_offset``) the instance takes it and
+    ``when`` is written in that zone, and the film's study time keeps its meaning; without one (absent
+    or ignored as malformed) ``+0000`` and ``when`` in UTC, which also declares the study time UTC. A
+    datetime without a zone is taken as UTC (the job's timestamps are)."""
+    zone = parse_utc_offset(study_offset) or UTC
     when = datetime.now(UTC) if when is None else when
-    when = when.astimezone(UTC) if when.tzinfo is not None else when.replace(tzinfo=UTC)
+    when = (when if when.tzinfo is not None else when.replace(tzinfo=UTC)).astimezone(zone)
     for keyword in dates:
         setattr(ds, keyword, DA(when.date()))
     for keyword in times:
         setattr(ds, keyword, TM(when.time().replace(tzinfo=None)))
     for item in ds.get("ContributingEquipmentSequence") or []:  # highdicom's own entry, dated now
         item.ContributionDateTime = DT(when)
-    ds.TimezoneOffsetFromUTC = UTC_OFFSET
+    ds.TimezoneOffsetFromUTC = format_utc_offset(zone) if zone is not UTC else UTC_OFFSET
     return ds
+
+
+def ds_number(value: float) -> float:
+    """``value`` as a float to be written as a DS (a NUM's Numeric Value, PS3.5 §6.2: at most 16 bytes,
+    pydicom's ``format_number_as_ds``), with a zero always positive: ``-0.0`` (an angle the fit
+    computes as a negative zero) would be written ``"-0.0"``, a signed zero a reader may show as
+    "-0 deg". Every other value keeps its sign: DS rounds none of them to zero (it keeps 10
+    significant digits, in scientific notation below 1e-4)."""
+    number = float(value)
+    return 0.0 if number == 0 else number
 
 
 def declare_character_set(ds: AnyDataset) -> AnyDataset:
@@ -194,6 +211,9 @@ class StudyIdentity:
     patient_birth_date: str | None = None
     patient_sex: str | None = None
     referring_physician_name: str | None = None
+    timezone_offset_from_utc: str | None = None
+    """The film's Timezone Offset From UTC (0008,0201) as DICOM writes it (``+0100``): the zone of its
+    Study Date and Time (``stamp_content_time``)."""
 
     @classmethod
     def from_study(cls, study: Mapping[str, Any] | None) -> StudyIdentity:
@@ -210,6 +230,7 @@ class StudyIdentity:
             patient_birth_date=study.get("patient_birth_date"),
             patient_sex=study.get("patient_sex"),
             referring_physician_name=study.get("referring_physician_name"),
+            timezone_offset_from_utc=study.get("timezone_offset_from_utc"),
         )
 
 
@@ -252,14 +273,14 @@ class _Builder:
             return None
         properties = None
         if sd is not None:
-            properties = hd.sr.MeasurementProperties(upper_measurement_uncertainty=float(sd),
-                                                     lower_measurement_uncertainty=float(sd))  # fmt: skip
+            properties = hd.sr.MeasurementProperties(upper_measurement_uncertainty=ds_number(sd),
+                                                     lower_measurement_uncertainty=ds_number(sd))  # fmt: skip
             for item in properties:  # highdicom writes (1, UCUM, "no units"); an SD has the value's unit
                 if item.ValueType == "NUM":
                     item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence = [unit]
         method = PrivateCodes.MODEL_BASED if model_based(self.fit, quantity, level) else PrivateCodes.MEASURED
         return hd.sr.Measurement(
-            name=name, value=float(value), unit=unit, method=method, properties=properties,
+            name=name, value=ds_number(value), unit=unit, method=method, properties=properties,
             finding_sites=list(sites) or None,
         )  # fmt: skip
 
@@ -382,8 +403,9 @@ def build_sr(
     ``payload`` the job's payload (JSON), ``images`` the source radiographs by view (``pa``,
     ``lateral``) when known. Without a study UID (a job without ``study``) the SR opens a new study
     whose UID is derived from the job id. ``content_datetime`` (e.g. the job's end) is the Content
-    and Instance Creation Date/Time, in UTC with Timezone Offset From UTC ``+0000`` (``stamp_utc``), so
-    that every build of a job is the same bytes; without it they are the build's time."""
+    and Instance Creation Date/Time, in the film's zone when its offset is known, else in UTC with
+    Timezone Offset From UTC ``+0000`` (``stamp_content_time``), so that every build of a job is the
+    same bytes; without it they are the build's time."""
     if hasattr(result, "model_dump"):
         result = result.model_dump(mode="json")
     job = uuid.UUID(str(job_id))
@@ -400,7 +422,7 @@ def build_sr(
 
     for i, c in enumerate(measures.get("cobb") or [], start=1):
         sites = [vertebra(c["upper"], SUPERIOR), vertebra(c["lower"], INFERIOR), vertebra(c["apex"], APICAL)]
-        cobb = b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), sites=sites)
+        cobb = b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), quantity="cobb", sites=sites)
         b.group(
             f"Cobb curve {i} {c['upper']}-{c['lower']}",
             [
@@ -426,7 +448,8 @@ def build_sr(
     largest = measures.get("largest_cobb")
     if largest and not largest.get("reported_as_curve"):  # no curve of 10°: `cobb` is empty
         sites = [vertebra(largest["upper"], SUPERIOR), vertebra(largest["lower"], INFERIOR)]
-        cobb = b.measurement(COBB_ANGLE, largest["angle_deg"], sd=largest.get("angle_sd_deg"), sites=sites)
+        cobb = b.measurement(COBB_ANGLE, largest["angle_deg"], sd=largest.get("angle_sd_deg"), quantity="cobb",
+                             sites=sites)  # fmt: skip
         b.group(f"Largest frontal angle {largest['upper']}-{largest['lower']}, below 10°", [cobb], sites=sites,
                 evaluations=[hd.sr.QualitativeEvaluation(PrivateCodes.MAJOR_CURVE, codes.SCT.No)],
                 lines=_cobb_lines(result, payload, largest, images.get("pa"), cobb))  # fmt: skip
@@ -480,7 +503,8 @@ def build_sr(
         sop_instance_uid=uids["sr"], instance_number=1, manufacturer=MANUFACTURER, is_complete=True,
         series_description="Spine reconstruction measurements",
     )  # fmt: skip
-    stamp_utc(sr, content_datetime, ("ContentDate", "InstanceCreationDate"), ("ContentTime", "InstanceCreationTime"))
+    stamp_content_time(sr, content_datetime, ("ContentDate", "InstanceCreationDate"),
+                       ("ContentTime", "InstanceCreationTime"), identity.timezone_offset_from_utc)  # fmt: skip
     if not images:
         for keyword in ("CurrentRequestedProcedureEvidenceSequence", "PertinentOtherEvidenceSequence"):
             if keyword in sr:

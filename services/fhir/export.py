@@ -37,12 +37,14 @@ from __future__ import annotations
 import re
 import uuid
 from collections.abc import Mapping, Sequence
-from datetime import date, datetime
+from datetime import date, datetime, timedelta
 from typing import Any
 
 from fhir.resources.R4B.bundle import Bundle
 
 from services.core.estimates import model_estimate_reason
+from spine_client.dicom.datetimes import iso_offset, parse_utc_offset
+from spine_engine.levels import apex_words
 
 FHIR_MEDIA_TYPE = "application/fhir+json"
 FHIR_VERSION = "4.0.1"
@@ -93,7 +95,9 @@ SD_COMPONENT = (
 
 
 def _deg(value: float) -> dict[str, Any]:
-    return {"value": round(float(value), 2), "unit": "deg", "system": UCUM, "code": "deg"}
+    """A UCUM ``deg`` Quantity to 0.01°; a value that rounds to zero is ``0.0``, never ``-0.0``."""
+    rounded = round(float(value), 2)
+    return {"value": 0.0 if rounded == 0 else rounded, "unit": "deg", "system": UCUM, "code": "deg"}
 
 
 def _text(text: str) -> dict[str, Any]:
@@ -151,21 +155,47 @@ def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
 
 def _subject(study: Mapping[str, Any] | None, patient_id_system: str | None) -> dict[str, Any] | None:
     """The Patient by identifier (DICOM Patient ID (0010,0020), ``system`` the issuer's namespace
-    ``patient_id_system`` when configured), with the DICOM Patient's Name as display; None without a
-    patient ID."""
+    ``patient_id_system`` when configured), with the DICOM Patient's Name as display
+    (``person_name_display``); None without a patient ID."""
     if not study or not study.get("patient_id"):
         return None
     identifier = {"value": study["patient_id"]}
     if patient_id_system:
         identifier = {"system": patient_id_system, **identifier}
     subject: dict[str, Any] = {"type": "Patient", "identifier": identifier}
-    if study.get("patient_name"):
-        subject["display"] = str(study["patient_name"]).replace("^", " ").strip()
+    display = person_name_display(study.get("patient_name"))
+    if display:
+        subject["display"] = display
     return subject
 
 
-_DICOM_TM = re.compile(r"^(\d{2})(?::?(\d{2})(?::?(\d{2})(\.\d{1,6})?)?)?$")
-_DICOM_OFFSET = re.compile(r"^[+-]\d{2}:?\d{2}$")
+def person_name_display(name: object) -> str | None:
+    """A DICOM PN (PS3.5 §6.2.1) as a person reads it; None when it holds no name.
+
+    A PN is up to three component groups separated by ``=`` (alphabetic, ideographic, phonetic), each
+    of five components separated by ``^``: family, given, middle, prefix, suffix. The alphabetic group
+    is used; when it is empty (a name written in ideographs only, ``=山田^太郎``) the first group that is
+    not. The components are joined by one space, empty ones left out, in the orders FHIR names for a
+    HumanName's display (extension ``humanname-assembly-order``, HL7 v2 table 0444): ``G`` "Prefix
+    Given Family Suffix" for the alphabetic group, as FHIR R4's own example Patient's
+    ``HumanName.text`` "Peter James Chalmers" (``DOE^JOHN^^DR`` → "DR JOHN DOE"); ``F`` "Prefix Family
+    Given Suffix" for an ideographic or phonetic group, the order those names are written in (PS3.5
+    Annex H, ``Yamada^Tarou=山田^太郎=やまだ^たろう`` → "山田 太郎" when alone)."""
+    if name is None:
+        return None
+    for index, group in enumerate(str(name).split("=")[:3]):
+        parts = [" ".join(part.split()) for part in group.split("^")[:5]]
+        family, given, middle, prefix, suffix = parts + [""] * (5 - len(parts))
+        order = [prefix, given, middle, family, suffix] if index == 0 else [prefix, family, given, middle, suffix]
+        display = " ".join(part for part in order if part)
+        if display:
+            return display
+    return None
+
+
+_DICOM_TM = re.compile(r"^([01]\d|2[0-3])(?::?([0-5]\d)(?::?([0-5]\d|60)(\.\d{1,6})?)?)?$")
+"""DICOM TM (PS3.5 §6.2): HH, HHMM, HHMMSS or HHMMSS.FFFFFF, SS up to 60 (a leap second, which FHIR's
+``dateTime`` also allows)."""
 
 
 def _study_date_time(study: Mapping[str, Any]) -> str | None:
@@ -177,35 +207,48 @@ def _study_date_time(study: Mapping[str, Any]) -> str | None:
         return None
     day = when.isoformat() if isinstance(when, date) else str(when)
     time_match = _DICOM_TM.match(str(study.get("study_time") or ""))
-    offset = str(study.get("timezone_offset_from_utc") or "")
-    if time_match is None or not _DICOM_OFFSET.match(offset):
+    zone = parse_utc_offset(study.get("timezone_offset_from_utc"))
+    if time_match is None or zone is None:
         return day
     hh, mm, ss, fraction = time_match.groups()
-    zone = f"{offset[:3]}:{offset[-2:]}"
-    return f"{day}T{hh}:{mm or '00'}:{ss or '00'}{fraction or ''}{zone}"
+    return f"{day}T{hh}:{mm or '00'}:{ss or '00'}{fraction or ''}{iso_offset(zone)}"
 
 
 _PARTIAL_DATE = re.compile(r"^\d{4}(-(0[1-9]|1[0-2]))?$")
+
+
+_LEAP_SECOND = re.compile(r"^(\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:)60((\.\d+)?([+-]\d{2}:\d{2}|Z)?)$")
+FHIR_HIGHEST_OFFSET = timedelta(hours=14)
+"""FHIR R4 ``dateTime``'s zone is at most 14:00 either side of UTC (its regex: ``(0[0-9]|1[0-3]):[0-5][0-9]|14:00``)."""
 
 
 def _date_time(value: datetime | date | str) -> str | None:
     """A FHIR ``dateTime`` of a datetime, a date or ISO 8601 text; None when the text is no date.
 
     FHIR R4 dateTime (datatypes §2.24.0.1) is a year, year-month or date, or a date-time to the second
-    that SHALL have a time zone: a date-time without one (a stored film's '2024-05-06T10:11:12', a
-    naive datetime) is read as its date alone, the part that is certain; a time with its zone is
-    written to the second in ``isoformat``."""
+    that SHALL have a time zone of at most 14:00 either side: a date-time without one (a stored film's
+    '2024-05-06T10:11:12', a naive datetime) or with a zone no clock has ('+15:00') is read as its date
+    alone, the part that is certain; a time with its zone is written to the second in ``isoformat``.
+    A leap second (``23:59:60``, which the header reader writes from a DICOM TM ``235960``, PS3.5
+    §6.2) is kept: FHIR allows it, Python's datetime does not, so it is checked as ``:59``."""
     if isinstance(value, str):
         text = value.strip()
         if _PARTIAL_DATE.match(text):
             return text
+        leap = _LEAP_SECOND.match(text)
+        if leap is not None:
+            checked = _date_time(f"{leap.group(1)}59{leap.group(2)}")
+            return text.replace("Z", "+00:00") if checked is not None and "T" in checked else checked
         try:
             parsed: datetime | date = datetime.fromisoformat(text) if len(text) > 10 else date.fromisoformat(text)
         except ValueError:
             return None
         value = parsed
     if isinstance(value, datetime):
-        return value.isoformat() if value.tzinfo is not None else value.date().isoformat()
+        offset = value.utcoffset()
+        if offset is None or abs(offset) > FHIR_HIGHEST_OFFSET:
+            return value.date().isoformat()
+        return value.isoformat()
     return value.isoformat()
 
 
@@ -321,13 +364,14 @@ def observation_bundle(
             components.append(_component("Cobb angle between end plates, frontal plane", "ENDPLATE-COBB",
                                          valueQuantity=endplates))  # fmt: skip
         note = (
-            f"{kind.capitalize()} {curve['upper']}–{curve['lower']}, apex {curve['apex']}, "
+            f"{kind.capitalize()} {curve['upper']}–{curve['lower']}, "
+            f"apex {apex_words(curve['apex'], bool(curve.get('apical_disc')))}, "
             f"convex to the patient's {curve['convexity']}."
         )
         observations.append(
             observation(f"cobb:{i}:{curve['upper']}-{curve['lower']}", f"Cobb angle, frontal plane, {kind}",
                         curve["angle_deg"], coding=COBB_ANGLE, notes=[note], components=components,
-                        sd=curve.get("angle_sd_deg"))
+                        sd=curve.get("angle_sd_deg"), estimate=model_estimate_reason(fit, "cobb"))
         )  # fmt: skip
     largest = measures.get("largest_cobb")
     if largest and not largest.get("reported_as_curve"):  # no curve of 10°: `cobb` is empty
@@ -337,6 +381,7 @@ def observation_bundle(
             observation(f"cobb:largest:{largest['upper']}-{largest['lower']}",
                         "Cobb angle, frontal plane, largest (below the 10° of a scoliotic curve)",
                         largest["angle_deg"], coding=COBB_ANGLE, notes=[note], sd=largest.get("angle_sd_deg"),
+                        estimate=model_estimate_reason(fit, "cobb"),
                         components=[_component("Upper end vertebra", valueString=largest["upper"]),
                                     _component("Lower end vertebra", valueString=largest["lower"])])
         )  # fmt: skip

@@ -67,7 +67,7 @@ import re
 import string
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from datetime import date
+from datetime import date, timezone
 from pathlib import Path
 from typing import Any, Literal
 
@@ -81,6 +81,16 @@ from spine_client.dicom.errors import (
     NotDicom,
     UnsupportedOrientation,
     attribute_label,
+)
+
+from .datetimes import (
+    UTC_OFFSET_FORM,
+    is_dicom_time,
+    iso_offset,
+    iso_time,
+    parse_utc_offset,
+    split_dt,
+    utc_offset_problem,
 )
 
 Calibration = Literal["calibrated", "projection", "detector", "unknown"]
@@ -145,11 +155,17 @@ class RadiographHeader:
     accession_number: str | None
     study_date: date | None
     study_time: str | None
+    timezone_offset_from_utc: str | None
+    """Timezone Offset From UTC (0008,0201) as DICOM writes it (``+0100``): the zone of the film's DA and
+    TM values, its Study Date and Time among them (PS3.3 §C.12.1.1.8). None when absent or not an offset
+    (``datetimes.utc_offset_problem``: ignored, with a warning)."""
     film_datetime: str | None
-    """When the film was taken, ISO 8601 (date, or date and time to the second): Acquisition DateTime
-    (0008,002A), else Acquisition Date (0008,0022) with Acquisition Time (0008,0032), else Content Date
-    (0008,0023) with Content Time (0008,0033) (PS3.3 C.7.6.1 General Image Module); a time zone only
-    from Timezone Offset From UTC (0008,0201) or the DT value's own offset. None when none is given."""
+    """When the film was taken, ISO 8601 (date, or date and time to the second, a leap second written
+    ``:60``, ``datetimes``): Acquisition DateTime (0008,002A), else Acquisition Date (0008,0022) with
+    Acquisition Time (0008,0032), else Content Date (0008,0023) with Content Time (0008,0033) (PS3.3
+    C.7.6.1 General Image Module). The time only with its zone: the DT's own offset, else Timezone Offset
+    From UTC (0008,0201) (PS3.3 §C.12.1.1.8, Note 2); an offset that is not one counts as absent. None
+    when none is given."""
     study_id: str | None
     patient_birth_date: str | None
     patient_sex: str | None
@@ -288,9 +304,37 @@ def _text(ds: Dataset, keyword: str) -> str | None:
     return text or None
 
 
-IDENTIFIER_MAX_LENGTH = {"PatientID": 64, "AccessionNumber": 16, "PatientName": 5 * 64}
+IDENTIFIER_MAX_LENGTH = {"PatientID": 64, "AccessionNumber": 16}
 """Longest value of the patient and study identifiers a job carries (PS3.5 §6.2: LO 64 and SH 16
-characters; PN five component groups of 64), as the contract's ``study`` takes them."""
+characters), as the contract's ``study`` takes them. The Patient's Name is a PN: ``person_name_problem``."""
+
+PN_GROUP_MAX_LENGTH = 64
+PN_GROUPS = ("alphabetic", "ideographic", "phonetic")
+"""A PN (PS3.5 §6.2, Table 6.2-1, and §6.2.1) is up to three component groups separated by ``=``, in this
+order, each of at most 64 characters and of up to five components separated by ``^`` (family, given,
+middle, prefix, suffix). So a name holds at most 3 × 64 characters and two ``=``."""
+
+
+def person_name_problem(text: str) -> str | None:
+    """Why ``text`` is not a PN as DICOM writes it (``PN_GROUPS``), None when it is. Characters, not
+    bytes, are counted, as PS3.5 §6.2 counts them (a name in ideographs takes more bytes in UTF-8)."""
+    groups = text.split("=")
+    if len(groups) > len(PN_GROUPS):
+        return (f"has {len(groups)} component groups separated by '=': a PN has at most 3, alphabetic, "
+                "ideographic and phonetic (PS3.5 §6.2.1)")  # fmt: skip
+    for name, group in zip(PN_GROUPS, groups, strict=False):
+        if len(group) > PN_GROUP_MAX_LENGTH:
+            return (f"has {len(group)} characters in its {name} component group: a PN holds at most "
+                    f"{PN_GROUP_MAX_LENGTH} per component group (PS3.5 §6.2, Table 6.2-1)")  # fmt: skip
+        if group.count("^") > 4:
+            return (f"has {group.count('^') + 1} components in its {name} component group: a PN has at most 5, "
+                    "family^given^middle^prefix^suffix (PS3.5 §6.2.1)")  # fmt: skip
+    return None
+
+
+def _quoted(text: str) -> str:
+    """``text`` as a message quotes a value: its first 80 characters, and its length when longer."""
+    return f"{text[:80]!r}… ({len(text)} characters)" if len(text) > 80 else repr(text)
 
 
 def _identifier(ds: Dataset, keyword: str) -> str | None:
@@ -307,6 +351,19 @@ def _identifier(ds: Dataset, keyword: str) -> str | None:
     return text
 
 
+def _patient_name(ds: Dataset) -> str | None:
+    """Patient's Name (0010,0010) as ``_text`` reads it; ``InvalidAttribute`` naming it when it is not a PN
+    (``person_name_problem``). Refused, not dropped: the SR and SC go back into the patient's record with
+    the film's identity (Patient Module, PS3.3 §C.7.1.1), and a name left out or cut would no longer be the
+    film's (a PACS reconciles a study's objects by patient ID and name)."""
+    text = _text(ds, "PatientName")
+    problem = person_name_problem(text) if text is not None else None
+    if text is not None and problem is not None:
+        raise InvalidAttribute(f"{attribute_label('PatientName')} {_quoted(text)} {problem}",
+                               attributes=("PatientName",))  # fmt: skip
+    return text
+
+
 def _optional_text(ds: Dataset, keyword: str) -> str | None:
     """``_text`` of a value the header reads only when well formed (dates, times, the SR's identity
     values): None where ``_text`` refuses it."""
@@ -315,17 +372,19 @@ def _optional_text(ds: Dataset, keyword: str) -> str | None:
     except InvalidAttribute:
         return None
 
-_TM = re.compile(r"^([01]\d|2[0-3])([0-5]\d([0-5]\d(\.\d{1,6})?)?)?$")
+
 IDENTITY_VALUES: dict[str, tuple[str, Callable[[str], bool]]] = {
-    "study_time": ("a DICOM TM time HHMMSS.FFFFFF (PS3.5 §6.2)", lambda v: bool(_TM.match(v))),
+    "study_time": ("a DICOM TM time HHMMSS.FFFFFF, seconds 00 to 60 (PS3.5 §6.2)", is_dicom_time),
     "study_id": ("a DICOM SH of at most 16 characters (PS3.5 §6.2)", lambda v: 0 < len(v) <= 16),
     "patient_birth_date": ("a DICOM DA date YYYYMMDD (PS3.5 §6.2)",
                            lambda v: len(v) == 8 and v.isdigit() and 1 <= int(v[4:6]) <= 12 and 1 <= int(v[6:]) <= 31),
     "patient_sex": ("M, F or O (PS3.3 §C.7.1.1)", lambda v: v in ("M", "F", "O")),
-    "referring_physician_name": ("a DICOM PN of at most 5 × 64 characters (PS3.5 §6.2)", lambda v: 0 < len(v) <= 320),
+    "referring_physician_name": ("a DICOM PN: at most 3 component groups of at most 64 characters and 5 components "
+                                 "each (PS3.5 §6.2, §6.2.1)", lambda v: bool(v) and person_name_problem(v) is None),
+    "timezone_offset_from_utc": (f"a DICOM UTC offset {UTC_OFFSET_FORM}", lambda v: utc_offset_problem(v) is None),
 }  # fmt: skip
 """The study block's values the contract's ``Study`` has no field for: what each must be to go into
-the SR and SC as the header had it."""
+the SR and SC as the header had it (the study time and its zone also date the FHIR Observations)."""
 
 
 def identity_problem(key: str, value: Any) -> str | None:
@@ -387,29 +446,58 @@ def _dimension(ds: Dataset, keyword: str) -> int | None:
     return int(numbers[0])
 
 
-def _film_datetime(ds: Dataset) -> str | None:
-    """``RadiographHeader.film_datetime`` (its docstring): DA YYYYMMDD, TM HHMMSS[.F], DT
-    YYYYMMDDHHMMSS[.F][&ZZXX] (PS3.5 §6.2) read into ISO 8601; malformed values are skipped."""
-    offset = _optional_text(ds, "TimezoneOffsetFromUTC")
+def _timezone_offset(ds: Dataset) -> tuple[str | None, tuple[str, ...]]:
+    """(``RadiographHeader.timezone_offset_from_utc``, warnings): Timezone Offset From UTC (0008,0201) when
+    it is a DICOM offset (``datetimes.utc_offset_problem``); a value that is not one is ignored, as if
+    absent, with a warning naming the attribute."""
+    label = attribute_label("TimezoneOffsetFromUTC")
+    try:
+        text = _text(ds, "TimezoneOffsetFromUTC")
+    except InvalidAttribute as exc:
+        return None, (f"{exc.message}: ignored, the film's dates and times are in no stated zone",)
+    if text is None:
+        return None, ()
+    problem = utc_offset_problem(text)
+    if problem is not None:
+        return None, (f"{label} {text!r} {problem}: ignored, the film's dates and times are in no stated zone",)
+    return text, ()
+
+
+def _film_datetime(ds: Dataset, offset: timezone | None) -> tuple[str | None, tuple[str, ...]]:
+    """(``RadiographHeader.film_datetime``, warnings) (its docstring): DA YYYYMMDD, TM HHMMSS[.F], DT
+    YYYYMMDDHHMMSS[.F][&ZZXX] (PS3.5 §6.2) read into ISO 8601, ``offset`` the film's Timezone Offset From
+    UTC (``_timezone_offset``); malformed values are skipped, a DT's suffix that is no offset with a warning."""
+    warnings: tuple[str, ...] = ()
+    candidates: list[tuple[str, str, timezone | None]] = []
     dt = _optional_text(ds, "AcquisitionDateTime")
-    candidates = []
-    if dt is not None and len(dt) >= 8 and dt[:8].isdigit():
-        zone = next((dt[i:] for i in range(8, len(dt)) if dt[i] in "+-"), None)
-        candidates.append((dt[:8], dt[8:].split("+")[0].split("-")[0], zone))
+    parts = split_dt(dt) if dt is not None else None
+    if dt is not None and parts is not None:
+        digits, time, suffix = parts
+        zone = offset  # PS3.3 §C.12.1.1.8, Note 2: (0008,0201) dates a DT without its own offset
+        if suffix is not None:
+            problem = utc_offset_problem(suffix)
+            if problem is None:
+                zone = parse_utc_offset(suffix)
+            else:
+                warnings = (f"{attribute_label('AcquisitionDateTime')} {dt!r}: its offset {suffix!r} {problem}: "
+                            "ignored",)  # fmt: skip
+        candidates.append((digits, time, zone))
     for d_key, t_key in (("AcquisitionDate", "AcquisitionTime"), ("ContentDate", "ContentTime")):
         d = _optional_text(ds, d_key)
-        if d is not None and len(d) == 8 and d.isdigit():
+        if d is not None:
             candidates.append((d, _optional_text(ds, t_key) or "", offset))
     for d, t, zone in candidates:
+        if len(d) != 8 or not d.isdigit():
+            continue
         try:
             day = date(int(d[0:4]), int(d[4:6]), int(d[6:8]))
         except ValueError:
             continue
-        digits = t.split(".")[0]
-        if len(digits) < 6 or not digits.isdigit() or zone is None or not re.fullmatch(r"[+-]\d{4}", zone):
-            return day.isoformat()  # a time without a zone is not a FHIR dateTime: the date alone
-        return f"{day.isoformat()}T{digits[0:2]}:{digits[2:4]}:{digits[4:6]}{zone[:3]}:{zone[3:]}"
-    return None
+        clock = iso_time(t)
+        if clock is None or zone is None:
+            return day.isoformat(), warnings  # a time without a zone is not a FHIR dateTime: the date alone
+        return f"{day.isoformat()}T{clock}{iso_offset(zone)}", warnings
+    return None, warnings
 
 
 def _study_date(ds: Dataset) -> date | None:
@@ -621,6 +709,8 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         sources["acquisition.projection_model"] = (
             f"{attribute_label('SOPClassUID')}: a projection radiograph, from a point source"
         )
+    offset, offset_warnings = _timezone_offset(ds)
+    film_datetime, film_warnings = _film_datetime(ds, parse_utc_offset(offset))
     rows, columns = _dimension(ds, "Rows"), _dimension(ds, "Columns")
     if rows is not None and columns is not None:
         sources["acquisition.image_size"] = (
@@ -632,11 +722,12 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         series_instance_uid=_uid(ds, "SeriesInstanceUID", required=False),
         study_instance_uid=study_uid,
         patient_id=_identifier(ds, "PatientID"),
-        patient_name=_identifier(ds, "PatientName"),
+        patient_name=_patient_name(ds),
         accession_number=_identifier(ds, "AccessionNumber"),
         study_date=_study_date(ds),
         study_time=_identity(ds, "StudyTime", "study_time"),
-        film_datetime=_film_datetime(ds),
+        timezone_offset_from_utc=offset,
+        film_datetime=film_datetime,
         study_id=_identity(ds, "StudyID", "study_id"),
         patient_birth_date=_identity(ds, "PatientBirthDate", "patient_birth_date"),
         patient_sex=_identity(ds, "PatientSex", "patient_sex"),
@@ -653,5 +744,5 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         view=view,
         acquisition=acquisition,
         sources=sources,
-        warnings=spacing.warnings + orientation_warnings,
+        warnings=spacing.warnings + orientation_warnings + offset_warnings + film_warnings,
     )

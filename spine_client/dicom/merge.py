@@ -11,14 +11,14 @@ from __future__ import annotations
 import copy
 import math
 import re
-from datetime import date, datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
 from spine_client.dicom.errors import UnsupportedOrientation, attribute_label
 
-from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem
+from .datetimes import parse_iso_datetime
+from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem, person_name_problem
 
 VALUE_RTOL = 1e-6
 """Relative tolerance under which a payload number equals the header's (DS values carry at most 16
@@ -169,9 +169,12 @@ STUDY_FIELDS = (
     ("patient_birth_date", "PatientBirthDate"),
     ("patient_sex", "PatientSex"),
     ("referring_physician_name", "ReferringPhysicianName"),
+    ("timezone_offset_from_utc", "TimezoneOffsetFromUTC"),
 )
 """What the study block takes from the header. The contract's ``Study`` has the first five; the others
-stay in the provenance and the job's effective payload (``services.db.job_forms``), for the SR and SC."""
+(``IDENTITY_VALUES``) stay in the provenance and the job's effective payload (``services.db.job_forms``),
+for the SR, the SC and the FHIR export. Two films of one study that disagree on one of them (a lateral
+with another Timezone Offset From UTC) are a conflict like any other: the PA's value is used."""
 
 
 def merge_study(
@@ -227,20 +230,21 @@ def _header_field(section: str, path: str) -> bool:
 
 
 _FILM_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}$")
-_FILM_DATE_TIME = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d+)?([+-]\d{2}:\d{2}|Z)$")
+_FILM_DATE_TIME = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:(\d{2}|60)(\.\d+)?([+-]\d{2}:\d{2}|Z)$")
 
 
 def film_datetime_problem(value: str) -> str | None:
     """Why ``ViewProvenance.film_datetime`` is not in the form the header reader writes it
     (``header._film_datetime``), None when it is: an ISO 8601 date (YYYY-MM-DD), or a date and time to
-    the second with its UTC offset (YYYY-MM-DDThh:mm:ss±hh:mm). It becomes the FHIR Observations'
-    ``effectiveDateTime`` when the study has no date, and a FHIR R4 dateTime with a time SHALL have a
-    time zone (datatypes §2.24.0.1)."""
+    the second with its UTC offset (YYYY-MM-DDThh:mm:ss±hh:mm), a leap second ``:60`` included
+    (``datetimes``: PS3.5 §6.2 and FHIR R4 allow it; the rest of the value is checked with it read as
+    ``:59``). It becomes the FHIR Observations' ``effectiveDateTime`` when the study has no date, and a
+    FHIR R4 dateTime with a time SHALL have a time zone (datatypes §2.24.0.1)."""
     text = value.strip()
     form = "a date (YYYY-MM-DD) or a date and time with its UTC offset (YYYY-MM-DDThh:mm:ss+hh:mm)"
     if _FILM_DATE.match(text) or _FILM_DATE_TIME.match(text):
         try:
-            (date.fromisoformat if len(text) == 10 else datetime.fromisoformat)(text)
+            parse_iso_datetime(text)
         except ValueError:
             return f"{value!r} is not a calendar date or time: the film's date must be {form}"
         return None
@@ -255,8 +259,9 @@ def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[st
     (``spine submit --pa-dicom``), as (JSON path within the block, reason): every view's ``source``
     is ``file`` (``dicomweb`` reads are the service's own), every read fills a field the DICOM layer
     fills from a header (so that the block can only complete a payload as a header does), a study
-    value the contract has no field for is as DICOM writes it, and a view's ``film_datetime`` is as the
-    header reader writes it (``film_datetime_problem``)."""
+    value the contract has no field for is as DICOM writes it, so is the Patient's Name (a PN of at most
+    64 characters per component group, ``person_name_problem``, as the header reader takes it), and a
+    view's ``film_datetime`` is as the header reader writes it (``film_datetime_problem``)."""
     errors: list[tuple[tuple[str | int, ...], str]] = []
     sections: list[tuple[str, list[AttributeRead]]] = [("study", provenance.study)]
     for role in ("pa", "lateral"):
@@ -277,8 +282,12 @@ def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[st
                 errors.append(((*base, i, "field"), f"{read.field!r} is not a field a {section} header fills"))
                 continue
             key = read.field.split(".")[-1]
+            reason = None
             if section == "study" and key in IDENTITY_VALUES:
                 reason = identity_problem(key, read.value)
-                if reason is not None:
-                    errors.append(((*base, i, "value"), reason))
+            elif section == "study" and key == "patient_name" and isinstance(read.value, str):
+                problem = person_name_problem(read.value)
+                reason = f"{read.value[:80]!r} {problem}" if problem is not None else None
+            if reason is not None:
+                errors.append(((*base, i, "value"), reason))
     return errors

@@ -72,6 +72,32 @@ def test_a_spine_below_the_threshold_is_followed_by_its_largest_angle() -> None:
         assert ("below 10°" in major.levels) is (result is mild)
 
 
+def test_a_visit_says_which_values_are_model_estimates_and_names_an_apical_disc() -> None:
+    """A visit's values carry the reason they come from the model's prior, the one the SR and FHIR give
+    (``services.core.estimates``): here one PA film with landmarks on T1–T8 only, whose Cobb angles
+    depend on levels no film shows (``cobb``), and no lateral film (kyphosis, lordosis); a curve of one
+    segment has its apex named as the disc."""
+    payload = spine_payload()
+    payload.pop("lateral", None)
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][:8]
+    result = register(payload)
+    assert {"cobb", "kyphosis", "lordosis"} <= set(result["fit"]["unreliable"])
+    seen = visit(Job(id=uuid.uuid4(), payload={"study": {"study_date": "2025-01-01"}}, result=result))
+    assert seen.major_cobb is not None and seen.major_cobb.model_estimate is not None
+    assert "fit.unreliable: cobb" in seen.major_cobb.model_estimate
+    assert seen.kyphosis_t4_t12.model_estimate is not None and seen.lordosis_l1_l5.model_estimate is not None
+
+    full = register(spine_payload())
+    assert "cobb" not in full["fit"]["unreliable"]
+    measured = visit(Job(id=uuid.uuid4(), payload={"study": {"study_date": "2025-01-01"}}, result=full))
+    assert measured.major_cobb is not None and measured.major_cobb.model_estimate is None
+    curve = next(c for c in full["measures"]["cobb"] if c["major"])
+    disc = {**full, "measures": {**full["measures"], "cobb": [{**curve, "upper": "L4", "lower": "L5", "apex": "L4",
+                                                               "apical_disc": True}]}}  # fmt: skip
+    one_segment = visit(Job(id=uuid.uuid4(), payload={}, result=disc)).major_cobb
+    assert one_segment is not None and one_segment.levels == "L4–L5, apex L4/L5 disc"
+
+
 def test_follow_up_of_a_patient_by_study_date_restricted_to_the_caller(distributed_service: Service) -> None:
     svc = distributed_service
     patient = f"P-{uuid.uuid4().hex[:8]}"

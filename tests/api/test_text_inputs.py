@@ -119,3 +119,32 @@ def test_a_patient_id_with_a_slash_is_still_a_patient_id(client: TestClient) -> 
     answer = client.get(f"/v1/patients/{quote('A/B 12', safe='')}/measures")
     assert answer.status_code == 200, answer.text
     assert answer.json()["patient_id"] == "A/B 12"
+
+
+@pytest.mark.parametrize(
+    ("name", "reason"),
+    [
+        ("D" * 60 + "^JOHN", "65 characters in its alphabetic component group"),
+        ("DOE^JOHN=" + "山" * 65, "65 characters in its ideographic component group"),
+        ("A=B=C=D", "4 component groups"),
+        ("A^B^C^D^E^F", "6 components in its alphabetic component group"),
+    ],
+)
+def test_a_patient_name_no_dicom_pn_holds_is_a_422_naming_it(client: TestClient, name: str, reason: str) -> None:
+    """A PN is up to three '='-separated groups of at most 64 characters and five '^'-separated
+    components each (PS3.5 §6.2, Table 6.2-1, §6.2.1): a longer name would be copied into the SR and SC
+    the service writes, which no DICOM reader then takes (dciodvfy reports it). Nothing is stored."""
+    payload = spine_payload()
+    payload["study"] = {"study_instance_uid": "1.2.3", "patient_name": name}
+    problem = problem_of(client.post("/v1/jobs", json=payload))
+    assert problem["status"] == 422
+    assert [e["path"] for e in problem["errors"]] == ["study.patient_name"]
+    assert reason in problem["errors"][0]["msg"]
+    assert client.get("/v1/jobs").json()["jobs"] == []
+
+
+def test_a_patient_name_of_three_full_groups_is_taken(client: TestClient) -> None:
+    name = "=".join(["A" * 60 + "^B^C", "山" * 64, "や" * 64])
+    payload = spine_payload()
+    payload["study"] = {"study_instance_uid": "1.2.3", "patient_name": name}
+    assert client.post("/v1/jobs", json=payload).status_code == 202

@@ -373,7 +373,8 @@ def test_every_artifact_of_a_job_made_each_way(
     if reason:
         pytest.skip(reason)
     film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
-                                accession_number="ACC-WAYS", patient_id="P-WAYS")  # fmt: skip
+                                accession_number="ACC-WAYS", patient_id="P-WAYS",
+                                extra={"TimezoneOffsetFromUTC": "+0100"})  # fmt: skip
     with _pacs(orthanc) as pacs:
         pacs.store([film])
     synthetic.write(film, tmp_path / "pa.dcm")
@@ -409,10 +410,15 @@ def test_every_artifact_of_a_job_made_each_way(
         sr_path = tmp_path / f"{way}-sr.dcm"
         sr_path.write_bytes(answers["sr.dcm"].content)
         sr, sc = pydicom.dcmread(sr_path), pydicom.dcmread(io.BytesIO(answers["figure.dcm"].content))
-        for made in (sr, sc):  # Patient and General Study Modules as the film's (PS3.3 §C.7.1.1, §C.7.2.1)
+        for made in (sr, sc):  # Patient and General Study Modules as the film's (PS3.3 §C.7.1.1, §C.7.2.1),
+            # and the film's zone, which dates the study's date and time copied (PS3.3 §C.12.1.1.8)
             for keyword in ("PatientID", "PatientName", "PatientBirthDate", "PatientSex", "StudyInstanceUID",
-                            "StudyDate", "StudyTime", "StudyID", "AccessionNumber"):  # fmt: skip
+                            "StudyDate", "StudyTime", "StudyID", "AccessionNumber",
+                            "TimezoneOffsetFromUTC"):  # fmt: skip
                 assert made.get(keyword) == film.get(keyword), (way, made.Modality, keyword)
+        # the study's date and time (2026-11-30, 10:15:00, synthetic.radiograph) in the film's zone
+        observations = [e["resource"] for e in answers["fhir"].json()["entry"]]
+        assert {o["effectiveDateTime"] for o in observations} == {"2026-11-30T10:15:00+01:00"}, way
         assert "Laterality" not in sc and "Laterality" not in sr
 
         curves = job["result"]["measures"]["cobb"]

@@ -227,6 +227,23 @@ def test_model_based_quantities_are_marked(case: dict[str, Any], tmp_path: Path)
     assert methods[PrivateCodes.FRONTAL_BENDING.value] == {"MEASURED"}
 
 
+def test_cobb_angles_are_model_based_when_the_pa_film_does_not_reach_every_level(
+    case: dict[str, Any], tmp_path: Path
+) -> None:
+    """``fit.unreliable`` ``cobb`` (PA landmarks short of T1 or L5, or a Cobb SD past half the population's):
+    every frontal Cobb angle is MODEL-BASED; the measures it does not name stay MEASURED."""
+    result = copy.deepcopy(case["result"])
+    result["fit"]["unreliable"] = ["cobb"]
+    sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
+    methods: dict[str, set[str]] = {}
+    for group in sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups():
+        for m in group.get_measurements():
+            methods.setdefault(m.name.value, set()).add(m.method.value)
+    assert methods[COBB_ANGLE.value] == {"MODEL-BASED"}
+    assert methods[PrivateCodes.KYPHOSIS_T4_T12.value] == {"MEASURED"}
+    assert methods[PrivateCodes.FRONTAL_BENDING.value] == {"MEASURED"}
+
+
 def test_landmarks_are_scoord_on_the_source_image(case: dict[str, Any], tmp_path: Path) -> None:
     sr = hd.sr.srread(_write(_sr(case), tmp_path / "sr.dcm"))
     regions = [g for g in sr.content.get_planar_roi_measurement_groups() if g.tracking_identifier != COBB_TOOL]

@@ -183,6 +183,14 @@ def test_fhir_bundle_without_study_and_with_model_estimates(result: dict[str, An
     assert not any("Model estimate" in n["text"] for n in lordosis["note"])
     rotation = obs["Apical vertebral axial rotation of the major curve"]
     assert any("Model estimate" in n["text"] for n in rotation["note"])
+    cobb = [o for text, o in obs.items() if text.startswith("Cobb angle, frontal plane")]
+    assert cobb and not any("interpretation" in o for o in cobb)
+    estimated["fit"]["unreliable"] = ["cobb"]  # the PA film's landmarks short of a level
+    flagged = observation_bundle(job_id, estimated, finished_at=datetime.now(UTC))
+    Bundle.model_validate(flagged)
+    marked = {e["resource"]["code"]["text"] for e in flagged["entry"] if "interpretation" in e["resource"]}
+    assert marked - {"Apical vertebral axial rotation of the major curve"} == {
+        text for text in obs if text.startswith("Cobb angle, frontal plane")}  # fmt: skip
     ids = [e["resource"]["id"] for e in bundle["entry"]]
     again = observation_bundle(job_id, estimated, finished_at=datetime.now(UTC))
     assert [e["resource"]["id"] for e in again["entry"]] == ids and len(set(ids)) == len(ids)  # stable
@@ -260,7 +268,7 @@ def test_fhir_subject_has_the_configured_system_and_every_observation_a_time(res
     for entry in bundle["entry"]:
         obs = entry["resource"]
         assert obs["subject"]["identifier"] == {"system": "urn:oid:1.2.3.4.5", "value": "P-17"}
-        assert obs["subject"]["display"] == "Doe Jane" and obs["effectiveDateTime"] == "2026-11-30"
+        assert obs["subject"]["display"] == "Jane Doe" and obs["effectiveDateTime"] == "2026-11-30"
     # no study, no patient: no subject, and the job's creation as the effective time
     bare = observation_bundle(uuid.uuid4(), result, finished_at=finished, created_at=created)
     Bundle.model_validate(bare)
@@ -306,7 +314,13 @@ def test_fhir_effective_time_is_the_studys_else_the_films_else_the_jobs(
 def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
     rows = list(csv.DictReader(io.StringIO(tables.vertebrae_csv(result))))
     assert list(rows[0]) == tables.VERTEBRA_COLUMNS and len(rows) == 17
-    assert float(rows[3]["lateral_bending_deg"]) == pytest.approx(result["vertebrae"][3]["lateral_bending_deg"])
+    v3 = result["vertebrae"][3]
+    assert float(rows[3]["frontal_bending_deg"]) == pytest.approx(v3["frontal_bending_deg"])
+    assert float(rows[3]["sagittal_bending_deg"]) == pytest.approx(v3["sagittal_bending_deg"])
+    # the contract's deprecated aliases stay as the last columns, with the same values, until it removes them
+    assert tables.VERTEBRA_COLUMNS[-2:] == ["pa_bending_deg", "lateral_bending_deg"]
+    assert (rows[3]["pa_bending_deg"], rows[3]["lateral_bending_deg"]) == (
+        rows[3]["sagittal_bending_deg"], rows[3]["frontal_bending_deg"])  # fmt: skip
     assert float(rows[3]["u2_rad_per_mm"]) == pytest.approx(result["vertebrae"][3]["u"][1])
     assert rows[16]["level"] == "L5" and rows[16]["v3"] == ""
     measures = list(csv.DictReader(io.StringIO(tables.measures_csv(result))))
@@ -340,7 +354,8 @@ def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result
     # of the population's, and the axial rotations (the population's) are model estimates
     # (fit.unreliable); the rest is measured
     assert set(result["fit"]["unreliable"]) - {"kyphosis", "lordosis"} == {"axial_rotation"}
-    assert {r["model_estimate"] for r in measured} <= {"axial_rotation_deg", "axial_rotation_deg;pa_bending_deg"}
+    assert {r["model_estimate"] for r in measured} <= {
+        "axial_rotation_deg", "axial_rotation_deg;sagittal_bending_deg;pa_bending_deg"}  # fmt: skip
     rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(result)))}
     assert float(rows["thoracic_kyphosis_t4_t12"]["sd"]) == pytest.approx(
         result["measures"]["thoracic_kyphosis_t4_t12_sd_deg"])  # fmt: skip
@@ -350,10 +365,13 @@ def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result
     estimated = copy.deepcopy(result)
     estimated["fit"]["unreliable"] = ["depth", "kyphosis", "axial_rotation", "twist"]
     marks = {r["model_estimate"] for r in csv.DictReader(io.StringIO(tables.vertebrae_csv(estimated)))}
-    assert marks == {"y_mm;pa_bending_deg;axial_rotation_deg;u3_rad_per_mm;twist_deg"}
+    assert marks == {"y_mm;sagittal_bending_deg;pa_bending_deg;axial_rotation_deg;u3_rad_per_mm;twist_deg"}
     rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(estimated)))}
     marked = {name for name, r in rows.items() if r["model_estimate"] == "model estimate"}
     assert marked == {"thoracic_kyphosis_t4_t12", "thoracic_kyphosis_t5_t12", "apex_axial_rotation"}
+    estimated["fit"]["unreliable"] = ["cobb"]
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(estimated)))}
+    assert {name for name, r in rows.items() if r["model_estimate"] == "model estimate"} == {"cobb_angle"}
 
 
 # ------------------------------------------------------------------ API checks

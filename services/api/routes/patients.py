@@ -40,9 +40,11 @@ from services.api.schemas import (
     Visit,
     problem_responses,
 )
+from services.core.estimates import model_estimate_reason
 from services.db import jobs as jobs_repo
 from services.db.job_forms import job_study
 from services.db.models import Job
+from spine_engine.levels import apex_words
 from spine_engine.models import DICOM_LO_MAX_LENGTH, DICOM_TEXT_PATTERN, CobbCurve, LargestCobbAngle, RegistrationResult
 
 
@@ -82,24 +84,28 @@ def _date(value: Any) -> date | None:
     return value if isinstance(value, date) else None
 
 
-def _cobb(curve: CobbCurve | None) -> MeasureValue | None:
+def _cobb(curve: CobbCurve | None, estimate: str | None) -> MeasureValue | None:
     if curve is None:
         return None
-    levels = f"{curve.upper}–{curve.lower}, apex {curve.apex}"
-    return MeasureValue(value_deg=curve.angle_deg, sd_deg=curve.angle_sd_deg, levels=levels)
+    levels = f"{curve.upper}–{curve.lower}, apex {apex_words(curve.apex, curve.apical_disc)}"
+    return MeasureValue(value_deg=curve.angle_deg, sd_deg=curve.angle_sd_deg, levels=levels, model_estimate=estimate)
 
 
-def _below_threshold(largest: LargestCobbAngle | None) -> MeasureValue | None:
+def _below_threshold(largest: LargestCobbAngle | None, estimate: str | None) -> MeasureValue | None:
     """The largest frontal angle of a spine whose curves are all below the reporting threshold."""
     if largest is None or largest.reported_as_curve:
         return None
     levels = f"{largest.upper}–{largest.lower}, below 10°"
-    return MeasureValue(value_deg=largest.angle_deg, sd_deg=largest.angle_sd_deg, levels=levels)
+    return MeasureValue(value_deg=largest.angle_deg, sd_deg=largest.angle_sd_deg, levels=levels,
+                        model_estimate=estimate)  # fmt: skip
 
 
 def visit(job: Job) -> Visit:
-    """One visit: the job's study identifiers and its measures from the stored result."""
+    """One visit: the job's study identifiers and its measures from the stored result, each with the
+    reason it is a model estimate when it is one (``services.core.estimates``)."""
     result = RegistrationResult.model_validate(job.result)
+    fit = result.fit.model_dump(mode="json")
+    cobb = model_estimate_reason(fit, "cobb")
     measures = result.measures
     curves = sorted(measures.cobb, key=lambda c: -c.angle_deg)
     major = next((c for c in curves if c.major), None)
@@ -108,7 +114,8 @@ def visit(job: Job) -> Visit:
     if major:
         apex = next((v for v in result.vertebrae if v.level == major.apex), None)
         rotation = MeasureValue(value_deg=major.apex_axial_rotation_deg,
-                                sd_deg=apex.axial_rotation_sd_deg if apex else None, levels=major.apex)  # fmt: skip
+                                sd_deg=apex.axial_rotation_sd_deg if apex else None, levels=major.apex,
+                                model_estimate=model_estimate_reason(fit, "axial_rotation", major.apex))  # fmt: skip
     study = _study(job)
     return Visit(
         job_id=job.id,
@@ -116,12 +123,14 @@ def visit(job: Job) -> Visit:
         study_instance_uid=study.get("study_instance_uid"),
         accession_number=study.get("accession_number"),
         finished_at=job.finished_at,
-        major_cobb=_cobb(major) or _below_threshold(measures.largest_cobb),
-        minor_cobb=_cobb(minor),
+        major_cobb=_cobb(major, cobb) or _below_threshold(measures.largest_cobb, cobb),
+        minor_cobb=_cobb(minor, cobb),
         kyphosis_t4_t12=MeasureValue(value_deg=measures.thoracic_kyphosis_t4_t12_deg,
-                                     sd_deg=measures.thoracic_kyphosis_t4_t12_sd_deg),
+                                     sd_deg=measures.thoracic_kyphosis_t4_t12_sd_deg,
+                                     model_estimate=model_estimate_reason(fit, "kyphosis")),
         lordosis_l1_l5=MeasureValue(value_deg=measures.lumbar_lordosis_l1_l5_deg,
-                                    sd_deg=measures.lumbar_lordosis_l1_l5_sd_deg),
+                                    sd_deg=measures.lumbar_lordosis_l1_l5_sd_deg,
+                                    model_estimate=model_estimate_reason(fit, "lordosis")),
         apex_axial_rotation=rotation,
     )  # fmt: skip
 
