@@ -112,3 +112,44 @@ def test_follow_up_of_three_visits_flags_an_8_deg_progression(
         assert f"Follow-up of patient {patient}" in text and "2025-07-08" in text
     assert not watch.errors, watch.errors
     context.close()
+
+
+def test_follow_up_says_visits_and_why_an_undated_visit_is_off_the_time_axis(
+    browser: Any, live_url: str, api_key: str
+) -> None:
+    """Two real jobs of one patient, one without a study date: the page counts visits (not jobs), and says
+    that the undated visit is left out of the time axis and why; its row stays in the table."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    headers = {"Authorization": f"Bearer {api_key}"}
+    ids = []
+    for date in ("2025-03-04", None):
+        payload: dict[str, Any] = spine_payload(curve_mm=30.0)
+        payload["study"] = {"study_instance_uid": f"1.2.826.0.1.3680043.8.498.{uuid.uuid4().int % 10**12}",
+                            "patient_id": patient, **({"study_date": date} if date else {})}  # fmt: skip
+        response = httpx.post(f"{live_url}/v1/jobs", json=payload, headers=headers, timeout=30)
+        assert response.status_code == 202, response.text
+        ids.append(response.json()["id"])
+    deadline = time.monotonic() + 90
+
+    def states() -> set[str]:
+        return {httpx.get(f"{live_url}/v1/jobs/{j}", headers=headers, timeout=10).json()["status"] for j in ids}
+
+    while states() != {"succeeded"}:
+        assert time.monotonic() < deadline
+        time.sleep(0.3)
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table")
+    summary = page.text_content("#followup-summary") or ""
+    assert summary.startswith(f"2 visits of patient {patient};"), summary
+    undated = page.text_content("#followup-undated") or ""
+    assert f"One visit has no study date: job {ids[1][:8]}" in undated, undated
+    assert "left out of the time axis" in undated and "Study Date (0008,0020)" in undated, undated
+    rows = page.locator(".followup-visits tbody tr")
+    assert [rows.nth(i).locator("th").text_content() for i in range(2)] == [
+        "2025-03-04", "no study date: not on the time axis"]  # fmt: skip
+    assert page.locator(".followup-plot[data-measure=kyphosis_t4_t12] circle").count() == 1  # the dated visit only
+    assert "visits" in (page.text_content("#followup-help") or "")
+    assert not run_axe(page)
+    assert not watch.errors, watch.errors
+    context.close()

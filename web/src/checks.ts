@@ -1,10 +1,11 @@
 // What is wrong with landmarks placed on one film, found before anything is sent: four corners
 // that are not a convex quadrilateral in the contract's order or are turned by 90° or more, and
 // pedicles given image-right first (the service's own rules, in its words), vertebrae out of order
-// down the spine, and bodies that overlap their neighbours.
+// down the spine, and bodies that overlap their neighbours; and the acquisition geometry (SID, SOD,
+// magnification, central ray) that the service refuses, by its rules and in its words.
 // Coordinates are image (column, row); "down the spine" is +row unless the film's orientation says
 // its rows run toward the head (DICOM (0020,0020) Patient Orientation, PS3.3 §C.7.6.1.1.1).
-import { LEVELS, type Level, type Vec2 } from "./types";
+import { landmarkPoint, LEVELS, type Landmark, type Level, type Vec2, type ViewPayload } from "./types";
 
 export interface MarkProblem {
   level: Level;
@@ -186,3 +187,156 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
   }
   return out;
 }
+
+// ---------------------------------------------------------------- acquisition geometry
+
+/** The bounds of the service's geometry rules (spine_engine/validation.py, spine_engine/models.py), mirrored. */
+export const MAGNIFICATION_RANGE: readonly [number, number] = [0.9, 1.4];
+export const UNVERIFIED_SCALE = 2.5;
+export const SOURCE_TO_SPINE_MIN_MM = 300;
+export const RAY_OBLIQUITY_MAX_DEG = 45;
+export const FULL_SPINE_SID_MM = 1800;
+export const SPINE_TO_DETECTOR_MM = 200;
+export const NOISE_SDS = 3;
+export const LANDMARK_SD_MM_DEFAULT = 1;
+
+/** A view's `acquisition` as the payload carries it (models.Acquisition). */
+export interface AcquisitionPayload {
+  magnification?: number | null;
+  distance_source_to_detector_mm?: number | null;
+  distance_source_to_patient_mm?: number | null;
+  central_ray?: Vec2 | null;
+  image_size?: [number, number] | null;
+  projection_model?: "perspective" | "weak_perspective" | null;
+}
+
+/** The acquisition field a geometry problem is about ("acquisition" when it is SID and SOD together). */
+export type GeometryField = "magnification" | "distance_source_to_detector_mm" | "distance_source_to_patient_mm" | "acquisition" | "central_ray" | "image_size";
+
+export interface GeometryProblem {
+  field: GeometryField;
+  /** The service's words (its FieldError message). */
+  text: string;
+}
+
+/** Python's `format(x, f".{p}g")`: p significant digits, trailing zeros dropped, exponent below 1e-4 or from 10^p. */
+export function pyG(x: number, p = 6): string {
+  if (!Number.isFinite(x)) return String(x);
+  if (x === 0) return Object.is(x, -0) ? "-0" : "0";
+  const strip = (s: string): string => (s.includes(".") ? s.replace(/\.?0+$/, "") : s);
+  const [mantissa, e] = x.toExponential(p - 1).split("e");
+  const exp = Number(e);
+  if (exp < -4 || exp >= p) return `${strip(mantissa)}e${exp < 0 ? "-" : "+"}${String(Math.abs(exp)).padStart(2, "0")}`;
+  return strip(x.toFixed(p - 1 - exp));
+}
+
+const given = (x: number | null | undefined): x is number => x !== null && x !== undefined;
+
+/** (column, row) mm per unit of the view's coordinates: the pixel spacing [row, column] swapped in px, 1 in mm
+ * or without a spacing (validation.py `_mm_per_unit_if_known`). */
+function mmPerUnit(view: ViewPayload): Vec2 {
+  const s = view.pixel_spacing;
+  return view.units === "px" && s ? [s[1], s[0]] : [1, 1];
+}
+
+/** The view's landmarks in level order (the service sorts them so). */
+const byLevel = (view: ViewPayload): Landmark[] => [...view.landmarks].filter((lm) => LEVELS.includes(lm.level)).sort((a, b) => LEVELS.indexOf(a.level) - LEVELS.indexOf(b.level));
+
+/** validation.py `_outside_image_errors`: with image_size, every landmark point on the image, give or take
+ * NOISE_SDS landmark SDs. */
+function outsideImage(view: ViewPayload, acq: AcquisitionPayload): GeometryProblem[] {
+  if (!acq.image_size) return [];
+  const [columns, rows] = acq.image_size;
+  const [cm, rm] = mmPerUnit(view);
+  const sd = typeof view.landmark_sd_mm === "number" ? view.landmark_sd_mm : LANDMARK_SD_MM_DEFAULT;
+  const margin = NOISE_SDS * sd;
+  for (const lm of byLevel(view)) {
+    const points = [lm.point, ...(lm.corners ?? []), ...(lm.pedicles ?? [])].filter((p): p is Vec2 => !!p);
+    for (const [c, r] of points) {
+      if (!(-margin / cm <= c && c <= columns + margin / cm && -margin / rm <= r && r <= rows + margin / rm)) {
+        return [{
+          field: "image_size",
+          text: `landmark ${lm.level} at (column ${pyG(c)}, row ${pyG(r)}) lies off the image of ${pyG(columns)} × ${pyG(rows)} (columns × rows, in ${view.units ?? "mm"}): the image size and the landmarks must be in the same units, the landmarks on the image`,
+        }];
+      }
+    }
+  }
+  return [];
+}
+
+/**
+ * What the service refuses in a view's acquisition geometry, by its rules and in its words:
+ * models.Acquisition (the SOD must be below the SID) and validation.py `_geometry_errors` — a
+ * magnification within MAGNIFICATION_RANGE widened by UNVERIFIED_SCALE (0.36–3.5); landmarks on the
+ * image of `image_size`; then, for a point-source view (SID and SOD, or projection_model
+ * "perspective", the missing ones filled as `Acquisition.point_source_distances` does: SID 1800 mm
+ * when neither is given, the other SPINE_TO_DETECTOR_MM apart or through the magnification, SID =
+ * SOD·m), the spine at least SOURCE_TO_SPINE_MIN_MM from the source, a magnification SID/SOD of at
+ * most 3.5, and every landmark's top midpoint within SID·tan(RAY_OBLIQUITY_MAX_DEG) film mm of the
+ * central ray (the given one, else the image's centre). Empty when the service accepts the geometry.
+ */
+export function geometryProblems(view: ViewPayload): GeometryProblem[] {
+  const acq = view.acquisition as AcquisitionPayload | null | undefined;
+  if (!acq || typeof acq !== "object") return [];
+  const sid0 = acq.distance_source_to_detector_mm;
+  const sod0 = acq.distance_source_to_patient_mm;
+  const m = acq.magnification;
+  if (given(sid0) && given(sod0) && !(sod0 < sid0)) {
+    return [{ field: "acquisition", text: `the SOD (${pyG(sod0)} mm) must be smaller than the SID (${pyG(sid0)} mm): the spine lies between the source and the detector` }];
+  }
+  const low = MAGNIFICATION_RANGE[0] / UNVERIFIED_SCALE;
+  const high = MAGNIFICATION_RANGE[1] * UNVERIFIED_SCALE;
+  const out: GeometryProblem[] = [];
+  if (given(m) && !(low <= m && m <= high)) {
+    out.push({ field: "magnification", text: `a magnification of ${pyG(m)} is beyond any radiograph's: the spine's image is ${pyG(low, 2)}–${pyG(high, 2)} times its size (ERMF, DICOM (0018,1114))` });
+  }
+  out.push(...outsideImage(view, acq));
+  const pointSource = (given(sid0) && given(sod0)) || acq.projection_model === "perspective";
+  if (!pointSource || out.length) return out;
+  let sid = sid0 ?? null;
+  let sod = sod0 ?? null;
+  if (sid === null && sod === null) sid = FULL_SPINE_SID_MM;
+  if (sod === null) sod = given(m) ? (sid as number) / m : (sid as number) - SPINE_TO_DETECTOR_MM;
+  if (sid === null) sid = given(m) ? sod * m : sod + SPINE_TO_DETECTOR_MM;
+  const stated = (["distance_source_to_detector_mm", "distance_source_to_patient_mm"] as const).filter((f) => given(acq[f]));
+  const field: GeometryField = stated.length === 1 ? stated[0] : "acquisition";
+  if (sod < SOURCE_TO_SPINE_MIN_MM) {
+    const sodAssumed = !given(sod0) && !given(m);
+    const how = sodAssumed ? `SID ${pyG(sid)} mm puts the spine` : "the geometry puts the spine";
+    const assumed = sodAssumed ? ` (with no SOD or magnification given, the spine's mid-plane is taken ${pyG(SPINE_TO_DETECTOR_MM)} mm before the detector)` : "";
+    out.push({ field, text: `${how} ${pyG(sod)} mm from the source${assumed}; a radiograph's source lies at least ${pyG(SOURCE_TO_SPINE_MIN_MM)} mm from the skin, the spine deeper` });
+  } else if (sid / sod > high) {
+    out.push({ field, text: `SID ${pyG(sid)} mm and SOD ${pyG(sod)} mm${stated.length < 2 ? " (assumed)" : ""} magnify the spine ${pyG(sid / sod, 3)} times; no radiograph magnifies it more than ${pyG(high, 2)} times` });
+  } else {
+    const ray: [GeometryField, Vec2] | null = acq.central_ray
+      ? ["central_ray", [acq.central_ray[0], acq.central_ray[1]]]
+      : acq.image_size ? ["image_size", [0.5 * acq.image_size[0], 0.5 * acq.image_size[1]]] : null;
+    const landmarks = byLevel(view);
+    if (ray && landmarks.length) {
+      const [cm, rm] = mmPerUnit(view);
+      const [rc, rr] = ray[1];
+      const farthest = Math.max(...landmarks.map((lm) => {
+        const [c, r] = landmarkPoint(lm);
+        return Math.hypot((c - rc) * cm, (r - rr) * rm);
+      }));
+      if (farthest > sid * Math.tan(RAY_OBLIQUITY_MAX_DEG * (Math.PI / 180))) {
+        out.push({
+          field: ray[0],
+          text: `the central ray${ray[0] === "image_size" ? " (the image centre)" : ""} meets the film ${farthest.toFixed(0)} mm from the farthest landmark, more than the SID (${pyG(sid)} mm): the spine would be filmed by rays more than ${pyG(RAY_OBLIQUITY_MAX_DEG)}° from the central ray, which no X-ray tube emits`,
+        });
+      }
+    }
+  }
+  return out;
+}
+
+/** The field of a geometry problem in words, with the DICOM attribute it comes from (PS3.3 §C.8.11.7, DX Positioning
+ * Module, for ERMF, SID and SOD; §C.7.6.3, Image Pixel Module, for Columns and Rows). */
+export const GEOMETRY_FIELD_WORDS: Record<GeometryField, string> = {
+  magnification: "magnification (ERMF, DICOM (0018,1114))",
+  distance_source_to_detector_mm: "SID (source to detector, DICOM (0018,1110))",
+  distance_source_to_patient_mm: "SOD (source to patient, DICOM (0018,1111))",
+  acquisition: "SID and SOD (DICOM (0018,1110) and (0018,1111))",
+  image_size: "image size (its centre taken as the central ray; Columns (0028,0011) × Rows (0028,0010))",
+  central_ray: "central ray",
+};

@@ -1,8 +1,8 @@
 // The landmark CSV the page accepts, and the CSV of a result it offers for download.
 //
 // Landmark CSV: one landmark a line, `level,column,row[,view]`. level is T1..L5; column and row
-// are the image coordinates (in the units chosen beside the CSV); view is `pa` (the default) or
-// `lateral`. An optional header line (starting with "level"), blank lines and lines starting
+// are the image coordinates (in the units chosen beside the CSV), decimal numbers; view is `pa` (the
+// default) or `lateral`. An optional header line (starting with "level"), blank lines and lines starting
 // with "#" are skipped. A level may appear once per view.
 import { isLevel, landmarkPoint, LEVELS, type Landmark, type RegistrationResult } from "./types";
 
@@ -11,6 +11,10 @@ export interface ParsedCsv {
   lateral: Landmark[];
   errors: string[];
 }
+
+/** A decimal number as Python's float() reads one (sign, digits with an optional point, exponent), without
+ * its underscores, "inf" and "nan": what a landmark CSV's column and row may hold. */
+const DECIMAL = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;
 
 const byLevel = (a: Landmark, b: Landmark): number => LEVELS.indexOf(a.level) - LEVELS.indexOf(b.level);
 
@@ -32,12 +36,19 @@ export function parseLandmarkCsv(text: string): ParsedCsv {
       out.errors.push(`${where}: level ${JSON.stringify(cells[0])} is not one of T1..T12, L1..L5`);
       return;
     }
-    const column = Number(cells[1]);
-    const row = Number(cells[2]);
-    if (cells[1] === "" || cells[2] === "" || !Number.isFinite(column) || !Number.isFinite(row)) {
-      out.errors.push(`${where}: column and row must be finite numbers`);
+    // Decimal numbers only: Number() would also read "0x1A" as 26 (and 0b…, 0o…, "Infinity"), which
+    // no landmark tool writes and the Python client (float()) refuses.
+    const bad = [1, 2].find((k) => !DECIMAL.test(cells[k]));
+    if (bad !== undefined) {
+      const cell = cells[bad];
+      const field = `field ${bad + 1} (${bad === 1 ? "column" : "row"})`;
+      out.errors.push(cell !== "" && Number.isFinite(Number(cell))
+        ? `${where}, ${field}: ${JSON.stringify(cell)} is not a decimal number (hexadecimal, octal and binary notations are not read): write it with the digits 0–9, e.g. 12.5`
+        : `${where}: column and row must be finite decimal numbers; ${field} is ${JSON.stringify(cell)}`);
       return;
     }
+    const column = Number(cells[1]);
+    const row = Number(cells[2]);
     const view = (cells[3] || "pa").toLowerCase();
     if (view !== "pa" && view !== "lateral") {
       out.errors.push(`${where}: view ${JSON.stringify(cells[3])} is not pa or lateral`);

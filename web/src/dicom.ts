@@ -244,7 +244,9 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
   const sod = decimal(ds, tags.sod);
   if (ermf && ermf > 0) acquisition.magnification = ermf;
   if (sid && sid > 0) acquisition.distance_source_to_detector_mm = sid;
-  if (sod && sod > 0 && (!sid || sod < sid)) acquisition.distance_source_to_patient_mm = sod;
+  // kept as the header says, even not below the SID: the page names it before sending (checks.ts
+  // geometryProblems) rather than sending the SID alone with an assumed SOD
+  if (sod && sod > 0) acquisition.distance_source_to_patient_mm = sod;
   const orientationRaw = text(ds, tags.patientOrientation) ?? null;
   return {
     width,

@@ -2,8 +2,10 @@
 // full-size film, three click modes (top endplate midpoint, four corners, two pedicles). A click
 // always places the next landmark, whatever lies under it; a point moves only by a drag (press and
 // move past DRAG_PX) or by the keyboard (arrows move a crosshair, Enter places, Alt+arrows move the
-// selected point). Ctrl+Z / Ctrl+Shift+Z undo and redo. What is wrong with the marks (checks.ts) is
-// drawn in place, in red. Coordinates are image pixels (column, row).
+// selected point). Ctrl+Z / Ctrl+Shift+Z undo and redo. A complete vertebra moves on to the next
+// level below it that has no mark of the click mode yet (none: it stays, complete). What is wrong with
+// the marks (checks.ts) is drawn in place, in red; landmarks the service refused are ringed in red.
+// Coordinates are image pixels (column, row).
 import { filmProblems, type MarkProblem } from "./checks";
 import { windowToGrey, type DicomFilm } from "./dicom";
 import { LEVELS, type Landmark, type Level, type Vec2 } from "./types";
@@ -38,6 +40,8 @@ export interface FilmSource {
 const HIT_PX = 9; // CSS px around a point that a drag grabs
 const DRAG_PX = 4; // CSS px a press must move to be a drag (a pan, or moving the point under it)
 const HISTORY = 200; // undo steps kept
+/** The ring around a landmark the service refused. */
+export const REFUSED_RED = "#ff1f1f";
 
 interface Snapshot {
   marks: [Level, Mark][];
@@ -50,6 +54,8 @@ const copyMark = (m: Mark): Mark => ({
   ...(m.pedicles ? { pedicles: m.pedicles.map((p) => [...p] as Vec2) } : {}),
 });
 const round1 = (x: number): number => Math.round(x * 10) / 10;
+/** A mark's points in a fixed order, to tell whether it changed. */
+const markKey = (m: Mark | undefined): string => JSON.stringify([m?.point ?? null, m?.corners ?? null, m?.pedicles ?? null]);
 
 export class FilmEditor {
   source: FilmSource | null = null;
@@ -64,6 +70,9 @@ export class FilmEditor {
   rowsTowardHead = false;
   /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
   blankNote: string | null = null;
+  /** Levels the service refused (its 422 named their landmarks), each with its mark as it was then: ringed
+   * in red while the mark is unchanged. */
+  private refused = new Map<Level, string>();
   /** Said once, at the cursor, after a click that placed nothing. */
   private notice: string | null = null;
   private undoStack: Snapshot[] = [];
@@ -116,8 +125,20 @@ export class FilmEditor {
     return dropped;
   }
 
+  /** Ring the landmarks of `levels` in red: the service refused them (until they are moved or placed again). */
+  setRefused(levels: Level[]): void {
+    this.refused = new Map(levels.filter((lv) => this.marks.has(lv)).map((lv) => [lv, markKey(this.marks.get(lv))]));
+    this.draw();
+  }
+
+  /** The refused levels whose marks are still as they were refused. */
+  refusedLevels(): Level[] {
+    return [...this.refused].filter(([lv, key]) => markKey(this.marks.get(lv)) === key).map(([lv]) => lv);
+  }
+
   /** No landmarks, no undo history, back to T1. */
   private forget(): void {
+    this.refused.clear();
     this.marks.clear();
     this.undoStack = [];
     this.redoStack = [];
@@ -260,6 +281,7 @@ export class FilmEditor {
 
   setLandmarks(landmarks: Landmark[], spacing?: Vec2 | null, units?: string): void {
     // Reopened payloads in mm are shown in mm (1 "pixel" = 1 mm) unless a spacing brings them to px.
+    this.refused.clear();
     this.marks.clear();
     this.undoStack = [];
     this.redoStack = [];
@@ -360,12 +382,27 @@ export class FilmEditor {
     }
     this.marks.set(this.level, m);
     if (done) {
-      const next = LEVELS.indexOf(this.level) + 1;
-      if (next < LEVELS.length) this.level = LEVELS[next];
+      // On to the next level down that has nothing of this mode yet; when every level below is
+      // placed (the last one, or a level placed again in the middle), stay: "complete".
+      const next = this.nextUnplaced(this.level);
+      if (next) this.level = next;
       else this.finished = true;
     }
     this.draw();
     this.onChange("marks");
+  }
+
+  /** Whether `level` has a complete mark of the current mode: its pedicles in pedicle mode, else its
+   * endplate midpoint or four corners. */
+  private placedInMode(level: Level): boolean {
+    const m = this.marks.get(level);
+    if (this.mode === "pedicles") return m?.pedicles?.length === 2;
+    return !!m?.point || m?.corners?.length === 4;
+  }
+
+  /** The first level below `level` without a complete mark of the current mode, or null. */
+  nextUnplaced(level: Level): Level | null {
+    return LEVELS.slice(LEVELS.indexOf(level) + 1).find((lv) => !this.placedInMode(lv)) ?? null;
   }
 
   /** Remove the selected point's mark (a point, a set of corners or the pedicles); nothing when none is selected. */
@@ -687,6 +724,22 @@ export class FilmEditor {
         const p = S(q);
         this.dot(ctx, p, "#7CFC00", this.isSelected(level, "pedicles", i), true);
       });
+    }
+    // landmarks the service refused: a red ring around each, with a word beside it
+    const refused = this.refusedLevels();
+    this.canvas.dataset.refused = refused.join(" ");
+    for (const level of refused) {
+      const m = this.marks.get(level);
+      const pts = [m?.point, ...(m?.corners ?? []), ...(m?.pedicles ?? [])].filter((p): p is Vec2 => !!p).map(S);
+      if (!pts.length) continue;
+      const c: Vec2 = [pts.reduce((a, p) => a + p[0], 0) / pts.length, pts.reduce((a, p) => a + p[1], 0) / pts.length];
+      const r = Math.max(14, ...pts.map((p) => Math.hypot(p[0] - c[0], p[1] - c[1]) + 9));
+      ctx.strokeStyle = REFUSED_RED;
+      ctx.lineWidth = 3;
+      ctx.beginPath();
+      ctx.arc(c[0], c[1], r, 0, 2 * Math.PI);
+      ctx.stroke();
+      this.label(ctx, `✖ ${level} refused by the service`, [c[0] - r, c[1] - r - 9], "#ff6b6b");
     }
     if (this.cursor) {
       const [x, y] = S(this.cursor);

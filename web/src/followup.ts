@@ -1,7 +1,9 @@
-// The Follow-up view: a patient's succeeded jobs by study date (GET /v1/patients/{id}/measures), the
-// measures with their ±, each change between consecutive visits (flagged beyond both 5° and 1.96 ×
-// the combined SD, with the rule that decided), and one small plot per measure over time (the value
-// with its 95 % interval, ±1.96 SD; a flagged change drawn in red).
+// The Follow-up view: a patient's visits by study date (GET /v1/patients/{id}/measures: one per study
+// among the key's succeeded jobs, its latest job standing for it), the measures with their ±, each
+// change between consecutive visits (flagged beyond both 5° and 1.96 × the combined SD, with the rule
+// that decided), and one small plot per measure over time (the value with its 95 % interval, ±1.96 SD;
+// a flagged change drawn in red). A visit without a study date has no place on the time axis: it is in
+// the table, left out of the plots and changes, and the page says so.
 import { withSd } from "./results";
 
 export type MeasureName = "major_cobb" | "minor_cobb" | "kyphosis_t4_t12" | "lordosis_l1_l5" | "apex_axial_rotation";
@@ -43,6 +45,8 @@ export interface PatientMeasures {
   visits: Visit[];
   changes: Change[];
   rule: string;
+  /** Older visits were left out: only the newest succeeded jobs are read (absent from older services). */
+  older_visits_left_out?: boolean;
 }
 
 export const MEASURE_NAMES: Record<MeasureName, string> = {
@@ -76,7 +80,7 @@ function cell(m: MeasureValue | null): string {
   return `${withSd(m.value_deg, m.sd_deg)}${m.levels ? ` (${m.levels})` : ""}`;
 }
 
-/** The visits table: one row per job, by study date. */
+/** The visits table: one row per visit (the job that stands for it linked), by study date, undated last. */
 export function visitsTable(data: PatientMeasures, caption: string): HTMLTableElement {
   const table = el("table", undefined, "data followup-visits");
   table.createCaption().textContent = caption;
@@ -92,7 +96,7 @@ export function visitsTable(data: PatientMeasures, caption: string): HTMLTableEl
     const link = el("a", v.job_id.slice(0, 8));
     link.href = `#/jobs/${v.job_id}`;
     link.setAttribute("aria-label", `Open job ${v.job_id}`);
-    const date = el("th", v.study_date ?? "no study date");
+    const date = el("th", v.study_date ?? "no study date: not on the time axis");
     date.scope = "row";
     tr.append(date);
     tr.insertCell().append(link);
@@ -186,13 +190,30 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   return root;
 }
 
+/** Why visits without a study date are not on the time axis, in words; null when every visit has one. */
+export function undatedWords(data: PatientMeasures): string | null {
+  const undated = data.visits.filter((v) => !v.study_date);
+  if (!undated.length) return null;
+  const one = undated.length === 1;
+  const which = undated.map((v) => `job ${v.job_id.slice(0, 8)}${v.study_instance_uid ? ` (study ${v.study_instance_uid})` : ""}`).join(", ");
+  return `${one ? "One visit has" : `${undated.length} visits have`} no study date: ${which}. ${one ? "It is" : "They are"} left out of the time axis — the plots and the changes between visits — because neither the films' Study Date (0008,0020) nor the payload's study_date says when ${one ? "it was" : "they were"} filmed, so ${one ? "its" : "their"} place between the other visits is unknown. ${one ? "Its" : "Their"} measures are in the table, last.`;
+}
+
 /** Fill the Follow-up view: summary, visits, changes, plots. */
 export function fillFollowUp(container: HTMLElement, data: PatientMeasures): void {
   const flagged = data.changes.filter((c) => c.flagged);
-  const summary = el("p", data.visits.length
-    ? `${data.visits.length} succeeded job${data.visits.length > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
-    : `No succeeded job of patient ${data.patient_id} with this API key.`, "summary");
+  const n = data.visits.length;
+  const summary = el("p", n
+    ? `${n} visit${n > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
+    : `No visit of patient ${data.patient_id}: no succeeded job of this patient with this API key.`, "summary");
   summary.id = "followup-summary";
+  const notes: HTMLElement[] = [];
+  const undated = undatedWords(data);
+  if (undated) notes.push(Object.assign(el("p", undated, "warning"), { id: "followup-undated" }));
+  if (data.older_visits_left_out) {
+    // the service reads the newest MAX_PATIENT_JOBS (services/db/jobs.py) succeeded jobs
+    notes.push(Object.assign(el("p", "Older visits were left out: only the patient's newest 1,000 succeeded jobs are read.", "warning"), { id: "followup-older" }));
+  }
   const rule = el("p", RULE_WORDS, "help");
   const scroll = (table: HTMLTableElement, id: string): HTMLElement => {
     const div = el("div", undefined, "table-scroll");
@@ -208,7 +229,7 @@ export function fillFollowUp(container: HTMLElement, data: PatientMeasures): voi
     const plot = measurePlot(data, name);
     if (plot) plots.append(plot);
   }
-  container.replaceChildren(summary, rule);
+  container.replaceChildren(summary, ...notes, rule);
   if (!data.visits.length) return;
   container.append(
     scroll(visitsTable(data, `Patient ${data.patient_id}: measures by study date (± one SD)`), "followup-visits"),

@@ -5,16 +5,17 @@
 import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
+import { GEOMETRY_FIELD_WORDS, geometryProblems } from "./checks";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
-import { changesTable, fillFollowUp, RULE_WORDS, visitsTable } from "./followup";
+import { changesTable, fillFollowUp, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
 import { drawProjections, type Backdrop } from "./projections";
-import { fillLegend, fillLenke, fillMeasures, fillStrains, measureRows } from "./results";
-import { FINAL_STATUSES, type Job, type JobPayload, type Pose, type Problem, type Study, type Vec3, type ViewPayload } from "./types";
+import { COBB_ESTIMATE_REASON, fillLegend, fillLenke, fillMeasures, fillStrains, measureRows, modelMark } from "./results";
+import { FINAL_STATUSES, isLevel, type Job, type JobPayload, type Landmark, type Level, type Pose, type Problem, type Study, type Vec3, type ViewPayload } from "./types";
 import type { SpineViewer } from "./viewer3d";
 
 const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
@@ -32,6 +33,8 @@ interface Draft {
   lateral: ViewPayload | null;
   /** Other top-level members of a pasted payload (options, study, …), sent back as they were. */
   extras: Record<string, unknown>;
+  /** Said with the landmark summary (e.g. the lateral spacing taken as the PA's). */
+  note?: string;
 }
 
 let source: Source = "image";
@@ -147,17 +150,26 @@ $<HTMLInputElement>("csv-file").addEventListener("change", (e) => void readFile(
 $("use-csv").addEventListener("click", () => {
   const parsed = parseLandmarkCsv(csvText.value);
   const units = $<HTMLSelectElement>("csv-units").value as "mm" | "px";
+  // Each film its own spacing: the lateral one, when left empty, is the PA film's (one detector).
   const spacing = Number($<HTMLInputElement>("csv-spacing").value);
-  if (!parsed.errors.length && units === "px" && !(spacing > 0)) parsed.errors.push("pixel coordinates need the pixel spacing (mm per pixel): enter it beside the units");
+  const lateralTyped = $<HTMLInputElement>("csv-spacing-lateral").value.trim();
+  const lateralSpacing = lateralTyped === "" ? spacing : Number(lateralTyped);
+  if (!parsed.errors.length && units === "px") {
+    if (!(spacing > 0)) parsed.errors.push("pixel coordinates need the PA film's pixel spacing (mm per pixel): enter it beside the units");
+    else if (parsed.lateral.length && !(lateralSpacing > 0)) parsed.errors.push(`the lateral film's pixel spacing ${JSON.stringify(lateralTyped)} is not a positive number of mm per pixel: enter it, or leave it empty to use the PA film's`);
+  }
   if (parsed.errors.length) {
     const dropped = dropDraft("CSV");
     showInputError(`The CSV has ${parsed.errors.length} problem${parsed.errors.length === 1 ? "" : "s"}: ${parsed.errors.slice(0, 5).join("; ")}.${dropped}`);
     return;
   }
   showInputError(null);
-  const view = (landmarks: ViewPayload["landmarks"]): ViewPayload =>
-    units === "px" ? { units, pixel_spacing: [spacing, spacing], landmarks } : { units, landmarks };
-  draft = { source: "csv", pa: view(parsed.pa), lateral: parsed.lateral.length ? view(parsed.lateral) : null, extras: {} };
+  const view = (landmarks: ViewPayload["landmarks"], s: number): ViewPayload =>
+    units === "px" ? { units, pixel_spacing: [s, s], landmarks } : { units, landmarks };
+  const note = units === "px" && parsed.lateral.length && lateralTyped === ""
+    ? `The lateral film's pixel spacing is taken as the PA film's, ${spacing} mm: enter its own beside the units if it differs.`
+    : undefined;
+  draft = { source: "csv", pa: view(parsed.pa, spacing), lateral: parsed.lateral.length ? view(parsed.lateral, lateralSpacing) : null, extras: {}, note };
   source = "csv";
   reopenedJob = null;
   draftChanged();
@@ -236,7 +248,8 @@ function draftChanged(): void {
   } else {
     const from = { image: "placed on the films", csv: "from the CSV", json: "from the payload" }[source];
     const count = (x: ViewPayload | null, name: string): string => (x ? `${x.landmarks.length} ${name} landmark${x.landmarks.length === 1 ? "" : "s"}` : "");
-    summary.textContent = `${[count(v.pa, "PA"), count(v.lateral, "lateral")].filter(Boolean).join(", ")} ${from}.`;
+    const note = source !== "image" && draft?.note ? ` ${draft.note}` : "";
+    summary.textContent = `${[count(v.pa, "PA"), count(v.lateral, "lateral")].filter(Boolean).join(", ")} ${from}.${note}`;
   }
   $<HTMLButtonElement>("download-landmarks").disabled = !(v.pa?.landmarks.length || v.lateral?.landmarks.length);
   applyAutoL5();
@@ -411,6 +424,15 @@ function missing(): string[] {
     out.push(...panels.pa.problems(), ...panels.lateral.problems());
     if (!panels.pa.hasFilm()) out.push("Open the PA film (DICOM, PNG or JPEG), or give the landmarks as a CSV or a payload.");
   }
+  // The acquisition geometry the service refuses (its rules: checks.ts geometryProblems), named by field.
+  for (const name of ["pa", "lateral"] as const) {
+    const view = v[name];
+    if (!view) continue;
+    const remedy = source === "image" ? panels[name].geometryRemedy() : "correct the payload's acquisition";
+    for (const p of geometryProblems(view)) {
+      out.push(`${name === "pa" ? "PA" : "Lateral"} film, ${GEOMETRY_FIELD_WORDS[p.field]}: ${p.text}: ${remedy}.`);
+    }
+  }
   if (!v.pa) {
     if (source !== "image" || panels.pa.hasFilm()) out.push("Place landmarks on the PA film: the PA view is required.");
   } else if (caps?.acquisition) {
@@ -469,6 +491,7 @@ const cancelButton = $<HTMLButtonElement>("cancel-job");
 function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknown): void {
   box.hidden = !problem;
   box.replaceChildren();
+  const ringed = box === problemBox ? markRefused(problem, payload) : "";
   if (!problem) return;
   const { title, lines } = sentences(problem, payload);
   const head = document.createElement("p");
@@ -482,6 +505,44 @@ function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknow
     list.append(li);
   }
   box.append(list);
+  if (ringed) {
+    const p = document.createElement("p");
+    p.id = "refused-note";
+    p.textContent = ringed;
+    box.append(p);
+  }
+}
+
+/** A landmark as compared between the payload sent and the films now: level and points, to 0.001. */
+function landmarkKey(lm: Landmark): string {
+  const r = (p: unknown): unknown => (Array.isArray(p) ? p.map(r) : typeof p === "number" ? Math.round(p * 1000) / 1000 : p ?? null);
+  return JSON.stringify([lm.level, r(lm.point), r(lm.corners), r(lm.pedicles)]);
+}
+
+/**
+ * Ring in red, on the films, the landmarks a refusal names (its errors' paths `pa.landmarks[3]…`,
+ * the payload's own indices, as the service gives them), while the films hold exactly the landmarks
+ * that were sent; returns the sentence that says so (empty when none is ringed). A problem of null
+ * takes the rings away.
+ */
+function markRefused(problem: Problem | null, payload: unknown): string {
+  const sent = (payload && typeof payload === "object" ? payload : {}) as Partial<JobPayload>;
+  const now = source === "image" ? views() : null;
+  const words: string[] = [];
+  for (const name of ["pa", "lateral"] as const) {
+    const landmarks = sent[name]?.landmarks;
+    const levels: Level[] = [];
+    for (const e of problem?.errors ?? []) {
+      const m = /^(pa|lateral)\.landmarks\[(\d+)\]/.exec(e.path ?? "");
+      const level = m && m[1] === name ? landmarks?.[Number(m[2])]?.level : undefined;
+      if (typeof level === "string" && isLevel(level) && !levels.includes(level)) levels.push(level);
+    }
+    const same = !!now?.[name] && !!landmarks && JSON.stringify(now[name]!.landmarks.map(landmarkKey)) === JSON.stringify(landmarks.map(landmarkKey));
+    const ringed = same ? levels : [];
+    panels[name].editor.setRefused(ringed);
+    if (ringed.length) words.push(`the ${name === "pa" ? "PA" : "lateral"} film (${ringed.join(", ")})`);
+  }
+  return words.length ? `The landmarks the service refused are ringed in red on ${words.join(" and on ")}: move them or place them again.` : "";
 }
 
 /** The Idempotency-Key of the draft as last sent: the same key while the payload is unchanged (an
@@ -658,7 +719,10 @@ $<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
     const data = await api.followUp(patientId);
     const head = document.createElement("h3");
     head.textContent = `Follow-up of patient ${patientId}`;
-    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
+    const undated = undatedWords(data);
+    const note = document.createElement("p");
+    note.textContent = undated ?? "";
+    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), ...(undated ? [note] : []), changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
     box.hidden = false;
   } catch (error) {
     if (error instanceof ApiError) showProblem(problemBox, error.problem);
@@ -771,6 +835,7 @@ function jobRow(job: Job): HTMLTableRowElement {
     cell([s?.accession_number, s?.study_instance_uid].filter(Boolean).join(" · ") || "—"),
     cell(major ? `${major.angle_deg.toFixed(1)}°${major.angle_sd_deg != null ? ` ± ${major.angle_sd_deg.toFixed(1)}°` : ""} (${major.upper}–${major.lower})` : "—"),
   );
+  if (major && job.result?.fit.unreliable?.includes("cobb")) tr.lastElementChild?.append(" ", modelMark(COBB_ESTIMATE_REASON));
   return tr;
 }
 

@@ -65,6 +65,8 @@ export class FilmPanel {
   private readonly error: HTMLElement;
   private readonly warning: HTMLElement;
   private readonly fileInput: HTMLInputElement;
+  private readonly ignoreGeometry: HTMLInputElement;
+  private readonly ignoreRow: HTMLElement;
   /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were placed on. */
   private dropNote: string | null = null;
   /** The landmarks are a reopened job's (on a blank frame, or on the job's film opened under them). */
@@ -86,6 +88,13 @@ export class FilmPanel {
     this.warning = el("p", { id: id("warning"), class: "warning", role: "status" });
     this.warning.hidden = true;
     this.fileInput = file;
+    this.ignoreGeometry = el("input", { id: id("ignore-geometry"), type: "checkbox" });
+    this.ignoreRow = el("div", { class: "row inline-check" });
+    this.ignoreRow.append(this.ignoreGeometry, el("label", { for: id("ignore-geometry") }, "Ignore header geometry"),
+      el("span", { id: id("ignore-geometry-help"), class: "help" },
+        "When the header's magnification (ERMF), SID or SOD is wrong: the film is then sent without them, as an uncalibrated film (its scale estimated, as for a film whose header gives none)."));
+    this.ignoreGeometry.setAttribute("aria-describedby", id("ignore-geometry-help"));
+    this.ignoreRow.hidden = true;
     this.wlCenter = el("input", { id: id("wl-center"), type: "number", step: "any" });
     this.wlWidth = el("input", { id: id("wl-width"), type: "number", step: "any", min: "1" });
     this.invert = el("input", { id: id("wl-invert"), type: "checkbox" });
@@ -148,6 +157,7 @@ export class FilmPanel {
       this.error,
       this.warning,
       this.header,
+      this.ignoreRow,
       labelled(id("spacing"), "Pixel spacing (mm per pixel)", this.spacing,
         "Read from the DICOM header when it has one; a PNG or JPEG does not carry it: enter it (e.g. from the PACS)."),
       this.wlRow, tools, this.prompt, canvas, keys, buttons, this.status,
@@ -160,6 +170,11 @@ export class FilmPanel {
       if (what === "marks") this.onChange();
     });
     file.addEventListener("change", () => void this.open(file.files?.[0]));
+    this.ignoreGeometry.addEventListener("change", () => {
+      this.fillHeader();
+      this.update();
+      this.onChange();
+    });
     this.spacing.addEventListener("input", () => {
       this.update();
       this.onChange();
@@ -233,6 +248,7 @@ export class FilmPanel {
       }
       this.fileName = file.name;
       this.reopened = null;
+      this.ignoreGeometry.checked = false;
       if (!keep) this.fromJob = false;
       this.warning.hidden = !warning;
       this.warning.textContent = warning ?? "";
@@ -266,6 +282,8 @@ export class FilmPanel {
     this.fromJob = false;
     this.dropNote = null;
     this.fileInput.value = "";
+    this.ignoreGeometry.checked = false;
+    this.ignoreRow.hidden = true;
     this.spacing.value = "";
     this.wlRow.hidden = true;
     this.showError(null);
@@ -292,7 +310,7 @@ export class FilmPanel {
       rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
-      const service = serviceSpacingWords(d.spacing, d.acquisition, d.hasImagerSpacing);
+      const service = serviceSpacingWords(d.spacing, this.geometryIgnored() ? {} : d.acquisition, d.hasImagerSpacing);
       rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.${service ? ` ${service}` : ""}`]);
       rows.push(["Orientation", d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
         : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`]);
@@ -302,11 +320,36 @@ export class FilmPanel {
         a.distance_source_to_detector_mm && `SID ${a.distance_source_to_detector_mm} mm`,
         a.distance_source_to_patient_mm && `SOD ${a.distance_source_to_patient_mm} mm`,
       ].filter(Boolean);
-      rows.push(["Geometry", geo.length ? geo.join(", ") : "not given: the scale is estimated"]);
+      const ignored = this.geometryIgnored() ? " (ignored: sent as an uncalibrated film)" : "";
+      rows.push(["Geometry", geo.length ? geo.join(", ") + ignored : "not given: the scale is estimated"]);
     } else if (this.fileName) {
       rows.push(["Image", `${this.fileName}: no header, so no spacing, patient or study`]);
     }
     this.header.replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
+    this.ignoreRow.hidden = !this.hasGeometry();
+  }
+
+  /** The film's payload would carry a magnification, SID or SOD: from its DICOM header (not for
+   * millimetres already in the patient plane, sent with magnification 1 and nothing of the header's
+   * geometry), or from the reopened job's payload while its landmarks are on a blank frame. */
+  hasGeometry(): boolean {
+    const acq = this.dicom
+      ? (this.dicom.spacing.calibration === "calibrated" ? null : this.dicom.acquisition)
+      : this.reopened && !this.editor.source ? (this.reopened.acquisition as Acquisition | null | undefined) : null;
+    return !!acq && GEOMETRY_KEYS.some((k) => acq[k] !== undefined && acq[k] !== null);
+  }
+
+  /** "Ignore header geometry" is ticked (and applies to this film). */
+  geometryIgnored(): boolean {
+    return this.ignoreGeometry.checked && this.hasGeometry();
+  }
+
+  /** What to do about a geometry the service would refuse, in words. */
+  geometryRemedy(): string {
+    const name = this.view === "pa" ? "PA" : "lateral";
+    return this.hasGeometry()
+      ? `tick “Ignore header geometry” under the ${name} film to send it without the header's ERMF, SID and SOD (as an uncalibrated film), or correct the header`
+      : "correct the payload's acquisition";
   }
 
   /** The spacing the user confirmed or typed, mm per pixel [row, column]; null when missing or invalid. */
@@ -339,14 +382,21 @@ export class FilmPanel {
     const landmarks = this.editor.landmarks();
     if (!landmarks.length) return null;
     if (this.reopened && !this.editor.source) {
-      return { ...this.reopened, landmarks: this.reopened.units === "mm" && this.reopened.pixel_spacing ? landmarks.map((lm) => toMm(lm, this.reopened!.pixel_spacing as Vec2)) : landmarks };
+      const view: ViewPayload = { ...this.reopened, landmarks: this.reopened.units === "mm" && this.reopened.pixel_spacing ? landmarks.map((lm) => toMm(lm, this.reopened!.pixel_spacing as Vec2)) : landmarks };
+      if (this.geometryIgnored()) {
+        const acq = withoutGeometry(this.reopened.acquisition as Acquisition);
+        if (Object.keys(acq).length) view.acquisition = acq;
+        else delete view.acquisition;
+      }
+      return view;
     }
     const view: ViewPayload = { units: "px", pixel_spacing: this.pixelSpacing(), patient_orientation: this.orientation(), landmarks };
     const d = this.dicom;
     if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
     if (d && accepts.acquisition) {
       // Millimetres already in the patient plane are not magnified again.
-      const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+      // "Ignore header geometry": as a film whose header gives no ERMF, SID or SOD.
+      const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : this.geometryIgnored() ? withoutGeometry(d.acquisition) : { ...d.acquisition };
       // The film's extent in px (the payload's units): with SID and SOD, the central ray at its centre.
       if (accepts.imageSize) acq.image_size = [d.width, d.height];
       // A CR or DX film comes from a point source (DICOM PS3.3 C.7.3.1.1.1 Modality); millimetres already in
@@ -386,6 +436,7 @@ export class FilmPanel {
     this.editor.clearSource();
     this.editor.setLandmarks(view.landmarks, view.pixel_spacing as Vec2 | null, view.units);
     if (view.units === "px" && view.pixel_spacing) this.spacing.value = String(view.pixel_spacing[1]);
+    this.ignoreRow.hidden = !this.hasGeometry();
     this.explainBlank(why);
     this.update();
   }
@@ -421,6 +472,16 @@ export class FilmPanel {
 }
 
 const round = (x: number): number => Math.round(x * 100) / 100;
+
+/** The acquisition members that state the film's geometry (DICOM ERMF (0018,1114), SID (0018,1110), SOD (0018,1111)). */
+const GEOMETRY_KEYS = ["magnification", "distance_source_to_detector_mm", "distance_source_to_patient_mm"] as const;
+
+/** An acquisition without its geometry: what a film whose header gives none is sent with. */
+function withoutGeometry(acq: Acquisition | null | undefined): Acquisition {
+  const out: Acquisition = { ...(acq ?? {}) };
+  for (const k of GEOMETRY_KEYS) delete out[k];
+  return out;
+}
 
 function toMm(lm: ViewPayload["landmarks"][number], spacing: Vec2): ViewPayload["landmarks"][number] {
   const mm = (p: Vec2): Vec2 => [Math.round(p[0] * spacing[1] * 1000) / 1000, Math.round(p[1] * spacing[0] * 1000) / 1000];

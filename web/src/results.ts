@@ -3,9 +3,17 @@
 // "model estimate" mark on the quantities listed in fit.unreliable (they come from the model's
 // prior, not from the landmarks).
 import { bendingLimit, gradientCss } from "./colors";
-import type { Job, RegistrationResult, VertebraResult } from "./types";
+import { LEVELS, type CobbCurve, type Job, type RegistrationResult, type VertebraResult } from "./types";
 
 export const MODEL_MARK = "model estimate";
+
+/** Why the frontal Cobb angles are model estimates when fit.unreliable lists `cobb`: the sentence of
+ * services/core/estimates.py `model_estimate_reason(fit, "cobb")` (docs/measures.md). */
+export const COBB_ESTIMATE_REASON = "the PA film's landmarks do not reach every level from T1 to L5, or a Cobb angle's standard " +
+  "deviation exceeds half the population's: the frontal Cobb angles depend on the spine model's prior where no landmark is, " +
+  "and each such angle's SD is at least the population's (fit.unreliable: cobb)";
+
+const MARK_TITLE = "From the model's prior, not from the landmarks: do not read it as measured.";
 
 const num = (x: number | null | undefined, digits = 1): string => (x === null || x === undefined || !Number.isFinite(x) ? "—" : x.toFixed(digits));
 
@@ -23,12 +31,21 @@ export function unreliable(result: RegistrationResult): Set<string> {
 export const frontalBending = (v: VertebraResult): number | null => v.frontal_bending_deg ?? v.lateral_bending_deg;
 export const sagittalBending = (v: VertebraResult): number | null => v.sagittal_bending_deg ?? v.pa_bending_deg;
 
-function mark(): HTMLElement {
+/** The visible "model estimate" mark; `reason` (why the films leave it to the prior) goes in its tooltip. */
+export function modelMark(reason?: string): HTMLElement {
   const s = document.createElement("span");
   s.className = "model-mark";
   s.textContent = MODEL_MARK;
-  s.title = "From the model's prior, not from the landmarks: do not read it as measured.";
+  s.title = reason ? `From the model's prior: ${reason}.` : MARK_TITLE;
   return s;
+}
+const mark = modelMark;
+
+/** Where a curve's apex is: its apical vertebra ("T8"), or for a curve of one segment the SRS apical disc
+ * between `apex` and the vertebra below it ("T8/T9 disc", `apical_disc`, docs/measures.md). */
+export function apexWords(curve: Pick<CobbCurve, "apex" | "apical_disc">): string {
+  const below = LEVELS[LEVELS.indexOf(curve.apex) + 1];
+  return curve.apical_disc && below ? `${curve.apex}/${below} disc` : curve.apex;
 }
 
 export interface MeasureRow {
@@ -36,6 +53,8 @@ export interface MeasureRow {
   value: string;
   model: boolean;
   note?: string;
+  /** Why the value is a model estimate, where the page says more than the general mark. */
+  reason?: string;
 }
 
 /** The measures as rows of words (the page's table, the printed report and the CSV share them). */
@@ -44,27 +63,33 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
   const u = unreliable(result);
   const rows: MeasureRow[] = [];
   const byLevel = new Map(result.vertebrae.map((v) => [v.level, v]));
-  if (!m.cobb.length) rows.push({ name: "Frontal curves", value: "none of 10° or more", model: false });
+  // Every frontal Cobb angle (the curves', the largest angle, whether any reaches 10°) is the prior's when fit.unreliable lists cobb.
+  const cobb = u.has("cobb");
+  const cobbReason = cobb ? COBB_ESTIMATE_REASON : undefined;
+  if (!m.cobb.length) rows.push({ name: "Frontal curves", value: "none of 10° or more", model: cobb, reason: cobbReason });
   const largest = m.largest_cobb;
   if (largest && !largest.reported_as_curve) {
     rows.push({
       name: `Largest frontal angle ${largest.upper}–${largest.lower}`,
       value: withSd(largest.angle_deg, largest.angle_sd_deg),
-      model: false,
+      model: cobb,
       note: "below the 10° of a scoliotic curve",
+      reason: cobbReason,
     });
   }
   for (const c of m.cobb) {
     rows.push({
       name: `${c.major ? "Major" : "Minor"} curve ${c.upper}–${c.lower}, Cobb angle`,
       value: withSd(c.angle_deg, c.angle_sd_deg),
-      model: false,
-      note: `apex ${c.apex}, convex to the patient's ${c.convexity}`,
+      model: cobb,
+      note: `apex ${apexWords(c)}, convex to the patient's ${c.convexity}`,
+      reason: cobbReason,
     });
     const rotation = c.apex_axial_rotation_deg;
     const toward = rotation === 0 ? "" : (rotation > 0) === (c.convexity === "left") ? "toward the convexity" : "toward the concavity";
     rows.push({
-      name: `Apex ${c.apex} axial rotation`,
+      // an apical disc has no rotation of its own: the engine gives its upper vertebra's (`apex`)
+      name: c.apical_disc ? `Apex ${apexWords(c)}: ${c.apex} axial rotation` : `Apex ${c.apex} axial rotation`,
       value: withSd(rotation, byLevel.get(c.apex)?.axial_rotation_sd_deg),
       model: u.has("axial_rotation"),
       note: `the vertebral body turned ${toward || "straight ahead"} (positive: toward the patient's left, seen from above)`,
@@ -76,6 +101,7 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
       note: "azimuth from the frontal plane, toward anterior",
     });
   }
+  if (cobb) rows.push({ name: "Frontal Cobb angles", value: "from the model's prior", model: true, note: COBB_ESTIMATE_REASON.replace(/^t/, "T"), reason: cobbReason });
   if (m.aasce2019) rows.push({ name: `AASCE 2019 major angle ${m.aasce2019.upper}–${m.aasce2019.lower}`, value: `${num(m.aasce2019.angle_deg)}°`, model: false, note: "from the four corners" });
   const kyph = u.has("kyphosis");
   rows.push({ name: "Thoracic kyphosis T4–T12", value: withSd(m.thoracic_kyphosis_t4_t12_deg, m.thoracic_kyphosis_t4_t12_sd_deg), model: kyph, note: "positive: convex posteriorly" });
@@ -127,7 +153,7 @@ export function fillMeasures(table: HTMLTableElement, job: Job, result: Registra
     const value = td(r.value, "value");
     if (r.model) {
       tr.className = "is-model";
-      value.append(" ", mark());
+      value.append(" ", mark(r.reason));
     }
     tr.append(th, value);
     return tr;
@@ -137,6 +163,7 @@ export function fillMeasures(table: HTMLTableElement, job: Job, result: Registra
 
 export function fillLenke(container: HTMLElement, result: RegistrationResult): void {
   const l = result.measures.lenke;
+  const cobb = unreliable(result).has("cobb");
   container.replaceChildren();
   if (!l) {
     container.textContent = "This result carries no Lenke inputs.";
@@ -153,16 +180,22 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
     const th = document.createElement("th");
     th.scope = "col";
     th.textContent = h;
+    if (h === "Cobb" && cobb) {
+      th.append(document.createElement("br"), mark(COBB_ESTIMATE_REASON));
+      th.classList.add("is-model");
+    }
     head.append(th);
   }
   const body = table.createTBody();
   const region: Record<string, string> = { proximal_thoracic: "Proximal thoracic", main_thoracic: "Main thoracic", thoracolumbar_lumbar: "Thoracolumbar/lumbar" };
   for (const c of l.curves) {
     const tr = body.insertRow();
+    // A Lenke curve is one of measures.cobb (the largest of its region): its apex is that curve's, disc or vertebra.
+    const curve = result.measures.cobb.find((k) => k.upper === c.upper && k.lower === c.lower && k.apex === c.apex);
     // Lenke's kyphosis criterion is regional (docs/measures.md): T2–T5 for the proximal thoracic curve,
     // T10–L2 for the others; the thoracic T5–T12 kyphosis sets the sagittal modifier, not this column.
     const [span, kyphosis] = c.region === "proximal_thoracic" ? ["T2–T5", l.t2_t5_kyphosis_deg] : ["T10–L2", l.t10_l2_kyphosis_deg];
-    tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(c.apex), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"),
+    tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(apexWords({ apex: c.apex, apical_disc: curve?.apical_disc })), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"),
       td(`${c.structural_by_kyphosis ? "yes" : "no"} (${span} ${num(kyphosis)}°)`));
   }
   const facts = document.createElement("p");

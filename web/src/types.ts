@@ -74,6 +74,9 @@ export interface CobbCurve {
   angle_deg: number;
   major: boolean;
   convexity: "left" | "right";
+  /** True for a curve of one segment: its apex is the SRS apical disc between `apex` and the vertebra below
+   * (`apex` names the disc's upper vertebra). Absent from services before it. */
+  apical_disc?: boolean;
   apex_axial_rotation_deg: number;
   plane_of_max_curvature_deg: number;
   max_curvature_deg: number;
@@ -132,6 +135,8 @@ export interface RegistrationResult {
     pa: ViewProjection;
     lateral?: ViewProjection | null;
     boundary?: "given" | "soft" | "estimated";
+    /** Quantities from the model's prior: scale, depth, kyphosis, lordosis, plane_of_max_curvature, axial_rotation,
+     * twist, cobb (every frontal Cobb angle: measures.cobb, largest_cobb, the Lenke curves). */
     unreliable?: string[];
     uncertainty_scale?: number;
   };
