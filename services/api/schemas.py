@@ -12,8 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.core.problems import PROBLEM_MEDIA_TYPE
 from services.core.status import JobStatus
 from services.db.dicom_stores import DicomStoreAttempt
-from services.db.job_forms import job_study
-from services.db.jobs import MAX_PATIENT_JOBS
+from services.db.jobs import MAX_PATIENT_JOBS, job_members
 from services.db.models import Job as JobRow
 from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.dicomweb import StudyImage
@@ -101,36 +100,19 @@ class Job(BaseModel):
     @classmethod
     def summary(cls, row: JobRow) -> Job:
         """The job without the members only GET /v1/jobs/{id} has (they stay unset)."""
-        return cls(**_members(row))
+        return cls(**job_members(row))
 
     @classmethod
     def detail(cls, row: JobRow, deliveries: Sequence[WebhookDelivery]) -> Job:
         """The job as GET /v1/jobs/{id} answers it: with the payload, DICOM provenance, STOW-RS and
         webhook delivery attempts (``deliveries``: the rows of ``services.db.deliveries.deliveries``)."""
         return cls(
-            **_members(row),
+            **job_members(row),
             payload=row.payload,
             dicom=row.dicom,
             dicom_stores=row.dicom_stores or [],
             deliveries=[WebhookDeliveryAttempt.model_validate(d, from_attributes=True) for d in deliveries],
         )
-
-
-def _members(row: JobRow) -> dict[str, Any]:
-    """The members of every job view, from the row's columns (validated by the ``Job`` they build)."""
-    return {
-        "id": row.id,
-        "status": row.status,
-        "owner": row.owner,
-        "created_at": row.created_at,
-        "started_at": row.started_at,
-        "finished_at": row.finished_at,
-        "attempts": row.attempts,
-        "engine_version": row.engine_version,
-        "result": row.result,
-        "error": row.error,
-        "study": job_study(row),
-    }
 
 
 class JobPage(BaseModel):

@@ -404,19 +404,28 @@ def _ts(value: datetime | None) -> str | None:
     return iso_utc(value) if value is not None else None
 
 
-def job_json(job: Job) -> dict[str, Any]:
-    """A job as the ``data`` of a webhook body: the JSON of the API's ``Job.summary`` (a webhook is
-    sent from layers below the API, which cannot import its model)."""
+def job_members(job: Job) -> dict[str, Any]:
+    """The members every view of a job has, from its row's columns: the API's ``Job.summary`` and
+    ``Job.detail`` are built from them (``services.api.schemas``), and a webhook's ``data`` is their
+    JSON (``job_json``)."""
     return {
-        "id": str(job.id),
+        "id": job.id,
         "status": job.status,
         "owner": job.owner,
-        "created_at": _ts(job.created_at),
-        "started_at": _ts(job.started_at),
-        "finished_at": _ts(job.finished_at),
+        "created_at": job.created_at,
+        "started_at": job.started_at,
+        "finished_at": job.finished_at,
         "attempts": job.attempts,
         "engine_version": job.engine_version,
         "result": job.result,
         "error": job.error,
         "study": job_study(job),
     }
+
+
+def job_json(job: Job) -> dict[str, Any]:
+    """A job as the ``data`` of a webhook body: ``job_members`` as JSON (the id as text, the times in
+    ISO 8601 UTC), what the API's ``Job.summary`` answers."""
+    members = job_members(job)
+    times = {key: _ts(members[key]) for key in ("created_at", "started_at", "finished_at")}
+    return {**members, "id": str(job.id), **times}

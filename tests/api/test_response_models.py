@@ -174,8 +174,8 @@ def test_deliveries_are_read_from_their_rows(
 def test_the_webhook_data_is_the_jobs_summary(
     app_settings: tuple[TestClient, Settings], payload: dict[str, Any], result: dict[str, Any]
 ) -> None:
-    """``job_json`` (a webhook's ``data``, built in the db layer the API model cannot live in) and
-    ``Job.summary`` write the same JSON."""
+    """``job_json`` (a webhook's ``data``, written in the db layer the API model cannot live in) and
+    ``Job.summary``, both built from ``job_members``, write the same JSON: times and ids included."""
     api, settings = app_settings
     done, failed = (api.post("/v1/jobs", json=payload).json()["id"] for _ in range(2))
     _succeed(settings, done, result)
