@@ -74,13 +74,14 @@ define apt_install
 	fi
 endef
 
-# Debian's chromium for the browser tests (tests/browser/).
+# Debian's chromium for the browser tests (tests/browser/), and poppler-utils' pdftotext, which reads
+# back the page's printed reports.
 CHROMIUM ?= /usr/bin/chromium
 browser:
-	@if [ -x "$(CHROMIUM)" ]; then \
+	@if [ -x "$(CHROMIUM)" ] && command -v pdftotext >/dev/null 2>&1; then \
 		echo "browser test: $(CHROMIUM)"; \
 	else \
-		$(call apt_install,chromium,chromium fonts-dejavu-core,the browser test); \
+		$(call apt_install,chromium,chromium fonts-dejavu-core poppler-utils,the browser test); \
 	fi
 
 # Debian's Orthanc with its DICOMweb plug-in, DCMTK (dsrdump) and dicom3tools (dciodvfy), for the

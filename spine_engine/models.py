@@ -596,7 +596,8 @@ class CobbCurve(BaseModel):
         None,
         description="1 SD of angle_deg, degrees (Laplace approximation, calibrated), with the spread of real "
         "endplates about the centreline when no corner observed an end vertebra, and at least the population's SD "
-        "when an end vertebra lies beyond the PA film's landmarks (docs/engine.md). Null when not computed.",
+        "when an end vertebra lies on a level the PA film's landmarks do not show (docs/measures.md). Null when not "
+        "computed.",
     )
     major: bool = Field(description="True for the largest curve; exactly one when any curve exists.")
     convexity: Literal["left", "right"]
@@ -636,7 +637,7 @@ class LargestCobbAngle(BaseModel):
     angle_sd_deg: float | None = Field(
         None,
         description="1 SD of angle_deg, degrees, as a curve's angle_sd_deg, and at least the population's SD when "
-        "a level lies beyond the PA film's landmarks (docs/measures.md). Null when not computed.",
+        "a level is one the PA film's landmarks do not show (docs/measures.md). Null when not computed.",
     )
     tilt_source: Literal["corners", "model", "mixed"] = Field(description="Where the two vertebrae's tilts come from.")
     reported_as_curve: bool = Field(
@@ -844,8 +845,9 @@ class FitReport(BaseModel):
         default_factory=list,
         description="Quantities that come from the model's priors more than from the input (docs/measures.md): "
         "what no view determines, kyphosis or lordosis whenever its SD exceeds half the population's, and 'cobb' "
-        "(the frontal Cobb angles: `measures.cobb`, `largest_cobb`, the Lenke curves) when one depends on a level "
-        "beyond the PA film's landmarks (a curve ending there; the largest angle whenever such a level exists) or "
+        "(the frontal Cobb angles: `measures.cobb`, `largest_cobb`, the Lenke curves) when one depends on "
+        "levels the PA film's landmarks do not show (two or more in a row without one, or beyond its first or "
+        "last: a curve ending there; the largest angle whenever such a level exists) or "
         "a Cobb angle's SD exceeds half the population's.",
     )
     tilt_prior: bool = Field(False, description="Whether the tilt prior was applied.")

@@ -56,9 +56,10 @@ def model_estimate_reason(fit: Mapping[str, Any], quantity: str, level: str | No
         return f"{films} ({ends}): its standard deviation exceeds half the population's, so it stays close to the " \
             f"spine model's prior (fit.unreliable: {quantity})"
     if quantity == "cobb":
-        return "the PA film's landmarks do not reach every level from T1 to L5, or a Cobb angle's standard deviation " \
-            "exceeds half the population's: the frontal Cobb angles depend on the spine model's prior where no " \
-            "landmark is, and each such angle's SD is at least the population's (fit.unreliable: cobb)"
+        return "the PA film's landmarks do not reach every level from T1 to L5 (two or more levels in a row " \
+            "without one), or a Cobb angle's standard deviation exceeds half the population's: the frontal Cobb " \
+            "angles depend on the spine model's prior where no landmark is, and each such angle's SD is at least " \
+            "the population's (fit.unreliable: cobb)"
     if quantity == "plane_of_max_curvature":
         ends = " and T1 and L5 were not given" if boundary == "estimated" else ""
         return f"fewer than 2 lateral landmarks place the spine in depth{ends}: the plane of maximum curvature and " \

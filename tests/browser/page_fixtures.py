@@ -25,6 +25,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
+import pytest
 
 from spine_engine.levels import LEVELS
 from tools.processes import stop_processes
@@ -192,6 +193,14 @@ def make_png(path: Path) -> None:
 
 
 # ---------------------------------------------------------------- service and browser
+
+
+def pdf_text(pdf: Path) -> str:
+    """The text of a printed report (poppler-utils' ``pdftotext``, which ``make browser`` installs); a
+    skip saying why where it is missing, which fails in CI (tests/conftest.py)."""
+    if shutil.which("pdftotext") is None:
+        pytest.skip("pdftotext (Debian's poppler-utils) is missing: `make browser` installs it")
+    return subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
 
 
 def free_port() -> int:

@@ -5,12 +5,14 @@ The jobs are real (posted to the service, run by its worker). To show an 8° pro
 1.5°, the test then sets the major curve's angle and SD in the three stored results (40°, 48°, 49.5°,
 all ± 1.5°): 1.96 × √(1.5² + 1.5²) = 4.2° is below 5°, so 8° is flagged by the 5° convention and the
 1.5° change after it is not. The flags are computed by the API from the stored results.
+
+Model estimates: the API says per value why it comes from the spine model's prior (`MeasureValue.
+model_estimate`, from the stored result's `fit.unreliable` and `fit.assumed` by services/core/estimates.py);
+the test sets those two lists in the stored results, so the reasons are the service's own.
 """
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import time
 import uuid
 from pathlib import Path
@@ -18,7 +20,7 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import open_page, run_axe
+from page_fixtures import open_page, pdf_text, run_axe
 from sqlalchemy import select
 
 from services.core.config import Settings
@@ -32,10 +34,11 @@ VISITS = [("2025-01-10", 40.0), ("2025-07-08", 48.0), ("2026-01-12", 49.5)]  # s
 SD = 1.5
 
 
-def _three_jobs(url: str, key: str, data_dir: Path, patient: str) -> list[str]:
+def _jobs(url: str, key: str, patient: str, dates: list[str]) -> list[str]:
+    """One real succeeded job per study date, each its own study of ``patient``."""
     headers = {"Authorization": f"Bearer {key}"}
     ids = []
-    for i, (when, _) in enumerate(VISITS):
+    for i, when in enumerate(dates):
         payload: dict[str, Any] = spine_payload(curve_mm=30.0 + 5 * i)
         payload["study"] = {"study_instance_uid": f"1.2.826.0.1.3680043.8.498.{uuid.uuid4().int % 10**12}",
                             "patient_id": patient, "study_date": when}  # fmt: skip
@@ -49,16 +52,29 @@ def _three_jobs(url: str, key: str, data_dir: Path, patient: str) -> list[str]:
             break
         assert time.monotonic() < deadline and not {"failed", "cancelled"} & set(states), states
         time.sleep(0.3)
+    return ids
+
+
+def _set_results(data_dir: Path, ids: list[str], major: list[tuple[float, float]],
+                 fits: list[dict[str, Any]] | None = None) -> None:  # fmt: skip
+    """Set each stored result's major Cobb angle and SD (deg) and, when given, update its ``fit``."""
     with session_factory(Settings(data_dir=data_dir, DATABASE_URL=None))() as session:
-        for job_id, (_, angle) in zip(ids, VISITS, strict=True):
+        for i, (job_id, (angle, sd)) in enumerate(zip(ids, major, strict=True)):
             job = session.scalars(select(Job).where(Job.id == uuid.UUID(job_id))).one()
             result = dict(job.result or {})
             curves = [dict(c) for c in result["measures"]["cobb"]]
-            major = next(c for c in curves if c["major"])
-            major.update(angle_deg=angle, angle_sd_deg=SD)
+            curve = next(c for c in curves if c["major"])
+            curve.update(angle_deg=angle, angle_sd_deg=sd)
             result["measures"] = {**result["measures"], "cobb": curves}
+            if fits is not None:
+                result["fit"] = {**result["fit"], **fits[i]}
             job.result = result
         session.commit()
+
+
+def _three_jobs(url: str, key: str, data_dir: Path, patient: str) -> list[str]:
+    ids = _jobs(url, key, patient, [d for d, _ in VISITS])
+    _set_results(data_dir, ids, [(angle, SD) for _, angle in VISITS])
     return ids
 
 
@@ -107,9 +123,8 @@ def test_follow_up_of_three_visits_flags_an_8_deg_progression(
     page.emulate_media(media="print")
     pdf = tmp_path / "report.pdf"
     page.pdf(path=str(pdf), format="A4", print_background=True)
-    if shutil.which("pdftotext"):
-        text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
-        assert f"Follow-up of patient {patient}" in text and "2025-07-08" in text
+    text = pdf_text(pdf)
+    assert f"Follow-up of patient {patient}" in text and "2025-07-08" in text
     assert not watch.errors, watch.errors
     context.close()
 
@@ -148,8 +163,93 @@ def test_follow_up_says_visits_and_why_an_undated_visit_is_off_the_time_axis(
     rows = page.locator(".followup-visits tbody tr")
     assert [rows.nth(i).locator("th").text_content() for i in range(2)] == [
         "2025-03-04", "no study date: not on the time axis"]  # fmt: skip
-    assert page.locator(".followup-plot[data-measure=kyphosis_t4_t12] circle").count() == 1  # the dated visit only
+    kyphosis = page.locator(".followup-plot[data-measure=kyphosis_t4_t12] > circle.point")  # its points, not its legend
+    assert kyphosis.count() == 1  # the dated visit only
     assert "visits" in (page.text_content("#followup-help") or "")
     assert not run_axe(page)
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+COBB_REASON = "the PA film's landmarks do not reach every level from T1 to L5"  # services/core/estimates.py
+POPULATION_COBB_SD = 18.4  # the major Cobb angle's population SD, the floor of a model-estimated one (docs/measures.md)
+
+
+def test_follow_up_marks_model_estimates_and_the_changes_that_compare_them(
+    browser: Any, live_url: str, api_key: str, live_data_dir: Path, tmp_path: Path
+) -> None:
+    """Three real jobs of one patient: the first and last measured (their stored fit lists nothing in
+    `unreliable` or `assumed`), the middle one's frontal Cobb angles model estimates (`fit.unreliable`
+    ["cobb"], the major 48° ± 18.4°). The middle visit's Major and Minor Cobb carry the mark with the
+    service's reason as tooltip, and nothing else of any visit does; each Cobb change to or from it says
+    it compares a model estimate, the kyphosis changes do not; its Major Cobb point is hollow with a legend
+    entry; the printed report has the marks and the reason in words."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    dates = ["2025-01-10", "2025-07-08", "2026-01-12"]
+    ids = _jobs(live_url, api_key, patient, dates)
+    measured: dict[str, Any] = {"unreliable": [], "assumed": []}
+    _set_results(live_data_dir, ids, [(40.0, SD), (48.0, POPULATION_COBB_SD), (49.5, SD)],
+                 [measured, {"unreliable": ["cobb"], "assumed": []}, measured])  # fmt: skip
+    answer = httpx.get(f"{live_url}/v1/patients/{patient}/measures", headers={"Authorization": f"Bearer {api_key}"},
+                       timeout=10).json()  # fmt: skip
+    reason = answer["visits"][1]["major_cobb"]["model_estimate"]
+    assert reason and reason.startswith(COBB_REASON), answer["visits"][1]
+
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table.followup-changes")
+    rows = page.locator(".followup-visits tbody tr")
+    assert [rows.nth(i).locator("th").text_content() for i in range(3)] == dates
+    # the model-estimated visit: its two frontal Cobb angles marked, the reason as the mark's tooltip
+    marked = rows.nth(1).locator("td.is-model")
+    measures = sorted(marked.nth(i).get_attribute("data-measure") or "" for i in range(marked.count()))
+    assert measures == ["major_cobb", "minor_cobb"]
+    mark = marked.nth(0).locator(".model-mark")
+    assert mark.text_content() == "model estimate"
+    assert mark.get_attribute("title") == f"From the model's prior: {reason}."
+    assert "48.0° ± 18.4°" in (marked.nth(0).text_content() or "")
+    # the measured visits: no mark
+    for i in (0, 2):
+        assert rows.nth(i).locator(".model-mark").count() == 0, rows.nth(i).text_content()
+    notes = page.text_content("#followup .followup-estimates") or ""
+    assert f"Major Cobb of 2025-07-08; Minor Cobb of 2025-07-08: {reason}." in notes, notes
+    # every Cobb change involves the middle visit; no kyphosis change involves a model estimate
+    for measure in ("major_cobb", "minor_cobb"):
+        changes = page.locator(f".followup-changes tr[data-measure={measure}]")
+        assert changes.count() == 2
+        for i in range(2):
+            row = changes.nth(i)
+            assert row.get_attribute("data-model-estimate") == "true"
+            note = row.locator("td").nth(1).locator(".model-mark")
+            assert note.text_content() == "compares a model estimate"
+            assert f"The 2025-07-08 value is a model estimate: {reason}." in (note.get_attribute("title") or "")
+    kyphosis = page.locator(".followup-changes tr[data-measure=kyphosis_t4_t12]")
+    assert kyphosis.count() == 2
+    assert "model estimate" not in (kyphosis.nth(0).text_content() or "") + (kyphosis.nth(1).text_content() or "")
+    # the plots: the model estimate hollow (white fill, the CSS's), with a legend entry; a measured plot has neither
+    plot = page.locator(".followup-plot[data-measure=major_cobb]")
+    assert plot.locator("> circle.point").count() == 3
+    hollow = plot.locator("> circle.point.model-estimate")
+    assert hollow.count() == 1
+    assert hollow.evaluate("c => getComputedStyle(c).fill") == "rgb(255, 255, 255)"
+    assert plot.locator(".plot-legend").text_content() == "from the filmsmodel estimate"
+    assert "2025-07-08 48.0° ± 18.4° (model estimate)" in (plot.get_attribute("aria-label") or "")
+    level = page.locator(".followup-plot[data-measure=kyphosis_t4_t12]")
+    assert level.locator(".model-estimate").count() == 0 and level.locator(".plot-legend").count() == 0
+    assert not run_axe(page)
+
+    # the printed report: the marks and the reason in words (a tooltip does not print)
+    page.goto(f"{live_url}/#/jobs/{ids[1]}")
+    page.wait_for_selector(f"#result[data-job-id='{ids[1]}']", timeout=30_000)
+    page.check("#print-followup")
+    page.wait_for_selector("#report-followup table.followup-changes")
+    page.emulate_media(media="print")
+    assert page.locator("#report-followup .followup-visits tbody tr").nth(1).locator(".model-mark").count() == 2
+    assert page.locator("#report-followup .followup-changes tr[data-model-estimate=true]").count() == 4
+    assert page.locator("#report-followup .followup-estimates").is_visible()
+    pdf = tmp_path / "report.pdf"
+    page.pdf(path=str(pdf), format="A4", print_background=True)
+    text = " ".join(pdf_text(pdf).split())
+    assert f"Major Cobb of 2025-07-08; Minor Cobb of 2025-07-08: {COBB_REASON}" in text, text
     assert not watch.errors, watch.errors
     context.close()

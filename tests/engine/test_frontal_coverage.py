@@ -76,24 +76,30 @@ def test_the_whole_pa_film_leaves_no_cobb_angle_to_the_prior() -> None:
             assert result["measures"]["largest_cobb"]["angle_sd_deg"] < UNRELIABLE_SD_FRACTION * COBB_SD
 
 
-def test_a_pa_film_of_t1_and_l5_only_flags_its_cobb_angles_by_their_sd() -> None:
-    """PA landmarks on T1 and L5 only: every level lies between two landmarks, but the tilts between are
-    the rod's interpolation over 16 segments; "cobb" is flagged exactly when a Cobb angle's SD exceeds
-    ``UNRELIABLE_SD_FRACTION`` of the population's (as kyphosis and lordosis are)."""
-    flagged = 0
+@pytest.mark.parametrize("pa_levels", [["T1", "L5"], ["T1", "T9", "L5"]], ids=["T1 and L5", "T1, T9 and L5"])
+def test_a_sparse_pa_film_leaves_its_cobb_angles_to_the_prior(pa_levels: list[str]) -> None:
+    """PA landmarks on a few levels far apart: the tilts between are the rod's interpolation under its
+    prior, so "cobb" is flagged and the largest angle's SD is at least the population's. Measured on
+    every dev spine with T1, T9 and L5 (no lateral) before this rule: none flagged, SDs 7.1–8.6°, the
+    largest angle 5–27° below the whole film's, its 95 % interval covering 79 % of them."""
     for k in range(0, len(SPINES), 4):
-        result = register(_films(k, "e", ["T1", "L5"]))
-        measures = result["measures"]
-        sds = [c["angle_sd_deg"] for c in measures["cobb"]] + [measures["largest_cobb"]["angle_sd_deg"]]
-        wide = max(sds) > UNRELIABLE_SD_FRACTION * COBB_SD
-        assert ("cobb" in result["fit"]["unreliable"]) == wide
-        flagged += wide
-    assert flagged > 0
+        result = register(_films(k, "e", pa_levels))
+        assert "cobb" in result["fit"]["unreliable"]
+        assert result["measures"]["largest_cobb"]["angle_sd_deg"] >= COBB_SD
+
+
+def test_one_missing_level_between_two_landmarks_is_still_seen() -> None:
+    """A PA film missing one level (T7) between landmarked neighbours: its tilt is their chord's, so no
+    Cobb angle is flagged or floored for it."""
+    for k in range(0, len(SPINES), 4):
+        result = register(_films(k, "e", [level for level in LEVELS if level != "T7"]))
+        assert "cobb" not in result["fit"]["unreliable"]
+        assert result["measures"]["largest_cobb"]["angle_sd_deg"] < UNRELIABLE_SD_FRACTION * COBB_SD
 
 
 def test_frontal_observed_levels() -> None:
-    """The span of the PA landmarks, plus T1 and L5 when the boundary gives their directors exactly; the
-    population prior carries the major Cobb angle's SD among the measures' SDs."""
+    """The PA landmarks' levels, T1 and L5 when the boundary gives their directors exactly, and a level
+    between two of these; the population prior carries the major Cobb angle's SD among the measures'."""
     from spine_engine.reconstruction import frontal_observed_levels
 
     assert population_prior(load_profile()).measure_sd_deg["major_cobb_deg"] == COBB_SD  # type: ignore[union-attr]
@@ -102,5 +108,8 @@ def test_frontal_observed_levels() -> None:
         return [LEVELS[i] for i in np.flatnonzero(mask)]
 
     assert names(frontal_observed_levels(np.array([2, 0, 1, 3]), "estimated")) == T1_T4
-    assert names(frontal_observed_levels(np.array([4, 11]), "soft")) == list(LEVELS[4:12])
+    assert names(frontal_observed_levels(np.array([4, 11]), "soft")) == ["T5", "T12"]
     assert names(frontal_observed_levels(np.array([0, 1, 2, 3]), "given")) == [*T1_T4, "L5"]
+    assert names(frontal_observed_levels(np.array([0, 1, 3, 4]), "estimated")) == ["T1", "T2", "T3", "T4", "T5"]
+    assert names(frontal_observed_levels(np.array([1, 15]), "given")) == ["T1", "T2", "L4", "L5"]
+    assert names(frontal_observed_levels(np.array([0, 2, 4]), "estimated")) == ["T1", "T2", "T3", "T4", "T5"]

@@ -3,8 +3,12 @@
 // change between consecutive visits (flagged beyond both 5° and 1.96 × the combined SD, with the rule
 // that decided), and one small plot per measure over time (the value with its 95 % interval, ±1.96 SD;
 // a flagged change drawn in red). A visit without a study date has no place on the time axis: it is in
-// the table, left out of the plots and changes, and the page says so.
-import { withSd } from "./results";
+// the table, left out of the plots and changes, and the page says so. A value that comes from the spine
+// model's prior rather than the films (`model_estimate`, the reason in words) carries the result view's
+// "model estimate" mark with the reason as its tooltip and in a note under the table, is drawn hollow in
+// its plot, and a change involving it says that it compares model estimates: a flagged progression
+// between model estimates is not a measured progression.
+import { MODEL_MARK, modelMark, withSd } from "./results";
 
 export type MeasureName = "major_cobb" | "minor_cobb" | "kyphosis_t4_t12" | "lordosis_l1_l5" | "apex_axial_rotation";
 
@@ -12,6 +16,9 @@ export interface MeasureValue {
   value_deg: number;
   sd_deg: number | null;
   levels: string | null;
+  /** Why the value comes from the spine model's prior rather than the films (the job's fit.unreliable or
+   * fit.assumed in words, as the SR and FHIR say it); null when the films determine it; absent from older services. */
+  model_estimate?: string | null;
 }
 
 export interface Visit {
@@ -80,6 +87,49 @@ function cell(m: MeasureValue | null): string {
   return `${withSd(m.value_deg, m.sd_deg)}${m.levels ? ` (${m.levels})` : ""}`;
 }
 
+const visitName = (v: Visit): string => v.study_date ?? `job ${v.job_id.slice(0, 8)} (no study date)`;
+
+/** The model-estimated values of a change's two visits: which visit, and why; empty when both are measured. */
+export function changeEstimates(data: PatientMeasures, c: Change): { visit: Visit; reason: string }[] {
+  return [c.from_job, c.to_job].flatMap((id) => {
+    const visit = data.visits.find((v) => v.job_id === id);
+    const reason = visit?.[c.measure]?.model_estimate;
+    return visit && reason ? [{ visit, reason }] : [];
+  });
+}
+
+/** "compares model estimates" (both values) or "compares a model estimate" (one); null when both are measured. */
+export function changeEstimateWords(data: PatientMeasures, c: Change): string | null {
+  const n = changeEstimates(data, c).length;
+  return n ? (n > 1 ? "compares model estimates" : "compares a model estimate") : null;
+}
+
+/** The model estimates of the visits table in words, one item per reason: which measures of which visits
+ * (the print shows no tooltip, and a screen reader may not read it); null when every value is measured. */
+export function estimateNotes(data: PatientMeasures): HTMLElement | null {
+  const byReason = new Map<string, Map<MeasureName, string[]>>();
+  for (const v of data.visits) {
+    for (const k of ORDER) {
+      const reason = v[k]?.model_estimate;
+      if (!reason) continue;
+      const measures = byReason.get(reason) ?? new Map<MeasureName, string[]>();
+      measures.set(k, [...(measures.get(k) ?? []), visitName(v)]);
+      byReason.set(reason, measures);
+    }
+  }
+  if (!byReason.size) return null;
+  const box = el("div", undefined, "followup-estimates help");
+  const head = el("p");
+  head.append(modelMark(), " values come from the spine model's prior, not from the films; a change involving one compares model estimates, not measures:");
+  const list = el("ul");
+  for (const [reason, measures] of byReason) {
+    const where = [...measures].map(([k, visits]) => `${MEASURE_NAMES[k]} of ${visits.join(", ")}`);
+    list.append(el("li", `${where.join("; ")}: ${reason}.`));
+  }
+  box.append(head, list);
+  return box;
+}
+
 /** The visits table: one row per visit (the job that stands for it linked), by study date, undated last. */
 export function visitsTable(data: PatientMeasures, caption: string): HTMLTableElement {
   const table = el("table", undefined, "data followup-visits");
@@ -100,7 +150,16 @@ export function visitsTable(data: PatientMeasures, caption: string): HTMLTableEl
     date.scope = "row";
     tr.append(date);
     tr.insertCell().append(link);
-    for (const k of ORDER) tr.insertCell().textContent = cell(v[k]);
+    for (const k of ORDER) {
+      const td = tr.insertCell();
+      td.textContent = cell(v[k]);
+      const reason = v[k]?.model_estimate;
+      if (reason) {
+        td.className = "is-model";
+        td.dataset.measure = k;
+        td.append(" ", modelMark(reason));
+      }
+    }
   }
   return table;
 }
@@ -125,7 +184,17 @@ export function changesTable(data: PatientMeasures, caption: string): HTMLTableE
     name.scope = "row";
     tr.append(name);
     tr.insertCell().textContent = `${c.from_date} → ${c.to_date}`;
-    tr.insertCell().textContent = signed(c.change_deg);
+    const change = tr.insertCell();
+    change.textContent = signed(c.change_deg);
+    const estimates = changeEstimates(data, c);
+    const words = changeEstimateWords(data, c);
+    if (words) {
+      tr.dataset.modelEstimate = "true";
+      const note = el("span", words, "model-mark");
+      note.title = `${estimates.map((e) => `The ${visitName(e.visit)} value is a model estimate: ${e.reason}.`).join(" ")} ` +
+        (c.flagged ? "The flag is not a measured progression." : "The change is not a measured one.");
+      change.append(" ", note);
+    }
     tr.insertCell().textContent = `${c.threshold_deg.toFixed(1)}°`;
     tr.insertCell().textContent = c.flagged ? "⚠ exceeds both rules" : "within";
     tr.insertCell().textContent = c.decided_by === "combined_sd"
@@ -149,9 +218,12 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
     return v.study_date && m ? [{ t: Date.parse(v.study_date), m, job: v.job_id }] : [];
   });
   if (!points.length) return null;
+  // a model estimate is drawn hollow; a plot with one has a legend row under its title
+  const estimated = points.some((p) => p.m.model_estimate);
+  const legend = estimated ? 14 : 0;
   const W = 260;
-  const H = 140;
-  const pad = { l: 40, r: 10, t: 22, b: 24 };
+  const H = 140 + legend;
+  const pad = { l: 40, r: 10, t: 22 + legend, b: 24 };
   const lo = Math.min(...points.map((p) => p.m.value_deg - 1.96 * (p.m.sd_deg ?? 0)));
   const hi = Math.max(...points.map((p) => p.m.value_deg + 1.96 * (p.m.sd_deg ?? 0)));
   const span = Math.max(hi - lo, 5);
@@ -162,11 +234,23 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img", class: "followup-plot" });
   root.dataset.measure = name;
   const flagged = data.changes.filter((c) => c.measure === name && c.flagged);
-  root.setAttribute("aria-label", `${MEASURE_NAMES[name]} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
+  root.setAttribute("aria-label", `${MEASURE_NAMES[name]} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}${p.m.model_estimate ? ` (${MODEL_MARK})` : ""}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
   const title = svg("text", { x: pad.l, y: 14, class: "plot-title" });
   title.textContent = `${MEASURE_NAMES[name]} (°)`;
   root.append(title, svg("line", { x1: pad.l, y1: H - pad.b, x2: W - pad.r, y2: H - pad.b, class: "axis" }),
     svg("line", { x1: pad.l, y1: pad.t, x2: pad.l, y2: H - pad.b, class: "axis" }));
+  if (estimated) {
+    const key = svg("g", { class: "plot-legend", "aria-hidden": "true" });
+    const entry = (cx: number, cls: string, words: string): void => {
+      const label = svg("text", { x: cx + 7, y: 30, class: "tick" });
+      label.textContent = words;
+      key.append(svg("circle", { cx, cy: 27, r: 3.5, class: cls }), label);
+    };
+    const measured = points.some((p) => !p.m.model_estimate);
+    if (measured) entry(pad.l + 4, "point", "from the films");
+    entry(pad.l + (measured ? 84 : 4), "point model-estimate", MODEL_MARK);
+    root.append(key);
+  }
   for (const v of [y0 + (y1 - y0) * 0.1, y0 + (y1 - y0) * 0.9]) {
     const tick = svg("text", { x: pad.l - 4, y: y(v) + 4, class: "tick", "text-anchor": "end" });
     tick.textContent = v.toFixed(0);
@@ -185,7 +269,7 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   for (const p of points) {
     const sd = p.m.sd_deg ?? 0;
     root.append(svg("line", { x1: x(p.t), y1: y(p.m.value_deg - 1.96 * sd), x2: x(p.t), y2: y(p.m.value_deg + 1.96 * sd), class: "bar" }),
-      svg("circle", { cx: x(p.t), cy: y(p.m.value_deg), r: 3.5, class: "point" }));
+      svg("circle", { cx: x(p.t), cy: y(p.m.value_deg), r: 3.5, class: p.m.model_estimate ? "point model-estimate" : "point" }));
   }
   return root;
 }
@@ -199,12 +283,18 @@ export function undatedWords(data: PatientMeasures): string | null {
   return `${one ? "One visit has" : `${undated.length} visits have`} no study date: ${which}. ${one ? "It is" : "They are"} left out of the time axis — the plots and the changes between visits — because neither the films' Study Date (0008,0020) nor the payload's study_date says when ${one ? "it was" : "they were"} filmed, so ${one ? "its" : "their"} place between the other visits is unknown. ${one ? "Its" : "Their"} measures are in the table, last.`;
 }
 
+/** A flagged change in the summary: "Major Cobb +8.0° (2025-01-10 → 2025-07-08)", and whether it compares model estimates. */
+function flaggedWords(data: PatientMeasures, c: Change): string {
+  const estimates = changeEstimateWords(data, c);
+  return `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date}${estimates ? `, ${estimates}` : ""})`;
+}
+
 /** Fill the Follow-up view: summary, visits, changes, plots. */
 export function fillFollowUp(container: HTMLElement, data: PatientMeasures): void {
   const flagged = data.changes.filter((c) => c.flagged);
   const n = data.visits.length;
   const summary = el("p", n
-    ? `${n} visit${n > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date})`).join("; ")}` : "no change flagged"}.`
+    ? `${n} visit${n > 1 ? "s" : ""} of patient ${data.patient_id}; ${flagged.length ? `${flagged.length} change${flagged.length > 1 ? "s" : ""} flagged: ${flagged.map((c) => flaggedWords(data, c)).join("; ")}` : "no change flagged"}.`
     : `No visit of patient ${data.patient_id}: no succeeded job of this patient with this API key.`, "summary");
   summary.id = "followup-summary";
   const notes: HTMLElement[] = [];
@@ -231,8 +321,10 @@ export function fillFollowUp(container: HTMLElement, data: PatientMeasures): voi
   }
   container.replaceChildren(summary, ...notes, rule);
   if (!data.visits.length) return;
+  const estimates = estimateNotes(data);
   container.append(
     scroll(visitsTable(data, `Patient ${data.patient_id}: measures by study date (± one SD)`), "followup-visits"),
+    ...(estimates ? [estimates] : []),
     scroll(changesTable(data, "Changes between consecutive visits"), "followup-changes"),
     plots,
   );

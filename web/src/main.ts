@@ -8,7 +8,7 @@ import { capabilities, type Capabilities } from "./capabilities";
 import { GEOMETRY_FIELD_WORDS, geometryProblems } from "./checks";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
-import { changesTable, fillFollowUp, RULE_WORDS, undatedWords, visitsTable } from "./followup";
+import { changesTable, estimateNotes, fillFollowUp, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type ViewName } from "./panel";
@@ -722,7 +722,9 @@ $<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
     const undated = undatedWords(data);
     const note = document.createElement("p");
     note.textContent = undated ?? "";
-    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), ...(undated ? [note] : []), changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
+    const estimates = estimateNotes(data);
+    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), ...(estimates ? [estimates] : []), ...(undated ? [note] : []),
+      changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
     box.hidden = false;
   } catch (error) {
     if (error instanceof ApiError) showProblem(problemBox, error.problem);

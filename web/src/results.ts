@@ -9,9 +9,10 @@ export const MODEL_MARK = "model estimate";
 
 /** Why the frontal Cobb angles are model estimates when fit.unreliable lists `cobb`: the sentence of
  * services/core/estimates.py `model_estimate_reason(fit, "cobb")` (docs/measures.md). */
-export const COBB_ESTIMATE_REASON = "the PA film's landmarks do not reach every level from T1 to L5, or a Cobb angle's standard " +
-  "deviation exceeds half the population's: the frontal Cobb angles depend on the spine model's prior where no landmark is, " +
-  "and each such angle's SD is at least the population's (fit.unreliable: cobb)";
+export const COBB_ESTIMATE_REASON = "the PA film's landmarks do not reach every level from T1 to L5 (two or more levels in a " +
+  "row without one), or a Cobb angle's standard deviation exceeds half the population's: the frontal Cobb angles depend " +
+  "on the spine model's prior where no landmark is, and each such angle's SD is at least the population's " +
+  "(fit.unreliable: cobb)";
 
 const MARK_TITLE = "From the model's prior, not from the landmarks: do not read it as measured.";
 
