@@ -63,6 +63,50 @@ class Settings(BaseSettings):
     )
     queue_name: str = Field("spine.jobs", description="Name of the broker queue that carries job ids.")
     db_pool_size: int = Field(10, ge=1, description="Connections kept per process (PostgreSQL).")
+    db_connect_timeout_s: int = Field(
+        5,
+        ge=2,
+        description="PostgreSQL: longest wait for a new connection, TCP handshake to authentication (libpq "
+        "connect_timeout, whole seconds, at least 2). 5 s lets two lost SYNs be sent again (after 1 s and 2 s, "
+        "RFC 6298's initial 1 s timeout doubled) and is the broker's connection timeout too.",
+    )
+    db_tcp_timeout_s: float = Field(
+        30.0,
+        ge=1,
+        description="PostgreSQL: a connection whose server stopped answering at the TCP level (a failover, a "
+        "dropped NAT entry, a cable) is closed after this: data unacknowledged this long (libpq tcp_user_timeout) "
+        "or an idle connection whose keepalive probes go unanswered (first probe after a third of it). The "
+        "kernel's defaults are 2 h of idleness (tcp_keepalive_time) and about 15 min of retransmissions "
+        "(tcp_retries2), tcp(7).",
+    )
+    db_statement_timeout_s: float = Field(
+        30.0,
+        ge=0,
+        description="PostgreSQL: a statement (lock waits included) still running after this is cancelled by the "
+        "server (statement_timeout); the API answers 503, a worker retries. 0: no limit. The service's "
+        "statements take milliseconds; migrations (`spine migrate`) have no limit.",
+    )
+    broker_timeout_s: float = Field(
+        5.0,
+        gt=0,
+        description="Redis broker: longest wait for a connection or for the answer to one command (redis-py "
+        "socket_connect_timeout and socket_timeout). A publish that gets no answer fails after at most 3 tries "
+        "(the publish retry policy), and its job is marked for the reconciler. 5 s is above a healthy Redis's "
+        "longest pauses (an fsync blocking writes up to 2 s with appendfsync everysec).",
+    )
+    ready_timeout_s: float = Field(
+        2.0,
+        gt=0,
+        description="GET /readyz answers 503 when the database or the broker has not answered within this. 2 s: "
+        "within the 3 s the docker-compose health check waits for an answer.",
+    )
+    reconcile_time_limit_s: float = Field(
+        30.0,
+        gt=0,
+        description="Soft time limit of one reconciler pass (its hard limit is 5 s later): a pass is a few "
+        "statements and publishes (milliseconds); one stuck on a dependency ends and the next pass, "
+        "SPINE_RECONCILE_INTERVAL_S later, tries again.",
+    )
     fit_time_limit_s: float = Field(
         120.0, gt=0, description="Time limit of one fit; past it the job fails with fit-timeout."
     )
@@ -139,6 +183,16 @@ class Settings(BaseSettings):
         "API keys carry their own; unset: webhooks are refused.",
     )
     webhook_timeout_s: float = Field(10.0, gt=0, description="Time limit of one webhook delivery attempt.")
+    webhook_task_margin_s: float = Field(
+        70.0,
+        gt=0,
+        description="Time a webhook task may take beyond its attempt's SPINE_WEBHOOK_TIMEOUT_S: writing the "
+        "attempt's outcome (retried in place on a database fault) and publishing the next attempt. The task's soft "
+        "time limit is SPINE_WEBHOOK_TIMEOUT_S plus this, its hard limit 5 s later; an attempt cut off is swept. "
+        "70 s: the in-place write retry at its longest with the default database timeouts (6 tries of up to "
+        "SPINE_DB_CONNECT_TIMEOUT_S and 15.5 s of waits: 45.5 s) and one publish to a broker that does not answer "
+        "(3 tries and a reconnection, about 4 times SPINE_BROKER_TIMEOUT_S plus 0.5 s: 20.5 s).",
+    )
     webhook_max_attempts: int = Field(6, ge=1, le=20, description="Delivery attempts of one webhook message.")
     webhook_retry_base_s: float = Field(
         2.0, gt=0, description="Delay before the 2nd attempt; doubles at each attempt (capped at 120 s)."

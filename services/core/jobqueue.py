@@ -32,6 +32,10 @@ DELIVER_WEBHOOK = "spine.deliver_webhook"
 STORE_DICOM = "spine.dicom_store"
 """args: job id, attempt (1, 2, …)."""
 REDIS_TRANSPORT = "services.core.jobqueue:RedisTransport"
+HARD_LIMIT_GRACE_S = 5.0
+"""Seconds between a task's soft time limit (its code gets ``SoftTimeLimitExceeded`` and unwinds, rolling
+back) and its hard limit (its pool process is killed): a task stuck on a dependency may stick again while
+it unwinds, e.g. rolling back on a connection whose server went away."""
 
 
 class _SharedClientChannel(kombu_redis.Channel):
@@ -74,7 +78,14 @@ def make_celery(settings: Settings) -> Celery:
     elif settings.celery_broker_url.startswith(("redis", "rediss")):
         # A message not acknowledged within this time is delivered again (acks_late); keep it
         # above the fit time limit so that a slow fit is not run twice.
-        transport_options = {"visibility_timeout": int(settings.fit_time_limit_s * 2 + 60)}
+        # The socket timeouts bound every synchronous command (a publish, an ack, a ping) on a broker
+        # that stopped answering without closing the connection (redis-py waits forever without
+        # them); the worker's BRPOP runs in its event loop, which kombu checks by itself.
+        transport_options = {
+            "visibility_timeout": int(settings.fit_time_limit_s * 2 + 60),
+            "socket_timeout": settings.broker_timeout_s,
+            "socket_connect_timeout": settings.broker_timeout_s,
+        }
         if settings.celery_broker_url.startswith("redis://"):
             # (not rediss://: kombu turns TLS on by the transport's name being "rediss")
             app.conf.broker_transport = REDIS_TRANSPORT
@@ -192,6 +203,7 @@ def broker_run_id(app: Celery) -> str | None:
 
 
 def ping_broker(app: Celery) -> None:
-    """Raise when the broker cannot be reached."""
+    """Raise when the broker cannot be reached: one new connection, no retry (a readiness probe asks
+    again by itself); on Redis it sends PING, bounded by ``SPINE_BROKER_TIMEOUT_S``."""
     with app.connection_for_read() as conn:
-        conn.ensure_connection(max_retries=1, timeout=2)
+        conn.ensure_connection(max_retries=0)

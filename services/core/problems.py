@@ -40,6 +40,7 @@ KINDS: dict[str, tuple[str, int]] = {
     "fit-timeout": ("The registration exceeded its time limit", 504),
     "worker-lost": ("The job's worker stopped too many times while running it", 500),
     "engine-error": ("The engine raised an unexpected error", 500),
+    "result-not-stored": ("The job's result could not be stored", 500),
     # The DICOM layer (services/dicom): each names the DICOM attribute by keyword and tag.
     "dicom-not-dicom": ("The data is not DICOM", 422),
     "dicom-missing-attribute": ("The image's header lacks an attribute the job needs", 422),

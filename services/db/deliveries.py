@@ -1,10 +1,17 @@
 """Data access of the ``webhook_deliveries`` table (one row per delivery attempt, shown on the job)
-and of what a delivery reads of its job; and the webhook's outbox: ``job_ended`` publishes the first
-attempt, or records it as attempt 0 for the reconciler when the broker cannot take it.
+and of what a delivery reads of its job; and the webhook's outbox.
 
-``job_ended`` is called where a job reaches a final state (the worker after storing an outcome, the
-API after a cancel, the reconciler after failing a lost job); it never raises, and costs nothing for
-a job without ``callback_url`` because callers look at the payload first. The message id is derived
+Outbox: before the first attempt of a message is published, its row ``attempt`` 0 is written, due
+(``next_attempt_at``) when the job ended: in the transaction that ends the job where the job ends in
+this layer (the worker's ``runs.finish_job``, the reconciler's ``runs.reconcile``), else just before
+publishing (``job_ended`` after the API's cancel). Once attempt 1 is claimed the row is no longer
+overdue; if its message never comes (the broker refused it, or lost it in a restart), the reconciler's
+sweep finds the row ``SPINE_WEBHOOK_SWEEP_AFTER_S`` after the job ended and publishes attempt 1 again.
+The row is listed on the job (``deliveries``) only when the broker refused the message ("not
+published"), as an attempt 0 that made no request; otherwise the job lists its attempts alone.
+
+``job_ended`` is called where a job reaches a final state; it never raises, and costs nothing for a
+job without ``callback_url`` because callers look at the payload first. The message id is derived
 from the job and its final status, so every attempt of a message carries the same ``webhook-id`` and a
 message that a receiver already accepted is not sent again.
 """
@@ -19,7 +26,7 @@ from datetime import datetime
 from typing import Any
 
 from celery import Celery
-from sqlalchemy import and_, exists, insert, select, update
+from sqlalchemy import CursorResult, and_, exists, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -61,46 +68,86 @@ def delivery_job(session: Session, job_id: uuid.UUID) -> DeliveryJob | None:
     return DeliveryJob(callback_url=job.callback_url, owner=job.owner, data=job_json(job), finished_at=job.finished_at)
 
 
+OUTBOX_ATTEMPT = 0
+"""The ``attempt`` of a message's outbox row (see the module's docstring): no request is made under it."""
+NOT_PUBLISHED = "not published: "
+"""How the ``error`` of an outbox row whose message the broker refused begins."""
+
+
+def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> dict[str, Any]:
+    """The values of the outbox row of the message a job that ended in ``status`` at ``ended_at`` sends:
+    attempt 0, due (``next_attempt_at``) at the job's end, no outcome."""
+    return {"job_id": job_id, "message_id": message_id(job_id, status), "event": f"job.{status}",
+            "attempt": OUTBOX_ATTEMPT, "url": url, "attempted_at": ended_at, "status_code": None, "error": None,
+            "duration_ms": None, "next_attempt_at": ended_at}  # fmt: skip
+
+
+def record_due(session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> None:
+    """Write the message's outbox row in ``session``'s transaction (nothing when it is there already)."""
+    claim(session, **outbox_row(job_id, status, url, ended_at))
+
+
 def job_ended(
     settings: Settings, job_id: uuid.UUID | str, status: str, *, url: str | None = None,
-    celery: Celery | None = None,
+    celery: Celery | None = None, recorded: bool = False,
 ) -> bool:  # fmt: skip
     """Publish the first delivery of a job's webhook. Never raises; False when publishing failed.
 
-    When it fails and ``url`` (the job's callback_url) is given, an attempt 0 is recorded on the
-    job, due now, so that the reconciler's sweep publishes the message later.
+    With ``url`` (the job's callback_url), the message's outbox row is written first unless the caller
+    wrote it with the job's end (``recorded``); when publishing fails, the row says so ("not
+    published"). Either way the reconciler's sweep publishes the message if no attempt comes.
     """
+    job_uuid = uuid.UUID(str(job_id))
+    if url and not recorded:
+        _record_due(settings, job_uuid, status, url)
     try:
-        publish_webhook(settings, job_id, status, 1, celery=celery)
+        publish_webhook(settings, job_uuid, status, 1, celery=celery)
         return True
     except Exception as exc:
         log.warning("could not publish the webhook of job %s (%s): %s", job_id, status, exc)
         if url:
-            _record_unpublished(settings, uuid.UUID(str(job_id)), status, url, exc)
+            _record_unpublished(settings, job_uuid, status, url, exc)
         return False
+
+
+def _record_due(settings: Settings, job_id: uuid.UUID, status: str, url: str) -> None:
+    try:
+        with session_scope(settings) as session:
+            record_due(session, job_id, status, url, utcnow())
+    except Exception as exc:  # published all the same: only a lost message would go unnoticed
+        log.warning("webhook of job %s (%s): its outbox row could not be written: %s", job_id, status, exc)
 
 
 def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception) -> None:
     now = utcnow()
-    row = {"job_id": job_id, "message_id": message_id(job_id, status), "event": f"job.{status}", "attempt": 0,
-           "url": url, "attempted_at": now}  # fmt: skip
-    error = f"not published: {type(exc).__name__}; the reconciler publishes it again"
+    error = f"{NOT_PUBLISHED}{type(exc).__name__}; the reconciler publishes it again"
+    mid = message_id(job_id, status)
     try:
         with session_scope(settings) as session:  # a second failure for the same message finds the first row
-            claim(session, **row, status_code=None, error=error, duration_ms=None, next_attempt_at=now)
+            outbox = (WebhookDelivery.message_id == mid, WebhookDelivery.attempt == OUTBOX_ATTEMPT)
+            marked: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+                update(WebhookDelivery)
+                .where(*outbox, WebhookDelivery.error.is_(None))
+                .values(error=error, attempted_at=now, next_attempt_at=now)
+            )
+            if marked.rowcount == 0:
+                claim(session, **{**outbox_row(job_id, status, url, now), "error": error})
     except Exception as db_exc:  # the database is down too: nothing left to remember it by
         log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)
 
 
-def jobs_ended(session: Session, settings: Settings, job_ids: Iterable[uuid.UUID], celery: Celery) -> int:
-    """``job_ended`` for those of ``job_ids`` that have a callback_url (the reconciler's failures)."""
+def jobs_ended(
+    session: Session, settings: Settings, job_ids: Iterable[uuid.UUID], celery: Celery, *, recorded: bool = False
+) -> int:
+    """``job_ended`` for those of ``job_ids`` that have a callback_url (the reconciler's failures, whose
+    outbox rows ``runs.reconcile`` wrote: ``recorded``)."""
     ids = list(job_ids)
     if not ids:
         return 0
     sent = 0
     for job_id, status, url in session.execute(select(Job.id, Job.status, Job.callback_url).where(Job.id.in_(ids))):
         if url and status in FINAL_STATUSES:
-            sent += job_ended(settings, job_id, str(status), url=url, celery=celery)
+            sent += job_ended(settings, job_id, str(status), url=url, celery=celery, recorded=recorded)
     return sent
 
 
@@ -124,6 +171,18 @@ def finish(session: Session, row_id: int, **values: Any) -> None:
     session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(**values))
 
 
+def settle_earlier(session: Session, message_id: str, attempt: int, attempted_at: datetime) -> None:
+    """Attempt ``attempt`` of the message started at ``attempted_at``: an earlier row whose next attempt
+    is due later than that (the sweep's postponement of a row it published again) gets that time, when
+    its next attempt really came, instead of a time at which nothing will happen."""
+    earlier = (WebhookDelivery.message_id == message_id, WebhookDelivery.attempt < attempt)
+    session.execute(
+        update(WebhookDelivery)
+        .where(*earlier, WebhookDelivery.next_attempt_at > attempted_at)
+        .values(next_attempt_at=attempted_at)
+    )
+
+
 def delivered(session: Session, message_id: str) -> bool:
     """Whether a receiver already accepted (2xx) this message."""
     query = select(
@@ -140,7 +199,7 @@ def overdue(session: Session, due_before: datetime, due_after: datetime, limit: 
     """Rows whose next attempt was due between ``due_after`` and ``due_before`` and never came.
 
     That is: no later attempt of the same message is recorded, and no attempt of it was accepted.
-    Row ``attempt = 0`` marks a message that could not be published when its job ended.
+    Row ``attempt = 0`` is the message's outbox row: its attempt 1 never came.
     """
     later = WebhookDelivery.__table__.alias("later")
     query = (
@@ -169,6 +228,8 @@ def postpone(session: Session, row_id: int, until: datetime) -> None:
 
 
 def deliveries(session: Session, job_id: uuid.UUID) -> list[WebhookDelivery]:
-    """The job's delivery attempts, oldest first (the ``deliveries`` member of a job)."""
-    query = select(WebhookDelivery).where(WebhookDelivery.job_id == job_id).order_by(WebhookDelivery.id)
+    """The job's delivery attempts, oldest first (the ``deliveries`` member of a job), and its outbox row
+    when the broker refused the message (attempt 0, "not published")."""
+    shown = or_(WebhookDelivery.attempt != OUTBOX_ATTEMPT, WebhookDelivery.error.startswith(NOT_PUBLISHED))
+    query = select(WebhookDelivery).where(WebhookDelivery.job_id == job_id, shown).order_by(WebhookDelivery.id)
     return list(session.scalars(query))

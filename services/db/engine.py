@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Connection, Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from services.core.config import Settings
@@ -79,12 +79,57 @@ def create_db_engine(url: str, pool_size: int = 10, **postgres_options: Any) -> 
     return engine
 
 
+def postgres_connect_args(settings: Settings, *server_settings: str) -> dict[str, Any]:
+    """The libpq connection parameters that bound every wait of a PostgreSQL connection of the service
+    (PostgreSQL 15 documentation, §34.1.2 "Parameter Key Words"), from the settings:
+
+    - ``connect_timeout`` = ``SPINE_DB_CONNECT_TIMEOUT_S`` (whole seconds; libpq takes 1 as 2): a
+      server that does not complete the connection and its authentication in time is an error;
+    - ``tcp_user_timeout`` = ``SPINE_DB_TCP_TIMEOUT_S`` in ms: the kernel closes the connection when
+      data sent stays unacknowledged that long (a server gone without closing its connections);
+    - ``keepalives``: an idle connection is probed after ``idle`` = T/3 s, every ``interval`` = T/6 s,
+      and dropped after ``count`` unanswered probes, idle + count·interval ≈ T = ``SPINE_DB_TCP_TIMEOUT_S``
+      (each at least 1 s: libpq takes whole seconds), so that a pooled connection whose server
+      vanished is found dead before it is used;
+    - ``options`` ``-c statement_timeout=`` ``SPINE_DB_STATEMENT_TIMEOUT_S`` in ms (PostgreSQL 15
+      documentation, §20.11.1 "Statement Behavior"; none when 0), then ``server_settings``
+      (``name=value``, e.g. ``synchronous_commit=off``).
+
+    A parameter that ``DATABASE_URL``'s query string gives wins (the operator's choice); its
+    ``options`` come after these, so that its ``-c`` settings win too.
+    """
+    tcp_s = settings.db_tcp_timeout_s
+    idle = max(1, int(tcp_s / 3))
+    interval = max(1, int(tcp_s / 6))
+    gucs = list(server_settings)
+    if settings.db_statement_timeout_s:
+        gucs.insert(0, f"statement_timeout={int(settings.db_statement_timeout_s * 1000)}")
+    args: dict[str, Any] = {
+        "connect_timeout": settings.db_connect_timeout_s,
+        "tcp_user_timeout": int(tcp_s * 1000),
+        "keepalives": 1,
+        "keepalives_idle": idle,
+        "keepalives_interval": interval,
+        "keepalives_count": max(1, round((tcp_s - idle) / interval)),
+    }
+    given = make_url(settings.sqlalchemy_url).query
+    options = [f"-c {guc}" for guc in gucs]
+    if isinstance(given.get("options"), str):
+        options.append(str(given["options"]))
+    if options:
+        args["options"] = " ".join(options)
+    return {name: value for name, value in args.items() if name == "options" or name not in given}
+
+
 def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
     key = (settings.sqlalchemy_url, os.getpid())
     with _LOCK:
         if key not in _ENGINES:
             settings.ensure_data_dir()
-            engine = create_db_engine(settings.sqlalchemy_url, settings.db_pool_size)
+            options: dict[str, Any] = {}
+            if settings.sqlalchemy_url.startswith("postgresql"):
+                options["connect_args"] = postgres_connect_args(settings)
+            engine = create_db_engine(settings.sqlalchemy_url, settings.db_pool_size, **options)
             _ENGINES[key] = (engine, sessionmaker(engine, expire_on_commit=False))
         return _ENGINES[key]
 
@@ -131,8 +176,9 @@ def _worker_engine(settings: Settings, durable: bool) -> Engine:
     engine = get_engine(settings)
     if engine.dialect.name == "postgresql":
         # the claim's commit does not wait for the WAL flush (synchronous_commit=off); the finish's does
-        options: dict[str, Any] = {} if durable else {"connect_args": {"options": "-c synchronous_commit=off"}}
-        engine = create_db_engine(settings.sqlalchemy_url, pool_size=2, isolation_level="AUTOCOMMIT", **options)
+        extra = () if durable else ("synchronous_commit=off",)
+        engine = create_db_engine(settings.sqlalchemy_url, pool_size=2, isolation_level="AUTOCOMMIT",
+                                  connect_args=postgres_connect_args(settings, *extra))  # fmt: skip
     with _LOCK:
         return _WORKER_ENGINES.setdefault(key, engine)
 

@@ -123,8 +123,8 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
 def register_dicom_tasks(app: Celery, settings: Settings) -> None:
     """The ``spine.dicom_store`` task on ``app``."""
 
-    @app.task(name=STORE_DICOM, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
-              max_retries=10)  # fmt: skip
+    @app.task(name=STORE_DICOM, shared=False, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT,
+              retry_backoff=True, max_retries=10)  # fmt: skip
     def dicom_store(job_id: str, attempt: int) -> None:
         parsed = uuid.UUID(job_id)
         try:

@@ -26,13 +26,14 @@ from typing import Any
 
 from celery import Celery, Task
 from celery.exceptions import SoftTimeLimitExceeded
+from sqlalchemy.exc import StatementError
 from sqlalchemy.orm import Session
 
 import spine_engine
 from services.core.config import DicomwebConfig, Settings
-from services.core.jobqueue import RECONCILE, RUN_JOB, broker_run_id, queue_depth
+from services.core.jobqueue import HARD_LIMIT_GRACE_S, RECONCILE, RUN_JOB, broker_run_id, queue_depth
 from services.core.problems import problem, validation_problem
-from services.core.retry import TRANSIENT, write_retry
+from services.core.retry import TRANSIENT, refused_by_database, storage_refusal, write_retry
 from services.db import deliveries, runs, stats
 from services.db.engine import session_scope, worker_connection
 from services.db.job_forms import apply_reads, engine_payload
@@ -200,9 +201,48 @@ def _save_outcome(
         return runs.finish_job(connection, claim, result=result, error=error, engine_version=engine_version)
 
 
+def _store_outcome(
+    settings: Settings,
+    claim: runs.Claim,
+    result: RegistrationResult | None,
+    error: dict[str, Any] | None,
+    instance: str,
+) -> tuple[bool, dict[str, Any] | None]:
+    """Store the run's outcome; return (stored, the problem stored). A database that refuses it for
+    good (a constraint, a trigger, a value it cannot hold: ``refused_by_database``) fails the job at
+    once with ``result-not-stored`` instead: no traceback, one log line, and no fit run again."""
+    engine_version = result.engine.version if result is not None else None
+    try:
+        return _save_outcome(settings, claim, result, error, engine_version), error
+    except StatementError as exc:
+        if not refused_by_database(exc):
+            raise
+        reason = storage_refusal(exc)
+    log.error("job %s: the database refused to store its outcome (%s); the job fails (result-not-stored)",
+              claim.job_id, reason)  # fmt: skip
+    refused = result_not_stored(f"the database refused to store the job's outcome ({reason}); the fit is not "
+                                "run again: the service's operator must look at the database", instance)  # fmt: skip
+    try:
+        return _save_outcome(settings, claim, None, refused, engine_version), refused
+    except StatementError as exc:
+        if not refused_by_database(exc):
+            raise
+        log.error("job %s: the database refused its failure too (%s); it stays running until its lease expires",
+                  claim.job_id, storage_refusal(exc))  # fmt: skip
+        return False, refused
+
+
+def result_not_stored(detail: str, instance: str) -> dict[str, Any]:
+    """The ``result-not-stored`` problem (status 500) of a job whose outcome the database refused."""
+    return problem("result-not-stored", detail, instance=instance)
+
+
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     """Claim (with a lease), run and finish one job; return what happened (for logs and tests).
-    Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable)."""
+    Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable).
+
+    The lease is held until the outcome is stored: its write may be retried for ~30 s
+    (``write_retry``), longer than a lease, and a job taken back meanwhile would be fitted again."""
     with worker_connection(settings, durable=False) as session:
         claim = runs.claim_job(session, job_id, _engine_version(), timedelta(seconds=settings.lease_s))
     if claim is None:
@@ -215,16 +255,15 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
         result = None
         if error is None:
             result, error = run_engine(payload, instance)
+        saved, error = _store_outcome(settings, claim, result, error, instance)
     finally:
         keeper.release(claim)
-    engine_version = result.engine.version if result is not None else None
-    saved = _save_outcome(settings, claim, result, error, engine_version)
     if not saved:
         return "superseded"
     status = "succeeded" if error is None else "failed"
     url = claim.callback_url
-    if url:  # only then: a message on the webhook queue
-        deliveries.job_ended(settings, job_id, status, url=url)
+    if url:  # only then: a message on the webhook queue (its outbox row was written with the outcome)
+        deliveries.job_ended(settings, job_id, status, url=url, recorded=True)
     if status == "succeeded" and settings.stores_dicom_results:
         dicom_tasks.job_succeeded(settings, job_id)  # STOW-RS of the SR and figure
     return status
@@ -287,9 +326,9 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
     if outcome.requeue:
         with session_scope(settings) as session:
             runs.publish(session, app, outcome.requeue)
-    if outcome.failed:
+    if outcome.failed:  # their webhooks' outbox rows were written with their failure
         with session_scope(settings) as session:
-            deliveries.jobs_ended(session, settings, outcome.failed, app)
+            deliveries.jobs_ended(session, settings, outcome.failed, app, recorded=True)
     if outcome.requeue or outcome.failed:
         log.info("reconciler: re-enqueued %d jobs, failed %d", len(outcome.requeue), len(outcome.failed))
     webhook_tasks.sweep(settings, app)
@@ -298,10 +337,13 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
 
 
 def register_tasks(app: Celery, settings: Settings) -> None:
-    """Define the tasks on ``app`` (the time limits come from ``settings``)."""
+    """Define the tasks on ``app`` (the time limits come from ``settings``). Not shared: each task holds
+    the settings of its app, where Celery would give a shared one to every app the process builds later
+    (a publisher, a test's app), before that app's own."""
 
     @app.task(
         name=RUN_JOB,
+        shared=False,
         bind=True,
         acks_late=True,
         ignore_result=True,
@@ -327,6 +369,8 @@ def register_tasks(app: Celery, settings: Settings) -> None:
             outcome = f"back to the queue for {later.countdown:g} s (PACS unavailable)"
         log.info("job %s %s in %.1f ms", job_id, outcome, (time.perf_counter() - started) * 1000)
 
-    @app.task(name=RECONCILE, ignore_result=True, autoretry_for=TRANSIENT, max_retries=0)
+    @app.task(name=RECONCILE, shared=False, ignore_result=True, autoretry_for=TRANSIENT, max_retries=0,
+              soft_time_limit=settings.reconcile_time_limit_s,
+              time_limit=settings.reconcile_time_limit_s + HARD_LIMIT_GRACE_S)  # fmt: skip
     def reconcile() -> None:
         reconcile_once(settings, app)

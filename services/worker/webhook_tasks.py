@@ -3,7 +3,13 @@
 The task POSTs the job (``services.webhooks.delivery``), records the attempt in
 ``webhook_deliveries`` and, unless the receiver answered 2xx (or 410 Gone), publishes the next attempt
 with exponential backoff (``Retry-After`` honoured), up to ``SPINE_WEBHOOK_MAX_ATTEMPTS``. The first
-attempt is published by ``services.db.deliveries.job_ended`` as the job ends.
+attempt is published by ``services.db.deliveries.job_ended`` as the job ends, after its outbox row
+(attempt 0) is written.
+
+Time limits: the task's soft limit is its attempt's deadline (``SPINE_WEBHOOK_TIMEOUT_S``, which
+bounds the claim and the request) plus ``SPINE_WEBHOOK_TASK_MARGIN_S`` (writing the outcome, retried
+in place, and publishing the next attempt), its hard limit ``HARD_LIMIT_GRACE_S`` later. A task cut
+off leaves its attempt's row in flight (or only the outbox row), which the sweep publishes again.
 """
 
 from __future__ import annotations
@@ -17,8 +23,8 @@ from typing import Any
 from celery import Celery
 
 from services.core.config import Settings
-from services.core.jobqueue import DELIVER_WEBHOOK, publish_webhook
-from services.core.retry import TRANSIENT
+from services.core.jobqueue import DELIVER_WEBHOOK, HARD_LIMIT_GRACE_S, publish_webhook
+from services.core.retry import TRANSIENT, write_retry
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
 from services.db import deliveries
 from services.db.engine import session_scope
@@ -32,14 +38,16 @@ log = logging.getLogger(__name__)
 def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days=1)) -> int:
     """Publish again every attempt that was due ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ago and never came.
 
-    Such an attempt's message was not published (attempt 0: the broker was down when the job
-    ended) or was lost with a broker, or its worker stopped during the request (the row of an
-    attempt in flight is due at the attempt's deadline, ``SPINE_WEBHOOK_TIMEOUT_S`` after it
-    started, which ``services.webhooks.delivery.post`` holds: an attempt still within it is never
-    swept). Each one found is published and its row's due time moved ``SPINE_WEBHOOK_SWEEP_AFTER_S``
-    ahead, so it is published again only if this one is lost too. A row of the last attempt
-    (``SPINE_WEBHOOK_MAX_ATTEMPTS``) publishes nothing: its due time is cleared. Looks back
-    ``window``. Returns how many were published.
+    Such an attempt's message was not published (the outbox row, attempt 0, says "not published":
+    the broker was down when the job ended) or was lost with a broker (the outbox row of a message
+    whose attempt 1 never came, or a retry that never came), or its worker stopped during the request
+    (the row of an attempt in flight is due at the attempt's deadline, ``SPINE_WEBHOOK_TIMEOUT_S``
+    after it started, which ``services.webhooks.delivery.post`` holds: an attempt still within it is
+    never swept). Each one found is published and its row's due time moved
+    ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ahead, so it is published again only if this one is lost too (the
+    claim of the attempt sets it back to when the attempt came: ``deliveries.settle_earlier``). A row
+    of the last attempt (``SPINE_WEBHOOK_MAX_ATTEMPTS``) publishes nothing: its due time is cleared.
+    Looks back ``window``. Returns how many were published.
     """
     after = timedelta(seconds=settings.webhook_sweep_after_s)
     now = utcnow()
@@ -60,6 +68,8 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
                 break
             if lost:
                 deliveries.finish(session, row.id, error=_LOST)
+            elif row.attempt == deliveries.OUTBOX_ATTEMPT and row.error is None:
+                deliveries.finish(session, row.id, error=_NEVER_CAME.format(after=settings.webhook_sweep_after_s))
             deliveries.postpone(session, row.id, now + after)
             published += 1
     if published:
@@ -68,6 +78,8 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
 
 
 _LOST = "no outcome recorded: the worker stopped during the attempt"
+_NEVER_CAME = ("no attempt within {after:g} s of the job's end (SPINE_WEBHOOK_SWEEP_AFTER_S): its message was lost "
+               "or is still waiting; the reconciler published it again")  # fmt: skip
 
 
 def _in_flight(row: WebhookDelivery) -> bool:
@@ -104,6 +116,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         )  # fmt: skip
         if row_id is None:  # published twice (a repeated cancel, a sweep, a redelivery)
             return None
+        deliveries.settle_earlier(session, mid, attempt, attempted_at)
         body = webhook_body(job.data, status, job.finished_at)
         key = secret_for(session, job.owner, settings)
     try:
@@ -132,7 +145,10 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
     return delay
 
 
+@write_retry
 def _finish(settings: Settings, row_id: int, **values: Any) -> None:
+    """Write the attempt's outcome on its row, retried in place on a transient fault (``write_retry``):
+    the request was made, and a row left in flight would be swept and the receiver called again."""
     with session_scope(settings) as session:
         deliveries.finish(session, row_id, **{"status_code": None, "error": None, "duration_ms": None,
                                               "next_attempt_at": None, **values})  # fmt: skip
@@ -141,8 +157,11 @@ def _finish(settings: Settings, row_id: int, **values: Any) -> None:
 def register_webhook_tasks(app: Celery, settings: Settings) -> None:
     """Define ``spine.deliver_webhook`` on the worker's Celery app, signing with per-key secrets."""
 
-    @app.task(name=DELIVER_WEBHOOK, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT, retry_backoff=True,
-              retry_backoff_max=60, max_retries=10)  # fmt: skip
+    soft_limit = settings.webhook_timeout_s + settings.webhook_task_margin_s
+
+    @app.task(name=DELIVER_WEBHOOK, shared=False, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT,
+              retry_backoff=True, retry_backoff_max=60, max_retries=10, soft_time_limit=soft_limit,
+              time_limit=soft_limit + HARD_LIMIT_GRACE_S)  # fmt: skip
     def deliver_webhook(job_id: str, status: str, attempt: int) -> None:
         try:
             parsed = uuid.UUID(job_id)

@@ -3,20 +3,27 @@
 from __future__ import annotations
 
 import functools
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any
 
 from alembic.script import ScriptDirectory
+from celery import Celery
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
-from services.api.deps import QueueDep, SessionDep
+from services.api.deps import QueueDep, SettingsDep
 from services.api.schemas import Health, problem_responses
+from services.core.config import Settings
 from services.core.jobqueue import ping_broker
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
 from services.core.retry import schema_not_migrated
+from services.db.engine import session_factory
 from services.db.migrate import ALEMBIC_INI
 
 router = APIRouter(tags=["operations"])
@@ -50,24 +57,72 @@ READY_503: dict[int | str, dict[str, Any]] = {
     "by a newer release (run the release that migrated it); the broker unreachable.",
     responses=READY_503,
 )
-def readyz(request: Request, session: SessionDep, queue: QueueDep) -> Health | JSONResponse:
-    checks: dict[str, str] = {}
-    try:
-        session.execute(text("SELECT 1"))
-        checks["database"] = _schema_check(session)
-    except Exception as exc:
-        checks["database"] = f"unreachable: {type(exc).__name__}"
-    try:
-        ping_broker(queue)
-        checks["broker"] = "ok"
-    except Exception as exc:
-        checks["broker"] = f"unreachable: {type(exc).__name__}"
+def readyz(request: Request, settings: SettingsDep, queue: QueueDep) -> Health | JSONResponse:
+    # Both checks run at once, each in a thread of its own, and the answer does not wait for either
+    # more than SPINE_READY_TIMEOUT_S: a dependency that accepts connections but does not answer (a
+    # stopped process, a half-open network path) makes a prompt 503, not a probe that hangs.
+    bound = settings.ready_timeout_s
+    started = time.monotonic()
+    pending = {"database": _run_check(_database_check, settings), "broker": _run_check(_broker_check, queue)}
+    checks = {name: _outcome(check, started + bound, bound) for name, check in pending.items()}
     if all(v == "ok" for v in checks.values()):
         return Health(status="ready", checks=checks)
-    why = [f"{k} unreachable" if v.startswith("unreachable") else f"database {v}"
-           for k, v in checks.items() if v != "ok"]  # fmt: skip
+    why = [_why(name, value) for name, value in checks.items() if value != "ok"]
     body = problem("service-unavailable", f"not ready: {'; '.join(why)}", instance=request.url.path, checks=checks)
     return JSONResponse(body, status_code=503, media_type=PROBLEM_MEDIA_TYPE, headers={"Retry-After": "5"})
+
+
+def _why(name: str, check: str) -> str:
+    if check.startswith("unreachable"):
+        return f"{name} unreachable"
+    if check.startswith("no answer"):
+        return f"{name}: {check}"
+    return f"database {check}"  # its schema
+
+
+_CHECK_SLOTS = threading.BoundedSemaphore(4)
+"""Readiness checks running at once per process, each in a daemon thread (never one that delays the
+process's exit): a check stuck on a dependency holds its slot until the dependency's own timeout ends it
+(SPINE_DB_CONNECT_TIMEOUT_S, SPINE_DB_TCP_TIMEOUT_S, SPINE_BROKER_TIMEOUT_S); with every slot held, a
+check is not started and answers "no answer" in time."""
+
+
+def _run_check(check: Callable[[Any], str], target: Any) -> Future[str]:
+    future: Future[str] = Future()
+    if not _CHECK_SLOTS.acquire(blocking=False):
+        return future  # never resolved: the probe answers "no answer" at its bound
+
+    def run() -> None:
+        try:
+            future.set_result(check(target))
+        except Exception as exc:
+            future.set_exception(exc)
+        finally:
+            _CHECK_SLOTS.release()
+
+    threading.Thread(target=run, name="readyz-check", daemon=True).start()
+    return future
+
+
+def _outcome(check: Future[str], deadline: float, bound: float) -> str:
+    """``ok``, what is wrong, or that the dependency did not answer by ``deadline``."""
+    try:
+        return check.result(timeout=max(0.0, deadline - time.monotonic()))
+    except TimeoutError:
+        return f"no answer within {bound:g} s (SPINE_READY_TIMEOUT_S)"
+    except Exception as exc:
+        return f"unreachable: {type(exc).__name__}"
+
+
+def _database_check(settings: Settings) -> str:
+    with session_factory(settings)() as session:
+        session.execute(text("SELECT 1"))
+        return _schema_check(session)
+
+
+def _broker_check(queue: Celery) -> str:
+    ping_broker(queue)
+    return "ok"
 
 
 @functools.cache

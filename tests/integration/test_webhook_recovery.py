@@ -1,0 +1,131 @@
+"""No webhook is lost to a broker restart or to a delivery task stuck on its database, with the real
+service: the API in process and a real ``spine worker`` (Celery, reconciler embedded) on a PostgreSQL
+database of the test's own and Redis, delivering to a real receiver.
+
+- A job's first webhook message waits in the test's own redis-server (no worker yet) when that
+  server is killed and started again (``--save ""``: the message is gone). The webhook's outbox row,
+  written before the message was published, makes the reconciler publish it again: the receiver
+  gets it once.
+- A delivery task whose claim waits on a lock the test holds (no statement timeout, so that only
+  the task's time limit can end it) is ended by its time limit (SPINE_WEBHOOK_TIMEOUT_S +
+  SPINE_WEBHOOK_TASK_MARGIN_S, then 5 s to the hard limit), and the sweep delivers the webhook once
+  the lock is gone."""
+
+from __future__ import annotations
+
+import re
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import redis
+from sqlalchemy import select, text
+
+from services.db.deliveries import message_id
+from services.db.engine import get_engine, session_scope
+from services.db.models import WebhookDelivery
+from tests.conftest import Service, service_env, spawned_service, spine_payload
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver, wait_until
+from tools.loadbench import OwnRedis
+
+pytestmark = pytest.mark.integration
+
+SWEEP_AFTER_S = 1.0
+
+
+@pytest.fixture
+def receiver() -> Iterator[Receiver]:
+    r = Receiver()
+    yield r
+    r.close()
+
+
+def webhook_env(receiver: Receiver, **extra: str) -> dict[str, str]:
+    return {"SPINE_WEBHOOK_ALLOWED_URLS": receiver.url("/hooks/"),
+            "SPINE_WEBHOOK_SECRET": TEST_WEBHOOK_SECRET.get_secret_value(),
+            "SPINE_WEBHOOK_SWEEP_AFTER_S": str(SWEEP_AFTER_S), **extra}  # fmt: skip
+
+
+def submit_and_cancel(service: Service, url: str) -> str:
+    job = service.submit({**spine_payload(), "callback_url": url})
+    response = service.client.post(f"/v1/jobs/{job['id']}/cancel")
+    assert response.status_code == 200 and response.json()["status"] == "cancelled", response.text
+    return str(job["id"])
+
+
+def deliveries(service: Service, job_id: str) -> list[dict[str, Any]]:
+    listed: list[dict[str, Any]] = service.job(job_id)["deliveries"]
+    return listed
+
+
+def test_a_first_webhook_message_lost_in_a_broker_restart_is_delivered_once(
+    tmp_path: Path, fresh_postgres_url: str, receiver: Receiver
+) -> None:
+    own = OwnRedis(tmp_path / "redis")
+    try:
+        own.start()
+    except (SystemExit, OSError) as exc:
+        pytest.skip(f"no throwaway redis-server: {exc}")
+    env = service_env(tmp_path, DATABASE_URL=fresh_postgres_url, CELERY_BROKER_URL=own.url, **webhook_env(receiver))
+    service = Service("outbox", env, tmp_path)  # its worker is started after the restart
+    try:
+        path = f"/hooks/{uuid.uuid4().hex}"
+        job_id = submit_and_cancel(service, receiver.url(path))
+        waiting = redis.Redis.from_url(own.url).llen(service.settings.webhook_queue)
+        assert waiting == 1  # attempt 1's message, not consumed: no worker runs
+        own.stop()  # SIGKILL: the message is gone with the server
+        own.start()
+        assert redis.Redis.from_url(own.url).llen(service.settings.webhook_queue) == 0
+        service.start_worker()
+        # the sweep runs every SPINE_RECONCILE_INTERVAL_S (1 s) and publishes the attempt SWEEP_AFTER_S past the
+        # cancel, which is already past; 20 s covers Celery beat's first run and the delivery on a loaded machine
+        wait_until(lambda: receiver.at(path), 20, "the lost webhook to be delivered")
+        wait_until(lambda: any(d["status_code"] for d in deliveries(service, job_id)), 10,
+                   "the delivery's answer to be recorded")  # fmt: skip
+        listed = deliveries(service, job_id)
+        assert [(d["attempt"], d["status_code"]) for d in listed] == [(1, 204)]
+        outbox_row = (WebhookDelivery.attempt == 0, WebhookDelivery.job_id == uuid.UUID(job_id))
+        with session_scope(service.settings) as session:  # the outbox row says why attempt 1 came late
+            outbox = session.scalar(select(WebhookDelivery.error).where(*outbox_row))
+        assert outbox is not None and outbox.startswith("no attempt within 1 s of the job's end")
+        [got] = receiver.at(path)
+        assert got.headers["webhook-id"] == message_id(job_id, "cancelled") and got.json()["type"] == "job.cancelled"
+    finally:
+        service.stop_worker()
+        own.stop()
+
+
+def test_a_delivery_stuck_on_its_database_is_ended_by_its_time_limit_and_swept(
+    tmp_path: Path, fresh_postgres_url: str, redis_url: str, receiver: Receiver
+) -> None:
+    env = webhook_env(receiver, SPINE_WEBHOOK_TIMEOUT_S="1", SPINE_WEBHOOK_TASK_MARGIN_S="1",
+                      SPINE_DB_STATEMENT_TIMEOUT_S="0")  # fmt: skip
+    with spawned_service("stuck", tmp_path, postgres_url=fresh_postgres_url, redis_url=redis_url, **env) as service:
+        path = f"/hooks/{uuid.uuid4().hex}"
+        job = service.submit({**spine_payload(), "callback_url": receiver.url(path)})
+        holder = get_engine(service.settings).connect()
+        try:  # attempt 1's row inserted, not committed: the worker's claim of it waits for this transaction
+            row = {"job": uuid.UUID(job["id"]), "mid": message_id(job["id"], "cancelled"), "url": receiver.url(path)}
+            holder.execute(text("INSERT INTO webhook_deliveries (job_id, message_id, event, attempt, url, "
+                                "attempted_at) VALUES (:job, :mid, 'job.cancelled', 1, :url, now())"), row)  # fmt: skip
+            started = time.monotonic()
+            assert service.client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 200
+            # soft limit 1 + 1 s after the task started, hard limit 5 s later; 4 s for the pool's check and the log
+            limit = re.compile(r"(Soft|Hard) time limit \([\d.]+s\) exceeded for spine\.deliver_webhook")
+            wait_until(lambda: limit.search(service.worker_log()), 2 + 5 + 4, "the delivery's time limit")
+            stopped_after = time.monotonic() - started
+        finally:
+            holder.rollback()
+            holder.close()
+        assert receiver.at(path) == []
+        # the outbox row (due at the cancel) is swept SWEEP_AFTER_S later, at a reconcile pass every 1 s
+        wait_until(lambda: receiver.at(path), 10, "the swept webhook to be delivered")
+        # the attempt's row is listed from its claim, its status once the receiver's answer is written
+        wait_until(lambda: any(d["status_code"] for d in deliveries(service, job["id"])), 10,
+                   "the delivery's answer to be recorded")  # fmt: skip
+        listed = deliveries(service, job["id"])
+        assert [(d["attempt"], d["status_code"]) for d in listed] == [(1, 204)]
+        assert len(receiver.at(path)) == 1 and stopped_after < 2 + 5 + 4
