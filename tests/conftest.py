@@ -33,8 +33,8 @@ from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
 from services.db.migrate import upgrade
 from spine_engine.levels import LEVELS
+from tests import stopping
 from tools.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
-from tools.processes import stop_processes
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
 REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
@@ -42,8 +42,26 @@ IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1,
 FINAL = {"succeeded", "failed", "cancelled"}
 
 
-REQUIRE_BACKENDS = os.environ.get("CI", "").lower() in ("true", "1") or os.environ.get("SPINE_REQUIRE_BACKENDS") == "1"
-"""Whether every skip fails (CI): set by ``.ci/run`` (CI=true) or SPINE_REQUIRE_BACKENDS=1."""
+pytest_plugins = ["pytester"]  # tests/arch/test_ci_rules.py runs pytest on a probe file in process
+
+
+def require_backends() -> bool:
+    """Whether every skip fails (CI): set by ``.ci/run`` (CI=true) or SPINE_REQUIRE_BACKENDS=1, read from
+    the environment of the run."""
+    return os.environ.get("CI", "").lower() in ("true", "1") or os.environ.get("SPINE_REQUIRE_BACKENDS") == "1"
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    stopping.claim(session)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """Before the session's fixtures are torn down (no next test), tell every service process they
+    started to stop, so that they stop together (tests/stopping.py)."""
+    if nextitem is None and stopping.owns(item.session):
+        stopping.signal_all()
+    yield
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -51,7 +69,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     """In CI, turn every skipped test (a missing back end, browser, tool) into a failure naming why."""
     outcome = yield
     report = outcome.get_result()  # type: ignore[attr-defined]
-    if REQUIRE_BACKENDS and report.skipped and not hasattr(report, "wasxfail"):
+    if report.skipped and not hasattr(report, "wasxfail") and require_backends():
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
         report.outcome = "failed"
         report.longrepr = (
@@ -202,6 +220,7 @@ class Service:
             stderr=subprocess.STDOUT,
             start_new_session=True,
         )
+        stopping.started(self.worker)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             text = self.log_path.read_bytes()[offset:].decode(errors="replace")
@@ -217,7 +236,7 @@ class Service:
         if self.worker is None:
             return
         proc, self.worker = self.worker, None
-        stop_processes([proc], grace_s=20)
+        stopping.stop(proc, grace_s=20)
 
     def worker_log(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""

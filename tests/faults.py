@@ -181,11 +181,25 @@ class LiveService:
             return subprocess.Popen([sys.executable, "-m", "services.cli", *args], env=self.env, stdout=out,
                                     stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
 
-    def start_api(self) -> None:
-        self.api = self._spawn(["serve", "--no-worker", "--host", "127.0.0.1", "--port", str(self.port)], "api.log")
+    def start_worker(self) -> subprocess.Popen[bytes]:
+        proc, name = self._spawn_worker()
+        self._wait_worker(proc, name)
+        return proc
 
+    def start(self) -> None:
+        """The API and one worker, started together (each takes seconds to import), ready both."""
+        api = self._spawn_api()
+        worker, name = self._spawn_worker()
+        self._wait_api(api)
+        self._wait_worker(worker, name)
+
+    def _spawn_api(self) -> subprocess.Popen[bytes]:
+        self.api = self._spawn(["serve", "--no-worker", "--host", "127.0.0.1", "--port", str(self.port)], "api.log")
+        return self.api
+
+    def _wait_api(self, api: subprocess.Popen[bytes]) -> None:
         def up() -> bool:
-            assert self.api is not None and self.api.poll() is None, self.text("api.log")[-3000:]
+            assert api.poll() is None, self.text("api.log")[-3000:]
             try:
                 return httpx.get(self.base_url + "/healthz", timeout=1).status_code == 200
             except httpx.TransportError:
@@ -193,17 +207,18 @@ class LiveService:
 
         wait_until(up, 60, "the API to answer /healthz", 0.2)
 
-    def start_worker(self) -> subprocess.Popen[bytes]:
+    def _spawn_worker(self) -> tuple[subprocess.Popen[bytes], str]:
         name = f"worker-{len(self.workers)}.log"
         proc = self._spawn(["worker"], name)
         self.workers.append(proc)
+        return proc, name
 
+    def _wait_worker(self, proc: subprocess.Popen[bytes], name: str) -> None:
         def ready() -> bool:
             assert proc.poll() is None, self.text(name)[-3000:]
             return " ready." in self.text(name)
 
         wait_until(ready, 60, "the worker to be ready", 0.2)
-        return proc
 
     def kill_worker(self, proc: subprocess.Popen[bytes]) -> None:
         """SIGKILL the worker's whole process group: main process, pool processes and beat."""
@@ -327,7 +342,8 @@ class Load(threading.Thread):
 
     def stop(self) -> None:
         self._halt.set()
-        self.join(30)
+        if self.ident is not None:  # started
+            self.join(30)
 
     def accepted(self) -> list[str]:
         return [a.job_id for a in self.answers if a.status == 202 and a.job_id]

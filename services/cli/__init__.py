@@ -26,6 +26,7 @@ from services.cli.keys import add_keys_parser, announce_first_key, ensure_first_
 from services.core.config import Settings, get_settings
 from services.core.logs import configure_logging, install_celery_job_context, uvicorn_log_config
 from services.db.migrate import upgrade
+from services.worker.heap import freeze_for_exit
 
 log = logging.getLogger("services.cli")
 CHECKOUT = Path(__file__).resolve().parents[2]
@@ -119,6 +120,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             access_log=args.access_log,
         )
     finally:
+        freeze_for_exit()  # the API has stopped: the interpreter's last collections need not walk its heap
         if child is not None:
             _stop(child)
     return 0

@@ -19,6 +19,7 @@ from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
 from services.worker import tasks
 from services.worker.dicom_tasks import register_dicom_tasks
+from services.worker.heap import freeze_startup_heap
 from services.worker.webhook_tasks import register_webhook_tasks
 from spine_engine.warmup import warm_up
 
@@ -65,3 +66,5 @@ def _load_engine_kernels(**_: Any) -> None:
     # In the main process, before the pool forks: each pool process inherits the engine's compiled
     # kernels (about 0.4 s here) instead of loading them from the disk cache on its first job.
     log.info("engine kernels loaded in %.2f s", warm_up())
+    # Last before the fork (services.worker.heap): the pool processes share these pages untouched.
+    freeze_startup_heap()

@@ -4,8 +4,6 @@ is a failure, naming why it skipped; on a developer's machine it stays a skip.""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from collections import Counter
 from pathlib import Path
 
@@ -21,26 +19,30 @@ def test_needs_a_back_end():
 '''
 
 
-def _run(tmp_path: Path, **env: str) -> subprocess.CompletedProcess[str]:
-    probe = tmp_path / "test_probe.py"
-    probe.write_text(PROBE)
-    base = {k: v for k, v in os.environ.items() if k not in ("CI", "SPINE_REQUIRE_BACKENDS")}
-    # -p tests.conftest: the project's hooks, loaded as a plugin for a test outside tests/.
-    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "tests.conftest", "-p", "no:cacheprovider",
-                           str(probe)], cwd=ROOT, env={**base, **env}, capture_output=True, text=True,
-                          timeout=120)  # fmt: skip
+def _run(pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch, **env: str) -> pytest.RunResult:
+    """pytest on the probe file, in this process (pytester), with the project's hooks loaded as a plugin
+    (-p tests.conftest: the file is outside tests/) and ``env`` as the run's environment."""
+    for name in ("CI", "SPINE_REQUIRE_BACKENDS"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    pytester.makepyfile(test_probe=PROBE)
+    return pytester.runpytest_inprocess("-q", "-p", "tests.conftest", "-p", "no:cacheprovider")
 
 
-def test_a_skip_fails_in_ci(tmp_path: Path) -> None:
-    run = _run(tmp_path, CI="true")
-    assert run.returncode == 1, run.stdout[-2000:]
-    assert "1 failed" in run.stdout and "skipped where every back end must be present" in run.stdout
-    assert "PostgreSQL unreachable" in run.stdout
+def test_a_skip_fails_in_ci(pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch) -> None:
+    run = _run(pytester, monkeypatch, CI="true")
+    out = run.stdout.str()
+    assert run.ret == 1, out[-2000:]
+    assert "1 failed" in out and "skipped where every back end must be present" in out
+    assert "PostgreSQL unreachable" in out
 
 
-def test_a_skip_stays_a_skip_on_a_developers_machine(tmp_path: Path) -> None:
-    run = _run(tmp_path)
-    assert run.returncode == 0 and "1 skipped" in run.stdout, run.stdout[-2000:]
+def test_a_skip_stays_a_skip_on_a_developers_machine(pytester: pytest.Pytester,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    run = _run(pytester, monkeypatch)
+    out = run.stdout.str()
+    assert run.ret == 0 and "1 skipped" in out, out[-2000:]
 
 
 def test_ci_script_fails_on_skips_and_on_no_tests() -> None:

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from spine_engine.levels import LEVELS
-from tools.processes import stop_processes
+from tests import stopping
 
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -241,6 +241,7 @@ def start_serve(data_dir: Path, **extra_env: str) -> Serve:
             [sys.executable, "-m", "services.cli", "serve", "--host", "127.0.0.1", "--port", str(port)],
             env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
         )  # fmt: skip
+    stopping.started(proc)
     url = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 60
@@ -262,8 +263,9 @@ def start_serve(data_dir: Path, **extra_env: str) -> Serve:
 
 
 def stop_serve(proc: subprocess.Popen[bytes]) -> None:
-    """SIGTERM to `spine serve` (it stops its worker child), SIGKILL to its process group after 30 s."""
-    stop_processes([proc])
+    """SIGTERM to `spine serve` (it stops its worker child; none if the session's end sent it already,
+    tests/stopping.py), SIGKILL to its process group after 30 s."""
+    stopping.stop(proc, grace_s=30)
 
 
 class PageWatch:

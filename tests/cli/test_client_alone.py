@@ -36,10 +36,12 @@ def test_client_installs_alone_and_submits_to_the_service(tmp_path: Path) -> Non
     source = tmp_path / "spine_client"
     shutil.copytree(ROOT / "spine_client", source, ignore=shutil.ignore_patterns("__pycache__", "build", "*.egg-info"))
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    # bare: no pip either (ensurepip copies pip and setuptools into it, seconds of work); this venv's pip
+    # installs into it (--python: pip runs under the venv's interpreter, as the venv's own pip would)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     python, spine = venv / "bin" / "python", venv / "bin" / "spine"
-    install = subprocess.Popen([str(python), "-m", "pip", "install", "--quiet", str(source)],
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    install = subprocess.Popen([sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet",
+                                str(source)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
     (tmp_path / "data").mkdir()
     serve = Serve(tmp_path / "data")  # started while pip installs
     try:

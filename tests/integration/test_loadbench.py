@@ -124,6 +124,17 @@ def _session_members(session_ids: set[int]) -> set[int]:
     return {pid for pid, fields in loadbench.proc_stats().items() if fields[0] != "Z" and int(fields[3]) in session_ids}
 
 
+def _jobs_succeeded(database_url: str) -> int:
+    """Succeeded jobs in the bench's database (0 while its migration has not made the table yet)."""
+    try:
+        with psycopg.connect(database_url.replace("postgresql+psycopg://", "postgresql://", 1),
+                             connect_timeout=3) as conn:  # fmt: skip
+            row = conn.execute("SELECT count(*) FROM jobs WHERE status = 'succeeded'").fetchone()
+    except psycopg.Error:
+        return 0
+    return int(row[0]) if row else 0
+
+
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_signal_interrupts_a_pending_asyncio_gather(stop_signal: signal.Signals) -> None:
     """``run_tool``: SIGTERM or SIGINT raises KeyboardInterrupt out of ``asyncio.run`` even
@@ -193,10 +204,10 @@ def test_a_terminated_bench_stops_the_service_it_spawned(tmp_path: Path, bench_e
             time.sleep(0.5)
             sessions = {pid for pid, fields in loadbench.proc_stats().items() if int(fields[1]) == bench.pid}
         assert len(sessions) == 2, "the bench did not start the API and a worker"
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not loadbench.api_ready(url):
-            time.sleep(0.5)
-        time.sleep(5)  # past the bench's 3 s wait for the workers: the phase runs, POSTs in flight
+        deadline = time.monotonic() + 90  # the phase runs and the worker's pool fits its jobs; POSTs in flight
+        while time.monotonic() < deadline and bench.poll() is None and not _jobs_succeeded(bench_env["DATABASE_URL"]):
+            time.sleep(0.2)
+        assert _jobs_succeeded(bench_env["DATABASE_URL"]), "no job of the bench's phase succeeded"
         started = _session_members(sessions)
         assert len(started) >= 3, started  # API, the worker's main process and at least one pool process
         bench.send_signal(signal.SIGTERM)

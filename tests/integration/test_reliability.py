@@ -59,9 +59,8 @@ def live(tmp_path_factory: pytest.TempPathFactory, redis_url: str) -> Iterator[L
     with _postgres_database("faults") as url:
         env = reliability_env(workdir, url, redis_url)
         service = LiveService(workdir, env)
-        service.start_api()
-        service.start_worker()
         try:
+            service.start()
             yield service
         finally:
             service.stop()
@@ -234,11 +233,10 @@ def test_postgres_outage_answers_503_and_recovers(tmp_path: Path, redis_url: str
     with own_postgres() as pg:
         env = reliability_env(tmp_path, pg.url, redis_url)
         service = LiveService(tmp_path, env)
-        service.start_api()
-        service.start_worker()
         load = Load(service, LOAD_RATE, max_s=60)
         ready: list[int] = []
         try:
+            service.start()
             ids = service.submit_batch(300)
             load.start()
             wait_until(lambda: service.count(ids, "succeeded") >= 10, 30, "the worker to be busy")
