@@ -20,10 +20,47 @@ import subprocess
 
 from tools.processes import stop_processes
 
-_RUNNING: dict[int, subprocess.Popen[bytes]] = {}
-"""Started and not yet stopped, by PID."""
-_SIGNALLED: set[int] = set()
-"""PIDs already sent their SIGTERM by ``signal_all``."""
+
+class Stopper:
+    """The processes started and not yet stopped, and those already sent their SIGTERM."""
+
+    def __init__(self) -> None:
+        self.running: dict[int, subprocess.Popen[bytes]] = {}
+        self.signalled: set[int] = set()
+
+    def started(self, proc: subprocess.Popen[bytes]) -> None:
+        """Register ``proc`` (started in a session of its own) to be signalled at the session's end."""
+        self.running[proc.pid] = proc
+
+    def signal_all(self) -> None:
+        """SIGTERM to every registered process still running, none twice."""
+        for pid, proc in list(self.running.items()):
+            if pid not in self.signalled and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                self.signalled.add(pid)
+
+    def stop(self, proc: subprocess.Popen[bytes], grace_s: float) -> None:
+        """Stop ``proc`` as ``tools.processes.stop_processes`` does (SIGTERM, then SIGKILL to its process
+        group after ``grace_s`` seconds), without a second SIGTERM if ``signal_all`` sent one; unregister
+        it."""
+        try:
+            if proc.pid not in self.signalled:
+                stop_processes([proc], grace_s=grace_s)
+                return
+            try:
+                proc.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        finally:
+            self.running.pop(proc.pid, None)
+            self.signalled.discard(proc.pid)
+
+
+SESSION = Stopper()
+"""The fixtures' processes of this test process's session (a test of the mechanism makes its own
+``Stopper``: signalling this one would stop the session's live services under later tests)."""
 _OWNER: list[object] = []
 """The session whose end signals them: the first one started in this process."""
 
@@ -38,32 +75,6 @@ def owns(session: object) -> bool:
     return bool(_OWNER) and _OWNER[0] is session
 
 
-def started(proc: subprocess.Popen[bytes]) -> None:
-    """Register ``proc`` (started in a session of its own) to be signalled at the session's end."""
-    _RUNNING[proc.pid] = proc
-
-
-def signal_all() -> None:
-    """SIGTERM to every registered process still running, none twice."""
-    for pid, proc in list(_RUNNING.items()):
-        if pid not in _SIGNALLED and proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            _SIGNALLED.add(pid)
-
-
-def stop(proc: subprocess.Popen[bytes], grace_s: float) -> None:
-    """Stop ``proc`` as ``tools.processes.stop_processes`` does (SIGTERM, then SIGKILL to its process
-    group after ``grace_s`` seconds), without a second SIGTERM if ``signal_all`` sent one; unregister it."""
-    try:
-        if proc.pid not in _SIGNALLED:
-            stop_processes([proc], grace_s=grace_s)
-            return
-        try:
-            proc.wait(grace_s)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    finally:
-        _RUNNING.pop(proc.pid, None)
-        _SIGNALLED.discard(proc.pid)
+started = SESSION.started
+signal_all = SESSION.signal_all
+stop = SESSION.stop

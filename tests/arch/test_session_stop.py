@@ -27,6 +27,7 @@ time.sleep({STOP_S})
 
 def test_the_session_end_stops_every_process_once_and_together(tmp_path: Path) -> None:
     logs = [tmp_path / f"probe-{i}.log" for i in range(2)]
+    stopper = stopping.Stopper()  # its own: the session's would stop the live services of later tests
     procs = [subprocess.Popen([sys.executable, "-c", PROBE, str(log)], start_new_session=True) for log in logs]
     try:
         deadline = time.monotonic() + 30
@@ -34,13 +35,13 @@ def test_the_session_end_stops_every_process_once_and_together(tmp_path: Path) -
             assert time.monotonic() < deadline, "the probes did not start"
             time.sleep(0.02)
         for proc in procs:
-            stopping.started(proc)
+            stopper.started(proc)
         started = time.monotonic()
-        stopping.signal_all()
-        stopping.signal_all()  # the session's end comes once, but a second call sends nothing
+        stopper.signal_all()
+        stopper.signal_all()  # the session's end comes once, but a second call sends nothing
         time.sleep(0.2)  # the fixtures' teardowns come after (a signal sent at once would merge with the first)
         for proc in procs:
-            stopping.stop(proc, grace_s=20)  # what each fixture's teardown does: no second SIGTERM
+            stopper.stop(proc, grace_s=20)  # what each fixture's teardown does: no second SIGTERM
         elapsed = time.monotonic() - started
     finally:
         for proc in procs:
