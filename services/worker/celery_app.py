@@ -14,7 +14,7 @@ from typing import Any
 
 from celery.signals import worker_init, worker_process_init
 
-from services.core.config import get_settings
+from services.core.config import Settings, get_settings
 from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
 from services.worker import tasks
@@ -45,14 +45,23 @@ class ReconcilerAtDebug(logging.Filter):
 for _name in CELERY_TASK_LOGGERS:
     logging.getLogger(_name).addFilter(ReconcilerAtDebug())
 
+
+def beat_schedule(settings: Settings) -> dict[str, dict[str, Any]]:
+    """The reconciler every ``SPINE_RECONCILE_INTERVAL_S``, each run expiring when the next one is due
+    (Celery's ``expires``, an ``apply_async`` option a beat entry's ``options`` pass on, "Periodic
+    Tasks" in Celery's user guide): a run that could not start in time (the database down, the pool
+    busy) is dropped rather than queued behind the next ones, which would then all run at once and
+    hold every pool process."""
+    interval = settings.reconcile_interval_s
+    return {"reconcile": {"task": RECONCILE, "schedule": interval, "options": {"expires": interval}}}
+
+
 settings = get_settings()
 app = make_celery(settings)
 tasks.register_tasks(app, settings)
 register_webhook_tasks(app, settings)
 register_dicom_tasks(app, settings)
-app.conf.beat_schedule = {
-    "reconcile": {"task": RECONCILE, "schedule": settings.reconcile_interval_s},
-}
+app.conf.beat_schedule = beat_schedule(settings)
 
 
 @worker_process_init.connect
