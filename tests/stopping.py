@@ -13,12 +13,10 @@ session run inside it (pytester, tests/arch/test_ci_rules.py) ends long before i
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import subprocess
 
-from tools.processes import stop_processes
+from tools.processes import stop_processes, wait_or_kill
 
 
 class Stopper:
@@ -46,13 +44,8 @@ class Stopper:
         try:
             if proc.pid not in self.signalled:
                 stop_processes([proc], grace_s=grace_s)
-                return
-            try:
-                proc.wait(grace_s)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            else:
+                wait_or_kill(proc, grace_s)
         finally:
             self.running.pop(proc.pid, None)
             self.signalled.discard(proc.pid)

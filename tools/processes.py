@@ -80,9 +80,14 @@ def stop_processes(
         if proc.poll() is None:
             proc.send_signal(first)
     for proc in procs:
-        try:
-            proc.wait(grace_s)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        wait_or_kill(proc, grace_s)
+
+
+def wait_or_kill(proc: subprocess.Popen[bytes], grace_s: float) -> None:
+    """Wait up to ``grace_s`` seconds for ``proc``, already asked to stop, then SIGKILL its process group."""
+    try:
+        proc.wait(grace_s)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+import httpx
 import numpy as np
 import pytest
 
@@ -222,8 +223,6 @@ class Serve:
 def start_serve(data_dir: Path, **extra_env: str) -> Serve:
     """`spine serve` (uvicorn API and its Celery worker child, embedded SQLite in `data_dir`) on a free
     port of 127.0.0.1 with `extra_env`; waits for /readyz and reads the API key it prints."""
-    import httpx
-
     port = free_port()
     env = {
         **os.environ,
@@ -287,6 +286,27 @@ class PageWatch:
 
     def posted_jobs(self) -> list[Any]:
         return [r for r in self.requests if r.method == "POST" and r.url.endswith("/v1/jobs")]
+
+
+def pa_points_payload() -> dict[str, Any]:
+    """A PA film's 17 midpoints along ``centreline``, in px of 0.4 mm: a payload the service fits."""
+    marks = [
+        {"level": lv, "point": [round(centreline(i)[0], 1), round(centreline(i)[1], 1)]} for i, lv in enumerate(LEVELS)
+    ]
+    return {"pa": {"units": "px", "pixel_spacing": [0.4, 0.4], "landmarks": marks}}
+
+
+def run_job(url: str, key: str, payload: dict[str, Any]) -> dict[str, Any]:
+    """Submit ``payload`` to the service at ``url`` and wait (up to 90 s) for its job to succeed."""
+    headers = {"Authorization": f"Bearer {key}"}
+    job = httpx.post(f"{url}/v1/jobs", json=payload, headers=headers, timeout=10).json()
+    deadline = time.monotonic() + 90
+    while job["status"] not in ("succeeded", "failed", "cancelled"):
+        assert time.monotonic() < deadline, job
+        time.sleep(0.3)
+        job = httpx.get(f"{url}/v1/jobs/{job['id']}", headers=headers, timeout=10).json()
+    assert job["status"] == "succeeded", job
+    return job
 
 
 def open_page(

@@ -20,33 +20,15 @@ import copy
 import csv
 import io
 import json
-import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
-from page_fixtures import LEVELS, centreline, open_page
+from page_fixtures import open_page, pa_points_payload, run_job
 
 pytestmark = pytest.mark.browser
 
 COBB_REASON = "the PA film's landmarks do not reach every level from T1 to L5"  # services/core/estimates.py
-
-
-def _real_job(url: str, key: str) -> dict[str, Any]:
-    marks = [
-        {"level": lv, "point": [round(centreline(i)[0], 1), round(centreline(i)[1], 1)]} for i, lv in enumerate(LEVELS)
-    ]
-    headers = {"Authorization": f"Bearer {key}"}
-    payload = {"pa": {"units": "px", "pixel_spacing": [0.4, 0.4], "landmarks": marks}}
-    job = httpx.post(f"{url}/v1/jobs", json=payload, headers=headers, timeout=10).json()
-    deadline = time.monotonic() + 90
-    while job["status"] not in ("succeeded", "failed", "cancelled"):
-        assert time.monotonic() < deadline, job
-        time.sleep(0.3)
-        job = httpx.get(f"{url}/v1/jobs/{job['id']}", headers=headers, timeout=10).json()
-    assert job["status"] == "succeeded", job
-    return job
 
 
 def _with_curves(job: dict[str, Any], job_id: str, unreliable: list[str]) -> dict[str, Any]:
@@ -100,7 +82,7 @@ def _row(page: Any, text: str) -> Any:
 def test_cobb_marked_as_model_estimate_and_apical_disc_named(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
-    job = _real_job(live_url, api_key)
+    job = run_job(live_url, api_key, pa_points_payload())
     # ids that differ in their first 8 characters, the part the jobs list shows
     marked = _with_curves(job, "c1000000-0000-4000-8000-000000000001", ["cobb"])
     measured = _with_curves(job, "c2000000-0000-4000-8000-000000000002", [])

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -21,30 +20,16 @@ from page_fixtures import (
     make_dicom,
     make_png,
     open_page,
+    pa_points_payload,
     run_axe,
+    run_job,
 )
 
 pytestmark = pytest.mark.browser
 
 
-def _run_job(url: str, key: str, payload: dict[str, Any]) -> dict[str, Any]:
-    headers = {"Authorization": f"Bearer {key}"}
-    job = httpx.post(f"{url}/v1/jobs", json=payload, headers=headers, timeout=10).json()
-    deadline = time.monotonic() + 90
-    while job["status"] not in ("succeeded", "failed", "cancelled"):
-        assert time.monotonic() < deadline, job
-        time.sleep(0.3)
-        job = httpx.get(f"{url}/v1/jobs/{job['id']}", headers=headers, timeout=10).json()
-    assert job["status"] == "succeeded", job
-    return job
-
-
 def _pa_payload() -> dict[str, Any]:
-    marks = [
-        {"level": lv, "point": [round(centreline(i)[0], 1), round(centreline(i)[1], 1)]} for i, lv in enumerate(LEVELS)
-    ]
-    return {"pa": {"units": "px", "pixel_spacing": [0.4, 0.4], "landmarks": marks},
-            "study": {"study_instance_uid": "1.2.826.0.1.3680043.8.498.77"}}  # fmt: skip
+    return {**pa_points_payload(), "study": {"study_instance_uid": "1.2.826.0.1.3680043.8.498.77"}}
 
 
 def test_a_png_is_refused_until_its_spacing_is_entered(
@@ -79,7 +64,7 @@ def test_a_png_is_refused_until_its_spacing_is_entered(
 def test_trust_marks_and_sd_from_a_result_with_uncertainty(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
-    job = _run_job(live_url, api_key, _pa_payload())
+    job = run_job(live_url, api_key, _pa_payload())
     fake = copy.deepcopy(job)
     fake["id"] = "00000000-0000-4000-8000-0000000000aa"
     m = fake["result"]["measures"]
@@ -135,7 +120,7 @@ def test_trust_marks_and_sd_from_a_result_with_uncertainty(
 
 
 def test_jobs_list_links_and_plain_errors(browser: Any, live_url: str, api_key: str, tmp_path: Path) -> None:
-    job = _run_job(live_url, api_key, _pa_payload())
+    job = run_job(live_url, api_key, _pa_payload())
     context, page, _ = open_page(browser, live_url + "/", api_key)
     page.click("a[href='#/jobs']")
     row = page.locator("#jobs-table tbody tr", has_text=job["id"][:8])
@@ -185,7 +170,7 @@ def test_jobs_list_links_and_plain_errors(browser: Any, live_url: str, api_key: 
 def test_accessibility_labels_keyboard_and_axe(browser: Any, live_url: str, api_key: str, tmp_path: Path) -> None:
     film = tmp_path / "pa.dcm"
     make_dicom(film)
-    job = _run_job(live_url, api_key, _pa_payload())
+    job = run_job(live_url, api_key, _pa_payload())
     context, page, _ = open_page(browser, live_url + "/", api_key)
     page.set_input_files("#pa-file", str(film))
     page.wait_for_selector("#pa-header dd")
