@@ -2,16 +2,21 @@
 
 Job counts, queue depth and duration quantiles come from the database and the broker when
 /metrics is scraped, so every API replica reports the state of the whole service, whichever
-worker ran the jobs.
+worker ran the jobs. Those reads are dependency checks, bounded as /readyz's are (``start_check``,
+``answer_by``): a dependency that has not answered within ``SPINE_READY_TIMEOUT_S`` is reported
+down (``spine_dependency_up`` 0) and the scrape is answered without it.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future
+from dataclasses import dataclass
 from datetime import timedelta
-from typing import Any
+from typing import Any, TypeVar
 
 from celery import Celery
 from prometheus_client import CollectorRegistry, Counter, Histogram
@@ -29,6 +34,48 @@ log = logging.getLogger(__name__)
 
 QUANTILES = (0.5, 0.9, 0.99)
 
+T = TypeVar("T")
+
+
+def start_check(check: Callable[[], T], slots: threading.BoundedSemaphore) -> Future[T]:
+    """Run ``check`` in a daemon thread of its own (never one that delays the process's exit) and
+    return its future, to be waited for with ``answer_by``. A check stuck on a dependency holds one of
+    ``slots`` until the dependency's own timeout ends it (SPINE_DB_CONNECT_TIMEOUT_S,
+    SPINE_DB_TCP_TIMEOUT_S, SPINE_DB_STATEMENT_TIMEOUT_S, SPINE_BROKER_TIMEOUT_S); with every slot
+    held, the check is not started and its future never resolves, so that it answers "no answer" in
+    time and the threads stuck at once stay bounded."""
+    future: Future[T] = Future()
+    if not slots.acquire(blocking=False):
+        return future
+
+    def run() -> None:
+        try:
+            future.set_result(check())
+        except Exception as exc:
+            future.set_exception(exc)
+        finally:
+            slots.release()
+
+    threading.Thread(target=run, name="dependency-check", daemon=True).start()
+    return future
+
+
+def answer_by(check: Future[T], deadline: float) -> T:
+    """What ``check`` answered, waiting at most until ``deadline`` (``time.monotonic()``, s); its
+    exception, or ``TimeoutError`` when it has not answered by then."""
+    return check.result(timeout=max(0.0, deadline - time.monotonic()))
+
+
+_SCRAPE_SLOTS = threading.BoundedSemaphore(4)
+"""Dependency reads of /metrics running at once per process (two per scrape), apart from /readyz's."""
+
+
+@dataclass(frozen=True)
+class _DatabaseReading:
+    counts: dict[str, int]
+    durations: list[tuple[float, float]]
+    """(run time, end-to-end time) of each job finished in the window, s."""
+
 
 def _quantile(sorted_values: list[float], q: float) -> float:
     if not sorted_values:
@@ -44,30 +91,47 @@ class JobStateCollector(Collector):
         self.settings = settings
         self.celery = celery
 
-    def collect(self) -> Iterable[Metric]:
-        up = GaugeMetricFamily("spine_dependency_up", "Whether a dependency answered this scrape.", labels=["name"])
+    def _read_database(self) -> _DatabaseReading:
+        with session_scope(self.settings) as session:
+            counts = stats.count_by_status(session)
+            since = utcnow() - timedelta(seconds=self.settings.metrics_window_s)
+            return _DatabaseReading(counts, list(stats.recent_durations(session, since)))
+
+    def _read_broker(self) -> int:
+        return queue_depth(self.celery, self.settings.queue_name)
+
+    def _answer(self, name: str, check: Future[T], deadline: float) -> T | None:
+        """What the dependency ``name`` answered by ``deadline``, or None (logged) when it did not."""
         try:
-            with session_scope(self.settings) as session:
-                counts = stats.count_by_status(session)
-                since = utcnow() - timedelta(seconds=self.settings.metrics_window_s)
-                durations = stats.recent_durations(session, since)
-            up.add_metric(["database"], 1)
+            return answer_by(check, deadline)
+        except TimeoutError:
+            log.warning("metrics: %s: no answer within %g s (SPINE_READY_TIMEOUT_S)", name,
+                        self.settings.ready_timeout_s)  # fmt: skip
         except Exception as exc:
-            log.warning("metrics: database unreachable: %s", exc)
-            up.add_metric(["database"], 0)
-            counts, durations = {}, []
+            log.warning("metrics: %s unreachable: %s", name, exc)
+        return None
+
+    def collect(self) -> Iterable[Metric]:
+        # Both reads run at once, each in a thread of its own, and the scrape waits for neither more
+        # than SPINE_READY_TIMEOUT_S, as /readyz: a dependency that accepts connections and does not
+        # answer is reported down in time, not a scrape that waits for its timeouts.
+        deadline = time.monotonic() + self.settings.ready_timeout_s
+        database = start_check(self._read_database, _SCRAPE_SLOTS)
+        broker = start_check(self._read_broker, _SCRAPE_SLOTS)
+        reading = self._answer("database", database, deadline)
+        waiting = self._answer("broker", broker, deadline)
+        up = GaugeMetricFamily("spine_dependency_up", "Whether a dependency answered this scrape.", labels=["name"])
+        up.add_metric(["database"], int(reading is not None))
+        up.add_metric(["broker"], int(waiting is not None))
+        counts, durations = (reading.counts, reading.durations) if reading is not None else ({}, [])
         jobs = GaugeMetricFamily("spine_jobs", "Jobs in the database by status.", labels=["status"])
         for status, n in counts.items():
             jobs.add_metric([status], n)
         yield jobs
-        depth = GaugeMetricFamily("spine_queue_depth", "Job messages waiting on the broker.")
-        try:
-            depth.add_metric([], queue_depth(self.celery, self.settings.queue_name))
-            up.add_metric(["broker"], 1)
+        if waiting is not None:
+            depth = GaugeMetricFamily("spine_queue_depth", "Job messages waiting on the broker.")
+            depth.add_metric([], waiting)
             yield depth
-        except Exception as exc:
-            log.warning("metrics: broker unreachable: %s", exc)
-            up.add_metric(["broker"], 0)
         yield up
         window = f"{self.settings.metrics_window_s:g}"
         for index, name, doc in (

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -36,6 +37,25 @@ class DicomwebConfig:
     """Connect and read timeout of one DICOMweb request, s: metadata of one instance is a few kB, and a
     STOW of an SR and a figure (≈ 0.1–3 MB) takes well under a second on a hospital network; 10 s turns
     a hung PACS into a retry without holding a worker long."""
+
+
+@dataclass(frozen=True)
+class TcpKeepalive:
+    """TCP keepalive of an idle connection (tcp(7): ``TCP_KEEPIDLE``, ``TCP_KEEPINTVL``, ``TCP_KEEPCNT``), whole
+    seconds as the kernel and libpq take them: the first probe after ``idle_s`` without traffic, then one every
+    ``interval_s``, the connection dropped after ``count`` unanswered ones."""
+
+    idle_s: int
+    interval_s: int
+    count: int
+
+    @classmethod
+    def within(cls, timeout_s: float) -> TcpKeepalive:
+        """Probes that find a dead idle connection about ``timeout_s`` after its last traffic: first after a
+        third of it, then every sixth (each at least 1 s), ``idle + count · interval ≈ timeout_s``."""
+        idle = max(1, int(timeout_s / 3))
+        interval = max(1, int(timeout_s / 6))
+        return cls(idle, interval, max(1, round((timeout_s - idle) / interval)))
 
 
 class Settings(BaseSettings):
@@ -94,11 +114,22 @@ class Settings(BaseSettings):
         "(the publish retry policy), and its job is marked for the reconciler. 5 s is above a healthy Redis's "
         "longest pauses (an fsync blocking writes up to 2 s with appendfsync everysec).",
     )
+    broker_tcp_timeout_s: float = Field(
+        30.0,
+        ge=1,
+        description="Redis broker: a connection whose server stopped answering at the TCP level (a failover, a "
+        "dropped NAT entry, a cable) is closed after this: data unacknowledged this long (TCP_USER_TIMEOUT) or an "
+        "idle connection whose keepalive probes go unanswered (first probe after a third of it, then every sixth). "
+        "Without it kombu turns redis-py's keepalive off and the kernel's defaults apply: no probe at all, about "
+        "15 min of retransmissions (tcp_retries2), tcp(7). 30 s as SPINE_DB_TCP_TIMEOUT_S; redis-py's own "
+        "keepalive default is a first probe after 30 s, then 3 every 5 s.",
+    )
     ready_timeout_s: float = Field(
         2.0,
         gt=0,
-        description="GET /readyz answers 503 when the database or the broker has not answered within this. 2 s: "
-        "within the 3 s the docker-compose health check waits for an answer.",
+        description="GET /readyz answers 503 when the database or the broker has not answered within this, and GET "
+        "/metrics reports such a dependency down (spine_dependency_up 0). 2 s: within the 3 s the docker-compose "
+        "health check waits for an answer, and Prometheus's default scrape timeout (10 s).",
     )
     reconcile_time_limit_s: float = Field(
         30.0,
@@ -223,7 +254,25 @@ class Settings(BaseSettings):
     )
     dicomweb_timeout_s: float = Field(10.0, gt=0, description="Time limit of one DICOMweb request.")
     dicomweb_max_attempts: int = Field(
-        5, ge=1, le=20, description="STOW-RS attempts of one job's results (backoff doubling from 2 s, up to 60 s)."
+        5,
+        ge=1,
+        le=20,
+        description="STOW-RS attempts of one job's results (the delay between two: SPINE_DICOMWEB_RETRY_BASE_S, "
+        "doubling, at most SPINE_DICOMWEB_RETRY_MAX_S).",
+    )
+    dicomweb_retry_base_s: float = Field(
+        2.0,
+        gt=0,
+        description="Delay before the 2nd STOW-RS attempt of a job's results, and before a job whose PACS was "
+        "unavailable runs again; it doubles at each attempt, up to SPINE_DICOMWEB_RETRY_MAX_S. 2 s: the default "
+        "5 STOW-RS attempts span 2 + 4 + 8 + 16 = 30 s, about a PACS restart; a longer outage is left to "
+        "SPINE_DICOMWEB_MAX_ATTEMPTS and SPINE_MAX_ATTEMPTS.",
+    )
+    dicomweb_retry_max_s: float = Field(
+        60.0,
+        gt=0,
+        description="Longest delay between two attempts of one STOW-RS push, or two runs of a job whose PACS was "
+        "unavailable (the cap of SPINE_DICOMWEB_RETRY_BASE_S's doubling).",
     )
     dicomweb_sweep_after_s: float = Field(
         300.0,
@@ -325,6 +374,23 @@ class Settings(BaseSettings):
         """Whether succeeded jobs' SR and figure are stored in the PACS by STOW-RS
         (``SPINE_DICOMWEB_STORE_RESULTS`` with a PACS)."""
         return self.dicomweb_store_results and bool(self.dicomweb_url)
+
+    @property
+    def broker_socket_options(self) -> dict[str, object]:
+        """The Redis broker's socket options (kombu's Redis transport options ``socket_keepalive`` and
+        ``socket_keepalive_options``, which it passes to redis-py, which sets each of the latter with
+        ``setsockopt(IPPROTO_TCP, …)``): keepalive probes and ``TCP_USER_TIMEOUT`` from
+        ``SPINE_BROKER_TCP_TIMEOUT_S`` (``TcpKeepalive.within``), as ``SPINE_DB_TCP_TIMEOUT_S`` gives PostgreSQL's."""
+        keepalive = TcpKeepalive.within(self.broker_tcp_timeout_s)
+        return {
+            "socket_keepalive": True,
+            "socket_keepalive_options": {
+                socket.TCP_KEEPIDLE: keepalive.idle_s,
+                socket.TCP_KEEPINTVL: keepalive.interval_s,
+                socket.TCP_KEEPCNT: keepalive.count,
+                socket.TCP_USER_TIMEOUT: int(self.broker_tcp_timeout_s * 1000),
+            },
+        }
 
     @property
     def starts_worker(self) -> bool:

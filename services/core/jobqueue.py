@@ -85,6 +85,9 @@ def make_celery(settings: Settings) -> Celery:
             "visibility_timeout": int(settings.fit_time_limit_s * 2 + 60),
             "socket_timeout": settings.broker_timeout_s,
             "socket_connect_timeout": settings.broker_timeout_s,
+            # TCP keepalive and TCP_USER_TIMEOUT (SPINE_BROKER_TCP_TIMEOUT_S): kombu passes None to redis-py
+            # for both unless given, which turns redis-py's own keepalive off
+            **settings.broker_socket_options,
         }
         if settings.celery_broker_url.startswith("redis://"):
             # (not rediss://: kombu turns TLS on by the transport's name being "rediss")

@@ -2,13 +2,19 @@
 and of what a delivery reads of its job; and the webhook's outbox.
 
 Outbox: before the first attempt of a message is published, its row ``attempt`` 0 is written, due
-(``next_attempt_at``) when the job ended: in the transaction that ends the job where the job ends in
-this layer (the worker's ``runs.finish_job``, the reconciler's ``runs.reconcile``), else just before
-publishing (``job_ended`` after the API's cancel). Once attempt 1 is claimed the row is no longer
-overdue; if its message never comes (the broker refused it, or lost it in a restart), the reconciler's
-sweep finds the row ``SPINE_WEBHOOK_SWEEP_AFTER_S`` after the job ended and publishes attempt 1 again.
+(``next_attempt_at``) when the job ended, on the database's clock: in the transaction that ends the
+job where the job ends in this layer (the worker's ``runs.finish_job``, the reconciler's
+``runs.reconcile``), else just before publishing (``job_ended`` after the API's cancel). Once
+attempt 1 is claimed the row is no longer overdue; if its message never comes (the broker refused
+it, or lost it in a restart), the reconciler's sweep finds the row ``SPINE_WEBHOOK_SWEEP_AFTER_S``
+after the job ended and publishes attempt 1 again.
 The row is listed on the job (``deliveries``) only when the broker refused the message ("not
 published"), as an attempt 0 that made no request; otherwise the job lists its attempts alone.
+
+Every ``next_attempt_at`` the sweep compares is written and compared on the database's clock
+(``services.db.clock``), never a process's own: a worker or API host whose clock is off would
+otherwise write a row already overdue for the sweep (a message still in the broker, or an attempt
+still in flight, published again) or one that a lost message leaves unswept for as long as the skew.
 
 ``job_ended`` is called where a job reaches a final state; it never raises, and costs nothing for a
 job without ``callback_url`` because callers look at the payload first. The message id is derived
@@ -23,21 +29,25 @@ import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
+from typing import Any, TypeAlias
 
 from celery import Celery
-from sqlalchemy import CursorResult, and_, exists, insert, or_, select, update
+from sqlalchemy import ColumnElement, CursorResult, and_, exists, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.core.config import Settings
 from services.core.jobqueue import publish_webhook
 from services.core.status import FINAL_STATUSES
+from services.db.clock import db_now
 from services.db.engine import session_scope
 from services.db.jobs import job_json
 from services.db.models import Job, WebhookDelivery, utcnow
 
 log = logging.getLogger(__name__)
+
+Moment: TypeAlias = datetime | ColumnElement[datetime]
+"""A time, or an SQL expression of one (``services.db.clock.db_now``, ``db_now_plus_s``)."""
 
 _NAMESPACE = uuid.UUID("0b7e3b9e-4f53-5a8e-9c4e-5e1f2a6c9d01")
 
@@ -75,16 +85,19 @@ NOT_PUBLISHED = "not published: "
 
 
 def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> dict[str, Any]:
-    """The values of the outbox row of the message a job that ended in ``status`` at ``ended_at`` sends:
-    attempt 0, due (``next_attempt_at``) at the job's end, no outcome."""
+    """The values of the outbox row of the message a job that ended in ``status`` at ``ended_at`` (as
+    the job shows it) sends: attempt 0, no outcome. Its due time is not among them: the statement that
+    writes the row sets ``next_attempt_at`` to the database's clock (``db_now()``), the job's end as the
+    sweep compares it."""
     return {"job_id": job_id, "message_id": message_id(job_id, status), "event": f"job.{status}",
             "attempt": OUTBOX_ATTEMPT, "url": url, "attempted_at": ended_at, "status_code": None, "error": None,
-            "duration_ms": None, "next_attempt_at": ended_at}  # fmt: skip
+            "duration_ms": None}  # fmt: skip
 
 
 def record_due(session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> None:
-    """Write the message's outbox row in ``session``'s transaction (nothing when it is there already)."""
-    claim(session, **outbox_row(job_id, status, url, ended_at))
+    """Write the message's outbox row in ``session``'s transaction (nothing when it is there already),
+    due now on the database's clock."""
+    claim(session, **outbox_row(job_id, status, url, ended_at), next_attempt_at=db_now())
 
 
 def job_ended(
@@ -128,10 +141,10 @@ def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url:
             marked: CursorResult[Any] = session.execute(  # type: ignore[assignment]
                 update(WebhookDelivery)
                 .where(*outbox, WebhookDelivery.error.is_(None))
-                .values(error=error, attempted_at=now, next_attempt_at=now)
+                .values(error=error, attempted_at=now, next_attempt_at=db_now())
             )
             if marked.rowcount == 0:
-                claim(session, **{**outbox_row(job_id, status, url, now), "error": error})
+                claim(session, **{**outbox_row(job_id, status, url, now), "error": error, "next_attempt_at": db_now()})
     except Exception as db_exc:  # the database is down too: nothing left to remember it by
         log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)
 
@@ -167,18 +180,21 @@ def claim(session: Session, **values: Any) -> int | None:
 
 
 def finish(session: Session, row_id: int, **values: Any) -> None:
-    """Write an attempt's outcome (status code, error, duration, next attempt) on its claimed row."""
+    """Write an attempt's outcome (status code, error, duration, next attempt: a ``Moment`` on the
+    database's clock, e.g. ``db_now_plus_s(delay)``) on its claimed row."""
     session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(**values))
 
 
 def settle_earlier(session: Session, message_id: str, attempt: int, attempted_at: datetime) -> None:
-    """Attempt ``attempt`` of the message started at ``attempted_at``: an earlier row whose next attempt
-    is due later than that (the sweep's postponement of a row it published again) gets that time, when
-    its next attempt really came, instead of a time at which nothing will happen."""
+    """Attempt ``attempt`` of the message started at ``attempted_at`` (as its row shows it): an earlier
+    row whose next attempt is due later than now on the database's clock (the sweep's postponement of
+    a row it published again) gets that time, when its next attempt really came, instead of a time at
+    which nothing will happen. Once a later attempt is recorded the sweep no longer looks at the earlier
+    row (``overdue``), so the time written is only shown."""
     earlier = (WebhookDelivery.message_id == message_id, WebhookDelivery.attempt < attempt)
     session.execute(
         update(WebhookDelivery)
-        .where(*earlier, WebhookDelivery.next_attempt_at > attempted_at)
+        .where(*earlier, WebhookDelivery.next_attempt_at > db_now())
         .values(next_attempt_at=attempted_at)
     )
 
@@ -195,8 +211,9 @@ def delivered(session: Session, message_id: str) -> bool:
     return bool(session.scalar(query))
 
 
-def overdue(session: Session, due_before: datetime, due_after: datetime, limit: int = 500) -> list[WebhookDelivery]:
-    """Rows whose next attempt was due between ``due_after`` and ``due_before`` and never came.
+def overdue(session: Session, due_before: Moment, due_after: Moment, limit: int = 500) -> list[WebhookDelivery]:
+    """Rows whose next attempt was due between ``due_after`` and ``due_before`` and never came (the
+    sweep gives both on the database's clock: ``db_now_plus_s(-seconds)``).
 
     That is: no later attempt of the same message is recorded, and no attempt of it was accepted.
     Row ``attempt = 0`` is the message's outbox row: its attempt 1 never came.
@@ -222,8 +239,9 @@ def overdue(session: Session, due_before: datetime, due_after: datetime, limit: 
     return list(session.scalars(query))
 
 
-def postpone(session: Session, row_id: int, until: datetime) -> None:
-    """Move a row's next attempt to ``until`` (the reconciler published it again)."""
+def postpone(session: Session, row_id: int, until: Moment) -> None:
+    """Move a row's next attempt to ``until`` (the reconciler published it again; on the database's
+    clock: ``db_now_plus_s(seconds)``)."""
     session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(next_attempt_at=until))
 
 

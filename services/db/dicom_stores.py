@@ -1,6 +1,11 @@
 """Data access of a job's STOW-RS pushes: the attempts recorded on the job (``jobs.dicom_stores``) and
 the time by which the next one is overdue (``jobs.dicom_store_due_at``, what the reconciler's sweep
 looks for); and what a push reads of its job.
+
+The due time is written and compared on the database's clock (``services.db.clock``), never a
+process's own: the worker that writes it and the reconciler that sweeps may run on hosts whose clocks
+differ by more than ``SPINE_DICOMWEB_SWEEP_AFTER_S``. The times of an attempt (``attempted_at``,
+``next_attempt_at`` in ``jobs.dicom_stores``) are its worker's, shown on the job.
 """
 
 from __future__ import annotations
@@ -10,10 +15,11 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from pydantic import BaseModel, Field
-from sqlalchemy import select, update
+from sqlalchemy import ColumnElement, select, update
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
+from services.db.clock import db_now, db_now_plus_s
 from services.db.job_forms import JobForms, job_forms
 from services.db.models import Job
 
@@ -47,24 +53,39 @@ def store_source(session: Session, job_id: uuid.UUID) -> StoreSource | None:
     return StoreSource(forms=job_forms(job), finished_at=job.finished_at)
 
 
-def set_due(session: Session, job_id: uuid.UUID, due_at: datetime | None) -> None:
-    """The time by which the job's next attempt is overdue (None: no attempt follows)."""
+def due_in(delay: timedelta) -> ColumnElement[datetime]:
+    """The database's clock ``delay`` from now: a due time as ``set_due`` writes it."""
+    return db_now_plus_s(delay.total_seconds())
+
+
+def set_due(session: Session, job_id: uuid.UUID, due_at: datetime | ColumnElement[datetime] | None) -> None:
+    """The time by which the job's next attempt is overdue (None: no attempt follows): ``due_in(delay)``,
+    on the database's clock as the sweep compares it."""
     session.execute(update(Job).where(Job.id == job_id).values(dicom_store_due_at=due_at))
 
 
 def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, sweep_after: timedelta) -> None:
     """Append the attempt to the job (its row locked); the due time is ``sweep_after`` past the next
-    attempt (none: cleared), or past this one for attempt 0 (the message was not published)."""
+    attempt (none: cleared), or past now for attempt 0 (the message was not published), counted on the
+    database's clock from when the attempt is recorded (the next attempt is published then, with its
+    delay: ``next_attempt_at − attempted_at``, both of the worker's clock)."""
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
-    job.dicom_stores = [*(job.dicom_stores or []), attempt.model_dump(mode="json")]
+    stores = [*(job.dicom_stores or []), attempt.model_dump(mode="json")]
     if attempt.attempt == 0:
-        job.dicom_store_due_at = attempt.attempted_at + sweep_after
+        due: ColumnElement[datetime] | None = due_in(sweep_after)
+    elif attempt.next_attempt_at is not None:
+        due = due_in(attempt.next_attempt_at - attempt.attempted_at + sweep_after)
     else:
-        job.dicom_store_due_at = attempt.next_attempt_at + sweep_after if attempt.next_attempt_at else None
+        due = None
+    session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
 
 
-def overdue(session: Session, now: datetime, limit: int = 100) -> list[tuple[uuid.UUID, int]]:
-    """Jobs whose STOW-RS attempt is overdue (``dicom_store_due_at`` before ``now``: its message was
-    never published or was lost), each with the number of its next attempt (the last recorded + 1)."""
-    rows = session.execute(select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < now).limit(limit)).all()
+def overdue(
+    session: Session, now: datetime | ColumnElement[datetime] | None = None, limit: int = 100
+) -> list[tuple[uuid.UUID, int]]:
+    """Jobs whose STOW-RS attempt is overdue (``dicom_store_due_at`` before ``now``, by default the
+    database's clock: its message was never published or was lost), each with the number of its next
+    attempt (the last recorded + 1)."""
+    before = db_now() if now is None else now
+    rows = session.execute(select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < before).limit(limit)).all()
     return [(job_id, max([int(s.get("attempt", 0)) for s in stores or []] + [0]) + 1) for job_id, stores in rows]

@@ -12,7 +12,7 @@ from typing import Any
 from sqlalchemy import Connection, Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
-from services.core.config import Settings
+from services.core.config import Settings, TcpKeepalive
 
 _LOCK = threading.Lock()
 _ENGINES: dict[tuple[str, int], tuple[Engine, sessionmaker[Session]]] = {}
@@ -89,8 +89,8 @@ def postgres_connect_args(settings: Settings, *server_settings: str) -> dict[str
       data sent stays unacknowledged that long (a server gone without closing its connections);
     - ``keepalives``: an idle connection is probed after ``idle`` = T/3 s, every ``interval`` = T/6 s,
       and dropped after ``count`` unanswered probes, idle + count·interval ≈ T = ``SPINE_DB_TCP_TIMEOUT_S``
-      (each at least 1 s: libpq takes whole seconds), so that a pooled connection whose server
-      vanished is found dead before it is used;
+      (``TcpKeepalive.within``; each at least 1 s: libpq takes whole seconds), so that a pooled
+      connection whose server vanished is found dead before it is used;
     - ``options`` ``-c statement_timeout=`` ``SPINE_DB_STATEMENT_TIMEOUT_S`` in ms (PostgreSQL 15
       documentation, §20.11.1 "Statement Behavior"; none when 0), then ``server_settings``
       (``name=value``, e.g. ``synchronous_commit=off``).
@@ -99,8 +99,7 @@ def postgres_connect_args(settings: Settings, *server_settings: str) -> dict[str
     ``options`` come after these, so that its ``-c`` settings win too.
     """
     tcp_s = settings.db_tcp_timeout_s
-    idle = max(1, int(tcp_s / 3))
-    interval = max(1, int(tcp_s / 6))
+    keepalive = TcpKeepalive.within(tcp_s)
     gucs = list(server_settings)
     if settings.db_statement_timeout_s:
         gucs.insert(0, f"statement_timeout={int(settings.db_statement_timeout_s * 1000)}")
@@ -108,9 +107,9 @@ def postgres_connect_args(settings: Settings, *server_settings: str) -> dict[str
         "connect_timeout": settings.db_connect_timeout_s,
         "tcp_user_timeout": int(tcp_s * 1000),
         "keepalives": 1,
-        "keepalives_idle": idle,
-        "keepalives_interval": interval,
-        "keepalives_count": max(1, round((tcp_s - idle) / interval)),
+        "keepalives_idle": keepalive.idle_s,
+        "keepalives_interval": keepalive.interval_s,
+        "keepalives_count": keepalive.count,
     }
     given = make_url(settings.sqlalchemy_url).query
     options = [f"-c {guc}" for guc in gucs]

@@ -40,6 +40,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
+from services.db.clock import db_now
 from services.db.job_forms import job_study
 from services.db.models import Job, iso_utc, utcnow
 
@@ -81,13 +82,18 @@ def request_hash(payload: Any) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
+_INSERT_JOBS = insert(Job).values(enqueued_at=db_now())
+"""The insert of new jobs (rows of ``_new_job``): ``enqueued_at`` is the database's clock
+(``services.db.clock``), as the reconciler compares it with ``SPINE_QUEUED_TIMEOUT_S``."""
+
+
 def _new_job(payload: dict[str, Any], owner: str | None, now: datetime, **extra: Any) -> dict[str, Any]:
+    """The values of a new queued job created at ``now`` (shown), but ``enqueued_at`` (``_INSERT_JOBS``)."""
     return {
         "id": uuid.uuid4(),
         "owner": owner,
         "status": JobStatus.queued.value,
         "created_at": now,
-        "enqueued_at": now,
         "attempts": 0,
         "payload": payload,
         "callback_url": callback_url_of(payload),
@@ -156,7 +162,7 @@ def create_job(
     extra: dict[str, Any] = {"dicom": dicom} if dicom is not None else {}
     values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest, **extra)
     try:
-        session.execute(insert(Job), [values])  # Core insert: the hot path skips the unit of work
+        session.execute(_INSERT_JOBS, [values])  # Core insert: the hot path skips the unit of work
         if on_insert is not None:
             on_insert(session, [values["id"]])
         session.commit()
@@ -172,10 +178,11 @@ def create_job(
 
 
 def _detached(values: dict[str, Any]) -> Job:
-    """A Job object holding what was just inserted (no read back)."""
+    """A Job object holding what was just inserted (no read back); its ``enqueued_at``, the database's
+    clock, is not known here (None; nothing shows it)."""
     row = {"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
            "idempotency_key": None, "idempotency_kind": None, "request_hash": None, "callback_url": None,
-           "lease_expires_at": None, "dicom": None, **values}  # fmt: skip
+           "lease_expires_at": None, "dicom": None, "enqueued_at": None, **values}  # fmt: skip
     return Job(**row)
 
 
@@ -217,7 +224,7 @@ def create_jobs(
     """Store many queued jobs in one transaction (the batch endpoint)."""
     now = utcnow()
     rows = [_new_job(p, owner, now) for p in payloads]
-    session.execute(insert(Job), rows)
+    session.execute(_INSERT_JOBS, rows)
     if on_insert is not None:
         on_insert(session, [row["id"] for row in rows])
     session.commit()
@@ -225,8 +232,14 @@ def create_jobs(
 
 
 def get_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None) -> Job:
-    job = session.get(Job, job_id)
-    if job is None or (owner is not None and job.owner != owner):
+    """The job ``job_id``, of ``owner`` when given (a client reads only its own). The owner is in the
+    query, so another client's job is not loaded: it costs what an unknown id costs, and its answer's
+    time does not tell that it exists."""
+    query = select(Job).where(Job.id == job_id)
+    if owner is not None:
+        query = query.where(Job.owner == owner)
+    job = session.scalars(query).first()
+    if job is None:
         raise JobNotFound(str(job_id))
     return job
 
@@ -382,7 +395,7 @@ def create_jobs_idempotent(
             if admit is not None:
                 admit(len(rows))
             try:
-                session.execute(insert(Job), rows)
+                session.execute(_INSERT_JOBS, rows)
                 if on_insert is not None:
                     on_insert(session, [row["id"] for row in rows])
                 session.commit()

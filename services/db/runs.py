@@ -39,6 +39,7 @@ from sqlalchemy.orm import Session
 from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
 from services.db import deliveries
+from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param
 from services.db.engine import SerializedJSON
 from services.db.jobs import study_column_values
 from services.db.models import Job, JobMeasures, UTCDateTime, VertebraStrain, WebhookDelivery, utcnow
@@ -68,7 +69,7 @@ _CLAIM = (
         started_at=bindparam("now"),
         attempts=_JOBS.c.attempts + 1,
         engine_version=bindparam("engine_version"),
-        lease_expires_at=bindparam("lease_until"),
+        lease_expires_at=db_now_plus(seconds_param("lease_s")),
     )
     .returning(_JOBS.c.attempts, _JOBS.c.payload, _JOBS.c.created_at, _JOBS.c.callback_url, _JOBS.c.dicom)
 )
@@ -79,7 +80,7 @@ _RENEW = (
         _JOBS.c.status == JobStatus.running.value,
         _JOBS.c.attempts == bindparam("attempt"),
     )
-    .values(lease_expires_at=bindparam("lease_until"))
+    .values(lease_expires_at=db_now_plus(seconds_param("lease_s")))
 )
 _FINISH = (
     update(_JOBS)
@@ -102,7 +103,7 @@ _STRAINS = cast(Table, VertebraStrain.__table__)
 _DELIVERIES = cast(Table, WebhookDelivery.__table__)
 _INSERT_MEASURES = insert(_MEASURES)
 _INSERT_STRAINS = insert(_STRAINS)
-_INSERT_OUTBOX = sqlite.insert(_DELIVERIES).on_conflict_do_nothing()
+_INSERT_OUTBOX = sqlite.insert(_DELIVERIES).values(next_attempt_at=db_now()).on_conflict_do_nothing()
 _MEASURE_COLUMNS = [c for c in _MEASURES.c if c.name != "job_id"]
 _STRAIN_COLUMNS = [c for c in _STRAINS.c if c.name != "job_id"]
 _NO_MEASURES = {c.name: None for c in _MEASURE_COLUMNS}
@@ -111,8 +112,8 @@ _NO_OUTBOX = {"with_webhook": False, "webhook_message_id": None, "webhook_event"
 
 
 def _outbox_cte(done: Any) -> Any:
-    """The insert of the webhook's outbox row (``deliveries.outbox_row``) for the job ``done`` ended,
-    when ``:with_webhook``; nothing when the row is there already."""
+    """The insert of the webhook's outbox row (``deliveries.outbox_row``, due on the database's clock)
+    for the job ``done`` ended, when ``:with_webhook``; nothing when the row is there already."""
     ended_at = bindparam("webhook_at", type_=UTCDateTime())
     row = select(
         done.c.id,
@@ -121,7 +122,7 @@ def _outbox_cte(done: Any) -> Any:
         literal(deliveries.OUTBOX_ATTEMPT),
         bindparam("webhook_url", type_=_DELIVERIES.c.url.type),
         ended_at,
-        ended_at,
+        db_now(),
     ).where(bindparam("with_webhook", type_=Boolean()))
     return postgresql.insert(_DELIVERIES).from_select(_OUTBOX_COLUMNS, row).on_conflict_do_nothing().cte("w")
 
@@ -173,16 +174,15 @@ def _dialect_name(db: Db) -> str:
 def claim_job(
     session: Db, job_id: uuid.UUID, engine_version: str | None, lease: timedelta = timedelta(seconds=10)
 ) -> Claim | None:
-    """queued → running, attempts + 1, leased for ``lease``; None when the job is not queued
-    (duplicate, cancelled…).
+    """queued → running, attempts + 1, leased for ``lease`` from the database's clock
+    (``services.db.clock``); None when the job is not queued (duplicate, cancelled…).
 
     One statement. The worker runs it on ``services.db.engine.worker_connection(settings,
     durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
     crashes and loses the claim, the job is simply queued again, and the run's final update,
     fenced on running and this attempt, stores nothing.
     """
-    now = utcnow()
-    params = {"job_id": job_id, "now": now, "engine_version": engine_version, "lease_until": now + lease}
+    params = {"job_id": job_id, "now": utcnow(), "engine_version": engine_version, "lease_s": lease.total_seconds()}
     row = session.execute(_CLAIM, params).first()
     session.commit()
     if row is None:
@@ -191,13 +191,14 @@ def claim_job(
 
 
 def renew_leases(session: Db, claims: Sequence[Claim], lease: timedelta) -> list[Claim]:
-    """Extend the lease of each claimed run to now + ``lease``; return the runs that still own
-    their job (a run whose job was cancelled or taken back by the reconciler is not renewed)."""
-    until = utcnow() + lease
+    """Extend the lease of each claimed run to now + ``lease``, now read from the database's clock
+    (``services.db.clock``); return the runs that still own their job (a run whose job was cancelled
+    or taken back by the reconciler is not renewed)."""
+    lease_s = lease.total_seconds()
     kept = []
     for claim in claims:
         done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
-            _RENEW, {"job_id": claim.job_id, "attempt": claim.attempt, "lease_until": until}
+            _RENEW, {"job_id": claim.job_id, "attempt": claim.attempt, "lease_s": lease_s}
         )
         if done.rowcount == 1:
             kept.append(claim)
@@ -216,7 +217,8 @@ def finish_job(
     """running → succeeded (with ``result``) or failed (with ``error``, a problem), only for this run.
 
     The job's row, its ``job_measures`` row, its ``vertebra_strains`` rows and, when it has a
-    ``callback_url``, its webhook's outbox row (``deliveries.outbox_row``, due at the job's end) are
+    ``callback_url``, its webhook's outbox row (``deliveries.outbox_row``, due at the job's end on the
+    database's clock, ``services.db.clock``) are
     written in one transaction: on PostgreSQL as one statement (one round trip), elsewhere as up to four.
     Returns False, storing nothing, when the job was cancelled or handed to another run meanwhile.
     """
@@ -279,8 +281,10 @@ def reconcile(
     """Find jobs a lost message or a dead worker stranded, and hand them back or fail them.
 
     A running job is stranded when its lease expired (its worker stopped renewing it:
-    ``lease_expires_at < now``; every claim sets a lease). A queued job is stranded when
-    it was last enqueued more than ``queued_timeout`` ago or is marked unpublished; with
+    ``lease_expires_at`` before the database's clock, ``services.db.clock``, as every lease is
+    written; every claim sets a lease). A queued job is stranded when it was last enqueued
+    (``enqueued_at``, written and compared on the database's clock too) more than ``queued_timeout``
+    ago or is marked unpublished; with
     ``republish_queued`` set, only that many of the oldest such jobs are taken (the broker is
     missing about that many messages), and ``queued_timeout`` zero takes every queued job
     (the broker lost its messages).
@@ -290,7 +294,7 @@ def reconcile(
     failed: list[uuid.UUID] = []
     stale_running = session.execute(
         select(Job.id, Job.attempts, Job.callback_url)
-        .where(Job.status == JobStatus.running.value, Job.lease_expires_at < now)
+        .where(Job.status == JobStatus.running.value, Job.lease_expires_at < db_now())
         .limit(batch)
     ).all()
     for job_id, attempts, callback_url in stale_running:
@@ -307,12 +311,14 @@ def reconcile(
                     deliveries.record_due(session, job_id, JobStatus.failed.value, callback_url, now)
         else:
             back: CursorResult[Any] = session.execute(  # type: ignore[assignment]
-                update(Job).where(*guard).values(status=JobStatus.queued.value, enqueued_at=now, lease_expires_at=None)
+                update(Job)
+                .where(*guard)
+                .values(status=JobStatus.queued.value, enqueued_at=db_now(), lease_expires_at=None)
             )
             if back.rowcount == 1:
                 requeue.append(job_id)
     # Queued too long since last enqueued, or known to have no message (``mark_unpublished``).
-    stale = or_(Job.enqueued_at <= now - queued_timeout, Job.enqueued_at.is_(None))
+    stale = or_(Job.enqueued_at <= db_now_plus_s(-queued_timeout.total_seconds()), Job.enqueued_at.is_(None))
     limit = batch if republish_queued is None else max(0, min(batch, republish_queued))
     unpublished = list(
         session.scalars(
@@ -329,7 +335,7 @@ def reconcile(
         touched = session.scalars(
             update(Job)
             .where(Job.id.in_(stale_queued), Job.status == JobStatus.queued.value, stale)
-            .values(enqueued_at=now)
+            .values(enqueued_at=db_now())
             .returning(Job.id)
         ).all()
         requeue.extend(touched)
@@ -366,11 +372,12 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
 
 def release_claim(session: Db, claim: Claim) -> bool:
     """running → queued for this run (fenced by attempt), to run again later: a dependency of the run
-    (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds the tries."""
+    (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds the tries;
+    ``enqueued_at`` is the database's clock (``services.db.clock``), as the reconciler compares it."""
     done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)
-        .values(status=JobStatus.queued.value, enqueued_at=utcnow(), lease_expires_at=None, started_at=None)
+        .values(status=JobStatus.queued.value, enqueued_at=db_now(), lease_expires_at=None, started_at=None)
     )
     session.commit()
     return done.rowcount == 1

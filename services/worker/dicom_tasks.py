@@ -4,10 +4,14 @@ attempt recorded on the job (``jobs.dicom_stores``), retried with backoff on the
 
 Push: ``job_succeeded`` publishes attempt 1 of ``spine.dicom_store``; the task builds the SR and the
 SC and stores both in one STOW-RS request (``services.dicom.results.store_job_results``), appends the
-attempt to the job, and when the PACS was unavailable or refused, publishes the next attempt after 2,
-4, 8 … s (at most 60 s), up to ``SPINE_DICOMWEB_MAX_ATTEMPTS``. The instances' UIDs derive from the
-job, so a repeated attempt stores the same instances again (PACS replace or ignore them; none is
-duplicated).
+attempt to the job, and when the PACS was unavailable or refused, publishes the next attempt after
+``SPINE_DICOMWEB_RETRY_BASE_S`` doubling at each attempt (2, 4, 8 … s by default), at most
+``SPINE_DICOMWEB_RETRY_MAX_S`` (60 s), up to ``SPINE_DICOMWEB_MAX_ATTEMPTS``. The instances' UIDs
+derive from the job, so a repeated attempt stores the same instances again (PACS replace or ignore
+them; none is duplicated).
+
+The due time the reconciler's sweep looks for (``jobs.dicom_store_due_at``) is written and compared on
+the database's clock (``services.db.dicom_stores``), never this process's own.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import uuid
 from datetime import datetime, timedelta
 
 from celery import Celery
+from sqlalchemy import ColumnElement
 
 from services.core.config import Settings
 from services.core.jobqueue import STORE_DICOM, publish_dicom_store
@@ -32,16 +37,11 @@ from spine_client.dicom.errors import DicomError
 
 log = logging.getLogger(__name__)
 
-RETRY_BASE_S = 2.0
-RETRY_MAX_S = 60.0
-"""Backoff between STOW-RS attempts (and between runs of a job whose PACS was unavailable): 2 s
-doubling, capped at 60 s (5 attempts span about 30 s: a PACS restart; longer outages are
-SPINE_DICOMWEB_MAX_ATTEMPTS' business)."""
-
-
-def retry_delay_s(attempt: int) -> float:
-    """Seconds before attempt ``attempt + 1``: 2 s doubling, at most 60 s."""
-    return float(min(RETRY_MAX_S, RETRY_BASE_S * 2 ** (attempt - 1)))
+def retry_delay_s(settings: Settings, attempt: int) -> float:
+    """Seconds before attempt ``attempt + 1`` of a STOW-RS push (and before a job whose PACS was
+    unavailable runs again): ``SPINE_DICOMWEB_RETRY_BASE_S`` · 2^(attempt − 1), at most
+    ``SPINE_DICOMWEB_RETRY_MAX_S``."""
+    return float(min(settings.dicomweb_retry_max_s, settings.dicomweb_retry_base_s * 2 ** (attempt - 1)))
 
 
 def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None = None) -> bool:
@@ -53,7 +53,7 @@ def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None =
     sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
     try:
         with session_scope(settings) as session:
-            dicom_stores.set_due(session, job_id, utcnow() + sweep_after)
+            dicom_stores.set_due(session, job_id, dicom_stores.due_in(sweep_after))
     except Exception as exc:
         log.warning("could not mark the STOW-RS of job %s as due: %s", job_id, exc)
     try:
@@ -77,14 +77,15 @@ def _record(settings: Settings, job_id: uuid.UUID, attempt: DicomStoreAttempt) -
 def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:
     """Publish the STOW-RS attempt of every job whose attempt is overdue (``dicom_store_due_at`` past:
     its message was never published or was lost), as the next attempt number, and push its due time
-    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts is cleared. Returns how many."""
+    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts is cleared. Both times are the
+    database's clock's (``services.db.clock``). Returns how many."""
     if not settings.stores_dicom_results:
         return 0
-    now = utcnow()
     sent = 0
+    sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
     with session_scope(settings) as session:
-        for job_id, attempt in dicom_stores.overdue(session, now, batch):
-            due: datetime | None = now + timedelta(seconds=settings.dicomweb_sweep_after_s)
+        for job_id, attempt in dicom_stores.overdue(session, limit=batch):
+            due: ColumnElement[datetime] | None = dicom_stores.due_in(sweep_after)
             if attempt > settings.dicomweb_max_attempts:
                 due = None
             else:
@@ -115,7 +116,7 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         attempt = settings.dicomweb_max_attempts
     outcome.duration_ms = (time.perf_counter() - started) * 1000.0
     if not outcome.ok and attempt < settings.dicomweb_max_attempts:
-        outcome.next_attempt_at = outcome.attempted_at + timedelta(seconds=retry_delay_s(attempt))
+        outcome.next_attempt_at = outcome.attempted_at + timedelta(seconds=retry_delay_s(settings, attempt))
     _record(settings, job_id, outcome)
     return outcome
 
@@ -133,6 +134,6 @@ def register_dicom_tasks(app: Celery, settings: Settings) -> None:
             log.warning("STOW-RS skipped: %s", exc)
             return
         if outcome.next_attempt_at is not None:
-            publish_dicom_store(settings, parsed, outcome.attempt + 1, countdown=retry_delay_s(outcome.attempt),
-                                celery=app)  # fmt: skip
+            delay = retry_delay_s(settings, outcome.attempt)
+            publish_dicom_store(settings, parsed, outcome.attempt + 1, countdown=delay, celery=app)
         log.info("STOW-RS of job %s attempt %d: %s", job_id, outcome.attempt, "stored" if outcome.ok else outcome.error)

@@ -157,7 +157,7 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
         if claim.attempt < settings.max_attempts:
             with worker_connection(settings) as session:
                 runs.release_claim(session, claim)
-            raise RunLater(dicom_tasks.retry_delay_s(claim.attempt)) from None
+            raise RunLater(dicom_tasks.retry_delay_s(settings, claim.attempt)) from None
         detail = f"{exc}; {claim.attempt} attempts (SPINE_MAX_ATTEMPTS)"
         return payload, problem("dicomweb-unavailable", detail, instance=instance, attempts=claim.attempt)
     except DicomError as exc:

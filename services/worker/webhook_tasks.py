@@ -10,6 +10,10 @@ Time limits: the task's soft limit is its attempt's deadline (``SPINE_WEBHOOK_TI
 bounds the claim and the request) plus ``SPINE_WEBHOOK_TASK_MARGIN_S`` (writing the outcome, retried
 in place, and publishing the next attempt), its hard limit ``HARD_LIMIT_GRACE_S`` later. A task cut
 off leaves its attempt's row in flight (or only the outbox row), which the sweep publishes again.
+
+Every due time (``next_attempt_at``) is written and compared on the database's clock
+(``services.db.clock``): the worker that writes it and the reconciler that sweeps may run on hosts
+whose clocks differ by more than ``SPINE_WEBHOOK_SWEEP_AFTER_S``.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from services.core.jobqueue import DELIVER_WEBHOOK, HARD_LIMIT_GRACE_S, publish_
 from services.core.retry import TRANSIENT, write_retry
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
 from services.db import deliveries
+from services.db.clock import db_now_plus_s
 from services.db.engine import session_scope
 from services.db.models import WebhookDelivery, utcnow
 from services.webhooks.delivery import post, retry_delay, webhook_body
@@ -47,12 +52,14 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
     ``SPINE_WEBHOOK_SWEEP_AFTER_S`` ahead, so it is published again only if this one is lost too (the
     claim of the attempt sets it back to when the attempt came: ``deliveries.settle_earlier``). A row
     of the last attempt (``SPINE_WEBHOOK_MAX_ATTEMPTS``) publishes nothing: its due time is cleared.
-    Looks back ``window``. Returns how many were published.
+    Looks back ``window``. Every time is the database's clock's (``services.db.clock``), as the rows'
+    due times are written. Returns how many were published.
     """
-    after = timedelta(seconds=settings.webhook_sweep_after_s)
-    now = utcnow()
+    after_s = settings.webhook_sweep_after_s
     with session_scope(settings) as session:
-        rows = deliveries.overdue(session, due_before=now - after, due_after=now - window)
+        rows = deliveries.overdue(
+            session, due_before=db_now_plus_s(-after_s), due_after=db_now_plus_s(-window.total_seconds())
+        )
         published = 0
         for row in rows:
             lost = _in_flight(row)
@@ -70,7 +77,7 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
                 deliveries.finish(session, row.id, error=_LOST)
             elif row.attempt == deliveries.OUTBOX_ATTEMPT and row.error is None:
                 deliveries.finish(session, row.id, error=_NEVER_CAME.format(after=settings.webhook_sweep_after_s))
-            deliveries.postpone(session, row.id, now + after)
+            deliveries.postpone(session, row.id, db_now_plus_s(after_s))
             published += 1
     if published:
         log.info("webhook sweep: published %d overdue webhook attempts", published)
@@ -92,12 +99,13 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
 
     An attempt beyond ``SPINE_WEBHOOK_MAX_ATTEMPTS`` (or below 1) is dropped before anything is
     recorded or sent. The next attempt is due ``delay`` after this one ended (its row's
-    ``next_attempt_at``), when the caller publishes it with that countdown.
+    ``next_attempt_at``, on the database's clock), when the caller publishes it with that countdown.
 
     The attempt's row is claimed before the request (``deliveries.claim``): a second delivery of the
     same attempt finds it and does nothing. Until the outcome is written, the row's
-    ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after it started),
-    so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
+    ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after the claim, on the
+    database's clock: never before the deadline ``post`` holds, counted from ``attempted_at`` before the
+    claim), so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
     """
     if not 1 <= attempt <= settings.webhook_max_attempts:
         log.warning("dropping attempt %d of the webhook of job %s (%s): SPINE_WEBHOOK_MAX_ATTEMPTS is %d",
@@ -112,7 +120,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         url = job.callback_url
         row_id = deliveries.claim(
             session, job_id=job_id, message_id=mid, event=f"job.{status}", attempt=attempt, url=url,
-            attempted_at=attempted_at, next_attempt_at=attempted_at + timedelta(seconds=settings.webhook_timeout_s),
+            attempted_at=attempted_at, next_attempt_at=db_now_plus_s(settings.webhook_timeout_s),
         )  # fmt: skip
         if row_id is None:  # published twice (a repeated cancel, a sweep, a redelivery)
             return None
@@ -141,7 +149,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         return None
     delay = retry_delay(settings, attempt, sent.retry_after)  # counted from the attempt's end
     _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms, error=sent.error,
-            next_attempt_at=utcnow() + timedelta(seconds=delay))  # fmt: skip
+            next_attempt_at=db_now_plus_s(delay))  # fmt: skip
     return delay
 
 

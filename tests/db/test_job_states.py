@@ -176,14 +176,17 @@ def _age(settings: Settings, job_id: uuid.UUID, **values: Any) -> None:
         s.execute(update(Job).where(Job.id == job_id).values(**values))
 
 
-def _reconcile(settings: Settings, max_attempts: int = 2) -> runs.Reconciliation:
+def _reconcile(settings: Settings, job_id: uuid.UUID, max_attempts: int = 2) -> runs.Reconciliation:
+    """One reconcile, its outcome for ``job_id`` only: the session's PostgreSQL database is shared by
+    the test files, whose jobs (a run left holding a lease, say) the reconciler may take back too."""
     with session_scope(settings) as s:
-        return runs.reconcile(
+        outcome = runs.reconcile(
             s,
             queued_timeout=timedelta(minutes=5),
             max_attempts=max_attempts,
             lost_problem=LOST,
         )
+    return runs.Reconciliation([i for i in outcome.requeue if i == job_id], [i for i in outcome.failed if i == job_id])
 
 
 @BACKENDS
@@ -192,9 +195,9 @@ def test_reconciler_takes_back_a_lost_run_and_fences_the_stale_worker(db_setting
     with session_scope(db_settings) as s:
         stale = runs.claim_job(s, job_id, "1.0")
     assert stale is not None
-    assert _reconcile(db_settings).requeue == []  # recent: left alone
+    assert _reconcile(db_settings, job_id).requeue == []  # recent: left alone
     _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(seconds=1))  # its worker died
-    outcome = _reconcile(db_settings)
+    outcome = _reconcile(db_settings, job_id)
     assert outcome.requeue == [job_id] and outcome.failed == []
     job = status_of(db_settings, job_id)
     assert (job.status, job.attempts) == ("queued", 1)
@@ -215,7 +218,7 @@ def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
         with session_scope(db_settings) as s:
             assert runs.claim_job(s, job_id, "1.0") is not None
         _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(seconds=1))  # its worker died
-        _reconcile(db_settings)
+        _reconcile(db_settings, job_id)
     job = status_of(db_settings, job_id)
     assert (job.status, job.attempts, job.error) == ("failed", 2, LOST)
 
@@ -223,10 +226,10 @@ def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
 @BACKENDS
 def test_reconciler_republishes_stale_queued_jobs_once_per_timeout(db_settings: Settings) -> None:
     job_id = new_job(db_settings)
-    assert _reconcile(db_settings).requeue == []
+    assert _reconcile(db_settings, job_id).requeue == []
     _age(db_settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
-    assert _reconcile(db_settings).requeue == [job_id]
-    assert _reconcile(db_settings).requeue == []  # enqueued_at was refreshed
+    assert _reconcile(db_settings, job_id).requeue == [job_id]
+    assert _reconcile(db_settings, job_id).requeue == []  # enqueued_at was refreshed
     assert status_of(db_settings, job_id).status == "queued"
 
 
@@ -338,11 +341,11 @@ def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_se
         run = runs.claim_job(s, job_id, "1.0", lease=timedelta(seconds=30))
     assert run is not None
     _age(db_settings, job_id, started_at=utcnow() - timedelta(hours=1))  # long past any fit time limit
-    assert _reconcile(db_settings).requeue == []  # its lease holds
+    assert _reconcile(db_settings, job_id).requeue == []  # its lease holds
     with session_scope(db_settings) as s:
         assert runs.renew_leases(s, [run], timedelta(seconds=30)) == [run]
     _age(db_settings, job_id, lease_expires_at=utcnow() - timedelta(milliseconds=1))  # it stopped renewing
-    assert _reconcile(db_settings).requeue == [job_id]
+    assert _reconcile(db_settings, job_id).requeue == [job_id]
     with session_scope(db_settings) as s:
         assert runs.renew_leases(s, [run], timedelta(seconds=30)) == []  # the dead run cannot renew
         fresh = runs.claim_job(s, job_id, "1.0")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 import pytest
@@ -19,6 +19,7 @@ from services.core.jobqueue import make_celery, queue_depth
 from services.db import deliveries as store
 from services.db import jobs as repo
 from services.db import runs
+from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job, WebhookDelivery, utcnow
 from services.worker import webhook_tasks
@@ -33,6 +34,14 @@ def settle_earlier_tests(settings: Settings) -> None:
     """The PostgreSQL store is shared by this session's tests: nothing of theirs is due any more."""
     with session_scope(settings) as session:
         session.execute(update(WebhookDelivery).values(next_attempt_at=None))
+
+
+def db_clock(settings: Settings) -> datetime:
+    """The database's clock (``services.db.clock``), on which the outbox row's due time is written."""
+    with session_scope(settings) as session:
+        now = session.scalar(select(db_now()))
+    assert now is not None
+    return now
 
 
 def rows(settings: Settings, job_id: uuid.UUID) -> list[WebhookDelivery]:
@@ -74,6 +83,7 @@ def test_a_job_ending_writes_its_webhooks_outbox_row_with_its_outcome(db_setting
     not listed on the job (no attempt was made under it); nothing for a job without callback_url or
     for a run that no longer owns its job."""
     hooked, plain, superseded = (queued_job(db_settings, url) for url in (UNREACHABLE, None, UNREACHABLE))
+    before = db_clock(db_settings)
     with worker_connection(db_settings) as connection:
         claims = {job_id: runs.claim_job(connection, job_id, None) for job_id in (hooked, plain, superseded)}
     with worker_connection(db_settings) as connection:
@@ -83,12 +93,14 @@ def test_a_job_ending_writes_its_webhooks_outbox_row_with_its_outcome(db_setting
                 claim = runs.Claim(claim.job_id, claim.attempt + 1, {}, claim.created_at, claim.callback_url)
             stored = runs.finish_job(connection, claim, error={"type": "x", "detail": "refused by the test"})
             assert stored is (job_id != superseded)
+    after = db_clock(db_settings)
     [row] = rows(db_settings, hooked)
     with session_scope(db_settings) as session:
         finished_at = session.scalar(select(Job.finished_at).where(Job.id == hooked))
     assert (row.attempt, row.event, row.url, row.status_code, row.error) == (0, "job.failed", UNREACHABLE, None, None)
     assert row.message_id == store.message_id(hooked, "failed")
-    assert row.attempted_at == finished_at and row.next_attempt_at == finished_at
+    assert row.attempted_at == finished_at  # the job's end as the job shows it: the worker's clock
+    assert row.next_attempt_at is not None and before <= row.next_attempt_at <= after  # the database's clock
     assert rows(db_settings, plain) == [] and rows(db_settings, superseded) == []
     assert listed(db_settings, hooked) == []  # no attempt yet
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import threading
 import time
-from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
@@ -18,6 +17,7 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from services.api.deps import QueueDep, SettingsDep
+from services.api.metrics import answer_by, start_check
 from services.api.schemas import Health, problem_responses
 from services.core.config import Settings
 from services.core.jobqueue import ping_broker
@@ -63,7 +63,10 @@ def readyz(request: Request, settings: SettingsDep, queue: QueueDep) -> Health |
     # stopped process, a half-open network path) makes a prompt 503, not a probe that hangs.
     bound = settings.ready_timeout_s
     started = time.monotonic()
-    pending = {"database": _run_check(_database_check, settings), "broker": _run_check(_broker_check, queue)}
+    pending = {
+        "database": start_check(functools.partial(_database_check, settings), _CHECK_SLOTS),
+        "broker": start_check(functools.partial(_broker_check, queue), _CHECK_SLOTS),
+    }
     checks = {name: _outcome(check, started + bound, bound) for name, check in pending.items()}
     if all(v == "ok" for v in checks.values()):
         return Health(status="ready", checks=checks)
@@ -81,33 +84,15 @@ def _why(name: str, check: str) -> str:
 
 
 _CHECK_SLOTS = threading.BoundedSemaphore(4)
-"""Readiness checks running at once per process, each in a daemon thread (never one that delays the
-process's exit): a check stuck on a dependency holds its slot until the dependency's own timeout ends it
-(SPINE_DB_CONNECT_TIMEOUT_S, SPINE_DB_TCP_TIMEOUT_S, SPINE_BROKER_TIMEOUT_S); with every slot held, a
-check is not started and answers "no answer" in time."""
-
-
-def _run_check(check: Callable[[Any], str], target: Any) -> Future[str]:
-    future: Future[str] = Future()
-    if not _CHECK_SLOTS.acquire(blocking=False):
-        return future  # never resolved: the probe answers "no answer" at its bound
-
-    def run() -> None:
-        try:
-            future.set_result(check(target))
-        except Exception as exc:
-            future.set_exception(exc)
-        finally:
-            _CHECK_SLOTS.release()
-
-    threading.Thread(target=run, name="readyz-check", daemon=True).start()
-    return future
+"""Readiness checks running at once per process, each in a daemon thread (``services.api.metrics.
+start_check``): with every slot held by checks stuck on a dependency, a check is not started and
+answers "no answer" in time."""
 
 
 def _outcome(check: Future[str], deadline: float, bound: float) -> str:
     """``ok``, what is wrong, or that the dependency did not answer by ``deadline``."""
     try:
-        return check.result(timeout=max(0.0, deadline - time.monotonic()))
+        return answer_by(check, deadline)
     except TimeoutError:
         return f"no answer within {bound:g} s (SPINE_READY_TIMEOUT_S)"
     except Exception as exc:
