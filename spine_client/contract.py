@@ -382,6 +382,14 @@ class PacsStudyImages(OpenModel):
     images: list[StudyImage]
 
 
+class PatientIdIssuer(OpenModel):
+    """Who issued the Patient ID, as the film's Patient Module names it (PS3.3 §C.7.1.1)."""
+
+    issuer_of_patient_id: str | None = None
+    universal_entity_id: str | None = None
+    universal_entity_id_type: Literal["DNS", "EUI64", "ISO", "URI", "UUID", "X400", "X500"] | None = None
+
+
 class PatientMeasures(OpenModel):
     """PatientMeasures"""
 
@@ -460,6 +468,7 @@ class Study(OpenModel):
     patient_name: str | None = None
     accession_number: str | None = None
     study_date: date | None = None
+    patient_id_issuer: PatientIdIssuer | None = None
 
 
 class StudyImage(OpenModel):

@@ -431,6 +431,49 @@ PATTERN_REASONS = {
 """Each pattern of the contract's strings with its reason in plain words, for errors that would quote the regex."""
 
 
+UniversalEntityIdType = Literal["DNS", "EUI64", "ISO", "URI", "UUID", "X400", "X500"]
+"""Universal Entity ID Type (0040,0033) defined terms (PS3.3 §10.14, HL7v2 Hierarchic Designator Macro): the
+kind of Universal Entity ID (0040,0032) the issuer of an identifier is named by."""
+
+
+class PatientIdIssuer(_Strict):
+    """Who issued the Patient ID, as the film's Patient Module names it (PS3.3 §C.7.1.1).
+
+    Issuer of Patient ID (0010,0021), a local name, and from the single item of Issuer of Patient ID
+    Qualifiers Sequence (0010,0024) the issuer's Universal Entity ID (0040,0032) with its Type (0040,0033),
+    which that module requires with the ID."""
+
+    issuer_of_patient_id: str | None = Field(
+        None, max_length=DICOM_LO_MAX_LENGTH,
+        description="Issuer of Patient ID (0010,0021): the issuer's local name (DICOM LO, at most 64 characters).",
+    )
+    universal_entity_id: str | None = Field(
+        None, min_length=1,
+        description="Universal Entity ID (0040,0032) of the issuer (DICOM UT), e.g. an ISO OID 1.2.3.4.5.",
+    )
+    universal_entity_id_type: UniversalEntityIdType | None = Field(
+        None,
+        description="Universal Entity ID Type (0040,0033) (PS3.3 §10.14): ISO (an OID), UUID, URI, DNS, EUI64, "
+        "X400 or X500; given exactly when universal_entity_id is.",
+    )
+
+    @field_validator("issuer_of_patient_id", "universal_entity_id")
+    @classmethod
+    def _dicom_text(cls, value: str | None) -> str | None:
+        if value is not None and not re.fullmatch(DICOM_TEXT_PATTERN, value):
+            raise ValueError(DICOM_TEXT_REASON)
+        return value
+
+    @model_validator(mode="after")
+    def _qualified(self) -> PatientIdIssuer:
+        if (self.universal_entity_id is None) != (self.universal_entity_id_type is None):
+            raise ValueError("universal_entity_id and universal_entity_id_type come together: the Type (0040,0033) "
+                             "is required with the ID (0040,0032) and says nothing without it (PS3.3 §C.7.1.1)")
+        if self.issuer_of_patient_id is None and self.universal_entity_id is None:
+            raise ValueError("an issuer has a local name (issuer_of_patient_id), a universal_entity_id, or both")
+        return self
+
+
 class Study(_Strict):
     """DICOM identifiers of the radiographs the landmarks come from. Carried unchanged to the job
     (and its webhook and FHIR export) so that a PACS can match results to its images; the engine
@@ -459,6 +502,13 @@ class Study(_Strict):
         description="Accession Number (0008,0050): DICOM SH, at most 16 characters.",
     )
     study_date: date | None = Field(None, description="Study Date (0008,0020) as ISO 8601 YYYY-MM-DD.")
+    patient_id_issuer: PatientIdIssuer | None = Field(
+        None,
+        description="Who issued patient_id (Issuer of Patient ID (0010,0021) and Issuer of Patient ID Qualifiers "
+        "Sequence (0010,0024)), filled from the image header when the DICOM layer reads one; copied into the SR "
+        "and SC, and the FHIR export's subject identifier system when it names the issuer by a URI (ISO OID, UUID "
+        "or URI).",
+    )
 
     @field_validator("patient_id", "patient_name", "accession_number")
     @classmethod

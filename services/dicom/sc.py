@@ -13,8 +13,9 @@ sent (PS3.5 §7.4.4). Body Part Examined (0018,0015, Type 3) says which: ``SPINE
 Body Part Examined defined terms), from which dicom3tools' dciodvfy evaluates the condition. The SR
 has no Laterality either: its SR Document Series Module (PS3.3 §C.17.1) has none. The patient and
 study are the source's (Patient and General Study Modules, PS3.3 §C.7.1.1, §C.7.2.1: a new series of
-the same study repeats them); the General Equipment Module (§C.7.5.1) describes the equipment that
-made the series, this service, not the film's modality. Its Content, Instance Creation and Secondary
+the same study repeats them, the issuer of the Patient ID included, ``sr.write_patient_id_issuer``); the
+General Equipment Module (§C.7.5.1) describes the equipment that made the series, this service, not the
+film's modality. Its Content, Instance Creation and Secondary
 Capture dates and times are the job's end, in the film's zone with its Timezone Offset From UTC
 (0008,0201) when the study gives one, else in UTC with ``+0000`` (``sr.stamp_content_time``; PS3.3
 §C.12.1.1.8).
@@ -30,7 +31,7 @@ import highdicom as hd
 import numpy as np
 from PIL import Image
 
-from .sr import MANUFACTURER, StudyIdentity, declare_character_set, stamp_content_time
+from .sr import MANUFACTURER, StudyIdentity, declare_character_set, stamp_content_time, write_patient_id_issuer
 from .uids import job_uids
 
 
@@ -67,4 +68,4 @@ def build_sc(
     stamp_content_time(sc, content_datetime, ("ContentDate", "InstanceCreationDate", "DateOfSecondaryCapture"),
                        ("ContentTime", "InstanceCreationTime", "TimeOfSecondaryCapture"),
                        identity.timezone_offset_from_utc)  # fmt: skip
-    return declare_character_set(sc)
+    return declare_character_set(write_patient_id_issuer(sc, identity))

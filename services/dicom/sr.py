@@ -214,12 +214,23 @@ class StudyIdentity:
     timezone_offset_from_utc: str | None = None
     """The film's Timezone Offset From UTC (0008,0201) as DICOM writes it (``+0100``): the zone of its
     Study Date and Time (``stamp_content_time``)."""
+    issuer_of_patient_id: str | None = None
+    universal_entity_id: str | None = None
+    universal_entity_id_type: str | None = None
+    """Who issued the Patient ID: Issuer of Patient ID (0010,0021) and the Universal Entity ID (0040,0032) with
+    its Type (0040,0033) of Issuer of Patient ID Qualifiers Sequence (0010,0024) (the study's
+    ``patient_id_issuer``; ``write_patient_id_issuer``)."""
 
     @classmethod
     def from_study(cls, study: Mapping[str, Any] | None) -> StudyIdentity:
         study = study or {}
         when = study.get("study_date")
+        issuer = study.get("patient_id_issuer")
+        issuer = issuer if isinstance(issuer, Mapping) else {}
         return cls(
+            issuer_of_patient_id=issuer.get("issuer_of_patient_id"),
+            universal_entity_id=issuer.get("universal_entity_id"),
+            universal_entity_id_type=issuer.get("universal_entity_id_type"),
             study_instance_uid=study.get("study_instance_uid"),
             patient_id=study.get("patient_id"),
             patient_name=study.get("patient_name"),
@@ -232,6 +243,22 @@ class StudyIdentity:
             referring_physician_name=study.get("referring_physician_name"),
             timezone_offset_from_utc=study.get("timezone_offset_from_utc"),
         )
+
+
+def write_patient_id_issuer(ds: AnyDataset, identity: StudyIdentity) -> AnyDataset:
+    """``ds`` with the issuer of its Patient ID as the film has it (Patient Module, PS3.3 §C.7.1.1: a new series
+    of the film's study repeats its patient): Issuer of Patient ID (0010,0021) when known, and Issuer of
+    Patient ID Qualifiers Sequence (0010,0024) with one item, Universal Entity ID (0040,0032) and its Type
+    (0040,0033), when the issuer's universal ID is known (the Type is required with the ID, Type 1C). Both
+    are Type 3: nothing is written when unknown."""
+    if identity.issuer_of_patient_id:
+        ds.IssuerOfPatientID = identity.issuer_of_patient_id
+    if identity.universal_entity_id and identity.universal_entity_id_type:
+        item = Dataset()
+        item.UniversalEntityID = identity.universal_entity_id
+        item.UniversalEntityIDType = identity.universal_entity_id_type
+        ds.IssuerOfPatientIDQualifiersSequence = [item]
+    return ds
 
 
 def _evidence(identity: StudyIdentity, study_uid: str, image: SourceImage | None, fallback_uid: str) -> Dataset:
@@ -515,4 +542,4 @@ def build_sr(
     scheme.CodingSchemeVersion = PRIVATE_SCHEME_VERSION
     scheme.CodingSchemeResponsibleOrganization = MANUFACTURER
     sr.CodingSchemeIdentificationSequence = [scheme]
-    return declare_character_set(sr)
+    return declare_character_set(write_patient_id_issuer(sr, identity))

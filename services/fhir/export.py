@@ -27,9 +27,11 @@ the SR's rule) has
 result's reason, on the Observation or on the Cobb Observation's component.
 
 Subject and time: ``subject`` is the Patient by identifier (DICOM Patient ID (0010,0020)) whenever a
-patient ID is known, with ``system`` the setting ``SPINE_PATIENT_ID_SYSTEM`` (the issuer's namespace;
-none when unset). Every Observation has ``effectiveDateTime`` (``effective_date_time``): the study's
-date and time, else the film's acquisition (or content) date and time, else the job's creation.
+patient ID is known, with ``system`` the film's issuer when its Issuer of Patient ID Qualifiers Sequence
+names it by a URI (``issuer_system``), else the setting ``SPINE_PATIENT_ID_SYSTEM`` (the issuer's
+namespace), else none; the issuer's local name is ``identifier.assigner.display``. Every Observation
+has ``effectiveDateTime`` (``effective_date_time``): the study's date and time, else the film's
+acquisition (or content) date and time, else the job's creation.
 """
 
 from __future__ import annotations
@@ -153,15 +155,51 @@ def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
     ]
 
 
+FHIR_OID = re.compile(r"^[0-2](\.(0|[1-9][0-9]*))+$")
+"""An OID in dot notation as FHIR R4's ``oid`` datatype takes it after ``urn:oid:`` (its regex
+``urn:oid:[0-2](\\.(0|[1-9][0-9]*))+``; RFC 3001)."""
+FHIR_UUID = re.compile(r"^[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}$")
+"""A UUID as FHIR R4's ``uuid`` datatype takes it after ``urn:uuid:`` (lower-case hex, RFC 4122 §3)."""
+ABSOLUTE_URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:\S+$")
+"""An absolute URI (RFC 3986 §4.3: a scheme, a colon, then no whitespace), as FHIR R4 ``Identifier.system``
+(a ``uri``) needs, the rule ``SPINE_PATIENT_ID_SYSTEM`` is held to."""
+
+
+def issuer_system(issuer: Mapping[str, Any] | None) -> str | None:
+    """The FHIR ``Identifier.system`` URI of a DICOM issuer of Patient ID (the study's ``patient_id_issuer``:
+    Universal Entity ID (0040,0032) and its Type (0040,0033) of Issuer of Patient ID Qualifiers Sequence
+    (0010,0024), PS3.3 §C.7.1.1, §10.14): ``ISO`` (an OID) → ``urn:oid:<oid>``, ``UUID`` → ``urn:uuid:<uuid>``
+    in lower case, ``URI`` → the URI itself when absolute. None for the other Types (DNS, EUI64, X400, X500:
+    names, not URIs), for a value not of its Type's form, and for an issuer known only by its local name,
+    Issuer of Patient ID (0010,0021), which is no URI (FHIR R4 Identifier.system is a ``uri``)."""
+    issuer = issuer or {}
+    value, kind = str(issuer.get("universal_entity_id") or "").strip(), issuer.get("universal_entity_id_type")
+    if kind == "ISO" and FHIR_OID.match(value):
+        return f"urn:oid:{value}"
+    if kind == "UUID" and FHIR_UUID.match(value.lower()):
+        return f"urn:uuid:{value.lower()}"
+    if kind == "URI" and ABSOLUTE_URI.match(value):
+        return value
+    return None
+
+
 def _subject(study: Mapping[str, Any] | None, patient_id_system: str | None) -> dict[str, Any] | None:
-    """The Patient by identifier (DICOM Patient ID (0010,0020), ``system`` the issuer's namespace
-    ``patient_id_system`` when configured), with the DICOM Patient's Name as display
-    (``person_name_display``); None without a patient ID."""
+    """The Patient by identifier (DICOM Patient ID (0010,0020)), with the DICOM Patient's Name as display
+    (``person_name_display``); None without a patient ID. The identifier's ``system`` is the film's issuer
+    when it names it by a URI (``issuer_system``), else ``patient_id_system`` (``SPINE_PATIENT_ID_SYSTEM``)
+    when configured, else none; the issuer's local name (Issuer of Patient ID (0010,0021), not a URI) is
+    the identifier's ``assigner.display`` (FHIR R4 Identifier.assigner, a Reference that may hold only a
+    display)."""
     if not study or not study.get("patient_id"):
         return None
-    identifier = {"value": study["patient_id"]}
-    if patient_id_system:
-        identifier = {"system": patient_id_system, **identifier}
+    issuer = study.get("patient_id_issuer")
+    issuer = issuer if isinstance(issuer, Mapping) else None
+    identifier: dict[str, Any] = {"value": study["patient_id"]}
+    system = issuer_system(issuer) or patient_id_system
+    if system:
+        identifier = {"system": system, **identifier}
+    if issuer and issuer.get("issuer_of_patient_id"):
+        identifier["assigner"] = {"display": issuer["issuer_of_patient_id"]}
     subject: dict[str, Any] = {"type": "Patient", "identifier": identifier}
     display = person_name_display(study.get("patient_name"))
     if display:
@@ -295,7 +333,8 @@ def observation_bundle(
     """The Bundle of a job's measures as FHIR JSON (validated by fhir.resources). ``created_at`` is the
     job's creation (``finished_at`` when not given), ``film_datetime`` the film's acquisition date
     and time when the DICOM layer read one (``effective_date_time``); ``patient_id_system`` is
-    ``SPINE_PATIENT_ID_SYSTEM``."""
+    ``SPINE_PATIENT_ID_SYSTEM``, the subject identifier's system when the study names no issuer by a URI
+    (``_subject``)."""
     measures = result.get("measures") or {}
     fit = result.get("fit") or {}
     version = (result.get("engine") or {}).get("version", "unknown")

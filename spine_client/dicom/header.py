@@ -141,6 +141,26 @@ class Acquisition:
         return {k: v for k, v in self.__dict__.items() if v is not None}
 
 
+UNIVERSAL_ENTITY_ID_TYPES = ("DNS", "EUI64", "ISO", "URI", "UUID", "X400", "X500")
+"""Universal Entity ID Type (0040,0033) defined terms (PS3.3 §10.14, HL7v2 Hierarchic Designator Macro), the
+contract's ``UniversalEntityIdType`` (spine_engine.models; a test holds the two equal)."""
+
+
+@dataclass(frozen=True)
+class PatientIdIssuer:
+    """Who issued the film's Patient ID (PS3.3 §C.7.1.1, Patient Module; openapi.yaml ``PatientIdIssuer``):
+    Issuer of Patient ID (0010,0021), a local name (LO), and from the one item of Issuer of Patient ID
+    Qualifiers Sequence (0010,0024) the issuer's Universal Entity ID (0040,0032) and its Type (0040,0033)."""
+
+    issuer_of_patient_id: str | None = None
+    universal_entity_id: str | None = None
+    universal_entity_id_type: str | None = None
+
+    def as_payload(self) -> dict[str, str]:
+        """The study's ``patient_id_issuer`` member: the values known."""
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+
 @dataclass(frozen=True)
 class RadiographHeader:
     """What the service reads from one radiograph's header. Every value's source attribute is in
@@ -170,9 +190,10 @@ class RadiographHeader:
     patient_birth_date: str | None
     patient_sex: str | None
     referring_physician_name: str | None
+    patient_id_issuer: PatientIdIssuer | None
     """Study time (TM), study ID, birth date (DA) and sex (M, F, O), referring physician (PN) as the
-    header writes them: copied into the SR and SC (General Study and Patient Modules, PS3.3 §C.7.2.1,
-    §C.7.1.1)."""
+    header writes them, and the issuer of its Patient ID (``_patient_id_issuer``): copied into the SR and SC
+    (General Study and Patient Modules, PS3.3 §C.7.2.1, §C.7.1.1)."""
     modality: str | None
     rows: int | None
     columns: int | None
@@ -400,6 +421,60 @@ def _identity(ds: Dataset, keyword: str, key: str) -> str | None:
     """A header's study or patient value for the SR and SC, None when absent or not as DICOM writes it."""
     value = _optional_text(ds, keyword)
     return value if value is not None and identity_problem(key, value) is None else None
+
+
+LO_MAX_LENGTH = 64
+"""Longest Long String (LO), in characters (PS3.5 §6.2, Table 6.2-1): Issuer of Patient ID (0010,0021)."""
+
+
+def _patient_id_issuer(ds: Dataset) -> tuple[PatientIdIssuer | None, tuple[str, ...]]:
+    """(``RadiographHeader.patient_id_issuer``, warnings): Issuer of Patient ID (0010,0021), LO (at most 64
+    characters, PS3.5 §6.2), and the Universal Entity ID (0040,0032) with its Type (0040,0033), one of
+    ``UNIVERSAL_ENTITY_ID_TYPES``, from Issuer of Patient ID Qualifiers Sequence (0010,0024), of which "only a
+    single Item is permitted" (PS3.3 §C.7.1.1, Table C.7-1). Each is Type 3 and changes no measurement: a value
+    that is not as the standard writes it (too long, a control character, an ID with a backslash, which the
+    contract's DICOM text refuses, an ID without its Type or of a Type that is no defined term, a sequence of
+    several items) is left out with a warning naming it, never a
+    refusal, as the film's other identity values only the SR, SC and FHIR carry (docs/dicom.md, "Text
+    values")."""
+    warnings: list[str] = []
+    local_label = attribute_label("IssuerOfPatientID")
+    try:
+        local = _text(ds, "IssuerOfPatientID")
+    except InvalidAttribute as exc:
+        local, warnings = None, [f"{exc.message}: left out"]
+    if local is not None and len(local) > LO_MAX_LENGTH:
+        warnings.append(f"{local_label} {_quoted(local)} is longer than an LO holds (64 characters, PS3.5 §6.2): "
+                        "left out")  # fmt: skip
+        local = None
+    universal: str | None = None
+    kind: str | None = None
+    items = ds.get("IssuerOfPatientIDQualifiersSequence") or []
+    seq_label = attribute_label("IssuerOfPatientIDQualifiersSequence")
+    if len(items) > 1:
+        warnings.append(f"{seq_label} holds {len(items)} items: a single one is permitted (PS3.3 §C.7.1.1): "
+                        "its issuer is left out")  # fmt: skip
+    elif len(items) == 1:
+        try:
+            universal = _text(items[0], "UniversalEntityID")
+            kind = _text(items[0], "UniversalEntityIDType")
+        except InvalidAttribute as exc:
+            universal, kind = None, None
+            warnings.append(f"{seq_label}: {exc.message}: its issuer is left out")
+        if universal is not None and "\\" in universal:
+            warnings.append(f"{seq_label}: {attribute_label('UniversalEntityID')} {_quoted(universal)} holds a "
+                            "backslash, which the contract's DICOM text holds none of: left out")  # fmt: skip
+            universal, kind = None, None
+        elif universal is not None and kind not in UNIVERSAL_ENTITY_ID_TYPES:
+            what = f"Type {kind!r} is not one of {', '.join(UNIVERSAL_ENTITY_ID_TYPES)}" if kind else "has no Type"
+            warnings.append(f"{seq_label}: {attribute_label('UniversalEntityID')} {_quoted(universal)} {what} "
+                            f"({attribute_label('UniversalEntityIDType')}, PS3.3 §10.14): left out")  # fmt: skip
+            universal, kind = None, None
+        elif universal is None:
+            kind = None
+    if local is None and universal is None:
+        return None, tuple(warnings)
+    return PatientIdIssuer(local, universal, kind), tuple(warnings)
 
 
 def _uid(ds: Dataset, keyword: str, *, required: bool) -> str | None:
@@ -710,6 +785,7 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
             f"{attribute_label('SOPClassUID')}: a projection radiograph, from a point source"
         )
     offset, offset_warnings = _timezone_offset(ds)
+    issuer, issuer_warnings = _patient_id_issuer(ds)
     film_datetime, film_warnings = _film_datetime(ds, parse_utc_offset(offset))
     rows, columns = _dimension(ds, "Rows"), _dimension(ds, "Columns")
     if rows is not None and columns is not None:
@@ -732,6 +808,7 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         patient_birth_date=_identity(ds, "PatientBirthDate", "patient_birth_date"),
         patient_sex=_identity(ds, "PatientSex", "patient_sex"),
         referring_physician_name=_identity(ds, "ReferringPhysicianName", "referring_physician_name"),
+        patient_id_issuer=issuer,
         modality=_text(ds, "Modality"),
         rows=rows,
         columns=columns,
@@ -744,5 +821,5 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         view=view,
         acquisition=acquisition,
         sources=sources,
-        warnings=spacing.warnings + orientation_warnings + offset_warnings + film_warnings,
+        warnings=spacing.warnings + orientation_warnings + offset_warnings + film_warnings + issuer_warnings,
     )

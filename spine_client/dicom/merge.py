@@ -18,7 +18,14 @@ from pydantic import BaseModel, Field
 from spine_client.dicom.errors import UnsupportedOrientation, attribute_label
 
 from .datetimes import parse_iso_datetime
-from .header import IDENTITY_VALUES, RadiographHeader, ViewRole, identity_problem, person_name_problem
+from .header import (
+    IDENTITY_VALUES,
+    PatientIdIssuer,
+    RadiographHeader,
+    ViewRole,
+    identity_problem,
+    person_name_problem,
+)
 
 VALUE_RTOL = 1e-6
 """Relative tolerance under which a payload number equals the header's (DS values carry at most 16
@@ -78,6 +85,8 @@ def _same(a: Any, b: Any) -> bool:
 
 
 def _jsonable(value: Any) -> Any:
+    if isinstance(value, PatientIdIssuer):
+        return value.as_payload()
     if isinstance(value, tuple):
         return [_jsonable(v) for v in value]
     if hasattr(value, "isoformat"):
@@ -170,11 +179,19 @@ STUDY_FIELDS = (
     ("patient_sex", "PatientSex"),
     ("referring_physician_name", "ReferringPhysicianName"),
     ("timezone_offset_from_utc", "TimezoneOffsetFromUTC"),
+    ("patient_id_issuer", "IssuerOfPatientID"),
 )
-"""What the study block takes from the header. The contract's ``Study`` has the first five; the others
+"""What the study block takes from the header, each with the attribute it is read from (the issuer's with
+its Issuer of Patient ID Qualifiers Sequence (0010,0024), ``ISSUER_ATTRIBUTES``). The contract's ``Study``
+has the first five and ``patient_id_issuer``; the others
 (``IDENTITY_VALUES``) stay in the provenance and the job's effective payload (``services.db.job_forms``),
 for the SR, the SC and the FHIR export. Two films of one study that disagree on one of them (a lateral
 with another Timezone Offset From UTC) are a conflict like any other: the PA's value is used."""
+
+
+ISSUER_ATTRIBUTES = (f"{attribute_label('IssuerOfPatientID')}, {attribute_label('IssuerOfPatientIDQualifiersSequence')}"
+                     f" > {attribute_label('UniversalEntityID')}, {attribute_label('UniversalEntityIDType')}")
+"""The attributes ``study.patient_id_issuer`` is read from (``header._patient_id_issuer``)."""
 
 
 def merge_study(
@@ -192,8 +209,9 @@ def merge_study(
         prefix = "" if role == "pa" else "lateral image's "
         for key, keyword in STUDY_FIELDS:
             value = getattr(header, key)
+            label = ISSUER_ATTRIBUTES if key == "patient_id_issuer" else attribute_label(keyword)
             if value is not None:
-                merger.fill(study, key, f"study.{key}", value, prefix + attribute_label(keyword), provenance.study)
+                merger.fill(study, key, f"study.{key}", value, prefix + label, provenance.study)
         merger.fill(study, f"{role}_sop_instance_uid", f"study.{role}_sop_instance_uid", header.sop_instance_uid,
                     attribute_label("SOPInstanceUID"), provenance.study)  # fmt: skip
         if role == "pa" and header.series_instance_uid is not None:

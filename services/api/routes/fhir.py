@@ -35,7 +35,10 @@ DESCRIPTION = (
     'angle" for the frontal Cobb angles, the service\'s local code system (docs/fhir.md) for the '
     "measures no standard code names. With a `study` in the payload, each Observation's `derivedFrom` names the "
     "ImagingStudy by its DICOM Study Instance UID. With a patient ID (typed in or read from the image header), "
-    "`subject` is the Patient by identifier, its `system` the setting `SPINE_PATIENT_ID_SYSTEM`. "
+    "`subject` is the Patient by identifier, its `system` the film's issuer of Patient ID when it names it "
+    "by a URI (Issuer of Patient ID Qualifiers Sequence (0010,0024): ISO OID → urn:oid:, UUID → urn:uuid:, "
+    "URI as is), else the setting "
+    "`SPINE_PATIENT_ID_SYSTEM`; the issuer's local name is `identifier.assigner.display`. "
     "`effectiveDateTime` is the study's date, else the PA film's (or the lateral's) acquisition date, else the "
     "job's creation. 404 for an unknown job; 409 "
     "(`job-has-no-result`) unless the job succeeded." + CONDITIONAL
