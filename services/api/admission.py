@@ -28,6 +28,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 from sqlalchemy.orm import Session
 
+from services.api.errors import MAX_ERRORS
 from services.core.config import Settings
 from services.db.job_forms import apply_reads, engine_payload
 from services.dicom.reference import views_to_fetch
@@ -57,7 +58,6 @@ def _with_stand_in_spacing(body: Any) -> tuple[Any, tuple[str, ...]]:
 
 
 MAX_MAGNITUDE = 1e6
-MAX_ERRORS = 20
 NUL = "\x00"
 
 

@@ -14,7 +14,7 @@ from pydantic import AfterValidator, BeforeValidator
 from sqlalchemy.orm import Session
 
 from services.api.access import Access, QueuedCap
-from services.api.errors import ProblemError
+from services.api.errors import ProblemError, field_problem
 from services.core.config import Settings
 from services.core.problems import problem, validation_problem
 from services.db.engine import session_factory
@@ -213,7 +213,7 @@ async def read_json(request: Request, limit: int) -> Any:
     try:
         return json.loads(raw, object_pairs_hook=_unique_object)
     except _DuplicateKey:
-        raise ProblemError(validation_problem(duplicate_keys(raw), instance=instance)) from None
+        raise ProblemError(field_problem(duplicate_keys(raw), instance=instance)) from None
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError, ValueError) as exc:
         # RecursionError: nested too deeply; ValueError: an integer of more than 4300 digits.
         where = f"line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else "body"

@@ -22,6 +22,12 @@ from spine_engine.models import PATTERN_REASONS
 
 log = logging.getLogger(__name__)
 
+MAX_ERRORS = 20
+"""Most field errors one validation problem lists (a batch: per entry), so that an answer is bounded
+whatever the body holds wrong: listing them all, a 770 kB payload of 60,000 unknown members is a
+5.9 MB problem (100 bytes per error), and a 16 MiB batch of such entries a gigabyte held in the API
+process while it is built. The problem's ``detail`` says how many there were in all."""
+
 
 class ProblemError(Exception):
     """Raise to answer with this problem dict."""
@@ -34,6 +40,17 @@ class ProblemError(Exception):
 
 def problem_response(body: dict[str, Any], headers: dict[str, str] | None = None) -> JSONResponse:
     return JSONResponse(body, status_code=int(body["status"]), media_type=PROBLEM_MEDIA_TYPE, headers=headers)
+
+
+def field_problem(errors: list[FieldError], *, instance: str | None = None) -> dict[str, Any]:
+    """The validation problem of ``errors``, listing the first ``MAX_ERRORS`` of them; when there were
+    more, its ``detail`` says how many in all."""
+    listed = errors[:MAX_ERRORS]
+    body = validation_problem(listed, instance=instance)
+    if len(errors) > len(listed):
+        named = str(body["detail"]).partition(": ")[2]
+        body["detail"] = f"{len(errors)} fields failed validation, the first {len(listed)} listed in errors: {named}"
+    return body
 
 
 async def _problem_error(request: Request, exc: Exception) -> JSONResponse:
@@ -145,9 +162,24 @@ async def _database_programming_error(request: Request, exc: Exception) -> JSONR
     raise exc  # any other: an unexpected error (``UnexpectedErrors``)
 
 
+PATIENTS_PREFIX = "/v1/patients/"
+MEASURES_SUFFIX = "/measures"
+
+
+def logged_path(path: str) -> str:
+    """A request's path as the logs write it: under ``/v1/patients/`` the path holds a Patient ID
+    (0010,0020), an identifier of a person (PS3.3 C.7.1.1), which the logs never hold; it is written as
+    ``{patient_id}`` (the route's template when the path is the route's; the ID may hold slashes, so
+    ``{patient_id}`` stands for all the rest otherwise). Other paths name jobs and DICOM instances by
+    their UIDs, which the logs keep."""
+    if not path.startswith(PATIENTS_PREFIX):
+        return path
+    return PATIENTS_PREFIX + "{patient_id}" + (MEASURES_SUFFIX if path.endswith(MEASURES_SUFFIX) else "")
+
+
 def unexpected_error_response(scope: Scope) -> JSONResponse:
     """The 500 problem of an unhandled exception, logged (with its traceback and the request id)."""
-    log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"))
+    log.exception("unhandled error on %s %s", scope.get("method"), logged_path(str(scope.get("path", ""))))
     body = problem("internal-error", "an unexpected error occurred; it has been logged",
                    instance=scope.get("path", ""))  # fmt: skip
     return problem_response(body)

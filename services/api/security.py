@@ -35,7 +35,7 @@ from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.api.access import QueuedCap
-from services.api.errors import not_migrated_problem, unexpected_error_response
+from services.api.errors import logged_path, not_migrated_problem, unexpected_error_response
 from services.core.config import Settings
 from services.core.logs import request_id_var
 from services.core.problems import PROBLEM_MEDIA_TYPE, problem
@@ -227,7 +227,7 @@ class EdgeMiddleware:
                 extra: dict[str, Any] = {
                     "request_id": request_id,
                     "method": scope["method"],
-                    "path": path,
+                    "path": logged_path(path),
                     "status": status[0],
                     "duration_ms": round((time.perf_counter() - started) * 1000, 2),
                 }

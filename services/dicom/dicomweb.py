@@ -14,6 +14,7 @@ import contextlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 import requests
 from dicomweb_client.api import DICOMwebClient
@@ -97,11 +98,22 @@ class StoreOutcome:
     """HTTP status of the STOW response (200; 202 when some were stored with warnings)."""
 
 
+def shown_url(url: str) -> str:
+    """``url`` as an error message may show it, to an API client, in a job's error or a webhook: without
+    the user name and password (RFC 3986 §3.2.1 userinfo, which the HTTP client sends as basic
+    credentials) nor the query (where a token may be)."""
+    parts = urlsplit(url)
+    host = parts.netloc.rpartition("@")[2]
+    return parts._replace(netloc=host, query="", fragment="").geturl()
+
+
 class Pacs:
-    """One PACS. Thread-unsafe (one requests session); make one per worker task."""
+    """One PACS. Thread-unsafe (one requests session); make one per worker task. Its errors name the
+    PACS by ``shown_url``: they reach API clients, jobs' errors and webhooks."""
 
     def __init__(self, config: DicomwebConfig):
         self.config = config
+        self.shown_url = shown_url(config.url)
         session = requests.Session()
         if config.token:
             session.headers["Authorization"] = f"Bearer {config.token}"
@@ -109,6 +121,13 @@ class Pacs:
             session.auth = (config.username, config.password or "")
         self.client = DICOMwebClient(url=config.url.rstrip("/"), session=session, timeout=config.timeout_s)
         self.client.set_http_retry_params(retry=False)
+
+    def _shown(self, exc: Exception) -> str:
+        """``exc``'s message with the configured URL (and its credentials) replaced by ``shown_url``."""
+        text = str(exc)
+        for url in (self.config.url, self.config.url.rstrip("/")):
+            text = text.replace(url, self.shown_url)
+        return text
 
     def close(self) -> None:
         self.client._session.close()
@@ -126,16 +145,16 @@ class Pacs:
         except requests.HTTPError as exc:
             status = exc.response.status_code if exc.response is not None else None
             if status == 404:
-                raise InstanceNotFound(f"the PACS at {self.config.url} has no {what} ({_uids_text(uids)})",
+                raise InstanceNotFound(f"the PACS at {self.shown_url} has no {what} ({_uids_text(uids)})",
                                        uids=uids) from None  # fmt: skip
-            raise PacsUnavailable(f"the PACS at {self.config.url} answered HTTP {status} to the request for {what} "
+            raise PacsUnavailable(f"the PACS at {self.shown_url} answered HTTP {status} to the request for {what} "
                                   f"({_uids_text(uids)})", status=status) from None  # fmt: skip
         except (requests.ConnectionError, requests.Timeout) as exc:
             raise PacsUnavailable(
-                f"the PACS at {self.config.url} did not answer ({type(exc).__name__}) the request for {what}"
+                f"the PACS at {self.shown_url} did not answer ({type(exc).__name__}) the request for {what}"
             ) from None
         except requests.RequestException as exc:
-            raise PacsUnavailable(f"the request to the PACS at {self.config.url} failed: {exc}") from None
+            raise PacsUnavailable(f"the request to the PACS at {self.shown_url} failed: {self._shown(exc)}") from None
 
     def find_series(self, study_instance_uid: str, sop_instance_uid: str) -> str:
         """The Series Instance UID of an instance known by study and SOP Instance UID (QIDO-RS)."""
@@ -149,7 +168,7 @@ class Pacs:
             values = (item.get(SERIES_INSTANCE_UID) or {}).get("Value") or []
             if values:
                 return str(values[0])
-        raise InstanceNotFound(f"the PACS at {self.config.url} has no instance {_uids_text(uids)}", uids=uids)
+        raise InstanceNotFound(f"the PACS at {self.shown_url} has no instance {_uids_text(uids)}", uids=uids)
 
     def instance_metadata(
         self, study_instance_uid: str, sop_instance_uid: str, series_instance_uid: str | None = None
@@ -166,7 +185,7 @@ class Pacs:
             found = self.client.retrieve_instance_metadata(study_instance_uid, series_instance_uid, sop_instance_uid)
         items = found if isinstance(found, list) else [found]
         if not items or not items[0]:
-            raise InstanceNotFound(f"the PACS at {self.config.url} has no instance {_uids_text(uids)}", uids=uids)
+            raise InstanceNotFound(f"the PACS at {self.shown_url} has no instance {_uids_text(uids)}", uids=uids)
         return dict(items[0])
 
     def read_header(
@@ -193,7 +212,7 @@ class Pacs:
         except InstanceNotFound:
             found = []
         if not found:
-            raise StudyNotFound(f"the PACS at {self.config.url} has no instance of study {study_instance_uid}",
+            raise StudyNotFound(f"the PACS at {self.shown_url} has no instance of study {study_instance_uid}",
                                 uids=uids)  # fmt: skip
         images = [image for item in found if (image := StudyImage.from_json(item)) is not None]
         return sorted(images, key=StudyImage.sort_key)
@@ -213,14 +232,14 @@ class Pacs:
         except PacsUnavailable as exc:
             if exc.status in (406, 415):
                 raise TransferSyntaxUnavailable(
-                    f"the PACS at {self.config.url} cannot send {_uids_text(uids)} in Explicit VR Little Endian "
+                    f"the PACS at {self.shown_url} cannot send {_uids_text(uids)} in Explicit VR Little Endian "
                     f"(HTTP {exc.status}): it is stored compressed and the PACS does not transcode it"
                 ) from None
             raise
         syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
         if syntax != ExplicitVRLittleEndian:
             raise TransferSyntaxUnavailable(
-                f"the PACS at {self.config.url} sent {_uids_text(uids)} in transfer syntax {syntax}, not Explicit VR "
+                f"the PACS at {self.shown_url} sent {_uids_text(uids)} in transfer syntax {syntax}, not Explicit VR "
                 f"Little Endian ({ExplicitVRLittleEndian}) as asked: the page reads uncompressed images only"
             )
         return ds
@@ -233,14 +252,14 @@ class Pacs:
                 response = self.client.store_instances(list(datasets))
         except PacsUnavailable as exc:
             if exc.status is not None and 400 <= exc.status < 500 and exc.status not in (401, 403, 408, 429):
-                raise StoreRefused(f"the PACS at {self.config.url} refused to store {uids['SOPInstanceUID']} "
+                raise StoreRefused(f"the PACS at {self.shown_url} refused to store {uids['SOPInstanceUID']} "
                                    f"(HTTP {exc.status})", status=exc.status) from None  # fmt: skip
             raise
         failed = response.get(FAILED_SOP_SEQUENCE) or []
         if failed:
             reasons = ", ".join(f"{item.get('ReferencedSOPInstanceUID')}: failure reason {item.get('FailureReason')}"
                                 for item in failed)  # fmt: skip
-            raise StoreRefused(f"the PACS at {self.config.url} refused {reasons} (PS3.18 §10.5.3)", status=None)
+            raise StoreRefused(f"the PACS at {self.shown_url} refused {reasons} (PS3.18 §10.5.3)", status=None)
         stored = tuple(str(item.ReferencedSOPInstanceUID) for item in response.get("ReferencedSOPSequence") or [])
         return StoreOutcome(stored=stored, status=200)
 

@@ -14,7 +14,7 @@ from services.api import job_reads
 from services.api.admission import admit, split_dicom
 from services.api.batch import batch_response
 from services.api.deps import AccessDep, BatchBody, IsoDateTime, JobBody, QueueDep, SessionDep, SettingsDep
-from services.api.errors import METHOD_GUARD, ProblemError
+from services.api.errors import METHOD_GUARD, ProblemError, field_problem
 from services.api.schemas import (
     BatchEntry,
     BatchResponse,
@@ -125,7 +125,7 @@ def submit_job(
         payload, dicom = split_dicom(body)
         admit(payload, settings, session, access.owner, dicom)
     except InvalidInput as exc:
-        raise ProblemError(validation_problem(exc.errors)) from None
+        raise ProblemError(field_problem(exc.errors)) from None
     try:  # the cap (access.admit) is applied after the key's lookup: a replay makes no job and is never a 429
         job, created = jobs_repo.create_job(session, payload, owner=access.owner, idempotency_key=idempotency_key,
                                             on_insert=access.created, dicom=dicom,
@@ -190,7 +190,7 @@ def submit_batch(
             valid.append((i, payload))
         except InvalidInput as exc:
             errors = [FieldError(("jobs", i, *e.loc), e.msg, e.type) for e in exc.errors]
-            p = validation_problem(errors, instance="/v1/jobs/batch")
+            p = field_problem(errors, instance="/v1/jobs/batch")
             entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
     if idempotency_key is not None:  # the cap counts the new jobs only, after the keys' lookup
         answer, replayed_only = batch_response(session, queue, owner=access.owner, key=idempotency_key,

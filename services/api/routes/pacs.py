@@ -51,7 +51,8 @@ NOT_CONFIGURED = (
 
 @contextmanager
 def _pacs(settings: Settings) -> Iterator[Pacs]:
-    """The configured PACS, its errors turned into the problems their types name (``DicomError.problem``)."""
+    """The configured PACS, its errors turned into the problems their types name (``DicomError.problem``),
+    whose details name the PACS by ``dicomweb.shown_url``."""
     config = settings.dicomweb
     if config is None:
         raise ProblemError(problem("dicomweb-not-configured",
@@ -61,11 +62,13 @@ def _pacs(settings: Settings) -> Iterator[Pacs]:
             yield pacs
     except InstanceNotFound as exc:  # StudyNotFound too
         # an image asked for by its path is a 404 here, where a job naming it fails with 422
-        raise ProblemError(problem(exc.problem, exc.message, status=404, uids=exc.uids)) from None
+        detail = exc.message
+        raise ProblemError(problem(exc.problem, detail, status=404, uids=exc.uids)) from None
     except TransferSyntaxUnavailable as exc:
         raise ProblemError(problem(exc.problem, exc.message)) from None
     except PacsUnavailable as exc:
-        raise ProblemError(problem(exc.problem, exc.message), headers={"Retry-After": str(RETRY_AFTER_S)}) from None
+        raise ProblemError(problem(exc.problem, exc.message),
+                           headers={"Retry-After": str(RETRY_AFTER_S)}) from None  # fmt: skip
 
 
 @router.get(
