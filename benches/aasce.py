@@ -291,6 +291,9 @@ class Outcome:
     smallest_projection: dict[str, float] = dataclasses.field(default_factory=dict)
     """Per fitted method, the shortest projection of a vertebra's d1 on the PA (|(d1_x, d1_z)|, at most 1;
     ``reconstruction.END_ON_PROJECTION`` refuses corners met below 0.5)."""
+    refusals: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    """Per method that ``register`` refused, the reasons: the error types of ``InvalidInput.errors``
+    (sorted, each once), or ``fit_failed``."""
 
 
 def evaluate(rad: Radiograph) -> Outcome:
@@ -303,12 +306,14 @@ def evaluate(rad: Radiograph) -> Outcome:
 
     ratio: dict[str, float] = {}
     projection: dict[str, float] = {}
+    refusals: dict[str, list[str]] = {}
 
     def run(name: str, body: dict[str, Any]) -> dict[str, Any] | None:
         try:
             result = register(body)
-        except (FitFailed, InvalidInput):  # refused annotations count as not reconstructed
+        except (FitFailed, InvalidInput) as exc:  # refused annotations count as not reconstructed
             failed.append(name)
+            refusals[name] = sorted({e.type for e in exc.errors}) if isinstance(exc, InvalidInput) else ["fit_failed"]
             return None
         ratio[name] = residual_to_sd(body, result)
         d1 = np.array([np.asarray(v["directors"])[0] for v in result["vertebrae"]])
@@ -344,7 +349,7 @@ def evaluate(rad: Radiograph) -> Outcome:
     lv, lm = line_axes(rad)
     three["line"] = aasce_angles(lv, lm, rad.height_px)
     major["line"] = float(three["line"][0])
-    return Outcome(major, three, failed, major_sd, ratio, projection)
+    return Outcome(major, three, failed, major_sd, ratio, projection, refusals)
 
 
 def interval_coverage(errors: np.ndarray, sds: np.ndarray) -> float:
@@ -394,9 +399,21 @@ def summarise(
                                            if method in outcomes[i].residual_to_sd), default=None),
                 "smallest_projection": min((outcomes[i].smallest_projection[method] for i in ok
                                             if method in outcomes[i].smallest_projection), default=None),
+                "refused_by_reason": refused_by_reason(
+                    [o for i, o in enumerate(outcomes) if keep[i]], method),
             }
         )
     return rows
+
+
+def refused_by_reason(outcomes: list[Outcome], method: str) -> dict[str, int]:
+    """How many of ``outcomes`` ``register`` refused for ``method``, per reason (an error type of
+    ``Outcome.refusals``; a radiograph refused for two reasons counts under each)."""
+    counts: dict[str, int] = {}
+    for o in outcomes:
+        for reason in o.refusals.get(method, []):
+            counts[reason] = counts.get(reason, 0) + 1
+    return dict(sorted(counts.items()))
 
 
 def plot(rads: list[Radiograph], outcomes: list[Outcome], path: Path, title: str) -> None:
@@ -854,7 +871,8 @@ def main(argv: list[str] | None = None) -> int:
             "out_of_order": [r.name for r, k in zip(rads, ordered, strict=True) if not k],
             "implausible": [r.name for r, k in zip(rads, ok, strict=True) if not k],
             "per_radiograph": [
-                {"name": r.name, "truth": r.angles.tolist(), "major": o.major, "failed": o.failed}
+                {"name": r.name, "truth": r.angles.tolist(), "major": o.major, "failed": o.failed,
+                 "refusals": o.refusals}
                 for r, o in zip(rads, outcomes, strict=True)
             ],
         },

@@ -48,7 +48,8 @@ Metrics per spine, then averaged (``summarise``):
 ``--seeds N`` runs the convergence sweep instead (``convergence_sweep``): every case, and the
 sweep's extra valid forms (``SWEEP_EXTRA_CASES``), on every spine over N noise seeds; each failure
 (``FitFailed``, a refusal or any exception) is listed by data set, spine, case and seed in
-``clinic-sweep-<split>.json`` and a table, and the command exits 1 if there is one. With
+``clinic-sweep-<split>.json`` (``sweep_stem``: ``-noise<N>``, ``-seeds<first>-<last>`` and
+``-drop-levels`` added when used) and a table, and the command exits 1 if there is one. With
 ``--drop-levels`` each payload keeps a random subset of each view's landmarks (``drop_landmarks``).
 
 ``--calibrate-uncertainty`` (dev only) writes the scale factor of the Laplace SDs that makes the
@@ -60,6 +61,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -75,7 +77,7 @@ from benches.report import format_table, save_figure, shared_data_dir, subplots,
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
 from spine_engine.anatomy import load_profile, rest_shape_unit
-from spine_engine.errors import SpineEngineError
+from spine_engine.errors import InvalidInput, SpineEngineError
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures, frontal_tilt_deg
@@ -511,17 +513,26 @@ def convergence_sweep(
     profile: str = "default",
     registrar: Registrar = register,
     drop_levels: bool = False,
+    stated_sd_mm: float | None = None,
 ) -> dict[str, Any]:
     """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed)``):
     the runs per case and every failure (``FitFailed``, ``InvalidInput`` or any other exception:
-    each payload is valid, so each failure is a defect) with its data set, spine, case and seed.
+    each payload is valid, so each failure is a defect) with its data set, spine, case and seed; per
+    case the most solver iterations and the largest and median landmark residual over its stated SD
+    (``residual_to_sd``) of the runs that succeeded.
     ``drop_levels``: each payload keeps a random subset of each view's landmarks (``drop_landmarks``,
-    drawn from the seed, the spine and the case), listed with a failure."""
+    drawn from the seed, the spine and the case), listed with a failure. ``stated_sd_mm``: each view
+    states this landmark SD instead of the noise drawn (a wrong statement on purpose): a refusal for
+    ``landmark_sd_contradicted`` is then the expected answer, counted per case
+    (``refused_sd_contradicted``, not a failure) with the ratio its message gives
+    (``contradicted_ratio``) among the residual-to-SD ratios."""
     failures: list[dict[str, Any]] = []
     per_case: dict[str, dict[str, Any]] = {
-        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0, "max_residual_to_sd": 0.0}
+        sc.case.key: {"title": sc.case.title, "runs": 0, "failures": 0, "max_iterations": 0, "max_residual_to_sd": 0.0,
+                      "refused_sd_contradicted": 0}
         for sc in cases
     }
+    ratios: dict[str, list[float]] = {sc.case.key: [] for sc in cases}
     for seed in seeds:
         for name, truths in datasets.items():
             for truth in truths:
@@ -533,11 +544,21 @@ def convergence_sweep(
                     if drop_levels:
                         draw = np.random.default_rng([seed, seed_of(truth.spine_id), *sc.case.key.encode()])
                         kept = drop_landmarks(payload, draw)
+                    if stated_sd_mm is not None:
+                        for name in ("pa", "lateral"):
+                            if name in payload:
+                                payload[name]["landmark_sd_mm"] = stated_sd_mm
                     row = per_case[sc.case.key]
                     row["runs"] += 1
                     try:
                         result = registrar(payload)
                     except Exception as exc:  # any exception on a valid payload is a failure to report
+                        ratio = contradicted_ratio(exc)
+                        if stated_sd_mm is not None and ratio is not None:
+                            row["refused_sd_contradicted"] += 1
+                            ratios[sc.case.key].append(ratio)
+                            row["max_residual_to_sd"] = max(row["max_residual_to_sd"], ratio)
+                            continue
                         row["failures"] += 1
                         failures.append({
                             "dataset": name, "spine": truth.spine_id, "case": sc.case.key, "seed": seed,
@@ -545,17 +566,37 @@ def convergence_sweep(
                         })  # fmt: skip
                         continue
                     row["max_iterations"] = max(row["max_iterations"], int(result["fit"]["iterations"]))
-                    row["max_residual_to_sd"] = max(row["max_residual_to_sd"], residual_to_sd(payload, result))
+                    ratios[sc.case.key].append(residual_to_sd(payload, result))
+                    row["max_residual_to_sd"] = max(row["max_residual_to_sd"], ratios[sc.case.key][-1])
+    for key, row in per_case.items():
+        row["median_residual_to_sd"] = float(np.median(ratios[key])) if ratios[key] else None
     runs = sum(r["runs"] for r in per_case.values())
-    return {"seeds": list(seeds), "drop_levels": drop_levels, "runs": runs, "failed": len(failures),
-            "per_case": per_case, "failures": failures}
+    return {"seeds": list(seeds), "drop_levels": drop_levels, "stated_sd_mm": stated_sd_mm, "runs": runs,
+            "failed": len(failures), "per_case": per_case, "failures": failures}
+
+
+CONTRADICTED_RATIO = re.compile(r"([0-9.]+(?:e[+-]?[0-9]+)?) times the landmark SD")
+"""The ratio in ``reconstruction``'s ``landmark_sd_contradicted`` message: the landmarks' RMS distance per
+coordinate from the fitted spine over the view's SD."""
+
+
+def contradicted_ratio(exc: Exception) -> float | None:
+    """The largest residual-to-SD ratio that a ``landmark_sd_contradicted`` refusal states (its
+    message, ``CONTRADICTED_RATIO``; 3 significant digits), None for any other exception."""
+    if not isinstance(exc, InvalidInput):
+        return None
+    found = [float(m.group(1)) for e in exc.errors if e.type == "landmark_sd_contradicted"
+             for m in [CONTRADICTED_RATIO.search(e.msg)] if m]  # fmt: skip
+    return max(found) if found else None
 
 
 def sweep_table(sweep: dict[str, Any]) -> str:
     """The sweep as text: runs, failures and the most solver iterations per case, then each failure."""
     body = format_table(
-        ["case", "runs", "failed", "max iter", "max residual / SD", "title"],
-        [[k, r["runs"], r["failures"], r["max_iterations"], f"{r['max_residual_to_sd']:.2f}", r["title"]]
+        ["case", "runs", "failed", "max iter", "max residual / SD", "median", "refused: SD", "title"],
+        [[k, r["runs"], r["failures"], r["max_iterations"], f"{r['max_residual_to_sd']:.2f}",
+          "-" if r["median_residual_to_sd"] is None else f"{r['median_residual_to_sd']:.2f}",
+          r["refused_sd_contradicted"], r["title"]]
          for k, r in sweep["per_case"].items()],
     )
     if not sweep["failures"]:
@@ -719,6 +760,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--drop-levels", action="store_true",
                         help="with --seeds: each payload keeps a random subset of each view's landmarks "
                              "(at least half, at least 3)")
+    parser.add_argument("--stated-sd-mm", type=float, default=None, metavar="SD",
+                        help="with --seeds: each view states this landmark SD instead of --noise-mm (refusals for "
+                             "a contradicted SD are counted, not failures)")
     parser.add_argument("--profile", default="default")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
@@ -786,17 +830,36 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+SWEEP_SEEDS = range(3)
+"""The noise seeds of the sweeps docs/engine.md cites (``--seeds 3``, from ``--seed 0``)."""
+
+
+def sweep_stem(
+    split: str, noise_mm: float, drop_levels: bool, seeds: range = SWEEP_SEEDS, stated_sd_mm: float | None = None
+) -> str:
+    """The sweep's file name without ``.json``: ``clinic-sweep-<split>``, then ``-noise<N>`` when the
+    landmark noise is not the default 1 mm, ``-stated<SD>`` with ``--stated-sd-mm``, ``-seeds<first>-<last>``
+    when the seeds are not ``SWEEP_SEEDS`` and ``-drop-levels`` with ``--drop-levels``, so that each sweep
+    keeps its own file."""
+    noise = "" if noise_mm == 1.0 else f"-noise{noise_mm:g}"
+    stated = "" if stated_sd_mm is None else f"-stated{stated_sd_mm:g}"
+    drawn = "" if seeds == SWEEP_SEEDS else f"-seeds{seeds[0]}-{seeds[-1]}"
+    return f"clinic-sweep-{split}{noise}{stated}{drawn}" + ("-drop-levels" if drop_levels else "")
+
+
 def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list[Truth]], cases: list[Case]) -> int:
-    """``--seeds N``: the convergence sweep, its JSON (``clinic-sweep-<split>.json``) and table."""
+    """``--seeds N``: the convergence sweep, its JSON (``sweep_stem``) and table."""
     start = time.perf_counter()
     extra = [sc for sc in SWEEP_EXTRA_CASES if sc.case.key[0] in args.cases]
+    seeds = range(args.seed, args.seed + args.seeds)
     sweep = convergence_sweep(
-        datasets, [SweepCase(c) for c in cases] + extra, range(args.seed, args.seed + args.seeds), args.noise_mm,
-        args.profile, drop_levels=args.drop_levels,
+        datasets, [SweepCase(c) for c in cases] + extra, seeds, args.noise_mm, args.profile,
+        drop_levels=args.drop_levels, stated_sd_mm=args.stated_sd_mm,
     )
     report = {"command": command, "noise_mm": args.noise_mm, "profile": args.profile,
               "seconds": round(time.perf_counter() - start, 1), **sweep}  # fmt: skip
-    write_json(args.out / f"clinic-sweep-{args.split}.json", report)
+    write_json(args.out / f"{sweep_stem(args.split, args.noise_mm, args.drop_levels, seeds, args.stated_sd_mm)}.json",
+               report)
     print(json.dumps(report, indent=2) if args.json else sweep_table(sweep))
     return 1 if sweep["failures"] else 0
 

@@ -7,8 +7,9 @@ noise. This command scores a grid of multipliers of the current weights on the V
 (never ``test``), filmed as in ``spine bench clinic`` with ``--noise-mm`` (default 1 mm) landmark
 noise, no boundary and uncalibrated films: cases (a) PA + full lateral, (b) lateral T4–L5,
 (c) perspective films with their geometry and (e) PA only. The score is the mean over the cases of
-the mean 3D error after removing the translation; the best multiplier is written into the profile
-(``--write``) with the grid's scores as provenance (``provenance.noise_calibration``).
+the mean 3D error after removing the translation; the grid's scores go to ``noise-weight.json`` in
+``--out``, and the best multiplier is written into the profile (``--write``) with the grid's scores
+as provenance (``provenance.noise_calibration``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -24,6 +26,7 @@ import numpy as np
 
 from benches import clinic
 from benches.clinic_films import CASES, Truth, simulate_series
+from benches.report import write_json
 from spine_engine.anatomy import PROFILES_DIR, Profile, load_profile, save_profile
 from spine_engine.reconstruction import register_model
 from spine_engine.validation import validate_payload
@@ -73,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise-mm", type=float, default=1.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--write", default=None, help="write the best multiplier's weights into this profile")
+    parser.add_argument("--out", type=Path, default=Path("bench-out/noise-weight"),
+                        help="folder of noise-weight.json (the grid's scores)")
     args = parser.parse_args(argv)
     start = time.perf_counter()
     truths = clinic.verse_truths("dev", args.data)
@@ -81,6 +86,14 @@ def main(argv: list[str] | None = None) -> int:
     rows = grid_scores(base, truths, grid, args.cases, args.noise_mm, args.seed)
     best = min(rows, key=lambda r: r["score_mm"])
     print(f"best: x{best['multiplier']:g} (w = {best['fit_weight_pa']:.4g} N/mm), {time.perf_counter() - start:.0f} s")
+    write_json(args.out / "noise-weight.json", {
+        "command": "spine bench noise-weight " + " ".join(argv if argv is not None else sys.argv[2:]),
+        "date": dt.date.today().isoformat(), "profile": args.profile,
+        "fit_weight_pa": base.fit_weight_pa, "fit_weight_lateral": base.fit_weight_lateral,
+        "spines": len(truths), "noise_mm": args.noise_mm, "seed": args.seed, "cases": args.cases,
+        "grid": rows, "best_multiplier": best["multiplier"],
+    })  # fmt: skip
+    print(f"wrote {args.out / 'noise-weight.json'}")
     if args.write:
         provenance = dict(base.provenance)
         provenance["noise_calibration"] = {

@@ -193,7 +193,7 @@ def run_register(repeats: int, spines_csv: Path = REAL_SPINES, case: str | None 
     measures, result model) with the calibrated default profile, cycling over real spines (VerSe
     dev): 17 PA landmarks projected from CT with T1 and L5 given (the paper's case), or, with
     ``case``, the payloads of that clinic case (``clinic_payloads``); also the fit alone as the
-    result reports it."""
+    result reports it, the number of spines cycled over and of timed calls (``repeats``)."""
     if case is None:
         payloads = [payload_from_truth(t.positions, t.rotations, list(range(17))) for t in truths_of_csv(spines_csv)]
         problem = f"register(), {len(payloads)} real spines, 17 PA"
@@ -211,6 +211,8 @@ def run_register(repeats: int, spines_csv: Path = REAL_SPINES, case: str | None 
         iterations.append(result["fit"]["iterations"])
     return {
         "problem": problem,
+        "spines": len(payloads),
+        "repeats": repeats,
         "iterations": f"{np.median(iterations):.0f}",
         "initial_plus_fit": _stats(fit_ms),
         "register_total": _stats(total),

@@ -64,14 +64,17 @@ from benches.truth import read_verse
 from spine_engine.anatomy import (
     PROFILES_DIR,
     Profile,
+    length_correction,
     length_over_pa_projection,
     load_profile,
     population_prior,
     rest_model,
+    rest_shape_unit,
     save_profile,
 )
 from spine_engine.frames import frames_from_centreline
 from spine_engine.measures import aasce_major_angle, frontal_tilt_deg, kyphosis_lordosis_deg, sagittal_inclination_deg
+from spine_engine.reconstruction import BEAMS, mid_plane_offset
 from spine_engine.rod import configuration_from_strains, strains
 
 REFERENCE_MAGNIFICATION = 1.125
@@ -370,6 +373,33 @@ def plot(drawn: dict[str, np.ndarray], pop: Population, path: Path) -> None:
     save_figure(fig, path)
 
 
+def shipped_figures(profile: Profile) -> dict[str, Any]:
+    """What the engine reads from ``profile``'s population prior and rest shape (docs/engine.md, "What
+    the films cannot tell"): the population's L/P against the rest shape's and the factor c =
+    E[L/P] / (L₀/P₀) on a rest length scaled from the PA film (``anatomy.length_correction``) with how
+    much shorter the rest rod would be without it (100·(1 − 1/c), %); the SDs of T1's and L5's
+    sagittal inclination (degrees, the set-up prior's d1); the measures' population SDs (degrees,
+    ``measure_sd_deg``); the rest shape's kyphosis and lordosis on its centreline frames (degrees);
+    and the mid-spine vertebra's offset from the centroid along each beam (``mid_plane_offset``, mm).
+    Empty without a population prior."""
+    prior = population_prior(profile)
+    if prior is None or prior.length_over_pa_projection is None:
+        return {}
+    rest = rest_shape_unit(profile)[1]
+    c = length_correction(profile)
+    kyphosis, kyphosis_t5, lordosis = kyphosis_lordosis_deg(frames_from_centreline(rest))
+    return {
+        "length_over_pa_projection": {"population_mean": prior.length_over_pa_projection,
+                                      "rest_shape": length_over_pa_projection(rest), "length_correction": c,
+                                      "rest_rod_shorter_without_it_pct": 100.0 * (1.0 - 1.0 / c)},
+        "sagittal_inclination_sd_deg": {level: float(sd[0]) for level, sd in prior.orientation_sd_deg.items()},
+        "measure_sd_deg": dict(prior.measure_sd_deg),
+        "rest_shape_measures_deg": {"kyphosis_t4_t12": kyphosis, "kyphosis_t5_t12": kyphosis_t5,
+                                    "lordosis_l1_l5": lordosis},
+        "mid_plane_offset_mm": {view: mid_plane_offset(profile, beam) for view, beam in BEAMS.items()},
+    }  # fmt: skip
+
+
 def _print_coupling(verse_dev: Path, out: Path) -> None:
     rows = sagittal_coupling([pos for _, pos in read_verse(verse_dev)])
     print("T1-T4 summed sagittal bending from T4-L5's, VerSe dev leave-one-out (shrinkage 1: the mean)")
@@ -421,7 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ok = all(r["mean_ok"] and r["sd_ok"] for r in rows)
     write_json(ns.out / "prior.json", {"command": "spine bench prior " + " ".join(argv or sys.argv[2:]),
                                       "profile": ns.profile, "samples": ns.samples, "seed": ns.seed,
-                                      "bands": BANDS, "rows": rows, "ok": ok})
+                                      "bands": BANDS, "rows": rows, "ok": ok,
+                                      "shipped": shipped_figures(profile)})
     plot(drawn, pop, ns.out / "prior.png")
     print(f"wrote {ns.out / 'prior.json'} and prior.png; prior predictive {'within' if ok else 'OUTSIDE'} the bands")
     return 0 if ok else 1

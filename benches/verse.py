@@ -5,6 +5,10 @@ Each spine of a VerSe split (vertebral centroids T1..L5, LPS mm) is projected on
 (position, and directors built from the centreline by ``frames_from_centreline``); the spine is
 reconstructed and its 3D error measured per spine and per level. Tune on ``dev``, report ``test``.
 
+``--pa-kyphosis`` instead reconstructs each spine from one PA film with T1 and L5 given exactly
+(``--noise-mm`` on its 17 landmarks) through the public ``register()`` and compares the reported
+kyphosis T4–T12 and its SD with the truth's (``pa_kyphosis``).
+
 ``--clinical`` adds the clinical cases (``CLINICAL_CASES``) to the 17 PA points: the two
 pedicle centres of every vertebra on the PA view, derived from the truth frames with the
 engine's offsets (``observations.pedicle_offsets_mm``; the truth frames carry no axial rotation,
@@ -16,6 +20,7 @@ rotation error.
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,11 +29,11 @@ import numpy as np
 
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import payload_from_truth, read_verse
-from spine_engine.anatomy import Profile, load_profile
+from spine_engine.anatomy import Profile, load_profile, population_prior
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
-from spine_engine.measures import compute_measures
-from spine_engine.reconstruction import fit_patient_rod, measure_fit, prepare_inputs
+from spine_engine.measures import compute_measures, sagittal_inclination_deg
+from spine_engine.reconstruction import fit_patient_rod, measure_fit, prepare_inputs, register
 from spine_engine.validation import validate_payload
 
 CASES: dict[str, tuple[list[int], list[int] | None]] = {
@@ -128,6 +133,54 @@ def summary(case: str, outcomes: list[SpineOutcome]) -> dict[str, Any]:
     }
 
 
+def pa_kyphosis(spines: list[tuple[str, np.ndarray]], noise_mm: float, seed: int = 0) -> dict[str, Any]:
+    """One PA film of each spine with T1 and L5 given exactly (``payload_from_truth``: 17 PA landmarks
+    with ``noise_mm`` of noise, the boundary poses the truth's centreline frames), reconstructed by
+    ``register()`` with its defaults: the reported kyphosis T4–T12 against the truth's (computed on the
+    truth's centreline frames), degrees. Reports the RMSE and that of answering VerSe dev's mean (the
+    profile's population mean, the trivial estimator), the Pearson correlation with the truth, the
+    coverage of the 95 % intervals (±1.96 SD), the reported SDs (min, median, max), how many results name
+    "kyphosis" in ``fit.unreliable``, and the truth's correlation with T1's sagittal inclination
+    (``measures.sagittal_inclination_deg`` of the truth's frames), which the boundary gives."""
+    profile = load_profile("default")  # register()'s default
+    population = population_prior(profile)
+    mean = float((profile.population_prior or {})["provenance"]["population"]["kyphosis_t4_t12_deg"]["mean"])
+    rows: list[dict[str, Any]] = []
+    for spine_id, positions in spines:
+        rotations = frames_from_centreline(positions)
+        rng = np.random.default_rng([seed, sum(map(ord, spine_id))])
+        result = register(payload_from_truth(positions, rotations, ALL_LEVELS, noise_mm=noise_mm, rng=rng))
+        m = result["measures"]
+        rows.append({
+            "id": spine_id,
+            "truth_deg": compute_measures(positions, rotations).thoracic_kyphosis_t4_t12_deg,
+            "reported_deg": float(m["thoracic_kyphosis_t4_t12_deg"]),
+            "sd_deg": float(m["thoracic_kyphosis_t4_t12_sd_deg"]),
+            "flagged": "kyphosis" in result["fit"]["unreliable"],
+            "t1_sagittal_inclination_deg": float(sagittal_inclination_deg(rotations)[0]),
+        })  # fmt: skip
+    truth = np.array([r["truth_deg"] for r in rows])
+    reported = np.array([r["reported_deg"] for r in rows])
+    sd = np.array([r["sd_deg"] for r in rows])
+    floor_sd = population.measure_sd_deg["kyphosis_t4_t12_deg"] if population else None
+    return {
+        "spines": len(rows),
+        "noise_mm": noise_mm,
+        "seed": seed,
+        "kyphosis_rmse_deg": float(np.sqrt(np.mean((reported - truth) ** 2))),
+        "population_mean_deg": mean,
+        "population_mean_rmse_deg": float(np.sqrt(np.mean((mean - truth) ** 2))),
+        "correlation_with_truth": float(np.corrcoef(reported, truth)[0, 1]),
+        "coverage_95": float(np.mean(np.abs(reported - truth) <= 1.96 * sd)),
+        "sd_deg": {"min": float(sd.min()), "median": float(np.median(sd)), "max": float(sd.max())},
+        "population_sd_deg": floor_sd,
+        "flagged": sum(1 for r in rows if r["flagged"]),
+        "truth_correlation_with_t1_inclination": float(
+            np.corrcoef(truth, [r["t1_sagittal_inclination_deg"] for r in rows])[0, 1]),
+        "per_spine": rows,
+    }
+
+
 def plot(summaries: list[dict[str, Any]], path: Path) -> None:
     fig, ax = subplots(figsize=(8, 4))
     for s in summaries:
@@ -147,12 +200,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench-out/verse"))
     parser.add_argument("--clinical", action="store_true", help="also the pedicle and corner cases")
     parser.add_argument("--plot", type=Path, default=None, help="also write the plot here (e.g. docs/img/...)")
+    parser.add_argument("--pa-kyphosis", action="store_true",
+                        help="only: one PA film with T1 and L5 given, register(); the kyphosis and its SD")
+    parser.add_argument("--limit", type=int, default=None, help="use only the first N spines (quick runs)")
     args = parser.parse_args(argv)
     path = (args.data or default_data_dir()) / f"{args.split}.csv"
     if not path.is_file():
         print(f"error: VerSe split not found at {path} (pass --data or set SPINE_SHARED_DATA)")
         return 2
-    spines = read_verse(path)
+    spines = read_verse(path)[: args.limit]
+    if args.pa_kyphosis:
+        found = pa_kyphosis(spines, args.noise_mm)
+        stem = f"verse-{args.split}-pa-kyphosis" + (f"-noise{args.noise_mm:g}" if args.noise_mm else "")
+        write_json(args.out / f"{stem}.json", {"command": "spine bench verse " + " ".join(
+            argv if argv is not None else sys.argv[2:]), "data": str(path), **found})
+        print(format_table(["spines", "RMSE", "dev mean's RMSE", "r", "coverage", "SD min", "SD max", "flagged"],
+                           [[found["spines"], found["kyphosis_rmse_deg"], found["population_mean_rmse_deg"],
+                             found["correlation_with_truth"], found["coverage_95"], found["sd_deg"]["min"],
+                             found["sd_deg"]["max"], found["flagged"]]]))  # fmt: skip
+        print(f"wrote {args.out}/{stem}.json")
+        return 0
     profile = load_profile(args.profile)
     cases = CLINICAL_REPORT if args.clinical else list(CASES)
     summaries = [summary(case, evaluate(spines, case, profile, args.noise_mm)) for case in cases]
