@@ -13,13 +13,18 @@ import itertools
 import json
 import random
 import uuid
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import LEVELS, canvas_point, centreline, lateral_points, make_dicom, open_page, pa_corners
+from page_fixtures import LEVELS, canvas_point, centreline, lateral_points, make_dicom, open_page, pa_corners, run_job
+from sqlalchemy import select
 
+from services.core.config import Settings
+from services.db.engine import session_factory
+from services.db.models import Job
 from tests.conftest import spine_payload
 
 pytestmark = pytest.mark.browser
@@ -248,9 +253,12 @@ def test_corners_and_pedicles_are_refused_before_sending_as_the_service_refuses_
     page.route("**/v1/jobs/*", lambda route: route.fulfill(json=jobs[route.request.url.rsplit("/", 1)[1]])
                if route.request.url.rsplit("/", 1)[1] in jobs else route.continue_())  # fmt: skip
     cases = _cases()
-    for start in range(0, len(cases), len(LEVELS)):
-        chunk = cases[start : start + len(LEVELS)]
-        landmarks = []
+    # 10 levels a job: at most 20 refusals (corners and pedicles), all listed in one 422 (a problem lists at
+    # most 20 field errors, services/api/errors.MAX_ERRORS)
+    per_job = 10
+    for start in range(0, len(cases), per_job):
+        chunk = cases[start : start + per_job]
+        landmarks: list[dict[str, Any]] = []
         for i, (quad, pedicles) in enumerate(chunk):
             at = pa_corners()[i][0]
             corners = [[round(at[0] + x, 1), round(at[1] + y, 1)] for x, y in quad]
@@ -258,7 +266,7 @@ def test_corners_and_pedicles_are_refused_before_sending_as_the_service_refuses_
             landmarks.append({"level": LEVELS[i], "corners": corners, "pedicles": ped})
         payload = {"pa": {"units": "px", "pixel_spacing": [0.4, 0.4], "landmarks": landmarks}}
         answer = httpx.post(f"{live_url}/v1/jobs", json=payload, headers=headers, timeout=30)
-        refused = {}
+        refused: dict[str, list[str]] = {}
         if answer.status_code == 422:
             for e in answer.json()["errors"]:
                 if e["type"] in ("corners_not_convex", "corners_not_upright", "pedicles_not_in_order"):
@@ -359,5 +367,210 @@ def test_reconstruct_gives_the_focus_back_and_an_unchanged_draft_is_one_job(
     assert third and third != keys[0]
     _wait_final(page)
     assert "Sent again" not in (page.text_content("#job-status") or "")
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_film_of_another_patient_under_a_reopened_jobs_landmarks_is_named_and_not_sent(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """A job of patient PAT-JOB (its payload's study names its PA image by SOP Instance UID), reopened: its
+    17 landmarks on a blank frame. A DICOM film of patient PAT-0042 opened under them is warned about in
+    the panel (the header's Patient ID against the job's) and listed before sending, and Reconstruct
+    sends nothing, until those landmarks are gone (Clear all, and one placed on the film). A film of the
+    job's patient with another SOP Instance UID is warned about, not blocked (the job's study is
+    replaced by the film's, as docs/web.md says). The landmarks below row 900 lie off the 560 × 900 px
+    film: said too."""
+    payload = spine_payload(curve_mm=30.0, spacing_mm=0.4)
+    del payload["boundary"]
+    payload["pa"]["pixel_spacing"] = [0.4, 0.4]
+    payload["study"] = {"study_instance_uid": "1.2.826.0.1.3680043.8.498.4343", "patient_id": "PAT-JOB",
+                        "pa_sop_instance_uid": "1.2.826.0.1.3680043.8.498.4343.1"}  # fmt: skip
+    answer = httpx.post(f"{live_url}/v1/jobs", json=payload, headers={"Authorization": f"Bearer {api_key}"}, timeout=30)
+    assert answer.status_code == 202, answer.text
+    job_id = answer.json()["id"]
+    off = [lm["level"] for lm in payload["pa"]["landmarks"] if lm["point"][1] > 900]
+    assert off  # rows up to (50 + 420) / 0.4 = 1175 px (tests/conftest.spine_payload)
+    make_dicom(tmp_path / "other.dcm", view="pa")  # PatientID PAT-0042 (page_fixtures.make_dicom)
+    make_dicom(
+        tmp_path / "same.dcm",
+        view="pa",
+        study={"PatientID": "PAT-JOB", "StudyInstanceUID": "1.2.826.0.1.3680043.8.498.4343"},
+    )
+
+    for name in ("other.dcm", "same.dcm"):
+        context, page, watch = open_page(browser, f"{live_url}/", api_key)
+        page.evaluate(f"() => location.hash = '#/jobs/{job_id}'")
+        page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
+        page.wait_for_selector("#pa-canvas[data-blank*='Not stored by the service']")  # the PACS asked, or not
+        _open(page, "pa", tmp_path / name)
+        warning = page.text_content("#pa-warning") or ""
+        assert page.is_visible("#pa-warning")
+        assert f"The landmarks of {off[0]}, " in warning or f"The landmarks of {', '.join(off)}" in warning, warning
+        assert "outside this film (560 × 900 px)" in warning, warning
+        missing = page.text_content("#missing") or ""
+        if name == "same.dcm":
+            assert "its header says image " in warning and "the job's is 1.2.826.0.1.3680043.8.498.4343.1" in warning
+            assert "not the reopened job's:" not in missing, missing
+            context.close()
+            continue
+        assert "its header says patient ID PAT-0042, the job's is PAT-JOB" in warning, warning
+        assert "The PA film is not the reopened job's: its header says patient ID PAT-0042" in missing, missing
+        assert "17 vertebrae (T1–L5)" in missing, missing
+        assert page.get_attribute("#missing", "data-ready") != "true"
+        sent = len(watch.posted_jobs())
+        page.click("#submit")
+        assert len(watch.posted_jobs()) == sent
+        # the job's landmarks cleared and one placed on this film: nothing of the job's is over it
+        page.click("#pa-clear")
+        col, row, _ = centreline(0)
+        page.mouse.click(*canvas_point(page, "pa", col, row))
+        assert "not the reopened job's" not in (page.text_content("#missing") or "")
+        assert not watch.errors, watch.errors
+        context.close()
+
+
+def test_a_film_opened_by_hand_while_the_pacs_is_asked_is_not_covered_by_the_fetch(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """A reopened job whose study names its PA image: the page asks the service whether it has a PACS to
+    fetch the film again (GET /v1/pacs, held here until the film is open, as a slow service would). The
+    radiographer opens the job's film from disk meanwhile: the landmarks stay over it, and the answer
+    that comes later (no PACS) does not replace the film's header with a note about the fetch."""
+    payload = spine_payload(curve_mm=30.0, spacing_mm=0.4)
+    del payload["boundary"]
+    payload["pa"]["pixel_spacing"] = [0.4, 0.4]
+    uid = "1.2.826.0.1.3680043.8.498.4444"
+    payload["study"] = {"study_instance_uid": uid, "patient_id": "PAT-0042", "pa_sop_instance_uid": f"{uid}.1"}
+    answer = httpx.post(f"{live_url}/v1/jobs", json=payload, headers={"Authorization": f"Bearer {api_key}"}, timeout=30)
+    assert answer.status_code == 202, answer.text
+    make_dicom(tmp_path / "job.dcm", view="pa", study={"StudyInstanceUID": uid, "SOPInstanceUID": f"{uid}.1"})
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.wait_for_load_state("networkidle")  # the key's own GET /v1/pacs answered
+    held: list[Any] = []
+    page.route("**/v1/pacs", lambda route: held.append(route))
+    page.evaluate(f"() => location.hash = '#/jobs/{answer.json()['id']}'")
+    page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
+    for _ in range(100):
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page did not ask whether the service has a PACS"
+    _open(page, "pa", tmp_path / "job.dcm")
+    assert "ID PAT-0042" in (page.text_content("#pa-header") or "")
+    for route in held:
+        route.continue_()
+    page.unroute("**/v1/pacs")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(300)
+    header = page.text_content("#pa-header") or ""
+    assert "ID PAT-0042" in header and "no PACS" not in header, header
+    assert "17 vertebrae on the PA film (T1–L5)" in (page.text_content("#pa-status") or "")
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_reopened_jobs_landmarks_in_mm_are_not_put_over_a_film_as_pixels(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """A job sent in mm without a pixel spacing (the payload's default units, as the Python client sends
+    them), reopened: its landmarks on the blank frame (1 px = 1 mm). A film opened under them does not
+    take them as its pixels (T1 at column 100 mm would be sent as column 100 px, 0.4 mm each, 60 mm
+    off): they are removed and the panel says why, and nothing of them is left to send."""
+    payload = spine_payload(curve_mm=30.0)  # mm, no pixel spacing
+    del payload["boundary"]
+    answer = httpx.post(f"{live_url}/v1/jobs", json=payload, headers={"Authorization": f"Bearer {api_key}"}, timeout=30)
+    assert answer.status_code == 202, answer.text
+    make_dicom(tmp_path / "pa.dcm", view="pa")
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/jobs/{answer.json()['id']}'")
+    page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
+    assert _preview(page)["pa"].get("units", "mm") == "mm"
+    _open(page, "pa", tmp_path / "pa.dcm")
+    status = page.text_content("#pa-status") or ""
+    assert "The reopened job's landmarks of 17 vertebrae are in mm without a pixel spacing" in status, status
+    assert "removed, not guessed" in status and status.endswith("No landmark on this film yet."), status
+    assert not isinstance(_preview(page), dict) or "pa" not in _preview(page), _preview(page)
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_slow_answer_for_an_earlier_job_does_not_replace_the_job_opened_since(
+    browser: Any, live_url: str, api_key: str
+) -> None:
+    """Job A opened from its address, its answer slow (held here); job B opened before it came: B's
+    landmarks and status stay, and A's answer, arriving last, does not put A's landmarks under B's
+    address (to be edited and sent again as if they were B's)."""
+    payloads = []
+    for curve in (20.0, 40.0):
+        payload = spine_payload(curve_mm=curve, spacing_mm=0.4)
+        del payload["boundary"]
+        payload["pa"]["pixel_spacing"] = [0.4, 0.4]
+        payloads.append(payload)
+    job_a, job_b = (run_job(live_url, api_key, p)["id"] for p in payloads)
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    held: list[Any] = []
+    page.route(f"**/v1/jobs/{job_a}", lambda route: held.append(route))
+    page.evaluate(f"() => location.hash = '#/jobs/{job_a}'")
+    for _ in range(100):
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page did not ask for job A"
+    page.evaluate(f"() => location.hash = '#/jobs/{job_b}'")
+    page.wait_for_selector(f"#result[data-job-id='{job_b}']", timeout=30_000)
+    for route in held:
+        route.continue_()
+    page.unroute(f"**/v1/jobs/{job_a}")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(300)
+    assert page.get_attribute("#result", "data-job-id") == job_b
+    assert (page.text_content("#job-status") or "").startswith(f"Job {job_b} succeeded")
+    sent = _preview(page)["pa"]["landmarks"]
+    assert [lm["point"] for lm in sent] == [lm["point"] for lm in payloads[1]["pa"]["landmarks"]]
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_slow_poll_of_a_running_job_does_not_replace_the_job_opened_since(
+    browser: Any, live_url: str, api_key: str, live_data_dir: Path
+) -> None:
+    """Job A still running (set so in the service's database, with a lease an hour ahead, which the
+    reconciler leaves alone) is opened and polled; one poll's answer is slow (held here) and job B is
+    opened before it came: A's late answer does not take the status line and the result back to A."""
+    payloads = []
+    for curve in (20.0, 40.0):
+        payload = spine_payload(curve_mm=curve, spacing_mm=0.4)
+        del payload["boundary"]
+        payload["pa"]["pixel_spacing"] = [0.4, 0.4]
+        payloads.append(payload)
+    job_a, job_b = (run_job(live_url, api_key, p)["id"] for p in payloads)
+    with session_factory(Settings(data_dir=live_data_dir, DATABASE_URL=None))() as session:
+        running = session.scalars(select(Job).where(Job.id == uuid.UUID(job_a))).one()
+        running.status, running.result, running.finished_at = "running", None, None
+        running.lease_expires_at = datetime.now(UTC) + timedelta(hours=1)
+        session.commit()
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/jobs/{job_a}'")
+    page.wait_for_selector("#job-status[data-status=running]")
+    held: list[Any] = []
+    page.route(f"**/v1/jobs/{job_a}", lambda route: held.append(route))
+    for _ in range(100):  # the next poll (every 0.4 s)
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page did not poll job A"
+    page.evaluate(f"() => location.hash = '#/jobs/{job_b}'")
+    page.wait_for_selector(f"#result[data-job-id='{job_b}']", timeout=30_000)
+    for route in held:
+        route.continue_()
+    page.unroute(f"**/v1/jobs/{job_a}")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(1000)  # two more poll periods, had A's polling resumed
+    assert (page.text_content("#job-status") or "").startswith(f"Job {job_b} succeeded")
+    assert page.get_attribute("#job-status", "data-status") == "succeeded"
+    assert [lm["point"] for lm in _preview(page)["pa"]["landmarks"]] == [
+        lm["point"] for lm in payloads[1]["pa"]["landmarks"]
+    ]
     assert not watch.errors, watch.errors
     context.close()

@@ -13,8 +13,10 @@ the test sets those two lists in the stored results, so the reasons are the serv
 
 from __future__ import annotations
 
+import re
 import time
 import uuid
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -251,5 +253,184 @@ def test_follow_up_marks_model_estimates_and_the_changes_that_compare_them(
     page.pdf(path=str(pdf), format="A4", print_background=True)
     text = " ".join(pdf_text(pdf).split())
     assert f"Major Cobb of 2025-07-08; Minor Cobb of 2025-07-08: {COBB_REASON}" in text, text
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+DATE = re.compile(r"\d{4}-\d{2}")  # a time-axis label (year and month, or the day), not a degree tick
+
+
+def test_follow_up_plot_ticks_never_read_minus_zero(
+    browser: Any, live_url: str, api_key: str, live_data_dir: Path
+) -> None:
+    """Two real jobs whose stored major Cobb angles are 1.2° and 2.0°, both ± 0.8° (a straight spine):
+    the plot's axis runs from 1.2 − 1.96 × 0.8 = −0.37° less a tenth of its 5° span, so its lower tick,
+    a tenth of the axis up (measurePlot), is −0.27°: written "0°", never "-0", and each tick is a whole
+    degree drawn at its own height."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    ids = _jobs(live_url, api_key, patient, ["2025-02-03", "2025-09-01"])
+    _set_results(live_data_dir, ids, [(1.2, 0.8), (2.0, 0.8)])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] .followup-plot[data-measure=major_cobb]")
+    labels = page.locator(".followup-plot[data-measure=major_cobb] text.tick")
+    ticks = [labels.nth(i) for i in range(labels.count()) if not DATE.match(labels.nth(i).text_content() or "")]
+    texts = [t.text_content() for t in ticks]
+    assert texts == ["0°", "5°"], texts
+    # each tick at the height of its own value: the lower one at the point of 0°, between the two visits' bars
+    heights = [float(t.get_attribute("y") or "nan") - 4 for t in ticks]
+    per_degree = (heights[0] - heights[1]) / 5
+    first = page.locator(".followup-plot[data-measure=major_cobb] > circle.point").first
+    point = float(first.get_attribute("cy") or "nan")
+    assert point == pytest.approx(heights[0] - 1.2 * per_degree, abs=0.01)
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_follow_up_tells_same_day_visits_apart(browser: Any, live_url: str, api_key: str, live_data_dir: Path) -> None:
+    """Two real jobs of one patient, two studies of the same study date (a film repeated on the day) with
+    major Cobb angles 40° and 47° ± 1.5°: the 7° change is flagged by the service (5° rule), but it is
+    not a progression over time. The changes table and the summary name the two jobs and say so, and
+    the plot's time axis says the one day once (a month, or the same label twice, told nothing)."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    ids = _jobs(live_url, api_key, patient, ["2025-04-02", "2025-04-02"])
+    _set_results(live_data_dir, ids, [(40.0, SD), (47.0, SD)])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table.followup-changes")
+    first, second = (page.locator(".followup-visits tbody tr").nth(i).locator("a").text_content() for i in range(2))
+    row = page.locator(".followup-changes tr[data-measure=major_cobb]")
+    assert row.get_attribute("data-flagged") == "true" and row.get_attribute("data-same-day") == "true"
+    between = row.locator("td").nth(0).text_content() or ""
+    assert f"2025-04-02 (job {first}) → 2025-04-02 (job {second})" in between, between
+    assert "not a progression over time" in between, between
+    summary = page.text_content("#followup-summary") or ""
+    assert f"(job {first})" in summary and "not a progression over time" in summary, summary
+    labels = page.locator(".followup-plot[data-measure=major_cobb] text.tick")
+    dates = [text for i in range(labels.count()) if DATE.match(text := labels.nth(i).text_content() or "")]
+    assert dates == ["2025-04-02"], dates
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_follow_up_names_the_patients_jobs_that_are_not_visits(
+    browser: Any, live_url: str, api_key: str, live_data_dir: Path
+) -> None:
+    """Three real jobs of one patient, each its own study; then, in the service's database, the second
+    marked failed (with an error) and the third running (with a lease an hour ahead, which the
+    reconciler leaves alone): the follow-up has one visit (succeeded jobs only, the API's rule) and the
+    page names the other two jobs, their study dates and states, instead of leaving them out silently."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    ids = _jobs(live_url, api_key, patient, ["2024-10-01", "2025-04-01", "2025-10-01"])
+    with session_factory(Settings(data_dir=live_data_dir, DATABASE_URL=None))() as session:
+        failed = session.scalars(select(Job).where(Job.id == uuid.UUID(ids[1]))).one()
+        failed.status, failed.result = "failed", None
+        failed.error = {"type": "about:blank", "title": "Fit failed", "status": 422, "detail": "set by the test"}
+        running = session.scalars(select(Job).where(Job.id == uuid.UUID(ids[2]))).one()
+        running.status, running.result, running.finished_at = "running", None, None
+        running.lease_expires_at = datetime.now(UTC) + timedelta(hours=1)
+        session.commit()
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table.followup-visits")
+    assert page.locator(".followup-visits tbody tr").count() == 1
+    note = page.text_content("#followup-not-visits") or ""
+    assert note.startswith("2 jobs of this patient are not in the follow-up"), note
+    assert f"job {ids[1][:8]} (study date 2025-04-01) failed" in note, note
+    assert f"job {ids[2][:8]} (study date 2025-10-01) is still running" in note, note
+    assert not run_axe(page)
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_follow_up_says_the_sign_of_each_signed_measure(browser: Any, live_url: str, api_key: str) -> None:
+    """Kyphosis, lordosis and axial rotation are signed (a negative kyphosis is a lordotic thoracic spine,
+    an axial rotation's sign its side): the visits table's heads and the plots' descriptions say each
+    sign in the result view's words; the Cobb angles, magnitudes, say none."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    _jobs(live_url, api_key, patient, ["2025-05-06"])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table.followup-visits")
+    heads = page.locator(".followup-visits thead th")
+    words = [heads.nth(i).text_content() for i in range(heads.count())]
+    assert words[2:] == [
+        "Major Cobb",
+        "Minor Cobb",
+        "Kyphosis T4–T12 (positive: convex posteriorly)",
+        "Lordosis L1–L5 (positive: convex anteriorly)",
+        "Apex axial rotation (positive: toward the patient's left, seen from above)",
+    ], words
+    label = page.get_attribute(".followup-plot[data-measure=kyphosis_t4_t12]", "aria-label") or ""
+    assert label.startswith("Kyphosis T4–T12 (positive: convex posteriorly) over time: 2025-05-06 "), label
+    assert not run_axe(page)
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_slow_follow_up_answer_does_not_replace_the_patient_asked_for_since(
+    browser: Any, live_url: str, api_key: str
+) -> None:
+    """Patient A's follow-up asked for, then patient B's before A's answer came (A's held here, as a slow
+    service would): B's follow-up is shown, and A's answer, arriving last, does not replace it under B's
+    address."""
+    first, second = f"FU-{uuid.uuid4().hex[:8]}", f"FU-{uuid.uuid4().hex[:8]}"
+    _jobs(live_url, api_key, first, ["2025-01-02"])
+    _jobs(live_url, api_key, second, ["2025-03-04", "2025-09-10"])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    held: list[Any] = []
+    page.route(f"**/v1/patients/{first}/measures", lambda route: held.append(route))
+    page.evaluate(f"() => location.hash = '#/follow-up/{first}'")
+    for _ in range(100):
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page did not ask for the first patient's follow-up"
+    page.evaluate(f"() => location.hash = '#/follow-up/{second}'")
+    page.wait_for_selector(f"#followup[data-patient='{second}'] table.followup-visits")
+    for route in held:
+        route.continue_()
+    page.unroute(f"**/v1/patients/{first}/measures")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(300)
+    assert page.get_attribute("#followup", "data-patient") == second
+    assert (page.text_content("#followup-summary") or "").startswith(f"2 visits of patient {second};")
+    assert page.input_value("#followup-patient") == second
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_a_slow_follow_up_for_the_report_is_not_printed_with_another_job(
+    browser: Any, live_url: str, api_key: str
+) -> None:
+    """The box "Include the follow-up table in the printed report" ticked on a job of patient A, whose follow-up
+    answer is slow (held here); job B of patient B opened before it came: B's report has no follow-up
+    table, and A's answer, arriving last, does not put A's visits into B's printed report."""
+    first, second = f"FU-{uuid.uuid4().hex[:8]}", f"FU-{uuid.uuid4().hex[:8]}"
+    (job_a,) = _jobs(live_url, api_key, first, ["2025-01-02"])
+    (job_b,) = _jobs(live_url, api_key, second, ["2025-03-04"])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/jobs/{job_a}'")
+    page.wait_for_selector(f"#result[data-job-id='{job_a}']", timeout=30_000)
+    held: list[Any] = []
+    page.route(f"**/v1/patients/{first}/measures", lambda route: held.append(route))
+    page.check("#print-followup")
+    for _ in range(100):
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the page did not ask for the patient's follow-up"
+    page.evaluate(f"() => location.hash = '#/jobs/{job_b}'")
+    page.wait_for_selector(f"#result[data-job-id='{job_b}']", timeout=30_000)
+    for route in held:
+        route.continue_()
+    page.unroute(f"**/v1/patients/{first}/measures")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(300)
+    assert not page.is_checked("#print-followup")
+    assert page.is_hidden("#report-followup")
+    assert first not in (page.text_content("#report-followup") or "")
+    page.emulate_media(media="print")
+    assert page.is_hidden("#report-followup")
     assert not watch.errors, watch.errors
     context.close()

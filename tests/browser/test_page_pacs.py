@@ -34,6 +34,7 @@ from pydicom.uid import generate_uid
 
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
+from tests.conftest import spine_payload
 from tools.dicom.orthanc import OrthancServer
 
 pytestmark = pytest.mark.browser
@@ -147,4 +148,32 @@ def test_no_pacs_no_control(browser: Any, live_url: str, api_key: str) -> None:
     context, page, _ = open_page(browser, live_url + "/", api_key)
     page.wait_for_timeout(800)  # the key's check of /v1/pacs is debounced
     assert page.is_hidden("#pacs-open")
+    context.close()
+
+
+def test_a_reopened_jobs_landmarks_in_mm_stay_on_the_blank_frame_not_over_the_pacs_film(
+    browser: Any, pacs_serve: Serve, orthanc: OrthancServer, tmp_path: Path
+) -> None:
+    """A job whose payload names its PA image in the PACS but gives its landmarks in mm without a pixel
+    spacing (as the Python client may send them): reopened, the film is not fetched and put under the
+    landmarks as if their mm were its pixels; they stay on the blank frame, which says why, and are sent
+    again in mm as they were."""
+    film = _store_film(orthanc, tmp_path)
+    payload = spine_payload(curve_mm=30.0)  # mm, no pixel spacing
+    del payload["boundary"]
+    payload["study"] = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": film.SOPInstanceUID}
+    headers = {"Authorization": f"Bearer {pacs_serve.api_key}"}
+    answer = httpx.post(f"{pacs_serve.url}/v1/jobs", json=payload, headers=headers, timeout=30)
+    assert answer.status_code == 202, answer.text
+    stored = httpx.get(f"{pacs_serve.url}/v1/jobs/{answer.json()['id']}", headers=headers, timeout=10).json()
+    context, page, watch = open_page(browser, pacs_serve.url + "/", pacs_serve.api_key)
+    page.evaluate(f"() => location.hash = '#/jobs/{answer.json()['id']}'")
+    page.wait_for_selector("#pa-canvas[data-blank]:not([data-blank^='Fetching'])", timeout=30_000)
+    page.wait_for_load_state("networkidle")  # the PACS asked, and its film fetched if the page fetches it
+    sent = json.loads(page.text_content("#payload-preview") or "{}")["pa"]
+    assert sent.get("units", "mm") == "mm" and sent["landmarks"] == stored["payload"]["pa"]["landmarks"], sent
+    assert "17 vertebrae" in (page.text_content("#pa-status") or "")
+    assert "in mm without a pixel spacing" in (page.get_attribute("#pa-canvas", "data-blank") or "")
+    assert "in mm without a pixel spacing" in (page.text_content("#pa-header") or "")
+    assert not watch.errors, watch.errors
     context.close()

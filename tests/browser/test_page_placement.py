@@ -18,7 +18,7 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import LEVELS, make_dicom, open_page
+from page_fixtures import FILM_SIZE, LEVELS, make_dicom, make_png, open_page
 
 pytestmark = pytest.mark.browser
 
@@ -212,4 +212,120 @@ def test_crossed_quadrilateral_named_before_sending_and_undo_redo(
     back = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"][2]["corners"][3]
     assert back == pytest.approx(list(corners[2][3]), abs=1 / view(page)[0])
     assert not watch.errors
+    context.close()
+
+
+def open_film(browser: Any, url: str, key: str, tmp_path: Path) -> tuple[Any, Any, Any]:
+    """The page with the synthetic PA film (FILM_SIZE, page_fixtures) open and fitted in the PA panel."""
+    film = tmp_path / "a.dcm"
+    make_dicom(film, view="pa")
+    context, page, watch = open_page(browser, url + "/", key, height=1000)
+    page.set_input_files("#pa-file", str(film))
+    page.wait_for_selector("#pa-header dd")
+    page.evaluate("document.getElementById('pa-canvas').scrollIntoView({block: 'start'})")
+    return context, page, watch
+
+
+def test_a_click_beside_the_film_places_nothing(browser: Any, live_url: str, api_key: str, tmp_path: Path) -> None:
+    """Zoomed out (two "−"), the film has dark canvas around it: a click there, left, right or below the
+    film, is not a landmark at the film's nearest edge (the click's column or row clamped): nothing is
+    placed and the cursor and the prompt say why; a click on the film then places T1 where it lands."""
+    context, page, watch = open_film(browser, live_url, api_key, tmp_path)
+    page.focus("#pa-canvas")
+    page.keyboard.press("-")
+    page.keyboard.press("-")
+    width, height = FILM_SIZE
+    for beside in ((-40.0, 100.0), (width + 40.0, 100.0), (width / 2, height + 40.0)):
+        page.mouse.click(*screen(page, beside))
+        assert page.get_attribute("#pa-canvas", "data-next") == "Nothing placed: the click is outside the film"
+        assert "Nothing placed: the click is outside the film" in (page.text_content("#pa-prompt") or "")
+        assert page.text_content("#pa-status") == "No landmark on this film yet."
+    page.mouse.click(*screen(page, (width / 2, 100.0)))
+    placed = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"]
+    s = view(page)[0]
+    assert [lm["level"] for lm in placed] == ["T1"]
+    assert placed[0]["point"] == pytest.approx([width / 2, 100.0], abs=1 / s)  # one CSS px
+    assert page.get_attribute("#pa-canvas", "data-next") == "T2 midpoint"
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+SLOW_DECODE = """() => {
+    const decode = HTMLImageElement.prototype.decode;
+    HTMLImageElement.prototype.decode = function () {
+        return new Promise((resolve) => setTimeout(resolve, 1500)).then(() => decode.call(this));
+    };
+}"""
+"""A PNG or JPEG that takes 1.5 s to decode, as a large film on a slow workstation does (Chromium decodes
+the synthetic film in a few ms)."""
+
+
+def test_a_film_still_loading_takes_no_click_and_a_newer_film_wins(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """While a PNG replacing the open film is still decoding, a click places nothing (the landmark would
+    belong to the film about to go) and the prompt says the film is loading. A slow PNG chosen and then,
+    before it is decoded, a DICOM film: the DICOM film, the newer choice, stays, and the landmark placed on
+    it is not dropped when the older choice finishes decoding."""
+    context, page, watch = open_film(browser, live_url, api_key, tmp_path)
+    page.mouse.click(*screen(page, (FILM_SIZE[0] / 2, 100.0)))
+    assert "1 vertebra on the PA film" in (page.text_content("#pa-status") or "")
+    page.evaluate(SLOW_DECODE)
+    png = tmp_path / "b.png"
+    make_png(png)
+    page.set_input_files("#pa-file", str(png))
+    page.wait_for_selector("#pa-prompt:text-is('Loading b.png…')")
+    page.mouse.click(*screen(page, (FILM_SIZE[0] / 2, 200.0)))
+    assert page.get_attribute("#pa-canvas", "data-next") == "Nothing placed: b.png is still loading"
+    page.wait_for_selector("#pa-canvas[aria-label*='b.png']")
+    status = page.text_content("#pa-status") or ""
+    assert "The landmarks of 1 vertebra placed on the previous film were removed" in status, status
+    # a slow PNG, then at once a DICOM film: the DICOM film stays, with the landmark placed on it
+    slow, newer = tmp_path / "c.png", tmp_path / "d.dcm"
+    make_png(slow)
+    make_dicom(newer, view="pa", study={"PatientID": "PAT-NEWER"})
+    page.set_input_files("#pa-file", str(slow))
+    page.set_input_files("#pa-file", str(newer))
+    page.wait_for_selector("#pa-canvas[aria-label*='d.dcm']")
+    page.mouse.click(*screen(page, (FILM_SIZE[0] / 2, 100.0)))
+    assert "1 vertebra on the PA film" in (page.text_content("#pa-status") or "")
+    page.wait_for_timeout(2500)  # c.png's decode (1.5 s) is over
+    assert "d.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
+    assert "ID PAT-NEWER" in (page.text_content("#pa-header") or "")
+    status = page.text_content("#pa-status") or ""
+    assert status.startswith("1 vertebra on the PA film (T1–T1)"), status
+    assert page.text_content("#pa-prompt") == "Next: the top endplate midpoint of T2."
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_placing_a_level_again_in_another_mode_says_what_it_replaces(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """The payload takes a level's midpoint or its four corners, not both: T1's four corners, then T1
+    chosen again in midpoint mode: the prompt and the cursor say that the click replaces the corners
+    (it does: the corners go); T2's midpoint, then T2 in four-corner mode: the first corner replaces it."""
+    context, page, watch = open_film(browser, live_url, api_key, tmp_path)
+    col = FILM_SIZE[0] / 2
+    page.check("#pa-mode-corners")
+    for p in ((col - 20, 60.0), (col + 20, 60.0), (col - 20, 80.0), (col + 20, 80.0)):
+        page.mouse.click(*screen(page, p))
+    page.select_option("#pa-level", "T1")
+    page.check("#pa-mode-point")
+    assert page.text_content("#pa-prompt") == "Next: the top endplate midpoint of T1, replacing T1's four corners."
+    page.mouse.move(*screen(page, (col, 62.0)))
+    assert page.get_attribute("#pa-canvas", "data-next") == "T1 midpoint, replaces its four corners"
+    page.mouse.click(*screen(page, (col, 62.0)))
+    t1 = json.loads(page.text_content("#payload-preview") or "{}")["pa"]["landmarks"][0]
+    assert "corners" not in t1 and t1["point"] == pytest.approx([col, 62.0], abs=1 / view(page)[0])
+    # T2 (the next level) by its midpoint, then again by four corners
+    page.mouse.click(*screen(page, (col, 110.0)))
+    page.select_option("#pa-level", "T2")
+    page.check("#pa-mode-corners")
+    assert page.text_content("#pa-prompt") == "Next: the top-left corner of T2, replacing T2's midpoint."
+    page.mouse.move(*screen(page, (col - 20, 108.0)))
+    assert page.get_attribute("#pa-canvas", "data-next") == "T2 top-left, replaces its midpoint"
+    page.mouse.click(*screen(page, (col - 20, 108.0)))
+    assert page.text_content("#pa-prompt") == "Next: the top-right corner of T2."
+    assert not watch.errors, watch.errors
     context.close()

@@ -95,10 +95,12 @@ export class Api {
     return this.json<Job>(await this.send("GET", `/v1/jobs/${encodeURIComponent(id)}`));
   }
 
-  /** The caller's jobs, newest first; filters are sent only when non-empty. */
-  async jobs(filters: Record<string, string> = {}, limit = 50): Promise<JobPage> {
+  /** The caller's jobs, newest first; filters are sent only when non-empty (a list: the parameter repeated). */
+  async jobs(filters: Record<string, string | string[]> = {}, limit = 50): Promise<JobPage> {
     const q = new URLSearchParams({ limit: String(limit) });
-    for (const [k, v] of Object.entries(filters)) if (v.trim()) q.set(k, v.trim());
+    for (const [k, v] of Object.entries(filters)) {
+      for (const one of typeof v === "string" ? [v] : v) if (one.trim()) q.append(k, one.trim());
+    }
     return this.json<JobPage>(await this.send("GET", `/v1/jobs?${q}`));
   }
 

@@ -75,6 +75,9 @@ export class FilmEditor {
   private refused = new Map<Level, string>();
   /** Said once, at the cursor, after a click that placed nothing. */
   private notice: string | null = null;
+  /** The name of a film being read to replace this one: a click places nothing meanwhile (the
+   * landmark would belong to the film that is about to go). */
+  loading: string | null = null;
   private undoStack: Snapshot[] = [];
   private redoStack: Snapshot[] = [];
   window = { center: 0, width: 1 };
@@ -218,6 +221,17 @@ export class FilmEditor {
     return out;
   }
 
+  /** The levels with a point outside the film (its width and height in px), in level order. */
+  landmarksOffFilm(): Level[] {
+    const s = this.source;
+    if (!s) return [];
+    const off = (p: Vec2): boolean => !(p[0] >= 0 && p[0] <= s.width && p[1] >= 0 && p[1] <= s.height);
+    return LEVELS.filter((lv) => {
+      const m = this.marks.get(lv);
+      return !!m && [m.point, ...(m.corners ?? []), ...(m.pedicles ?? [])].some((p) => p && off(p));
+    });
+  }
+
   /** What is wrong with the complete marks (crossed or non-convex corners, order, overlaps). */
   problems(): MarkProblem[] {
     return filmProblems(this.marks, this.rowsTowardHead);
@@ -333,32 +347,65 @@ export class FilmEditor {
     this.onChange("level");
   }
 
+  /** What the next click removes from the current level's mark, in a few words ("midpoint", "four
+   * corners", "2 corners"), or null: a midpoint replaces the level's corners and four corners its
+   * midpoint (the payload takes one or the other), a complete set of the mode's points is started again. */
+  private replaces(): string | null {
+    const m = this.marks.get(this.level);
+    if (this.finished || !m) return null;
+    const corners = (n: number): string => (n === 4 ? "four corners" : `${n} corner${n === 1 ? "" : "s"}`);
+    if (this.mode === "point") return m.point ? "midpoint" : m.corners?.length ? corners(m.corners.length) : null;
+    const list = m[this.mode];
+    const full = MODE_PARTS[this.mode];
+    if (list && list.length > 0 && list.length < full) return null; // the next point of an unfinished set
+    const gone = [list?.length === full ? (this.mode === "corners" ? "four corners" : "pedicles") : null,
+      this.mode === "corners" && m.point ? "midpoint" : null].filter(Boolean);
+    return gone.length ? gone.join(" and ") : null;
+  }
+
   /** What the next click places, in words. */
   nextPart(): string {
     if (this.finished) return `nothing: ${this.level} is complete (choose a level to place again)`;
     const m = this.marks.get(this.level);
-    const again = (done: boolean): string => (done ? `, replacing ${this.level}'s` : "");
-    if (this.mode === "point") return `the top endplate midpoint of ${this.level}${again(!!m?.point)}`;
+    const gone = this.replaces();
+    const again = gone ? `, replacing ${this.level}'s ${gone}` : "";
+    if (this.mode === "point") return `the top endplate midpoint of ${this.level}${again}`;
     const list = this.mode === "corners" ? m?.corners : m?.pedicles;
     const names = this.mode === "corners" ? CORNER_NAMES : PEDICLE_NAMES;
     const i = list && list.length < names.length ? list.length : 0;
-    return `the ${names[i]}${this.mode === "corners" ? " corner" : ""} of ${this.level}${again(!!list && list.length === names.length)}`;
+    return `the ${names[i]}${this.mode === "corners" ? " corner" : ""} of ${this.level}${again}`;
   }
 
-  /** The role of the next click in a few words, drawn at the cursor (e.g. "T3 top-right"). */
+  /** The role of the next click in a few words, drawn at the cursor (e.g. "T3 top-right", "T3 midpoint,
+   * replaces its four corners"). */
   private nextRole(): string {
     if (this.finished) return `${this.level} complete`;
-    if (this.mode === "point") return `${this.level} midpoint`;
-    return this.nextPart().split(" of ")[0].replace("the ", `${this.level} `).replace(" corner", "");
+    const gone = this.replaces();
+    const role = this.mode === "point" ? `${this.level} midpoint`
+      : this.nextPart().split(" of ")[0].replace("the ", `${this.level} `).replace(" corner", "");
+    return gone ? `${role}, replaces its ${gone}` : role;
+  }
+
+  /** Why the last click placed nothing (said at the cursor and in the panel's prompt), or null. */
+  get placedNothing(): string | null {
+    return this.notice;
+  }
+
+  /** Say, at the cursor, why a click placed nothing. */
+  private refuse(words: string): void {
+    this.notice = words;
+    this.draw();
+    this.onChange("level");
   }
 
   place(p: Vec2): void {
     if (!this.extent) return;
-    if (this.finished) {
-      this.notice = `Nothing placed: ${this.level} is complete`;
-      this.draw();
-      this.onChange("level");
-      return;
+    if (this.loading) return this.refuse(`Nothing placed: ${this.loading} is still loading`);
+    if (this.finished) return this.refuse(`Nothing placed: ${this.level} is complete`);
+    const [w, h] = [this.extent.width, this.extent.height];
+    if (!(p[0] >= 0 && p[0] <= w && p[1] >= 0 && p[1] <= h)) {
+      // a click beside the film is not a landmark at its edge
+      return this.refuse(`Nothing placed: the click is outside the ${this.source ? "film" : "frame"}`);
     }
     this.notice = null;
     this.remember();

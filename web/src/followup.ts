@@ -9,6 +9,7 @@
 // its plot, and a change involving it says that it compares model estimates: a flagged progression
 // between model estimates is not a measured progression.
 import { MODEL_MARK, modelMark, withSd } from "./results";
+import type { Job } from "./types";
 
 export type MeasureName = "major_cobb" | "minor_cobb" | "kyphosis_t4_t12" | "lordosis_l1_l5" | "apex_axial_rotation";
 
@@ -65,6 +66,14 @@ export const MEASURE_NAMES: Record<MeasureName, string> = {
 };
 const ORDER = Object.keys(MEASURE_NAMES) as MeasureName[];
 
+/** The sign convention of each signed measure, in the result view's words (results.ts); a Cobb angle is a
+ * magnitude. A signed value or change means nothing to its reader without it. */
+export const SIGNS: Partial<Record<MeasureName, string>> = {
+  kyphosis_t4_t12: "positive: convex posteriorly",
+  lordosis_l1_l5: "positive: convex anteriorly",
+  apex_axial_rotation: "positive: toward the patient's left, seen from above",
+};
+
 /** The flagging rule, as the page words it (the API's `rule` names its own fields). */
 export const RULE_WORDS = "A change between consecutive visits is flagged when it exceeds both 5° (the convention for progression) " +
   "and 1.96 × √(sd₁² + sd₂²) (the 95 % interval of the difference of two measures with their SDs); “Decided by” names the larger of the two thresholds.";
@@ -74,6 +83,9 @@ const signed = (x: number): string => {
   const r = Math.round(x * 10) / 10;
   return `${r > 0 ? "+" : ""}${(r === 0 ? 0 : r).toFixed(1)}°`;
 };
+
+/** A plot tick's value: whole degrees, 0 for anything that rounds to zero (never "-0"). */
+export const wholeDegrees = (v: number): number => Math.round(v) || 0;
 
 const el = <K extends keyof HTMLElementTagNameMap>(tag: K, text?: string, cls?: string): HTMLElementTagNameMap[K] => {
   const node = document.createElement(tag);
@@ -87,7 +99,17 @@ function cell(m: MeasureValue | null): string {
   return `${withSd(m.value_deg, m.sd_deg)}${m.levels ? ` (${m.levels})` : ""}`;
 }
 
-const visitName = (v: Visit): string => v.study_date ?? `job ${v.job_id.slice(0, 8)} (no study date)`;
+/** A visit in words: its study date, with its job when another visit has the same date (or none). */
+const visitName = (v: Visit, visits: Visit[]): string =>
+  v.study_date === null ? `job ${v.job_id.slice(0, 8)} (no study date)`
+    : visits.some((o) => o !== v && o.study_date === v.study_date) ? `${v.study_date} (job ${v.job_id.slice(0, 8)})` : v.study_date;
+
+/** The two visits of a change: their study dates; two visits of one study date are told apart by their
+ * jobs, and said to be of one day (a difference between two studies of one day is not a progression). */
+export function between(c: Change): string {
+  if (c.from_date !== c.to_date) return `${c.from_date} → ${c.to_date}`;
+  return `${c.from_date} (job ${c.from_job.slice(0, 8)}) → ${c.to_date} (job ${c.to_job.slice(0, 8)}), same day: not a progression over time`;
+}
 
 /** The model-estimated values of a change's two visits: which visit, and why; empty when both are measured. */
 export function changeEstimates(data: PatientMeasures, c: Change): { visit: Visit; reason: string }[] {
@@ -113,7 +135,7 @@ export function estimateNotes(data: PatientMeasures): HTMLElement | null {
       const reason = v[k]?.model_estimate;
       if (!reason) continue;
       const measures = byReason.get(reason) ?? new Map<MeasureName, string[]>();
-      measures.set(k, [...(measures.get(k) ?? []), visitName(v)]);
+      measures.set(k, [...(measures.get(k) ?? []), visitName(v, data.visits)]);
       byReason.set(reason, measures);
     }
   }
@@ -135,8 +157,11 @@ export function visitsTable(data: PatientMeasures, caption: string): HTMLTableEl
   const table = el("table", undefined, "data followup-visits");
   table.createCaption().textContent = caption;
   const head = table.createTHead().insertRow();
-  for (const h of ["Study date", "Job", ...ORDER.map((k) => MEASURE_NAMES[k])]) {
-    const th = el("th", h);
+  for (const h of ["Study date", "Job", ...ORDER]) {
+    const k = ORDER.find((m) => m === h);
+    const th = el("th", k ? MEASURE_NAMES[k] : h);
+    const sign = k && SIGNS[k];
+    if (sign) th.append(" ", el("span", `(${sign})`, "th-note"));
     th.scope = "col";
     head.append(th);
   }
@@ -183,7 +208,8 @@ export function changesTable(data: PatientMeasures, caption: string): HTMLTableE
     const name = el("th", MEASURE_NAMES[c.measure]);
     name.scope = "row";
     tr.append(name);
-    tr.insertCell().textContent = `${c.from_date} → ${c.to_date}`;
+    tr.insertCell().textContent = between(c);
+    if (c.from_date === c.to_date) tr.dataset.sameDay = "true";
     const change = tr.insertCell();
     change.textContent = signed(c.change_deg);
     const estimates = changeEstimates(data, c);
@@ -191,7 +217,7 @@ export function changesTable(data: PatientMeasures, caption: string): HTMLTableE
     if (words) {
       tr.dataset.modelEstimate = "true";
       const note = el("span", words, "model-mark");
-      note.title = `${estimates.map((e) => `The ${visitName(e.visit)} value is a model estimate: ${e.reason}.`).join(" ")} ` +
+      note.title = `${estimates.map((e) => `The ${visitName(e.visit, data.visits)} value is a model estimate: ${e.reason}.`).join(" ")} ` +
         (c.flagged ? "The flag is not a measured progression." : "The change is not a measured one.");
       change.append(" ", note);
     }
@@ -234,7 +260,7 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img", class: "followup-plot" });
   root.dataset.measure = name;
   const flagged = data.changes.filter((c) => c.measure === name && c.flagged);
-  root.setAttribute("aria-label", `${MEASURE_NAMES[name]} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}${p.m.model_estimate ? ` (${MODEL_MARK})` : ""}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
+  root.setAttribute("aria-label", `${MEASURE_NAMES[name]}${SIGNS[name] ? ` (${SIGNS[name]})` : ""} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}${p.m.model_estimate ? ` (${MODEL_MARK})` : ""}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
   const title = svg("text", { x: pad.l, y: 14, class: "plot-title" });
   title.textContent = `${MEASURE_NAMES[name]} (°)`;
   root.append(title, svg("line", { x1: pad.l, y1: H - pad.b, x2: W - pad.r, y2: H - pad.b, class: "axis" }),
@@ -251,14 +277,17 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
     entry(pad.l + (measured ? 84 : 4), "point model-estimate", MODEL_MARK);
     root.append(key);
   }
-  for (const v of [y0 + (y1 - y0) * 0.1, y0 + (y1 - y0) * 0.9]) {
-    const tick = svg("text", { x: pad.l - 4, y: y(v) + 4, class: "tick", "text-anchor": "end" });
-    tick.textContent = v.toFixed(0);
+  // two ticks at whole degrees near 10 % and 90 % of the axis, each drawn at its own value
+  for (const v of [y0 + (y1 - y0) * 0.1, y0 + (y1 - y0) * 0.9].map(wholeDegrees)) {
+    const tick = svg("text", { x: pad.l - 4, y: y(v) + 4, class: "tick y-tick", "text-anchor": "end" });
+    tick.textContent = `${v}°`;
     root.append(tick);
   }
-  for (const [i, p] of [points[0], points[points.length - 1]].entries()) {
-    const label = svg("text", { x: x(p.t), y: H - 8, class: "tick", "text-anchor": i ? "end" : "start" });
-    label.textContent = new Date(p.t).toISOString().slice(0, 7);
+  // the first and last study dates (the day: visits months apart, or on one day, must be told apart)
+  const ends = t1 > t0 ? [points[0], points[points.length - 1]] : [points[0]];
+  for (const [i, p] of ends.entries()) {
+    const label = svg("text", { x: x(p.t), y: H - 8, class: "tick date-tick", "text-anchor": ends.length === 1 ? "middle" : i ? "end" : "start" });
+    label.textContent = new Date(p.t).toISOString().slice(0, 10);
     root.append(label);
   }
   for (let i = 1; i < points.length; i++) {
@@ -283,14 +312,34 @@ export function undatedWords(data: PatientMeasures): string | null {
   return `${one ? "One visit has" : `${undated.length} visits have`} no study date: ${which}. ${one ? "It is" : "They are"} left out of the time axis — the plots and the changes between visits — because neither the films' Study Date (0008,0020) nor the payload's study_date says when ${one ? "it was" : "they were"} filmed, so ${one ? "its" : "their"} place between the other visits is unknown. ${one ? "Its" : "Their"} measures are in the table, last.`;
 }
 
+/** The patient's jobs that are not visits because they have not succeeded (queued or running: not yet;
+ * failed: never), in words, each with its study date and whether its study is already a visit (a new
+ * reading of it); null when there are none. Cancelled jobs were stopped on purpose and are not named. */
+export function notVisitWords(data: PatientMeasures, jobs: Job[]): string | null {
+  const left = jobs.filter((j) => (j.status === "queued" || j.status === "running" || j.status === "failed")
+    && !data.visits.some((v) => v.job_id === j.id));
+  if (!left.length) return null;
+  const words = left.map((j) => {
+    const study = j.study ?? j.payload?.study ?? null;
+    const state = j.status === "failed" ? "failed" : `is still ${j.status}`;
+    const visit = study?.study_instance_uid ? data.visits.find((v) => v.study_instance_uid === study.study_instance_uid) : undefined;
+    const of = visit ? `, a new reading of the ${visit.study_date ?? "undated"} visit's study` : "";
+    return `job ${j.id.slice(0, 8)} (${study?.study_date ? `study date ${study.study_date}` : "no study date"}${of}) ${state}`;
+  });
+  const n = left.length;
+  return `${n === 1 ? "One job" : `${n} jobs`} of this patient ${n === 1 ? "is" : "are"} not in the follow-up, which counts succeeded jobs only: ${words.join("; ")}. ` +
+    "A running job's visit appears when it succeeds (reload); a failed job's study is a visit only once it is sent again and succeeds.";
+}
+
 /** A flagged change in the summary: "Major Cobb +8.0° (2025-01-10 → 2025-07-08)", and whether it compares model estimates. */
 function flaggedWords(data: PatientMeasures, c: Change): string {
   const estimates = changeEstimateWords(data, c);
-  return `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${c.from_date} → ${c.to_date}${estimates ? `, ${estimates}` : ""})`;
+  return `${MEASURE_NAMES[c.measure]} ${signed(c.change_deg)} (${between(c)}${estimates ? `, ${estimates}` : ""})`;
 }
 
-/** Fill the Follow-up view: summary, visits, changes, plots. */
-export function fillFollowUp(container: HTMLElement, data: PatientMeasures): void {
+/** Fill the Follow-up view: summary, the patient's jobs that are not visits (`jobs`: their queued, running
+ * and failed ones; null: they could not be listed), visits, changes, plots. */
+export function fillFollowUp(container: HTMLElement, data: PatientMeasures, jobs: Job[] | null = []): void {
   const flagged = data.changes.filter((c) => c.flagged);
   const n = data.visits.length;
   const summary = el("p", n
@@ -300,6 +349,8 @@ export function fillFollowUp(container: HTMLElement, data: PatientMeasures): voi
   const notes: HTMLElement[] = [];
   const undated = undatedWords(data);
   if (undated) notes.push(Object.assign(el("p", undated, "warning"), { id: "followup-undated" }));
+  const waiting = jobs ? notVisitWords(data, jobs) : "Whether this patient has jobs still queued, running or failed (no visits) could not be asked of the service.";
+  if (waiting) notes.push(Object.assign(el("p", waiting, "warning"), { id: "followup-not-visits" }));
   if (data.older_visits_left_out) {
     // the service reads the newest MAX_PATIENT_JOBS (services/db/jobs.py) succeeded jobs
     notes.push(Object.assign(el("p", "Older visits were left out: only the patient's newest 1,000 succeeded jobs are read.", "warning"), { id: "followup-older" }));

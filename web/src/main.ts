@@ -11,7 +11,7 @@ import { personName } from "./dicom";
 import { changesTable, estimateNotes, fillFollowUp, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
-import { FilmPanel, type ViewName } from "./panel";
+import { FilmPanel, type JobFilm, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
 import { drawProjections, type Backdrop } from "./projections";
 import { COBB_ESTIMATE_REASON, fillLegend, fillLenke, fillMeasures, fillStrains, measureRows, modelMark } from "./results";
@@ -618,8 +618,11 @@ function track(job: Job, started = Date.now(), failures = 0): void {
   const delay = Date.now() - started < 30_000 ? 400 : 2000;
   pollTimer = window.setTimeout(async () => {
     try {
-      track(await api.job(job.id), started, 0);
+      const now = await api.job(job.id);
+      if (currentJob?.id !== job.id) return; // another job was opened while the service answered
+      track(now, started, 0);
     } catch (error) {
+      if (currentJob?.id !== job.id) return;
       if (failures >= 5) {
         statusLine.textContent = `Lost track of job ${job.id}.`;
         if (error instanceof ApiError) showProblem(problemBox, error.problem);
@@ -709,25 +712,30 @@ async function loadFigure(id: string): Promise<void> {
 $("print-report").addEventListener("click", () => window.print());
 
 // The printed report's follow-up table: the patient's visits and changes, fetched when asked for.
+// An answer that arrives after the box was unticked, or another job was opened, is dropped: the report
+// of one job never shows another patient's follow-up.
 $<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
   const box = $("report-followup");
-  const patientId = (currentJob?.study ?? currentJob?.payload?.study)?.patient_id;
+  const tick = e.target as HTMLInputElement;
+  const job = currentJob;
+  const patientId = (job?.study ?? job?.payload?.study)?.patient_id;
   box.hidden = true;
   box.replaceChildren();
-  if (!(e.target as HTMLInputElement).checked || !patientId) return;
+  if (!tick.checked || !patientId) return;
+  const stale = (): boolean => !tick.checked || currentJob?.id !== job?.id;
   try {
     const data = await api.followUp(patientId);
+    if (stale()) return;
     const head = document.createElement("h3");
     head.textContent = `Follow-up of patient ${patientId}`;
-    const undated = undatedWords(data);
-    const note = document.createElement("p");
-    note.textContent = undated ?? "";
+    const notes = [undatedWords(data), data.older_visits_left_out ? "Older visits were left out: only the patient's newest 1,000 succeeded jobs are read." : null]
+      .filter((t): t is string => !!t).map((t) => Object.assign(document.createElement("p"), { textContent: t }));
     const estimates = estimateNotes(data);
-    box.append(head, visitsTable(data, "Measures by study date (± one SD)"), ...(estimates ? [estimates] : []), ...(undated ? [note] : []),
+    box.replaceChildren(head, visitsTable(data, "Measures by study date (± one SD)"), ...(estimates ? [estimates] : []), ...notes,
       changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
     box.hidden = false;
   } catch (error) {
-    if (error instanceof ApiError) showProblem(problemBox, error.problem);
+    if (error instanceof ApiError && !stale()) showProblem(problemBox, error.problem);
   }
 });
 
@@ -841,20 +849,29 @@ function jobRow(job: Job): HTMLTableRowElement {
   return tr;
 }
 
+/** The job asked for last (its address): an earlier job's answer arriving after it is dropped. */
+let openingJob: string | null = null;
+
 /** Reopen a job: its films' landmarks (from the stored payload) in the editors, its result. */
 async function openJob(id: string): Promise<void> {
+  openingJob = id;
   if (currentJob?.id === id) return;
   window.clearTimeout(pollTimer);
   statusLine.textContent = `Opening job ${id}…`;
   try {
     const job = await api.job(id);
+    if (openingJob !== id) return; // another job was asked for meanwhile
     backdrop = null;
     if (job.payload) {
       // Exactly the job's payload: both panels and the draft are reset to it, whatever was open before.
       const p = job.payload;
       draft = null;
-      panels.pa.restore(p.pa);
-      if (p.lateral) panels.lateral.restore(p.lateral);
+      // the job's film as its payload's study names it, or the header values the service read for it
+      const study: Partial<Study> | null = p.study || job.study ? { ...job.study, ...p.study } : null;
+      const film = (sop: string | null | undefined): JobFilm | null =>
+        study ? { sop_instance_uid: sop, study_instance_uid: study.study_instance_uid, patient_id: study.patient_id } : null;
+      panels.pa.restore(p.pa, film(study?.pa_sop_instance_uid));
+      if (p.lateral) panels.lateral.restore(p.lateral, film(study?.lateral_sop_instance_uid));
       else panels.lateral.reset();
       reopenedJob = { ...(p.study ? { study: p.study } : {}), ...(p.options !== undefined ? { options: p.options } : {}) };
       void reopenFilms(job);
@@ -865,6 +882,7 @@ async function openJob(id: string): Promise<void> {
     }
     track(job);
   } catch (error) {
+    if (openingJob !== id) return;
     statusLine.textContent = `Job ${id} could not be opened.`;
     showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
   }
@@ -882,18 +900,25 @@ followForm.addEventListener("submit", (e) => {
 
 const UUID = /^[0-9a-fA-F]{8}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{12}$/;
 
-/** The follow-up of a patient ID, or of a job's patient when given a job ID. */
+/** The follow-up asked for last: an answer to an earlier request that arrives after it is dropped. */
+let followRequest = 0;
+
+/** The follow-up of a patient ID, or of a job's patient when given a job ID; with the patient's jobs that
+ * are not visits (queued, running, failed) when the service filters jobs by patient ID. */
 async function showFollowUp(idOrJob: string): Promise<void> {
   const box = $("followup");
   const problem = $("followup-problem");
+  const request = ++followRequest;
   showProblem(problem, null);
   box.replaceChildren();
+  delete box.dataset.patient;
   followInput.value = idOrJob;
   if (!idOrJob) return;
   try {
     let patientId = idOrJob;
     if (UUID.test(idOrJob)) {
       const job = await api.job(idOrJob);
+      if (request !== followRequest) return;
       const pid = (job.study ?? job.payload?.study)?.patient_id;
       if (!pid) {
         showProblem(problem, { type: "about:blank", title: "No patient", status: 0, detail: `Job ${idOrJob} names no patient: its payload and films gave no Patient ID.` });
@@ -901,10 +926,17 @@ async function showFollowUp(idOrJob: string): Promise<void> {
       }
       patientId = pid;
     }
-    const data = await api.followUp(patientId);
-    fillFollowUp(box, data);
+    caps ??= await capabilities();
+    const [data, others] = await Promise.all([
+      api.followUp(patientId),
+      // the follow-up is shown without them when they cannot be listed (it says so)
+      caps.jobFilters.has("patient_id") ? api.jobs({ patient_id: patientId, status: ["queued", "running", "failed"] }, 100).catch(() => undefined) : null,
+    ]);
+    if (request !== followRequest) return;
+    fillFollowUp(box, data, others === undefined ? null : others?.jobs ?? []);
     box.dataset.patient = patientId;
   } catch (error) {
+    if (request !== followRequest) return;
     showProblem(problem, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
   }
 }
@@ -925,10 +957,18 @@ async function reopenFilms(job: Job): Promise<void> {
       panel.explainBlank(noPacs);
       continue;
     }
+    if (panel.reopenedInMm()) {
+      panel.explainBlank(`The landmarks are in mm without a pixel spacing, so their place on the film (image ${sop} of study ${uid}) is unknown: they are shown on a blank frame (1 px = 1 mm), not over the film.`);
+      continue;
+    }
     panel.explainBlank(`Fetching the film (image ${sop}) from the PACS…`);
+    // A film opened by hand meanwhile (or being read), or the panel closed: the PACS's film does not
+    // replace it (its landmarks would go with it), and no note of the fetch covers its header.
+    const handled = (): boolean => !!panel.editor.source || !!panel.editor.loading || !panel.reopened;
     try {
       const file = await pacs.fetchFilm(uid, sop);
       if (currentJob?.id !== job.id) return; // another job was opened meanwhile
+      if (handled()) continue;
       await panel.open(file);
       if (view === "pa" && currentJob?.id === job.id) {
         if (backdrop) URL.revokeObjectURL(backdrop.url);
@@ -937,6 +977,7 @@ async function reopenFilms(job: Job): Promise<void> {
       }
     } catch (error) {
       if (currentJob?.id !== job.id) return;
+      if (handled()) continue;
       if (error instanceof NoPacs) panel.explainBlank(noPacs);
       else panel.explainBlank(`The film is image ${sop} of study ${uid} in the PACS, but it could not be fetched again: ${error instanceof Error ? error.message : String(error)}. ${blank}`);
     }

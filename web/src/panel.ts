@@ -76,6 +76,13 @@ export class FilmPanel {
   private readonly redoButton: HTMLButtonElement;
   /** Set when a job is reopened without its film: the spacing and units of its payload. */
   reopened: ViewPayload | null = null;
+  /** The reopened job's film as its `study` names it (this view's SOP Instance UID, the Study Instance
+   * UID, the Patient ID): a DICOM film opened under the job's landmarks that says it is another is warned
+   * about, and one of another patient is not sent with them. */
+  private jobFilm: JobFilm | null = null;
+  /** Set when the reopened job's landmarks were kept over a film of another patient: why, in words, and
+   * those landmarks; not sent while any of them is still there unchanged. */
+  private otherPatient: { words: string; marks: Set<string> } | null = null;
 
   constructor(readonly view: ViewName, container: HTMLElement, private readonly onChange: () => void) {
     const id = (s: string): string => `${view}-${s}`;
@@ -205,19 +212,44 @@ export class FilmPanel {
     this.update();
   }
 
+  /** Counts the films asked for: a film read after a newer one was asked for is dropped, not shown. */
+  private opening = 0;
+
   async open(file: File | undefined): Promise<void> {
     if (!file) return;
+    const ticket = ++this.opening;
     this.showError(null);
+    this.editor.loading = file.name;
+    this.update();
+    try {
+      await this.read(file, () => ticket !== this.opening);
+    } finally {
+      if (ticket === this.opening) {
+        this.editor.loading = null;
+        this.update();
+        this.editor.draw();
+      }
+    }
+  }
+
+  /** Read and show `file`; `stale()` says that a newer film was asked for meanwhile (then nothing changes). */
+  private async read(file: File, stale: () => boolean): Promise<void> {
     const bytes = new Uint8Array(await file.arrayBuffer());
+    if (stale()) return;
     const isDicom = bytes.length > 132 && String.fromCharCode(...bytes.subarray(128, 132)) === "DICM";
     // A reopened job's landmarks stay over the film opened under them (its own film, by hand or from
     // the PACS); any other landmarks belong to the film they were placed on and go with it.
-    const keep = !!this.reopened && !this.editor.source;
+    // A reopened job's landmarks in mm without a pixel spacing have no known place on a film (1 px = 1 mm
+    // only on the blank frame): they are not put over it as if they were pixels.
+    const inMm = this.reopenedInMm();
+    const keep = !!this.reopened && !this.editor.source && !inMm;
     let dropped = 0;
     let warning: string | null = null;
+    let notTheJobs: OtherFilm | null = null;
     try {
       if (isDicom || /\.dcm$/i.test(file.name) || file.type === "application/dicom") {
         const film = parseFilm(bytes, file.name);
+        notTheJobs = keep ? otherFilm(this.jobFilm, film) : null;
         this.dicom = film;
         this.spacing.value = film.spacing.value ? String(film.spacing.value[1]) : "";
         this.wlCenter.value = String(round(film.window.center));
@@ -237,6 +269,7 @@ export class FilmPanel {
         } finally {
           URL.revokeObjectURL(url);
         }
+        if (stale()) return;
         this.dicom = null;
         this.spacing.value = "";
         this.wlRow.hidden = true;
@@ -250,16 +283,28 @@ export class FilmPanel {
       this.reopened = null;
       this.ignoreGeometry.checked = false;
       if (!keep) this.fromJob = false;
+      // the reopened job's landmarks kept over a film that says it is not theirs, or that they overhang
+      this.otherPatient = notTheJobs?.patient
+        ? { words: notTheJobs.words, marks: new Set(this.editor.landmarks().map((lm) => JSON.stringify(lm))) }
+        : null;
+      const outside = keep ? this.editor.landmarksOffFilm() : [];
+      warning = [
+        warning,
+        notTheJobs && `${file.name} is not the reopened job's film: its header says ${notTheJobs.words}. The landmarks over it were placed on the job's film: check each one${notTheJobs.patient ? "; the job is not sent with another patient's film" : ""}.`,
+        outside.length ? `${outside.length === 1 ? "The landmark of" : "The landmarks of"} ${outside.join(", ")} of the reopened job lie${outside.length === 1 ? "s" : ""} outside this film (${this.editor.source?.width} × ${this.editor.source?.height} px): is it the film the job was made from?` : null,
+      ].filter(Boolean).join(" ") || null;
       this.warning.hidden = !warning;
       this.warning.textContent = warning ?? "";
-      this.dropNote = dropped
+      this.dropNote = dropped && inMm
+        ? `The reopened job's landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} are in mm without a pixel spacing, so where they lie on ${file.name} is unknown: they were removed, not guessed. Reopen the job to see them again on the blank frame, or place them on ${file.name}.`
+        : dropped
         ? `The landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} placed on the previous film were removed, with their undo history: landmarks belong to the film they were placed on. Place them again on ${file.name}.`
         : null;
       this.fillHeader();
       this.update();
       this.onChange();
     } catch (error) {
-      this.showError(error instanceof Error ? error.message : `${file.name} could not be read.`);
+      if (!stale()) this.showError(error instanceof Error ? error.message : `${file.name} could not be read.`);
     }
   }
 
@@ -274,8 +319,17 @@ export class FilmPanel {
     }
   }
 
+  /** The reopened job's landmarks (on the blank frame) are in mm without a pixel spacing: no film can be put under them. */
+  reopenedInMm(): boolean {
+    return !!this.reopened && (this.reopened.units ?? "mm") === "mm" && !this.reopened.pixel_spacing;
+  }
+
   /** Close the film: no film, no landmarks, no header, as the page first shows the panel. */
   reset(): void {
+    this.opening++; // a film still being read is not shown once the panel is closed
+    this.editor.loading = null;
+    this.jobFilm = null;
+    this.otherPatient = null;
     this.dicom = null;
     this.fileName = null;
     this.reopened = null;
@@ -414,7 +468,13 @@ export class FilmPanel {
   problems(): string[] {
     const out: string[] = [];
     const name = this.view === "pa" ? "PA" : "lateral";
-    const n = this.editor.landmarks().length;
+    const placed = this.editor.landmarks();
+    const n = placed.length;
+    const other = this.otherPatient;
+    const theJobs = other ? placed.filter((lm) => other.marks.has(JSON.stringify(lm))).map((lm) => lm.level) : [];
+    if (other && theJobs.length) {
+      out.push(`The ${name} film is not the reopened job's: its header says ${other.words}, and the landmarks of ${theJobs.length === 1 ? theJobs[0] : `${theJobs.length} vertebrae (${theJobs[0]}–${theJobs[theJobs.length - 1]})`} over it were placed on the job's film. Close it (“Close film” under it) and open the job's film, or place those landmarks again on this one.`);
+    }
     if (this.editor.source && n && !this.pixelSpacing()) {
       out.push(`Enter the pixel spacing of the ${name} film (mm per pixel, between 0.001 and 10): ${this.dicom ? "its header gives none" : "a PNG or JPEG does not carry it"}, and it is never guessed.`);
     }
@@ -426,8 +486,9 @@ export class FilmPanel {
 
   /** A reopened job's view: its landmarks on a blank frame until its film is opened (by hand, or
    * fetched again from the PACS); ``why`` says why the film is not there, in the header and the frame. */
-  restore(view: ViewPayload, why = "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."): void {
+  restore(view: ViewPayload, film: JobFilm | null = null, why = "Not stored by the service: the landmarks are shown on a blank frame. Open the film to see it under them."): void {
     this.reset();
+    this.jobFilm = film;
     this.reopened = { ...view, landmarks: [] };
     this.fromJob = true;
     this.dicom = null;
@@ -456,9 +517,11 @@ export class FilmPanel {
     this.redoButton.disabled = !ed.canRedo;
     if (!ed.source && !this.reopened) {
       this.status.textContent = "";
+      this.prompt.textContent = ed.loading ? `Loading ${ed.loading}…` : `Open the ${this.view === "pa" ? "PA" : "lateral"} film to start.`;
       return;
     }
-    this.prompt.textContent = ed.finished ? `${ed.level} is complete: choose a level to place again, or drag a point to move it.` : `Next: ${ed.nextPart()}.`;
+    const next = ed.finished ? `${ed.level} is complete: choose a level to place again, or drag a point to move it.` : `Next: ${ed.nextPart()}.`;
+    this.prompt.textContent = ed.loading ? `Loading ${ed.loading}…` : ed.placedNothing ? `${ed.placedNothing}. ${next}` : next;
     const levels = placed.map((l) => l.level);
     const kinds = [
       placed.filter((l) => l.point).length && `${placed.filter((l) => l.point).length} midpoints`,
@@ -472,6 +535,34 @@ export class FilmPanel {
 }
 
 const round = (x: number): number => Math.round(x * 100) / 100;
+
+/** A reopened job's film as its payload's `study` names it. */
+export interface JobFilm {
+  /** This view's SOP Instance UID (0008,0018): `pa_sop_instance_uid` or `lateral_sop_instance_uid`. */
+  sop_instance_uid?: string | null;
+  study_instance_uid?: string | null;
+  patient_id?: string | null;
+}
+
+/** How a DICOM film's header says it is not the reopened job's film. */
+export interface OtherFilm {
+  /** Of another patient (Patient ID (0010,0020)), not only another study or image. */
+  patient: boolean;
+  words: string;
+}
+
+/** How a DICOM film's header says it is not the reopened job's film; null when nothing says so (an
+ * identifier missing on either side says nothing): its Patient ID (0010,0020), Study Instance UID
+ * (0020,000D) or SOP Instance UID (0008,0018) differs from the job's `study`. */
+export function otherFilm(job: JobFilm | null, film: DicomFilm): OtherFilm | null {
+  if (!job) return null;
+  const s = film.study;
+  const differs = (a: string | null | undefined, b: string | null | undefined): boolean => !!a && !!b && a.trim() !== b.trim();
+  if (differs(job.patient_id, s.patient_id)) return { patient: true, words: `patient ID ${s.patient_id}, the job's is ${job.patient_id}` };
+  if (differs(job.study_instance_uid, s.study_instance_uid)) return { patient: false, words: `study ${s.study_instance_uid}, the job's is ${job.study_instance_uid}` };
+  if (differs(job.sop_instance_uid, s.sop_instance_uid)) return { patient: false, words: `image ${s.sop_instance_uid}, the job's is ${job.sop_instance_uid}` };
+  return null;
+}
 
 /** The acquisition members that state the film's geometry (DICOM ERMF (0018,1114), SID (0018,1110), SOD (0018,1111)). */
 const GEOMETRY_KEYS = ["magnification", "distance_source_to_detector_mm", "distance_source_to_patient_mm"] as const;
