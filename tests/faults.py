@@ -35,6 +35,7 @@ import uuid
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,7 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import OperationalError
 
 from services.core.config import Settings
+from services.db.clock import db_now
 from services.db.engine import dispose_engines, session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job, JobMeasures
@@ -440,3 +442,22 @@ def payload_in_logs(service: LiveService) -> list[str]:
     """Log lines that carry payload content (landmarks or boundary poses): must be none."""
     return [line for line in service.log_lines() if '"landmarks"' in line or "landmarks" in line
             or '"boundary"' in line or "directors" in line]  # fmt: skip
+
+
+class SkewedClock:
+    """A process's ``utcnow`` whose clock is ``offset`` away from the host's: patched into the modules of
+    the process that acts, to inject a clock skew while the database stays real (and keeps its clock)."""
+
+    def __init__(self) -> None:
+        self.offset = timedelta(0)
+
+    def __call__(self) -> datetime:
+        return datetime.now(UTC) + self.offset
+
+
+def db_clock(settings: Settings) -> datetime:
+    """The database's clock (``services.db.clock``), on which leases and due times are written."""
+    with session_scope(settings) as session:
+        now = session.scalar(select(db_now()))
+    assert now is not None
+    return now

@@ -26,18 +26,16 @@ from typing import Any
 
 import pytest
 from celery import Celery
-from sqlalchemy import select
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery, queue_depth
 from services.db import deliveries, jobs, runs
-from services.db.clock import db_now
 from services.db.dicom_stores import DicomStoreAttempt
 from services.db.engine import session_scope, worker_connection
 from services.db.migrate import upgrade
 from services.worker import dicom_tasks, webhook_tasks
 from tests.conftest import spine_payload
-from tests.faults import wait_until
+from tests.faults import SkewedClock, db_clock, wait_until
 from tests.interop_helpers import TEST_WEBHOOK_SECRET
 
 SKEW = timedelta(hours=1)
@@ -53,15 +51,6 @@ LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "
 UNREACHABLE = "http://127.0.0.1:9/hooks/due-clock"
 """A callback_url that the sweep publishes for; no test makes its request."""
 
-
-class SkewedClock:
-    """``utcnow`` of the process that acts, ``offset`` away from the host's clock."""
-
-    def __init__(self) -> None:
-        self.offset = timedelta(0)
-
-    def __call__(self) -> datetime:
-        return datetime.now(UTC) + self.offset
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -90,16 +79,9 @@ def broker(settings: Settings) -> Celery:
     return make_celery(settings)
 
 
-def _db_clock(settings: Settings) -> datetime:
-    with session_scope(settings) as session:
-        now = session.scalar(select(db_now()))
-    assert now is not None
-    return now
-
-
 def _wait_db_clock_past(settings: Settings, moment: datetime, seconds: float) -> None:
     """Until the database's clock is ``seconds`` past ``moment`` (a time read from it)."""
-    wait_until(lambda: _db_clock(settings) > moment + timedelta(seconds=seconds), WAIT_S, "the database's clock")
+    wait_until(lambda: db_clock(settings) > moment + timedelta(seconds=seconds), WAIT_S, "the database's clock")
 
 
 def _new_job(settings: Settings, callback_url: str | None = None) -> uuid.UUID:
@@ -145,7 +127,7 @@ def test_a_job_enqueued_by_an_api_whose_clock_is_ahead_is_recovered_after_the_ti
     clock.offset = SKEW
     job_id = _new_job(settings)
     clock.offset = timedelta(0)
-    _wait_db_clock_past(settings, _db_clock(settings), SHORT)
+    _wait_db_clock_past(settings, db_clock(settings), SHORT)
     assert _republished(settings, job_id, timedelta(seconds=SHORT))
 
 
@@ -153,7 +135,7 @@ def test_a_reconciler_whose_clock_is_behind_recovers_a_job_after_the_timeout(
     settings: Settings, clock: SkewedClock
 ) -> None:
     job_id = _new_job(settings)
-    _wait_db_clock_past(settings, _db_clock(settings), SHORT)
+    _wait_db_clock_past(settings, db_clock(settings), SHORT)
     clock.offset = -SKEW
     assert _republished(settings, job_id, timedelta(seconds=SHORT))
 
@@ -228,7 +210,7 @@ def test_a_sweep_whose_clock_is_behind_publishes_a_lost_first_message_after_its_
 ) -> None:
     settings = _webhook_settings(settings, webhook_sweep_after_s=SHORT)
     _failed_by_worker(settings, UNREACHABLE)
-    _wait_db_clock_past(settings, _db_clock(settings), SHORT)
+    _wait_db_clock_past(settings, db_clock(settings), SHORT)
     clock.offset = -SKEW
     assert webhook_tasks.sweep(settings, broker) == 1
     assert queue_depth(broker, settings.webhook_queue) == 1
@@ -364,7 +346,7 @@ def test_a_stow_sweep_whose_clock_is_behind_publishes_a_lost_attempt_after_its_d
     on a right clock, does not publish it a second time."""
     job_id = _new_job(settings)
     assert dicom_tasks.job_succeeded(settings.model_copy(update={"dicomweb_sweep_after_s": SHORT}), job_id, broker)
-    _wait_db_clock_past(settings, _db_clock(settings), SHORT)
+    _wait_db_clock_past(settings, db_clock(settings), SHORT)
     clock.offset = -SKEW
     assert dicom_tasks.sweep(settings, broker) == 1
     clock.offset = timedelta(0)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import Iterator
-from datetime import UTC, datetime, timedelta
+from datetime import timedelta
 from pathlib import Path
 
 import pytest
@@ -24,7 +24,7 @@ from services.db.jobs import create_job
 from services.db.migrate import upgrade
 from services.db.models import Job
 from tests.conftest import spine_payload
-from tests.faults import wait_until
+from tests.faults import SkewedClock, wait_until
 
 SKEW = timedelta(hours=1)
 """How far the skewed process's clock is from the host's: far more than any lease."""
@@ -37,15 +37,6 @@ EXPIRY_WAIT_S = 10.0
 slack under the other helpers' load (the wait ends as soon as the clock has passed it)."""
 LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
 
-
-class SkewedClock:
-    """``utcnow`` of a process whose clock is ``offset`` away from the host's."""
-
-    def __init__(self) -> None:
-        self.offset = timedelta(0)
-
-    def __call__(self) -> datetime:
-        return datetime.now(UTC) + self.offset
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import Any
 
 import pytest
@@ -19,11 +19,11 @@ from services.core.jobqueue import make_celery, queue_depth
 from services.db import deliveries as store
 from services.db import jobs as repo
 from services.db import runs
-from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job, WebhookDelivery, utcnow
 from services.worker import webhook_tasks
 from tests.conftest import spine_payload
+from tests.faults import db_clock
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
@@ -34,14 +34,6 @@ def settle_earlier_tests(settings: Settings) -> None:
     """The PostgreSQL store is shared by this session's tests: nothing of theirs is due any more."""
     with session_scope(settings) as session:
         session.execute(update(WebhookDelivery).values(next_attempt_at=None))
-
-
-def db_clock(settings: Settings) -> datetime:
-    """The database's clock (``services.db.clock``), on which the outbox row's due time is written."""
-    with session_scope(settings) as session:
-        now = session.scalar(select(db_now()))
-    assert now is not None
-    return now
 
 
 def rows(settings: Settings, job_id: uuid.UUID) -> list[WebhookDelivery]:
