@@ -11,13 +11,17 @@ Exit codes (docs/client.md), for scripts:
     6  authentication or authorisation refused (401, 403: check --api-key / SPINE_API_KEY)
     7  conflict with the job's state (cancel of a finished job, CSV or FHIR of a job without result,
        an Idempotency-Key reused with another body)
+  130  interrupted (Ctrl-C: SIGINT, 128 + 2, as a shell reports a command a signal ended)
+  141  stdout closed by its reader (`| head -1`: SIGPIPE, 128 + 13); what was written stays written
 """
 
 from __future__ import annotations
 
 import argparse
+import codecs
 import json
 import math
+import os
 import sys
 import time
 import uuid
@@ -33,7 +37,6 @@ from spine_client.errors import (
     Forbidden,
     InvalidRequest,
     NotFound,
-    ServiceUnreachable,
     SpineError,
     Unauthorized,
     WaitTimeout,
@@ -48,6 +51,10 @@ EXIT_SERVER = 4
 EXIT_NOT_FOUND = 5
 EXIT_AUTH = 6
 EXIT_CONFLICT = 7
+EXIT_INTERRUPTED = 130
+"""128 + SIGINT (2): what a shell reports for a command Ctrl-C ended."""
+EXIT_BROKEN_PIPE = 141
+"""128 + SIGPIPE (13): what a shell reports for a command whose reader closed the pipe (``| head -1``)."""
 
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -70,8 +77,13 @@ def exit_code(exc: BaseException) -> int:
     return EXIT_SERVER
 
 
+_CONTROLS = {c: f"\\x{c:02x}" for c in (*range(0x20), 0x7F, *range(0x80, 0xA0))}
+"""C0 and C1 control characters and DEL, written as ``\\xNN``: a server's or a file's text in a message
+can neither move the terminal's cursor, recolour it, nor break the message's one line."""
+
+
 def _err(message: str) -> None:
-    sys.stderr.write(f"spine: {message}\n")
+    sys.stderr.write(f"spine: {message.translate(_CONTROLS)}\n")
 
 
 def _report(exc: BaseException) -> None:
@@ -87,18 +99,55 @@ def _print_json(body: Any) -> None:
     sys.stdout.write(json.dumps(body, indent=2, ensure_ascii=False) + "\n")
 
 
+def _finite(text: str) -> float:
+    """A JSON number with a fraction or exponent, refused beyond a double's range (``1e400``): RFC 8259 §6
+    lets a parser limit the range, and the service's JSON has no infinity."""
+    number = float(text)
+    if not math.isfinite(number):
+        raise ValueError(f"the number {text} is beyond a double's range")
+    return number
+
+
+def _not_json(constant: str) -> Any:
+    """``NaN``, ``Infinity``, ``-Infinity``: Python's extensions, not JSON (RFC 8259 §6 has no such number)."""
+    raise ValueError(f"{constant} is not a JSON number")
+
+
 def _load_json(path: str) -> Any:
+    """The JSON document of a file, or of stdin for ``-``: UTF-8, a leading byte-order mark skipped (RFC
+    8259 §8.1 lets a parser ignore it; Windows tools write it). ``UsageError`` naming the file and why:
+    unreadable, empty, not UTF-8, not JSON (where), a number JSON does not have, nesting too deep."""
+    name = "stdin" if path == "-" else path
     try:
-        text = sys.stdin.read() if path == "-" else Path(path).read_text(encoding="utf-8")
+        data = sys.stdin.buffer.read() if path == "-" else Path(path).read_bytes()
     except OSError as exc:
         raise UsageError(f"cannot read {path}: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise UsageError(f"{path} is not UTF-8 text, as JSON is (RFC 8259 §8.1): byte 0x{exc.object[exc.start]:02x} "
-                         f"at offset {exc.start}") from None  # fmt: skip
+    skipped = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
     try:
-        return json.loads(text)
+        text = data[skipped:].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        at = skipped + exc.start
+        raise UsageError(f"{name} is not UTF-8 text, as JSON is (RFC 8259 §8.1): byte 0x{data[at]:02x} "
+                         f"at offset {at}") from None  # fmt: skip
+    if not text.strip():
+        raise UsageError(f"{name} is empty: a JSON document was expected")
+    try:
+        return json.loads(text, parse_float=_finite, parse_constant=_not_json)
     except json.JSONDecodeError as exc:
-        raise UsageError(f"{path} is not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+        raise UsageError(f"{name} is not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except ValueError as exc:  # _finite, _not_json, an integer of more digits than int() takes
+        raise UsageError(f"{name} is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise UsageError(f"{name} nests arrays or objects deeper than this reader can follow "
+                         f"(about {sys.getrecursionlimit()} levels)") from None  # fmt: skip
+
+
+def _json_type(value: Any) -> str:
+    """The JSON type of a parsed value, as RFC 8259 §3 names them."""
+    if isinstance(value, bool):
+        return "a boolean"
+    names = {dict: "an object", list: "an array", str: "a string", int: "a number", float: "a number"}
+    return "null" if value is None else names.get(type(value), type(value).__name__)
 
 
 def _client(args: argparse.Namespace) -> SpineClient:
@@ -121,6 +170,17 @@ def _retries(value: str) -> int:
     return number
 
 
+def _wait_seconds(value: str) -> float:
+    """``--timeout``: a number of seconds, 0 or more (0: look once, do not wait)."""
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, 0 or more, not {value!r}") from None
+    if not (number >= 0 and math.isfinite(number)):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, 0 or more, not {value}")
+    return number
+
+
 def _seconds(value: str) -> float:
     """``--request-timeout``: a number of seconds above 0."""
     try:
@@ -133,7 +193,15 @@ def _seconds(value: str) -> float:
 
 
 def _job_exit(job: dict[str, Any]) -> int:
-    return EXIT_JOB_FAILED if job.get("status") in ("failed", "cancelled") else EXIT_OK
+    """Exit 1 for a failed or cancelled job, saying why on stderr (the job's problem and its fields), else 0."""
+    status = job.get("status")
+    if status not in ("failed", "cancelled"):
+        return EXIT_OK
+    error = job.get("error") or {}
+    _err(f"error: job {job.get('id')} {status}" + (f": {error['detail']}" if error.get("detail") else ""))
+    for e in error.get("errors") or []:
+        _err(f"  {e.get('path') or '(body)'}: {e.get('msg')}")
+    return EXIT_JOB_FAILED
 
 
 # ------------------------------------------------------------------ commands
@@ -143,15 +211,24 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
     """The payload of ``spine submit --pa-dicom`` (landmarks CSV + headers read here, sent as the job's
     ``dicom`` block, so that the job keeps its film as a PACS job does; conflicts to stderr) or of
     ``--study-instance-uid`` (landmarks CSV + UIDs: the service reads the headers)."""
+    if args.base == "-" and args.payload == "-":
+        raise UsageError("FILE and --base cannot both be - (stdin): give one of them as a file")
     base = _load_json(args.base) if args.base else {}
+    if not isinstance(base, dict):
+        raise UsageError(f"--base {args.base}: a payload is a JSON object, not {_json_type(base)}")
+    for member in ("pa", "lateral", "study"):  # merged with what the CSV and the headers give
+        if base.get(member) is not None and not isinstance(base[member], dict):
+            raise UsageError(f"--base {args.base}: {member} is a JSON object, not {_json_type(base[member])}")
+    source = sys.stdin.buffer if args.payload == "-" else args.payload
+    name = "stdin" if args.payload == "-" else args.payload
     if args.study_instance_uid:
         if not args.pa_sop_instance_uid:
             raise UsageError("--study-instance-uid needs --pa-sop-instance-uid")
         try:
-            return payload_by_reference(args.payload, args.study_instance_uid, args.pa_sop_instance_uid,
+            return payload_by_reference(source, args.study_instance_uid, args.pa_sop_instance_uid,
                                         args.lateral_sop_instance_uid, units=args.units, base=base)  # fmt: skip
         except LandmarkCsvError as exc:
-            raise UsageError(f"{args.payload}: {exc}") from None
+            raise UsageError(f"{name}: {exc}") from None
         except OSError as exc:
             raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
     try:
@@ -159,10 +236,10 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
     except optional.MissingExtra as exc:
         raise UsageError(str(exc)) from None
     try:
-        payload, provenance = dicom_input.payload_from_dicom(args.payload, args.pa_dicom, args.lateral_dicom,
+        payload, provenance = dicom_input.payload_from_dicom(source, args.pa_dicom, args.lateral_dicom,
                                                              units=args.units, base=base)  # fmt: skip
     except LandmarkCsvError as exc:
-        raise UsageError(f"{args.payload}: {exc}") from None
+        raise UsageError(f"{name}: {exc}") from None
     except dicom_input.DicomError as exc:
         raise UsageError(str(exc)) from None
     except OSError as exc:
@@ -192,20 +269,32 @@ def cmd_submit(args: argparse.Namespace) -> int:
             return EXIT_OK
         try:
             client.wait(job.id, args.timeout)
-        except WaitTimeout as exc:
-            _print_json(client.get_json(exc.job.id))
+        except WaitTimeout:
+            body = client.get_json(job.id)
+            if body.get("status") not in FINAL:  # else it ended since the last look: printed as ended, below
+                _print_json(body)
+                raise
+        except (SpineError, KeyboardInterrupt):  # the job goes on: its id is all a script has to find it
+            _err(f"note: job {job.id} was made and goes on without this wait (spine get {job.id})")
             raise
-        body = client.get_json(job.id)
+        else:
+            body = client.get_json(job.id)
     _print_json(body)
     return _job_exit(body)
 
 
 def cmd_get(args: argparse.Namespace) -> int:
     if args.sr or args.figure_dcm:
+        if args.sr == "-" and args.figure_dcm == "-":
+            raise UsageError("--sr and --figure-dcm cannot both be - (stdout): give one of them as a file")
         with _client(args) as client:
             for path, fetch in ((args.sr, client.sr), (args.figure_dcm, client.figure_dicom)):
                 if path:
                     data = fetch(args.job_id)
+                    if path == "-":
+                        sys.stdout.flush()
+                        sys.stdout.buffer.write(data)
+                        continue
                     try:
                         Path(path).write_bytes(data)
                     except OSError as exc:
@@ -251,7 +340,10 @@ def cmd_list(args: argparse.Namespace) -> int:
     more = f" (more: --cursor {next_cursor})" if next_cursor else ""
     cells = [[("" if row.get(c) is None else f"{row[c]:.1f}" if isinstance(row[c], float) else str(row[c]))
               for c in columns] for row in rows]  # fmt: skip
-    optional.print_table(columns, cells, f"{len(rows)} jobs{more}", width=None if sys.stdout.isatty() else 200)
+    try:
+        optional.print_table(columns, cells, f"{len(rows)} jobs{more}", width=None if sys.stdout.isatty() else 200)
+    except SystemExit:  # rich's Console.on_broken_pipe: stdout's reader is gone, stdout already the null device
+        return EXIT_BROKEN_PIPE
     return EXIT_OK
 
 
@@ -277,6 +369,11 @@ def cmd_submit_dir(args: argparse.Namespace) -> int:
     files = sorted(p for p in folder.glob("*.json") if p.is_file())
     if not files:
         raise UsageError(f"{folder} has no *.json file")
+    try:  # before any job is made: a summary that cannot be written would lose every outcome at the end
+        with summary_path.open("a", encoding="utf-8"):
+            pass
+    except OSError as exc:
+        raise UsageError(f"cannot write the summary {summary_path}: {exc.strerror or exc}") from None
     rows: dict[str, dict[str, Any]] = {}
     payloads: list[Any] = []
     names: list[str] = []
@@ -288,42 +385,48 @@ def cmd_submit_dir(args: argparse.Namespace) -> int:
             rows[path.name] = tables.summary_row(path.name, None, status="rejected",
                                                  problem={"type": "malformed-json", "detail": str(exc)})  # fmt: skip
     pending: dict[str, str] = {}  # job id -> file
-    with _client(args) as client, optional.progress(disable=args.no_progress) as progress:
-        submitting = progress.add_task("submitting", total=len(payloads))
-        for start in range(0, len(payloads), args.batch_size):
-            part = payloads[start : start + args.batch_size]
-            batch = client.submit_batch(part, idempotency_key=f"{args.run_key}.{start}", chunk=args.batch_size)
-            for entry in batch.results:
-                name = names[start + entry.index]
-                if entry.job is not None:
-                    pending[str(entry.job.id)] = name
-                    rows[name] = tables.summary_row(name, entry.job.model_dump(mode="json"))
-                else:
-                    problem = entry.problem.model_dump(mode="json") if entry.problem else None
-                    rows[name] = tables.summary_row(name, None, status="rejected", problem=problem)
-            progress.advance(submitting, len(part))
-        timed_out = False
-        if not args.no_wait:
-            waiting = progress.add_task("waiting", total=len(pending))
-            deadline = None if args.timeout is None else time.monotonic() + args.timeout
-            interval = 0.2
-            while pending:
-                for job_id in list(pending):
-                    body = client.get_json(job_id)
-                    if body.get("status") in FINAL:
-                        name = pending.pop(job_id)
-                        rows[name] = tables.summary_row(name, body)
-                        progress.advance(waiting)
-                if not pending:
-                    break
-                if deadline is not None and time.monotonic() >= deadline:
-                    timed_out = True
-                    for job_id, name in pending.items():
-                        rows[name]["status"] = "timeout"
-                        rows[name]["detail"] = f"still not finished after {args.timeout:g} s (job {job_id})"
-                    break
-                time.sleep(interval)
-                interval = min(2.0, interval * 1.5)
+    timed_out = False
+    try:
+        with _client(args) as client, optional.progress(disable=args.no_progress) as progress:
+            submitting = progress.add_task("submitting", total=len(payloads))
+            for start in range(0, len(payloads), args.batch_size):
+                part = payloads[start : start + args.batch_size]
+                key = f"{args.run_key}.{start}"
+                batch = client.submit_batch(part, idempotency_key=key, chunk=args.batch_size)
+                for entry in batch.results:
+                    name = names[start + entry.index]
+                    if entry.job is not None:
+                        pending[str(entry.job.id)] = name
+                        rows[name] = tables.summary_row(name, entry.job.model_dump(mode="json"))
+                    else:
+                        problem = entry.problem.model_dump(mode="json") if entry.problem else None
+                        rows[name] = tables.summary_row(name, None, status="rejected", problem=problem)
+                progress.advance(submitting, len(part))
+            if not args.no_wait:
+                waiting = progress.add_task("waiting", total=len(pending))
+                deadline = None if args.timeout is None else time.monotonic() + args.timeout
+                interval = 0.2
+                while pending:
+                    for job_id in list(pending):
+                        body = client.get_json(job_id, deadline=deadline)
+                        if body.get("status") in FINAL:
+                            name = pending.pop(job_id)
+                            rows[name] = tables.summary_row(name, body)
+                            progress.advance(waiting)
+                    if not pending:
+                        break
+                    if deadline is not None and time.monotonic() >= deadline:
+                        timed_out = True
+                        for job_id, name in pending.items():
+                            rows[name]["status"] = "timeout"
+                            rows[name]["detail"] = f"still not finished after {args.timeout:g} s (job {job_id})"
+                        break
+                    time.sleep(interval)
+                    interval = min(2.0, interval * 1.5)
+    except (SpineError, KeyboardInterrupt):
+        if payloads:  # jobs may have been made: the same run key finds them again instead of making more
+            _err(f"note: rerun with --run-key {args.run_key} to pick up the jobs this run made, none made twice")
+        raise
     ordered = [rows[p.name] for p in files]
     summary_path.write_text(tables.summary_csv(ordered), encoding="utf-8")
     counts: dict[str, int] = {}
@@ -352,22 +455,25 @@ def cmd_submit_dir(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--url", default=None, help=f"service URL (default ${URL_ENV}, else {DEFAULT_URL})")
-    common.add_argument("--api-key", default=None, help=f"API key, sent as a Bearer token (default ${API_KEY_ENV})")
-    common.add_argument("--retries", type=_retries, default=5,
-                        help="retries of a request on network errors, 429, 5xx (0 or more)")  # fmt: skip
-    common.add_argument("--request-timeout", type=_seconds, default=30.0, help="seconds per HTTP request (above 0)")
+    common.add_argument("--api-key", default=None, metavar="KEY",
+                        help=f"API key, sent as a Bearer token (default ${API_KEY_ENV})")  # fmt: skip
+    common.add_argument("--retries", type=_retries, default=5, metavar="N",
+                        help="retries of a request on network errors, 429, 5xx (0 or more; default 5)")  # fmt: skip
+    common.add_argument("--request-timeout", type=_seconds, default=30.0, metavar="S",
+                        help="seconds per HTTP request (above 0; default 30)")  # fmt: skip
 
     parser = argparse.ArgumentParser(
         prog="spine", description="Client of the spine reconstruction service.",
         epilog="exit codes: 0 ok, 1 job failed/cancelled, 2 usage/invalid input, 3 timeout, 4 server/network error, "
-        "5 not found, 6 auth refused, 7 conflict with the job's state",
+        "5 not found, 6 auth refused, 7 conflict with the job's state, 130 interrupted (Ctrl-C), 141 stdout closed "
+        "(| head)",
     )  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("submit", parents=[common], help="submit a job payload (JSON file, - for stdin), or a "
                        "landmark CSV with --pa-dicom")  # fmt: skip
-    p.add_argument("payload", metavar="FILE", help="payload JSON; with --pa-dicom, the landmark CSV "
-                   "(level,column,row[,view])")  # fmt: skip
+    p.add_argument("payload", metavar="FILE", help="payload JSON; with --pa-dicom or --study-instance-uid, the "
+                   "landmark CSV (level,column,row[,view]); - reads stdin")  # fmt: skip
     p.add_argument("--pa-dicom", default=None, metavar="DCM", help="the PA radiograph's DICOM file: pixel spacing, "
                    "orientation, geometry and study are read from its header here")  # fmt: skip
     p.add_argument("--lateral-dicom", default=None, metavar="DCM", help="the lateral radiograph's DICOM file")
@@ -378,60 +484,91 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--units", choices=["px", "mm"], default="px", help="units of the CSV's coordinates with "
                    "--pa-dicom or --study-instance-uid (default px: image pixels)")  # fmt: skip
     p.add_argument("--base", default=None, metavar="JSON", help="with a CSV: a payload whose values win "
-                   "over the headers' (options, boundary, a spacing typed in)")  # fmt: skip
+                   "over the headers' (options, boundary, a spacing typed in); - reads stdin")  # fmt: skip
     p.add_argument("--print-payload", action="store_true", help="print the payload instead of submitting it")
     p.add_argument("--wait", action="store_true", help="wait until the job ends and print it")
-    p.add_argument("--timeout", type=float, default=None, help="seconds to wait (implies --wait); exit 3 past it")
-    p.add_argument("--idempotency-key", default=None, help="reuse to make a retried submission return the same job")
+    p.add_argument("--timeout", type=_wait_seconds, default=None, metavar="S",
+                   help="seconds to wait, 0 or more (implies --wait); exit 3 past it")  # fmt: skip
+    p.add_argument("--idempotency-key", default=None, metavar="K",
+                   help="reuse to make a retried submission return the same job")  # fmt: skip
     p.set_defaults(func=cmd_submit)
 
     p = sub.add_parser("submit-dir", parents=[common], help="submit every *.json of a folder, wait, write a summary")
-    p.add_argument("directory")
-    p.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait for all jobs (default 3600)")
-    p.add_argument("--summary", default=None, help="summary CSV to write (default DIRECTORY/summary.csv)")
-    p.add_argument("--batch-size", type=int, default=500, help="payloads per batch request (at most 1000)")
+    p.add_argument("directory", metavar="DIR")
+    p.add_argument("--timeout", type=_wait_seconds, default=3600.0, metavar="S",
+                   help="seconds to wait for all jobs, 0 or more (default 3600)")  # fmt: skip
+    p.add_argument("--summary", default=None, metavar="CSV", help="summary CSV to write (default DIR/summary.csv)")
+    p.add_argument("--batch-size", type=int, default=500, metavar="N",
+                   help="payloads per batch request (at most 1000)")  # fmt: skip
     p.add_argument("--no-wait", action="store_true", help="submit only; the summary lists the queued jobs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--json", action="store_true",
                    help="print the outcome as JSON (counts, summary path, a row per file), not one line")  # fmt: skip
-    p.add_argument("--run-key", default=None, help="Idempotency-Key prefix: rerun with the same key after a crash "
-                   "and no job is made twice (default: random)")  # fmt: skip
+    p.add_argument("--run-key", default=None, metavar="K", help="Idempotency-Key prefix: rerun with the same "
+                   "key after a crash and no job is made twice (default: random)")  # fmt: skip
     p.set_defaults(func=cmd_submit_dir)
 
     p = sub.add_parser("get", parents=[common], help="print a job (JSON), or its vertebrae or measures (CSV)")
-    p.add_argument("job_id")
+    p.add_argument("job_id", metavar="ID")
     p.add_argument("--format", choices=["json", "csv"], default="json")
     p.add_argument("--measures", action="store_true", help="CSV of the measures instead of the vertebrae")
-    p.add_argument("--sr", default=None, metavar="OUT.dcm", help="write the result as a DICOM SR (TID 1500)")
+    p.add_argument("--sr", default=None, metavar="OUT.dcm", help="write the result as a DICOM SR (TID 1500); "
+                   "- writes it to stdout")  # fmt: skip
     p.add_argument("--figure-dcm", default=None, metavar="OUT.dcm", help="write the figure as a DICOM "
-                   "Secondary Capture")  # fmt: skip
+                   "Secondary Capture; - writes it to stdout")  # fmt: skip
     p.set_defaults(func=cmd_get)
 
     p = sub.add_parser("list", parents=[common], help="list jobs, newest first")
-    p.add_argument("--status", action="append", choices=["queued", "running", *FINAL], default=None)
-    p.add_argument("--created-after", default=None, help="ISO 8601")
-    p.add_argument("--created-before", default=None, help="ISO 8601")
-    p.add_argument("--limit", type=int, default=20)
-    p.add_argument("--cursor", default=None, help="next_cursor of the previous page")
+    statuses = ["queued", "running", *FINAL]
+    p.add_argument("--status", action="append", choices=statuses, default=None, metavar="S",
+                   help=f"jobs of this status ({', '.join(statuses)}); repeat for several")  # fmt: skip
+    p.add_argument("--created-after", default=None, metavar="T", help="ISO 8601")
+    p.add_argument("--created-before", default=None, metavar="T", help="ISO 8601")
+    p.add_argument("--limit", type=int, default=20, metavar="N", help="jobs per page (default 20)")
+    p.add_argument("--cursor", default=None, metavar="C", help="next_cursor of the previous page")
     p.add_argument("--all", action="store_true", help="every matching job, following the cursor")
-    p.add_argument("--study-instance-uid", default=None, help="jobs of this DICOM study")
-    p.add_argument("--accession-number", default=None, help="jobs of this accession number")
-    p.add_argument("--patient-id", default=None, help="jobs of this patient")
+    p.add_argument("--study-instance-uid", default=None, metavar="UID", help="jobs of this DICOM study")
+    p.add_argument("--accession-number", default=None, metavar="A", help="jobs of this accession number")
+    p.add_argument("--patient-id", default=None, metavar="P", help="jobs of this patient")
     p.add_argument("--format", choices=["table", "json", "csv"], default="table")
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("cancel", parents=[common], help="cancel a queued or running job")
-    p.add_argument("job_id")
+    p.add_argument("job_id", metavar="ID")
     p.set_defaults(func=cmd_cancel)
 
     p = sub.add_parser("fhir", parents=[common], help="print a succeeded job's measures as a FHIR R4 Bundle")
-    p.add_argument("job_id")
+    p.add_argument("job_id", metavar="ID")
     p.set_defaults(func=cmd_fhir)
     return parser
 
 
+def stdout_closed() -> int:
+    """After a ``BrokenPipeError``: stdout's reader is gone (``| head -1``). Points stdout at the null
+    device, so that the interpreter's last flush does not fail again, and returns the exit code a shell
+    gives a command SIGPIPE ended (Python ignores SIGPIPE, so the write fails instead)."""
+    with open(os.devnull, "wb") as devnull:
+        os.dup2(devnull.fileno(), sys.stdout.fileno())
+    return EXIT_BROKEN_PIPE
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    try:
+        try:
+            return _main(list(sys.argv[1:] if argv is None else argv))
+        finally:  # here, where a closed pipe is still caught (also after --help)
+            sys.stdout.flush()
+    except (SpineError, UsageError) as exc:
+        _report(exc)
+        return exit_code(exc)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        return stdout_closed()
+
+
+def _main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
     if getattr(args, "format", None) == "json" and getattr(args, "measures", False):
         args.format = "csv"
     if getattr(args, "run_key", "unset") is None:
@@ -439,16 +576,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "batch_size", 1) < 1:
         _err("error: --batch-size must be at least 1")
         return EXIT_USAGE
-    try:
-        return int(args.func(args))
-    except (SpineError, UsageError) as exc:
-        _report(exc)
-        return exit_code(exc)
-    except ServiceUnreachable as exc:  # pragma: no cover - a SpineError, kept explicit for readers
-        _report(exc)
-        return EXIT_SERVER
-    except KeyboardInterrupt:
-        return 130
+    return int(args.func(args))
 
 
 if __name__ == "__main__":

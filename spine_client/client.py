@@ -26,7 +26,7 @@ import httpx
 from pydantic import BaseModel
 
 from spine_client import optional
-from spine_client.errors import ServiceUnreachable, UnexpectedResponse, WaitTimeout, error_for
+from spine_client.errors import InvalidRequest, ServiceUnreachable, UnexpectedResponse, WaitTimeout, error_for
 from spine_client.models import BatchEntry, BatchResult, Job, JobPage
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
@@ -37,6 +37,9 @@ API_KEY_ENV = "SPINE_API_KEY"
 USER_AGENT = "spine-client/1"
 BATCH_CHUNK = 500
 """Payloads per POST /v1/jobs/batch request (the service takes up to 1,000 and 16 MiB)."""
+LAST_LOOK_S = 1.0
+"""Shortest time limit of a request sent before a deadline (``request(deadline=)``), however little time
+is left: a look at a job (one GET, answered in milliseconds by a healthy service) is still worth a try."""
 
 
 def retry_after_seconds(value: str | None) -> float | None:
@@ -114,6 +117,7 @@ class SpineClient:
         if key:
             headers["authorization"] = f"Bearer {key}"
         self.retries = retries
+        self.timeout = timeout
         self.backoff = backoff
         self.max_backoff = max_backoff
         self.max_retry_after = max_retry_after
@@ -148,22 +152,32 @@ class SpineClient:
         json: Any = None,
         params: Mapping[str, Any] | None = None,
         headers: Mapping[str, str] | None = None,
+        deadline: float | None = None,
     ) -> httpx.Response:
-        """Send a request with retries; return the 2xx response or raise a typed error."""
+        """Send a request with retries; return the 2xx response or raise a typed error.
+
+        ``deadline`` (a ``time.monotonic()`` instant, ``wait``'s) bounds the retries: none waits past it,
+        and an attempt's time limit is at most the time left (``LAST_LOOK_S`` at least); the last error
+        is raised then, as after the last retry."""
         attempt = 0
         while True:
             attempt += 1
-            last = attempt > self.retries
+            limit = self.timeout
+            if deadline is not None:
+                limit = max(LAST_LOOK_S, min(limit, deadline - time.monotonic()))
             try:
-                response = self._http.request(method, path, json=json, params=params, headers=headers)
+                response = self._http.request(method, path, json=json, params=params, headers=headers, timeout=limit)
             except httpx.TransportError as exc:
-                if last:
+                pause = None if attempt > self.retries else self.retry_wait(attempt, None)
+                if pause is None or not _before(deadline, pause):
                     raise ServiceUnreachable(f"{method} {self.base_url}{path}: {type(exc).__name__}: {exc}") from exc
-                self._sleep(self.retry_wait(attempt, None))
+                self._sleep(pause)
                 continue
-            if (response.status_code == 429 or response.status_code >= 500) and not last:
-                self._sleep(self.retry_wait(attempt, response))
-                continue
+            if (response.status_code == 429 or response.status_code >= 500) and attempt <= self.retries:
+                pause = self.retry_wait(attempt, response)
+                if _before(deadline, pause):
+                    self._sleep(pause)
+                    continue
             if response.status_code >= 400:
                 raise error_for(response)
             if response.status_code >= 300:  # not followed: a POST must not turn into a GET elsewhere
@@ -218,25 +232,42 @@ class SpineClient:
     def submit_batch(
         self, payloads: Sequence[Mapping[str, Any]], *, idempotency_key: str | None = None, chunk: int = BATCH_CHUNK
     ) -> BatchResult:
-        """POST /v1/jobs/batch in chunks of ``chunk``; entries are indexed in ``payloads``' order."""
+        """POST /v1/jobs/batch in chunks of ``chunk``; entries are indexed in ``payloads``' order.
+
+        A request the service refuses as too large (413: over ``SPINE_MAX_BATCH_BODY_BYTES``) is sent
+        again as two halves, down to single payloads; a payload too large alone is a rejected entry
+        (status 413, the service's problem), so one oversized payload does not sink the others."""
         key = idempotency_key or str(uuid.uuid4())
         results: list[BatchEntry] = []
         for n, start in enumerate(range(0, len(payloads), chunk)):
-            part = list(payloads[start : start + chunk])
-            body = self._model(BatchResult, "POST", "/v1/jobs/batch", json={"jobs": part},
-                               headers={"idempotency-key": f"{key}.{n}"})  # fmt: skip
-            for entry in body.results:
-                results.append(entry.model_copy(update={"index": entry.index + start}))
+            results += self._batch_part(list(payloads[start : start + chunk]), start, f"{key}.{n}")
         accepted = sum(1 for e in results if e.status == 202)
         return BatchResult(accepted=accepted, rejected=len(results) - accepted, results=results)
 
-    def get_json(self, job_id: uuid.UUID | str) -> dict[str, Any]:
-        """GET /v1/jobs/{id} as the server sent it (checked to be a ``Job``)."""
-        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}", expect=Job)
+    def _batch_part(self, part: list[Mapping[str, Any]], start: int, key: str) -> list[BatchEntry]:
+        """The entries of one batch request of ``part`` (``payloads[start:]``), halved on a 413; a half's
+        Idempotency-Key is its parent's with ``/offset+count`` appended, the same on a rerun."""
+        try:
+            body = self._model(BatchResult, "POST", "/v1/jobs/batch", json={"jobs": part},
+                               headers={"idempotency-key": key})  # fmt: skip
+        except InvalidRequest as exc:
+            if exc.status != 413:
+                raise
+            if len(part) == 1:
+                return [BatchEntry(index=start, status=exc.status, problem=exc.problem)]
+            half = (len(part) + 1) // 2
+            return [*self._batch_part(part[:half], start, f"{key}/0+{half}"),
+                    *self._batch_part(part[half:], start + half, f"{key}/{half}+{len(part) - half}")]  # fmt: skip
+        return [entry.model_copy(update={"index": entry.index + start}) for entry in body.results]
+
+    def get_json(self, job_id: uuid.UUID | str, *, deadline: float | None = None) -> dict[str, Any]:
+        """GET /v1/jobs/{id} as the server sent it (checked to be a ``Job``); ``deadline`` as in ``request``."""
+        body: dict[str, Any] = self._json("GET", f"/v1/jobs/{job_id}", expect=Job, deadline=deadline)
         return body
 
-    def get(self, job_id: uuid.UUID | str) -> Job:
-        return self._model(Job, "GET", f"/v1/jobs/{job_id}")
+    def get(self, job_id: uuid.UUID | str, *, deadline: float | None = None) -> Job:
+        """GET /v1/jobs/{id}; ``deadline`` as in ``request``."""
+        return self._model(Job, "GET", f"/v1/jobs/{job_id}", deadline=deadline)
 
     def wait(
         self,
@@ -246,11 +277,12 @@ class SpineClient:
         poll_interval: float = 0.2,
         max_poll_interval: float = 2.0,
     ) -> Job:
-        """Poll until the job is succeeded, failed or cancelled; ``WaitTimeout`` after ``timeout`` s."""
+        """Poll until the job is succeeded, failed or cancelled; ``WaitTimeout`` after ``timeout`` s. A
+        look that fails (no answer, 5xx) is retried until then only: past ``timeout`` its error is raised."""
         deadline = None if timeout is None else time.monotonic() + timeout
         interval = poll_interval
         while True:
-            job = self.get(job_id)
+            job = self.get(job_id, deadline=deadline)
             if job.finished:
                 return job
             if deadline is not None and time.monotonic() >= deadline:
@@ -340,3 +372,8 @@ class SpineClient:
         read = optional.dicom_input().payload_from_dicom
         payload, provenance = read(landmarks_csv, pa_dicom, lateral_dicom, units=units, base=dict(base or {}))
         return self.submit({**payload, "dicom": provenance}, idempotency_key=idempotency_key), provenance
+
+
+def _before(deadline: float | None, pause: float) -> bool:
+    """Whether a retry after ``pause`` seconds still starts before ``deadline`` (always, without one)."""
+    return deadline is None or time.monotonic() + pause < deadline

@@ -18,7 +18,13 @@ from spine_client.contract import JobPayload, LateralView, PAView, Study
 from spine_client.dicom.errors import DicomError
 from spine_client.dicom.header import RadiographHeader, ViewRole, read_header
 from spine_client.dicom.merge import apply_headers
-from spine_client.landmarks import LandmarkCsvError, parse_landmark_csv, payload_by_reference, payload_with_landmarks
+from spine_client.landmarks import (
+    LandmarkCsvError,
+    LandmarkSource,
+    parse_landmark_csv,
+    payload_by_reference,
+    payload_with_landmarks,
+)
 
 __all__ = ["DicomError", "LandmarkCsvError", "contract_payload", "parse_landmark_csv", "payload_by_reference",
            "payload_from_dicom"]  # fmt: skip
@@ -38,7 +44,7 @@ def contract_payload(payload: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def payload_from_dicom(
-    landmarks_csv: str | Path,
+    landmarks_csv: LandmarkSource,
     pa_dicom: str | Path,
     lateral_dicom: str | Path | None = None,
     *,

@@ -11,11 +11,12 @@ top-left corner of the top-left pixel) unless told ``mm``.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, BinaryIO, Literal, get_args
 
 from spine_client.contract import Landmark
 
@@ -24,6 +25,24 @@ LEVELS: tuple[str, ...] = get_args(Landmark.model_fields["level"].annotation)
 
 class LandmarkCsvError(ValueError):
     """A landmark CSV line that cannot be read; the message names the line."""
+
+
+LandmarkSource = str | Path | BinaryIO
+"""Where a landmark CSV is read from: a file's path, or an open binary stream (``spine submit -``: stdin)."""
+
+
+def read_landmark_csv(source: LandmarkSource) -> str:
+    """The CSV's text, decoded as UTF-8 (RFC 4180 §3 leaves the charset to the
+    ``text/csv`` media type's parameter); a leading byte-order mark (U+FEFF, as spreadsheets write it)
+    is skipped. ``LandmarkCsvError`` names the first byte that is not UTF-8; ``OSError`` when the file
+    cannot be read."""
+    data = Path(source).read_bytes() if isinstance(source, (str, Path)) else source.read()
+    skipped = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
+    try:
+        return data[skipped:].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        at = skipped + exc.start
+        raise LandmarkCsvError(f"not UTF-8 text: byte 0x{data[at]:02x} at offset {at}") from None
 
 
 def _rows_or_error(rows: Iterator[list[str]]) -> Iterator[list[str]]:
@@ -81,11 +100,11 @@ def parse_landmark_csv(text: str) -> dict[str, list[dict[str, Any]]]:
 
 
 def payload_with_landmarks(
-    landmarks_csv: str | Path, *, units: Literal["px", "mm"], base: dict[str, Any] | None, lateral: bool
+    landmarks_csv: LandmarkSource, *, units: Literal["px", "mm"], base: dict[str, Any] | None, lateral: bool
 ) -> dict[str, Any]:
     """``base`` with the CSV's landmarks as its ``pa`` (and ``lateral``, when the CSV has lateral
     landmarks or ``lateral`` is true) view, in ``units`` unless ``base`` says otherwise."""
-    landmarks = parse_landmark_csv(Path(landmarks_csv).read_text(encoding="utf-8"))
+    landmarks = parse_landmark_csv(read_landmark_csv(landmarks_csv))
     payload: dict[str, Any] = dict(base or {})
     payload["pa"] = {"units": units, **(payload.get("pa") or {}), "landmarks": landmarks["pa"]}
     if landmarks["lateral"] or lateral:
@@ -94,7 +113,7 @@ def payload_with_landmarks(
 
 
 def payload_by_reference(
-    landmarks_csv: str | Path,
+    landmarks_csv: LandmarkSource,
     study_instance_uid: str,
     pa_sop_instance_uid: str,
     lateral_sop_instance_uid: str | None = None,

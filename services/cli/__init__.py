@@ -29,6 +29,10 @@ from services.db.migrate import upgrade
 from services.worker.heap import freeze_for_exit
 
 log = logging.getLogger("services.cli")
+EXIT_INTERRUPTED = 130
+"""128 + SIGINT (2): what a shell reports for a command Ctrl-C ended (the client's code too, spine_client.cli)."""
+EXIT_BROKEN_PIPE = 141
+"""128 + SIGPIPE (13): what a shell reports for a command whose reader closed the pipe (``spine openapi | head``)."""
 CHECKOUT = Path(__file__).resolve().parents[2]
 """The source checkout beside ``services/`` (an editable install); a wheel's site-packages has no tools or benches."""
 TOOLS_DIR = CHECKOUT / "tools"
@@ -220,14 +224,36 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return int(bench_main(args.rest))
 
 
+def _port(value: str) -> int:
+    """``--port``: a TCP port, 1 to 65535 (RFC 9293 §3.1: 16 bits; 0 would be any free port, unannounced)."""
+    try:
+        port = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a port number from 1 to 65535, not {value!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number from 1 to 65535, not {port}")
+    return port
+
+
+def _at_least_one(value: str) -> int:
+    """A whole number, 1 or more (``--workers``)."""
+    try:
+        number = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, 1 or more, not {value!r}") from None
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more, not {number}")
+    return number
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="spine", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     serve = sub.add_parser("serve", help="run the API (and, on the embedded default, a worker)")
     serve.add_argument("--host", default="127.0.0.1")
-    serve.add_argument("--port", type=int, default=8000)
-    serve.add_argument("--workers", type=int, default=1, help="uvicorn worker processes of the API")
+    serve.add_argument("--port", type=_port, default=8000, help="TCP port, 1 to 65535 (default 8000)")
+    serve.add_argument("--workers", type=_at_least_one, default=1, help="uvicorn worker processes of the API")
     serve.add_argument("--no-worker", action="store_true", help="do not start a Celery worker child")
     serve.add_argument("--access-log", action="store_true", help="log every request")
     serve.set_defaults(func=cmd_serve)
@@ -276,7 +302,7 @@ CLIENT_COMMANDS = {
 
 
 def cmd_client(args: argparse.Namespace) -> int:
-    from spine_client.cli import main as client_main  # lazy: the client only for its commands
+    from spine_client.cli import main as client_main  # lazy: the client (httpx, its models) only for its commands
 
     return client_main([args.client_command, *args.rest])
 
@@ -291,11 +317,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return PASSTHROUGH[argv[0]](argparse.Namespace(rest=argv[1:]))
     if argv and argv[0] in CLIENT_COMMANDS:
         return cmd_client(argparse.Namespace(client_command=argv[0], rest=argv[1:]))
-    args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args))
+        try:
+            args = build_parser().parse_args(argv)
+            return int(args.func(args))
+        finally:  # here, where a closed pipe is still caught (also after --help)
+            sys.stdout.flush()
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # `spine openapi | head -1`: the reader is gone, as after SIGPIPE
+        return stdout_closed()
     except Exception as exc:
         explained = _explain(exc)
         if explained is None:
@@ -304,6 +335,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = " ".join(argv[:2] if argv[:1] == ["keys"] else argv[:1])
         print(f"spine {command}: {line}", file=sys.stderr)
         return code
+
+
+def stdout_closed() -> int:
+    """After a ``BrokenPipeError``: stdout's reader is gone. Points stdout at the null device, so that the
+    interpreter's last flush does not fail again, and returns ``EXIT_BROKEN_PIPE``. The client's
+    ``spine_client.cli.stdout_closed`` does the same; it is not imported here, so that an operator command
+    does not load the client (httpx, its models: 0.3 s)."""
+    with open(os.devnull, "wb") as devnull:
+        os.dup2(devnull.fileno(), sys.stdout.fileno())
+    return EXIT_BROKEN_PIPE
 
 
 def _explain(exc: BaseException) -> tuple[int, str] | None:
