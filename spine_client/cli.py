@@ -24,6 +24,7 @@ import math
 import os
 import sys
 import time
+import traceback
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -55,6 +56,8 @@ EXIT_INTERRUPTED = 130
 """128 + SIGINT (2): what a shell reports for a command Ctrl-C ended."""
 EXIT_BROKEN_PIPE = 141
 """128 + SIGPIPE (13): what a shell reports for a command whose reader closed the pipe (``| head -1``)."""
+EXIT_INTERNAL = 70
+"""An error of the client itself, a bug (sysexits.h ``EX_SOFTWARE``): apart from 1, a job that failed."""
 
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -565,6 +568,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         return stdout_closed()
+    except Exception:  # a bug: its traceback for the report, and a code no script reads as a job's outcome
+        traceback.print_exc()
+        _err("internal error of the client (a bug; please report it with the traceback above)")
+        return EXIT_INTERNAL
 
 
 def _main(argv: list[str]) -> int:

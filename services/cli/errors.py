@@ -9,7 +9,8 @@ Exit codes (documented in docs/security.md):
 - 3: the settings are not valid (``DATABASE_URL`` that does not parse, a setting out of range);
 - 4: the database is unreachable (server down, database missing, login refused);
 - 5: the database's schema does not match the code: not migrated (run ``spine migrate``), or
-  migrated by a newer release.
+  migrated by a newer release;
+- 130: interrupted by Ctrl-C; 141: stdout's reader closed it (``| head -1``).
 """
 
 from __future__ import annotations

@@ -88,3 +88,20 @@ def test_timeouts_and_retries_out_of_range_are_usage_errors(
 def test_a_good_url_still_reaches_the_service(server: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["get", JOB_ID, "--url", f"http://{server}/", "--api-key", "k", "--retries", "0"]) == cli.EXIT_AUTH
     assert _Counting.seen and _Counting.seen[0]["authorization"] == "Bearer k"
+
+
+def test_a_bug_of_the_client_exits_70_with_its_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An exception no handler expects (a bug) exits with 70, apart from 1 (a job that failed), which a
+    QA script would otherwise read as the job's outcome; its traceback is on stderr, stdout stays empty."""
+
+    def broken(argv: list[str]) -> int:
+        raise RuntimeError("a bug in the client")
+
+    monkeypatch.setattr(cli, "_main", broken)
+    assert cli.main(["list"]) == cli.EXIT_INTERNAL == 70
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "Traceback" in err and "RuntimeError: a bug in the client" in err
+    assert err.rstrip().endswith("please report it with the traceback above)")
