@@ -19,7 +19,7 @@ PROBLEM_MEDIA_TYPE = "application/problem+json"
 
 # kind -> (title, default HTTP status)
 KINDS: dict[str, tuple[str, int]] = {
-    "validation-error": ("The request does not satisfy the job payload contract", 422),
+    "validation-error": ("The request does not satisfy the API contract (its body, path or query)", 422),
     "malformed-json": ("The request body is not valid JSON", 400),
     "unsupported-media-type": ("The request body must be application/json", 415),
     "payload-too-large": ("The request body is too large", 413),

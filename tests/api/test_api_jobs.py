@@ -225,6 +225,7 @@ def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None
     malformed = api.get("/v1/jobs/not-a-uuid")
     assert malformed.status_code == 422
     assert problem_of(malformed)["errors"][0]["path"] == "path.job_id"
+    assert "payload" not in problem_of(malformed)["title"]  # a path, not a payload, broke the contract
     wrong_method = api.delete("/v1/jobs")
     assert wrong_method.status_code == 405
     assert problem_of(wrong_method)["type"] == PROBLEM_BASE + "method-not-allowed"
