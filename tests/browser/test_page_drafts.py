@@ -377,7 +377,8 @@ def test_a_film_of_another_patient_under_a_reopened_jobs_landmarks_is_named_and_
     """A job of patient PAT-JOB (its payload's study names its PA image by SOP Instance UID), reopened: its
     17 landmarks on a blank frame. A DICOM film of patient PAT-0042 opened under them is warned about in
     the panel (the header's Patient ID against the job's) and listed before sending, and Reconstruct
-    sends nothing, until those landmarks are gone (Clear all, and one placed on the film). A film of the
+    sends nothing, relabelled one level or not, until those landmarks are gone (Clear all, and one placed
+    on the film). A film of the
     job's patient with another SOP Instance UID is warned about, not blocked (the job's study is
     replaced by the film's, as docs/web.md says). The landmarks below row 900 lie off the 560 × 900 px
     film: said too."""
@@ -421,6 +422,12 @@ def test_a_film_of_another_patient_under_a_reopened_jobs_landmarks_is_named_and_
         sent = len(watch.posted_jobs())
         page.click("#submit")
         assert len(watch.posted_jobs()) == sent
+        # relabelled one level (L5's deleted first), the job's landmarks are still the job's: still not sent
+        page.select_option("#pa-level", "L5")
+        page.click("#pa-delete")
+        page.click("#pa-shift-down")
+        missing = page.text_content("#missing") or ""
+        assert "The PA film is not the reopened job's" in missing and "16 vertebrae (T2–L5)" in missing, missing
         # the job's landmarks cleared and one placed on this film: nothing of the job's is over it
         page.click("#pa-clear")
         col, row, _ = centreline(0)

@@ -291,7 +291,10 @@ def test_follow_up_tells_same_day_visits_apart(browser: Any, live_url: str, api_
     """Two real jobs of one patient, two studies of the same study date (a film repeated on the day) with
     major Cobb angles 40° and 47° ± 1.5°: the 7° change is flagged by the service (5° rule), but it is
     not a progression over time. The changes table and the summary name the two jobs and say so, and
-    the plot's time axis says the one day once (a month, or the same label twice, told nothing)."""
+    the plot's time axis says the one day once (a month, or the same label twice, told nothing). In the
+    plot the two points lie side by side, at least a point's diameter apart (2 × its radius, read from the
+    drawing) and centred on the date's tick (the time axis stays the date's), each named by its job in
+    its tooltip and in the plot's description."""
     patient = f"FU-{uuid.uuid4().hex[:8]}"
     ids = _jobs(live_url, api_key, patient, ["2025-04-02", "2025-04-02"])
     _set_results(live_data_dir, ids, [(40.0, SD), (47.0, SD)])
@@ -309,6 +312,18 @@ def test_follow_up_tells_same_day_visits_apart(browser: Any, live_url: str, api_
     labels = page.locator(".followup-plot[data-measure=major_cobb] text.tick")
     dates = [text for i in range(labels.count()) if DATE.match(text := labels.nth(i).text_content() or "")]
     assert dates == ["2025-04-02"], dates
+    plot = page.locator(".followup-plot[data-measure=major_cobb]")
+    points = plot.locator(":scope > circle.point")
+    assert points.count() == 2
+    cx = [float(points.nth(i).get_attribute("cx") or "nan") for i in range(2)]
+    radius = float(points.nth(0).get_attribute("r") or "nan")
+    assert abs(cx[1] - cx[0]) >= 2 * radius, cx  # not drawn over each other
+    tick = float(plot.locator("text.date-tick").get_attribute("x") or "nan")
+    assert (cx[0] + cx[1]) / 2 == pytest.approx(tick, abs=0.01)  # around the date, not moved in time
+    tips = [points.nth(i).locator("title").text_content() or "" for i in range(2)]
+    assert f"(job {first}) 40.0° ± 1.5°" in tips[0] and f"(job {second}) 47.0° ± 1.5°" in tips[1], tips
+    described = plot.get_attribute("aria-label") or ""
+    assert f"(job {first})" in described and f"(job {second})" in described and "side by side" in described, described
     assert not watch.errors, watch.errors
     context.close()
 
@@ -339,6 +354,32 @@ def test_follow_up_names_the_patients_jobs_that_are_not_visits(
     assert f"job {ids[1][:8]} (study date 2025-04-01) failed" in note, note
     assert f"job {ids[2][:8]} (study date 2025-10-01) is still running" in note, note
     assert not run_axe(page)
+
+    # the printed report's follow-up table names them too, in the same words
+    page.evaluate(f"() => location.hash = '#/jobs/{ids[0]}'")
+    page.wait_for_selector(f"#result[data-job-id='{ids[0]}']", timeout=30_000)
+    page.check("#print-followup")
+    page.wait_for_selector("#report-followup table.followup-changes")
+    page.emulate_media(media="print")
+    assert page.is_visible("#report-followup-not-visits")
+    assert (page.text_content("#report-followup-not-visits") or "") == note
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_printing_the_follow_up_page_prints_no_search_form(browser: Any, live_url: str, api_key: str) -> None:
+    """The follow-up page printed (print stylesheet): the visits, not the form that asked for them."""
+    patient = f"FU-{uuid.uuid4().hex[:8]}"
+    _jobs(live_url, api_key, patient, ["2025-05-06"])
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.evaluate(f"() => location.hash = '#/follow-up/{patient}'")
+    page.wait_for_selector(f"#followup[data-patient='{patient}'] table.followup-visits")
+    assert page.is_visible("#followup-form")
+    page.emulate_media(media="print")
+    for control in ("#followup-form", "#followup-patient", "#followup-form button", "#followup-help"):
+        assert page.is_hidden(control), control
+    assert page.is_visible("table.followup-visits") and page.is_visible("#followup-summary")
+    assert page.is_visible("#h-follow-up")
     assert not watch.errors, watch.errors
     context.close()
 

@@ -48,6 +48,32 @@ interface Snapshot {
   level: Level;
   finished: boolean;
 }
+
+/** An edit of the panel beyond the marks (closing the film): undone after the editor's own history
+ * (Undo, Ctrl+Z, once the marks' history is empty), and redone likewise. */
+export interface OuterEdit {
+  undo(): void;
+  redo(): void;
+}
+
+/** Everything the editor shows: the film, its landmarks and their undo history (closing a film keeps it, for Undo). */
+export interface EditorState {
+  source: FilmSource | null;
+  raster: HTMLCanvasElement | null;
+  extent: { width: number; height: number } | null;
+  marks: Map<Level, Mark>;
+  undoStack: Snapshot[];
+  level: Level;
+  finished: boolean;
+  window: { center: number; width: number };
+  invert: boolean;
+  blankNote: string | null;
+  refused: Map<Level, string>;
+  cursor: Vec2 | null;
+}
+
+/** The level `by` levels below `level` (−1: above), or null outside T1–L5. */
+export const shiftedLevel = (level: Level, by: number): Level | null => LEVELS[LEVELS.indexOf(level) + by] ?? null;
 const copyMark = (m: Mark): Mark => ({
   ...(m.point ? { point: [...m.point] as Vec2 } : {}),
   ...(m.corners ? { corners: m.corners.map((p) => [...p] as Vec2) } : {}),
@@ -80,6 +106,9 @@ export class FilmEditor {
   loading: string | null = null;
   private undoStack: Snapshot[] = [];
   private redoStack: Snapshot[] = [];
+  /** The panel's edit undone when the marks' own undo history is empty (closing the film), and the one redone after it. */
+  private outerUndo: OuterEdit | null = null;
+  private outerRedo: OuterEdit | null = null;
   window = { center: 0, width: 1 };
   invert = false;
   /** CSS px per image px, and the image point at the canvas's top-left corner. */
@@ -145,6 +174,8 @@ export class FilmEditor {
     this.marks.clear();
     this.undoStack = [];
     this.redoStack = [];
+    this.outerUndo = null;
+    this.outerRedo = null;
     this.selected = null;
     this.finished = false;
     this.notice = null;
@@ -161,6 +192,46 @@ export class FilmEditor {
     this.cursor = null;
     this.draw();
     this.onChange("marks");
+  }
+
+  /** The film, its landmarks and their undo history, as they are now (the redo history is not kept:
+   * the edit that saves them, closing the film, ends it as any edit does). */
+  saveState(): EditorState {
+    return {
+      source: this.source, raster: this.raster, extent: this.extent,
+      marks: new Map([...this.marks].map(([lv, m]) => [lv, copyMark(m)])), undoStack: [...this.undoStack],
+      level: this.level, finished: this.finished, window: { ...this.window }, invert: this.invert,
+      blankNote: this.blankNote, refused: new Map(this.refused), cursor: this.cursor,
+    };
+  }
+
+  /** Show a saved film with its landmarks and undo history again (Undo of "Close film"). */
+  loadState(s: EditorState): void {
+    this.source = s.source;
+    this.raster = s.raster;
+    this.extent = s.extent;
+    this.marks = new Map([...s.marks].map(([lv, m]) => [lv, copyMark(m)]));
+    this.undoStack = [...s.undoStack];
+    this.redoStack = [];
+    this.level = s.level;
+    this.finished = s.finished;
+    this.window = { ...s.window };
+    this.invert = s.invert;
+    this.blankNote = s.blankNote;
+    this.refused = new Map(s.refused);
+    this.cursor = s.cursor;
+    this.selected = null;
+    this.notice = null;
+    this.loading = null;
+    this.fit();
+    this.onChange("marks");
+  }
+
+  /** Record an edit of the panel beyond the marks (closing the film) as the next one Undo takes back. */
+  pushOuter(edit: OuterEdit): void {
+    this.outerUndo = edit;
+    this.outerRedo = null;
+    this.onChange("view");
   }
 
   /** Forget the film (the landmarks stay, on a blank frame). */
@@ -246,6 +317,7 @@ export class FilmEditor {
     this.undoStack.push(this.snapshot());
     if (this.undoStack.length > HISTORY) this.undoStack.shift();
     this.redoStack = [];
+    this.outerRedo = null;
   }
 
   private restoreSnapshot(s: Snapshot): void {
@@ -259,25 +331,61 @@ export class FilmEditor {
   }
 
   get canUndo(): boolean {
-    return this.undoStack.length > 0;
+    return this.undoStack.length > 0 || !!this.outerUndo;
   }
 
   get canRedo(): boolean {
-    return this.redoStack.length > 0;
+    return this.redoStack.length > 0 || !!this.outerRedo;
   }
 
   undo(): void {
     const s = this.undoStack.pop();
-    if (!s) return;
+    if (!s) {
+      const outer = this.outerUndo;
+      if (!outer) return;
+      this.outerUndo = null;
+      outer.undo();
+      this.outerRedo = outer;
+      this.onChange("view");
+      return;
+    }
     this.redoStack.push(this.snapshot());
     this.restoreSnapshot(s);
   }
 
   redo(): void {
     const s = this.redoStack.pop();
-    if (!s) return;
+    if (!s) {
+      const outer = this.outerRedo;
+      this.outerRedo = null;
+      outer?.redo();
+      return;
+    }
     this.undoStack.push(this.snapshot());
     this.restoreSnapshot(s);
+  }
+
+  /** Relabel every landmark of the film `by` levels down the spine (+1: T1's become T2's; −1: up), as one
+   * edit that Undo takes back. Refused, nothing changed, when a level would leave T1–L5 (the payload's
+   * levels): returns why in words, or null when done. */
+  shiftLevels(by: 1 | -1): string | null {
+    const placed = LEVELS.filter((lv) => this.marks.has(lv));
+    if (!placed.length) return "Nothing relabelled: no landmark is placed on this film.";
+    const edge = by > 0 ? placed[placed.length - 1] : placed[0];
+    if (!shiftedLevel(edge, by)) {
+      return `Not relabelled: ${edge}'s landmarks would become the level ${by > 0 ? "below L5" : "above T1"}, and landmarks are of T1–L5 only. ` +
+        `If ${edge}'s landmarks are not of a vertebra of T1–L5, delete them first.`;
+    }
+    this.remember();
+    const to = (lv: Level): Level | null => shiftedLevel(lv, by);
+    this.marks = new Map(placed.map((lv) => [to(lv) as Level, this.marks.get(lv) as Mark]));
+    this.refused = new Map([...this.refused].flatMap(([lv, key]) => (to(lv) ? [[to(lv) as Level, key]] : [])));
+    this.level = to(this.level) ?? this.level;
+    this.selected = this.selected && to(this.selected.level) ? { ...this.selected, level: to(this.selected.level) as Level } : null;
+    this.notice = null;
+    this.draw();
+    this.onChange("marks");
+    return null;
   }
 
   /** What is placed only in part, in words (e.g. "T3: 2 of 4 corners"). */
@@ -299,6 +407,8 @@ export class FilmEditor {
     this.marks.clear();
     this.undoStack = [];
     this.redoStack = [];
+    this.outerUndo = null;
+    this.outerRedo = null;
     this.finished = false;
     const k = units === "mm" && spacing ? [1 / spacing[1], 1 / spacing[0]] : [1, 1];
     // not rounded: a reopened job is sent again with exactly its coordinates
@@ -626,16 +736,18 @@ export class FilmEditor {
   }
 
   private onKey(e: KeyboardEvent): void {
+    // Undo and redo work without a film too: Undo after "Close film" brings the film back.
+    if ((e.ctrlKey || e.metaKey) && (e.key.toLowerCase() === "z" || e.key.toLowerCase() === "y")) {
+      if (e.shiftKey || e.key.toLowerCase() === "y") this.redo();
+      else this.undo();
+      e.preventDefault();
+      return;
+    }
     if (!this.extent) return;
     const step = this.step(e.shiftKey);
     const moves: Record<string, Vec2> = { ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, -step], ArrowDown: [0, step] };
     const c = this.cursor ?? [this.extent.width / 2, this.extent.height / 2];
-    if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") {
-      if (e.shiftKey) this.redo();
-      else this.undo();
-    } else if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "y") {
-      this.redo();
-    } else if (e.key in moves) {
+    if (e.key in moves) {
       const [dx, dy] = moves[e.key];
       if (e.altKey && this.selected) {
         const p = this.pointOf(this.selected);

@@ -237,13 +237,22 @@ function svg<K extends keyof SVGElementTagNameMap>(tag: K, attrs: Record<string,
   return node;
 }
 
-/** One small plot of a measure over time: points with ±1.96 SD bars, flagged changes in red. */
+/** CSS px between the points of visits of one study date, drawn side by side around their date. */
+export const SAME_DAY_PX = 8;
+
+/** One small plot of a measure over time: points with ±1.96 SD bars, flagged changes in red. Visits of
+ * one study date are drawn side by side, SAME_DAY_PX apart and centred on their date (the date's tick
+ * stays at the date), each point named by its job in its tooltip and in the plot's description. */
 export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGElement | null {
-  const points = data.visits.flatMap((v) => {
-    const m = v[name];
-    return v.study_date && m ? [{ t: Date.parse(v.study_date), m, job: v.job_id }] : [];
+  const dated = data.visits.filter((v) => v.study_date && v[name]);
+  const points = dated.map((v) => {
+    const m = v[name] as MeasureValue;
+    const day = dated.filter((o) => o.study_date === v.study_date);
+    const dx = (day.indexOf(v) - (day.length - 1) / 2) * SAME_DAY_PX;
+    return { t: Date.parse(v.study_date as string), m, job: v.job_id, dx, label: visitName(v, data.visits) };
   });
   if (!points.length) return null;
+  const sameDay = points.some((p) => p.dx !== 0);
   // a model estimate is drawn hollow; a plot with one has a legend row under its title
   const estimated = points.some((p) => p.m.model_estimate);
   const legend = estimated ? 14 : 0;
@@ -260,7 +269,10 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img", class: "followup-plot" });
   root.dataset.measure = name;
   const flagged = data.changes.filter((c) => c.measure === name && c.flagged);
-  root.setAttribute("aria-label", `${MEASURE_NAMES[name]}${SIGNS[name] ? ` (${SIGNS[name]})` : ""} over time: ${points.map((p) => `${new Date(p.t).toISOString().slice(0, 10)} ${withSd(p.m.value_deg, p.m.sd_deg)}${p.m.model_estimate ? ` (${MODEL_MARK})` : ""}`).join(", ")}${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}.`);
+  const words = (p: (typeof points)[number]): string => `${p.label} ${withSd(p.m.value_deg, p.m.sd_deg)}${p.m.model_estimate ? ` (${MODEL_MARK})` : ""}`;
+  root.setAttribute("aria-label", `${MEASURE_NAMES[name]}${SIGNS[name] ? ` (${SIGNS[name]})` : ""} over time: ${points.map(words).join(", ")}` +
+    `${flagged.length ? `; ${flagged.length} flagged change${flagged.length > 1 ? "s" : ""}` : ""}` +
+    `${sameDay ? `; visits of one study date are drawn side by side at that date, ${SAME_DAY_PX} px apart, in the table's order` : ""}.`);
   const title = svg("text", { x: pad.l, y: 14, class: "plot-title" });
   title.textContent = `${MEASURE_NAMES[name]} (°)`;
   root.append(title, svg("line", { x1: pad.l, y1: H - pad.b, x2: W - pad.r, y2: H - pad.b, class: "axis" }),
@@ -293,12 +305,17 @@ export function measurePlot(data: PatientMeasures, name: MeasureName): SVGSVGEle
   for (let i = 1; i < points.length; i++) {
     const [a, b] = [points[i - 1], points[i]];
     const red = flagged.some((c) => c.from_job === a.job && c.to_job === b.job);
-    root.append(svg("line", { x1: x(a.t), y1: y(a.m.value_deg), x2: x(b.t), y2: y(b.m.value_deg), class: red ? "trend flagged" : "trend" }));
+    root.append(svg("line", { x1: x(a.t) + a.dx, y1: y(a.m.value_deg), x2: x(b.t) + b.dx, y2: y(b.m.value_deg), class: red ? "trend flagged" : "trend" }));
   }
   for (const p of points) {
     const sd = p.m.sd_deg ?? 0;
-    root.append(svg("line", { x1: x(p.t), y1: y(p.m.value_deg - 1.96 * sd), x2: x(p.t), y2: y(p.m.value_deg + 1.96 * sd), class: "bar" }),
-      svg("circle", { cx: x(p.t), cy: y(p.m.value_deg), r: 3.5, class: p.m.model_estimate ? "point model-estimate" : "point" }));
+    const cx = x(p.t) + p.dx;
+    const point = svg("circle", { cx, cy: y(p.m.value_deg), r: 3.5, class: p.m.model_estimate ? "point model-estimate" : "point" });
+    point.dataset.job = p.job;
+    const tip = svg("title", {});
+    tip.textContent = words(p);
+    point.append(tip);
+    root.append(svg("line", { x1: cx, y1: y(p.m.value_deg - 1.96 * sd), x2: cx, y2: y(p.m.value_deg + 1.96 * sd), class: "bar" }), point);
   }
   return root;
 }

@@ -8,7 +8,7 @@ import { capabilities, type Capabilities } from "./capabilities";
 import { GEOMETRY_FIELD_WORDS, geometryProblems } from "./checks";
 import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
-import { changesTable, estimateNotes, fillFollowUp, RULE_WORDS, undatedWords, visitsTable } from "./followup";
+import { changesTable, estimateNotes, fillFollowUp, notVisitWords, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
 import { sentences } from "./messages";
 import { FilmPanel, type JobFilm, type ViewName } from "./panel";
@@ -724,12 +724,15 @@ $<HTMLInputElement>("print-followup").addEventListener("change", async (e) => {
   if (!tick.checked || !patientId) return;
   const stale = (): boolean => !tick.checked || currentJob?.id !== job?.id;
   try {
-    const data = await api.followUp(patientId);
+    const [data, others] = await Promise.all([api.followUp(patientId), notVisitJobs(patientId)]);
     if (stale()) return;
     const head = document.createElement("h3");
     head.textContent = `Follow-up of patient ${patientId}`;
-    const notes = [undatedWords(data), data.older_visits_left_out ? "Older visits were left out: only the patient's newest 1,000 succeeded jobs are read." : null]
+    // the patient's queued, running and failed jobs, named as the follow-up view names them
+    const waiting = others ? notVisitWords(data, others) : "Whether this patient has jobs still queued, running or failed (no visits) could not be asked of the service.";
+    const notes = [undatedWords(data), data.older_visits_left_out ? "Older visits were left out: only the patient's newest 1,000 succeeded jobs are read." : null, waiting]
       .filter((t): t is string => !!t).map((t) => Object.assign(document.createElement("p"), { textContent: t }));
+    if (waiting) notes[notes.length - 1].id = "report-followup-not-visits";
     const estimates = estimateNotes(data);
     box.replaceChildren(head, visitsTable(data, "Measures by study date (± one SD)"), ...(estimates ? [estimates] : []), ...notes,
       changesTable(data, `Changes between consecutive visits. ${RULE_WORDS}`));
@@ -900,6 +903,18 @@ followForm.addEventListener("submit", (e) => {
 
 const UUID = /^[0-9a-fA-F]{8}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{4}-[0-9a-fA-F]{12}$/;
 
+/** The patient's queued, running and failed jobs (no visits), when the service filters jobs by patient ID:
+ * [] when it does not (nothing to say), null when they could not be listed (the follow-up says so). */
+async function notVisitJobs(patientId: string): Promise<Job[] | null> {
+  caps ??= await capabilities();
+  if (!caps.jobFilters.has("patient_id")) return [];
+  try {
+    return (await api.jobs({ patient_id: patientId, status: ["queued", "running", "failed"] }, 100)).jobs;
+  } catch {
+    return null;
+  }
+}
+
 /** The follow-up asked for last: an answer to an earlier request that arrives after it is dropped. */
 let followRequest = 0;
 
@@ -926,14 +941,9 @@ async function showFollowUp(idOrJob: string): Promise<void> {
       }
       patientId = pid;
     }
-    caps ??= await capabilities();
-    const [data, others] = await Promise.all([
-      api.followUp(patientId),
-      // the follow-up is shown without them when they cannot be listed (it says so)
-      caps.jobFilters.has("patient_id") ? api.jobs({ patient_id: patientId, status: ["queued", "running", "failed"] }, 100).catch(() => undefined) : null,
-    ]);
+    const [data, others] = await Promise.all([api.followUp(patientId), notVisitJobs(patientId)]);
     if (request !== followRequest) return;
-    fillFollowUp(box, data, others === undefined ? null : others?.jobs ?? []);
+    fillFollowUp(box, data, others);
     box.dataset.patient = patientId;
   } catch (error) {
     if (request !== followRequest) return;

@@ -2,7 +2,7 @@
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
 import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
-import { FilmEditor, type Mode } from "./film";
+import { FilmEditor, type EditorState, type Mark, type Mode } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
 export type ViewName = "pa" | "lateral";
@@ -67,7 +67,8 @@ export class FilmPanel {
   private readonly fileInput: HTMLInputElement;
   private readonly ignoreGeometry: HTMLInputElement;
   private readonly ignoreRow: HTMLElement;
-  /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were placed on. */
+  /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were
+   * placed on, a closed film (and how to bring it back), a relabelling done or refused. */
   private dropNote: string | null = null;
   /** The landmarks are a reopened job's (on a blank frame, or on the job's film opened under them). */
   fromJob = false;
@@ -150,15 +151,20 @@ export class FilmPanel {
     const redo = (this.redoButton = el("button", { type: "button", id: id("redo"), "aria-keyshortcuts": "Control+Shift+Z" }, "Redo"));
     const del = el("button", { type: "button", id: id("delete") }, "Delete selected");
     const clear = el("button", { type: "button", id: id("clear") }, "Clear all");
-    const close = el("button", { type: "button", id: id("close") }, "Close film");
+    const close = el("button", { type: "button", id: id("close"), "aria-describedby": id("status") }, "Close film");
     const fit = el("button", { type: "button", id: id("fit") }, "Fit film");
     const zin = el("button", { type: "button", id: id("zoom-in"), "aria-label": "Zoom in" }, "+");
     const zout = el("button", { type: "button", id: id("zoom-out"), "aria-label": "Zoom out" }, "−");
     this.zoomOut = el("output", { id: id("zoom"), "aria-live": "off" });
     buttons.append(undo, redo, del, clear, close, fit, zout, zin, this.zoomOut);
 
+    // A radiographer who started one level off relabels every landmark of the film at once (undoable).
+    const shiftUp = el("button", { type: "button", id: id("shift-up"), title: "Every landmark of this film one level up the spine: T2's become T1's, and so on (Undo takes it back)" }, "All levels up one (T2 → T1)");
+    const shiftDown = el("button", { type: "button", id: id("shift-down"), title: "Every landmark of this film one level down the spine: T1's become T2's, and so on (Undo takes it back)" }, "All levels down one (T1 → T2)");
+    const shifts = el("div", { class: "row shift-levels" });
+    shifts.append(shiftUp, shiftDown);
     const tools = el("div", { class: "film-tools" });
-    tools.append(modes, labelled(id("level"), "Level", this.levelSelect));
+    tools.append(modes, labelled(id("level"), "Level", this.levelSelect), shifts);
     container.append(
       labelled(id("file"), `${title} (DICOM, PNG or JPEG)`, file),
       this.error,
@@ -205,7 +211,9 @@ export class FilmPanel {
     redo.addEventListener("click", () => this.editor.redo());
     del.addEventListener("click", () => this.editor.removeSelected());
     clear.addEventListener("click", () => this.editor.clear());
-    close.addEventListener("click", () => this.reset());
+    close.addEventListener("click", () => this.close());
+    shiftUp.addEventListener("click", () => this.shiftLevels(-1));
+    shiftDown.addEventListener("click", () => this.shiftLevels(1));
     fit.addEventListener("click", () => this.editor.fit());
     zin.addEventListener("click", () => this.editor.zoomBy(1.25));
     zout.addEventListener("click", () => this.editor.zoomBy(0.8));
@@ -285,7 +293,7 @@ export class FilmPanel {
       if (!keep) this.fromJob = false;
       // the reopened job's landmarks kept over a film that says it is not theirs, or that they overhang
       this.otherPatient = notTheJobs?.patient
-        ? { words: notTheJobs.words, marks: new Set(this.editor.landmarks().map((lm) => JSON.stringify(lm))) }
+        ? { words: notTheJobs.words, marks: new Set(this.editor.landmarks().map(pointsKey)) }
         : null;
       const outside = keep ? this.editor.landmarksOffFilm() : [];
       warning = [
@@ -322,6 +330,67 @@ export class FilmPanel {
   /** The reopened job's landmarks (on the blank frame) are in mm without a pixel spacing: no film can be put under them. */
   reopenedInMm(): boolean {
     return !!this.reopened && (this.reopened.units ?? "mm") === "mm" && !this.reopened.pixel_spacing;
+  }
+
+  /** "Close film": the panel as the page first shows it, as an edit that Undo (the button, Ctrl+Z) takes
+   * back, film, landmarks and their undo history together; the status says what went with the film. */
+  close(): void {
+    const saved = this.capture();
+    const gone = marksWords(saved.editor.marks);
+    this.reset();
+    if (!saved.fileName && !saved.reopened && !gone) return; // nothing was open: nothing to undo
+    this.editor.pushOuter({ undo: () => this.bringBack(saved), redo: () => this.close() });
+    this.dropNote = `Closed ${saved.fileName ? `the film ${saved.fileName}` : "the blank frame"}${gone ? `: the landmarks of ${gone} on it were removed with it` : " (no landmark was placed on it)"}. ` +
+      "Undo (the button, or Ctrl+Z on the film) brings back the film and its landmarks.";
+    this.update();
+  }
+
+  /** What the panel shows now, for Undo of "Close film". */
+  private capture(): ClosedFilm {
+    return {
+      editor: this.editor.saveState(), dicom: this.dicom, fileName: this.fileName, reopened: this.reopened, fromJob: this.fromJob,
+      jobFilm: this.jobFilm, otherPatient: this.otherPatient, spacing: this.spacing.value, ignoreGeometry: this.ignoreGeometry.checked,
+      wl: [this.wlCenter.value, this.wlWidth.value, this.invert.checked], wlHidden: this.wlRow.hidden,
+      warning: this.warning.hidden ? null : this.warning.textContent, header: [...this.header.childNodes],
+      label: this.editor.canvas.getAttribute("aria-label") ?? "",
+    };
+  }
+
+  /** Undo of "Close film": the film, its header and landmarks (with their undo history) back as they were. */
+  private bringBack(s: ClosedFilm): void {
+    this.opening++; // a film chosen meanwhile and still being read is not shown over it
+    this.dicom = s.dicom;
+    this.fileName = s.fileName;
+    this.reopened = s.reopened;
+    this.fromJob = s.fromJob;
+    this.jobFilm = s.jobFilm;
+    this.otherPatient = s.otherPatient;
+    this.spacing.value = s.spacing;
+    this.ignoreGeometry.checked = s.ignoreGeometry;
+    [this.wlCenter.value, this.wlWidth.value] = [s.wl[0], s.wl[1]];
+    this.invert.checked = s.wl[2];
+    this.wlRow.hidden = s.wlHidden;
+    this.warning.hidden = !s.warning;
+    this.warning.textContent = s.warning ?? "";
+    this.header.replaceChildren(...s.header);
+    this.ignoreRow.hidden = !this.hasGeometry();
+    this.editor.canvas.setAttribute("aria-label", s.label);
+    this.editor.loadState(s.editor);
+    const back = marksWords(s.editor.marks);
+    this.dropNote = `Undone: ${s.fileName ? `the film ${s.fileName}` : "the blank frame"}${back ? ` and the landmarks of ${back}` : ""} are back.`;
+    this.update();
+    this.onChange();
+  }
+
+  /** Relabel every landmark of this film one level down (+1) or up (−1) the spine; said in the status,
+   * with the reason when refused (a level would leave T1–L5). */
+  shiftLevels(by: 1 | -1): void {
+    const before = this.editor.landmarks().map((lm) => lm.level);
+    const refusal = this.editor.shiftLevels(by);
+    const after = this.editor.landmarks().map((lm) => lm.level);
+    const span = (lv: Level[]): string => (lv.length > 1 ? `${lv[0]}–${lv[lv.length - 1]}` : lv[0] ?? "none");
+    this.dropNote = refusal ?? `Relabelled one level ${by > 0 ? "down" : "up"}: the landmarks of ${span(before)} are now of ${span(after)}. Undo takes it back.`;
+    this.update();
   }
 
   /** Close the film: no film, no landmarks, no header, as the page first shows the panel. */
@@ -471,7 +540,7 @@ export class FilmPanel {
     const placed = this.editor.landmarks();
     const n = placed.length;
     const other = this.otherPatient;
-    const theJobs = other ? placed.filter((lm) => other.marks.has(JSON.stringify(lm))).map((lm) => lm.level) : [];
+    const theJobs = other ? placed.filter((lm) => other.marks.has(pointsKey(lm))).map((lm) => lm.level) : [];
     if (other && theJobs.length) {
       out.push(`The ${name} film is not the reopened job's: its header says ${other.words}, and the landmarks of ${theJobs.length === 1 ? theJobs[0] : `${theJobs.length} vertebrae (${theJobs[0]}–${theJobs[theJobs.length - 1]})`} over it were placed on the job's film. Close it (“Close film” under it) and open the job's film, or place those landmarks again on this one.`);
     }
@@ -516,7 +585,7 @@ export class FilmPanel {
     this.undoButton.disabled = !ed.canUndo;
     this.redoButton.disabled = !ed.canRedo;
     if (!ed.source && !this.reopened) {
-      this.status.textContent = "";
+      this.status.textContent = this.dropNote ?? "";
       this.prompt.textContent = ed.loading ? `Loading ${ed.loading}…` : `Open the ${this.view === "pa" ? "PA" : "lateral"} film to start.`;
       return;
     }
@@ -535,6 +604,42 @@ export class FilmPanel {
 }
 
 const round = (x: number): number => Math.round(x * 100) / 100;
+
+/** A landmark's points, without its level: a reopened job's landmark relabelled is still the job's. */
+const pointsKey = (lm: ViewPayload["landmarks"][number]): string => JSON.stringify([lm.point ?? null, lm.corners ?? null, lm.pedicles ?? null]);
+
+/** The marks of a film in words: "17 vertebrae (T1–L5): 68 corners", "1 vertebra (T3): 1 midpoint"; "" for none. */
+function marksWords(marks: Map<Level, Mark>): string {
+  const levels = LEVELS.filter((lv) => marks.has(lv));
+  if (!levels.length) return "";
+  const all = [...marks.values()];
+  const count = (n: number, one: string, many: string): string | null => (n ? `${n} ${n === 1 ? one : many}` : null);
+  const points = [
+    count(all.filter((m) => m.point).length, "midpoint", "midpoints"),
+    count(all.reduce((n, m) => n + (m.corners?.length ?? 0), 0), "corner", "corners"),
+    count(all.reduce((n, m) => n + (m.pedicles?.length ?? 0), 0), "pedicle", "pedicles"),
+  ].filter(Boolean).join(", ");
+  const span = levels.length > 1 ? `${levels[0]}–${levels[levels.length - 1]}` : levels[0];
+  return `${levels.length} vertebra${levels.length === 1 ? "" : "e"} (${span}): ${points}`;
+}
+
+/** A closed film as the panel showed it, for Undo. */
+interface ClosedFilm {
+  editor: EditorState;
+  dicom: DicomFilm | null;
+  fileName: string | null;
+  reopened: ViewPayload | null;
+  fromJob: boolean;
+  jobFilm: JobFilm | null;
+  otherPatient: { words: string; marks: Set<string> } | null;
+  spacing: string;
+  ignoreGeometry: boolean;
+  wl: [string, string, boolean];
+  wlHidden: boolean;
+  warning: string | null;
+  header: Node[];
+  label: string;
+}
 
 /** A reopened job's film as its payload's `study` names it. */
 export interface JobFilm {
