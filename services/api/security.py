@@ -13,7 +13,9 @@
   ``A-Za-z0-9._-``, else generated; echoed on the answer), the security headers on every answer,
   and one JSON access-log line per request (``SPINE_ACCESS_LOG``).
 
-CORS (Starlette's middleware) sits between the two when ``SPINE_CORS_ORIGINS`` is set.
+CORS (Starlette's middleware) sits between the two when ``SPINE_CORS_ORIGINS`` is set: it lets a page of those
+origins send ``CORS_ALLOW_HEADERS`` and read ``CORS_EXPOSE_HEADERS`` (``ETag`` and ``If-None-Match`` included, for
+the artifacts' conditional GET).
 """
 
 from __future__ import annotations
@@ -253,6 +255,16 @@ class EdgeMiddleware:
             headers["Strict-Transport-Security"] = self.hsts
 
 
+CORS_ALLOW_HEADERS = ["Authorization", "Content-Type", "Idempotency-Key", "If-None-Match", "X-Request-ID"]
+"""Request headers a cross-origin page may send (the Fetch standard's "CORS-safelisted request-header" covers
+none of them as the API takes them, so the browser asks first): ``If-None-Match`` for the artifacts'
+conditional GET (RFC 9110 §13.1.2, services/api/artifacts.py)."""
+CORS_EXPOSE_HEADERS = ["ETag", "Location", "Retry-After", "X-Request-ID", "Idempotent-Replayed"]
+"""Answer headers a cross-origin page may read besides the Fetch standard's "CORS-safelisted response-header
+names" (Cache-Control, Content-Language, Content-Length, Content-Type, Expires, Last-Modified, Pragma):
+``ETag``, which the page sends back in ``If-None-Match``."""
+
+
 def cors_origins(settings: Settings) -> list[str]:
     return [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
 
@@ -272,8 +284,8 @@ def install_edge(app: FastAPI, settings: Settings) -> None:
             CORSMiddleware,
             allow_origins=origins,
             allow_methods=["GET", "POST"],
-            allow_headers=["Authorization", "Content-Type", "Idempotency-Key", "X-Request-ID"],
-            expose_headers=["Location", "Retry-After", "X-Request-ID", "Idempotent-Replayed"],
+            allow_headers=CORS_ALLOW_HEADERS,
+            expose_headers=CORS_EXPOSE_HEADERS,
             allow_credentials=False,
             max_age=600,
         )

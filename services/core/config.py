@@ -197,6 +197,12 @@ class Settings(BaseSettings):
         description="Comma-separated origins (scheme://host[:port]) allowed to call the API from a browser; "
         "empty: CORS is off.",
     )
+    pacs_clients: str = Field(
+        "",
+        description="Comma-separated client names (the names of `client` API keys) whose keys may browse the PACS "
+        "(/v1/pacs: whether there is one, a study's images, one image); admin keys always may; empty: admin keys "
+        "only. Any other key gets 403 `forbidden` naming the permission `pacs`.",
+    )
     hsts_max_age_s: int = Field(
         0, ge=0, description="When > 0, every answer carries Strict-Transport-Security with this max-age (HTTPS only)."
     )
@@ -343,6 +349,11 @@ class Settings(BaseSettings):
         if self.broker_url:
             return self.broker_url
         return f"sqla+sqlite:///{self.data_dir.resolve() / 'broker.db'}"
+
+    @property
+    def pacs_client_names(self) -> frozenset[str]:
+        """The client names of ``SPINE_PACS_CLIENTS``, whose keys may browse the PACS (besides admin keys)."""
+        return frozenset(name.strip() for name in self.pacs_clients.split(",") if name.strip())
 
     @property
     def webhook_queue(self) -> str:

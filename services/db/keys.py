@@ -16,7 +16,9 @@ never signs a client's webhooks nor is revoked with the client's keys.
 Each key also carries a Standard Webhooks signing secret (``whsec_<base64 of 32 random bytes>``),
 made with the key and stored as is (it must be, to sign): the webhooks of a client's jobs are
 signed with the secret of that client's most recent active ``client`` key that has one
-(``key_webhook_secret``, which ``services.webhooks.signing.secret_for`` reads).
+(``key_webhook_secret``, which ``services.webhooks.signing.secret_for`` reads). A client whose
+``client`` keys are all revoked (``client_revoked``) has no signing secret at all: its webhooks are
+not sent, since it may no longer read its jobs.
 """
 
 from __future__ import annotations
@@ -200,6 +202,15 @@ def key_webhook_secret(session: Session, owner: str | None) -> bytes | None:
     )  # fmt: skip
     secret = session.scalar(latest)
     return decode_secret(secret) if secret else None
+
+
+def client_revoked(session: Session, owner: str) -> bool:
+    """Whether ``owner`` has ``client`` keys and every one of them is revoked: a client whose access was
+    taken away, whose jobs' webhooks are then neither signed with a revoked key's secret nor with the
+    service-wide one (``services.webhooks.signing.secret_for``)."""
+    query = select(func.count(), func.count(ApiKey.revoked_at)).where(ApiKey.name == owner, ApiKey.role == "client")
+    total, revoked = session.execute(query).one()
+    return bool(total) and total == revoked
 
 
 # ------------------------------------------------------------------ audit

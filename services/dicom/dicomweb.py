@@ -11,6 +11,7 @@ own retries are off: the caller (the worker) owns retries and records each attem
 from __future__ import annotations
 
 import contextlib
+import io
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,14 +20,23 @@ from urllib.parse import urlsplit
 import requests
 from dicomweb_client.api import DICOMwebClient
 from pydantic import BaseModel, ConfigDict, Field
+from pydicom import dcmread
 from pydicom.datadict import tag_for_keyword
 from pydicom.dataset import Dataset
+from pydicom.errors import InvalidDicomError
 from pydicom.uid import ExplicitVRLittleEndian
 
 from services.core.config import DicomwebConfig
 from spine_client.dicom.header import RadiographHeader, check_uid, read_header
 
-from .errors import InstanceNotFound, PacsUnavailable, StoreRefused, StudyNotFound, TransferSyntaxUnavailable
+from .errors import (
+    DicomwebError,
+    InstanceNotFound,
+    PacsUnavailable,
+    StoreRefused,
+    StudyNotFound,
+    TransferSyntaxUnavailable,
+)
 
 SERIES_INSTANCE_UID = "0020000E"
 SOP_INSTANCE_UID = "00080018"
@@ -96,6 +106,27 @@ class StoreOutcome:
     """SOP Instance UIDs the PACS stored (Referenced SOP Sequence of the STOW response)."""
     status: int
     """HTTP status of the STOW response (200; 202 when some were stored with warnings)."""
+
+
+def part10(ds: Dataset) -> bytes:
+    """A dataset as a DICOM Part 10 file: the 128-byte preamble, ``DICM`` and the complete File Meta
+    Information, group length included (PS3.10 §7.1), what the media type ``application/dicom`` holds
+    (RFC 3240)."""
+    out = io.BytesIO()
+    ds.save_as(out, enforce_file_format=True)
+    return out.getvalue()
+
+
+def as_part10(ds: Dataset) -> Dataset:
+    """``ds`` as dicomweb-client will write it as a Part 10 file: itself when it has a preamble and a
+    complete File Meta Information (highdicom's SR and SC have), else as read back from ``part10``.
+    dicomweb-client writes each STOW-RS part as its dataset stands, with no preamble nor group length
+    for a dataset built in memory, which a PACS may store as is and later serve as a part no DICOM
+    reader takes."""
+    meta = getattr(ds, "file_meta", None)
+    if getattr(ds, "preamble", None) is not None and meta is not None and "FileMetaInformationGroupLength" in meta:
+        return ds
+    return dcmread(io.BytesIO(part10(ds)))
 
 
 def shown_url(url: str) -> str:
@@ -229,6 +260,11 @@ class Pacs:
                 accept = (("application/dicom", ExplicitVRLittleEndian),)
                 ds = self.client.retrieve_instance(study_instance_uid, series_instance_uid, sop_instance_uid,
                                                    media_types=accept)  # fmt: skip
+        except InvalidDicomError:
+            raise DicomwebError(
+                f"the PACS at {self.shown_url} sent {_uids_text(uids)} as a part that is not a DICOM file (no "
+                "preamble and DICM prefix, PS3.10 §7.1), which the media type application/dicom holds (RFC 3240)"
+            ) from None
         except PacsUnavailable as exc:
             if exc.status in (406, 415):
                 raise TransferSyntaxUnavailable(
@@ -249,7 +285,7 @@ class Pacs:
         uids = {"SOPInstanceUID": ", ".join(str(ds.SOPInstanceUID) for ds in datasets)}
         try:
             with self._errors("the STOW-RS request", uids):
-                response = self.client.store_instances(list(datasets))
+                response = self.client.store_instances([as_part10(ds) for ds in datasets])
         except PacsUnavailable as exc:
             if exc.status is not None and 400 <= exc.status < 500 and exc.status not in (401, 403, 408, 429):
                 raise StoreRefused(f"the PACS at {self.shown_url} refused to store {uids['SOPInstanceUID']} "

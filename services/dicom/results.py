@@ -13,7 +13,6 @@ SOP Instance Reference Macro, PS3.3 Table 10-11) and the landmarks are left out 
 
 from __future__ import annotations
 
-import io
 import uuid
 from collections.abc import Mapping
 from datetime import datetime
@@ -25,19 +24,12 @@ from services.core.config import DicomwebConfig
 from services.db.job_forms import JobForms
 from spine_engine.figures import render_figure
 
-from .dicomweb import Pacs
+from .dicomweb import Pacs, part10
 from .sc import build_sc
 from .sr import SourceImage, StudyIdentity, build_sr
 
 PART10_MEDIA_TYPE = "application/dicom"
 """Media type of a DICOM Part 10 file (RFC 3240; PS3.18 §8.7.3, DICOM media types)."""
-
-
-def part10(ds: Dataset) -> bytes:
-    """A dataset as a DICOM Part 10 file (PS3.10 §7.1)."""
-    out = io.BytesIO()
-    ds.save_as(out, enforce_file_format=True)
-    return out.getvalue()
 
 
 def source_images(payload: Mapping[str, Any], provenance: Mapping[str, Any] | None) -> dict[str, SourceImage]:

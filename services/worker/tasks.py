@@ -54,8 +54,15 @@ def _engine_version() -> str:
     return str(getattr(spine_engine, "__version__", "unknown"))
 
 
-def run_engine(payload: dict[str, Any], instance: str) -> tuple[RegistrationResult | None, dict[str, Any] | None]:
-    """Run the registration; return (result, None) or (None, problem)."""
+def run_engine(
+    payload: dict[str, Any], instance: str, job_id: uuid.UUID
+) -> tuple[RegistrationResult | None, dict[str, Any] | None]:
+    """Run the registration; return (result, None) or (None, problem).
+
+    An unexpected exception of the engine (a bug, not the payload's fault) is logged here with its
+    traceback, on the worker's side only: the client reads the problem, whose detail says what happened
+    and names the job for the operator, never the exception's type or message (a path, an internal
+    name, a number of another computation)."""
     try:
         return register_model(validate_payload(payload)), None
     except InvalidInput as exc:
@@ -64,9 +71,13 @@ def run_engine(payload: dict[str, Any], instance: str) -> tuple[RegistrationResu
         return None, problem("fit-failed", exc.reason, instance=instance, iterations=exc.iterations)
     except SoftTimeLimitExceeded:
         return None, problem("fit-timeout", "the fit did not finish within its time limit", instance=instance)
-    except Exception as exc:
-        log.exception("engine error on %s", instance)
-        return None, problem("engine-error", f"{type(exc).__name__}: {exc}", instance=instance)
+    except Exception:
+        log.exception("job %s: the engine raised an unexpected error; the job fails (engine-error)", job_id)
+        detail = (
+            f"the engine stopped on an unexpected error while fitting job {job_id}, an error of the service, "
+            "not of the payload; the service's operator finds it in the worker's log under this job id"
+        )
+        return None, problem("engine-error", detail, instance=instance)
 
 
 class LeaseKeeper:
@@ -254,7 +265,7 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
         payload, error = resolve_dicom(settings, claim, instance)
         result = None
         if error is None:
-            result, error = run_engine(payload, instance)
+            result, error = run_engine(payload, instance, job_id)
         saved, error = _store_outcome(settings, claim, result, error, instance)
     finally:
         keeper.release(claim)

@@ -87,7 +87,8 @@ def test_a_pacs_problem_never_shows_the_credentials_of_the_pacs_url(tmp_path: Pa
     credentials) and a token in its query: a client browsing the PACS while it is down gets the 503
     problem naming the PACS, without either."""
     url = f"http://{PACS_USER}:{PACS_PASSWORD}@127.0.0.1:{_closed_port()}/dicom-web?apikey={PACS_TOKEN}"
-    settings = Settings(data_dir=tmp_path, dicomweb_url=url, dicomweb_timeout_s=2, api_key_cache_s=0)
+    settings = Settings(data_dir=tmp_path, dicomweb_url=url, dicomweb_timeout_s=2, api_key_cache_s=0,
+                        pacs_clients="clinic-a")  # fmt: skip
     upgrade(settings, quiet=True)
     with TestClient(create_app(settings)) as client:
         client.headers["Authorization"] = f"Bearer {make_key(settings, 'clinic-a')}"

@@ -72,7 +72,7 @@ def test_wrong_content_type_is_a_415_problem(api: TestClient, content_type: str 
 
 def test_a_dicom_body_is_a_415_that_says_how_to_send_a_film(api: TestClient) -> None:
     """A radiograph posted as the job (a PACS integrator's first try): refused, with the two ways that work."""
-    from services.dicom.results import part10
+    from services.dicom.dicomweb import part10
     from tools.dicom import synthetic
 
     film = part10(synthetic.radiograph(rows=64, columns=48, imager_pixel_spacing=(0.2, 0.2)))

@@ -45,7 +45,7 @@ def result() -> dict[str, Any]:
 
 @pytest.fixture
 def app_settings(tmp_path: Path) -> Iterator[tuple[TestClient, Settings]]:
-    settings = Settings(data_dir=tmp_path)
+    settings = Settings(data_dir=tmp_path, pacs_clients="test-client")  # make_key's client, to reach /v1/pacs
     upgrade(settings, quiet=True)
     with TestClient(create_app(settings)) as client:
         client.headers["Authorization"] = f"Bearer {make_key(settings)}"

@@ -265,6 +265,22 @@ def test_cors_is_off_unless_origins_are_configured(tmp_path: Path) -> None:
     assert "x-request-id" in simple.headers["access-control-expose-headers"].lower()
 
 
+def test_cors_lets_a_page_make_the_conditional_gets_of_the_artifacts(tmp_path: Path) -> None:
+    """A page of an allowed origin may send ``If-None-Match`` (its preflight is answered yes) and read
+    ``ETag`` (exposed): the conditional GET of an artifact (RFC 9110 §13.1.2) works across origins."""
+    settings, opened = _app(tmp_path, cors_origins="https://viewer.example")
+    origin = {"Origin": "https://viewer.example"}
+    figure = f"/v1/jobs/{uuid.uuid4()}/figure.png"
+    asks = {"Access-Control-Request-Method": "GET", "Access-Control-Request-Headers": "authorization,if-none-match"}
+    preflight = opened.options(figure, headers={**origin, **asks})
+    assert preflight.status_code == 200, preflight.text
+    assert "if-none-match" in preflight.headers["access-control-allow-headers"].lower()
+    answer = opened.get(figure, headers={**origin, "Authorization": f"Bearer {make_key(settings)}",
+                                         "If-None-Match": '"figure-png-0"'})  # fmt: skip
+    exposed = {h.strip().lower() for h in answer.headers["access-control-expose-headers"].split(",")}
+    assert "etag" in exposed, exposed
+
+
 def test_the_queued_cap_answers_429_with_retry_after(tmp_path: Path, database_url: str | None) -> None:
     settings, client = _app(tmp_path, database_url, max_queued_per_client=3)
     a = {"Authorization": f"Bearer {make_key(settings, 'clinic-a')}"}

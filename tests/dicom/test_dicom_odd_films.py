@@ -28,7 +28,8 @@ from fhir.resources.R4B.bundle import Bundle
 
 from services.api.routes.fhir import film_datetime
 from services.db.job_forms import JobForms
-from services.dicom.results import job_figure_sc_dataset, job_sr_dataset, part10
+from services.dicom.dicomweb import part10
+from services.dicom.results import job_figure_sc_dataset, job_sr_dataset
 from services.fhir.export import observation_bundle
 from spine_client.dicom.header import read_header
 from spine_client.dicom.merge import apply_headers

@@ -7,11 +7,12 @@ from __future__ import annotations
 import uuid
 from typing import Any
 
+import httpx
 import pytest
 
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
-from services.dicom.errors import InstanceNotFound, PacsUnavailable
+from services.dicom.errors import DicomwebError, InstanceNotFound, PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
@@ -126,3 +127,39 @@ def test_resolve_by_reference(orthanc: OrthancServer) -> None:
         assert resolve_by_reference(complete, down) == (complete, None)  # nothing needed: the PACS is not asked
         with pytest.raises(PacsUnavailable):
             resolve_by_reference(payload, down)
+
+
+def _raw_instance(orthanc: OrthancServer, image: Any) -> bytes:
+    """The instance as the PACS serves it (WADO-RS, PS3.18 §10.4): the first part's bytes, unparsed."""
+    url = (f"{orthanc.dicomweb_url}/studies/{image.StudyInstanceUID}/series/{image.SeriesInstanceUID}"
+           f"/instances/{image.SOPInstanceUID}")  # fmt: skip
+    answer = httpx.get(url, headers={"Accept": 'multipart/related; type="application/dicom"'}, auth=orthanc.auth())
+    assert answer.status_code == 200, answer.text
+    body = answer.content
+    return body[body.index(b"\r\n\r\n") + 4 :]
+
+
+def test_stow_sends_part10_files_which_the_pacs_serves_back_readable(orthanc: OrthancServer) -> None:
+    """A dataset built in memory (no preamble, no group length) is stored as a Part 10 file (preamble and
+    ``DICM``, PS3.10 §7.1; RFC 3240's application/dicom): the PACS serves it back as one, and the page's
+    retrieve reads it. dicomweb-client alone sent it as the dataset stood, which Orthanc served back raw."""
+    image = synthetic.radiograph()  # Explicit VR Little Endian, as most DX films
+    assert getattr(image, "preamble", None) is None
+    with _pacs(orthanc) as pacs:
+        pacs.store([image])
+        part = _raw_instance(orthanc, image)
+        assert part[128:132] == b"DICM"
+        retrieved = pacs.retrieve_explicit_le(image.StudyInstanceUID, image.SeriesInstanceUID, image.SOPInstanceUID)
+    assert retrieved.SOPInstanceUID == image.SOPInstanceUID
+
+
+def test_a_part_that_is_not_a_dicom_file_is_a_typed_error(orthanc: OrthancServer) -> None:
+    """A PACS that serves an instance without preamble (stored so by another STOW-RS client) is a
+    ``dicomweb-error`` naming the instance, not an unexpected error."""
+    image = synthetic.radiograph()
+    with _pacs(orthanc) as pacs:
+        pacs.client.store_instances([image])  # as dicomweb-client writes a dataset built in memory
+        assert _raw_instance(orthanc, image)[128:132] != b"DICM"
+        with pytest.raises(DicomwebError) as caught:
+            pacs.retrieve_explicit_le(image.StudyInstanceUID, image.SeriesInstanceUID, image.SOPInstanceUID)
+    assert caught.value.problem == "dicomweb-error" and image.SOPInstanceUID in caught.value.message

@@ -25,7 +25,8 @@ from .conftest import OrthancServer, free_port
 
 
 def _client(tmp_path: Path, **settings_kwargs: object) -> TestClient:
-    settings = Settings(data_dir=tmp_path, **settings_kwargs)  # type: ignore[arg-type]
+    # the client is one SPINE_PACS_CLIENTS names: browsing the PACS is a permission (docs/security.md)
+    settings = Settings(data_dir=tmp_path, pacs_clients="pacs-client", **settings_kwargs)  # type: ignore[arg-type]
     upgrade(settings, quiet=True)
     client = TestClient(create_app(settings))
     client.headers["Authorization"] = f"Bearer {make_key(settings, 'pacs-client')}"

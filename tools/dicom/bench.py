@@ -27,8 +27,7 @@ import requests
 
 from benches.report import write_json
 from services.core.config import DicomwebConfig
-from services.dicom.dicomweb import Pacs
-from services.dicom.results import part10
+from services.dicom.dicomweb import Pacs, part10
 from services.dicom.sc import build_sc
 from services.dicom.sr import SourceImage, StudyIdentity, build_sr
 from spine_client.dicom.header import read_header
