@@ -16,6 +16,7 @@ from sqlalchemy import select, update
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery, queue_depth
+from services.core.problems import problem
 from services.db import deliveries as store
 from services.db import jobs as repo
 from services.db import runs
@@ -83,7 +84,7 @@ def test_a_job_ending_writes_its_webhooks_outbox_row_with_its_outcome(db_setting
             assert claim is not None
             if job_id == superseded:  # the reconciler took the job back: this run's finish stores nothing
                 claim = runs.Claim(claim.job_id, claim.attempt + 1, {}, claim.created_at, claim.callback_url)
-            stored = runs.finish_job(connection, claim, error={"type": "x", "detail": "refused by the test"})
+            stored = runs.finish_job(connection, claim, error=problem("fit-failed", "refused by the test"))
             assert stored is (job_id != superseded)
     after = db_clock(db_settings)
     [row] = rows(db_settings, hooked)
@@ -104,7 +105,7 @@ def test_the_reconciler_writes_the_outbox_row_of_a_job_it_fails(db_settings: Set
         assert runs.claim_job(connection, job_id, None, lease=timedelta(0)) is not None
     with session_scope(db_settings) as session:
         outcome = runs.reconcile(session, queued_timeout=timedelta(seconds=60), max_attempts=1,
-                                 lost_problem={"type": "worker-lost"})  # fmt: skip
+                                 lost_problem=problem("worker-lost", "lost in the test"))  # fmt: skip
     assert job_id in outcome.failed
     [row] = rows(db_settings, job_id)
     assert (row.attempt, row.event, row.error) == (0, "job.failed", None) and row.next_attempt_at is not None
