@@ -17,6 +17,7 @@ _FIELD_OF_ERROR = {"landmark_point_missing": "point", "landmark_point_and_corner
 
 _UPRIGHT_ROWS = ("H", "F")
 _FRONTAL_COLUMNS = ("L", "R")
+_DEPTH_AXES = ("A", "P")
 Point = tuple[float, float]
 
 
@@ -537,6 +538,28 @@ def minimum_levels(name: str, view: PAView | LateralView, exact_boundary: bool) 
     return MIN_LEVELS_PA if name == "pa" else MIN_LEVELS_LATERAL
 
 
+def _plane_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
+    """A view's patient orientation must name its film's plane (DICOM PS3.3 C.7.6.1.1.1, Patient
+    Orientation: L/R, A/P and H/F, the directions of the image's columns and rows). The PA film is a
+    frontal projection, its image in the patient's (x, z) plane: neither axis may run toward A or P.
+    The lateral film is a sagittal projection, its image in the (y, z) plane: neither axis may run
+    toward L or R. Named otherwise, the PA film would show no frontal coordinate (every Cobb angle the
+    prior's, reported as if the film showed it) and the lateral no depth (kyphosis and lordosis read
+    from two frontal films)."""
+    column, row = view.patient_orientation
+    excluded, plane = (_DEPTH_AXES, "frontal (x, z)") if name == "pa" else (_FRONTAL_COLUMNS, "sagittal (y, z)")
+    if column in excluded or row in excluded:
+        return [
+            FieldError(
+                (name, "patient_orientation"),
+                f"the {name} view is a {plane} film, so neither its column nor its row direction can be"
+                f" {' or '.join(excluded)}; got {[column, row]}: check which film is which and its orientation",
+                "orientation_not_of_view",
+            )
+        ]
+    return []
+
+
 def _view_errors(name: str, view: PAView | LateralView, exact_boundary: bool) -> list[FieldError]:
     """px units need a pixel spacing; a view needs at least ``minimum_levels`` landmarked levels
     (any levels: none is required on either view)."""
@@ -594,11 +617,12 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
     exact = model.boundary is not None and not (model.boundary.T1.soft or model.boundary.L5.soft)
     errors = [] if is_profile(model.options.profile) else UnknownProfile(model.options.profile, list_profiles()).errors
     errors += _view_errors("pa", model.pa, exact) + _landmark_form_errors("pa", model.pa, payload.get("pa"))
+    errors += _plane_errors("pa", model.pa)
     errors += _geometry_errors("pa", model.pa, "pa" not in unscaled_views)
     errors += _order_errors("pa", model.pa, payload.get("pa"), "pa" not in unscaled_views)
     errors += _corner_errors("pa", payload.get("pa")) + _pedicle_errors("pa", payload.get("pa"))
     if model.lateral is not None:
-        errors += _view_errors("lateral", model.lateral, exact)
+        errors += _view_errors("lateral", model.lateral, exact) + _plane_errors("lateral", model.lateral)
         errors += _geometry_errors("lateral", model.lateral, "lateral" not in unscaled_views)
         errors += _landmark_form_errors("lateral", model.lateral, payload.get("lateral"))
         errors += _order_errors("lateral", model.lateral, payload.get("lateral"), "lateral" not in unscaled_views)

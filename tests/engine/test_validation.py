@@ -164,6 +164,36 @@ def test_bad_orientation() -> None:
     assert path == "pa.patient_orientation" and "not orthogonal" in msg
 
 
+@pytest.mark.parametrize(
+    ("view", "orientation"),
+    [("pa", ["A", "F"]), ("pa", ["L", "P"]), ("lateral", ["L", "F"]), ("lateral", ["F", "R"])],
+)
+def test_a_view_oriented_as_the_other_film_is_refused(view: str, orientation: list[str]) -> None:
+    """A PA view whose orientation names A or P shows no frontal coordinate, a lateral one naming L or R
+    no depth (DICOM PS3.3 C.7.6.1.1.1). Accepted, a lateral film sent as the PA read every Cobb angle
+    from the prior with the film's SD (a 2D-only spine: largest angle 0° ± 14°), and a PA film sent as
+    the lateral read kyphosis from two frontal films (−2° ± 9°)."""
+    p = good()
+    p["lateral"] = _view({"T1": [10.0, 50.0], "T8": [14.0, 250.0], "L5": [11.0, 500.0]})
+    p[view]["patient_orientation"] = orientation
+    [(path, kind, msg)] = errors_of(p)
+    assert (path, kind) == (f"{view}.patient_orientation", "orientation_not_of_view") and view in msg
+
+
+@pytest.mark.parametrize("orientation", [["R", "F"], ["F", "L"], ["L", "H"]])
+def test_a_pa_view_in_the_frontal_plane_is_accepted_however_it_is_turned(orientation: list[str]) -> None:
+    """An AP film (columns toward R), a PA film shown on its side or upside down: still frontal."""
+    p = good()
+    p["pa"]["patient_orientation"] = orientation
+    if orientation[0] == "F":  # on its side: the levels run along the columns
+        for lm in p["pa"]["landmarks"]:
+            lm["point"] = [lm["point"][1], lm["point"][0]]
+    if orientation[1] == "H":
+        for lm in p["pa"]["landmarks"]:
+            lm["point"] = [lm["point"][0], 1000.0 - lm["point"][1]]
+    validate_payload(p)
+
+
 def test_not_an_object() -> None:
     assert errors_of([1, 2])[0][1] == "type_error"
 
