@@ -15,7 +15,6 @@ import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 from dataclasses import dataclass
-from datetime import timedelta
 from typing import Any, TypeVar
 
 from celery import Celery
@@ -27,8 +26,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from services.core.config import Settings
 from services.core.jobqueue import queue_depth
 from services.db import stats
+from services.db.clock import db_now_plus_s
 from services.db.engine import session_scope
-from services.db.models import utcnow
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +93,8 @@ class JobStateCollector(Collector):
     def _read_database(self) -> _DatabaseReading:
         with session_scope(self.settings) as session:
             counts = stats.count_by_status(session)
-            since = utcnow() - timedelta(seconds=self.settings.metrics_window_s)
+            # the window ends at the database's clock, on which no API replica's own clock has a say
+            since = db_now_plus_s(-self.settings.metrics_window_s)
             return _DatabaseReading(counts, list(stats.recent_durations(session, since)))
 
     def _read_broker(self) -> int:

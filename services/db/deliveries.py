@@ -199,6 +199,18 @@ def settle_earlier(session: Session, message_id: str, attempt: int, attempted_at
     )
 
 
+def wait_s(session: Session, message_id: str, attempt: int) -> float:
+    """Seconds until attempt ``attempt`` of the message is due on the database's clock: the
+    ``next_attempt_at`` of the attempt before it (as ``services.worker.webhook_tasks.deliver_once``
+    wrote it, ``db_now_plus_s(delay)``) minus the database's now, read in one statement; 0 when it is due,
+    or when that row or its due time is missing (nothing to wait for)."""
+    earlier = (WebhookDelivery.message_id == message_id, WebhookDelivery.attempt == attempt - 1)
+    row = session.execute(select(WebhookDelivery.next_attempt_at, db_now()).where(*earlier)).first()
+    if row is None or row[0] is None:
+        return 0.0
+    return max(0.0, (row[0] - row[1]).total_seconds())
+
+
 def delivered(session: Session, message_id: str) -> bool:
     """Whether a receiver already accepted (2xx) this message."""
     query = select(

@@ -13,6 +13,7 @@ from __future__ import annotations
 import uuid
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from typing import Any
 
 from pydantic import BaseModel, Field
 from sqlalchemy import ColumnElement, select, update
@@ -80,6 +81,25 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
 
 
+def _next_number(stores: list[dict[str, Any]] | None) -> int:
+    """The number of the attempt after the last recorded one (1 when none is)."""
+    return max([int(s.get("attempt", 0)) for s in stores or []] + [0]) + 1
+
+
+def next_attempt(session: Session, job_id: uuid.UUID, sweep_after: timedelta) -> tuple[int, float]:
+    """The number of the job's next STOW-RS attempt (the last recorded + 1) and the seconds until it is
+    due on the database's clock: ``dicom_store_due_at`` (written by ``record`` as the next attempt's
+    time plus ``sweep_after``, or by the sweep and ``set_due`` as now plus ``sweep_after``) minus
+    ``sweep_after`` minus the database's now, read in one statement; at least 0, and 0 without a due time
+    or a job."""
+    row = session.execute(select(Job.dicom_stores, Job.dicom_store_due_at, db_now()).where(Job.id == job_id)).first()
+    if row is None:
+        return 1, 0.0
+    stores, due, now = row
+    wait = 0.0 if due is None else max(0.0, (due - sweep_after - now).total_seconds())
+    return _next_number(stores), wait
+
+
 def overdue(
     session: Session, now: datetime | ColumnElement[datetime] | None = None, limit: int = 100
 ) -> list[tuple[uuid.UUID, int]]:
@@ -88,4 +108,4 @@ def overdue(
     attempt (the last recorded + 1)."""
     before = db_now() if now is None else now
     rows = session.execute(select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < before).limit(limit)).all()
-    return [(job_id, max([int(s.get("attempt", 0)) for s in stores or []] + [0]) + 1) for job_id, stores in rows]
+    return [(job_id, _next_number(stores)) for job_id, stores in rows]

@@ -7,6 +7,7 @@ import hashlib
 from datetime import datetime
 
 from sqlalchemy import (
+    ColumnElement,
     func,
     literal_column,
     select,
@@ -24,8 +25,11 @@ def count_by_status(session: Session) -> dict[str, int]:
     return counts
 
 
-def recent_durations(session: Session, since: datetime, limit: int = 20_000) -> list[tuple[float, float]]:
-    """(fit seconds, end-to-end seconds) of jobs that succeeded or failed since ``since``."""
+def recent_durations(
+    session: Session, since: datetime | ColumnElement[datetime], limit: int = 20_000
+) -> list[tuple[float, float]]:
+    """(fit seconds, end-to-end seconds) of jobs that succeeded or failed since ``since`` (a time, or an
+    SQL expression of one: ``services.db.clock.db_now_plus_s(-seconds)``, the database's clock)."""
     rows = session.execute(
         select(Job.created_at, Job.started_at, Job.finished_at)
         .where(

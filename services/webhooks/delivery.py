@@ -20,7 +20,7 @@ import threading
 import time
 from contextvars import ContextVar
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from email.utils import parsedate_to_datetime
 from typing import Any
 
@@ -39,12 +39,14 @@ USER_AGENT = "spine-webhooks/1"
 @dataclass(frozen=True)
 class PostOutcome:
     """What one POST got: the receiver's status (None when no answer came), its ``Retry-After``, the
-    transport error, and the time it took (ms)."""
+    transport error, the time it took (ms) and the receiver's ``Date`` (its clock's time of the answer,
+    RFC 9110 §6.6.1), against which a ``Retry-After`` HTTP-date is read (``retry_delay``)."""
 
     status_code: int | None
     retry_after: str | None
     error: str | None
     duration_ms: float
+    date: str | None = None
 
     @property
     def accepted(self) -> bool:
@@ -205,12 +207,14 @@ def post(url: str, body: bytes, headers: dict[str, str], timeout_s: float, *, sp
     started = time.perf_counter()
     status_code: int | None = None
     retry_after: str | None = None
+    date: str | None = None
     error: str | None = None
     token = _DEADLINE.set(time.monotonic() + timeout_s - max(0.0, spent_s))
     try:
         with _client(timeout_s).stream("POST", url, content=body, headers=headers) as response:
             status_code = response.status_code
             retry_after = response.headers.get("retry-after")
+            date = response.headers.get("date")
     except httpx.TimeoutException as exc:
         error = f"{type(exc).__name__}: no complete answer within {timeout_s:g} s (SPINE_WEBHOOK_TIMEOUT_S)"
     except httpx.HTTPError as exc:
@@ -219,26 +223,51 @@ def post(url: str, body: bytes, headers: dict[str, str], timeout_s: float, *, sp
         _DEADLINE.reset(token)
     if status_code is not None and not 200 <= status_code < 300:
         error = f"HTTP {status_code}" + (" (redirects are not followed)" if 300 <= status_code < 400 else "")
-    return PostOutcome(status_code, retry_after, error, (time.perf_counter() - started) * 1000)
+    return PostOutcome(status_code, retry_after, error, (time.perf_counter() - started) * 1000, date)
 
 
-def retry_delay(settings: Settings, attempt: int, retry_after: str | None = None) -> float:
-    """Delay before attempt ``attempt + 1``: base·2^(attempt−1), or the receiver's Retry-After if longer."""
+def retry_delay(settings: Settings, attempt: int, retry_after: str | None = None, date: str | None = None) -> float:
+    """Delay (s) before attempt ``attempt + 1``: base·2^(attempt−1), or the receiver's ``Retry-After`` if
+    longer; at most ``MAX_RETRY_DELAY_S``.
+
+    ``Retry-After`` is delay-seconds or an HTTP-date (RFC 9110 §10.2.3). An HTTP-date is a time on the
+    receiver's clock, so it is read against the receiver's ``Date`` of the same answer (RFC 9110 §6.6.1)
+    when that parses, never against this worker's clock, which may differ from the receiver's by any
+    amount; without a usable ``Date``, against this worker's clock. A date in the past asks for no delay
+    (the backoff applies), one beyond ``MAX_RETRY_DELAY_S`` is capped, and a value that is neither form
+    is ignored.
+    """
     delay = settings.webhook_retry_base_s * 2 ** (attempt - 1)
-    wanted = _retry_after_s(retry_after)
+    wanted = _retry_after_s(retry_after, date)
     if wanted is not None:
         delay = max(delay, wanted)
     return min(delay, MAX_RETRY_DELAY_S)
 
 
-def _retry_after_s(value: str | None) -> float | None:
+def _http_date(value: str | None) -> datetime | None:
+    """An HTTP-date (RFC 9110 §5.6.7: IMF-fixdate, or the obsolete RFC 850 and asctime forms, all UTC),
+    or None when ``value`` is none of them. The asctime form carries no zone: it is UTC."""
     if not value:
         return None
     try:
-        return max(0.0, float(value))
+        parsed = parsedate_to_datetime(value)
+    except (TypeError, ValueError, IndexError, OverflowError):
+        return None
+    return parsed if parsed.tzinfo is not None else parsed.replace(tzinfo=UTC)
+
+
+def _retry_after_s(value: str | None, date: str | None = None) -> float | None:
+    """The seconds a ``Retry-After`` asks for (at least 0), read against ``date`` (the answer's ``Date``)
+    or, without one, this worker's clock; None when ``value`` is neither delay-seconds nor an HTTP-date."""
+    if not value:
+        return None
+    try:
+        seconds = float(value)
     except ValueError:
         pass
-    try:
-        return max(0.0, (parsedate_to_datetime(value) - utcnow()).total_seconds())
-    except (TypeError, ValueError):
+    else:
+        return seconds if seconds > 0 else 0.0  # a NaN or a negative asks for nothing
+    at = _http_date(value)
+    if at is None:
         return None
+    return max(0.0, (at - (_http_date(date) or utcnow())).total_seconds())

@@ -12,6 +12,14 @@ them; none is duplicated).
 
 The due time the reconciler's sweep looks for (``jobs.dicom_store_due_at``) is written and compared on
 the database's clock (``services.db.dicom_stores``), never this process's own.
+
+A retry's countdown becomes an absolute ETA on the publishing worker's clock, which the consuming worker
+compares with its own: a consumer whose clock is ahead receives the retry early by the difference. So a
+message with an ETA is made only once its attempt is due on the database's clock (``attempt_wait_s``);
+one that came early is published again with the time left. A consumer whose clock is behind holds it
+late by the difference; beyond ``SPINE_DICOMWEB_SWEEP_AFTER_S`` the sweep publishes the attempt again,
+and a message of an attempt already recorded on the job is dropped, so that the same instances are not
+stored twice in a row.
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ import time
 import uuid
 from datetime import datetime, timedelta
 
-from celery import Celery
+from celery import Celery, Task
 from sqlalchemy import ColumnElement
 
 from services.core.config import Settings
@@ -36,6 +44,7 @@ from services.dicom.results import store_job_results
 from spine_client.dicom.errors import DicomError
 
 log = logging.getLogger(__name__)
+
 
 def retry_delay_s(settings: Settings, attempt: int) -> float:
     """Seconds before attempt ``attempt + 1`` of a STOW-RS push (and before a job whose PACS was
@@ -97,6 +106,18 @@ def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:
     return sent
 
 
+def attempt_wait_s(settings: Settings, job_id: uuid.UUID, attempt: int, *, scheduled: bool) -> float | None:
+    """Whether attempt ``attempt`` of the job's STOW-RS is to be made now: None when it is already
+    recorded on the job (a second message of it, e.g. the sweep's and one held late by its consumer),
+    else the seconds until it is due on the database's clock (``dicom_stores.next_attempt``) for a
+    message published with a countdown (``scheduled``), 0 for one published to run at once."""
+    with session_scope(settings) as session:
+        number, wait = dicom_stores.next_attempt(session, job_id, timedelta(seconds=settings.dicomweb_sweep_after_s))
+    if attempt < number:
+        return None
+    return wait if scheduled else 0.0
+
+
 def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStoreAttempt:
     """One STOW-RS attempt of the job's SR and SC; recorded on the job. Raises nothing from the PACS."""
     config = settings.dicomweb
@@ -124,12 +145,23 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
 def register_dicom_tasks(app: Celery, settings: Settings) -> None:
     """The ``spine.dicom_store`` task on ``app``."""
 
-    @app.task(name=STORE_DICOM, shared=False, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT,
-              retry_backoff=True, max_retries=10)  # fmt: skip
-    def dicom_store(job_id: str, attempt: int) -> None:
+    @app.task(name=STORE_DICOM, bind=True, shared=False, ignore_result=True, acks_late=True,
+              autoretry_for=TRANSIENT, retry_backoff=True, max_retries=10)  # fmt: skip
+    def dicom_store(task: Task, job_id: str, attempt: int) -> None:
         parsed = uuid.UUID(job_id)
+        attempt = int(attempt)
+        wait = attempt_wait_s(settings, parsed, attempt, scheduled=task.request.eta is not None)
+        if wait is None:
+            log.info("STOW-RS of job %s attempt %d: already made (a second message of it), dropped", parsed, attempt)
+            return
+        if wait > 0:
+            log.info("STOW-RS of job %s attempt %d came %.3f s before it is due on the database's clock "
+                     "(this worker's clock and its publisher's differ): published again for then",
+                     parsed, attempt, wait)  # fmt: skip
+            publish_dicom_store(settings, parsed, attempt, countdown=wait, celery=app)
+            return
         try:
-            outcome = store_once(settings, parsed, int(attempt))
+            outcome = store_once(settings, parsed, attempt)
         except LookupError as exc:
             log.warning("STOW-RS skipped: %s", exc)
             return

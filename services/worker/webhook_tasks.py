@@ -14,6 +14,14 @@ off leaves its attempt's row in flight (or only the outbox row), which the sweep
 Every due time (``next_attempt_at``) is written and compared on the database's clock
 (``services.db.clock``): the worker that writes it and the reconciler that sweeps may run on hosts
 whose clocks differ by more than ``SPINE_WEBHOOK_SWEEP_AFTER_S``.
+
+A retry's message carries a countdown, which Celery turns into an absolute ETA on the publishing
+worker's clock and the consuming worker compares with its own: a consumer whose clock is ahead of the
+publisher's receives the retry early, by the difference. So a message with an ETA is made only once its
+attempt is due on the database's clock (``retry_wait_s``); one that came early is published again with
+the time left as its countdown, counted by the worker that found it early. A consumer whose clock is
+behind holds the message late by the difference; beyond ``SPINE_WEBHOOK_SWEEP_AFTER_S`` the sweep
+publishes the attempt again, and the claim of its row lets only one of the two make the request.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import uuid
 from datetime import timedelta
 from typing import Any
 
-from celery import Celery
+from celery import Celery, Task
 
 from services.core.config import Settings
 from services.core.jobqueue import DELIVER_WEBHOOK, HARD_LIMIT_GRACE_S, publish_webhook
@@ -147,10 +155,17 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms,
                 error=f"{sent.error}; {final}")  # fmt: skip
         return None
-    delay = retry_delay(settings, attempt, sent.retry_after)  # counted from the attempt's end
+    delay = retry_delay(settings, attempt, sent.retry_after, sent.date)  # counted from the attempt's end
     _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms, error=sent.error,
             next_attempt_at=db_now_plus_s(delay))  # fmt: skip
     return delay
+
+
+def retry_wait_s(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float:
+    """Seconds until attempt ``attempt`` of the job's webhook is due on the database's clock (the attempt
+    before it wrote that time: ``deliver_once``); 0 when it is due."""
+    with session_scope(settings) as session:
+        return deliveries.wait_s(session, deliveries.message_id(job_id, status), attempt)
 
 
 @write_retry
@@ -167,15 +182,23 @@ def register_webhook_tasks(app: Celery, settings: Settings) -> None:
 
     soft_limit = settings.webhook_timeout_s + settings.webhook_task_margin_s
 
-    @app.task(name=DELIVER_WEBHOOK, shared=False, ignore_result=True, acks_late=True, autoretry_for=TRANSIENT,
-              retry_backoff=True, retry_backoff_max=60, max_retries=10, soft_time_limit=soft_limit,
-              time_limit=soft_limit + HARD_LIMIT_GRACE_S)  # fmt: skip
-    def deliver_webhook(job_id: str, status: str, attempt: int) -> None:
+    @app.task(name=DELIVER_WEBHOOK, bind=True, shared=False, ignore_result=True, acks_late=True,
+              autoretry_for=TRANSIENT, retry_backoff=True, retry_backoff_max=60, max_retries=10,
+              soft_time_limit=soft_limit, time_limit=soft_limit + HARD_LIMIT_GRACE_S)  # fmt: skip
+    def deliver_webhook(task: Task, job_id: str, status: str, attempt: int) -> None:
         try:
             parsed = uuid.UUID(job_id)
         except ValueError:
             log.error("dropping a webhook message with a malformed job id %r", job_id)
             return
+        if task.request.eta is not None:  # a retry: its ETA is on its publisher's clock, compared with ours
+            wait = retry_wait_s(settings, parsed, status, attempt)
+            if wait > 0:
+                log.info("webhook of job %s attempt %d came %.3f s before it is due on the database's clock "
+                         "(this worker's clock and its publisher's differ): published again for then",
+                         parsed, attempt, wait)  # fmt: skip
+                publish_webhook(settings, parsed, status, attempt, countdown=wait, celery=app)
+                return
         delay = deliver_once(settings, parsed, status, attempt)
         if delay is not None:
             publish_webhook(settings, parsed, status, attempt + 1, countdown=delay, celery=app)
