@@ -47,13 +47,11 @@ for _name in CELERY_TASK_LOGGERS:
 
 
 def beat_schedule(settings: Settings) -> dict[str, dict[str, Any]]:
-    """The reconciler every ``SPINE_RECONCILE_INTERVAL_S``, each run expiring when the next one is due
-    (Celery's ``expires``, an ``apply_async`` option a beat entry's ``options`` pass on, "Periodic
-    Tasks" in Celery's user guide): a run that could not start in time (the database down, the pool
-    busy) is dropped rather than queued behind the next ones, which would then all run at once and
-    hold every pool process."""
-    interval = settings.reconcile_interval_s
-    return {"reconcile": {"task": RECONCILE, "schedule": interval, "options": {"expires": interval}}}
+    """The reconciler every ``SPINE_RECONCILE_INTERVAL_S``. Runs that queued while they could not start
+    (the database down, the pool busy) are ended by the task itself (``tasks.RunSpacing``), not by
+    Celery's ``expires``, an instant on beat's clock that a worker whose clock runs ahead would read as
+    past for every run."""
+    return {"reconcile": {"task": RECONCILE, "schedule": settings.reconcile_interval_s}}
 
 
 settings = get_settings()

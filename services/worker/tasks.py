@@ -54,6 +54,27 @@ def _engine_version() -> str:
     return str(getattr(spine_engine, "__version__", "unknown"))
 
 
+class RunSpacing:
+    """Whether a periodic run goes ahead: not when this process started one less than ``min_gap_s`` ago,
+    on its own monotonic clock. The reconciler's runs that queued while they could not start (the
+    database down, the pool busy) then end at once instead of all running and holding every pool
+    process. No other clock is compared: Celery's ``expires`` is an instant on beat's clock that the
+    consuming worker compares with its own, so a worker whose clock ran ahead of beat's host by more
+    than the interval would drop every run."""
+
+    def __init__(self, min_gap_s: float):
+        self.min_gap_s = min_gap_s
+        self.last: float | None = None
+
+    def due(self, now: float | None = None) -> bool:
+        """Whether a run starting at ``now`` (``time.monotonic()``, s) goes ahead; if so it is the last."""
+        now = time.monotonic() if now is None else now
+        if self.last is not None and now - self.last < self.min_gap_s:
+            return False
+        self.last = now
+        return True
+
+
 def run_engine(
     payload: dict[str, Any], instance: str, job_id: uuid.UUID
 ) -> tuple[RegistrationResult | None, dict[str, Any] | None]:
@@ -380,8 +401,13 @@ def register_tasks(app: Celery, settings: Settings) -> None:
             outcome = f"back to the queue for {later.countdown:g} s (PACS unavailable)"
         log.info("job %s %s in %.1f ms", job_id, outcome, (time.perf_counter() - started) * 1000)
 
+    spacing = RunSpacing(settings.reconcile_interval_s / 2)  # each pool process forks its own copy
+
     @app.task(name=RECONCILE, shared=False, ignore_result=True, autoretry_for=TRANSIENT, max_retries=0,
               soft_time_limit=settings.reconcile_time_limit_s,
               time_limit=settings.reconcile_time_limit_s + HARD_LIMIT_GRACE_S)  # fmt: skip
     def reconcile() -> None:
+        if not spacing.due():
+            log.debug("reconcile run skipped: this process ran one less than %.1f s ago", spacing.min_gap_s)
+            return
         reconcile_once(settings, app)
