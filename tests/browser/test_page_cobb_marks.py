@@ -122,7 +122,8 @@ def test_cobb_marked_as_model_estimate_and_apical_disc_named(
 
     with page.expect_download() as info:
         page.click("#download-measures")
-    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(Path(info.value.path()).read_text()))}
+    text = Path(info.value.path()).read_text(encoding="utf-8-sig")  # the file starts with UTF-8's byte order mark
+    rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(text))}
     assert rows["Major curve T5–T12, Cobb angle"]["model_estimate"] == "model estimate"
     assert rows["Minor curve L4–L5, Cobb angle"]["model_estimate"] == "model estimate"
     assert rows["Minor curve L4–L5, Cobb angle"]["note"] == "apex L4/L5 disc, convex to the patient's left"

@@ -58,7 +58,7 @@ def _wait_final(page: Any) -> None:
     )
 
 
-def test_a_new_film_starts_without_the_old_films_landmarks(
+def test_a_new_film_starts_without_the_old_films_landmarks_and_undo_brings_them_back(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
     make_dicom(tmp_path / "pa.dcm", view="pa")
@@ -66,16 +66,39 @@ def test_a_new_film_starts_without_the_old_films_landmarks(
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     _open(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 6)
-    assert len(_preview(page)["pa"]["landmarks"]) == 6
+    placed_first = _preview(page)["pa"]["landmarks"]
+    assert len(placed_first) == 6
     _open(page, "pa", tmp_path / "pa-small.dcm")
     assert _preview(page) == "Give landmarks first."  # no landmark of the first film on the second
     status = page.text_content("#pa-status") or ""
     assert "The landmarks of 6 vertebrae placed on the previous film were removed" in status, status
+    assert "(the film pa.dcm: 6 vertebrae (T1–T6): 6 midpoints)" in status, status
+    assert "Undo (the button, or Ctrl+Z on the film) brings back the film pa.dcm and its landmarks" in status
     assert "No landmark on this film yet." in status
-    assert page.is_disabled("#pa-undo")  # the undo history went with them
     assert page.input_value("#pa-level") == "T1"
+    # a film opened over placed landmarks by mistake: Undo brings back the film, its landmarks and their history
+    placed = placed_first
+    assert page.is_enabled("#pa-undo")
     page.focus("#pa-canvas")
     page.keyboard.press("Control+z")
+    assert len(_preview(page)["pa"]["landmarks"]) == 6
+    assert "pa.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
+    assert "pa-small.dcm" not in (page.get_attribute("#pa-canvas", "aria-label") or "")
+    status = page.text_content("#pa-status") or ""
+    back = "Undone: the film pa.dcm and the landmarks of 6 vertebrae (T1–T6): 6 midpoints are back in place of pa-small"
+    assert back in status, status
+    page.keyboard.press("Control+z")  # the placements' own history came back too
+    assert len(_preview(page)["pa"]["landmarks"]) == 5
+    page.keyboard.press("Control+Shift+z")
+    assert _preview(page)["pa"]["landmarks"] == placed
+    # Redo opens the second film again, without the first's landmarks
+    page.keyboard.press("Control+Shift+z")
+    assert _preview(page) == "Give landmarks first."
+    assert "pa-small.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
+    assert "Redone: pa-small.dcm is open again" in (page.text_content("#pa-status") or "")
+    page.click("#pa-undo")  # and the button undoes it again
+    assert _preview(page)["pa"]["landmarks"] == placed
+    page.click("#pa-redo")
     assert _preview(page) == "Give landmarks first."
     _midpoints(page, 2)  # placing again: the note goes
     assert "removed" not in (page.text_content("#pa-status") or "")
@@ -498,6 +521,10 @@ def test_a_reopened_jobs_landmarks_in_mm_are_not_put_over_a_film_as_pixels(
     assert "The reopened job's landmarks of 17 vertebrae are in mm without a pixel spacing" in status, status
     assert "removed, not guessed" in status and status.endswith("No landmark on this film yet."), status
     assert not isinstance(_preview(page), dict) or "pa" not in _preview(page), _preview(page)
+    # Undo brings them back on their blank frame, in mm as the job has them
+    page.click("#pa-undo", timeout=5_000)
+    back = _preview(page)["pa"]
+    assert back.get("units", "mm") == "mm" and len(back["landmarks"]) == 17, back
     assert not watch.errors, watch.errors
     context.close()
 

@@ -113,7 +113,7 @@ def test_trust_marks_and_sd_from_a_result_with_uncertainty(
     }
     with page.expect_download() as info:
         page.click("#download-measures")
-    measures_csv = Path(info.value.path()).read_text()
+    measures_csv = Path(info.value.path()).read_text(encoding="utf-8-sig")
     assert "Thoracic kyphosis T4–T12" in measures_csv and "± 7.3°" in measures_csv and "model estimate" in measures_csv
     page.locator("#result").screenshot(path=str(tmp_path / "trust.png"))
     context.close()

@@ -96,8 +96,10 @@ export class Api {
   }
 
   /** The caller's jobs, newest first; filters are sent only when non-empty (a list: the parameter repeated). */
-  async jobs(filters: Record<string, string | string[]> = {}, limit = 50): Promise<JobPage> {
+  /** One page of the key's jobs, newest first; `cursor` is the previous page's `next_cursor` (the older jobs). */
+  async jobs(filters: Record<string, string | string[]> = {}, limit = 50, cursor?: string | null): Promise<JobPage> {
     const q = new URLSearchParams({ limit: String(limit) });
+    if (cursor) q.set("cursor", cursor);
     for (const [k, v] of Object.entries(filters)) {
       for (const one of typeof v === "string" ? [v] : v) if (one.trim()) q.append(k, one.trim());
     }

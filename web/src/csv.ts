@@ -88,7 +88,26 @@ const MODEL_COLUMNS: Record<string, string[]> = {
   depth: ["y_mm"], axial_rotation: ["axial_rotation_deg"], twist: ["u3_rad_per_mm", "twist_deg"], kyphosis: ["sagittal_bending_deg"],
 };
 
-const cell = (v: number | string | null | undefined): string => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
+/** A number as a spreadsheet reads one: left as it is, whatever its sign. */
+const NUMBER = /^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/;
+
+/** One CSV field (RFC 4180 §2: quoted when it holds a quote, comma or line break). A text that a
+ * spreadsheet would take as a formula (it starts with =, +, -, @, a tab or a carriage return: OWASP
+ * "CSV Injection") is given a leading apostrophe, so that "=cmd" or "-12.3 ± 1.2°" stays text; a
+ * number is left as it is. */
+export const cell = (v: number | string | null | undefined): string => {
+  if (v === null || v === undefined) return "";
+  let text = String(v);
+  if (typeof v === "string" && /^[=+\-@\t\r]/.test(text) && !NUMBER.test(text)) text = `'${text}`;
+  return /[",\n\r]/.test(text) ? `"${text.replace(/"/g, '""')}"` : text;
+};
+
+/** A CSV file's text as a download: UTF-8 with a byte order mark, so that a spreadsheet opening it reads
+ * "±", "°", "–" and a patient's name in any alphabet as written (without one, Excel takes the file for
+ * the Windows code page); lines end in CRLF (RFC 4180 §2). */
+export function csvBlob(text: string): Blob {
+  return new Blob(["\ufeff", text.replace(/\r?\n/g, "\r\n")], { type: "text/csv;charset=utf-8" });
+}
 
 /** One row per vertebra: pose (LPS mm, directors as rows) with SDs, strains, angles, PA residual and model marks. */
 export function resultCsv(result: RegistrationResult): string {
@@ -106,9 +125,12 @@ export function resultCsv(result: RegistrationResult): string {
   return rows.join("\n") + "\n";
 }
 
-/** The measures as the page shows them: name, value with ±, whether it is a model estimate, and the note. */
-export function measuresCsv(rows: { name: string; value: string; model: boolean; note?: string }[]): string {
+/** The measures as the page shows them: name, value with ±, whether it is a model estimate, and the note;
+ * first the rows `about` that say whose they are (patient, patient ID, study date, job), as the printed
+ * report's head does, so that a file saved apart from the page still names its patient. */
+export function measuresCsv(rows: { name: string; value: string; model: boolean; note?: string }[], about: [string, string][] = []): string {
   const out = ["measure,value,model_estimate,note"];
+  for (const [name, value] of about) out.push([name, value, "", ""].map(cell).join(","));
   for (const r of rows) out.push([r.name, r.value, r.model ? "model estimate" : "", r.note ?? ""].map(cell).join(","));
   return out.join("\n") + "\n";
 }

@@ -137,7 +137,7 @@ export class FilmEditor {
   // ---------------------------------------------------------------- the film
 
   /** Show a film. A new film starts with no landmarks: those placed on another film (and their undo
-   * history) are dropped, unless ``keepLandmarks`` (a reopened job's landmarks, shown over their
+   * history) are dropped from the editor (the panel keeps them for Undo, `saveState`), unless ``keepLandmarks`` (a reopened job's landmarks, shown over their
    * own film once it is opened). Returns how many vertebrae were dropped. */
   setSource(source: FilmSource, keepLandmarks = false): number {
     const dropped = keepLandmarks ? 0 : this.marks.size;

@@ -6,7 +6,7 @@ import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
 import { GEOMETRY_FIELD_WORDS, geometryProblems } from "./checks";
-import { landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
+import { csvBlob, landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
 import { changesTable, estimateNotes, fillFollowUp, notVisitWords, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
@@ -613,6 +613,7 @@ function track(job: Job, started = Date.now(), failures = 0): void {
     showResult(job);
     return;
   }
+  noResult(job);
   if (job.status === "failed" && job.error) showProblem(problemBox, job.error, job.payload);
   if (final) return;
   const delay = Date.now() - started < 30_000 ? 400 : 2000;
@@ -635,16 +636,44 @@ function track(job: Job, started = Date.now(), failures = 0): void {
 
 // ------------------------------------------------------------------ result and report
 
+/** A job without a result (queued, running, failed, cancelled): no other job's result stays under its
+ * address (its table, 3D view, downloads and printed report would pass for this job's). */
+function noResult(job: Job): void {
+  $("result").hidden = true;
+  delete $("result").dataset.jobId;
+  delete $("view3d").dataset.shown;
+  const empty = $("result-empty");
+  empty.hidden = false;
+  empty.textContent = job.status === "failed"
+    ? `Job ${job.id.slice(0, 8)} failed: it has no result (why is said above).`
+    : job.status === "cancelled"
+    ? `Job ${job.id.slice(0, 8)} was cancelled: it has no result.`
+    : `Job ${job.id.slice(0, 8)} is ${job.status}: its result appears here once it has succeeded.`;
+}
+
 function showResult(job: Job): void {
   const result = job.result;
   if (!result) return;
   $("result-empty").hidden = true;
   $("result").hidden = false;
   // three.js is loaded with the first result only: the page's first render does not wait for it.
+  // Said while three.js is fetched (the first result), and when it cannot be: an empty box says neither.
+  const view3d = $("view3d");
+  const said = $("view3d-orientation");
+  if (!viewer) {
+    view3d.setAttribute("aria-busy", "true");
+    said.textContent = "Loading the 3D view…";
+  }
   void import("./viewer3d").then(({ SpineViewer }) => {
-    viewer ??= new SpineViewer($("view3d"), $("view3d-orientation"));
+    view3d.removeAttribute("aria-busy");
+    if (currentJob?.id !== job.id) return; // another job was opened while three.js was fetched
+    viewer ??= new SpineViewer(view3d, said);
     viewer.show(result);
-    $("view3d").dataset.shown = job.id;
+    view3d.dataset.shown = job.id;
+  }, (error: unknown) => {
+    view3d.removeAttribute("aria-busy");
+    said.textContent = `The 3D view could not be loaded (${error instanceof Error ? error.message : String(error)}): ` +
+      "the measures, the PA and lateral projections and the report below do not need it; reload the page to try again.";
   });
   drawViews(job);
   fillLegend($("legend"), result);
@@ -664,7 +693,7 @@ function showResult(job: Job): void {
   $("download-sr").hidden = !caps?.srExport;
   $("download-figure-dcm").hidden = !caps?.figureDcm;
   $("download-fhir").hidden = !caps?.fhirExport;
-  void loadFigure(job.id);
+  figureLoading = loadFigure(job.id);
 }
 
 /** The result's PA and lateral projections, over the PA film when the page has it. */
@@ -695,21 +724,45 @@ function fillReportHead(job: Job): void {
   }));
 }
 
+/** The report's figure of the job shown, being fetched (settled once it is shown, or could not be). */
+let figureLoading: Promise<void> = Promise.resolve();
+
+/** Fetch the service's figure of job `id` for the printed report. The figure of the job shown before is
+ * taken away first (a report printed meanwhile would carry another job's figure), and a figure arriving
+ * after another job was opened is not shown. */
 async function loadFigure(id: string): Promise<void> {
   const img = $<HTMLImageElement>("report-figure");
+  img.removeAttribute("src");
+  img.dataset.loaded = "pending";
+  img.dataset.jobId = id;
   try {
     const blob = await api.blob(`/v1/jobs/${id}/figure.png`);
+    if (img.dataset.jobId !== id) return;
     if (figureUrl) URL.revokeObjectURL(figureUrl);
     figureUrl = URL.createObjectURL(blob);
     img.src = figureUrl;
     await img.decode();
-    img.dataset.loaded = "true";
+    if (img.dataset.jobId === id) img.dataset.loaded = "true";
   } catch {
-    img.dataset.loaded = "false";
+    if (img.dataset.jobId === id) img.dataset.loaded = "false";
   }
 }
 
-$("print-report").addEventListener("click", () => window.print());
+/** How long "Print the report" waits for the figure still being fetched before printing without it (ms). */
+const FIGURE_WAIT_MS = 15_000;
+
+$("print-report").addEventListener("click", async () => {
+  const button = $<HTMLButtonElement>("print-report");
+  if ($("report-figure").dataset.loaded === "pending") {
+    // printed at once, the report would go without its figure: wait for it (or for the time limit)
+    button.disabled = true;
+    button.textContent = "Waiting for the figure…";
+    await Promise.race([figureLoading, new Promise((done) => window.setTimeout(done, FIGURE_WAIT_MS))]);
+    button.disabled = false;
+    button.textContent = "Print the report";
+  }
+  window.print();
+});
 
 // The printed report's follow-up table: the patient's visits and changes, fetched when asked for.
 // An answer that arrives after the box was unticked, or another job was opened, is dropped: the report
@@ -764,7 +817,15 @@ $("download-csv").addEventListener("click", () => {
   if (currentJob?.result) download(`spine-${currentJob.id}.csv`, new Blob([resultCsv(currentJob.result)], { type: "text/csv" }));
 });
 $("download-measures").addEventListener("click", () => {
-  if (currentJob?.result) download(`spine-${currentJob.id}-measures.csv`, new Blob([measuresCsv(measureRows(currentJob, currentJob.result))], { type: "text/csv" }));
+  if (!currentJob?.result) return;
+  const study = currentJob.study ?? currentJob.payload?.study ?? null;
+  const about: [string, string][] = [
+    ["Patient", personName(study?.patient_name ?? undefined) || "not given"],
+    ["Patient ID", study?.patient_id || "not given"],
+    ["Study date", study?.study_date || "not given"],
+    ["Job", currentJob.id],
+  ];
+  download(`spine-${currentJob.id}-measures.csv`, csvBlob(measuresCsv(measureRows(currentJob, currentJob.result), about)));
 });
 // The service's artifacts of the job: [button, path under /v1/jobs/{id}/, file name suffix, Accept].
 const ARTIFACTS: [string, string, string, string | undefined][] = [
@@ -817,15 +878,46 @@ async function showJobs(): Promise<void> {
   note.textContent = ignored.length ? `This service cannot filter by ${ignored.join(", ")} yet: showing all jobs.` : "";
   showProblem($("jobs-problem"), null);
   const body = $<HTMLTableElement>("jobs-table").tBodies[0];
+  body.replaceChildren();
+  jobsPaging = { filters, cursor: null, note: note.textContent ?? "" };
+  await moreJobs();
+}
+
+/** The jobs list's filters and the cursor of its next (older) page; null once the list is complete. */
+let jobsPaging: { filters: Record<string, string>; cursor: string | null; note: string } | null = null;
+
+/** The next page of the jobs list (the first when none is shown), appended; "Show older jobs" while
+ * the service says older ones follow (`next_cursor`), so that no job is out of reach. */
+async function moreJobs(): Promise<void> {
+  const paging = jobsPaging;
+  if (!paging) return;
+  const body = $<HTMLTableElement>("jobs-table").tBodies[0];
+  const more = $<HTMLButtonElement>("jobs-more");
+  const note = $("jobs-note");
+  more.disabled = true;
   try {
-    const page = await api.jobs(filters);
-    body.replaceChildren(...page.jobs.map(jobRow));
-    if (!page.jobs.length) note.textContent = `${note.textContent} No job matches.`.trim();
+    const page = await api.jobs(paging.filters, JOBS_PAGE, paging.cursor);
+    if (jobsPaging !== paging) return; // the list was asked for again meanwhile
+    body.append(...page.jobs.map(jobRow));
+    paging.cursor = page.next_cursor ?? null;
+    more.hidden = !paging.cursor;
+    const shown = body.rows.length;
+    note.textContent = [
+      paging.note,
+      !shown ? "No job matches." : paging.cursor ? `The newest ${shown} jobs are shown: “Show older jobs” below the list adds the next ${JOBS_PAGE}.` : "",
+    ].filter(Boolean).join(" ");
   } catch (error) {
-    body.replaceChildren();
+    if (jobsPaging !== paging) return;
+    more.hidden = true;
     showProblem($("jobs-problem"), error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+  } finally {
+    more.disabled = false;
   }
 }
+
+/** Jobs asked of the service at a time for the jobs list. */
+const JOBS_PAGE = 50;
+$("jobs-more").addEventListener("click", () => void moreJobs());
 
 function jobRow(job: Job): HTMLTableRowElement {
   const tr = document.createElement("tr");
@@ -842,7 +934,7 @@ function jobRow(job: Job): HTMLTableRowElement {
   const major = job.result?.measures.cobb.find((c) => c.major);
   tr.append(
     cell(link),
-    cell(job.status),
+    cell(statusWords(job)),
     cell(new Date(job.created_at).toLocaleString()),
     cell([personName(s?.patient_name ?? undefined), s?.patient_id].filter(Boolean).join(", ") || "—"),
     cell([s?.accession_number, s?.study_instance_uid].filter(Boolean).join(" · ") || "—"),
@@ -850,6 +942,14 @@ function jobRow(job: Job): HTMLTableRowElement {
   );
   if (major && job.result?.fit.unreliable?.includes("cobb")) tr.lastElementChild?.append(" ", modelMark(COBB_ESTIMATE_REASON));
   return tr;
+}
+
+/** A job's status in the jobs list; a failed job's with why, in the words of its problem (the first
+ * sentence `sentences` gives, as the job's own page says it). */
+function statusWords(job: Job): string {
+  if (job.status !== "failed" || !job.error) return job.status;
+  const { lines } = sentences(job.error, job.payload);
+  return `failed: ${lines[0] ?? job.error.title}`;
 }
 
 /** The job asked for last (its address): an earlier job's answer arriving after it is dropped. */
@@ -865,6 +965,7 @@ async function openJob(id: string): Promise<void> {
     const job = await api.job(id);
     if (openingJob !== id) return; // another job was asked for meanwhile
     backdrop = null;
+    showProblem(problemBox, null); // another job's refusal or failure is not this one's
     if (job.payload) {
       // Exactly the job's payload: both panels and the draft are reset to it, whatever was open before.
       const p = job.payload;

@@ -2,7 +2,7 @@
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
 import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
-import { FilmEditor, type EditorState, type Mark, type Mode } from "./film";
+import { FilmEditor, type EditorState, type Mark, type Mode, type OuterEdit } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
 export type ViewName = "pa" | "lateral";
@@ -251,6 +251,8 @@ export class FilmPanel {
     // only on the blank frame): they are not put over it as if they were pixels.
     const inMm = this.reopenedInMm();
     const keep = !!this.reopened && !this.editor.source && !inMm;
+    // what the panel shows before the film is replaced: Undo brings it back, film and landmarks
+    const before = keep ? null : this.capture();
     let dropped = 0;
     let warning: string | null = null;
     let notTheJobs: OtherFilm | null = null;
@@ -303,11 +305,15 @@ export class FilmPanel {
       ].filter(Boolean).join(" ") || null;
       this.warning.hidden = !warning;
       this.warning.textContent = warning ?? "";
+      const gone = before ? marksWords(before.editor.marks) : "";
+      const was = before?.fileName ? `the film ${before.fileName}` : "the blank frame";
+      const undoWords = `Undo (the button, or Ctrl+Z on the film) brings back ${was} and its landmarks.`;
       this.dropNote = dropped && inMm
-        ? `The reopened job's landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} are in mm without a pixel spacing, so where they lie on ${file.name} is unknown: they were removed, not guessed. Reopen the job to see them again on the blank frame, or place them on ${file.name}.`
+        ? `The reopened job's landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} are in mm without a pixel spacing, so where they lie on ${file.name} is unknown: they were removed, not guessed (${gone}). ${undoWords}`
         : dropped
-        ? `The landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} placed on the previous film were removed, with their undo history: landmarks belong to the film they were placed on. Place them again on ${file.name}.`
+        ? `The landmarks of ${dropped} vertebra${dropped === 1 ? "" : "e"} placed on the previous film were removed with it (${was}: ${gone}): landmarks belong to the film they were placed on. ${undoWords} Or place them again on ${file.name}.`
         : null;
+      if (before && dropped) this.pushReplaced(before, file.name);
       this.fillHeader();
       this.update();
       this.onChange();
@@ -345,6 +351,25 @@ export class FilmPanel {
     this.update();
   }
 
+  /** Record opening `name` over the film `before` (its landmarks removed) as an edit: Undo brings back
+   * the film, its header and landmarks with their undo history; Redo shows `name` again as it was. */
+  private pushReplaced(before: ClosedFilm, name: string): void {
+    let after: ClosedFilm | null = null;
+    const was = before.fileName ? `the film ${before.fileName}` : "the blank frame";
+    const edit: OuterEdit = {
+      undo: () => {
+        after = this.capture();
+        this.bringBack(before, `Undone: ${was} and the landmarks of ${marksWords(before.editor.marks)} are back in place of ${name}. Redo opens ${name} again.`);
+      },
+      redo: () => {
+        if (!after) return;
+        this.bringBack(after, `Redone: ${name} is open again; the landmarks of ${marksWords(before.editor.marks)} placed on ${was} were removed with it. Undo brings them back.`);
+        this.editor.pushOuter(edit);
+      },
+    };
+    this.editor.pushOuter(edit);
+  }
+
   /** What the panel shows now, for Undo of "Close film". */
   private capture(): ClosedFilm {
     return {
@@ -357,7 +382,7 @@ export class FilmPanel {
   }
 
   /** Undo of "Close film": the film, its header and landmarks (with their undo history) back as they were. */
-  private bringBack(s: ClosedFilm): void {
+  private bringBack(s: ClosedFilm, note?: string): void {
     this.opening++; // a film chosen meanwhile and still being read is not shown over it
     this.dicom = s.dicom;
     this.fileName = s.fileName;
@@ -377,7 +402,7 @@ export class FilmPanel {
     this.editor.canvas.setAttribute("aria-label", s.label);
     this.editor.loadState(s.editor);
     const back = marksWords(s.editor.marks);
-    this.dropNote = `Undone: ${s.fileName ? `the film ${s.fileName}` : "the blank frame"}${back ? ` and the landmarks of ${back}` : ""} are back.`;
+    this.dropNote = note ?? `Undone: ${s.fileName ? `the film ${s.fileName}` : "the blank frame"}${back ? ` and the landmarks of ${back}` : ""} are back.`;
     this.update();
     this.onChange();
   }
