@@ -394,6 +394,18 @@ def db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     return settings
 
 
+@pytest.fixture(params=["sqlite", "postgresql"])
+def fresh_db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
+    """Settings of a migrated database of the test's own: an SQLite file, then a new PostgreSQL
+    database (for tests whose state no other test may share, e.g. clocks and reconciles)."""
+    if request.param == "postgresql":
+        made = Settings(DATABASE_URL=request.getfixturevalue("fresh_postgres_url"), data_dir=tmp_path)
+    else:
+        made = Settings(data_dir=tmp_path)
+    upgrade(made, quiet=True)
+    return made
+
+
 def problem_of(response: Any) -> dict[str, Any]:
     assert response.headers["content-type"].startswith("application/problem+json"), response.text
     body: dict[str, Any] = response.json()

@@ -87,6 +87,45 @@ class Received:
         return json.loads(self.body)
 
 
+def reply(handler: BaseHTTPRequestHandler, status: int, headers: dict[str, str] | None = None, *,
+          server_date: bool = True) -> None:
+    """Answer a request with an empty body: ``status``, ``headers``, and the server's own ``Date``
+    unless ``server_date`` is false (a receiver that writes its own)."""
+    if server_date:
+        handler.send_response(status)
+    else:
+        handler.send_response_only(status)
+    for name, value in (headers or {}).items():
+        handler.send_header(name, value)
+    handler.send_header("content-length", "0")
+    handler.end_headers()
+
+
+class LoopbackReceiver:
+    """A webhook receiver on a free loopback port, served by a daemon thread: each POST's body is read
+    and ``answer(handler, body)`` answers it (``reply``); ``close`` stops it."""
+
+    def __init__(self, answer: Callable[[BaseHTTPRequestHandler, bytes], None]) -> None:
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self) -> None:
+                answer(self, self.rfile.read(int(self.headers.get("content-length") or 0)))
+
+            def log_message(self, *_: Any) -> None:
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.port = int(self.server.server_address[1])
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def url(self, path: str) -> str:
+        return f"http://127.0.0.1:{self.port}{path}"
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
 @dataclass
 class Receiver:
     """Records every POST; answers the statuses queued in ``plan[path]`` first, then 204."""

@@ -16,11 +16,10 @@ the reconciler and the sweeps see this test's rows only), the embedded broker an
 
 from __future__ import annotations
 
-import threading
 import uuid
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +35,7 @@ from services.db.migrate import upgrade
 from services.worker import dicom_tasks, webhook_tasks
 from tests.conftest import spine_payload
 from tests.faults import SkewedClock, db_clock, wait_until
-from tests.interop_helpers import TEST_WEBHOOK_SECRET
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
 
 SKEW = timedelta(hours=1)
 """How far the skewed process's clock is from the host's: far more than any margin (10 s, 300 s)."""
@@ -235,37 +234,20 @@ def test_a_row_postponed_by_a_sweep_whose_clock_is_behind_is_not_published_again
     assert queue_depth(broker, settings.webhook_queue) == 1
 
 
-class SweepingReceiver:
+class SweepingReceiver(LoopbackReceiver):
     """A webhook receiver on a free loopback port that, while it holds a request (the attempt in
     flight), runs ``during`` and keeps what it returned; then answers ``status``."""
 
     def __init__(self, during: Callable[[], int], status: int = 204) -> None:
         self.requests = 0
         self.during_request: list[int] = []
-        receiver = self
 
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                self.rfile.read(int(self.headers.get("content-length") or 0))
-                receiver.requests += 1
-                receiver.during_request.append(during())
-                self.send_response(status)
-                self.send_header("content-length", "0")
-                self.end_headers()
+        def answer(handler: BaseHTTPRequestHandler, _body: bytes) -> None:
+            self.requests += 1
+            self.during_request.append(during())
+            reply(handler, status)
 
-            def log_message(self, *_: Any) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-
-    def url(self, path: str) -> str:
-        return f"http://127.0.0.1:{self.server.server_address[1]}{path}"
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
+        super().__init__(answer)
 
 
 @pytest.mark.parametrize("sweep_offset", [timedelta(0), SKEW], ids=["sweep-right", "sweep-ahead"])

@@ -11,7 +11,6 @@ from __future__ import annotations
 import uuid
 from collections.abc import Iterator
 from datetime import timedelta
-from pathlib import Path
 
 import pytest
 from sqlalchemy import select
@@ -21,7 +20,6 @@ from services.db import runs
 from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
 from services.db.jobs import create_job
-from services.db.migrate import upgrade
 from services.db.models import Job
 from tests.conftest import spine_payload
 from tests.faults import SkewedClock, wait_until
@@ -39,14 +37,9 @@ LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "
 
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
-def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
-    if request.param == "postgresql":
-        made = Settings(DATABASE_URL=request.getfixturevalue("fresh_postgres_url"), data_dir=tmp_path)
-    else:
-        made = Settings(data_dir=tmp_path)
-    upgrade(made, quiet=True)
-    return made
+@pytest.fixture
+def settings(fresh_db_settings: Settings) -> Settings:
+    return fresh_db_settings
 
 
 @pytest.fixture

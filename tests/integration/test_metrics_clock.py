@@ -11,7 +11,6 @@ job's own times are written by a worker on the host's clock."""
 from __future__ import annotations
 
 from datetime import timedelta
-from pathlib import Path
 
 import pytest
 from prometheus_client.core import Metric
@@ -21,7 +20,6 @@ from services.core.config import Settings
 from services.core.jobqueue import make_celery
 from services.db import jobs
 from services.db.engine import session_scope
-from services.db.migrate import upgrade
 from services.db.models import Job
 from services.worker.tasks import execute_job
 from tests.conftest import spine_payload
@@ -31,14 +29,9 @@ SKEW = timedelta(hours=1)
 """How far the API's clock is from the host's: twelve times the window (SPINE_METRICS_WINDOW_S, 300 s)."""
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
-def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
-    if request.param == "postgresql":
-        made = Settings(DATABASE_URL=request.getfixturevalue("fresh_postgres_url"), data_dir=tmp_path)
-    else:
-        made = Settings(data_dir=tmp_path)
-    upgrade(made, quiet=True)
-    return made
+@pytest.fixture
+def settings(fresh_db_settings: Settings) -> Settings:
+    return fresh_db_settings
 
 
 def _finished_recent(settings: Settings) -> float:

@@ -10,13 +10,11 @@ writes its own ``Date``, on a clock ``offset`` from the host's) and ``deliver_on
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -27,7 +25,7 @@ from services.db.migrate import upgrade
 from services.webhooks.delivery import MAX_RETRY_DELAY_S
 from services.worker import webhook_tasks
 from tests.conftest import spine_payload
-from tests.interop_helpers import TEST_WEBHOOK_SECRET
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
 
 BASE_S = 2.0
 """The backoff before attempt 2 (SPINE_WEBHOOK_RETRY_BASE_S's default)."""
@@ -50,31 +48,18 @@ Headers = Callable[[datetime], dict[str, str]]
 """The headers of the receiver's 503, from the receiver's clock's now."""
 
 
-class Receiver:
+HOOK = "/hooks/retry-after"
+
+
+class Receiver(LoopbackReceiver):
     """Answers 503 with the headers ``headers`` gives for its clock (the host's plus ``offset``)."""
 
     def __init__(self, offset: timedelta, headers: Headers) -> None:
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                self.rfile.read(int(self.headers.get("content-length") or 0))
-                now = datetime.now(UTC).replace(microsecond=0) + offset
-                self.send_response_only(503)  # without the host's own Date
-                for name, value in headers(now).items():
-                    self.send_header(name, value)
-                self.send_header("content-length", "0")
-                self.end_headers()
+        def answer(handler: BaseHTTPRequestHandler, _body: bytes) -> None:
+            now = datetime.now(UTC).replace(microsecond=0) + offset
+            reply(handler, 503, headers(now), server_date=False)  # without the host's own Date
 
-            def log_message(self, *_: Any) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/hooks/retry-after"
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
+        super().__init__(answer)
 
 
 @pytest.fixture
@@ -93,9 +78,9 @@ def delay_for(settings: Settings) -> Iterator[Callable[[timedelta, Headers], flo
     def run(offset: timedelta, headers: Headers) -> float | None:
         receiver = Receiver(offset, headers)
         receivers.append(receiver)
-        hooks = settings.model_copy(update={"webhook_allowed_urls": receiver.url})
+        hooks = settings.model_copy(update={"webhook_allowed_urls": receiver.url(HOOK)})
         with session_scope(hooks) as session:
-            job, _ = jobs.create_job(session, {**spine_payload(), "callback_url": receiver.url})
+            job, _ = jobs.create_job(session, {**spine_payload(), "callback_url": receiver.url(HOOK)})
             jobs.cancel_job(session, job.id)
         return webhook_tasks.deliver_once(hooks, job.id, "cancelled", 1)
 

@@ -16,11 +16,10 @@ compared below (the database's clock, the consumer's ``utcnow``) are one clock.
 from __future__ import annotations
 
 import contextlib
-import threading
 import uuid
 from collections.abc import Iterator
 from datetime import datetime, timedelta
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +40,7 @@ from services.worker.tasks import execute_job
 from services.worker.webhook_tasks import register_webhook_tasks
 from tests.conftest import spine_payload
 from tests.faults import SkewedClock, free_port, wait_until
-from tests.interop_helpers import TEST_WEBHOOK_SECRET
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
 
 SKEW = timedelta(hours=1)
 """How far the publisher's clock is behind the host's: far more than any retry delay (at most 120 s)."""
@@ -54,32 +53,20 @@ WAIT_S = 20.0
 load (the wait ends as soon as the outcome is there)."""
 
 
-class Receiver:
+HOOK = "/hooks/eta"
+
+
+class Receiver(LoopbackReceiver):
     """A webhook receiver on a free loopback port: 503 to the first request, 204 to the others."""
 
     def __init__(self) -> None:
         self.requests = 0
-        receiver = self
 
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                self.rfile.read(int(self.headers.get("content-length") or 0))
-                receiver.requests += 1
-                self.send_response(503 if receiver.requests == 1 else 204)
-                self.send_header("content-length", "0")
-                self.end_headers()
+        def answer(handler: BaseHTTPRequestHandler, _body: bytes) -> None:
+            self.requests += 1
+            reply(handler, 503 if self.requests == 1 else 204)
 
-            def log_message(self, *_: Any) -> None:
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/hooks/eta"
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
+        super().__init__(answer)
 
 
 @pytest.fixture
@@ -95,7 +82,7 @@ def settings(request: pytest.FixtureRequest, tmp_path: Path, receiver: Receiver)
     common: dict[str, Any] = {
         "data_dir": tmp_path, "dicomweb_url": pacs, "dicomweb_store_results": False, "dicomweb_timeout_s": 2,
         "dicomweb_retry_base_s": DELAY_S, "webhook_retry_base_s": DELAY_S, "webhook_secret": TEST_WEBHOOK_SECRET,
-        "webhook_allowed_urls": receiver.url,
+        "webhook_allowed_urls": receiver.url(HOOK),
     }  # fmt: skip
     if request.param == "postgresql":
         common["DATABASE_URL"] = request.getfixturevalue("fresh_postgres_url")
@@ -153,7 +140,7 @@ def test_a_webhook_retry_published_by_a_worker_whose_clock_is_behind_waits_its_d
 ) -> None:
     """Attempt 1 answered 503: attempt 2 is due DELAY_S later on the database's clock. Published with an
     ETA an hour in the consumer's past, it is made no earlier than then, and made."""
-    payload = {**spine_payload(), "callback_url": receiver.url}
+    payload = {**spine_payload(), "callback_url": receiver.url(HOOK)}
     with session_scope(settings) as session:
         job, _ = jobs.create_job(session, payload)
         jobs.cancel_job(session, job.id)
