@@ -87,6 +87,12 @@ class Projection(_Strict):
     translation: Vec2 = Field(description="Translation T (column, row) in detector mm.")
 
 
+LANDMARK_SD_MM_MIN = 1e-3
+"""Smallest ``landmark_sd_mm`` a view may state, mm: a thousandth of the inter-rater errors of experts
+placing vertebral landmarks (``LANDMARK_SD_MM_DEFAULT``'s source). Below it the fit's landmark weights
+(1/σ²) swamp the rod's: stated at 1e-5 mm on the test payload of one PA film the fit stops after 500
+iterations without converging, and at 1e-9 mm every reported SD reads 0 (``tests/engine/test_landmark_sd.py``)."""
+
 LANDMARK_SD_MM_DEFAULT = 1.0
 """Default 1 SD of a clicked landmark per image coordinate, detector mm, when a view gives no
 ``landmark_sd_mm``: the order of the inter-rater point-location errors of experts placing vertebral
@@ -220,10 +226,11 @@ class _View(_Strict):
     acquisition: Acquisition | None = Field(
         None, description="Acquisition geometry (magnification, SID, SOD, central ray) when known."
     )
-    landmark_sd_mm: PositiveFactor | None = Field(
+    landmark_sd_mm: Annotated[float, Field(ge=LANDMARK_SD_MM_MIN, le=1e3, allow_inf_nan=False)] | None = Field(
         None,
         description="1 SD of a landmark per image coordinate on this view, detector mm; weights the view's "
-        f"landmarks. Default (null): {LANDMARK_SD_MM_DEFAULT:g} mm (clinicians' landmark placement; "
+        f"landmarks, at least {LANDMARK_SD_MM_MIN:g} mm (models.LANDMARK_SD_MM_MIN says why). Default (null): "
+        f"{LANDMARK_SD_MM_DEFAULT:g} mm (clinicians' landmark placement; "
         "models.LANDMARK_SD_MM_DEFAULT cites the source). When the view's landmarks lie more than 4 such SDs (RMS "
         "per coordinate) from the spine fitted to them, the job fails with a validation problem naming this "
         "field (landmark_sd_contradicted): the SD is too small for them.",

@@ -14,6 +14,8 @@ from benches.clinic import truths_of_csv
 from benches.clinic_films import CASES, Truth, build_payload, simulate_series
 from spine_engine import register
 from spine_engine.errors import InvalidInput
+from spine_engine.models import LANDMARK_SD_MM_MIN
+from tests.conftest import spine_payload
 
 VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
 
@@ -50,3 +52,18 @@ def test_an_sd_stated_as_the_clicks_have_it_is_never_refused(truths: list[Truth]
     for truth in truths:
         for case in "abcdeg":
             assert register(_films(truth, case, noise_mm, noise_mm))["fit"]["converged"]
+
+
+@pytest.mark.parametrize("stated_mm", [1e-5, 1e-9])
+def test_a_landmark_sd_below_the_floor_is_refused_naming_it(stated_mm: float) -> None:
+    """Below ``LANDMARK_SD_MM_MIN`` the fit failed to converge (1e-5 mm: ``FitFailed`` naming no field,
+    a valid payload failing) or reported every SD as 0 (1e-9 mm): it is refused before the fit, naming
+    the field; the floor itself fits."""
+    payload = spine_payload()
+    payload.pop("boundary")
+    payload["pa"]["landmark_sd_mm"] = stated_mm
+    with pytest.raises(InvalidInput) as info:
+        register(payload)
+    assert [e.path for e in info.value.errors] == ["pa.landmark_sd_mm"]
+    payload["pa"]["landmark_sd_mm"] = LANDMARK_SD_MM_MIN
+    assert register(payload)["fit"]["converged"] is not False
