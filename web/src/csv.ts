@@ -4,7 +4,7 @@
 // are the image coordinates (in the units chosen beside the CSV), decimal numbers; view is `pa` (the
 // default) or `lateral`. An optional header line (starting with "level"), blank lines and lines starting
 // with "#" are skipped. A level may appear once per view.
-import { isLevel, landmarkPoint, LEVELS, type Landmark, type RegistrationResult } from "./types";
+import { frontalBending, isLevel, landmarkPoint, LEVELS, sagittalBending, type Landmark, type RegistrationResult } from "./types";
 
 export interface ParsedCsv {
   pa: Landmark[];
@@ -118,7 +118,7 @@ export function resultCsv(result: RegistrationResult): string {
     rows.push([
       v.level, ...v.position, ...(v.position_sd_mm ?? [null, null, null]), ...v.directors.flat(),
       ...(v.u ?? [null, null, null]), ...(v.v ?? [null, null, null]),
-      v.sagittal_bending_deg ?? v.pa_bending_deg, v.frontal_bending_deg ?? v.lateral_bending_deg, v.twist_deg,
+      sagittalBending(v), frontalBending(v), v.twist_deg,
       v.axial_rotation_deg, v.axial_rotation_sd_deg, residual.get(v.level), model,
     ].map(cell).join(","));
   }

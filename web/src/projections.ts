@@ -3,7 +3,7 @@
 // and residual lines, as spine_engine.figures draws them.
 import { bendingColour, bendingLimit } from "./colors";
 import { bodyCorners, imageAxes, LATERAL_ORIENTATION, project, segmentLengths, toDetectorMm } from "./geometry";
-import { landmarkPoint, type JobPayload, type Level, type RegistrationResult, type Vec2, type ViewPayload, type ViewProjection } from "./types";
+import { frontalBending, landmarkPoint, type JobPayload, type Level, type RegistrationResult, type Vec2, type ViewPayload, type ViewProjection } from "./types";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 
@@ -37,7 +37,7 @@ function drawView(container: HTMLElement, result: RegistrationResult, spec: View
   const vertebrae = result.vertebrae;
   const axes = imageAxes(spec.orientation);
   const segs = segmentLengths(vertebrae);
-  const limit = bendingLimit(vertebrae.map((v) => v.lateral_bending_deg));
+  const limit = bendingLimit(vertebrae.map(frontalBending));
   const { scale, translation } = spec.projection;
   // Detector mm → drawing units (image px over a backdrop, else mm).
   const toDraw = (p: Vec2): Vec2 => (spec.backdrop ? [p[0] / spec.backdrop.spacing[1], p[1] / spec.backdrop.spacing[0]] : p);
@@ -78,11 +78,12 @@ function drawView(container: HTMLElement, result: RegistrationResult, spec: View
   vertebrae.forEach((v, i) => {
     const poly = el("polygon", {
       points: bodies[i].map((p) => `${fmt(p[0])},${fmt(p[1])}`).join(" "),
-      fill: bendingColour(v.lateral_bending_deg, limit),
+      fill: bendingColour(frontalBending(v), limit),
       "fill-opacity": spec.backdrop ? 0.75 : 1,
       "vector-effect": "non-scaling-stroke",
     });
-    const bending = v.lateral_bending_deg === null ? "no segment below" : `lateral bending ${v.lateral_bending_deg.toFixed(1)}°`;
+    const frontal = frontalBending(v);
+    const bending = frontal === null ? "no segment below" : `lateral bending ${frontal.toFixed(1)}°`;
     poly.append(el("title", {}, `${v.level}: ${bending}`));
     gBodies.append(poly);
   });

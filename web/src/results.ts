@@ -3,7 +3,7 @@
 // "model estimate" mark on the quantities listed in fit.unreliable (they come from the model's
 // prior, not from the landmarks).
 import { bendingLimit, gradientCss } from "./colors";
-import { LEVELS, type CobbCurve, type Job, type RegistrationResult, type VertebraResult } from "./types";
+import { frontalBending, LEVELS, sagittalBending, type CobbCurve, type Job, type RegistrationResult } from "./types";
 
 export const MODEL_MARK = "model estimate";
 
@@ -28,9 +28,6 @@ export function unreliable(result: RegistrationResult): Set<string> {
   return new Set(result.fit.unreliable ?? []);
 }
 
-/** Frontal bending (the contract's new name, else the deprecated alias). */
-export const frontalBending = (v: VertebraResult): number | null => v.frontal_bending_deg ?? v.lateral_bending_deg;
-export const sagittalBending = (v: VertebraResult): number | null => v.sagittal_bending_deg ?? v.pa_bending_deg;
 
 /** The visible "model estimate" mark; `reason` (why the films leave it to the prior) goes in its tooltip. */
 export function modelMark(reason?: string): HTMLElement {

@@ -67,6 +67,11 @@ export interface VertebraResult {
   position_sd_mm?: Vec3 | null;
 }
 
+/** Frontal bending (the contract's new name, else the deprecated alias). */
+export const frontalBending = (v: VertebraResult): number | null => v.frontal_bending_deg ?? v.lateral_bending_deg;
+/** Sagittal bending (the contract's new name, else the deprecated alias). */
+export const sagittalBending = (v: VertebraResult): number | null => v.sagittal_bending_deg ?? v.pa_bending_deg;
+
 export interface CobbCurve {
   upper: Level;
   lower: Level;

@@ -25,7 +25,7 @@ import {
 import { SVGRenderer } from "three/examples/jsm/renderers/SVGRenderer.js";
 import { bendingColour, bendingLimit } from "./colors";
 import { add, BODY_DEPTH, BODY_HEIGHT, BODY_WIDTH, mul, segmentLengths } from "./geometry";
-import type { RegistrationResult, Vec3 } from "./types";
+import { frontalBending, type RegistrationResult, type Vec3 } from "./types";
 
 type Renderer = { render(scene: Scene, camera: PerspectiveCamera): void; setSize(w: number, h: number): void; domElement: Element };
 
@@ -127,7 +127,7 @@ export class SpineViewer {
     this.spine.clear();
     const vertebrae = result.vertebrae;
     const segs = segmentLengths(vertebrae);
-    const limit = bendingLimit(vertebrae.map((v) => v.lateral_bending_deg));
+    const limit = bendingLimit(vertebrae.map(frontalBending));
     const edges = new LineBasicMaterial({ color: 0x333333 });
     vertebrae.forEach((v, i) => {
       const seg = segs[i];
@@ -136,7 +136,7 @@ export class SpineViewer {
       const centre = add(v.position, mul(v.directors[2], h / 2));
       const [d1, d2, d3] = v.directors.map((r) => new Vector3(...r));
       const pose = new Matrix4().makeBasis(d1, d2, d3).setPosition(...centre);
-      const material = new MeshLambertMaterial({ color: new Color(bendingColour(v.lateral_bending_deg, limit)) });
+      const material = new MeshLambertMaterial({ color: new Color(bendingColour(frontalBending(v), limit)) });
       const body = new Mesh(geometry, material);
       body.applyMatrix4(pose);
       body.name = v.level;
