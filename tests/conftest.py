@@ -31,6 +31,8 @@ from fastapi.testclient import TestClient
 from services.api.app import create_app
 from services.cli import main as spine_main
 from services.core.config import Settings, get_settings
+from services.db import jobs as jobs_repo
+from services.db.engine import session_scope
 from services.db.migrate import upgrade
 from spine_engine.levels import LEVELS
 from tests import stopping
@@ -392,6 +394,17 @@ def db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
         settings = Settings(data_dir=tmp_path)
     upgrade(settings, quiet=True)
     return settings
+
+
+def queued_job(settings: Settings, callback_url: str | None = None) -> uuid.UUID:
+    """A job stored through the API's data access (``services.db.jobs.create_job``), queued and never
+    published: ``spine_payload()``, calling back ``callback_url`` when given."""
+    payload = spine_payload()
+    if callback_url:
+        payload["callback_url"] = callback_url
+    with session_scope(settings) as session:
+        job, _ = jobs_repo.create_job(session, payload)
+    return job.id
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -9,6 +9,7 @@ session fixtures of tests/browser/conftest.py, shared by every page module.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -321,6 +322,25 @@ def open_page(
     if api_key:
         page.fill("#api-key", api_key)
     return context, page, watch
+
+
+def payload_preview(page: Any) -> Any:
+    """The payload the page would send, as its preview shows it: parsed JSON, or the preview's text
+    when it is not JSON (a message instead of a payload)."""
+    text = page.text_content("#payload-preview") or ""
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def open_film(page: Any, view: str, path: Path) -> None:
+    """Open the film ``path`` in ``view``'s panel ("pa" or "lateral") and wait until its canvas names it."""
+    page.click(f"#tab-film-{view}")
+    page.set_input_files(f"#{view}-file", str(path))
+    page.wait_for_function(
+        f"() => /{path.name}/.test(document.getElementById('{view}-canvas').getAttribute('aria-label'))"
+    )
 
 
 def canvas_point(page: Any, view: str, col: float, row: float) -> tuple[float, float]:

@@ -10,7 +10,6 @@ one job (Idempotency-Key)."""
 from __future__ import annotations
 
 import itertools
-import json
 import random
 import uuid
 from datetime import UTC, datetime, timedelta
@@ -19,7 +18,18 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import LEVELS, canvas_point, centreline, lateral_points, make_dicom, open_page, pa_corners, run_job
+from page_fixtures import (
+    LEVELS,
+    canvas_point,
+    centreline,
+    lateral_points,
+    make_dicom,
+    open_film,
+    open_page,
+    pa_corners,
+    payload_preview,
+    run_job,
+)
 from sqlalchemy import select
 
 from services.core.config import Settings
@@ -28,22 +38,6 @@ from services.db.models import Job
 from tests.conftest import spine_payload
 
 pytestmark = pytest.mark.browser
-
-
-def _preview(page: Any) -> Any:
-    text = page.text_content("#payload-preview") or ""
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text
-
-
-def _open(page: Any, view: str, path: Path) -> None:
-    page.click(f"#tab-film-{view}")
-    page.set_input_files(f"#{view}-file", str(path))
-    page.wait_for_function(
-        f"() => /{path.name}/.test(document.getElementById('{view}-canvas').getAttribute('aria-label'))"
-    )
 
 
 def _midpoints(page: Any, n: int) -> None:
@@ -64,12 +58,12 @@ def test_a_new_film_starts_without_the_old_films_landmarks_and_undo_brings_them_
     make_dicom(tmp_path / "pa.dcm", view="pa")
     make_dicom(tmp_path / "pa-small.dcm", view="pa", size=(400, 700))
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 6)
-    placed_first = _preview(page)["pa"]["landmarks"]
+    placed_first = payload_preview(page)["pa"]["landmarks"]
     assert len(placed_first) == 6
-    _open(page, "pa", tmp_path / "pa-small.dcm")
-    assert _preview(page) == "Give landmarks first."  # no landmark of the first film on the second
+    open_film(page, "pa", tmp_path / "pa-small.dcm")
+    assert payload_preview(page) == "Give landmarks first."  # no landmark of the first film on the second
     status = page.text_content("#pa-status") or ""
     assert "The landmarks of 6 vertebrae placed on the previous film were removed" in status, status
     assert "(the film pa.dcm: 6 vertebrae (T1–T6): 6 midpoints)" in status, status
@@ -81,25 +75,25 @@ def test_a_new_film_starts_without_the_old_films_landmarks_and_undo_brings_them_
     assert page.is_enabled("#pa-undo")
     page.focus("#pa-canvas")
     page.keyboard.press("Control+z")
-    assert len(_preview(page)["pa"]["landmarks"]) == 6
+    assert len(payload_preview(page)["pa"]["landmarks"]) == 6
     assert "pa.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
     assert "pa-small.dcm" not in (page.get_attribute("#pa-canvas", "aria-label") or "")
     status = page.text_content("#pa-status") or ""
     back = "Undone: the film pa.dcm and the landmarks of 6 vertebrae (T1–T6): 6 midpoints are back in place of pa-small"
     assert back in status, status
     page.keyboard.press("Control+z")  # the placements' own history came back too
-    assert len(_preview(page)["pa"]["landmarks"]) == 5
+    assert len(payload_preview(page)["pa"]["landmarks"]) == 5
     page.keyboard.press("Control+Shift+z")
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     # Redo opens the second film again, without the first's landmarks
     page.keyboard.press("Control+Shift+z")
-    assert _preview(page) == "Give landmarks first."
+    assert payload_preview(page) == "Give landmarks first."
     assert "pa-small.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
     assert "Redone: pa-small.dcm is open again" in (page.text_content("#pa-status") or "")
     page.click("#pa-undo")  # and the button undoes it again
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     page.click("#pa-redo")
-    assert _preview(page) == "Give landmarks first."
+    assert payload_preview(page) == "Give landmarks first."
     _midpoints(page, 2)  # placing again: the note goes
     assert "removed" not in (page.text_content("#pa-status") or "")
     assert not watch.errors, watch.errors
@@ -114,16 +108,16 @@ def test_films_of_two_patients_are_not_sent_and_a_film_in_the_other_panel_is_war
     make_dicom(tmp_path / "lat-study.dcm", view="lateral", study={"StudyInstanceUID": "1.2.826.0.1.3680043.8.498.9999"})
     make_dicom(tmp_path / "lat.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     assert page.is_hidden("#pa-warning")
     _midpoints(page, 17)
     # the PA film opened as the lateral: a warning in the panel, not a refusal
-    _open(page, "lateral", tmp_path / "pa.dcm")
+    open_film(page, "lateral", tmp_path / "pa.dcm")
     warning = page.text_content("#lateral-warning") or ""
     assert page.is_visible("#lateral-warning")
     assert "its header says View Position PA (a frontal film), but it is open as the lateral film" in warning
     # a lateral film of another patient: sending is blocked, naming both IDs
-    _open(page, "lateral", tmp_path / "lat-other.dcm")
+    open_film(page, "lateral", tmp_path / "lat-other.dcm")
     assert page.is_hidden("#lateral-warning")
     for _, col, row in lateral_points("T4"):
         page.mouse.click(*canvas_point(page, "lateral", col, row))
@@ -133,14 +127,14 @@ def test_films_of_two_patients_are_not_sent_and_a_film_in_the_other_panel_is_war
     assert two in (page.text_content("#problem") or "")
     assert not watch.posted_jobs()
     # of another study
-    _open(page, "lateral", tmp_path / "lat-study.dcm")
+    open_film(page, "lateral", tmp_path / "lat-study.dcm")
     assert "the lateral film of study 1.2.826.0.1.3680043.8.498.9999" in (page.text_content("#missing") or "")
     # closing the lateral film lifts the block; the right one opens without a word
     page.click("#lateral-close")
     assert "two " not in (page.text_content("#missing") or "")
-    assert "lateral" not in _preview(page)
+    assert "lateral" not in payload_preview(page)
     assert (page.get_attribute("#lateral-canvas", "aria-label") or "").endswith("no film open")
-    _open(page, "lateral", tmp_path / "lat.dcm")
+    open_film(page, "lateral", tmp_path / "lat.dcm")
     assert "two " not in (page.text_content("#missing") or "") and page.is_hidden("#lateral-warning")
     assert not watch.errors, watch.errors
     context.close()
@@ -163,15 +157,15 @@ def test_a_reopened_job_is_its_payload_and_is_sent_again_with_its_study_and_opti
     make_dicom(tmp_path / "pa.dcm", view="pa")
     make_dicom(tmp_path / "lat.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "lateral", tmp_path / "lat.dcm")
+    open_film(page, "lateral", tmp_path / "lat.dcm")
     for _, col, row in lateral_points("T4"):
         page.mouse.click(*canvas_point(page, "lateral", col, row))
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 5)
     page.evaluate(f"() => location.hash = '#/jobs/{job_id}'")
     _wait_final(page)
     page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
-    sent = _preview(page)
+    sent = payload_preview(page)
     assert "lateral" not in sent, sent  # the PA-only job: nothing of the lateral film before it
     assert (page.text_content("#lateral-header") or "") == ""
     assert (page.get_attribute("#lateral-canvas", "aria-label") or "").endswith("no film open")
@@ -187,9 +181,9 @@ def test_a_reopened_job_is_its_payload_and_is_sent_again_with_its_study_and_opti
     posted = watch.posted_jobs()[-1].post_data_json
     assert posted["study"] == stored["study"] and posted["options"] == stored["options"]
     # a DICOM film of another study opened under the job's landmarks: its study, and not the job's options
-    _open(page, "pa", tmp_path / "pa.dcm")
-    assert _preview(page)["study"]["study_instance_uid"] == "1.2.826.0.1.3680043.8.498.1001"
-    assert "options" not in _preview(page)
+    open_film(page, "pa", tmp_path / "pa.dcm")
+    assert payload_preview(page)["study"]["study_instance_uid"] == "1.2.826.0.1.3680043.8.498.1001"
+    assert "options" not in payload_preview(page)
     assert not watch.errors, watch.errors
     context.close()
 
@@ -217,11 +211,11 @@ def test_a_failed_csv_import_leaves_nothing_of_the_previous_csv(browser: Any, li
 def test_choosing_a_level_selects_it_for_delete(browser: Any, live_url: str, api_key: str, tmp_path: Path) -> None:
     make_dicom(tmp_path / "pa.dcm", view="pa")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 6)
 
     def levels() -> list[str]:
-        return [lm["level"] for lm in _preview(page)["pa"]["landmarks"]]
+        return [lm["level"] for lm in payload_preview(page)["pa"]["landmarks"]]
 
     page.select_option("#pa-level", "T3")
     assert page.get_attribute("#pa-canvas", "data-selected") == "T3 midpoint"
@@ -365,7 +359,7 @@ def test_reconstruct_gives_the_focus_back_and_an_unchanged_draft_is_one_job(
     whole = tmp_path / "pa.dcm"
     make_dicom(whole, view="pa")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", whole)
+    open_film(page, "pa", whole)
     _midpoints(page, 17)
     page.focus("#submit")
     page.keyboard.press("Enter")
@@ -427,7 +421,7 @@ def test_a_film_of_another_patient_under_a_reopened_jobs_landmarks_is_named_and_
         page.evaluate(f"() => location.hash = '#/jobs/{job_id}'")
         page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
         page.wait_for_selector("#pa-canvas[data-blank*='Not stored by the service']")  # the PACS asked, or not
-        _open(page, "pa", tmp_path / name)
+        open_film(page, "pa", tmp_path / name)
         warning = page.text_content("#pa-warning") or ""
         assert page.is_visible("#pa-warning")
         assert f"The landmarks of {off[0]}, " in warning or f"The landmarks of {', '.join(off)}" in warning, warning
@@ -486,7 +480,7 @@ def test_a_film_opened_by_hand_while_the_pacs_is_asked_is_not_covered_by_the_fet
             break
         page.wait_for_timeout(50)
     assert held, "the page did not ask whether the service has a PACS"
-    _open(page, "pa", tmp_path / "job.dcm")
+    open_film(page, "pa", tmp_path / "job.dcm")
     assert "ID PAT-0042" in (page.text_content("#pa-header") or "")
     for route in held:
         route.continue_()
@@ -515,15 +509,15 @@ def test_a_reopened_jobs_landmarks_in_mm_are_not_put_over_a_film_as_pixels(
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     page.evaluate(f"() => location.hash = '#/jobs/{answer.json()['id']}'")
     page.wait_for_function("() => /17 PA landmarks/.test(document.getElementById('landmark-summary').textContent)")
-    assert _preview(page)["pa"].get("units", "mm") == "mm"
-    _open(page, "pa", tmp_path / "pa.dcm")
+    assert payload_preview(page)["pa"].get("units", "mm") == "mm"
+    open_film(page, "pa", tmp_path / "pa.dcm")
     status = page.text_content("#pa-status") or ""
     assert "The reopened job's landmarks of 17 vertebrae are in mm without a pixel spacing" in status, status
     assert "removed, not guessed" in status and status.endswith("No landmark on this film yet."), status
-    assert not isinstance(_preview(page), dict) or "pa" not in _preview(page), _preview(page)
+    assert not isinstance(payload_preview(page), dict) or "pa" not in payload_preview(page), payload_preview(page)
     # Undo brings them back on their blank frame, in mm as the job has them
     page.click("#pa-undo", timeout=5_000)
-    back = _preview(page)["pa"]
+    back = payload_preview(page)["pa"]
     assert back.get("units", "mm") == "mm" and len(back["landmarks"]) == 17, back
     assert not watch.errors, watch.errors
     context.close()
@@ -560,7 +554,7 @@ def test_a_slow_answer_for_an_earlier_job_does_not_replace_the_job_opened_since(
     page.wait_for_timeout(300)
     assert page.get_attribute("#result", "data-job-id") == job_b
     assert (page.text_content("#job-status") or "").startswith(f"Job {job_b} succeeded")
-    sent = _preview(page)["pa"]["landmarks"]
+    sent = payload_preview(page)["pa"]["landmarks"]
     assert [lm["point"] for lm in sent] == [lm["point"] for lm in payloads[1]["pa"]["landmarks"]]
     assert not watch.errors, watch.errors
     context.close()
@@ -603,7 +597,7 @@ def test_a_slow_poll_of_a_running_job_does_not_replace_the_job_opened_since(
     page.wait_for_timeout(1000)  # two more poll periods, had A's polling resumed
     assert (page.text_content("#job-status") or "").startswith(f"Job {job_b} succeeded")
     assert page.get_attribute("#job-status", "data-status") == "succeeded"
-    assert [lm["point"] for lm in _preview(page)["pa"]["landmarks"]] == [
+    assert [lm["point"] for lm in payload_preview(page)["pa"]["landmarks"]] == [
         lm["point"] for lm in payloads[1]["pa"]["landmarks"]
     ]
     assert not watch.errors, watch.errors

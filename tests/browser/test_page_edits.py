@@ -6,32 +6,15 @@ a level would leave T1–L5, and undone like any other edit."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import canvas_point, centreline, make_dicom, open_page
+from page_fixtures import canvas_point, centreline, make_dicom, open_film, open_page, payload_preview
 
 pytestmark = pytest.mark.browser
 
 QUICK_MS = 5_000  # a control that exists is clicked at once; one missing fails the test in 5 s, not 30 s
-
-
-def _preview(page: Any) -> Any:
-    text = page.text_content("#payload-preview") or ""
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text
-
-
-def _open(page: Any, view: str, path: Path) -> None:
-    page.click(f"#tab-film-{view}")
-    page.set_input_files(f"#{view}-file", str(path))
-    page.wait_for_function(
-        f"() => /{path.name}/.test(document.getElementById('{view}-canvas').getAttribute('aria-label'))"
-    )
 
 
 def _midpoints(page: Any, first: int, n: int) -> None:
@@ -42,7 +25,7 @@ def _midpoints(page: Any, first: int, n: int) -> None:
 
 
 def _levels(page: Any) -> list[str]:
-    payload = _preview(page)
+    payload = payload_preview(page)
     return [lm["level"] for lm in payload["pa"]["landmarks"]] if isinstance(payload, dict) else []
 
 
@@ -52,16 +35,16 @@ def test_close_film_is_undone_with_its_landmarks_and_says_what_it_removed(
     make_dicom(tmp_path / "pa.dcm", view="pa")
     make_dicom(tmp_path / "pa-other.dcm", view="pa", size=(400, 700))
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 0, 6)
-    placed = _preview(page)["pa"]["landmarks"]
+    placed = payload_preview(page)["pa"]["landmarks"]
     assert [lm["level"] for lm in placed] == ["T1", "T2", "T3", "T4", "T5", "T6"]
     header = page.text_content("#pa-header") or ""
     assert "PAT-0042" in header, header
 
     # a misclick on "Close film": the panel is empty, and says what went and how to bring it back
     page.click("#pa-close")
-    assert _preview(page) == "Give landmarks first."
+    assert payload_preview(page) == "Give landmarks first."
     status = page.text_content("#pa-status") or ""
     said = "Closed the film pa.dcm: the landmarks of 6 vertebrae (T1–T6): 6 midpoints on it were removed"
     assert said in status, status
@@ -71,7 +54,7 @@ def test_close_film_is_undone_with_its_landmarks_and_says_what_it_removed(
     # Ctrl+Z on the film brings back the film, its header and its landmarks exactly
     page.focus("#pa-canvas")
     page.keyboard.press("Control+z")
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     assert "pa.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
     assert (page.text_content("#pa-header") or "") == header
     assert "Undone: the film pa.dcm and the landmarks of 6 vertebrae" in (page.text_content("#pa-status") or "")
@@ -79,22 +62,22 @@ def test_close_film_is_undone_with_its_landmarks_and_says_what_it_removed(
     page.keyboard.press("Control+z")
     assert _levels(page) == ["T1", "T2", "T3", "T4", "T5"]
     page.keyboard.press("Control+Shift+z")
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
 
     # the buttons too: close, Undo, then Redo closes again
     page.click("#pa-close")
     page.click("#pa-undo")
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     page.click("#pa-redo")
-    assert _preview(page) == "Give landmarks first."
+    assert payload_preview(page) == "Give landmarks first."
     assert "Closed the film pa.dcm" in (page.text_content("#pa-status") or "")
 
     # another film opened after the close: the closed one is gone for good (its landmarks are not put on this one)
-    _open(page, "pa", tmp_path / "pa-other.dcm")
+    open_film(page, "pa", tmp_path / "pa-other.dcm")
     assert page.is_disabled("#pa-undo")
     page.focus("#pa-canvas")
     page.keyboard.press("Control+z")
-    assert _preview(page) == "Give landmarks first."
+    assert payload_preview(page) == "Give landmarks first."
     assert "pa-other.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
     assert not watch.errors, watch.errors
     context.close()
@@ -105,14 +88,14 @@ def test_all_levels_of_a_film_are_relabelled_one_level_refused_outside_t1_l5_and
 ) -> None:
     make_dicom(tmp_path / "pa.dcm", view="pa")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, "pa", tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     _midpoints(page, 0, 5)  # placed as T1–T5, but they were T2–T6
-    placed = _preview(page)["pa"]["landmarks"]
+    placed = payload_preview(page)["pa"]["landmarks"]
     points = [lm["point"] for lm in placed]
     assert _levels(page) == ["T1", "T2", "T3", "T4", "T5"]
 
     page.click("#pa-shift-down", timeout=QUICK_MS)
-    moved = _preview(page)["pa"]["landmarks"]
+    moved = payload_preview(page)["pa"]["landmarks"]
     assert [lm["level"] for lm in moved] == ["T2", "T3", "T4", "T5", "T6"]
     assert [lm["point"] for lm in moved] == points  # relabelled, not moved
     status = page.text_content("#pa-status") or ""
@@ -122,7 +105,7 @@ def test_all_levels_of_a_film_are_relabelled_one_level_refused_outside_t1_l5_and
     assert _levels(page) == ["T1", "T2", "T3", "T4", "T5"]
     # T1 cannot go up: refused, nothing changed, and why
     page.click("#pa-shift-up", timeout=QUICK_MS)
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     status = page.text_content("#pa-status") or ""
     assert "Not relabelled: T1's landmarks would become the level above T1" in status, status
 
@@ -131,7 +114,7 @@ def test_all_levels_of_a_film_are_relabelled_one_level_refused_outside_t1_l5_and
     page.keyboard.press("Control+z")
     assert _levels(page) == ["T2", "T3", "T4", "T5", "T6"]
     page.keyboard.press("Control+z")
-    assert _preview(page)["pa"]["landmarks"] == placed
+    assert payload_preview(page)["pa"]["landmarks"] == placed
     page.keyboard.press("Control+Shift+z")
     assert _levels(page) == ["T2", "T3", "T4", "T5", "T6"]
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import FILM_SIZE, LEVELS, PA_SPACING, canvas_point, centreline, make_dicom, open_page
+from page_fixtures import FILM_SIZE, LEVELS, PA_SPACING, canvas_point, centreline, make_dicom, open_film, open_page
 
 pytestmark = pytest.mark.browser
 
@@ -145,11 +145,6 @@ def test_the_page_refuses_the_geometry_the_service_refuses_in_its_words(
     context.close()
 
 
-def _open(page: Any, path: Path) -> None:
-    page.set_input_files("#pa-file", str(path))
-    page.wait_for_function(f"() => /{path.name}/.test(document.getElementById('pa-canvas').getAttribute('aria-label'))")
-
-
 def _midpoints(page: Any, levels: int) -> None:
     for i in range(levels):
         col, row, _ = centreline(i)
@@ -167,7 +162,7 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     make_dicom(tmp_path / "sod-over-sid.dcm", view="pa", spacing=detector,
                study={"DistanceSourceToDetector": "1000", "DistanceSourceToPatient": "1200"})  # fmt: skip
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, tmp_path / "sid150.dcm")
+    open_film(page, "pa", tmp_path / "sid150.dcm")
     assert page.is_visible("#pa-ignore-geometry") and not page.is_checked("#pa-ignore-geometry")
     _midpoints(page, len(LEVELS))
     page.wait_for_function("() => document.getElementById('payload-preview').textContent.includes('distance_source')")
@@ -192,7 +187,7 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     assert not {SID, SOD, ERMF} & set(sent), sent  # no geometry of the header's
     assert sent.get("image_size") == IMAGE  # the film's extent still goes
 
-    _open(page, tmp_path / "sod-over-sid.dcm")
+    open_film(page, "pa", tmp_path / "sod-over-sid.dcm")
     assert not page.is_checked("#pa-ignore-geometry")  # a new film: its own header
     assert "SOD 1200 mm" in (page.text_content("#pa-header") or "")
     _midpoints(page, 3)
@@ -229,7 +224,7 @@ def test_a_refusal_naming_landmarks_rings_them_on_the_film(
     takes the ring away."""
     make_dicom(tmp_path / "pa.dcm", view="pa")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    _open(page, tmp_path / "pa.dcm")
+    open_film(page, "pa", tmp_path / "pa.dcm")
     t1, t2 = (280.0, 40.0), (281.0, 860.0)
     for point in (t1, t2):
         page.mouse.click(*canvas_point(page, "pa", *point))

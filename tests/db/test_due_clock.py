@@ -33,7 +33,7 @@ from services.db.dicom_stores import DicomStoreAttempt
 from services.db.engine import session_scope, worker_connection
 from services.db.migrate import upgrade
 from services.worker import dicom_tasks, webhook_tasks
-from tests.conftest import spine_payload
+from tests.conftest import queued_job
 from tests.faults import SkewedClock, db_clock, wait_until
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
 
@@ -83,16 +83,6 @@ def _wait_db_clock_past(settings: Settings, moment: datetime, seconds: float) ->
     wait_until(lambda: db_clock(settings) > moment + timedelta(seconds=seconds), WAIT_S, "the database's clock")
 
 
-def _new_job(settings: Settings, callback_url: str | None = None) -> uuid.UUID:
-    """A job submitted through the API's data access (``enqueued_at`` written with it)."""
-    payload: dict[str, Any] = spine_payload()
-    if callback_url:
-        payload["callback_url"] = callback_url
-    with session_scope(settings) as session:
-        job, _ = jobs.create_job(session, payload)
-    return job.id
-
-
 def _republished(settings: Settings, job_id: uuid.UUID, timeout: timedelta = QUEUED_TIMEOUT) -> bool:
     """One reconciler pass; whether it handed ``job_id`` to be published again."""
     with session_scope(settings) as session:
@@ -107,13 +97,13 @@ def test_a_job_enqueued_by_an_api_whose_clock_is_behind_is_not_published_again_a
     settings: Settings, clock: SkewedClock
 ) -> None:
     clock.offset = -SKEW
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = timedelta(0)
     assert not _republished(settings, job_id)
 
 
 def test_a_reconciler_whose_clock_is_ahead_publishes_no_fresh_job_again(settings: Settings, clock: SkewedClock) -> None:
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = SKEW
     assert not _republished(settings, job_id)
 
@@ -124,7 +114,7 @@ def test_a_job_enqueued_by_an_api_whose_clock_is_ahead_is_recovered_after_the_ti
     """Its message lost, the job is published again once the timeout passed on the database's clock,
     not an hour later."""
     clock.offset = SKEW
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = timedelta(0)
     _wait_db_clock_past(settings, db_clock(settings), SHORT)
     assert _republished(settings, job_id, timedelta(seconds=SHORT))
@@ -133,7 +123,7 @@ def test_a_job_enqueued_by_an_api_whose_clock_is_ahead_is_recovered_after_the_ti
 def test_a_reconciler_whose_clock_is_behind_recovers_a_job_after_the_timeout(
     settings: Settings, clock: SkewedClock
 ) -> None:
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     _wait_db_clock_past(settings, db_clock(settings), SHORT)
     clock.offset = -SKEW
     assert _republished(settings, job_id, timedelta(seconds=SHORT))
@@ -144,7 +134,7 @@ def test_a_job_published_again_by_a_reconciler_whose_clock_is_behind_waits_the_t
 ) -> None:
     """The reconciler's own write of ``enqueued_at`` (a job marked unpublished, published again): the
     next pass, on a right clock, does not publish it a second time."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     with session_scope(settings) as session:
         runs.mark_unpublished(session, [job_id])
     clock.offset = -SKEW
@@ -157,7 +147,7 @@ def test_a_run_released_by_a_worker_whose_clock_is_behind_is_not_published_again
     settings: Settings, clock: SkewedClock
 ) -> None:
     """``release_claim`` (the PACS was unavailable) re-enqueues the job: the reconciler leaves it alone."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = -SKEW
     with worker_connection(settings) as connection:
         claim = runs.claim_job(connection, job_id, "1.0")
@@ -172,7 +162,7 @@ def test_a_run_released_by_a_worker_whose_clock_is_behind_is_not_published_again
 
 def _failed_by_worker(settings: Settings, callback_url: str) -> uuid.UUID:
     """A job with a callback_url claimed and failed by a worker (its outbox row written with its end)."""
-    job_id = _new_job(settings, callback_url)
+    job_id = queued_job(settings, callback_url)
     with worker_connection(settings) as connection:
         claim = runs.claim_job(connection, job_id, "1.0")
         assert claim is not None
@@ -221,7 +211,7 @@ def test_a_row_postponed_by_a_sweep_whose_clock_is_behind_is_not_published_again
     """The sweep's own write (the row postponed by SWEEP_AFTER once published again): the next sweep,
     on a right clock, does not publish it a second time."""
     settings = _webhook_settings(settings)
-    job_id = _new_job(settings, UNREACHABLE)
+    job_id = queued_job(settings, UNREACHABLE)
     long_ago = datetime.now(UTC) - 2 * SKEW  # an attempt in flight whose worker died: overdue on every clock here
     with session_scope(settings) as session:
         deliveries.claim(session, job_id=job_id, message_id=deliveries.message_id(job_id, "failed"),
@@ -266,7 +256,7 @@ def test_an_attempt_in_flight_is_not_swept(
     try:
         url = receiver.url("/hooks/in-flight")
         hooks = _webhook_settings(settings, webhook_allowed_urls=url)
-        job_id = _new_job(hooks, url)
+        job_id = queued_job(hooks, url)
         with session_scope(hooks) as session:
             jobs.cancel_job(session, job_id)
         clock.offset = -SKEW if sweep_offset == timedelta(0) else timedelta(0)  # the worker's process
@@ -286,7 +276,7 @@ def test_a_retry_due_from_a_worker_whose_clock_is_behind_is_not_swept_at_once(
     try:
         url = receiver.url("/hooks/retry")
         hooks = _webhook_settings(settings, webhook_allowed_urls=url)
-        job_id = _new_job(hooks, url)
+        job_id = queued_job(hooks, url)
         with session_scope(hooks) as session:
             jobs.cancel_job(session, job_id)
         clock.offset = -SKEW
@@ -304,7 +294,7 @@ def test_a_stow_due_from_a_worker_whose_clock_is_behind_is_not_swept_at_once(
     settings: Settings, clock: SkewedClock, broker: Celery
 ) -> None:
     """``job_succeeded`` published attempt 1, which waits in the broker: the sweep does not publish it too."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = -SKEW
     assert dicom_tasks.job_succeeded(settings, job_id, celery=broker)
     clock.offset = timedelta(0)
@@ -315,7 +305,7 @@ def test_a_stow_due_from_a_worker_whose_clock_is_behind_is_not_swept_at_once(
 def test_a_stow_sweep_whose_clock_is_ahead_publishes_no_fresh_attempt(
     settings: Settings, clock: SkewedClock, broker: Celery
 ) -> None:
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     assert dicom_tasks.job_succeeded(settings, job_id, celery=broker)
     clock.offset = SKEW
     assert dicom_tasks.sweep(settings, broker) == 0
@@ -326,7 +316,7 @@ def test_a_stow_sweep_whose_clock_is_behind_publishes_a_lost_attempt_after_its_d
 ) -> None:
     """Then the sweep's own write (the due time moved SWEEP_AFTER, 300 s by default, ahead): the next sweep,
     on a right clock, does not publish it a second time."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     assert dicom_tasks.job_succeeded(settings.model_copy(update={"dicomweb_sweep_after_s": SHORT}), job_id, broker)
     _wait_db_clock_past(settings, db_clock(settings), SHORT)
     clock.offset = -SKEW
@@ -342,7 +332,7 @@ def test_a_failed_stow_attempt_recorded_by_a_worker_whose_clock_is_behind_is_not
     """Attempt 1 failed (the PACS was unavailable): the worker records it as ``store_once`` does, its
     next attempt ``retry_delay_s`` later, and publishes that attempt with the delay; the sweep does not
     publish it too."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = -SKEW
     attempted_at = dicom_tasks.utcnow()
     next_at = attempted_at + timedelta(seconds=dicom_tasks.retry_delay_s(settings, 1))

@@ -25,7 +25,7 @@ from services.db.models import Job, JobMeasures, VertebraStrain, utcnow
 from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register_model
 from spine_engine.validation import validate_payload
-from tests.conftest import spine_payload
+from tests.conftest import queued_job, spine_payload
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
 LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
@@ -59,12 +59,6 @@ def result_like(major_cobb: float = 23.5) -> RegistrationResult:
     return RegistrationResult.model_validate(result)
 
 
-def new_job(settings: Settings) -> uuid.UUID:
-    with session_scope(settings) as session:
-        job, _ = repo.create_job(session, spine_payload())
-        return job.id
-
-
 def status_of(settings: Settings, job_id: uuid.UUID) -> Job:
     with session_scope(settings) as session:
         return repo.get_job(session, job_id)
@@ -72,7 +66,7 @@ def status_of(settings: Settings, job_id: uuid.UUID) -> Job:
 
 @BACKENDS
 def test_claim_is_conditional_so_a_second_delivery_does_nothing(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     with session_scope(db_settings) as s:
         first = runs.claim_job(s, job_id, "1.0")
     with session_scope(db_settings) as s:
@@ -95,7 +89,7 @@ def test_claim_is_conditional_so_a_second_delivery_does_nothing(db_settings: Set
 def test_measures_are_stored_queryably(db_settings: Settings) -> None:
     ids = []
     for cobb in (10.0, 35.0, 52.0):
-        job_id = new_job(db_settings)
+        job_id = queued_job(db_settings)
         with session_scope(db_settings) as s:
             claim = runs.claim_job(s, job_id, "1.0")
             assert claim is not None
@@ -118,7 +112,7 @@ def test_measures_are_stored_queryably(db_settings: Settings) -> None:
 
 @BACKENDS
 def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     with session_scope(db_settings) as s:
         claim = runs.claim_job(s, job_id, "1.0")
     assert claim is not None
@@ -139,7 +133,7 @@ def test_cancel_mid_fit_is_never_overwritten(db_settings: Settings) -> None:
 @BACKENDS
 def test_worker_connections_claim_and_finish_in_one_statement_each(db_settings: Settings) -> None:
     """The worker's connections: each statement commits alone; a failed run stores no measures."""
-    ok, bad = new_job(db_settings), new_job(db_settings)
+    ok, bad = queued_job(db_settings), queued_job(db_settings)
     with worker_connection(db_settings, durable=False) as s:
         if s.dialect.name == "postgresql":  # the claim does not wait for the WAL flush
             assert s.execute(text("SHOW synchronous_commit")).scalar_one() == "off"
@@ -161,7 +155,7 @@ def test_worker_connections_claim_and_finish_in_one_statement_each(db_settings: 
 
 @BACKENDS
 def test_cancel_a_finished_job_is_refused(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     with session_scope(db_settings) as s:
         claim = runs.claim_job(s, job_id, "1.0")
         assert claim is not None
@@ -191,7 +185,7 @@ def _reconcile(settings: Settings, job_id: uuid.UUID, max_attempts: int = 2) -> 
 
 @BACKENDS
 def test_reconciler_takes_back_a_lost_run_and_fences_the_stale_worker(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     with session_scope(db_settings) as s:
         stale = runs.claim_job(s, job_id, "1.0")
     assert stale is not None
@@ -213,7 +207,7 @@ def test_reconciler_takes_back_a_lost_run_and_fences_the_stale_worker(db_setting
 
 @BACKENDS
 def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     for _ in range(2):
         with session_scope(db_settings) as s:
             assert runs.claim_job(s, job_id, "1.0") is not None
@@ -225,7 +219,7 @@ def test_reconciler_fails_a_job_out_of_attempts(db_settings: Settings) -> None:
 
 @BACKENDS
 def test_reconciler_republishes_stale_queued_jobs_once_per_timeout(db_settings: Settings) -> None:
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     assert _reconcile(db_settings, job_id).requeue == []
     _age(db_settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
     assert _reconcile(db_settings, job_id).requeue == [job_id]
@@ -292,12 +286,12 @@ def test_reconciler_leaves_a_backlog_alone_while_the_broker_holds_its_messages(t
     settings = Settings(data_dir=tmp_path, queue_name="backlog")
     upgrade(settings, quiet=True)
     app = make_celery(settings)
-    published = [new_job(settings), new_job(settings)]
+    published = [queued_job(settings), queued_job(settings)]
     enqueue(app, published)
     for job_id in published:
         _age(settings, job_id, enqueued_at=utcnow() - timedelta(hours=1))
     assert reconcile_once(settings, app).requeue == []  # two messages wait for two jobs
-    lost = new_job(settings)  # stored, never published
+    lost = queued_job(settings)  # stored, never published
     _age(settings, lost, enqueued_at=utcnow() - timedelta(hours=1))
     requeued = reconcile_once(settings, app).requeue  # one message missing: the oldest stale job again
     assert len(requeued) == 1 and queue_depth(app, "backlog") == 3
@@ -336,7 +330,7 @@ def test_a_job_whose_message_could_not_be_published_is_published_at_the_next_rec
 def test_a_renewed_lease_keeps_a_long_run_and_an_expired_one_is_taken_back(db_settings: Settings) -> None:
     """Leases: a run renewing its lease is left alone however long it runs; once it stops
     renewing, the reconciler takes the job back; a stale run's renewal is refused (fenced by attempt)."""
-    job_id = new_job(db_settings)
+    job_id = queued_job(db_settings)
     with session_scope(db_settings) as s:
         run = runs.claim_job(s, job_id, "1.0", lease=timedelta(seconds=30))
     assert run is not None
@@ -359,7 +353,7 @@ def test_the_reconcilers_queued_count_equals_the_count_by_status(db_settings: Se
     counts what the full count by status counts: here 3 jobs stored, one claimed, one cancelled."""
     with session_scope(db_settings) as s:
         before = stats.count_all_queued(s)  # the database is shared by this module's tests
-    ids = [new_job(db_settings) for _ in range(3)]
+    ids = [queued_job(db_settings) for _ in range(3)]
     with session_scope(db_settings) as s:
         assert runs.claim_job(s, ids[0], "1.0") is not None
     with session_scope(db_settings) as s:

@@ -19,9 +19,8 @@ from services.core.config import Settings
 from services.db import runs
 from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
-from services.db.jobs import create_job
 from services.db.models import Job
-from tests.conftest import spine_payload
+from tests.conftest import queued_job
 from tests.faults import SkewedClock, wait_until
 
 SKEW = timedelta(hours=1)
@@ -47,12 +46,6 @@ def clock(monkeypatch: pytest.MonkeyPatch) -> Iterator[SkewedClock]:
     skewed = SkewedClock()
     monkeypatch.setattr(runs, "utcnow", skewed)
     yield skewed
-
-
-def _new_job(settings: Settings) -> uuid.UUID:
-    with session_scope(settings) as session:
-        job, _ = create_job(session, spine_payload())
-        return job.id
 
 
 def _claim(settings: Settings, job_id: uuid.UUID, lease: timedelta) -> runs.Claim:
@@ -85,7 +78,7 @@ def _wait_for_expiry(settings: Settings, job_id: uuid.UUID) -> None:
 def test_a_worker_whose_clock_is_behind_keeps_its_lease(settings: Settings, clock: SkewedClock) -> None:
     """A worker an hour behind claims and renews: its lease holds for the reconciler on a right clock
     (with the worker's clock, the lease had ended an hour before it was written)."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = -SKEW
     claim = _claim(settings, job_id, LEASE)
     clock.offset = timedelta(0)
@@ -98,14 +91,14 @@ def test_a_worker_whose_clock_is_behind_keeps_its_lease(settings: Settings, cloc
 
 
 def test_a_reconciler_whose_clock_is_ahead_takes_back_no_live_run(settings: Settings, clock: SkewedClock) -> None:
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     _claim(settings, job_id, LEASE)
     clock.offset = SKEW
     assert not _taken_back(settings, job_id)
 
 
 def test_a_reconciler_whose_clock_is_behind_takes_back_an_expired_run(settings: Settings, clock: SkewedClock) -> None:
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     _claim(settings, job_id, SHORT_LEASE)
     _wait_for_expiry(settings, job_id)  # its worker died
     clock.offset = -SKEW
@@ -115,7 +108,7 @@ def test_a_reconciler_whose_clock_is_behind_takes_back_an_expired_run(settings: 
 def test_a_worker_whose_clock_is_ahead_leaves_no_lease_for_hours(settings: Settings, clock: SkewedClock) -> None:
     """A worker an hour ahead claims and dies: the reconciler (right clock) takes the job back once the
     lease has passed on the database's clock, not an hour later."""
-    job_id = _new_job(settings)
+    job_id = queued_job(settings)
     clock.offset = SKEW
     _claim(settings, job_id, SHORT_LEASE)
     clock.offset = timedelta(0)

@@ -23,7 +23,7 @@ from services.db import runs
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job, WebhookDelivery, utcnow
 from services.worker import webhook_tasks
-from tests.conftest import spine_payload
+from tests.conftest import queued_job
 from tests.faults import db_clock
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver
 
@@ -47,15 +47,6 @@ def listed(settings: Settings, job_id: uuid.UUID) -> list[tuple[int, int | None]
     """(attempt, status) of the deliveries ``GET /v1/jobs/{id}`` lists."""
     with session_scope(settings) as session:
         return [(row.attempt, row.status_code) for row in store.deliveries(session, job_id)]
-
-
-def queued_job(settings: Settings, url: str | None) -> uuid.UUID:
-    payload: dict[str, Any] = spine_payload()
-    if url:
-        payload["callback_url"] = url
-    with session_scope(settings) as session:
-        job, _ = repo.create_job(session, payload)
-    return job.id
 
 
 def cancelled_job(settings: Settings, url: str) -> uuid.UUID:
