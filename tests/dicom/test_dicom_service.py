@@ -92,12 +92,14 @@ def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServ
         listed = pacs_service.client.get("/v1/jobs", params={key: value}).json()["jobs"]
         assert [j["id"] for j in listed] == [ref_job["id"]], key
 
-    # the SR and the figure land in the study
+    # the SR and the figure land in the study: once the job records the STOW-RS answered, as the SR alone can
+    # be found while the same request still stores the figure
     deadline = time.monotonic() + STORE_TIMEOUT_S
     with _pacs(orthanc) as pacs:
         while True:
             found = pacs.search_instances(image.StudyInstanceUID, Modality="SR")
-            if found or time.monotonic() > deadline:
+            stored = any(attempt["ok"] for attempt in pacs_service.job(ref_job["id"])["dicom_stores"] or [])
+            if (found and stored) or time.monotonic() > deadline:
                 break
             time.sleep(0.5)
         assert len(found) == 1, f"no SR in the study after {STORE_TIMEOUT_S:g} s:\n{pacs_service.worker_log()[-3000:]}"
