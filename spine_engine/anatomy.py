@@ -58,7 +58,7 @@ from .errors import UnknownProfile
 from .frames import frames_from_centreline
 from .levels import LEVELS, N_LEVELS
 from .measures import kyphosis_lordosis_deg
-from .profile_files import PROFILE_NAME, PROFILES_DIR, list_profiles
+from .profile_files import PROFILE_NAME, PROFILES_DIR, forget_found, list_profiles
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -294,6 +294,7 @@ def save_profile(profile: Profile, path: str | os.PathLike[str]) -> None:
     text = json.dumps(asdict(profile), indent=2, ensure_ascii=False)
     Path(path).write_text(text + "\n", encoding="utf-8")
     _read_profile.cache_clear()
+    forget_found()
 
 
 # ---------------------------------------------------------------- rest model

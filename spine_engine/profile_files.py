@@ -17,6 +17,22 @@ def list_profiles() -> list[str]:
     return sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
 
 
+_FOUND: set[str] = set()
+"""Names ``is_profile`` has found, as ``anatomy.load_profile`` keeps the profiles it has read."""
+
+
 def is_profile(name: str) -> bool:
-    """Whether ``name`` is a shipped profile's (``PROFILE_NAME`` and a file of that name)."""
-    return PROFILE_NAME.fullmatch(name) is not None and (PROFILES_DIR / f"{name}.json").is_file()
+    """Whether ``name`` is a shipped profile's (``PROFILE_NAME`` and a file of that name). A name once
+    found costs no file-system call again (``forget_found``); a missing one is looked for every time."""
+    if name in _FOUND:
+        return True
+    found = PROFILE_NAME.fullmatch(name) is not None and (PROFILES_DIR / f"{name}.json").is_file()
+    if found:
+        _FOUND.add(name)
+    return found
+
+
+def forget_found() -> None:
+    """Forget the names ``is_profile`` has found (``anatomy.save_profile`` calls it, as it forgets the
+    profiles read)."""
+    _FOUND.clear()

@@ -644,6 +644,10 @@ _VERTEBRA_LIST = TypeAdapter(list[VertebraResult])
 """Validates the 17 vertebra results in one call (cheaper than 17 model constructions)."""
 _RESIDUAL_LIST = TypeAdapter(list[Residual])
 """Validates the landmark residual rows in one call."""
+_TILT_RESIDUAL_LIST = TypeAdapter(list[TiltResidual])
+"""Validates the tilt residual rows in one call."""
+_PEDICLE_RESIDUAL_LIST = TypeAdapter(list[PedicleResidual])
+"""Validates the pedicle residual rows in one call."""
 
 
 def _vertebrae(
@@ -756,23 +760,29 @@ def _fit_report(
         boundary=inputs.boundary,  # type: ignore[arg-type]
         unreliable=list(inputs.unreliable),
         tilt_prior=inputs.tilt_prior,
-        tilt_residuals=[
-            TiltResidual(view=view.name, level=LEVELS[idx], source=src, residual_deg=float(res))
-            for view in inputs.views
-            if view.tilt_indices is not None
-            for idx, src, res in zip(
-                view.tilt_indices, inputs.tilt_sources[view.name], out.tilt_residuals_deg[view.name], strict=True
-            )
-        ],
-        pedicle_residuals=[
-            PedicleResidual(view="pa", level=LEVELS[idx], side=src, residual_mm=float(res))
-            for view in inputs.views
-            if view.offset_indices is not None
-            for idx, src, res in zip(
-                view.offset_indices, inputs.offset_sources[view.name], out.offset_residuals_mm[view.name], strict=True
-            )
-            if src in ("image_left", "image_right")
-        ],
+        tilt_residuals=_TILT_RESIDUAL_LIST.validate_python(
+            [
+                {"view": view.name, "level": LEVELS[idx], "source": src, "residual_deg": res}
+                for view in inputs.views
+                if view.tilt_indices is not None
+                for idx, src, res in zip(
+                    view.tilt_indices.tolist(), inputs.tilt_sources[view.name],
+                    np.asarray(out.tilt_residuals_deg[view.name], dtype=float).tolist(), strict=True,
+                )
+            ]
+        ),
+        pedicle_residuals=_PEDICLE_RESIDUAL_LIST.validate_python(
+            [
+                {"view": "pa", "level": LEVELS[idx], "side": src, "residual_mm": res}
+                for view in inputs.views
+                if view.offset_indices is not None
+                for idx, src, res in zip(
+                    view.offset_indices.tolist(), inputs.offset_sources[view.name],
+                    np.asarray(out.offset_residuals_mm[view.name], dtype=float).tolist(), strict=True,
+                )
+                if src in ("image_left", "image_right")
+            ]
+        ),
         uncertainty_scale=uncertainty_scale,
         assumed=[a for setup in inputs.setups.values() for a in setup.assumed]
         + _sagittal_assumptions(inputs)

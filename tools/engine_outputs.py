@@ -6,9 +6,13 @@ float identical).
     python -m tools.engine_outputs dump after.json
     python -m tools.engine_outputs compare before.json after.json [--tolerance 1e-12]
 
-The payloads (150): the load bench's ``payload(0..29)``; the 24 VerSe dev spines of
+The payloads (438): the load bench's ``payload(0..29)``; the 24 VerSe dev spines of
 ``tests/data/verse_dev.csv`` with and without the T1/L5 boundary, PA alone and PA + lateral, 1 mm
-landmark noise (seed 7); the same spines as ``spine bench perf`` sends them. ``compare`` walks both
+landmark noise (seed 7), and with corners (every other level) or pedicles on the PA, with the
+boundary on the PA alone, without it PA + lateral (seed 11); the same spines as ``spine bench perf``
+sends them, in the paper's case and
+in each clinic case (a)–(h) (``perf.clinic_payloads``: no boundary, perspective films, geometry
+priors). ``compare`` walks both
 results field by field (``fit.runtime_ms`` left out), prints the floats compared, the largest
 relative difference and every other mismatch, and exits 1 when a non-float field differs or a float
 differs by more than the tolerance (0: identical bits).
@@ -26,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from benches.perf import REAL_SPINES
+from benches.clinic_films import CASES
+from benches.perf import REAL_SPINES, clinic_payloads
 from benches.truth import payload_from_truth, read_verse
 from spine_engine import register
 from spine_engine.frames import frames_from_centreline
@@ -50,6 +55,16 @@ def payloads() -> Iterator[tuple[str, dict[str, Any]]]:
                        payload_from_truth(positions, rotations, levels, levels if lateral else None, noise_mm=1.0,
                                           rng=rng, boundary=boundary))  # fmt: skip
         yield f"{spine_id}-perf", payload_from_truth(positions, rotations, levels)
+        for form, corners, pedicles in (("corners", levels[::2], None), ("pedicles", None, levels)):
+            for boundary in (True, False):
+                rng = np.random.default_rng(11)
+                yield (f"{spine_id}-{form}-boundary{int(boundary)}",
+                       payload_from_truth(positions, rotations, levels, None if boundary else levels, noise_mm=1.0,
+                                          rng=rng, corner_levels=corners, pedicle_levels=pedicles,
+                                          boundary=boundary))  # fmt: skip
+    for case in CASES:
+        for i, payload in enumerate(clinic_payloads(case)):
+            yield f"clinic-{case}-{i}", payload
 
 
 def dump(path: Path) -> int:

@@ -93,6 +93,32 @@ def _project_kernel(
     return points, d_r, d_params
 
 
+@njit(cache=True)
+def landmark_rows_kernel(
+    r: FloatArray, idx: np.ndarray, points: FloatArray, c: float, E: FloatArray, pi: FloatArray, b: FloatArray,
+    sid: float, sod: float, perspective: bool, free: np.ndarray, border: np.ndarray,
+    rho: FloatArray, Jv: FloatArray, Jb: FloatArray, start: int,
+) -> None:
+    """One view's landmark rows written in place from row ``start`` (two per landmark, column then row):
+    ρ = c (p(r_j) − p̂), ∂ρ/∂r_j = c ∂p/∂r into Jv[:, :3] and c ∂p/∂π of the estimated parameters
+    ``free`` into their border columns ``border`` of Jb; p and its derivatives are ``_project_kernel``'s
+    (ψ = π's last entry), c = √w/s₀ (1/mm · √(N·mm)·mm, as ``problem``'s landmark rows)."""
+    k = idx.shape[0]
+    rk = np.empty((k, 3))
+    for i in range(k):
+        for j in range(3):
+            rk[i, j] = r[idx[i], j]
+    pts, d_r, d_p = _project_kernel(rk, E, pi[pi.shape[0] - 1], pi, b, sid, sod, perspective)
+    for i in range(k):
+        for a in range(2):
+            row = start + 2 * i + a
+            rho[row] = c * (pts[i, a] - points[i, a])
+            for j in range(3):
+                Jv[row, j] = c * d_r[i, a, j]
+            for f in range(free.shape[0]):
+                Jb[row, border[f]] = c * d_p[i, a, free[f]]
+
+
 _NO_BEAM = np.zeros(3)
 
 

@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike
 
 from ..rotations import exp_so3, log_so3
 from .banded import KD, BorderedSystem, band_to_dense
-from .cameras import project
+from .cameras import landmark_rows_kernel, project
 from .pose_rows import PoseRows
 from .rod_rows import RodCache, RodRows, jr_inverse
 from .types import (
@@ -113,7 +113,36 @@ def _check_view(view: ViewData, n: int) -> None:
     PoseRows.check_view(view, n)
 
 
-_EYE3 = np.eye(3)
+def _projection_args(
+    view: ViewData, camera: Camera, beam: FloatArray
+) -> tuple[FloatArray, FloatArray, float, float, bool]:
+    """``landmark_rows_kernel``'s constant arguments of a view: E = [e_c; e_r] (2, 3), the beam b, SID
+    and SOD (mm) and whether the camera is a point source (a weak-perspective one: b, SID, SOD unused)."""
+    E = np.array((view.e_c, view.e_r), dtype=float)
+    if camera.kind == "weak":
+        return E, _NO_BEAM, 1.0, 1.0, False
+    return E, np.ascontiguousarray(beam, dtype=float), float(camera.sid_mm), float(camera.sod_mm), True
+
+
+_NO_BEAM = np.zeros(3)
+
+
+@njit(cache=True)
+def _pose_prior_rows_kernel(
+    r: FloatArray, idx: np.ndarray, mean_r: FloatArray, a: FloatArray, b: FloatArray, phi: FloatArray,
+    Jr_inv: FloatArray, rho: FloatArray, Jv: FloatArray, start: int,
+) -> None:
+    """The pose priors' rows written in place from row ``start``, six per prior i (vertebra idx[i]):
+    ρ = a_i (r − r̄_i) and b_i ⊙ φ_i (φ_i = log(R̄_iᵀR)); ∂ρ/∂r = a_i I and ∂ρ/∂θ = diag(b_i) J_r⁻¹(φ_i)
+    into Jv (zero on entry)."""
+    for i in range(idx.shape[0]):
+        row = start + 6 * i
+        for j in range(3):
+            rho[row + j] = a[i] * (r[idx[i], j] - mean_r[i, j])
+            rho[row + 3 + j] = b[i, j] * phi[i, j]
+            Jv[row + j, j] = a[i] * 1.0
+            for col in range(3):
+                Jv[row + 3 + j, 3 + col] = b[i, j] * Jr_inv[i, j, col]
 
 
 def _pose_prior_arrays(
@@ -215,8 +244,8 @@ class RegistrationProblem:
         self.n_landmarks = start
         self._lm_constants = [
             (
-                np.asarray(view.indices, dtype=int),
-                np.asarray(view.points, dtype=float),
+                np.ascontiguousarray(view.indices, dtype=np.intp),
+                np.ascontiguousarray(view.points, dtype=float),
                 np.sqrt(float(view.weight)) / cam.reference_scale,
             )
             for view, cam in zip(self.views, self.cameras, strict=True)
@@ -228,7 +257,17 @@ class RegistrationProblem:
         self._camera_prior_rows = self._camera_priors()
         self._beams = [cam.beam_direction(v.e_c, v.e_r) for v, cam in zip(self.views, self.cameras, strict=True)]
         """Each view's beam direction b (perspective depth rows)."""
+        self._projection_args = [_projection_args(v, cam, beam) for v, cam, beam in
+                                 zip(self.views, self.cameras, self._beams, strict=True)]  # fmt: skip
+        """Each view's constant arguments of ``landmark_rows_kernel``: E, b, SID, SOD, perspective."""
         self._camera_prior_sd = np.array([sd for *_, sd in self._camera_prior_rows], dtype=float)
+        self._camera_prior_mean = np.array([mean for _, _, mean, _ in self._camera_prior_rows], dtype=float)
+        first_value = np.cumsum([0] + [len(cam.values) for cam in self.cameras])
+        self._camera_prior_value = np.array([first_value[k] + max(p, 0) for k, p, _, _ in self._camera_prior_rows],
+                                            dtype=np.intp)  # fmt: skip
+        """Each camera prior row's parameter in the cameras' values laid end to end (a depth row: a stand-in)."""
+        self._camera_prior_depth = [(i, k) for i, (k, p, _, _) in enumerate(self._camera_prior_rows) if p < 0]
+        """(row, view) of each depth row b·(r_mid − o), whose value is computed."""
         self._camera_prior_Jv, self._camera_prior_Jb = self._camera_prior_jacobians()
         self._point_vertebra = self._point_rows_vertebra()
         kinds += ["camera"] * len(self._camera_prior_rows)
@@ -320,15 +359,10 @@ class RegistrationProblem:
         for k, (idx, points, c) in enumerate(self._lm_constants):
             if not len(idx):
                 continue
-            view, cam = self.views[k], self.cameras[k]
-            pr = project(cam, cams[k], r[idx], view.e_c, view.e_r, self._beams[k])
-            stop = start + 2 * len(idx)
-            rows = slice(start, stop)
-            rho_all[rows] = (c * (pr.points - points)).ravel()
-            Jv_all[rows, :3] = (c * pr.d_r).reshape(-1, 3)
-            if len(self._cam_cols[k]):
-                Jb_all[rows, self._cam_border[k]] = (c * pr.d_params[:, :, cam.free]).reshape(2 * len(idx), -1)
-            start = stop
+            E, beam, sid, sod, perspective = self._projection_args[k]
+            landmark_rows_kernel(r, idx, points, c, E, np.ascontiguousarray(cams[k], dtype=float), beam, sid, sod,
+                                 perspective, self._cam_free[k], self._cam_border[k], rho_all, Jv_all, Jb_all, start)
+            start += 2 * len(idx)
         offsets = self.obs.offset_rows(state, self.cameras, self._cam_border, self.n_border, second_order)
         for part in (offsets, self.obs.tilt_rows(state, self.n_border, second_order)):
             if part is not None:
@@ -344,24 +378,17 @@ class RegistrationProblem:
         if self.pose_priors:
             idx, mean_r, mean_RT, a, b = self._pose_prior_arrays
             phi = log_so3(mean_RT @ R[idx])
-            stop = start + 6 * len(idx)
-            rho_all[start:stop] = np.concatenate((a[:, None] * (r[idx] - mean_r), b * phi), axis=1).ravel()
-            blocks = Jv_all[start:stop].reshape(len(idx), 6, 6)
-            blocks[:, :3, :3] = a[:, None, None] * _EYE3
-            blocks[:, 3:, 3:] = b[:, :, None] * jr_inverse(phi)
-            start = stop
+            _pose_prior_rows_kernel(r, idx, mean_r, a, b, phi, jr_inverse(phi), rho_all, Jv_all, start)
+            start += 6 * len(idx)
         # camera priors: their Jacobians are constant (``_camera_prior_jacobians``), their ρ are not
         if self._camera_prior_rows:
             half_k = np.sqrt(0.5 * self.energy_unit)
             stop = start + len(self._camera_prior_rows)
             Jv_all[start:stop], Jb_all[start:stop] = self._camera_prior_Jv, self._camera_prior_Jb
-            rho = np.empty(stop - start)
-            for i, (k, p, mean, _) in enumerate(self._camera_prior_rows):
-                if p >= 0:
-                    rho[i] = cams[k][p] - mean
-                else:
-                    rho[i] = float(self._beams[k] @ (r[self.depth_reference] - cams[k][2:5])) - mean
-            rho_all[start:stop] = half_k * rho / self._camera_prior_sd
+            values = np.concatenate(cams)[self._camera_prior_value]
+            for i, k in self._camera_prior_depth:
+                values[i] = float(self._beams[k] @ (r[self.depth_reference] - cams[k][2:5]))
+            rho_all[start:stop] = half_k * (values - self._camera_prior_mean) / self._camera_prior_sd
         return PointRows(rho_all, self._point_vertebra, Jv_all, Jb_all, second)
 
     def _camera_prior_jacobians(self) -> tuple[FloatArray, FloatArray]:

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..rotations import hat, log_so3
+from ..rotations import log_so3
 from .types import FloatArray, RodParameters
 
 
@@ -186,12 +186,31 @@ def _second_order_kernel(
 
 
 def jr_inverse(phi: FloatArray) -> FloatArray:
-    """J_r⁻¹(φ) = I + ½ hat(φ) + d(θ) hat(φ)² for φ (k, 3): ∂ log(R̄ᵀ R exp(hat δ))/∂δ at δ = 0."""
-    theta2 = np.einsum("ij,ij->i", phi, phi)
-    d, _ = jr_inv_coefficients(theta2)
-    S = d[:, None, None] * (phi[:, :, None] * phi[:, None, :])
-    S.reshape(-1, 9)[:, ::4] += (1.0 - d * theta2)[:, None]
-    return S + hat(0.5 * phi)
+    """J_r⁻¹(φ) = I + ½ hat(φ) + d(θ) hat(φ)² for φ (k, 3): ∂ log(R̄ᵀ R exp(hat δ))/∂δ at δ = 0,
+    written as (1 − dθ²) I + d φφᵀ + ½ hat(φ) (``_jr_inverse_kernel``; θ² = φ·φ by ``einsum``)."""
+    phi = np.ascontiguousarray(phi, dtype=float)
+    out = np.empty((len(phi), 3, 3))
+    _jr_inverse_kernel(phi, np.einsum("ij,ij->i", phi, phi), out)
+    return out
+
+
+@njit(cache=True)
+def _jr_inverse_kernel(phi: FloatArray, theta2: FloatArray, out: FloatArray) -> None:
+    """``jr_inverse`` per row: out_ab = d (φ_a φ_b) + (1 − d θ²) δ_ab ± ½ φ_c (the hat's entries)."""
+    for i in range(phi.shape[0]):
+        d, _ = _jr_inv_pair(theta2[i])
+        diagonal = 1.0 - d * theta2[i]
+        for a in range(3):
+            for b in range(3):
+                out[i, a, b] = d * (phi[i, a] * phi[i, b])
+            out[i, a, a] += diagonal
+        h0, h1, h2 = 0.5 * phi[i, 0], 0.5 * phi[i, 1], 0.5 * phi[i, 2]
+        out[i, 0, 1] -= h2
+        out[i, 0, 2] += h1
+        out[i, 1, 0] += h2
+        out[i, 1, 2] -= h0
+        out[i, 2, 0] -= h1
+        out[i, 2, 1] += h0
 
 
 _UPPER12_A, _UPPER12_B = np.triu_indices(12)

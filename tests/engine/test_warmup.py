@@ -12,7 +12,7 @@ KERNELS = {
     "spine_engine.fit.problem": ["_assemble_normal"],
     "spine_engine.fit.cameras": ["_project_kernel"],
     "spine_engine.fit.pose_rows": ["_tilt_kernel"],
-    "spine_engine.fit.rod_rows": ["jr_inv_coefficients", "_local_jacobian_kernel", "_normal_blocks_kernel"],
+    "spine_engine.fit.rod_rows": ["_jr_inverse_kernel", "_local_jacobian_kernel", "_normal_blocks_kernel"],
     "spine_engine.fit.uncertainty": ["_axial_rotation_rows", "_centreline_angle_rows", "weighted_gram"],
 }
 """The numba kernels every ``register()`` without boundary calls from Python (the helpers they
