@@ -600,7 +600,8 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
     pinned = _pa_scale_pinned(inputs.views)
     if pinned is None:
         return solve(problem(inputs.views), init_r, init_R), rest
-    return linearise(problem(inputs.views), minimise(problem(pinned), init_r, init_R)), rest
+    held = problem(pinned)
+    return linearise(held.with_views(inputs.views), minimise(held, init_r, init_R)), rest
 
 
 PINNED_DEPTH_SD_MM = 0.1

@@ -23,6 +23,7 @@ vertebra block of JᵀJ stays banded (half-bandwidth 11) and the camera paramete
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -180,15 +181,9 @@ class RegistrationProblem:
     ):
         self.rod = RodRows(params)
         n = self.rod.n
-        for view in views:
-            _check_view(view, n)
-        names = [view.name for view in views]
-        if len(set(names)) != len(names):
-            raise ValueError(f"view names must be distinct, got {names}")
         if (top is None) != (bottom is None):
             raise ValueError("give both top and bottom (exact ends) or neither (all vertebrae free)")
         self.n = n
-        self.views = tuple(views)
         self.fixed_ends = top is not None
         self.top = as_pose(top, "top") if top is not None else None
         self.bottom = as_pose(bottom, "bottom") if bottom is not None else None
@@ -197,7 +192,7 @@ class RegistrationProblem:
         self.j0, self.j1 = (1, n - 1) if self.fixed_ends else (0, n)
         self.m = self.j1 - self.j0
         self.n_vertebra_params = 6 * self.m
-        first = self.views[0] if self.views else None
+        first = views[0] if views else None
         self.energy_unit = (
             float(energy_unit)
             if energy_unit is not None
@@ -206,6 +201,24 @@ class RegistrationProblem:
         self.pose_priors = tuple(pose_priors)
         self._pose_prior_arrays = _pose_prior_arrays(self.pose_priors, self.energy_unit)
         self.depth_reference = (n - 1) // 2 if depth_reference is None else depth_reference
+        self._set_views(views)
+
+    def with_views(self, views: Sequence[ViewData]) -> RegistrationProblem:
+        """The same problem (rod, ends, pose priors, energy unit κ) on other views: the same films with
+        other cameras, e.g. a parameter held in one and estimated in the other."""
+        other = copy.copy(self)
+        other._set_views(views)
+        return other
+
+    def _set_views(self, views: Sequence[ViewData]) -> None:
+        """The views, their cameras and every row and column that depends on them."""
+        n = self.n
+        for view in views:
+            _check_view(view, n)
+        names = [view.name for view in views]
+        if len(set(names)) != len(names):
+            raise ValueError(f"view names must be distinct, got {names}")
+        self.views = tuple(views)
 
         # Cameras and the border's columns.
         self.cameras: tuple[Camera, ...] = tuple(view.get_camera() for view in self.views)

@@ -164,10 +164,13 @@ PRIOR_ONLY_MEASURES = {
 keys, and the ``models.Measures`` field each offsets."""
 
 
-@lru_cache(maxsize=1)
+@lru_cache(maxsize=4)
 def _calibration(path: str) -> Calibration:
-    with open(path) as fh:
-        data: dict[str, Any] = json.load(fh)
+    try:
+        with open(path) as fh:
+            data: dict[str, Any] = json.load(fh)
+    except FileNotFoundError:
+        return UNCALIBRATED
     return Calibration(float(data["uncertainty_scale"]), float(data.get("prior_weight", 1.0)),
                        dict(data.get("provenance", {})),
                        {k: PriorOnlyReading(**v) for k, v in data.get("prior_only", {}).items()})
@@ -175,9 +178,9 @@ def _calibration(path: str) -> Calibration:
 
 def calibration(path: Path | None = None) -> Calibration:
     """The calibrated constants from ``priors/uncertainty_calibration.json`` (``CALIBRATION_FILE``);
-    ``UNCALIBRATED`` (c = λ = 1, the plain Laplace approximation) when the file is absent."""
-    file = path or CALIBRATION_FILE
-    return _calibration(str(file)) if file.is_file() else UNCALIBRATED
+    ``UNCALIBRATED`` (c = λ = 1, the plain Laplace approximation) when the file is absent. Read once
+    per process (``write_calibration`` forgets what was read)."""
+    return _calibration(str(path or CALIBRATION_FILE))
 
 
 def write_calibration(constants: Calibration, path: Path | None = None) -> Path:
