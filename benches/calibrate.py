@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -39,11 +40,16 @@ from spine_engine.frames import frames_from_centreline
 
 
 def score(spines: list[tuple[str, np.ndarray]], profile: Profile) -> tuple[float, float]:
-    """Mean 3D error (mm, T2..L4) with PA-17 and with PA-17 + lateral-17."""
-    return (
-        mean_interior_error(evaluate(spines, "PA-17", profile)),
-        mean_interior_error(evaluate(spines, "PA-17+L-17", profile)),
-    )
+    """Mean 3D error (mm, T2..L4) with PA-17 and with PA-17 + lateral-17, each spine fitted as a
+    user's job is (``verse.reconstruct_spine``: ``register_model`` with ``profile``); +inf for a case
+    where ``register_model`` fails on any spine (not converged, or refused): a draw users could not
+    fit scores worst, not better by dropping its hardest spines."""
+
+    def case_score(case: str) -> float:
+        outcomes = evaluate(spines, case, profile)
+        return math.inf if any(o.failure is not None for o in outcomes) else mean_interior_error(outcomes)
+
+    return case_score("PA-17"), case_score("PA-17+L-17")
 
 
 MECHANICAL = ("youngs_modulus_mpa", "shear_modulus_mpa", "stretch_factor")
