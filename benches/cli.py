@@ -30,6 +30,10 @@ COMMANDS = {
         "benches.pa_bound",
         "one PA film: the kyphosis and lordosis a learner trained on the tested population reads",
     ),
+    "lateral-mirror": (
+        "benches.lateral_mirror",
+        "lateral films read mirrored: the inverted-profile refusal's false refusals and detection",
+    ),
 }
 
 

@@ -13,7 +13,7 @@ import re
 from datetime import date
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from .levels import LEVEL_INDEX, Level
@@ -30,12 +30,19 @@ MAX_COORDINATE = 1e6
 """Largest accepted |coordinate| (mm or px): a metre-scale spine never comes near it, and larger
 numbers only overflow the fit."""
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
-PositiveFactor = Annotated[float, Field(gt=0, le=1e3, allow_inf_nan=False)]
-DistanceMm = Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)]
+Number = Annotated[float, Strict()]
+"""A number of the payload: a JSON number, an integer (``1`` is taken as ``1.0``) or not, and never a string
+(``"1.0"``) nor a boolean (``true``), which pydantic's lax mode would otherwise turn into 1.0: a client that
+sends either where the contract says number gets a validation error naming the field (``float_type``).
+Every number type of the payload below is built on it. Strict ``float`` takes Python ``int`` and ``float``
+(numpy's floats and ints, ``Decimal`` too) and refuses ``str`` and ``bool`` (pydantic 2 conversion table,
+``float`` in strict mode); the JSON schema is unchanged (``type: number``)."""
+FiniteFloat = Annotated[Number, Field(allow_inf_nan=False, ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+PositiveFactor = Annotated[Number, Field(gt=0, le=1e3, allow_inf_nan=False)]
+DistanceMm = Annotated[Number, Field(gt=0, le=1e5, allow_inf_nan=False)]
 """A positive distance in mm (source-to-detector and source-to-patient distances are 1–5 m)."""
 Vec2 = tuple[FiniteFloat, FiniteFloat]
-PositiveCoordinate = Annotated[float, Field(gt=0, le=MAX_COORDINATE, allow_inf_nan=False)]
+PositiveCoordinate = Annotated[Number, Field(gt=0, le=MAX_COORDINATE, allow_inf_nan=False)]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
@@ -226,7 +233,7 @@ class _View(_Strict):
     acquisition: Acquisition | None = Field(
         None, description="Acquisition geometry (magnification, SID, SOD, central ray) when known."
     )
-    landmark_sd_mm: Annotated[float, Field(ge=LANDMARK_SD_MM_MIN, le=1e3, allow_inf_nan=False)] | None = Field(
+    landmark_sd_mm: Annotated[Number, Field(ge=LANDMARK_SD_MM_MIN, le=1e3, allow_inf_nan=False)] | None = Field(
         None,
         description="1 SD of a landmark per image coordinate on this view, detector mm; weights the view's "
         f"landmarks, at least {LANDMARK_SD_MM_MIN:g} mm (models.LANDMARK_SD_MM_MIN says why). Default (null): "

@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from .errors import FieldError, InvalidInput, UnknownProfile
+from .lateral_profile import inverted_profile_errors
 from .levels import LEVEL_INDEX, LEVELS
 from .models import LANDMARK_SD_MM_DEFAULT, SPINE_TO_DETECTOR_MM, JobPayload, Landmark, LateralView, PAView
 from .profile_files import is_profile, list_profiles
@@ -25,6 +26,18 @@ def _clean_loc(loc: tuple[Any, ...], kind: str = "") -> tuple[str | int, ...]:
     # pydantic adds the type of a union member or a validator tag to the location: drop them.
     clean = tuple(p for p in loc if isinstance(p, int) or not str(p).startswith(("function-", "tagged-union")))
     return (*clean, _FIELD_OF_ERROR[kind]) if kind in _FIELD_OF_ERROR else clean
+
+
+def _message(error: Any) -> str:
+    """A pydantic error's message in the contract's words: a number sent as a string or a boolean (refused by
+    ``models.Number``) says which JSON type came and that a number is expected (not the value: messages never
+    quote payload content); others as pydantic words them, without its "Value error, " prefix."""
+    value = error.get("input")
+    if error["type"] == "float_type" and isinstance(value, bool):
+        return "a number is expected, not a boolean (true or false)"
+    if error["type"] == "float_type" and isinstance(value, str):
+        return "a number is expected, not a string: send a JSON number, without quotes"
+    return str(error["msg"]).removeprefix("Value error, ")
 
 
 def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> list[FieldError]:
@@ -586,6 +599,16 @@ def _view_errors(name: str, view: PAView | LateralView, exact_boundary: bool) ->
     return errors
 
 
+def _profile_errors(name: str, view: LateralView) -> list[FieldError]:
+    """A lateral view whose thoracic and lumbar profiles both read inverted under its stated orientation
+    (``lateral_profile.inverted_profile_errors``: a film mirrored left to right), on its landmarks' top
+    endplate midpoints in film mm (``_mm_per_unit``: a non-square pixel spacing would change angles)."""
+    column_mm, row_mm = _mm_per_unit(view)
+    landmarks = [(LEVEL_INDEX[lm.level], c * column_mm, r * row_mm)
+                 for lm, (c, r) in zip(view.landmarks, map(_top_midpoint, view.landmarks), strict=True)]  # fmt: skip
+    return inverted_profile_errors(name, view.patient_orientation, landmarks, view.sd_mm)
+
+
 def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobPayload:
     """Validate ``payload`` against the contract; raise ``InvalidInput`` listing every bad field.
 
@@ -599,7 +622,9 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
     four corners must form a convex quadrilateral in the contract's order (``_corner_errors``); and
     consecutive landmarked levels must be as far apart as some spine's are (``_distance_errors``;
     for the views named in ``unscaled_views``, whose pixel spacing is a stand-in until the image's
-    header is read, only the scale-free part).
+    header is read, only the scale-free part); and a lateral view's thoracic and lumbar profiles must not
+    both read inverted under its orientation (``_profile_errors``: a mirrored film; not judged on a view in
+    ``unscaled_views``, whose stand-in spacing may not have the image's aspect).
     """
     if not isinstance(payload, dict):
         raise InvalidInput([FieldError((), "the payload must be a JSON object", "type_error")])
@@ -608,9 +633,7 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
     except ValidationError as exc:
         raise InvalidInput(
             [
-                FieldError(
-                    _clean_loc(tuple(e["loc"]), e["type"]), str(e["msg"]).removeprefix("Value error, "), e["type"]
-                )
+                FieldError(_clean_loc(tuple(e["loc"]), e["type"]), _message(e), e["type"])
                 for e in exc.errors(include_url=False)
             ]
         ) from None
@@ -631,6 +654,8 @@ def validate_payload(payload: Any, unscaled_views: tuple[str, ...] = ()) -> JobP
         for name, view in (("pa", model.pa), ("lateral", model.lateral)):
             if view is not None:
                 errors += _distance_errors(name, view, payload.get(name), name not in unscaled_views)
+    if not errors and model.lateral is not None and "lateral" not in unscaled_views:
+        errors += _profile_errors("lateral", model.lateral)
     if errors:
         raise InvalidInput(errors)
     return model

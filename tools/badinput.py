@@ -155,6 +155,8 @@ def cases() -> list[Case]:
         Case("not UTF-8", "body bytes `\\xff\\xfe{}`", body=b"\xff\xfe{}"),
         Case("JSON but not an object", "body `[1, 2, 3]`", body=b"[1, 2, 3]"),
         Case("wrong types", 'a point `["a", 1]`, a level `5`', body=edited(_wrong_types)),
+        Case("number as a string", '`"12.5"` as a coordinate', body=with_literal('"12.5"')),
+        Case("boolean as a number", "`true` as a coordinate", body=with_literal("true")),
         Case("NaN", "`NaN` as a coordinate", body=with_literal("NaN")),
         Case("infinity", "`Infinity` as a coordinate", body=with_literal("Infinity")),
         Case("huge number (float overflow)", "`1e400` as a coordinate", body=with_literal("1e400")),

@@ -259,10 +259,11 @@ CORS_ALLOW_HEADERS = ["Authorization", "Content-Type", "Idempotency-Key", "If-No
 """Request headers a cross-origin page may send (the Fetch standard's "CORS-safelisted request-header" covers
 none of them as the API takes them, so the browser asks first): ``If-None-Match`` for the artifacts'
 conditional GET (RFC 9110 §13.1.2, services/api/artifacts.py)."""
-CORS_EXPOSE_HEADERS = ["ETag", "Location", "Retry-After", "X-Request-ID", "Idempotent-Replayed"]
+CORS_EXPOSE_HEADERS = ["ETag", "Location", "Retry-After", "X-Request-ID", "Idempotent-Replayed", "Content-Disposition"]
 """Answer headers a cross-origin page may read besides the Fetch standard's "CORS-safelisted response-header
 names" (Cache-Control, Content-Language, Content-Length, Content-Type, Expires, Last-Modified, Pragma):
-``ETag``, which the page sends back in ``If-None-Match``."""
+``ETag``, which the page sends back in ``If-None-Match``; ``Content-Disposition``, the file name of a download
+(RFC 6266: ``sr.dcm``, ``figure.dcm``, a PACS image), which a page saves the file under."""
 
 
 def cors_origins(settings: Settings) -> list[str]:

@@ -1,5 +1,5 @@
 """The database server's clock, for the times that several processes write and compare: job leases
-and the due times the reconciler looks for.
+and the due times the reconciler looks for, and a job's created, started and finished times.
 
 A time written by one process on one host and compared by another (the reconciler, the API) means the
 same instant to both only when both take "now" from one clock. The processes' own clocks may differ
@@ -16,6 +16,14 @@ times is written and compared in SQL with the database's clock:
 - ``webhook_deliveries.next_attempt_at`` (``services.db.deliveries``; the worker's
   ``services.worker.webhook_tasks``: an attempt's deadline, its retry, the sweep);
 - ``jobs.dicom_store_due_at`` (``services.db.dicom_stores``; ``services.worker.dicom_tasks``).
+
+A job's shown times are written with it too, so that they are ordered and their differences are
+durations whatever the clocks of the processes that write them (the API, a worker, the reconciler):
+
+- ``jobs.created_at`` (``services.db.jobs``' inserts, returned to the API's answer; the model's default);
+- ``jobs.started_at`` (``services.db.runs``: the claim);
+- ``jobs.finished_at`` (``services.db.runs``: the finish and the reconciler's failure, whose webhook
+  outbox row's ``attempted_at`` is that same value; ``services.db.jobs``: the cancel).
 
 The database's clock is:
 
@@ -38,7 +46,7 @@ from sqlalchemy.ext.compiler import compiles
 from sqlalchemy.sql.elements import BindParameter
 from sqlalchemy.sql.functions import FunctionElement
 
-from services.db.models import UTCDateTime
+from services.db.timestamps import UTCDateTime
 
 _SQLITE_NOW = "strftime('%Y-%m-%d %H:%M:%f', 'now'{modifier}) || '000'"
 

@@ -42,7 +42,7 @@ from sqlalchemy.orm import Session
 from services.core.status import JobStatus
 from services.db.clock import db_now
 from services.db.job_forms import job_study
-from services.db.models import Job, iso_utc, utcnow
+from services.db.models import Job, iso_utc
 
 InsertHook = Callable[[Session, list[uuid.UUID]], None]
 """Called with the ids of jobs just inserted, in their transaction (the API's audit rows)."""
@@ -82,18 +82,28 @@ def request_hash(payload: Any) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-_INSERT_JOBS = insert(Job).values(enqueued_at=db_now())
-"""The insert of new jobs (rows of ``_new_job``): ``enqueued_at`` is the database's clock
-(``services.db.clock``), as the reconciler compares it with ``SPINE_QUEUED_TIMEOUT_S``."""
+_INSERT_JOBS = insert(Job).values(created_at=db_now(), enqueued_at=db_now()).returning(Job.id, Job.created_at)
+"""The insert of new jobs (rows of ``_new_job``), returning each one's id and ``created_at``.
+``created_at`` and ``enqueued_at`` are the database's clock (``services.db.clock``): the
+reconciler compares ``enqueued_at`` with ``SPINE_QUEUED_TIMEOUT_S``, and ``created_at`` is on the clock
+of the worker's ``started_at`` and ``finished_at`` (``services.db.runs``), so that a job's times are
+ordered whatever the API host's clock."""
 
 
-def _new_job(payload: dict[str, Any], owner: str | None, now: datetime, **extra: Any) -> dict[str, Any]:
-    """The values of a new queued job created at ``now`` (shown), but ``enqueued_at`` (``_INSERT_JOBS``)."""
+def _insert(session: Session, rows: list[dict[str, Any]]) -> None:
+    """Insert the rows of new jobs (``_INSERT_JOBS``; a Core insert: the hot path skips the unit of work)
+    and put in each its ``created_at`` as the database wrote it."""
+    created: dict[uuid.UUID, datetime] = {row.id: row.created_at for row in session.execute(_INSERT_JOBS, rows)}
+    for row in rows:
+        row["created_at"] = created[row["id"]]
+
+
+def _new_job(payload: dict[str, Any], owner: str | None, **extra: Any) -> dict[str, Any]:
+    """The values of a new queued job, but ``created_at`` and ``enqueued_at`` (``_INSERT_JOBS``)."""
     return {
         "id": uuid.uuid4(),
         "owner": owner,
         "status": JobStatus.queued.value,
-        "created_at": now,
         "attempts": 0,
         "payload": payload,
         "callback_url": callback_url_of(payload),
@@ -160,9 +170,9 @@ def create_job(
     if admit is not None:
         admit(1)
     extra: dict[str, Any] = {"dicom": dicom} if dicom is not None else {}
-    values = _new_job(payload, owner, utcnow(), idempotency_key=idempotency_key, request_hash=digest, **extra)
+    values = _new_job(payload, owner, idempotency_key=idempotency_key, request_hash=digest, **extra)
     try:
-        session.execute(_INSERT_JOBS, [values])  # Core insert: the hot path skips the unit of work
+        _insert(session, [values])
         if on_insert is not None:
             on_insert(session, [values["id"]])
         session.commit()
@@ -178,8 +188,8 @@ def create_job(
 
 
 def _detached(values: dict[str, Any]) -> Job:
-    """A Job object holding what was just inserted (no read back); its ``enqueued_at``, the database's
-    clock, is not known here (None; nothing shows it)."""
+    """A Job object holding what was just inserted (``created_at`` as the insert returned it); its
+    ``enqueued_at``, the database's clock, is not known here (None; nothing shows it)."""
     row = {"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
            "idempotency_key": None, "idempotency_kind": None, "request_hash": None, "callback_url": None,
            "lease_expires_at": None, "dicom": None, "enqueued_at": None, **values}  # fmt: skip
@@ -222,9 +232,8 @@ def create_jobs(
     on_insert: InsertHook | None = None,
 ) -> list[Job]:
     """Store many queued jobs in one transaction (the batch endpoint)."""
-    now = utcnow()
-    rows = [_new_job(p, owner, now) for p in payloads]
-    session.execute(_INSERT_JOBS, rows)
+    rows = [_new_job(p, owner) for p in payloads]
+    _insert(session, rows)
     if on_insert is not None:
         on_insert(session, [row["id"] for row in rows])
     session.commit()
@@ -332,7 +341,7 @@ def cancel_job(session: Session, job_id: uuid.UUID, *, owner: str | None = None)
     outcome: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == job_id, Job.status.in_([JobStatus.queued.value, JobStatus.running.value]))
-        .values(status=JobStatus.cancelled.value, finished_at=utcnow())
+        .values(status=JobStatus.cancelled.value, finished_at=db_now())  # the clock of created_at and started_at
     )
     session.commit()
     job = get_job(session, job_id, owner=owner)
@@ -378,7 +387,6 @@ def create_jobs_idempotent(
     while True:
         stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys), entries))
         existing = {j.idempotency_key: j for j in stored}
-        now = utcnow()
         outcomes: list[Outcome | None] = []
         rows: list[dict[str, Any]] = []
         slots: list[int] = []
@@ -389,13 +397,13 @@ def create_jobs_idempotent(
                 continue
             slots.append(len(outcomes))
             outcomes.append(None)
-            rows.append(_new_job(payload, owner, now, idempotency_key=job_key, idempotency_kind=BATCH_ENTRY,
+            rows.append(_new_job(payload, owner, idempotency_key=job_key, idempotency_kind=BATCH_ENTRY,
                                  request_hash=digest))  # fmt: skip
         if rows:
             if admit is not None:
                 admit(len(rows))
             try:
-                session.execute(_INSERT_JOBS, rows)
+                _insert(session, rows)
                 if on_insert is not None:
                     on_insert(session, [row["id"] for row in rows])
                 session.commit()

@@ -42,7 +42,7 @@ from services.db import deliveries
 from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param
 from services.db.engine import SerializedJSON
 from services.db.jobs import study_column_values
-from services.db.models import Job, JobMeasures, UTCDateTime, VertebraStrain, WebhookDelivery, utcnow
+from services.db.models import Job, JobMeasures, VertebraStrain, WebhookDelivery
 from services.db.results import measures_row, strain_rows
 from spine_engine.models import RegistrationResult
 
@@ -66,7 +66,7 @@ _CLAIM = (
     .where(_JOBS.c.id == bindparam("job_id"), _JOBS.c.status == JobStatus.queued.value)
     .values(
         status=JobStatus.running.value,
-        started_at=bindparam("now"),
+        started_at=db_now(),
         attempts=_JOBS.c.attempts + 1,
         engine_version=bindparam("engine_version"),
         lease_expires_at=db_now_plus(seconds_param("lease_s")),
@@ -91,7 +91,7 @@ _FINISH = (
     )
     .values(
         status=bindparam("status"),
-        finished_at=bindparam("now"),
+        finished_at=db_now(),
         result=bindparam("result"),
         error=bindparam("error"),
         engine_version=func.coalesce(bindparam("engine_version"), _JOBS.c.engine_version),
@@ -113,8 +113,9 @@ _NO_OUTBOX = {"with_webhook": False, "webhook_message_id": None, "webhook_event"
 
 def _outbox_cte(done: Any) -> Any:
     """The insert of the webhook's outbox row (``deliveries.outbox_row``, due on the database's clock)
-    for the job ``done`` ended, when ``:with_webhook``; nothing when the row is there already."""
-    ended_at = bindparam("webhook_at", type_=UTCDateTime())
+    for the job ``done`` ended, when ``:with_webhook``; nothing when the row is there already. Its
+    ``attempted_at`` is the job's ``finished_at`` as ``done`` wrote it."""
+    ended_at = done.c.finished_at
     row = select(
         done.c.id,
         bindparam("webhook_message_id", type_=_DELIVERIES.c.message_id.type),
@@ -139,7 +140,7 @@ def _finish_one_statement() -> Any:
     The strains go as one ``json`` document (``json_to_recordset`` reads the text once; ``jsonb``
     would build a binary document first).
     """
-    done = _FINISH.returning(_JOBS.c.id).cte("done")
+    done = _FINISH.returning(_JOBS.c.id, _JOBS.c.finished_at).cte("done")
     measures = insert(_MEASURES).from_select(
         ["job_id", *[c.name for c in _MEASURE_COLUMNS]],
         select(done.c.id, *[bindparam(c.name, type_=c.type) for c in _MEASURE_COLUMNS]).where(
@@ -158,6 +159,8 @@ def _finish_one_statement() -> Any:
     return select(func.count()).select_from(done).add_cte(measures.cte("m"), strains.cte("s"), _outbox_cte(done))
 
 
+_FINISH_RETURNING = _FINISH.returning(_JOBS.c.finished_at)
+"""``_FINISH`` alone (not PostgreSQL), returning the ``finished_at`` it wrote: none when it stored nothing."""
 _FINISH_ONE_STATEMENT = _finish_one_statement()
 # Statements are built once and executed on Core tables with bound parameters: the worker's
 # per-job cost stays in the database, not in statement construction.
@@ -175,14 +178,15 @@ def claim_job(
     session: Db, job_id: uuid.UUID, engine_version: str | None, lease: timedelta = timedelta(seconds=10)
 ) -> Claim | None:
     """queued → running, attempts + 1, leased for ``lease`` from the database's clock
-    (``services.db.clock``); None when the job is not queued (duplicate, cancelled…).
+    (``services.db.clock``), ``started_at`` that clock too (the clock of ``created_at``); None when the
+    job is not queued (duplicate, cancelled…).
 
     One statement. The worker runs it on ``services.db.engine.worker_connection(settings,
     durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
     crashes and loses the claim, the job is simply queued again, and the run's final update,
     fenced on running and this attempt, stores nothing.
     """
-    params = {"job_id": job_id, "now": utcnow(), "engine_version": engine_version, "lease_s": lease.total_seconds()}
+    params = {"job_id": job_id, "engine_version": engine_version, "lease_s": lease.total_seconds()}
     row = session.execute(_CLAIM, params).first()
     session.commit()
     if row is None:
@@ -214,7 +218,8 @@ def finish_job(
     error: dict[str, Any] | None = None,
     engine_version: str | None = None,
 ) -> bool:
-    """running → succeeded (with ``result``) or failed (with ``error``, a problem), only for this run.
+    """running → succeeded (with ``result``) or failed (with ``error``, a problem), only for this run;
+    ``finished_at`` is the database's clock (``services.db.clock``, the clock of ``started_at``).
 
     The job's row, its ``job_measures`` row, its ``vertebra_strains`` rows and, when it has a
     ``callback_url``, its webhook's outbox row (``deliveries.outbox_row``, due at the job's end on the
@@ -223,40 +228,38 @@ def finish_job(
     Returns False, storing nothing, when the job was cancelled or handed to another run meanwhile.
     """
     status = JobStatus.succeeded if error is None else JobStatus.failed
-    now = utcnow()
     params = {
         "job_id": claim.job_id,
         "attempt": claim.attempt,
         "status": status.value,
-        "now": now,
         "result": SerializedJSON(result.model_dump_json()) if result is not None else None,
         "error": error,
         "engine_version": engine_version,
     }
     measures = measures_row(result) if result is not None else None
     strains = strain_rows(result) if result is not None else []
-    outbox = deliveries.outbox_row(claim.job_id, status.value, claim.callback_url, now) if claim.callback_url else None
     if _dialect_name(session) == "postgresql":
         # the strains' JSON written by pydantic-core (Rust): 30 µs, against 100-170 µs for json.dumps
         document = SerializedJSON(pydantic_core.to_json(strains).decode())
-        webhook = _NO_OUTBOX if outbox is None else {
-            "with_webhook": True, "webhook_message_id": outbox["message_id"], "webhook_event": outbox["event"],
-            "webhook_url": outbox["url"],
+        webhook = _NO_OUTBOX if not claim.callback_url else {
+            "with_webhook": True, "webhook_message_id": deliveries.message_id(claim.job_id, status.value),
+            "webhook_event": f"job.{status.value}", "webhook_url": claim.callback_url,
         }  # fmt: skip
         values = {**params, **(measures or _NO_MEASURES), "with_measures": measures is not None, "strains": document}
-        stored = session.execute(_FINISH_ONE_STATEMENT, {**values, **webhook, "webhook_at": now}).scalar_one()
+        stored = session.execute(_FINISH_ONE_STATEMENT, {**values, **webhook}).scalar_one()
         session.commit()
         return bool(stored)
-    outcome: CursorResult[Any] = session.execute(_FINISH, params)  # type: ignore[assignment]
-    if outcome.rowcount != 1:
+    finished_at = session.execute(_FINISH_RETURNING, params).scalar_one_or_none()
+    if finished_at is None:
         session.rollback()
         return False
     if measures is not None:
         session.execute(_INSERT_MEASURES, {**measures, "job_id": claim.job_id})
     if strains:
         session.execute(_INSERT_STRAINS, [{**row, "job_id": claim.job_id} for row in strains])
-    if outbox is not None:
-        session.execute(_INSERT_OUTBOX, outbox)
+    if claim.callback_url:  # the outbox row's attempted_at: the job's end as the job shows it
+        session.execute(_INSERT_OUTBOX, deliveries.outbox_row(claim.job_id, status.value, claim.callback_url,
+                                                              finished_at))  # fmt: skip
     session.commit()
     return True
 
@@ -289,7 +292,6 @@ def reconcile(
     missing about that many messages), and ``queued_timeout`` zero takes every queued job
     (the broker lost its messages).
     """
-    now = utcnow()
     requeue: list[uuid.UUID] = []
     failed: list[uuid.UUID] = []
     stale_running = session.execute(
@@ -299,16 +301,17 @@ def reconcile(
     ).all()
     for job_id, attempts, callback_url in stale_running:
         guard = (Job.id == job_id, Job.status == JobStatus.running.value, Job.attempts == attempts)
-        if attempts >= max_attempts:
-            done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
+        if attempts >= max_attempts:  # finished_at on the database's clock, as the run's started_at
+            finished_at = session.scalar(
                 update(Job)
                 .where(*guard)
-                .values(status=JobStatus.failed.value, finished_at=now, error=lost_problem, lease_expires_at=None)
+                .values(status=JobStatus.failed.value, finished_at=db_now(), error=lost_problem, lease_expires_at=None)
+                .returning(Job.finished_at)
             )
-            if done.rowcount == 1:
+            if finished_at is not None:
                 failed.append(job_id)
                 if callback_url:  # the webhook's outbox row, committed with the failure
-                    deliveries.record_due(session, job_id, JobStatus.failed.value, callback_url, now)
+                    deliveries.record_due(session, job_id, JobStatus.failed.value, callback_url, finished_at)
         else:
             back: CursorResult[Any] = session.execute(  # type: ignore[assignment]
                 update(Job)

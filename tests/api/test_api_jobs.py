@@ -48,6 +48,32 @@ def test_validation_problem_lists_every_field_with_its_json_path(api: TestClient
     assert api.get("/v1/jobs").json()["jobs"] == []  # nothing stored
 
 
+def test_a_number_sent_as_a_string_or_a_boolean_is_a_422_naming_it(api: TestClient, payload: dict[str, Any]) -> None:
+    """The contract says number (``spine_engine.models.Number``): ``"100.0"`` and ``true`` are refused with the
+    member's JSON path (pydantic's lax mode would have read them as 100.0 and 1.0), a JSON integer is taken;
+    in a batch, per entry."""
+    payload["pa"]["landmarks"][0]["point"][0] = str(payload["pa"]["landmarks"][0]["point"][0])
+    payload["pa"]["landmark_sd_mm"] = True
+    payload["boundary"]["L5"]["position"][2] = str(payload["boundary"]["L5"]["position"][2])
+    response = api.post("/v1/jobs", json=payload)
+    assert response.status_code == 422, response.text
+    problem = problem_of(response)
+    assert problem["type"] == PROBLEM_BASE + "validation-error"
+    found = [(e["path"], e["type"]) for e in problem["errors"]]
+    assert found == [("pa.landmarks[0].point[0]", "float_type"), ("pa.landmark_sd_mm", "float_type"),
+                     ("boundary.L5.position[2]", "float_type")]  # fmt: skip
+    assert all(e["msg"].startswith("a number is expected") for e in problem["errors"])
+    assert "pa.landmarks[0].point[0]" in problem["detail"]
+    assert api.get("/v1/jobs").json()["jobs"] == []  # nothing stored
+    fixed = json.loads(json.dumps(payload))
+    fixed["pa"]["landmarks"][0]["point"][0] = 100  # a JSON integer: a number
+    fixed["pa"]["landmark_sd_mm"] = 1
+    fixed["boundary"]["L5"]["position"][2] = -420
+    batch = api.post("/v1/jobs/batch", json={"jobs": [payload, fixed]}).json()
+    assert [entry["status"] for entry in batch["results"]] == [422, 202]
+    assert batch["results"][0]["problem"]["errors"][0]["path"] == "jobs[0].pa.landmarks[0].point[0]"
+
+
 def test_cross_field_validation_names_the_field(api: TestClient, payload: dict[str, Any]) -> None:
     payload["pa"]["landmarks"] = payload["pa"]["landmarks"][:1]  # one level: below the PA's minimum of two
     problem = problem_of(api.post("/v1/jobs", json=payload))

@@ -118,6 +118,28 @@ def test_an_artifact_has_a_stable_strong_etag_and_a_match_is_a_304(app: App, res
     assert two_lines.status_code == 304
 
 
+@pytest.mark.parametrize("kind", ["sr.dcm", "figure.dcm"])
+def test_a_page_of_another_origin_reads_a_downloads_name(tmp_path: Path, result: dict[str, Any], kind: str) -> None:
+    """A page of an allowed origin (``SPINE_CORS_ORIGINS``) downloading a DICOM file may read its
+    ``Content-Disposition`` (RFC 6266 §4.3: the file name it saves it under): the header is among those
+    the CORS answer exposes (Fetch standard, "CORS-safelisted response-header name" does not include it,
+    so a browser hides it from the page unless ``Access-Control-Expose-Headers`` names it)."""
+    origin = {"Origin": "https://viewer.example"}
+    app = App(tmp_path, cors_origins="https://viewer.example")
+    with app.client:
+        job_id = app.succeeded_job(result)
+        path = f"/v1/jobs/{job_id}/{kind}"
+        asks = {"Access-Control-Request-Method": "GET", "Access-Control-Request-Headers": "authorization"}
+        preflight = app.client.options(path, headers={**origin, **asks})
+        assert preflight.status_code == 200, preflight.text
+        answer = app.get(job_id, kind, headers={**origin, **app.a})
+    assert answer.status_code == 200, answer.text
+    assert answer.headers["access-control-allow-origin"] == "https://viewer.example"
+    assert answer.headers["content-disposition"] == f'attachment; filename="{job_id}-{kind}"'
+    exposed = {h.strip().lower() for h in answer.headers["access-control-expose-headers"].split(",")}
+    assert "content-disposition" in exposed, exposed
+
+
 def test_every_build_of_an_artifact_is_the_same_bytes(uncached: App, result: dict[str, Any]) -> None:
     """What a strong ETag promises (RFC 9110 §8.8.1): built twice (no cache), the same bytes."""
     job_id = uncached.succeeded_job(result)

@@ -21,6 +21,8 @@ EXPECTED = {
     "not UTF-8": (400, "malformed-json"),
     "JSON but not an object": (422, "validation-error"),
     "wrong types": (422, "validation-error"),
+    "number as a string": (422, "validation-error"),
+    "boolean as a number": (422, "validation-error"),
     "NaN": (422, "validation-error"),
     "infinity": (422, "validation-error"),
     "huge number (float overflow)": (422, "validation-error"),

@@ -116,7 +116,7 @@ def test_kill_9_a_worker_mid_fits(live: LiveService, capsys: pytest.CaptureFixtu
     for job_id in stranded:
         status, attempts, finished_at, _ = after[job_id]
         if attempts == at_kill[job_id][1]:
-            # The killed process's last statement: its finish (finished_at is the worker's clock when it
+            # The killed process's last statement: its finish (finished_at is the database's clock when it
             # built the statement) reached PostgreSQL before the SIGKILL and was committed after
             # `at_kill` was read. Nobody else can write this attempt: a take-back bumps it.
             assert status == "succeeded" and finished_at is not None and finished_at <= killed_at, (

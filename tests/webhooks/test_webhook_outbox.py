@@ -83,7 +83,7 @@ def test_a_job_ending_writes_its_webhooks_outbox_row_with_its_outcome(db_setting
         finished_at = session.scalar(select(Job.finished_at).where(Job.id == hooked))
     assert (row.attempt, row.event, row.url, row.status_code, row.error) == (0, "job.failed", UNREACHABLE, None, None)
     assert row.message_id == store.message_id(hooked, "failed")
-    assert row.attempted_at == finished_at  # the job's end as the job shows it: the worker's clock
+    assert row.attempted_at == finished_at  # the job's end as the job shows it: the database's clock
     assert row.next_attempt_at is not None and before <= row.next_attempt_at <= after  # the database's clock
     assert rows(db_settings, plain) == [] and rows(db_settings, superseded) == []
     assert listed(db_settings, hooked) == []  # no attempt yet
