@@ -213,11 +213,13 @@ def with_observations(
     *,
     size: float,
     prior: TiltPrior | None,
+    prior_tilts: FloatArray | None = None,
 ) -> tuple[ViewData, list[str], list[str]]:
     """``data`` with its tilt observations (corners; the prior for point-only levels when ``prior``)
     and offset-point observations (inferior endplate midpoints of corners, pedicle centres; offsets
     × ``size``); also the source of each tilt ("corners", "prior") and of each offset point
-    ("inferior_midpoint", "image_left", "image_right"), in order."""
+    ("inferior_midpoint", "image_left", "image_right"), in order. ``prior_tilts``: the prior's tilts of
+    ``arrays`` (``prior_tilts_deg``) when already computed (``Placement.pa_prior_tilts_deg``)."""
     e_c, e_r = np.asarray(data.e_c), np.asarray(data.e_r)
     tilt_idx: list[int] = []
     tilt_dirs: list[FloatArray] = []
@@ -240,7 +242,7 @@ def with_observations(
         offset_col.append(geometry.inferior_midpoint[:, 0])
         offset_sources += ["inferior_midpoint"] * len(levels)
     if prior is not None and is_frontal(e_c, e_r):
-        predicted = prior_tilts_deg(prior, arrays, e_c, e_r)
+        predicted = prior_tilts_deg(prior, arrays, e_c, e_r) if prior_tilts is None else prior_tilts
         levels = arrays.indices[~with_corners]
         levels = levels[np.isfinite(predicted[levels])]
         if len(levels):
@@ -361,6 +363,9 @@ class Placement:
     unreliable: list[Unreliable]
     centreline: FloatArray | None = None
     """(17, 3) the placed centreline, mm (initial positions of every level)."""
+    pa_prior_tilts_deg: FloatArray | None = None
+    """(17,) the tilt prior's tilts of the PA levels (``prior_tilts_deg``), degrees, when a prior was
+    given and the PA is frontal; else None."""
 
 
 def _turn_to_frontal_tilt(R: FloatArray, target_deg: float) -> FloatArray:
@@ -499,4 +504,5 @@ def place_without_boundary(
         lateral_estimated=lateral_estimated,
         unreliable=unreliable,
         centreline=centreline,
+        pa_prior_tilts_deg=predicted,
     )

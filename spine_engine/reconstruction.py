@@ -453,7 +453,8 @@ def prepare_inputs(
         if name == "pa":
             size = size_factor(profile, data)
         data, sources[name], offsets[name] = with_observations(
-            data, arrays, size=size, prior=prior if name == "pa" else None
+            data, arrays, size=size, prior=prior if name == "pa" else None,
+            prior_tilts=placement.pa_prior_tilts_deg if placement is not None and name == "pa" else None,
         )
         views.append(data)
         setups[name] = setup
