@@ -152,27 +152,47 @@ def _apex(
     sacrum, which the model (T1–L5) does not have; here it is taken from the chord of the end
     vertebrae's centres in the frontal (x, z) plane: signed distance δ_i = (p_i − p_U)·n with
     n = (−c_z, c_x) the normal of the unit chord c = (p_L − p_U)/|…| that points toward +x for a chord
-    running caudally (δ > 0: patient left). A disc lies midway between its two vertebrae, so its δ is
-    their mean and never exceeds both: the apex is the vertebra strictly between the ends with the
-    largest |δ|. A curve of one segment (lower = upper + 1) has no vertebra between its end vertebrae,
-    both on the chord: its apex is the disc between them, named by its upper vertebra with
-    ``apical_disc`` True (the contract's apex is a vertebra).
+    running caudally (δ > 0: patient left). The convexity is the tilts', which define the curve (its ends
+    and its angle): right when the tilt rises caudally (θ_L > θ_U), left when it falls (``docs/measures.md``;
+    from δ only for a curve of 0°). The apex is the vertebra strictly between the ends deviated most toward
+    the convexity (largest δ for a left curve, largest −δ for a right one): where the positions and the
+    tilts come from different sources (corners, the fitted centreline), a short curve of 10–15°, a few mm
+    off its chord, cannot then be read as convex to the side its tilts deny (with 1 mm of noise on the
+    positions of 60 synthetic spines, 1 curve in 142 was, before). If no vertebra lies on the convex side
+    of the chord, the apex is the middle vertebra. When two neighbouring vertebrae share the largest
+    deviation (equal to 1e-9 mm), the apex lies between them: the disc between them, which lies on the
+    curved spine between them and so is deviated more than either, is the apical disc (SRS: the disc
+    most deviated); a run of more than two equally deviated vertebrae has its apex at the run's middle,
+    a vertebra or a disc. A disc is named by its upper vertebra with ``apical_disc`` True (the
+    contract's apex is a vertebra). A curve of one segment (lower = upper + 1) has no vertebra between
+    its end vertebrae, both on the chord: its apex is the disc between them.
     """
     xz = positions[:, [0, 2]]
     chord = xz[lower] - xz[upper]
     length = math.sqrt(float(chord @ chord))  # |chord|, as np.linalg.norm computes it
     inner = np.arange(upper + 1, lower)
+    # The curve is its tilts' (its ends and angle are): the tilt rising caudally means convex right.
+    by_tilt: Literal["left", "right", ""] = (
+        "right" if tilt[lower] > tilt[upper] else "left" if tilt[lower] < tilt[upper] else ""
+    )
     if length > 0 and len(inner):
         c = chord / length
         n = np.array([-c[1], c[0]])
         if n[0] < 0:
             n = -n
         dist = (xz[inner] - xz[upper]) @ n
-        k = int(np.argmax(np.abs(dist)))
-        if abs(dist[k]) > 1e-9:
-            return int(inner[k]), "left" if dist[k] > 0 else "right", False
-    # No interior vertebra off the chord: the tilt rising caudally means convex right.
-    convexity: Literal["left", "right"] = "right" if tilt[lower] > tilt[upper] else "left"
+        side_sign = {"left": 1.0, "right": -1.0}  # a curve of 0° (no side by tilt): its most deviated one's
+        toward = side_sign[by_tilt] if by_tilt else float(np.sign(dist[np.argmax(np.abs(dist))]) or 1.0)
+        deviation = toward * dist  # deviation toward the convexity, mm
+        k = int(np.argmax(deviation))
+        if deviation[k] > 1e-9:
+            side: Literal["left", "right"] = "left" if toward > 0 else "right"
+            tied = np.flatnonzero(deviation[k] - deviation <= 1e-9)
+            if len(tied) > 1 and tied[-1] - tied[0] == len(tied) - 1:  # a run of equally deviated vertebrae
+                middle = int(tied[0] + tied[-1])  # twice the run's middle, in steps of half a level
+                return int(inner[middle // 2]), side, middle % 2 == 1
+            return int(inner[k]), side, False
+    convexity: Literal["left", "right"] = by_tilt or "left"
     if not len(inner):
         return upper, convexity, True
     return int(inner[len(inner) // 2]), convexity, False
@@ -215,7 +235,17 @@ def most_tilted_pair(tilt_deg: npt.ArrayLike) -> tuple[int, int, float] | None:
     return upper, lower, float(diff[upper, lower])
 
 
-def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> list[tuple[int, int, float]]:
+CURVE_REVERSAL_DEG = 10.0
+"""A reversal of the frontal tilt of this much or more between two vertebrae of a curve is a curve of
+the other convexity, which splits it (``major_first_curves``, 3): the Scoliosis Research Society calls
+a lateral curvature of 10° Cobb or more scoliosis (SRS Revised Glossary of Terms, "scoliosis"). It does
+not depend on the reporting threshold ``min_cobb_deg``, so the curves and the major angle do not
+either (a split piece below that threshold is not reported but still separates its neighbours)."""
+
+
+def major_first_curves(
+    tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0, reversal_deg: float = CURVE_REVERSAL_DEG
+) -> list[tuple[int, int, float]]:
     """Frontal curves (upper, lower, Cobb angle in degrees) of a tilt sequence, top to bottom.
 
     1. The **major curve** ends at the two most tilted vertebrae relative to each other: the pair
@@ -225,7 +255,16 @@ def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> l
        relative to U (the nearest on a tie), and so on to T1; going down from its lower end
        likewise to L5. Each such curve is no larger than the one it joins, and the curves
        alternate in direction.
-    3. Curves below ``min_cobb_deg`` are dropped (they still separate their neighbours).
+    3. **A curve turns one way only**: a curve of 1–2 whose tilt turns back, between two of its
+       vertebrae, by ``reversal_deg`` (``CURVE_REVERSAL_DEG``, 10°) or more holds a curve of the
+       other convexity that is itself scoliotic (Cobb 1948: a curve's end vertebrae are its most
+       tilted ones, where the tilt turns back; SRS: a lateral curvature of 10° or more). It is split
+       there (``_split_reversals``): its largest reversal, from the vertebra a to the vertebra b
+       (a < b), becomes a curve a–b of its own and the pieces on either side end at a and at b;
+       each piece is split again the same way. A smaller reversal (a wiggle) never splits a curve.
+       The major curve is then the largest of the curves, no longer always the most tilted pair
+       (``most_tilted_pair``, which the AASCE 2019 script reads).
+    4. Curves below ``min_cobb_deg`` are dropped (they still separate their neighbours).
     A flat sequence (all tilts equal) has no curve.
     """
     t = np.asarray(tilt_deg, dtype=float)
@@ -234,20 +273,44 @@ def major_first_curves(tilt_deg: npt.ArrayLike, min_cobb_deg: float = 10.0) -> l
     if largest is None or largest[2] <= 0.0:
         return []
     upper, lower, _ = largest
-    curves = [largest]
+    ends = [upper, lower]
     end = upper
     while end > 0:
         above = np.abs(t[:end] - t[end])
-        k = end - 1 - int(np.argmax(above[::-1]))
-        curves.insert(0, (k, end, float(above[k])))
-        end = k
+        end = end - 1 - int(np.argmax(above[::-1]))
+        ends.insert(0, end)
     end = lower
     while end < n - 1:
         below = np.abs(t[end + 1 :] - t[end])
-        k = end + 1 + int(np.argmax(below))
-        curves.append((end, k, float(below[k - end - 1])))
-        end = k
+        end = end + 1 + int(np.argmax(below))
+        ends.append(end)
+    split = [e for u, l in itertools.pairwise(ends) for e in _split_reversals(t, u, l, reversal_deg)[:-1]]
+    curves = [(u, l, float(abs(t[l] - t[u]))) for u, l in itertools.pairwise([*split, ends[-1]])]
     return [c for c in curves if c[2] >= min_cobb_deg]
+
+
+def _split_reversals(t: FloatArray, upper: int, lower: int, min_reversal_deg: float) -> list[int]:
+    """End vertebrae [upper, …, lower] of the curve upper–lower once split at every reversal of its tilt
+    of ``min_reversal_deg`` or more (``major_first_curves``, 3), degrees.
+
+    The curve's ends are the extremes of its tilts (``major_first_curves`` picks them so); its direction
+    is s = sign(θ_lower − θ_upper). Its largest reversal is the pair a < b inside it with the largest
+    s·(θ_a − θ_b) > 0: b the first vertebra farthest below the running extreme max_{i ≤ b} s·θ_i, a
+    the first vertebra at that extreme. When it reaches ``min_reversal_deg`` (and is > 0), a is the
+    extreme of upper..b and b that of a..lower, so upper–a, a–b and b–lower are curves with their
+    ends at their extremes, split again in turn; else the curve stays whole."""
+    s = 1.0 if t[lower] >= t[upper] else -1.0
+    run = s * t[upper : lower + 1]
+    drop = np.maximum.accumulate(run) - run  # s·(θ_a − θ_b) from the running extreme a above b
+    b = int(np.argmax(drop))
+    if drop[b] <= 0.0 or drop[b] < min_reversal_deg:
+        return [upper, lower]
+    a, b = upper + int(np.argmax(run[: b + 1])), upper + b
+    return [
+        *_split_reversals(t, upper, a, min_reversal_deg)[:-1],
+        *_split_reversals(t, a, b, min_reversal_deg)[:-1],
+        *_split_reversals(t, b, lower, min_reversal_deg),
+    ]
 
 
 def aasce_major_angle(tilt_deg: npt.ArrayLike) -> tuple[float, int, int]:
@@ -410,13 +473,35 @@ def frontal_tilts(
     rotations: npt.ArrayLike, observed_tilt_deg: npt.ArrayLike | None = None
 ) -> tuple[FloatArray, FloatArray]:
     """Tilt of each vertebra for the Cobb measure (17,) and a mask of those observed (17,) bool:
-    the observed tilt (from corners) where finite, else the model's ``frontal_tilt_deg``."""
+    the observed tilt (from corners) where finite, else the model's ``frontal_tilt_deg``, made
+    continuous along the spine (``continuous_tilts``)."""
     model = frontal_tilt_deg(rotations)
     if observed_tilt_deg is None:
-        return model, np.zeros(len(model), dtype=bool)
+        return continuous_tilts(model), np.zeros(len(model), dtype=bool)
     observed = np.asarray(observed_tilt_deg, dtype=float)
     mask = np.isfinite(observed)
-    return np.where(mask, observed, model), mask
+    return continuous_tilts(np.where(mask, observed, model)), mask
+
+
+def continuous_tilts(tilt_deg: npt.ArrayLike) -> FloatArray:
+    """Tilts (degrees) of lines, each known up to 180°, made continuous from T1 to L5: each is moved
+    by a multiple of 180° to lie within 90° of the one above it (``np.unwrap``, period 180°), then all
+    by one multiple of 180° so that their median lies in [−90°, 90°).
+
+    A tilt is that of a line, so ``frontal_tilt_deg`` reads it in [−90°, 90°): a vertebra tilted 100°
+    (the lower end of a severe curve, 130° say, whose upper end is tilted −30°, as in a collapsing
+    neuromuscular curve) reads −80°, and a Cobb angle across it, a difference of two tilts, would be
+    50° instead of 130°. Two neighbouring vertebrae are never 90° apart in the frontal plane (a
+    segment turns a few degrees, at most about 20° in a severe curve), so the continuous sequence is
+    the spine's. A sequence in [−90°, 90°) whose neighbours are all within 90° is returned unchanged."""
+    t = np.asarray(tilt_deg, dtype=float)
+    if t.size == 0:
+        return t.copy()
+    lo, hi = float(t.min()), float(t.max())
+    if lo >= -90.0 and hi < 90.0 and hi - lo < 90.0:
+        return t.copy()  # every neighbour within 90°: what the lines below return, without their cost
+    t = np.unwrap(t, period=180.0)
+    return np.asarray(t - 180.0 * np.floor((float(np.median(t)) + 90.0) / 180.0))
 
 
 TiltSource = Literal["model", "mixed", "corners"]
@@ -442,8 +527,8 @@ def compute_measures(
     positions (17,3) mm and rotations (17,3,3) (directors as columns), T1..L5. The curves come
     from the frontal tilts (``major_first_curves``): ``observed_tilt_deg`` (17,), the tilts of the
     corner lines where finite, else the model's d1. Exactly one curve is ``major`` (the largest)
-    when any curve reaches ``min_cobb_deg``; ``largest_cobb`` is the largest angle (``most_tilted_pair``)
-    whatever its size. ``observed_endplate_tilt_deg`` (17, 2): the superior
+    when any curve reaches ``min_cobb_deg``; ``largest_cobb`` is that major curve, or without one the
+    largest angle (``most_tilted_pair``) whatever its size. ``observed_endplate_tilt_deg`` (17, 2): the superior
     and inferior endplate tilts from corners where finite, else the vertebra's tilt (the model has
     one frame per vertebra: both endplates are perpendicular to d3). With observed tilts on all 17
     levels ``aasce2019`` holds the AASCE script's major angle. Kyphosis, lordosis and the Lenke
@@ -486,14 +571,16 @@ def compute_measures(
             )
         )
     largest = None
-    pair = most_tilted_pair(tilt)
+    # the major curve when one is reported (the most tilted pair, unless a reversal of the threshold
+    # or more inside it split it: ``major_first_curves``, 3); else the most tilted pair, below it
+    pair = found[major] if found else most_tilted_pair(tilt)
     if pair is not None:
         largest = LargestCobbAngle(
             upper=cast(Level, LEVELS[pair[0]]),
             lower=cast(Level, LEVELS[pair[1]]),
             angle_deg=pair[2],
             tilt_source=_tilt_source(observed, pair[0], pair[1]),
-            reported_as_curve=any(c.major for c in cobb),
+            reported_as_curve=bool(found),
         )
     aasce = None
     if observed.all():

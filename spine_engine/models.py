@@ -695,8 +695,10 @@ class LargestCobbAngle(BaseModel):
     upper: Level
     lower: Level
     angle_deg: float = Field(
-        description="Frontal Cobb angle between the two vertebrae most tilted relative to each other (max θ − min "
-        "θ of the frontal tilts, docs/measures.md), degrees; equals the major curve's angle_deg when `cobb` has one."
+        description="The major curve's angle_deg when `cobb` has one; else the frontal Cobb angle between the two "
+        "vertebrae most tilted relative to each other (max θ − min θ of the frontal tilts), degrees. The two differ "
+        "only when a counter-curve of 10° or more lies between the most tilted vertebrae, which splits them into "
+        "curves of their own (docs/measures.md)."
     )
     angle_sd_deg: float | None = Field(
         None,

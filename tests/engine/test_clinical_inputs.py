@@ -246,9 +246,15 @@ def test_pedicles_reduce_axial_rotation_error_on_synthetic_spines() -> None:
 
 
 def test_major_first_curves_and_the_aasce_major_angle() -> None:
-    tilts = [0, 20, 10, 30, 25, 5, 8]  # one long curve 0 → 30 with a 10° reversal inside, then 25° back
-    assert major_first_curves(tilts, 0.0) == [(0, 3, 30.0), (3, 5, 25.0), (5, 6, 3.0)]
-    assert major_first_curves(tilts, 10.0) == [(0, 3, 30.0), (3, 5, 25.0)]
+    wiggle = [0, 20, 11, 30, 25, 5, 8]  # one long curve 0 → 30 with a 9° reversal inside, then 25° back
+    assert major_first_curves(wiggle, 0.0) == [(0, 3, 30.0), (3, 5, 25.0), (5, 6, 3.0)]
+    assert major_first_curves(wiggle, 10.0) == [(0, 3, 30.0), (3, 5, 25.0)]
+    # a reversal of 10° (a curve by the SRS threshold) is a curve of its own: 0 → 20 → 10 → 30 is three
+    # curves, not one of 30° (docs/measures.md, ``measures.CURVE_REVERSAL_DEG``); the AASCE script's
+    # angle stays the most tilted pair's
+    tilts = [0, 20, 10, 30, 25, 5, 8]
+    assert major_first_curves(tilts, 0.0) == [(0, 1, 20.0), (1, 2, 10.0), (2, 3, 20.0), (3, 5, 25.0), (5, 6, 3.0)]
+    assert major_first_curves(tilts, 10.0) == [(0, 1, 20.0), (1, 2, 10.0), (2, 3, 20.0), (3, 5, 25.0)]
     assert aasce_major_angle(tilts) == pytest.approx((30.0, 0, 3))
     assert major_first_curves([4.0] * 17) == []
     assert aasce_major_angle([-50.0, 60.0])[0] == pytest.approx(90.0)  # the script's clip
