@@ -10,7 +10,7 @@ import { csvBlob, landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "
 import { personName } from "./dicom";
 import { changesTable, estimateNotes, fillFollowUp, notVisitWords, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
-import { sentences } from "./messages";
+import { orientationWords, sentences } from "./messages";
 import { FilmPanel, type JobFilm, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
 import { drawProjections, type Backdrop } from "./projections";
@@ -492,6 +492,7 @@ function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknow
   box.hidden = !problem;
   box.replaceChildren();
   const ringed = box === problemBox ? markRefused(problem, payload) : "";
+  const oriented = box === problemBox ? markOrientation(problem, payload) : [];
   if (!problem) return;
   const { title, lines } = sentences(problem, payload);
   const head = document.createElement("p");
@@ -511,6 +512,49 @@ function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknow
     p.textContent = ringed;
     box.append(p);
   }
+  for (const name of oriented) {
+    const film = name === "pa" ? "PA" : "lateral";
+    const p = document.createElement("p");
+    p.textContent = `The orientation of the ${film} film was refused: it is said at the ${film} film's “Orientation”, with what to change there; the landmarks stay. `;
+    const go = document.createElement("button");
+    go.type = "button";
+    go.className = "go-to-field";
+    go.textContent = `Go to the ${film} film's orientation`;
+    go.addEventListener("click", () => showFilm(name, true));
+    p.append(go);
+    box.append(p);
+  }
+}
+
+/** Show a film's panel (the Films tab, the film's tab); with `focus`, its orientation controls focused. */
+function showFilm(name: ViewName, focus = false): void {
+  selectSourceTab($<HTMLButtonElement>("tab-image"), false);
+  selectFilmTab($<HTMLButtonElement>(`tab-film-${name}`), false);
+  if (focus) panels[name].focusOrientation();
+}
+
+/**
+ * Say at each film's orientation controls a refusal naming its orientation (an error's path
+ * `<view>.patient_orientation`: `orientation_not_of_view`, `lateral_profile_inverted`), while the film
+ * holds the landmarks and orientation that were sent, and show the first such film's panel; returns the
+ * views so marked. A problem of null takes the marks away.
+ */
+function markOrientation(problem: Problem | null, payload: unknown): ViewName[] {
+  const sent = (payload && typeof payload === "object" ? payload : {}) as Partial<JobPayload>;
+  const now = source === "image" ? views() : null;
+  const marked: ViewName[] = [];
+  for (const name of ["pa", "lateral"] as const) {
+    const errors = (problem?.errors ?? []).filter((e) => e.path === `${name}.patient_orientation`);
+    const was = sent[name];
+    const held = now?.[name];
+    const same = !!was && !!held && JSON.stringify(held.patient_orientation) === JSON.stringify(was.patient_orientation) &&
+      JSON.stringify(held.landmarks.map(landmarkKey)) === JSON.stringify(was.landmarks.map(landmarkKey));
+    const words = same && errors.length ? errors.map((e) => orientationWords(e, was.patient_orientation)).join(" ") : null;
+    panels[name].refuseOrientation(words);
+    if (words) marked.push(name);
+  }
+  if (marked.length) showFilm(marked[0]);
+  return marked;
 }
 
 /** A landmark as compared between the payload sent and the films now: level and points, to 0.001. */

@@ -1,4 +1,5 @@
 // Problems (RFC 9457 problem+json) in plain sentences: no JSON paths in code form, no Python reprs.
+import { DIRECTION_WORDS, ORIENTATION_LABELS } from "./panel";
 import type { Problem } from "./types";
 
 const VIEW = { pa: "PA film", lateral: "lateral film" } as Record<string, string>;
@@ -30,6 +31,8 @@ export function placeOf(path: string, payload?: unknown): string {
 /** A message without Python list/str reprs: ['L5', 'T1'] → L5 and T1; 'px' → “px”; apostrophes (T3's) kept. */
 export function plain(message: string): string {
   return message
+    // a patient orientation ['A', 'F'] (DICOM (0020,0020)'s two directions) → A, F
+    .replace(/\['([LRAPHF])', '([LRAPHF])'\]/g, "$1, $2")
     .replace(/\[((?:'[^']*'(?:,\s*)?)+)\]/g, (_, items: string) => {
       const list = items.split(/,\s*/).map((s) => s.replace(/^'|'$/g, ""));
       return list.length > 1 ? `${list.slice(0, -1).join(", ")} and ${list[list.length - 1]}` : list[0];
@@ -57,3 +60,24 @@ export function sentences(problem: Problem, payload?: unknown): { title: string;
 }
 
 const capital = (s: string): string => s.charAt(0).toUpperCase() + s.slice(1);
+
+/**
+ * A refusal at `<view>.patient_orientation`, in words for the film's orientation controls: what it
+ * means, what to change there, and that the landmarks stay. `sent` is the orientation the refused
+ * payload gave. A mirrored lateral (`lateral_profile_inverted`, spine_engine/lateral_profile.py) takes
+ * the other depth label (A ↔ P) on the axis that carries depth, as the service's message says.
+ */
+export function orientationWords(error: { type: string; msg: string }, sent: [string, string] | undefined): string {
+  const said = plain(error.msg);
+  const theirs = `The service's words: ${said}${/[.!?]$/.test(said) ? "" : "."}`;
+  const axis = sent ? sent.findIndex((d) => d === "A" || d === "P") : -1;
+  if (error.type === "lateral_profile_inverted" && sent && axis >= 0) {
+    const now = sent[axis];
+    const other = now === "A" ? "P" : "A";
+    // the side the patient's front is on when the film is mirrored: opposite to what the label says
+    const side = axis === 0 ? (now === "A" ? "left" : "right") : now === "A" ? "top" : "bottom";
+    return `Refused by the service: with this orientation the landmarks read as a hollow (lordotic) upper back over a rounded (kyphotic) lower back, both reversed, as a film mirrored left to right reads. ` +
+      `Look at the film: if the patient's front is toward the image's ${side}, choose “${other} (${DIRECTION_WORDS[other]})” for “${ORIENTATION_LABELS[axis]}” (the landmarks stay where they are) and Reconstruct again. ${theirs}`;
+  }
+  return `Refused by the service: ${said}${/[.!?]$/.test(said) ? "" : "."} Set the film's orientation here (the landmarks stay where they are) and Reconstruct again.`;
+}

@@ -8,6 +8,11 @@ import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 export type ViewName = "pa" | "lateral";
 const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "Lateral film" };
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
+/** The patient directions of Patient Orientation (0020,0020), DICOM PS3.3 C.7.6.1.1.1, in words. */
+export const DIRECTION_WORDS: Record<string, string> = { L: "left side", R: "right side", A: "front, anterior", P: "back, posterior", H: "head", F: "feet" };
+/** The orientation controls' labels: Patient Orientation's first value is the direction toward the image's
+ * right (along a row), its second toward the image's bottom (down a column), PS3.3 C.7.6.1.1.1. */
+export const ORIENTATION_LABELS = ["Toward the image's right: the patient's", "Toward the image's bottom: the patient's"] as const;
 /** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
 const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
 /** View Position (0018,5101) defined terms, PS3.3 §C.8.11.5.1.1: frontal and lateral projections. */
@@ -67,6 +72,12 @@ export class FilmPanel {
   private readonly fileInput: HTMLInputElement;
   private readonly ignoreGeometry: HTMLInputElement;
   private readonly ignoreRow: HTMLElement;
+  /** The orientation controls: the patient direction toward the image's right, and toward its bottom. */
+  private readonly orient: [HTMLSelectElement, HTMLSelectElement];
+  private readonly orientHelp: HTMLElement;
+  private readonly orientError: HTMLElement;
+  /** The orientation chosen on the page (the controls), over the header's or the reopened job's; null: not chosen. */
+  private chosen: [string, string] | null = null;
   /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were
    * placed on, a closed film (and how to bring it back), a relabelling done or refused. */
   private dropNote: string | null = null;
@@ -121,6 +132,28 @@ export class FilmPanel {
     );
     this.wlRow.hidden = true;
 
+    // The film's orientation, as its header says or the default, changed here (the landmarks stay where
+    // they are): a film displayed mirrored is sent with the other depth label, not clicked again.
+    this.orient = (["column", "row"] as const).map((axis) => {
+      const select = el("select", { id: id(`orientation-${axis}`), "aria-describedby": id("orientation-help") });
+      for (const d of "LRAPHF") select.append(el("option", { value: d }, `${d} (${DIRECTION_WORDS[d]})`));
+      select.addEventListener("change", () => {
+        this.chosen = [this.orient[0].value, this.orient[1].value];
+        this.refuseOrientation(null); // the refusal was of the orientation sent
+        if (this.dicom) this.fillHeader();
+        this.update();
+        this.onChange();
+      });
+      return select;
+    }) as [HTMLSelectElement, HTMLSelectElement];
+    this.orientHelp = el("p", { id: id("orientation-help"), class: "help" });
+    this.orientError = el("p", { id: id("orientation-error"), class: "error", role: "alert" });
+    this.orientError.hidden = true;
+    const orientation = el("fieldset", { id: id("orientation"), class: "orientation" });
+    orientation.append(el("legend", {}, "Orientation (DICOM Patient Orientation)"),
+      labelled(id("orientation-column"), ORIENTATION_LABELS[0], this.orient[0]),
+      labelled(id("orientation-row"), ORIENTATION_LABELS[1], this.orient[1]), this.orientHelp, this.orientError);
+
     const modes = el("fieldset", { class: "modes" });
     modes.append(el("legend", {}, "Click mode"));
     const modeNames: [Mode, string][] = [["point", "Endplate midpoint"], ["corners", "Four corners"], ["pedicles", "Pedicles"]];
@@ -173,7 +206,7 @@ export class FilmPanel {
       this.ignoreRow,
       labelled(id("spacing"), "Pixel spacing (mm per pixel)", this.spacing,
         "Read from the DICOM header when it has one; a PNG or JPEG does not carry it: enter it (e.g. from the PACS)."),
-      this.wlRow, tools, this.prompt, canvas, keys, buttons, this.status,
+      orientation, this.wlRow, tools, this.prompt, canvas, keys, buttons, this.status,
     );
 
     this.editor = new FilmEditor(canvas, (what) => {
@@ -291,6 +324,8 @@ export class FilmPanel {
       }
       this.fileName = file.name;
       this.reopened = null;
+      this.chosen = null;
+      this.refuseOrientation(null);
       this.ignoreGeometry.checked = false;
       if (!keep) this.fromJob = false;
       // the reopened job's landmarks kept over a film that says it is not theirs, or that they overhang
@@ -377,7 +412,7 @@ export class FilmPanel {
       jobFilm: this.jobFilm, otherPatient: this.otherPatient, spacing: this.spacing.value, ignoreGeometry: this.ignoreGeometry.checked,
       wl: [this.wlCenter.value, this.wlWidth.value, this.invert.checked], wlHidden: this.wlRow.hidden,
       warning: this.warning.hidden ? null : this.warning.textContent, header: [...this.header.childNodes],
-      label: this.editor.canvas.getAttribute("aria-label") ?? "",
+      label: this.editor.canvas.getAttribute("aria-label") ?? "", chosen: this.chosen,
     };
   }
 
@@ -390,6 +425,8 @@ export class FilmPanel {
     this.fromJob = s.fromJob;
     this.jobFilm = s.jobFilm;
     this.otherPatient = s.otherPatient;
+    this.chosen = s.chosen;
+    this.refuseOrientation(null);
     this.spacing.value = s.spacing;
     this.ignoreGeometry.checked = s.ignoreGeometry;
     [this.wlCenter.value, this.wlWidth.value] = [s.wl[0], s.wl[1]];
@@ -427,6 +464,8 @@ export class FilmPanel {
     this.dicom = null;
     this.fileName = null;
     this.reopened = null;
+    this.chosen = null;
+    this.refuseOrientation(null);
     this.fromJob = false;
     this.dropNote = null;
     this.fileInput.value = "";
@@ -442,6 +481,23 @@ export class FilmPanel {
     this.editor.canvas.setAttribute("aria-label", `${TITLES[this.view]}: no film open`);
     this.editor.reset();
     this.update();
+  }
+
+  /** The service's refusal of this film's orientation, in words, at its controls (null takes it away). */
+  refuseOrientation(words: string | null): void {
+    this.orientError.hidden = !words;
+    this.orientError.textContent = words ?? "";
+    for (const select of this.orient) {
+      select.setAttribute("aria-describedby", `${this.view}-orientation-help${words ? ` ${this.view}-orientation-error` : ""}`);
+      if (words) select.setAttribute("aria-invalid", "true");
+      else select.removeAttribute("aria-invalid");
+    }
+  }
+
+  /** Bring the orientation controls into view and focus the first. */
+  focusOrientation(): void {
+    this.orient[0].scrollIntoView({ block: "center" });
+    this.orient[0].focus();
   }
 
   private showError(message: string | null): void {
@@ -460,8 +516,9 @@ export class FilmPanel {
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
       const service = serviceSpacingWords(d.spacing, this.geometryIgnored() ? {} : d.acquisition, d.hasImagerSpacing);
       rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.${service ? ` ${service}` : ""}`]);
-      rows.push(["Orientation", d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
-        : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`]);
+      const stated = d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
+        : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`;
+      rows.push(["Orientation", `${stated}${this.chosen ? `; sent as ${this.chosen.join(", ")} (set under Orientation)` : ""}`]);
       const a = d.acquisition;
       const geo = [
         a.magnification && `magnification (ERMF) ${a.magnification}`,
@@ -522,7 +579,7 @@ export class FilmPanel {
   }
 
   orientation(): [string, string] {
-    return this.dicom?.orientation ?? (this.reopened?.patient_orientation as [string, string] | undefined) ?? DEFAULT_ORIENTATION[this.view];
+    return this.chosen ?? this.dicom?.orientation ?? (this.reopened?.patient_orientation as [string, string] | undefined) ?? DEFAULT_ORIENTATION[this.view];
   }
 
   /** The view of the payload, or null without landmarks. Optional members only when the service takes them. */
@@ -531,6 +588,7 @@ export class FilmPanel {
     if (!landmarks.length) return null;
     if (this.reopened && !this.editor.source) {
       const view: ViewPayload = { ...this.reopened, landmarks: this.reopened.units === "mm" && this.reopened.pixel_spacing ? landmarks.map((lm) => toMm(lm, this.reopened!.pixel_spacing as Vec2)) : landmarks };
+      if (this.chosen) view.patient_orientation = this.chosen;
       if (this.geometryIgnored()) {
         const acq = withoutGeometry(this.reopened.acquisition as Acquisition);
         if (Object.keys(acq).length) view.acquisition = acq;
@@ -604,6 +662,9 @@ export class FilmPanel {
   }
 
   update(): void {
+    const o = this.orientation();
+    [this.orient[0].value, this.orient[1].value] = o;
+    this.orientHelp.textContent = `Sent as ${o.join(", ")}: the patient's ${o.map((d) => `${d} (${DIRECTION_WORDS[d] ?? "?"})`).join(" toward the image's right, ")} toward its bottom${this.chosen ? " (set here)" : this.dicom?.orientation ? " (from the header)" : ""}. Change it when the film is displayed mirrored or turned: the landmarks stay where they are.`;
     const ed = this.editor;
     const placed = ed.landmarks();
     this.zoomOut.value = ed.source || this.reopened ? `${ed.zoomPercent} %` : "";
@@ -664,6 +725,7 @@ interface ClosedFilm {
   warning: string | null;
   header: Node[];
   label: string;
+  chosen: [string, string] | null;
 }
 
 /** A reopened job's film as its payload's `study` names it. */
