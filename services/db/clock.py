@@ -1,5 +1,6 @@
-"""The database server's clock, for the times that several processes write and compare: job leases
-and the due times the reconciler looks for, and a job's created, started and finished times.
+"""The database server's clock, for every time the database stores: job leases and the due times the
+reconciler looks for, a job's created, started and finished times, the times of its webhook and STOW-RS
+attempts, API keys' and the audit trail's times.
 
 A time written by one process on one host and compared by another (the reconciler, the API) means the
 same instant to both only when both take "now" from one clock. The processes' own clocks may differ
@@ -24,6 +25,23 @@ durations whatever the clocks of the processes that write them (the API, a worke
 - ``jobs.started_at`` (``services.db.runs``: the claim);
 - ``jobs.finished_at`` (``services.db.runs``: the finish and the reconciler's failure, whose webhook
   outbox row's ``attempted_at`` is that same value; ``services.db.jobs``: the cancel).
+
+So are the other times stored, only shown or ordered, so that they are ordered with the job's and with
+one another whatever the clocks of the processes that write them:
+
+- ``webhook_deliveries.attempted_at`` (``services.worker.webhook_tasks.deliver_once``: the claim,
+  returned by it; ``services.db.deliveries``: the outbox row the API writes after a cancel takes the
+  job's stored ``finished_at``, a message the broker refused the time it was marked);
+- ``jobs.dicom_stores[].attempted_at`` and ``next_attempt_at`` (``services.db.dicom_stores``: read with
+  the job the attempt stores, or when attempt 0 is recorded; the next attempt that plus its delay);
+- ``api_keys.created_at`` (the most recent key of a client signs its webhooks) and ``revoked_at``
+  (``services.db.keys``);
+- ``job_audit.at`` (``services.db.keys.audit``: the rows of one job in the order of the actions).
+
+A process's own clock (``services.db.timestamps.utcnow``) is left for what that process alone compares
+or shows and never stores (e.g. a ``Retry-After`` date; a webhook's signature timestamp, which its
+receiver compares with its own clock); a duration it measures itself is a monotonic clock's
+(``time.monotonic``).
 
 The database's clock is:
 

@@ -15,6 +15,9 @@ Every ``next_attempt_at`` the sweep compares is written and compared on the data
 (``services.db.clock``), never a process's own: a worker or API host whose clock is off would
 otherwise write a row already overdue for the sweep (a message still in the broker, or an attempt
 still in flight, published again) or one that a lost message leaves unswept for as long as the skew.
+Every ``attempted_at`` is the database's clock too, only shown but ordered with the job's times and the
+other rows' whatever the hosts' clocks: an attempt's is its claim's (``claim`` with ``db_now()``), the
+outbox row's the job's ``finished_at`` as the job shows it, or when the broker refused the message.
 
 ``job_ended`` is called where a job reaches a final state; it never raises, and costs nothing for a
 job without ``callback_url`` because callers look at the payload first. The message id is derived
@@ -29,10 +32,10 @@ import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, TypeAlias
+from typing import Any, NamedTuple, TypeAlias
 
 from celery import Celery
-from sqlalchemy import ColumnElement, CursorResult, and_, exists, insert, or_, select, update
+from sqlalchemy import ColumnElement, CursorResult, and_, exists, func, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -42,7 +45,7 @@ from services.core.status import FINAL_STATUSES
 from services.db.clock import db_now
 from services.db.engine import session_scope
 from services.db.jobs import job_json
-from services.db.models import Job, WebhookDelivery, utcnow
+from services.db.models import Job, WebhookDelivery
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +87,7 @@ NOT_PUBLISHED = "not published: "
 """How the ``error`` of an outbox row whose message the broker refused begins."""
 
 
-def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> dict[str, Any]:
+def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: Moment) -> dict[str, Any]:
     """The values of the outbox row of the message a job that ended in ``status`` at ``ended_at`` (as
     the job shows it) sends: attempt 0, no outcome. Its due time is not among them: the statement that
     writes the row sets ``next_attempt_at`` to the database's clock (``db_now()``), the job's end as the
@@ -94,9 +97,10 @@ def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> 
             "duration_ms": None}  # fmt: skip
 
 
-def record_due(session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: datetime) -> None:
+def record_due(session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: Moment) -> None:
     """Write the message's outbox row in ``session``'s transaction (nothing when it is there already),
-    due now on the database's clock."""
+    due now on the database's clock; ``ended_at``: the job's ``finished_at`` as stored, or an SQL
+    expression of it (``_stored_end``)."""
     claim(session, **outbox_row(job_id, status, url, ended_at), next_attempt_at=db_now())
 
 
@@ -123,16 +127,24 @@ def job_ended(
         return False
 
 
+def _stored_end(job_id: uuid.UUID) -> ColumnElement[datetime]:
+    """The job's ``finished_at`` as its row holds it (the database's clock: the cancel wrote it), read in
+    the statement that uses it; the database's now if the row has none."""
+    finished = select(Job.finished_at).where(Job.id == job_id).scalar_subquery()
+    return func.coalesce(finished, db_now(), type_=Job.finished_at.type)
+
+
 def _record_due(settings: Settings, job_id: uuid.UUID, status: str, url: str) -> None:
     try:
         with session_scope(settings) as session:
-            record_due(session, job_id, status, url, utcnow())
+            record_due(session, job_id, status, url, _stored_end(job_id))
     except Exception as exc:  # published all the same: only a lost message would go unnoticed
         log.warning("webhook of job %s (%s): its outbox row could not be written: %s", job_id, status, exc)
 
 
 def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception) -> None:
-    now = utcnow()
+    """Mark the message's outbox row "not published" (writing it if it is not there), its ``attempted_at``
+    when the broker refused, on the database's clock."""
     error = f"{NOT_PUBLISHED}{type(exc).__name__}; the reconciler publishes it again"
     mid = message_id(job_id, status)
     try:
@@ -141,10 +153,11 @@ def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url:
             marked: CursorResult[Any] = session.execute(  # type: ignore[assignment]
                 update(WebhookDelivery)
                 .where(*outbox, WebhookDelivery.error.is_(None))
-                .values(error=error, attempted_at=now, next_attempt_at=db_now())
+                .values(error=error, attempted_at=db_now(), next_attempt_at=db_now())
             )
             if marked.rowcount == 0:
-                claim(session, **{**outbox_row(job_id, status, url, now), "error": error, "next_attempt_at": db_now()})
+                row = {**outbox_row(job_id, status, url, db_now()), "error": error, "next_attempt_at": db_now()}
+                claim(session, **row)
     except Exception as db_exc:  # the database is down too: nothing left to remember it by
         log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)
 
@@ -164,7 +177,15 @@ def jobs_ended(
     return sent
 
 
-def claim(session: Session, **values: Any) -> int | None:
+class Claimed(NamedTuple):
+    """The row ``claim`` inserted: its id and its ``attempted_at`` as stored (given as ``db_now()``: the
+    database's clock of the insert)."""
+
+    id: int
+    attempted_at: datetime
+
+
+def claim(session: Session, **values: Any) -> Claimed | None:
     """Insert the row of one attempt of a message; None when that attempt already has a row.
 
     The unique index on (message_id, attempt) makes this the one place where two deliveries of
@@ -173,10 +194,11 @@ def claim(session: Session, **values: Any) -> int | None:
     """
     try:
         with session.begin_nested():
-            row_id = session.scalar(insert(WebhookDelivery).values(**values).returning(WebhookDelivery.id))
+            inserted = insert(WebhookDelivery).values(**values)
+            row = session.execute(inserted.returning(WebhookDelivery.id, WebhookDelivery.attempted_at)).one()
     except IntegrityError:
         return None
-    return row_id
+    return Claimed(row.id, row.attempted_at)
 
 
 def finish(session: Session, row_id: int, **values: Any) -> None:

@@ -4,8 +4,11 @@ looks for); and what a push reads of its job.
 
 The due time is written and compared on the database's clock (``services.db.clock``), never a
 process's own: the worker that writes it and the reconciler that sweeps may run on hosts whose clocks
-differ by more than ``SPINE_DICOMWEB_SWEEP_AFTER_S``. The times of an attempt (``attempted_at``,
-``next_attempt_at`` in ``jobs.dicom_stores``) are its worker's, shown on the job.
+differ by more than ``SPINE_DICOMWEB_SWEEP_AFTER_S``. The times of an attempt, shown on the job
+(``attempted_at``, ``next_attempt_at`` in ``jobs.dicom_stores``), are the database's clock too, so that
+they are ordered with the job's times and one another whatever the workers' clocks: ``attempted_at``
+is the database's time read with the job the attempt stores (``store_source``), or when attempt 0 is
+recorded (``record_unpublished``); ``next_attempt_at`` is ``attempted_at`` plus the retry delay.
 """
 
 from __future__ import annotations
@@ -44,14 +47,20 @@ class StoreSource:
 
     forms: JobForms
     finished_at: datetime | None
+    read_at: datetime
+    """The database's clock when the job was read, just before the attempt: its ``attempted_at``."""
 
 
 def store_source(session: Session, job_id: uuid.UUID) -> StoreSource | None:
-    """The job's forms when it succeeded with a result; None otherwise (nothing to store)."""
-    job = session.get(Job, job_id)
-    if job is None or job.status != JobStatus.succeeded.value or job.result is None:
+    """The job's forms when it succeeded with a result, with the database's clock read in the same
+    statement; None otherwise (nothing to store)."""
+    row = session.execute(select(Job, db_now()).where(Job.id == job_id)).first()
+    if row is None:
         return None
-    return StoreSource(forms=job_forms(job), finished_at=job.finished_at)
+    job, now = row
+    if job.status != JobStatus.succeeded.value or job.result is None:
+        return None
+    return StoreSource(forms=job_forms(job), finished_at=job.finished_at, read_at=now)
 
 
 def due_in(delay: timedelta) -> ColumnElement[datetime]:
@@ -69,7 +78,7 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     """Append the attempt to the job (its row locked); the due time is ``sweep_after`` past the next
     attempt (none: cleared), or past now for attempt 0 (the message was not published), counted on the
     database's clock from when the attempt is recorded (the next attempt is published then, with its
-    delay: ``next_attempt_at − attempted_at``, both of the worker's clock)."""
+    delay: ``next_attempt_at − attempted_at``)."""
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
     stores = [*(job.dicom_stores or []), attempt.model_dump(mode="json")]
     if attempt.attempt == 0:
@@ -79,6 +88,15 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     else:
         due = None
     session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
+
+
+def record_unpublished(session: Session, job_id: uuid.UUID, error: str, sweep_after: timedelta) -> DicomStoreAttempt:
+    """Record attempt 0 (the first attempt's message could not be published: ``error``), its
+    ``attempted_at`` the database's clock when it is recorded, and return it."""
+    now = session.execute(select(db_now())).scalar_one()
+    attempt = DicomStoreAttempt(attempt=0, attempted_at=now, ok=False, error=error)
+    record(session, job_id, attempt, sweep_after)
+    return attempt
 
 
 def _next_number(stores: list[dict[str, Any]] | None) -> int:

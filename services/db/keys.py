@@ -19,6 +19,10 @@ signed with the secret of that client's most recent active ``client`` key that h
 (``key_webhook_secret``, which ``services.webhooks.signing.secret_for`` reads). A client whose
 ``client`` keys are all revoked (``client_revoked``) has no signing secret at all: its webhooks are
 not sent, since it may no longer read its jobs.
+
+The times written here are the database's clock (``services.db.clock``), never the writing process's:
+a key's ``created_at`` (which key of a client is the most recent, the one that signs) and ``revoked_at``,
+and an audit row's ``at`` (the order of the actions on a job, whichever API host or CLI wrote them).
 """
 
 from __future__ import annotations
@@ -37,7 +41,8 @@ from sqlalchemy import Table, case, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from services.core.webhook_policy import decode_secret
-from services.db.models import ApiKey, JobAudit, utcnow
+from services.db.clock import db_now
+from services.db.models import ApiKey, JobAudit
 
 Role = Literal["admin", "client"]
 ROLES: tuple[Role, ...] = ("admin", "client")
@@ -109,10 +114,11 @@ def create_key(session: Session, name: str, role: str = "client") -> tuple[ApiKe
             f"its keys and signs their webhooks): choose another name for this {role} key"
         )
     key_id, key = new_key()
-    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), created_at=utcnow(),
-                 webhook_secret=new_webhook_secret())  # fmt: skip
+    # created_at: the database's clock in the INSERT (the model's default), read back after the commit
+    row = ApiKey(id=key_id, name=name, role=role, key_hash=digest(key), webhook_secret=new_webhook_secret())
     session.add(row)
     session.commit()
+    session.refresh(row)
     return row, key
 
 
@@ -136,8 +142,8 @@ def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
     """Revoke the key with this id, or else every active key of the client with this name.
 
     Raises ``NameTaken`` when the name's active keys have both roles (made before names were kept
-    to one role): those are revoked by id."""
-    now = utcnow()
+    to one role): those are revoked by id. ``revoked_at`` is the database's clock (``services.db.clock``),
+    each key as refreshed from its row."""
     by_id = session.get(ApiKey, name_or_id)
     if by_id is not None:
         targets = [by_id] if by_id.revoked_at is None else []
@@ -147,7 +153,7 @@ def revoke(session: Session, name_or_id: str) -> list[ApiKey]:
             ids = ", ".join(f"{k.id} ({k.role})" for k in targets)
             raise NameTaken(f"the name {name_or_id!r} has both admin and client keys: {ids}; revoke them by id")
     if targets:
-        session.execute(update(ApiKey).where(ApiKey.id.in_([k.id for k in targets])).values(revoked_at=now))
+        session.execute(update(ApiKey).where(ApiKey.id.in_([k.id for k in targets])).values(revoked_at=db_now()))
         session.commit()
         for key in targets:
             session.refresh(key)
@@ -217,19 +223,20 @@ def client_revoked(session: Session, owner: str) -> bool:
 
 AuditAction = Literal["create", "read", "list", "cancel"]
 
-_AUDIT = insert(cast(Table, JobAudit.__table__))
+_AUDIT = insert(cast(Table, JobAudit.__table__)).values(at=db_now())
+"""The insert of audit rows, ``at`` the database's clock (``services.db.clock``) in the statement: the
+rows of one job are in the order of the actions whatever the clocks of the API hosts that write them."""
 
 
 def audit(
     session: Session, caller: Caller, action: AuditAction, job_ids: Sequence[uuid.UUID], request_id: str | None
 ) -> None:
-    """Add one audit row per job to the session's transaction (one INSERT statement; the caller commits)."""
+    """Add one audit row per job to the session's transaction (one INSERT statement, ``at`` the database's
+    clock: ``_AUDIT``; the caller commits)."""
     if not job_ids:
         return
-    now = utcnow()
     rows: list[dict[str, Any]] = [
-        {"at": now, "key_id": caller.key_id, "action": action, "job_id": job_id, "request_id": request_id}
-        for job_id in job_ids
+        {"key_id": caller.key_id, "action": action, "job_id": job_id, "request_id": request_id} for job_id in job_ids
     ]
     session.execute(_AUDIT, rows)
 

@@ -38,7 +38,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from services.core.status import JobStatus
 from services.db.clock import db_now
-from services.db.timestamps import UTCDateTime, utcnow
+from services.db.timestamps import UTCDateTime
+from services.db.timestamps import utcnow as utcnow  # re-exported: the process's own clock
 
 NAMING_CONVENTION = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -208,8 +209,12 @@ class ApiKey(Base):
     name: Mapped[str] = mapped_column(String(64), nullable=False)
     role: Mapped[str] = mapped_column(String(8), nullable=False)
     key_hash: Mapped[str] = mapped_column(String(64), nullable=False)
-    created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=utcnow)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False, default=db_now())
+    """When the key was made, on the database's clock (``services.db.clock``): a client's most recent key
+    signs its webhooks (``services.db.keys.key_webhook_secret``), so keys made on hosts whose clocks
+    differ are ordered as they were made."""
     revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    """When the key was revoked, on the database's clock (``services.db.keys.revoke``); NULL: active."""
     webhook_secret: Mapped[str | None] = mapped_column(String(64), nullable=True)
 
     __table_args__ = (
@@ -226,6 +231,8 @@ class JobAudit(Base):
     id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer(), "sqlite"), primary_key=True,
                                     autoincrement=True)  # fmt: skip
     at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    """When, on the database's clock (``services.db.keys.audit``): the rows of one job are in the order of
+    the actions whichever API host's clock wrote them."""
     key_id: Mapped[str] = mapped_column(String(16), nullable=False)
     action: Mapped[str] = mapped_column(String(8), nullable=False)
     job_id: Mapped[uuid.UUID] = mapped_column(Uuid, nullable=False)
@@ -250,6 +257,8 @@ class WebhookDelivery(Base):
     attempt: Mapped[int] = mapped_column(Integer, nullable=False)
     url: Mapped[str] = mapped_column(String(2048), nullable=False)
     attempted_at: Mapped[datetime] = mapped_column(UTCDateTime, nullable=False)
+    """When the attempt was claimed, on the database's clock (``services.worker.webhook_tasks.deliver_once``);
+    the outbox row's (attempt 0): the job's ``finished_at``, or when the broker refused the message."""
     status_code: Mapped[int | None] = mapped_column(Integer, nullable=True)
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     duration_ms: Mapped[float | None] = mapped_column(Float, nullable=True)

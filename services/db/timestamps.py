@@ -34,5 +34,5 @@ class UTCDateTime(TypeDecorator[datetime]):
 
 def utcnow() -> datetime:
     """This process's own clock (UTC): for the times only this process compares or shows, never for
-    a time another process compares (``services.db.clock``)."""
+    a time the database stores (``services.db.clock.db_now``)."""
     return datetime.now(UTC)

@@ -11,7 +11,8 @@ derive from the job, so a repeated attempt stores the same instances again (PACS
 them; none is duplicated).
 
 The due time the reconciler's sweep looks for (``jobs.dicom_store_due_at``) is written and compared on
-the database's clock (``services.db.dicom_stores``), never this process's own.
+the database's clock (``services.db.dicom_stores``), never this process's own; so are the times of an
+attempt shown on the job (``attempted_at``, ``next_attempt_at``).
 
 A retry's countdown becomes an absolute ETA on the publishing worker's clock, which the consuming worker
 compares with its own: a consumer whose clock is ahead receives the retry early by the difference. So a
@@ -38,7 +39,6 @@ from services.core.retry import TRANSIENT
 from services.db import dicom_stores
 from services.db.dicom_stores import DicomStoreAttempt
 from services.db.engine import session_scope
-from services.db.models import utcnow
 from services.dicom.errors import DicomwebError
 from services.dicom.results import store_job_results
 from spine_client.dicom.errors import DicomError
@@ -71,8 +71,8 @@ def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None =
     except Exception as exc:
         log.warning("could not publish the STOW-RS of job %s: %s", job_id, exc)
         try:
-            _record(settings, job_id, DicomStoreAttempt(attempt=0, attempted_at=utcnow(), ok=False,
-                                                        error=f"not published: {type(exc).__name__}"))  # fmt: skip
+            with session_scope(settings) as session:  # attempt 0, at the database's clock
+                dicom_stores.record_unpublished(session, job_id, f"not published: {type(exc).__name__}", sweep_after)
         except Exception as db_exc:
             log.error("STOW-RS of job %s neither published nor recorded: %s", job_id, db_exc)
         return False
@@ -126,7 +126,7 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
     if source is None or config is None:
         raise LookupError(f"job {job_id} has no result to store (or no SPINE_DICOMWEB_URL)")
     started = time.perf_counter()
-    outcome = DicomStoreAttempt(attempt=attempt, attempted_at=utcnow(), ok=False)
+    outcome = DicomStoreAttempt(attempt=attempt, attempted_at=source.read_at, ok=False)  # the database's clock
     try:
         outcome.stored = store_job_results(config, job_id, source.forms, source.finished_at)
         outcome.ok = True

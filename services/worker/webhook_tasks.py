@@ -13,7 +13,8 @@ off leaves its attempt's row in flight (or only the outbox row), which the sweep
 
 Every due time (``next_attempt_at``) is written and compared on the database's clock
 (``services.db.clock``): the worker that writes it and the reconciler that sweeps may run on hosts
-whose clocks differ by more than ``SPINE_WEBHOOK_SWEEP_AFTER_S``.
+whose clocks differ by more than ``SPINE_WEBHOOK_SWEEP_AFTER_S``. So is an attempt's ``attempted_at``
+(the claim's), which is only shown: ordered with the job's times whatever this worker's clock.
 
 A retry's message carries a countdown, which Celery turns into an absolute ETA on the publishing
 worker's clock and the consuming worker compares with its own: a consumer whose clock is ahead of the
@@ -39,9 +40,9 @@ from services.core.jobqueue import DELIVER_WEBHOOK, HARD_LIMIT_GRACE_S, publish_
 from services.core.retry import TRANSIENT, write_retry
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
 from services.db import deliveries
-from services.db.clock import db_now_plus_s
+from services.db.clock import db_now, db_now_plus_s
 from services.db.engine import session_scope
-from services.db.models import WebhookDelivery, utcnow
+from services.db.models import WebhookDelivery
 from services.webhooks.delivery import post, retry_delay, webhook_body
 from services.webhooks.signing import secret_for, signed_headers
 
@@ -112,27 +113,30 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
     The attempt's row is claimed before the request (``deliveries.claim``): a second delivery of the
     same attempt finds it and does nothing. Until the outcome is written, the row's
     ``next_attempt_at`` is the request's deadline (``SPINE_WEBHOOK_TIMEOUT_S`` after the claim, on the
-    database's clock: never before the deadline ``post`` holds, counted from ``attempted_at`` before the
-    claim), so a worker that dies mid-request leaves a row the reconciler's ``sweep`` picks up.
+    database's clock: never before the deadline ``post`` holds, counted on this process's monotonic clock
+    from before the claim), so a worker that dies mid-request leaves a row the reconciler's ``sweep``
+    picks up. The row's ``attempted_at`` is the database's clock of the claim (``db_now()`` in the insert,
+    the clock of its deadline), returned by it.
     """
     if not 1 <= attempt <= settings.webhook_max_attempts:
         log.warning("dropping attempt %d of the webhook of job %s (%s): SPINE_WEBHOOK_MAX_ATTEMPTS is %d",
                     attempt, job_id, status, settings.webhook_max_attempts)  # fmt: skip
         return None
     mid = deliveries.message_id(job_id, status)
-    attempted_at = utcnow()
+    started = time.monotonic()  # the request's deadline is counted from here: a duration on this process's clock
     with session_scope(settings) as session:
         job = deliveries.delivery_job(session, job_id)
         if job is None or deliveries.delivered(session, mid):
             return None
         url = job.callback_url
-        row_id = deliveries.claim(
+        claimed = deliveries.claim(
             session, job_id=job_id, message_id=mid, event=f"job.{status}", attempt=attempt, url=url,
-            attempted_at=attempted_at, next_attempt_at=db_now_plus_s(settings.webhook_timeout_s),
+            attempted_at=db_now(), next_attempt_at=db_now_plus_s(settings.webhook_timeout_s),
         )  # fmt: skip
-        if row_id is None:  # published twice (a repeated cancel, a sweep, a redelivery)
+        if claimed is None:  # published twice (a repeated cancel, a sweep, a redelivery)
             return None
-        deliveries.settle_earlier(session, mid, attempt, attempted_at)
+        row_id = claimed.id
+        deliveries.settle_earlier(session, mid, attempt, claimed.attempted_at)
         body = webhook_body(job.data, status, job.finished_at)
         key = secret_for(session, job.owner, settings)
     try:
@@ -145,7 +149,8 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         _finish(settings, row_id, error=f"not sent: {refused}")
         return None
     assert key is not None
-    spent = (utcnow() - attempted_at).total_seconds()  # the deadline claimed above holds for the request too
+    spent = time.monotonic() - started  # the deadline claimed above holds for the request too
+    # the signature's timestamp stays this process's clock: never stored, the receiver checks it against its own
     sent = post(url, body, signed_headers(key, mid, int(time.time()), body), settings.webhook_timeout_s, spent_s=spent)
     if sent.accepted:
         _finish(settings, row_id, status_code=sent.status_code, duration_ms=sent.duration_ms)

@@ -51,7 +51,6 @@ UNREACHABLE = "http://127.0.0.1:9/hooks/due-clock"
 """A callback_url that the sweep publishes for; no test makes its request."""
 
 
-
 @pytest.fixture(params=["sqlite", "postgresql"])
 def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     stow = "http://127.0.0.1:9/dicom-web"  # a PACS that no test reaches: the STOW-RS messages are only queued
@@ -334,7 +333,7 @@ def test_a_failed_stow_attempt_recorded_by_a_worker_whose_clock_is_behind_is_not
     publish it too."""
     job_id = queued_job(settings)
     clock.offset = -SKEW
-    attempted_at = dicom_tasks.utcnow()
+    attempted_at = clock()  # the attempt's times on a clock an hour behind (store_once now reads the database's)
     next_at = attempted_at + timedelta(seconds=dicom_tasks.retry_delay_s(settings, 1))
     failed = DicomStoreAttempt(
         attempt=1, attempted_at=attempted_at, ok=False, problem_type="dicomweb-unavailable", next_attempt_at=next_at
