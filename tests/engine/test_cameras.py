@@ -18,7 +18,7 @@ from benches.perf import placeholder_parameters, synthetic_spine
 from benches.truth import read_verse
 from spine_engine.anatomy import load_profile
 from spine_engine.fit import Camera, Pose, PosePrior, RegistrationProblem, ViewData, solve
-from spine_engine.fit.cameras import project
+from spine_engine.fit.cameras import landmark_rows_kernel, project
 from spine_engine.projection import image_axes
 from spine_engine.reconstruction import BEAMS, mid_plane_offset
 from spine_engine.rotations import exp_so3
@@ -60,6 +60,34 @@ def test_camera_derivatives_match_central_differences(k: int) -> None:
         fd = (project(camera, camera.values + d, r, e_c, e_r).points
               - project(camera, camera.values - d, r, e_c, e_r).points) / (2 * d[p])  # fmt: skip
         np.testing.assert_allclose(out.d_params[:, :, p], fd, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_landmark_rows_kernel_writes_the_projection_scaled_bit_for_bit(k: int) -> None:
+    """The problem's landmark rows (``landmark_rows_kernel``) are c·(p − p̂), c·∂p/∂r and c·∂p/∂π of the
+    estimated parameters, exactly as computed from ``project`` (the same floating-point operations:
+    equality, not a tolerance), written from their start row and columns only."""
+    camera, (e_c, e_r) = _cameras()[k]
+    r = RNG.normal(0.0, 80.0, (N, 3)) + np.array([0.0, 0.0, -200.0])
+    idx = np.array([0, 2, 3, 7, 16], dtype=np.intp)
+    observed = RNG.normal(0.0, 100.0, (len(idx), 2))
+    c, start = 0.37, 3
+    free = np.flatnonzero(camera.free)
+    border = np.arange(len(free)) + 1
+    beam = camera.beam_direction(e_c, e_r) if camera.kind == "perspective" else np.zeros(3)
+    sid, sod = (camera.sid_mm, camera.sod_mm) if camera.kind == "perspective" else (1.0, 1.0)
+    rho, Jv, Jb = np.full(20, -7.0), np.full((20, 6), -7.0), np.full((20, len(free) + 2), -7.0)
+    landmark_rows_kernel(r, idx, observed, c, np.array((e_c, e_r), dtype=float), camera.values, beam, float(sid),
+                         float(sod), camera.kind == "perspective", free, border, rho, Jv, Jb, start)  # fmt: skip
+    pr = project(camera, camera.values, r[idx], e_c, e_r, beam if camera.kind == "perspective" else None)
+    rows = slice(start, start + 2 * len(idx))
+    assert np.array_equal(rho[rows], (c * (pr.points - observed)).ravel())
+    assert np.array_equal(Jv[rows, :3], (c * pr.d_r).reshape(-1, 3))
+    assert np.array_equal(Jb[rows][:, border], (c * pr.d_params[:, :, camera.free]).reshape(2 * len(idx), -1))
+    untouched = np.ones(20, dtype=bool)
+    untouched[rows] = False
+    assert (rho[untouched] == -7.0).all() and (Jv[untouched] == -7.0).all() and (Jv[rows, 3:] == -7.0).all()
+    assert (Jb[untouched] == -7.0).all() and (Jb[rows][:, [0, len(free) + 1]] == -7.0).all()
 
 
 def test_perspective_is_the_pinhole() -> None:

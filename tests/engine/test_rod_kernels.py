@@ -124,6 +124,19 @@ def test_jr_inv_coefficients_on_both_sides_of_the_taylor_switch():
     np.testing.assert_allclose(jr_inverse(phi), right_jacobian_inv(phi), rtol=1e-12, atol=1e-14)
 
 
+def test_jr_inverse_kernel_is_the_array_formula_bit_for_bit():
+    """``jr_inverse``'s compiled kernel against the stacked formula it replaced, (1 − dθ²)I + d φφᵀ +
+    ½ hat(φ) with d from ``jr_inv_coefficients``: equal, not close (the same operations), on both sides
+    of the Taylor switch."""
+    rng = np.random.default_rng(5)
+    phi = np.concatenate([rng.normal(0.0, 0.03, (40, 3)), rng.normal(0.0, 0.9, (40, 3))])
+    theta2 = np.einsum("ij,ij->i", phi, phi)
+    d, _ = jr_inv_coefficients(theta2)
+    S = d[:, None, None] * (phi[:, :, None] * phi[:, None, :])
+    S.reshape(-1, 9)[:, ::4] += (1.0 - d * theta2)[:, None]
+    assert np.array_equal(jr_inverse(phi), S + hat(0.5 * phi))
+
+
 @pytest.mark.parametrize("second_order", [False, True])
 def test_normal_blocks_are_the_upper_products_of_the_local_jacobian(second_order):
     rod, cache, res = _random_rod(11, 0.2)
