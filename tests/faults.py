@@ -33,11 +33,11 @@ import threading
 import time
 import uuid
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import pytest
@@ -461,3 +461,25 @@ def db_clock(settings: Settings) -> datetime:
         now = session.scalar(select(db_now()))
     assert now is not None
     return now
+
+
+Window = tuple[datetime, datetime]
+"""The database's clock just before and just after an action (``on_db_clock``)."""
+_T = TypeVar("_T")
+
+
+def on_db_clock(settings: Settings, clock: SkewedClock, offset: timedelta, act: Callable[[], _T]) -> tuple[_T, Window]:
+    """``act()`` run by a process whose clock is ``offset`` from the host's; its outcome, and the database's
+    clock just before and just after it."""
+    before = db_clock(settings)
+    clock.offset = offset
+    try:
+        outcome = act()
+    finally:
+        clock.offset = timedelta(0)
+    return outcome, (before, db_clock(settings))
+
+
+def assert_within(value: datetime | None, window: Window, what: str) -> None:
+    """``value`` (a time the database stored) lies in ``window`` (``on_db_clock``)."""
+    assert value is not None and window[0] <= value <= window[1], f"{what} {value} is not within {window}"

@@ -14,9 +14,8 @@ the host's clock read by SQLite, to the millisecond, so the bounds hold exactly)
 from __future__ import annotations
 
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from datetime import datetime, timedelta
-from typing import TypeVar
 
 import pytest
 from sqlalchemy import select
@@ -27,7 +26,7 @@ from services.db import jobs, runs
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job, WebhookDelivery
 from tests.conftest import queued_job, spine_payload
-from tests.faults import SkewedClock, db_clock, wait_until
+from tests.faults import SkewedClock, assert_within, db_clock, on_db_clock, wait_until
 
 SKEW = timedelta(hours=1)
 """How far a skewed process's clock is from the host's: far more than any job's run here (seconds)."""
@@ -39,9 +38,6 @@ other helpers' load, as in tests/db/test_lease_clock.py (the wait ends as soon a
 LOST = {"type": "https://spine.example/problems/worker-lost", "title": "lost", "status": 500, "detail": "x"}
 UNREACHABLE = "http://127.0.0.1:9/hooks/job-times"
 """A callback_url whose outbox row is written; no test publishes or sends its webhook."""
-
-T = TypeVar("T")
-Window = tuple[datetime, datetime]
 
 
 @pytest.fixture
@@ -57,26 +53,10 @@ def clock(monkeypatch: pytest.MonkeyPatch) -> Iterator[SkewedClock]:
     yield skewed
 
 
-def on_db_clock(settings: Settings, clock: SkewedClock, offset: timedelta, act: Callable[[], T]) -> tuple[T, Window]:
-    """``act()`` run by a process whose clock is ``offset`` from the host's; its outcome, and the database's
-    clock just before and just after it."""
-    before = db_clock(settings)
-    clock.offset = offset
-    try:
-        outcome = act()
-    finally:
-        clock.offset = timedelta(0)
-    return outcome, (before, db_clock(settings))
-
-
 def times(settings: Settings, job_id: uuid.UUID) -> tuple[datetime, datetime | None, datetime | None]:
     with session_scope(settings) as session:
         row = session.execute(select(Job.created_at, Job.started_at, Job.finished_at).where(Job.id == job_id)).one()
     return row.created_at, row.started_at, row.finished_at
-
-
-def assert_within(value: datetime | None, window: Window, what: str) -> None:
-    assert value is not None and window[0] <= value <= window[1], f"{what} {value} is not within {window}"
 
 
 def claim(settings: Settings, job_id: uuid.UUID, lease: timedelta = LEASE) -> runs.Claim:

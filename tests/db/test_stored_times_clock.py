@@ -23,7 +23,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from datetime import datetime, timedelta
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
 from sqlalchemy import select
@@ -39,7 +39,7 @@ from services.db.models import ApiKey, Job, JobAudit, WebhookDelivery
 from services.worker import dicom_tasks, webhook_tasks
 from services.worker.tasks import execute_job
 from tests.conftest import spine_payload
-from tests.faults import SkewedClock, db_clock, free_port
+from tests.faults import SkewedClock, assert_within, free_port, on_db_clock
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver
 
 SKEW = timedelta(hours=1)
@@ -47,9 +47,6 @@ SKEW = timedelta(hours=1)
 HOOK = "/hooks/stored-times"
 REFUSED_BROKER = "redis://127.0.0.1:1/0"
 """A broker that refuses every connection (port 1): a message published there is "not published"."""
-
-T = TypeVar("T")
-Window = tuple[datetime, datetime]
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -80,22 +77,6 @@ def receiver() -> Iterator[Receiver]:
     made = Receiver()
     yield made
     made.close()
-
-
-def on_db_clock(settings: Settings, clock: SkewedClock, offset: timedelta, act: Callable[[], T]) -> tuple[T, Window]:
-    """``act()`` run by a process whose clock is ``offset`` from the host's; its outcome, and the database's
-    clock just before and just after it."""
-    before = db_clock(settings)
-    clock.offset = offset
-    try:
-        outcome = act()
-    finally:
-        clock.offset = timedelta(0)
-    return outcome, (before, db_clock(settings))
-
-
-def assert_within(value: datetime | None, window: Window, what: str) -> None:
-    assert value is not None and window[0] <= value <= window[1], f"{what} {value} is not within {window}"
 
 
 # ------------------------------------------------------------------ API keys and the audit trail
