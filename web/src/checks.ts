@@ -153,10 +153,11 @@ interface Placed {
 
 /**
  * The problems of the landmarks of one film: each set of four corners on its own, then each pair
- * of consecutive placed levels (out of order down the spine; bodies overlapping by more than
+ * of consecutive placed levels (out of order down the spine, judged only on an `upright` film, its rows
+ * toward H or F, as the service judges it: validation.py `_order_errors`; bodies overlapping by more than
  * OVERLAP_TOLERANCE of the smaller one's height).
  */
-export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[]; pedicles?: Vec2[] }>, rowsTowardHead = false): MarkProblem[] {
+export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[]; pedicles?: Vec2[] }>, rowsTowardHead = false, upright = true): MarkProblem[] {
   const down = rowsTowardHead ? -1 : 1;
   const out: MarkProblem[] = [];
   const placed: Placed[] = [];
@@ -173,7 +174,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
   for (let i = 1; i < placed.length; i++) {
     const upper = placed[i - 1];
     const lower = placed[i];
-    if ((lower.top[1] - upper.top[1]) * down <= 0) {
+    if (upright && (lower.top[1] - upper.top[1]) * down <= 0) {
       out.push({ level: lower.level, text: `it is placed above ${upper.level} (levels go down the spine in order: was a level skipped or repeated?)`, short: `above ${upper.level}` });
       continue;
     }
@@ -340,3 +341,91 @@ export const GEOMETRY_FIELD_WORDS: Record<GeometryField, string> = {
   image_size: "image size (its centre taken as the central ray; Columns (0028,0011) × Rows (0028,0010))",
   central_ray: "central ray",
 };
+
+// ---------------------------------------------------------------- patient orientation
+
+/** The patient directions of Patient Orientation (0020,0020), DICOM PS3.3 C.7.6.1.1.1, in words. */
+export const DIRECTION_WORDS: Record<string, string> = { L: "left side", R: "right side", A: "front, anterior", P: "back, posterior", H: "head", F: "feet" };
+/** The orientation controls' labels: Patient Orientation's first value is the direction toward the image's
+ * right (along a row), its second toward the image's bottom (down a column), PS3.3 C.7.6.1.1.1. */
+export const ORIENTATION_LABELS = ["Toward the image's right: the patient's", "Toward the image's bottom: the patient's"] as const;
+/** The patient's three axes (PS3.3 C.7.6.1.1.1: L/R, A/P, H/F), as spine_engine/models.py `_View._orientation` pairs them. */
+const AXIS: Record<string, number> = { L: 0, R: 0, A: 1, P: 1, H: 2, F: 2 };
+const AXIS_WORDS = ["left–right", "front–back", "head–feet"];
+/** spine_engine/validation.py `_UPRIGHT_ROWS`, `_FRONTAL_COLUMNS`, `_DEPTH_AXES`. */
+const UPRIGHT_ROWS = ["H", "F"];
+const FRONTAL_COLUMNS = ["L", "R"];
+const DEPTH_AXES = ["A", "P"];
+
+export type OrientationRule = "value_error" | "orientation_not_of_view" | "corners_need_upright_view" | "pedicles_not_supported";
+
+export interface OrientationProblem {
+  /** The service's error type (its FieldError): value_error is models.py's "not orthogonal". */
+  type: OrientationRule;
+  /** The levels whose corners or pedicles the orientation refuses (the service names each landmark); [] for the others. */
+  levels: Level[];
+  /** Plain words for the clinician: what is wrong and what to choose at the orientation controls. */
+  text: string;
+  /** The service's own message, with its Python quotes and list taken away ("got A, F"), once per problem. */
+  service: string;
+}
+
+const dir = (d: string): string => `${d} (${DIRECTION_WORDS[d] ?? "?"})`;
+const levelList = (levels: Level[]): string => (levels.length === 1 ? levels[0] : `${levels.slice(0, -1).join(", ")} and ${levels[levels.length - 1]}`);
+
+/**
+ * What the service refuses in a view's patient orientation [column, row] (the direction toward the image's
+ * right, then toward its bottom), by its rules: models.py `_View._orientation` refuses two values on one
+ * axis of the patient (L/R, A/P, H/F; then nothing else of the payload is judged, as pydantic stops there);
+ * validation.py `_plane_errors` (orientation_not_of_view) refuses a PA (frontal, x–z) view with a direction
+ * A or P and a lateral (sagittal, y–z) one with L or R, so a PA turned in its plane (["F", "L"]) or an AP
+ * (["R", "F"]) stays frontal; `_landmark_form_errors` refuses four corners unless the rows run toward H or F
+ * (corners_need_upright_view) and pedicles on the PA view unless its columns run toward L or R
+ * (pedicles_not_supported; the page places pedicles on the PA film only). Empty when the service accepts it.
+ */
+export function orientationProblems(view: "pa" | "lateral", orientation: readonly [string, string], landmarks: readonly Landmark[]): OrientationProblem[] {
+  const [column, row] = orientation;
+  const film = view === "pa" ? "PA" : "lateral";
+  const axes = view === "pa" ? "left–right (L or R) and head–feet (H or F)" : "front–back (A or P) and head–feet (H or F)";
+  if (AXIS[column] === undefined || AXIS[row] === undefined) return []; // the controls offer L, R, A, P, H, F only
+  if (AXIS[column] === AXIS[row]) {
+    return [{
+      type: "value_error", levels: [],
+      text: `toward the image's right and toward its bottom are both the patient's ${AXIS_WORDS[AXIS[column]]} axis (${column === row ? `${column} twice` : `${column} and ${row}`}): the two must be two different axes of the patient; a ${film} film's are ${axes}`,
+      service: `column and row directions ${column}, ${row} are not orthogonal`,
+    }];
+  }
+  const out: OrientationProblem[] = [];
+  const excluded = view === "pa" ? DEPTH_AXES : FRONTAL_COLUMNS;
+  if (excluded.includes(column) || excluded.includes(row)) {
+    const plane = view === "pa" ? "frontal (x, z)" : "sagittal (y, z)";
+    const shows = view === "pa"
+      ? "a PA film is a frontal film: it shows the patient's left–right and head–feet, not front–back, so neither direction can be A (front) or P (back); so labelled it would show no left–right position of the spine (every frontal Cobb angle the model's guess)"
+      : "a lateral film is a side view: it shows the patient's front–back and head–feet, not left–right, so neither direction can be L (left) or R (right); so labelled it would show no depth (kyphosis and lordosis read from a frontal film)";
+    const [other, tab] = view === "pa" ? ["lateral", "Lateral film"] : ["PA", "PA film"];
+    out.push({
+      type: "orientation_not_of_view", levels: [],
+      text: `${shows}. If this is the ${other} film, open it in the “${tab}” tab instead; otherwise choose ${axes} here`,
+      service: `the ${view} view is a ${plane} film, so neither its column nor its row direction can be ${excluded.join(" or ")}; got ${column}, ${row}: check which film is which and its orientation`,
+    });
+  }
+  const cornered = landmarks.filter((lm) => lm.corners).map((lm) => lm.level);
+  if (cornered.length && !UPRIGHT_ROWS.includes(row)) {
+    out.push({
+      type: "corners_need_upright_view", levels: cornered,
+      text: `the four corners of ${levelList(cornered)} need an upright film, its bottom toward the patient's head or feet (corners are named top-left to bottom-right as they appear on an upright film), not ${dir(row)}: choose H (head) or F (feet) for “${ORIENTATION_LABELS[1]}”, or place ${cornered.length === 1 ? "that level" : "those levels"} as endplate midpoints`,
+      service: `corners need an upright image (row direction H or F), got patient orientation ${column}, ${row}`,
+    });
+  }
+  const pedicled = landmarks.filter((lm) => lm.pedicles).map((lm) => lm.level);
+  if (pedicled.length && (view !== "pa" || !FRONTAL_COLUMNS.includes(column))) {
+    out.push({
+      type: "pedicles_not_supported", levels: pedicled,
+      text: view === "pa"
+        ? `the pedicles of ${levelList(pedicled)} are read side by side across the film, so its right must be toward the patient's left or right, not ${dir(column)}: choose L (left side) or R (right side) for “${ORIENTATION_LABELS[0]}”, or delete those pedicles`
+        : `the pedicles of ${levelList(pedicled)} are taken on the PA film only: delete them from the lateral film`,
+      service: "pedicles are supported on the PA view only, with columns toward the patient's L or R",
+    });
+  }
+  return out;
+}

@@ -94,6 +94,9 @@ export class FilmEditor {
   finished = false;
   /** The film's rows run toward the patient's head (orientation [_, "H"]): "down the spine" is −row. */
   rowsTowardHead = false;
+  /** The film's rows run toward the head or the feet (orientation [_, "H" or "F"]): the levels' order down the
+   * spine is judged only then, as the service judges it (a film turned in its plane runs along its rows). */
+  upright = true;
   /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
   blankNote: string | null = null;
   /** Levels the service refused (its 422 named their landmarks), each with its mark as it was then: ringed
@@ -305,7 +308,7 @@ export class FilmEditor {
 
   /** What is wrong with the complete marks (crossed or non-convex corners, order, overlaps). */
   problems(): MarkProblem[] {
-    return filmProblems(this.marks, this.rowsTowardHead);
+    return filmProblems(this.marks, this.rowsTowardHead, this.upright);
   }
 
   private snapshot(): Snapshot {

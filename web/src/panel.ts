@@ -2,17 +2,14 @@
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
 import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
+import { DIRECTION_WORDS, ORIENTATION_LABELS, orientationProblems, type OrientationProblem } from "./checks";
 import { FilmEditor, type EditorState, type Mark, type Mode, type OuterEdit } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
 export type ViewName = "pa" | "lateral";
 const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "Lateral film" };
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
-/** The patient directions of Patient Orientation (0020,0020), DICOM PS3.3 C.7.6.1.1.1, in words. */
-export const DIRECTION_WORDS: Record<string, string> = { L: "left side", R: "right side", A: "front, anterior", P: "back, posterior", H: "head", F: "feet" };
-/** The orientation controls' labels: Patient Orientation's first value is the direction toward the image's
- * right (along a row), its second toward the image's bottom (down a column), PS3.3 C.7.6.1.1.1. */
-export const ORIENTATION_LABELS = ["Toward the image's right: the patient's", "Toward the image's bottom: the patient's"] as const;
+export { DIRECTION_WORDS, ORIENTATION_LABELS };
 /** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
 const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
 /** View Position (0018,5101) defined terms, PS3.3 §C.8.11.5.1.1: frontal and lateral projections. */
@@ -76,6 +73,10 @@ export class FilmPanel {
   private readonly orient: [HTMLSelectElement, HTMLSelectElement];
   private readonly orientHelp: HTMLElement;
   private readonly orientError: HTMLElement;
+  /** What the service would refuse in the orientation, found before sending (checks.ts orientationProblems). */
+  private readonly orientCheck: HTMLElement;
+  /** The service's refusal of the orientation sent, in words, while it stands; null: none. */
+  private refusal: string | null = null;
   /** The orientation chosen on the page (the controls), over the header's or the reopened job's; null: not chosen. */
   private chosen: [string, string] | null = null;
   /** Said in the status until the next change of the landmarks: landmarks dropped with the film they were
@@ -149,10 +150,12 @@ export class FilmPanel {
     this.orientHelp = el("p", { id: id("orientation-help"), class: "help" });
     this.orientError = el("p", { id: id("orientation-error"), class: "error", role: "alert" });
     this.orientError.hidden = true;
+    this.orientCheck = el("p", { id: id("orientation-check"), class: "error", "aria-live": "polite" });
+    this.orientCheck.hidden = true;
     const orientation = el("fieldset", { id: id("orientation"), class: "orientation" });
     orientation.append(el("legend", {}, "Orientation (DICOM Patient Orientation)"),
       labelled(id("orientation-column"), ORIENTATION_LABELS[0], this.orient[0]),
-      labelled(id("orientation-row"), ORIENTATION_LABELS[1], this.orient[1]), this.orientHelp, this.orientError);
+      labelled(id("orientation-row"), ORIENTATION_LABELS[1], this.orient[1]), this.orientHelp, this.orientCheck, this.orientError);
 
     const modes = el("fieldset", { class: "modes" });
     modes.append(el("legend", {}, "Click mode"));
@@ -485,11 +488,29 @@ export class FilmPanel {
 
   /** The service's refusal of this film's orientation, in words, at its controls (null takes it away). */
   refuseOrientation(words: string | null): void {
+    this.refusal = words;
     this.orientError.hidden = !words;
     this.orientError.textContent = words ?? "";
+    this.markOrientation();
+  }
+
+  /** What the service would refuse in this film's orientation with its landmarks (checks.ts
+   * `orientationProblems`, the service's rules), found before sending. */
+  orientationProblems(): OrientationProblem[] {
+    return this.hasFilm() ? orientationProblems(this.view, this.orientation(), this.editor.landmarks()) : [];
+  }
+
+  /** The orientation controls marked invalid (`aria-invalid`, the words in their description) while the page's
+   * check or the service's refusal stands; the check's words under them. */
+  private markOrientation(): void {
+    const found = this.orientationProblems();
+    const words = found.map((p) => `${p.text.charAt(0).toUpperCase()}${p.text.slice(1)}.`).join(" ");
+    this.orientCheck.hidden = !found.length;
+    this.orientCheck.textContent = found.length ? `The service refuses this orientation: ${words} (Its words: ${found.map((p) => p.service).join("; ")}.)` : "";
+    const described = [`${this.view}-orientation-help`, ...(found.length ? [`${this.view}-orientation-check`] : []), ...(this.refusal ? [`${this.view}-orientation-error`] : [])];
     for (const select of this.orient) {
-      select.setAttribute("aria-describedby", `${this.view}-orientation-help${words ? ` ${this.view}-orientation-error` : ""}`);
-      if (words) select.setAttribute("aria-invalid", "true");
+      select.setAttribute("aria-describedby", described.join(" "));
+      if (found.length || this.refusal) select.setAttribute("aria-invalid", "true");
       else select.removeAttribute("aria-invalid");
     }
   }
@@ -631,8 +652,12 @@ export class FilmPanel {
       out.push(`Enter the pixel spacing of the ${name} film (mm per pixel, between 0.001 and 10): ${this.dicom ? "its header gives none" : "a PNG or JPEG does not carry it"}, and it is never guessed.`);
     }
     out.push(...this.editor.incomplete().map((s) => `${name} film, ${s}: finish or delete it.`));
-    this.editor.rowsTowardHead = this.orientation()[1] === "H";
+    this.syncOrientation();
     out.push(...this.editor.problems().map((p) => `${name} film, ${p.level}: ${p.text} (drawn in red): move its points, or undo.`));
+    // Said at the controls whenever a film is open; listed here when the view is sent (it has landmarks).
+    for (const p of n ? this.orientationProblems() : []) {
+      out.push(`${name === "PA" ? "PA" : "Lateral"} film, orientation (under the film, DICOM Patient Orientation): ${p.text}. The service refuses it: ${p.service}.`);
+    }
     return out;
   }
 
@@ -661,8 +686,18 @@ export class FilmPanel {
     this.editor.draw();
   }
 
+  /** The editor's order check follows the orientation: down the spine is +row, or −row when the rows run toward
+   * the head, and judged only when the rows run toward the head or the feet (validation.py `_order_errors`). */
+  private syncOrientation(): void {
+    const row = this.orientation()[1];
+    this.editor.rowsTowardHead = row === "H";
+    this.editor.upright = row === "H" || row === "F";
+  }
+
   update(): void {
     const o = this.orientation();
+    this.syncOrientation();
+    this.markOrientation();
     [this.orient[0].value, this.orient[1].value] = o;
     this.orientHelp.textContent = `Sent as ${o.join(", ")}: the patient's ${o.map((d) => `${d} (${DIRECTION_WORDS[d] ?? "?"})`).join(" toward the image's right, ")} toward its bottom${this.chosen ? " (set here)" : this.dicom?.orientation ? " (from the header)" : ""}. Change it when the film is displayed mirrored or turned: the landmarks stay where they are.`;
     const ed = this.editor;
