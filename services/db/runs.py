@@ -63,7 +63,11 @@ class Claim:
 _JOBS = cast(Table, Job.__table__)
 _CLAIM = (
     update(_JOBS)
-    .where(_JOBS.c.id == bindparam("job_id"), _JOBS.c.status == JobStatus.queued.value)
+    .where(
+        _JOBS.c.id == bindparam("job_id"),
+        _JOBS.c.status == JobStatus.queued.value,
+        or_(_JOBS.c.enqueued_at.is_(None), _JOBS.c.enqueued_at <= db_now()),
+    )
     .values(
         status=JobStatus.running.value,
         started_at=db_now(),
@@ -179,7 +183,8 @@ def claim_job(
 ) -> Claim | None:
     """queued → running, attempts + 1, leased for ``lease`` from the database's clock
     (``services.db.clock``), ``started_at`` that clock too (the clock of ``created_at``); None when the
-    job is not queued (duplicate, cancelled…).
+    job is not queued (duplicate, cancelled…) or not due yet: ``enqueued_at`` after the database's
+    clock, a run handed back until then (``release_claim``; ``due_in_s`` says how long).
 
     One statement. The worker runs it on ``services.db.engine.worker_connection(settings,
     durable=False)``: on PostgreSQL that commits without waiting for the disk; if the server
@@ -286,8 +291,8 @@ def reconcile(
     A running job is stranded when its lease expired (its worker stopped renewing it:
     ``lease_expires_at`` before the database's clock, ``services.db.clock``, as every lease is
     written; every claim sets a lease). A queued job is stranded when it was last enqueued
-    (``enqueued_at``, written and compared on the database's clock too) more than ``queued_timeout``
-    ago or is marked unpublished; with
+    (``enqueued_at``, written and compared on the database's clock too; for a released run, when it is
+    due again: ``release_claim``) more than ``queued_timeout`` ago or is marked unpublished; with
     ``republish_queued`` set, only that many of the oldest such jobs are taken (the broker is
     missing about that many messages), and ``queued_timeout`` zero takes every queued job
     (the broker lost its messages).
@@ -373,17 +378,36 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
     return sent
 
 
-def release_claim(session: Db, claim: Claim) -> bool:
-    """running → queued for this run (fenced by attempt), to run again later: a dependency of the run
-    (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds the tries;
-    ``enqueued_at`` is the database's clock (``services.db.clock``), as the reconciler compares it."""
+def release_claim(session: Db, claim: Claim, delay_s: float) -> bool:
+    """running → queued for this run (fenced by attempt), to run again ``delay_s`` (s) later: a dependency
+    of the run (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds
+    the tries.
+
+    ``enqueued_at`` = the database's now + ``delay_s`` (``services.db.clock``): when the job is due again.
+    Until then ``claim_job`` does not take it (a message that came early, its ETA on another host's
+    clock, is published again for ``due_in_s``), and the reconciler's queued timeout counts from then:
+    the message waits in a worker until its ETA, not in the broker, so the job counts as missing a
+    message, and is published again only once ``enqueued_at + SPINE_QUEUED_TIMEOUT_S`` is past."""
     done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)
-        .values(status=JobStatus.queued.value, enqueued_at=db_now(), lease_expires_at=None, started_at=None)
+        .values(
+            status=JobStatus.queued.value, enqueued_at=db_now_plus_s(delay_s), lease_expires_at=None, started_at=None
+        )
     )
     session.commit()
     return done.rowcount == 1
+
+
+def due_in_s(session: Db, job_id: uuid.UUID) -> float | None:
+    """Seconds until the queued job is due on the database's clock: its ``enqueued_at`` (a released run's
+    due time, ``release_claim``) minus the database's now, read in one statement; 0 when it is due (or
+    marked unpublished), None when the job is not queued (or not there)."""
+    row = session.execute(select(Job.status, Job.enqueued_at, db_now()).where(Job.id == job_id)).first()
+    if row is None or row.status != JobStatus.queued.value:
+        return None
+    due, now = row[1], row[2]
+    return 0.0 if due is None else max(0.0, (due - now).total_seconds())
 
 
 def record_dicom(session: Db, claim: Claim, provenance: dict[str, Any], study: dict[str, Any]) -> bool:

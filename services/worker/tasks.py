@@ -1,7 +1,8 @@
 """The worker's tasks: run one job through the engine, and reconcile stranded jobs.
 
 run_job(job_id): queued → running with a conditional UPDATE (a second delivery, or a cancelled
-job, does nothing), runs ``spine_engine.register(payload)`` and stores the result (with its
+job, does nothing; a message that came before its job is due, on the database's clock, is published
+again for the time left), runs ``spine_engine.register(payload)`` and stores the result (with its
 measures) or a problem, only if the run still owns the job. Faults of the database or broker are
 retried with backoff; engine errors fail the job at once.
 
@@ -163,11 +164,18 @@ def lease_keeper(settings: Settings) -> LeaseKeeper:
 
 
 class RunLater(Exception):
-    """The run cannot proceed now (the PACS is unavailable): the job went back to queued."""
+    """The run cannot proceed now (the PACS is unavailable): the job went back to queued, due again
+    ``countdown`` (s) later on the database's clock (``runs.release_claim``)."""
 
     def __init__(self, countdown: float):
         super().__init__(countdown)
         self.countdown = countdown
+
+
+class NotDue(RunLater):
+    """The message came before its job is due (``countdown`` s left on the database's clock): a released
+    run's message whose ETA, on its publisher's clock, the consuming worker read on its own. Nothing was
+    claimed, no attempt spent; the message is to be published again for the time left."""
 
 
 def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
@@ -187,9 +195,10 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
             resolved, provenance = resolve_by_reference(payload, pacs)
     except PacsUnavailable as exc:
         if claim.attempt < settings.max_attempts:
+            delay = dicom_tasks.retry_delay_s(settings, claim.attempt)
             with worker_connection(settings) as session:
-                runs.release_claim(session, claim)
-            raise RunLater(dicom_tasks.retry_delay_s(settings, claim.attempt)) from None
+                runs.release_claim(session, claim, delay)  # due again delay s from now, the database's clock
+            raise RunLater(delay) from None
         detail = f"{exc}; {claim.attempt} attempts (SPINE_MAX_ATTEMPTS)"
         return payload, problem("dicomweb-unavailable", detail, instance=instance, attempts=claim.attempt)
     except DicomError as exc:
@@ -269,14 +278,33 @@ def result_not_stored(detail: str, instance: str) -> dict[str, Any]:
     return problem("result-not-stored", detail, instance=instance)
 
 
+def _claim_when_due(settings: Settings, job_id: uuid.UUID) -> runs.Claim | None:
+    """The job's claim (``runs.claim_job``: queued and due on the database's clock), or None when it is
+    not queued; raises ``NotDue`` with the seconds left when it is queued but not due. The common case
+    is one statement; the due time is read only when the claim took nothing."""
+    lease = timedelta(seconds=settings.lease_s)
+    with worker_connection(settings, durable=False) as session:
+        for _ in range(2):  # a second claim only when the job became due between the two statements
+            claim = runs.claim_job(session, job_id, _engine_version(), lease)
+            if claim is not None:
+                return claim
+            wait = runs.due_in_s(session, job_id)
+            if wait is None:
+                return None
+            if wait > 0:
+                raise NotDue(wait)
+    return None
+
+
 def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
     """Claim (with a lease), run and finish one job; return what happened (for logs and tests).
-    Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable).
+    Raises ``RunLater`` when the job went back to the queue (the PACS is unavailable), ``NotDue`` when
+    the job is not due yet on the database's clock (a released run's message that came early): then
+    nothing is claimed and no attempt spent.
 
     The lease is held until the outcome is stored: its write may be retried for ~30 s
     (``write_retry``), longer than a lease, and a job taken back meanwhile would be fitted again."""
-    with worker_connection(settings, durable=False) as session:
-        claim = runs.claim_job(session, job_id, _engine_version(), timedelta(seconds=settings.lease_s))
+    claim = _claim_when_due(settings, job_id)
     if claim is None:
         return "skipped"
     instance = f"/v1/jobs/{job_id}"
@@ -323,7 +351,9 @@ def missing_messages(session: Session, app: Celery, settings: Settings) -> int |
     """How many queued jobs the broker holds no message for (queued jobs − messages waiting), at
     least 0; None when the queue cannot be read. Messages prefetched by busy workers count as
     missing too: their jobs are the oldest, and re-publishing them adds a duplicate that is
-    skipped (the claim is conditional)."""
+    skipped (the claim is conditional). So does the message of a run handed back until later (the
+    PACS unavailable), held by a worker until its ETA: its job's ``enqueued_at`` is when it is due
+    (``runs.release_claim``), so it is published again only ``SPINE_QUEUED_TIMEOUT_S`` after that."""
     try:
         depth = queue_depth(app, settings.queue_name)
     except Exception:
@@ -396,6 +426,10 @@ def register_tasks(app: Celery, settings: Settings) -> None:
             return
         try:
             outcome = execute_job(settings, parsed)
+        except NotDue as early:  # its ETA was on its publisher's clock: the time left counted by this worker
+            self.app.send_task(RUN_JOB, args=[job_id], countdown=early.countdown, queue=settings.queue_name)
+            outcome = (f"came {early.countdown:.3f} s before it is due on the database's clock (this worker's "
+                       "clock and its publisher's differ): published again for then")  # fmt: skip
         except RunLater as later:
             self.app.send_task(RUN_JOB, args=[job_id], countdown=later.countdown, queue=settings.queue_name)
             outcome = f"back to the queue for {later.countdown:g} s (PACS unavailable)"

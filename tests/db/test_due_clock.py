@@ -151,7 +151,7 @@ def test_a_run_released_by_a_worker_whose_clock_is_behind_is_not_published_again
     with worker_connection(settings) as connection:
         claim = runs.claim_job(connection, job_id, "1.0")
         assert claim is not None
-        assert runs.release_claim(connection, claim)
+        assert runs.release_claim(connection, claim, 2.0)  # SPINE_DICOMWEB_RETRY_BASE_S
     clock.offset = timedelta(0)
     assert not _republished(settings, job_id)
 

@@ -10,14 +10,16 @@ from pathlib import Path
 
 import pytest
 from pydantic import ValidationError
+from sqlalchemy import update
 
 from services.cli.errors import explain
 from services.core.config import Settings
+from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
 from services.db.jobs import create_job
 from services.db.migrate import upgrade
 from services.db.models import Job
-from services.db.runs import claim_job
+from services.db.runs import claim_job, due_in_s
 from services.worker import dicom_tasks
 from services.worker.tasks import RunLater, resolve_dicom
 from tests.conftest import spine_payload
@@ -42,6 +44,9 @@ def _run_later_s(settings: Settings, job_id: uuid.UUID) -> float:
         resolve_dicom(settings, claim, f"/v1/jobs/{job_id}")
     with session_scope(settings) as session:
         assert session.get(Job, job_id).status == "queued"  # type: ignore[union-attr]
+        due_in = due_in_s(session, job_id)  # due again after the delay, on the database's clock
+        assert due_in is not None and 0 < due_in <= later.value.countdown
+        session.execute(update(Job).where(Job.id == job_id).values(enqueued_at=db_now()))  # the delay waited out
     return later.value.countdown
 
 
