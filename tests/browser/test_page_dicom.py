@@ -191,8 +191,13 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     page.wait_for_selector("#job-status[data-status=succeeded]", timeout=30_000)
     assert page.get_attribute("#result", "data-job-id") == job_id
     assert "17 with four corners" in (page.text_content("#pa-status") or "")
-    assert "DOE JANE" not in (page.text_content("#pa-header") or "")  # the film is not stored, said so
-    assert "Not stored by the service" in (page.text_content("#pa-header") or "")
+    # the film is not stored, said so once the page has asked the service's PACS routes for it again
+    # ("Fetching the film … from the PACS…" meanwhile: a CI run read that before the answer came)
+    page.wait_for_function(
+        "() => (document.querySelector('#pa-header')?.textContent || '').includes('Not stored by the service')",
+        timeout=30_000,
+    )
+    assert "DOE JANE" not in (page.text_content("#pa-header") or "")
     reopened = json.loads(page.text_content("#payload-preview") or "{}")
     assert reopened["pa"]["landmarks"] == job["payload"]["pa"]["landmarks"]
 
