@@ -91,6 +91,9 @@ def _handed_back(settings: Settings, job_id: uuid.UUID) -> tuple[datetime, datet
     return before, db_clock(settings)
 
 
+# PostgreSQL only (the service's database; the embedded SQLite's due time is the fast test's and
+# tests/db/test_due_clock.py's): the waits of a due time cost the suite 7–10 s a database
+@pytest.mark.parametrize("settings", ["postgresql"], indirect=True)
 def test_the_reconciler_leaves_a_handed_back_job_until_it_is_due(settings: Settings) -> None:
     """No message in the broker (the worker that holds it until its ETA does not count as waiting): past
     the queued timeout but before the due time, the reconciler does not publish the job; past the due
@@ -133,6 +136,9 @@ def test_a_run_that_comes_before_its_job_is_due_claims_nothing_and_waits_the_tim
     assert (due - after).total_seconds() <= left <= (due - before).total_seconds()
 
 
+# PostgreSQL only (the service's database; the embedded SQLite's due time is the fast test's and
+# tests/db/test_due_clock.py's): the waits of a due time cost the suite 7–10 s a database
+@pytest.mark.parametrize("settings", ["postgresql"], indirect=True)
 def test_a_run_published_by_a_worker_whose_clock_is_behind_waits_until_its_job_is_due(
     settings: Settings, monkeypatch: pytest.MonkeyPatch
 ) -> None:
