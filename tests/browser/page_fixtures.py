@@ -310,6 +310,21 @@ def run_job(url: str, key: str, payload: dict[str, Any]) -> dict[str, Any]:
     return job
 
 
+def reconstruct_on_page(page: Any) -> dict[str, Any]:
+    """Click Reconstruct, check the service took the job (202) and wait (up to 120 s) for the page to show it
+    succeeded, with no problem shown; returns the payload the page sent."""
+    with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/v1/jobs")) as posted:
+        page.click("#submit")
+    assert posted.value.status == 202, posted.value.text()
+    page.wait_for_function(
+        "() => ['succeeded', 'failed'].includes(document.getElementById('job-status').dataset.status)", timeout=120_000
+    )
+    assert page.get_attribute("#job-status", "data-status") == "succeeded", page.text_content("#problem")
+    assert page.locator("#problem").is_hidden()
+    sent: dict[str, Any] = json.loads(posted.value.request.post_data or "{}")
+    return sent
+
+
 def open_page(
     browser: Any, url: str, api_key: str | None, *, width: int = 1440, height: int = 1000
 ) -> tuple[Any, Any, PageWatch]:
