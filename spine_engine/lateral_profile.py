@@ -42,12 +42,7 @@ from dataclasses import dataclass
 
 from .errors import FieldError
 from .levels import LEVEL_INDEX, LEVELS
-
-DEPTH_SIGN = {"P": 1.0, "A": -1.0}
-"""y component (LPS, +y posterior) of the unit vector each patient-direction letter names; L, R, H and F
-have none (DICOM PS3.3 C.7.6.1.1.1)."""
-HEIGHT_SIGN = {"H": 1.0, "F": -1.0}
-"""z component (LPS, +z head) of the unit vector each patient-direction letter names."""
+from .models import PATIENT_AXES
 
 THORACIC_WINDOW = ("T4", "T12")
 """Levels whose landmarks read the thoracic profile (the engine's kyphosis T4–T12)."""
@@ -165,14 +160,14 @@ def sagittal_points(
     orientation: tuple[str, str], landmarks: Sequence[tuple[int, float, float]]
 ) -> list[tuple[int, float, float]]:
     """(level index, y, z) of lateral landmarks given as (level index, column, row) in film mm: with
-    e_c, e_r the patient-space unit vectors ``orientation`` names, y = c e_c,y + r e_r,y and
+    e_c, e_r the patient-space unit vectors ``orientation`` names (``models.PATIENT_AXES``), y = c e_c,y + r e_r,y and
     z = c e_c,z + r e_r,z (a weak perspective's scale and translation, and a turn of the film in its
     plane, change no angle difference)."""
     column, row = orientation
     return [
         (level,
-         c * DEPTH_SIGN.get(column, 0.0) + r * DEPTH_SIGN.get(row, 0.0),
-         c * HEIGHT_SIGN.get(column, 0.0) + r * HEIGHT_SIGN.get(row, 0.0))
+         c * PATIENT_AXES[column][1] + r * PATIENT_AXES[row][1],
+         c * PATIENT_AXES[column][2] + r * PATIENT_AXES[row][2])
         for level, c, r in landmarks
     ]  # fmt: skip
 
@@ -213,7 +208,7 @@ def inverted_profile_errors(
         return []
     assert thoracic is not None and lumbar is not None
     column, row = orientation
-    depth = column if column in DEPTH_SIGN else row
+    depth = column if PATIENT_AXES[column][1] else row
     other = "P" if depth == "A" else "A"
     return [
         FieldError(

@@ -25,6 +25,15 @@ MAX_LANDMARKS_PER_VIEW = 17 * 6
 """Upper bound on landmark entries per view (17 levels; leaves room for later landmark kinds)."""
 
 PATIENT_DIRECTIONS = ("L", "R", "A", "P", "H", "F")
+PATIENT_AXES: dict[str, tuple[float, float, float]] = {
+    "L": (1.0, 0.0, 0.0),
+    "R": (-1.0, 0.0, 0.0),
+    "P": (0.0, 1.0, 0.0),
+    "A": (0.0, -1.0, 0.0),
+    "H": (0.0, 0.0, 1.0),
+    "F": (0.0, 0.0, -1.0),
+}
+"""LPS unit vector of each DICOM patient-direction letter (PS3.3 C.7.6.1.1.1, Patient Orientation)."""
 
 MAX_COORDINATE = 1e6
 """Largest accepted |coordinate| (mm or px): a metre-scale spine never comes near it, and larger

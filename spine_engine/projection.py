@@ -10,17 +10,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .models import PATIENT_AXES
+
 FloatArray = NDArray[np.float64]
 
-PATIENT_AXES: dict[str, tuple[float, float, float]] = {
-    "L": (1.0, 0.0, 0.0),
-    "R": (-1.0, 0.0, 0.0),
-    "P": (0.0, 1.0, 0.0),
-    "A": (0.0, -1.0, 0.0),
-    "H": (0.0, 0.0, 1.0),
-    "F": (0.0, 0.0, -1.0),
-}
-"""LPS unit vector of each DICOM patient-direction letter."""
 
 
 def image_axes(orientation: tuple[str, str]) -> tuple[FloatArray, FloatArray]:

@@ -94,6 +94,12 @@ def seconds_param(name: str) -> BindParameter[float]:
     return bindparam(name, type_=Float())
 
 
+def seconds_until(due: datetime | None, now: datetime) -> float:
+    """Seconds from ``now`` to ``due``, both read on the database's clock in one statement, at least 0;
+    0 without a due time (nothing to wait for)."""
+    return 0.0 if due is None else max(0.0, (due - now).total_seconds())
+
+
 def db_now_plus_s(seconds: float) -> db_now_plus:
     """The database server's current time plus ``seconds`` (negative: minus), the number bound with
     the statement (a parameter of its own: several in one statement do not clash)."""

@@ -42,7 +42,7 @@ from sqlalchemy.orm import Session
 from services.core.config import Settings
 from services.core.jobqueue import publish_webhook
 from services.core.status import FINAL_STATUSES
-from services.db.clock import db_now
+from services.db.clock import db_now, seconds_until
 from services.db.engine import session_scope
 from services.db.jobs import job_json
 from services.db.models import Job, WebhookDelivery
@@ -228,9 +228,7 @@ def wait_s(session: Session, message_id: str, attempt: int) -> float:
     or when that row or its due time is missing (nothing to wait for)."""
     earlier = (WebhookDelivery.message_id == message_id, WebhookDelivery.attempt == attempt - 1)
     row = session.execute(select(WebhookDelivery.next_attempt_at, db_now()).where(*earlier)).first()
-    if row is None or row[0] is None:
-        return 0.0
-    return max(0.0, (row[0] - row[1]).total_seconds())
+    return 0.0 if row is None else seconds_until(row[0], row[1])
 
 
 def delivered(session: Session, message_id: str) -> bool:

@@ -23,7 +23,7 @@ from sqlalchemy import ColumnElement, select, update
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
-from services.db.clock import db_now, db_now_plus_s
+from services.db.clock import db_now, db_now_plus_s, seconds_until
 from services.db.job_forms import JobForms, job_forms
 from services.db.models import Job
 
@@ -114,8 +114,7 @@ def next_attempt(session: Session, job_id: uuid.UUID, sweep_after: timedelta) ->
     if row is None:
         return 1, 0.0
     stores, due, now = row
-    wait = 0.0 if due is None else max(0.0, (due - sweep_after - now).total_seconds())
-    return _next_number(stores), wait
+    return _next_number(stores), seconds_until(None if due is None else due - sweep_after, now)
 
 
 def overdue(

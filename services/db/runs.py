@@ -39,7 +39,7 @@ from sqlalchemy.orm import Session
 from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
 from services.db import deliveries
-from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param
+from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param, seconds_until
 from services.db.engine import SerializedJSON
 from services.db.jobs import study_column_values
 from services.db.models import Job, JobMeasures, VertebraStrain, WebhookDelivery
@@ -406,8 +406,7 @@ def due_in_s(session: Db, job_id: uuid.UUID) -> float | None:
     row = session.execute(select(Job.status, Job.enqueued_at, db_now()).where(Job.id == job_id)).first()
     if row is None or row.status != JobStatus.queued.value:
         return None
-    due, now = row[1], row[2]
-    return 0.0 if due is None else max(0.0, (due - now).total_seconds())
+    return seconds_until(row[1], row[2])
 
 
 def record_dicom(session: Db, claim: Claim, provenance: dict[str, Any], study: dict[str, Any]) -> bool:

@@ -119,7 +119,8 @@ def landmark_rows_kernel(
                 Jb[row, border[f]] = c * d_p[i, a, free[f]]
 
 
-_NO_BEAM = np.zeros(3)
+NO_BEAM = np.zeros(3)
+"""The beam argument of a weak-perspective camera, which has none (the kernels take arrays only)."""
 
 
 def project(
@@ -131,6 +132,6 @@ def project(
     r = np.ascontiguousarray(r, dtype=float).reshape(-1, 3)
     E = np.array((e_c, e_r), dtype=float)
     if camera.kind == "weak":
-        return Projected(*_project_kernel(r, E, float(pi[-1]), pi, _NO_BEAM, 1.0, 1.0, False))
+        return Projected(*_project_kernel(r, E, float(pi[-1]), pi, NO_BEAM, 1.0, 1.0, False))
     b = np.ascontiguousarray(camera.beam_direction(E[0], E[1]) if beam is None else beam, dtype=float)
     return Projected(*_project_kernel(r, E, float(pi[-1]), pi, b, float(camera.sid_mm), float(camera.sod_mm), True))

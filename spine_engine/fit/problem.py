@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike
 
 from ..rotations import exp_so3, log_so3
 from .banded import KD, BorderedSystem, band_to_dense
-from .cameras import landmark_rows_kernel, project
+from .cameras import NO_BEAM, landmark_rows_kernel, project
 from .pose_rows import PoseRows
 from .rod_rows import RodCache, RodRows, jr_inverse
 from .types import (
@@ -121,11 +121,8 @@ def _projection_args(
     and SOD (mm) and whether the camera is a point source (a weak-perspective one: b, SID, SOD unused)."""
     E = np.array((view.e_c, view.e_r), dtype=float)
     if camera.kind == "weak":
-        return E, _NO_BEAM, 1.0, 1.0, False
+        return E, NO_BEAM, 1.0, 1.0, False
     return E, np.ascontiguousarray(beam, dtype=float), float(camera.sid_mm), float(camera.sod_mm), True
-
-
-_NO_BEAM = np.zeros(3)
 
 
 @njit(cache=True)
@@ -141,7 +138,7 @@ def _pose_prior_rows_kernel(
         for j in range(3):
             rho[row + j] = a[i] * (r[idx[i], j] - mean_r[i, j])
             rho[row + 3 + j] = b[i, j] * phi[i, j]
-            Jv[row + j, j] = a[i] * 1.0
+            Jv[row + j, j] = a[i]
             for col in range(3):
                 Jv[row + 3 + j, 3 + col] = b[i, j] * Jr_inv[i, j, col]
 
