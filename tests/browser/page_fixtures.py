@@ -358,6 +358,14 @@ def open_film(page: Any, view: str, path: Path) -> None:
     )
 
 
+def click_pa_midpoints(page: Any, levels: Any) -> None:
+    """Click, on the PA film's canvas, the endplate midpoints of the synthetic film's bodies ``levels``
+    (indices 0 = T1 … 16 = L5, ``centreline``), in that order."""
+    for i in levels:
+        col, row, _ = centreline(i)
+        page.mouse.click(*canvas_point(page, "pa", col, row))
+
+
 def canvas_point(page: Any, view: str, col: float, row: float) -> tuple[float, float]:
     """Page coordinates (CSS px) of an image point on a fitted film canvas (scrolled to the window's top)."""
     page.evaluate("(view) => document.getElementById(view + '-canvas').scrollIntoView({block: 'start'})", view)

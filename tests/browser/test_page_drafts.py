@@ -22,6 +22,7 @@ from page_fixtures import (
     LEVELS,
     canvas_point,
     centreline,
+    click_pa_midpoints,
     lateral_points,
     make_dicom,
     open_film,
@@ -41,9 +42,7 @@ pytestmark = pytest.mark.browser
 
 
 def _midpoints(page: Any, n: int) -> None:
-    for i in range(n):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(n))
 
 
 def _wait_final(page: Any) -> None:

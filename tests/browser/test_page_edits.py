@@ -10,18 +10,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import canvas_point, centreline, make_dicom, open_film, open_page, payload_preview
+from page_fixtures import (
+    click_pa_midpoints,
+    make_dicom,
+    open_film,
+    open_page,
+    payload_preview,
+)
 
 pytestmark = pytest.mark.browser
 
 QUICK_MS = 5_000  # a control that exists is clicked at once; one missing fails the test in 5 s, not 30 s
-
-
-def _midpoints(page: Any, first: int, n: int) -> None:
-    """Click the endplate midpoints of the synthetic film's bodies `first` … `first + n - 1`."""
-    for i in range(first, first + n):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
 
 
 def _levels(page: Any) -> list[str]:
@@ -36,7 +35,7 @@ def test_close_film_is_undone_with_its_landmarks_and_says_what_it_removed(
     make_dicom(tmp_path / "pa-other.dcm", view="pa", size=(400, 700))
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    _midpoints(page, 0, 6)
+    click_pa_midpoints(page, range(6))
     placed = payload_preview(page)["pa"]["landmarks"]
     assert [lm["level"] for lm in placed] == ["T1", "T2", "T3", "T4", "T5", "T6"]
     header = page.text_content("#pa-header") or ""
@@ -89,7 +88,7 @@ def test_all_levels_of_a_film_are_relabelled_one_level_refused_outside_t1_l5_and
     make_dicom(tmp_path / "pa.dcm", view="pa")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    _midpoints(page, 0, 5)  # placed as T1–T5, but they were T2–T6
+    click_pa_midpoints(page, range(5))  # placed as T1–T5, but they were T2–T6
     placed = payload_preview(page)["pa"]["landmarks"]
     points = [lm["point"] for lm in placed]
     assert _levels(page) == ["T1", "T2", "T3", "T4", "T5"]
@@ -120,7 +119,7 @@ def test_all_levels_of_a_film_are_relabelled_one_level_refused_outside_t1_l5_and
 
     # L5 placed: down is refused (a level below L5 is no level of the payload)
     page.select_option("#pa-level", "L5")
-    _midpoints(page, 16, 1)
+    click_pa_midpoints(page, [16])
     assert _levels(page) == ["T2", "T3", "T4", "T5", "T6", "L5"]
     page.click("#pa-shift-down", timeout=QUICK_MS)
     assert _levels(page) == ["T2", "T3", "T4", "T5", "T6", "L5"]

@@ -16,7 +16,17 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import FILM_SIZE, LEVELS, PA_SPACING, canvas_point, centreline, make_dicom, open_film, open_page
+from page_fixtures import (
+    FILM_SIZE,
+    LEVELS,
+    PA_SPACING,
+    canvas_point,
+    centreline,
+    click_pa_midpoints,
+    make_dicom,
+    open_film,
+    open_page,
+)
 
 pytestmark = pytest.mark.browser
 
@@ -145,12 +155,6 @@ def test_the_page_refuses_the_geometry_the_service_refuses_in_its_words(
     context.close()
 
 
-def _midpoints(page: Any, levels: int) -> None:
-    for i in range(levels):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
-
-
 def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
@@ -164,7 +168,7 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "sid150.dcm")
     assert page.is_visible("#pa-ignore-geometry") and not page.is_checked("#pa-ignore-geometry")
-    _midpoints(page, len(LEVELS))
+    click_pa_midpoints(page, range(len(LEVELS)))
     page.wait_for_function("() => document.getElementById('payload-preview').textContent.includes('distance_source')")
     payload = json.loads(page.text_content("#payload-preview") or "{}")
     assert payload["pa"]["acquisition"][SID] == 150
@@ -190,7 +194,7 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     open_film(page, "pa", tmp_path / "sod-over-sid.dcm")
     assert not page.is_checked("#pa-ignore-geometry")  # a new film: its own header
     assert "SOD 1200 mm" in (page.text_content("#pa-header") or "")
-    _midpoints(page, 3)
+    click_pa_midpoints(page, range(3))
     said = [m for m in _missing(page) if m.startswith(f"PA film, {FIELD_WORDS['pa.acquisition']}: ")]
     assert said and said[0].startswith(
         f"PA film, {FIELD_WORDS['pa.acquisition']}: the SOD (1200 mm) must be smaller than the SID (1000 mm)"

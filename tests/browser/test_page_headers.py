@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import canvas_point, centreline, make_dicom, open_page
+from page_fixtures import click_pa_midpoints, make_dicom, open_page
 
 pytestmark = pytest.mark.browser
 
@@ -32,9 +32,7 @@ def test_spacing_read_from_the_header(
     page.wait_for_selector("#pa-header dd")
     assert calibration in (page.text_content("#pa-header") or "")
     assert page.input_value("#pa-spacing") == field
-    for i in (0, 16):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, (0, 16))
     missing = page.text_content("#missing") or ""
     assert ("Enter the pixel spacing of the PA film" in missing) == (field == ""), missing
     assert ("its header gives none" in missing) == (field == "")

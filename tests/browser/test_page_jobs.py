@@ -15,8 +15,7 @@ import httpx
 import pytest
 from page_fixtures import (
     LEVELS,
-    canvas_point,
-    centreline,
+    click_pa_midpoints,
     make_dicom,
     make_png,
     open_page,
@@ -41,9 +40,7 @@ def test_a_png_is_refused_until_its_spacing_is_entered(
     page.set_input_files("#pa-file", str(png))
     page.wait_for_selector("#pa-header dd")
     assert page.input_value("#pa-spacing") == ""  # never guessed
-    for i in range(len(LEVELS)):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(len(LEVELS)))
     assert "17 vertebrae" in (page.text_content("#pa-status") or "")
     missing = page.text_content("#missing") or ""
     assert "Enter the pixel spacing of the PA film" in missing and "PNG or JPEG does not carry it" in missing

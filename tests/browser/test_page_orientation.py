@@ -21,7 +21,7 @@ from page_fixtures import (
     FILM_SIZE,
     LEVELS,
     canvas_point,
-    centreline,
+    click_pa_midpoints,
     lateral_points,
     make_dicom,
     open_film,
@@ -57,9 +57,7 @@ def test_a_mirrored_lateral_is_refused_at_its_orientation_and_fixed_there(
     shown = _mirrored_lateral(tmp_path / "lateral.dcm")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    for i in range(len(LEVELS)):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(len(LEVELS)))
     open_film(page, "lateral", tmp_path / "lateral.dcm")
     page.select_option("#lateral-level", "T4")
     for _, col, row in shown:
@@ -135,9 +133,7 @@ def test_a_pa_film_labelled_as_a_lateral_is_named_at_its_orientation_before_send
     make_dicom(tmp_path / "pa.dcm", view="pa", study={"PatientOrientation": "A\\F"})
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    for i in range(0, len(LEVELS), 4):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(0, len(LEVELS), 4))
     sent = payload_preview(page)["pa"]
     assert sent["patient_orientation"] == ["A", "F"]
     probe = {**payload_preview(page), "options": {"profile": "no-such-profile"}}  # refused whatever: no job made

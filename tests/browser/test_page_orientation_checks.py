@@ -25,6 +25,7 @@ from page_fixtures import (
     LEVELS,
     canvas_point,
     centreline,
+    click_pa_midpoints,
     lateral_points,
     make_dicom,
     open_film,
@@ -127,9 +128,7 @@ def test_every_orientation_is_named_before_sending_as_the_service_refuses_it(
     make_dicom(tmp_path / "lateral.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    for i in range(len(LEVELS)):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(len(LEVELS)))
     page.check("#pa-mode-corners")
     page.select_option("#pa-level", "T3")
     corners = pa_corners()
@@ -232,9 +231,7 @@ def test_an_orientation_on_one_axis_is_said_at_the_control_and_not_sent(
     make_dicom(tmp_path / "lateral.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "pa.dcm")
-    for i in range(len(LEVELS)):
-        col, row, _ = centreline(i)
-        page.mouse.click(*canvas_point(page, "pa", col, row))
+    click_pa_midpoints(page, range(len(LEVELS)))
     open_film(page, "lateral", tmp_path / "lateral.dcm")
     page.select_option("#lateral-level", "T4")
     for _, col, row in lateral_points("T4"):
