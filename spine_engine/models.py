@@ -13,7 +13,16 @@ import re
 from datetime import date
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from .levels import LEVEL_INDEX, Level
@@ -34,6 +43,9 @@ PATIENT_AXES: dict[str, tuple[float, float, float]] = {
     "F": (0.0, 0.0, -1.0),
 }
 """LPS unit vector of each DICOM patient-direction letter (PS3.3 C.7.6.1.1.1, Patient Orientation)."""
+
+_LAX_DATE: TypeAdapter[date] = TypeAdapter(date)
+"""pydantic's lax ``date``: how ``Study.study_date`` read a posted value before it took only YYYY-MM-DD."""
 
 MAX_COORDINATE = 1e6
 """Largest accepted |coordinate| (mm or px): a metre-scale spine never comes near it, and larger
@@ -454,6 +466,26 @@ PATTERN_REASONS = {
 """Each pattern of the contract's strings with its reason in plain words, for errors that would quote the regex."""
 
 
+STUDY_DATE_PATTERN = r"^[0-9]{4}-[0-9]{2}-[0-9]{2}$"
+STUDY_DATE_REASON = (
+    "a Study Date is a calendar date written YYYY-MM-DD (ISO 8601; the film's DICOM DA 20260210 is 2026-02-10), "
+    "not a date-time, a number or another form"
+)
+
+
+def read_study_date(value: object) -> date | None:
+    """The day of a ``study_date`` as a job stores it (the payload as posted): the contract's YYYY-MM-DD,
+    and the forms a job stored before ``Study`` took only that (a number or numeric string of Unix
+    seconds, a date-time at midnight) read as the contract then read them; None when absent or not a
+    date at all."""
+    if value is None or isinstance(value, date):
+        return value if isinstance(value, date) else None
+    try:
+        return _LAX_DATE.validate_python(value)
+    except ValidationError:
+        return None
+
+
 UniversalEntityIdType = Literal["DNS", "EUI64", "ISO", "URI", "UUID", "X400", "X500"]
 """Universal Entity ID Type (0040,0033) defined terms (PS3.3 §10.14, HL7v2 Hierarchic Designator Macro): the
 kind of Universal Entity ID (0040,0032) the issuer of an identifier is named by."""
@@ -543,6 +575,27 @@ class Study(_Strict):
         if not re.fullmatch(DICOM_TEXT_PATTERN, value):
             raise ValueError(DICOM_TEXT_REASON)
         return value
+
+    @field_validator("patient_id")
+    @classmethod
+    def _not_blank(cls, value: str | None) -> str | None:
+        """A Patient ID of spaces only is an empty value (DICOM LO: leading and trailing spaces are
+        insignificant, PS3.5 §6.2, Table 6.2-1): leave the member out instead."""
+        if value is not None and not value.strip():
+            raise ValueError("a Patient ID of spaces only is empty: give the patient's ID or leave patient_id out")
+        return value
+
+    @field_validator("study_date", mode="before")
+    @classmethod
+    def _calendar_date(cls, value: object) -> object:
+        """``STUDY_DATE_REASON``: a date object (Python callers), or a string of exactly YYYY-MM-DD;
+        pydantic's lax ``date`` would take a number or a numeric string as Unix seconds and a date-time
+        at midnight as its day."""
+        if value is None or type(value) is date:
+            return value
+        if isinstance(value, str) and re.fullmatch(STUDY_DATE_PATTERN, value):
+            return value
+        raise PydanticCustomError("study_date_format", STUDY_DATE_REASON)
 
     @field_validator("patient_name")
     @classmethod

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
-from spine_engine.models import JobPayload, LateralView, PAView, Study
+from spine_engine.models import JobPayload, LateralView, PAView, Study, read_study_date
 
 from .models import Job
 
@@ -53,15 +53,33 @@ def apply_reads(payload: Mapping[str, Any], provenance: Mapping[str, Any] | None
     return merged
 
 
+def stored_study(study: Mapping[str, Any]) -> dict[str, Any]:
+    """A study as a job stored it, in the contract's forms of today: a ``study_date`` posted before
+    ``Study`` took only YYYY-MM-DD is its day (``read_study_date``: as the API then read it) or left
+    out when it names none, and a Patient ID of spaces only, an empty DICOM value, is left out."""
+    out = dict(study)
+    if "study_date" in out:
+        day = read_study_date(out["study_date"])
+        if day is None:
+            del out["study_date"]
+        else:
+            out["study_date"] = day.isoformat()
+    if isinstance(out.get("patient_id"), str) and not out["patient_id"].strip():
+        del out["patient_id"]
+    return out
+
+
 def engine_payload(payload: Mapping[str, Any]) -> dict[str, Any]:
     """``payload`` without the view and study fields the installed ``spine_engine.models`` does not
     know: the header's extra values stay in the provenance (and in ``effective``), and the engine's
-    strict models do not refuse them."""
+    strict models do not refuse them; its study as ``stored_study`` reads it."""
     out = dict(payload)
     for key, model in _ENGINE_MODELS:
         part = out.get(key)
         if isinstance(part, dict):
             out[key] = {k: v for k, v in part.items() if k in model.model_fields}
+    if isinstance(out.get("study"), dict):
+        out["study"] = stored_study(out["study"])
     for key in list(out):
         if key not in JobPayload.model_fields:
             del out[key]
@@ -88,7 +106,7 @@ class JobForms:
     def study(self) -> dict[str, Any] | None:
         """The study with the header's values (``effective``), every field the SR and SC copy."""
         study = self.effective.get("study")
-        return study if isinstance(study, dict) else None
+        return stored_study(study) if isinstance(study, dict) else None
 
     @property
     def engine_study(self) -> dict[str, Any] | None:
@@ -109,5 +127,5 @@ def job_study(job: Job) -> dict[str, Any] | None:
     posted = job.payload.get("study") if isinstance(job.payload, dict) else None
     reads = (job.dicom or {}).get("study") or []
     if not any(read.get("used") for read in reads):
-        return posted if isinstance(posted, dict) else None
+        return stored_study(posted) if isinstance(posted, dict) else None
     return JobForms(posted={"study": posted or {}}, provenance={"study": reads}, result=None).engine_study

@@ -198,9 +198,9 @@ def test_a_pa_film_turned_in_its_plane_stays_frontal_and_is_sent(
 ) -> None:
     """The fixtures' PA film turned a quarter: the feet toward the image's right and the patient's left
     toward its bottom (["F", "L"], the fixtures' film transposed, 900 × 560 px): chosen at the controls, it
-    is a frontal film (no mark, nothing listed), its 17 midpoints running across the film are not judged
-    "above" one another (the service judges the levels' order only on rows toward H or F), and the job is
-    sent (202) and fitted."""
+    is a frontal film (no mark, nothing listed), its 17 midpoints running across the film, in order along its
+    head-to-feet axis (its columns: spine_engine/validation.py `_order_errors`, `_across_errors`), and the job
+    is sent (202) and fitted."""
     size = (900, 560)
     bodies = [[(r, c) for c, r in body] for body in pa_corners()]  # transposed: column ↔ row
     make_dicom(tmp_path / "turned.dcm", view="pa", bodies=bodies, size=size)

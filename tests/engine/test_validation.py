@@ -1,6 +1,7 @@
 """Every kind of bad input gets a typed InvalidInput that names the field and the reason."""
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -310,6 +311,47 @@ def test_a_short_projected_segment_within_its_noise_is_not_refused() -> None:
     validate_payload({"pa": by_reference}, unscaled_views=("pa",))
     [(path, kind, msg)] = errors_of({"pa": _view(shorter)})
     assert (path, kind) == ("pa.landmarks[2]", "implausible_distance") and "T2 and T3" in msg
+
+
+def test_on_a_film_turned_a_quarter_the_levels_run_head_to_feet_along_its_columns() -> None:
+    """A PA whose columns run toward F (a film turned a quarter): T8 drawn 100 columns toward the head of
+    T1 is refused as on an upright film, naming columns; the same landmarks in order are taken."""
+    points = {"T1": [50.0, 100.0], "T8": [220.0, 104.0], "L5": [450.0, 101.0]}
+    assert validate_payload({"pa": _view(points, patient_orientation=["F", "L"])}).pa.patient_orientation == ("F", "L")
+    reversed_t8 = {**points, "T8": [points["T1"][0] - 100.0, 104.0]}
+    [(path, kind, msg)] = errors_of({"pa": _view(reversed_t8, patient_orientation=["F", "L"])})
+    assert (path, kind) == ("pa.landmarks[1]", "landmarks_out_of_order")
+    assert "level T8 (column -50)" in msg and "columns run toward F" in msg
+    # columns toward the head (H): the order reads the other way
+    validate_payload({"pa": _view({lv: [-c, r] for lv, (c, r) in points.items()}, patient_orientation=["H", "R"])})
+    mirrored = {lv: [-c, r] for lv, (c, r) in reversed_t8.items()}
+    assert [e[1] for e in errors_of({"pa": _view(mirrored, patient_orientation=["H", "R"])})] == [
+        "landmarks_out_of_order"
+    ]
+
+
+def test_a_spine_lying_across_its_film_is_refused_at_the_orientation() -> None:
+    """The API walkthrough's job: a PA labelled F,L (its columns toward the feet) whose landmarks run down
+    its rows, T1 and L5 418 mm apart across the head-to-feet axis and 0 along it, succeeded as a spine lying
+    sideways (Cobb 30.9° ± 94.7°). Refused at `pa.patient_orientation`; the same points labelled L,F are
+    taken, and so is the most tilted T1–L5 line of AASCE training's radiographs (12°, ``ACROSS_MAX_DEG``'s
+    source), turned 50° (within 60°)."""
+    points = {"T1": [1.0, 2.0], "T6": [5.0, 130.0], "L5": [1.0, 420.0]}
+    [(path, kind, msg)] = errors_of({"pa": _view(points, patient_orientation=["F", "L"])})
+    assert (path, kind) == ("pa.patient_orientation", "spine_across_the_film")
+    assert "T1 and L5 lie 90°" in msg and "418 mm across" in msg
+    validate_payload({"pa": _view(points, patient_orientation=["L", "F"])})
+    run = 420.0
+    for degrees, refused in ((50.0, False), (65.0, True)):
+        turned = {"T1": [0.0, 0.0], "T6": [run * math.sin(math.radians(degrees)) / 3, 130.0],
+                  "L5": [run * math.sin(math.radians(degrees)), run * math.cos(math.radians(degrees))]}  # fmt: skip
+        turned_view = {"pa": _view(turned, patient_orientation=["L", "F"])}
+        if refused:
+            assert [e[1] for e in errors_of(turned_view)] == ["spine_across_the_film"]
+        else:
+            validate_payload(turned_view)
+    # fewer than ACROSS_SPAN_LEVELS levels apart: not judged (a short run may lie in a severe curve)
+    validate_payload({"pa": _view({"T1": [0.0, 0.0], "T8": [150.0, 30.0]})})
 
 
 def test_a_reversal_within_the_stated_noise_is_not_refused() -> None:

@@ -153,12 +153,12 @@ interface Placed {
 
 /**
  * The problems of the landmarks of one film: each set of four corners on its own, then each pair
- * of consecutive placed levels (out of order down the spine, judged only on an `upright` film, its rows
- * toward H or F, as the service judges it: validation.py `_order_errors`; bodies overlapping by more than
- * OVERLAP_TOLERANCE of the smaller one's height).
+ * of consecutive placed levels (out of order down the spine along the film's head-to-feet axis, `headAxis`:
+ * 1 when its rows run toward H or F, 0 when its columns do, null when neither, as the service judges it:
+ * validation.py `_order_errors`; bodies overlapping by more than OVERLAP_TOLERANCE of the smaller one's height).
  */
-export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[]; pedicles?: Vec2[] }>, rowsTowardHead = false, upright = true): MarkProblem[] {
-  const down = rowsTowardHead ? -1 : 1;
+export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[]; pedicles?: Vec2[] }>, towardHead = false, headAxis: 0 | 1 | null = 1): MarkProblem[] {
+  const down = towardHead ? -1 : 1;
   const out: MarkProblem[] = [];
   const placed: Placed[] = [];
   for (const level of LEVELS) {
@@ -174,7 +174,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
   for (let i = 1; i < placed.length; i++) {
     const upper = placed[i - 1];
     const lower = placed[i];
-    if (upright && (lower.top[1] - upper.top[1]) * down <= 0) {
+    if (headAxis !== null && (lower.top[headAxis] - upper.top[headAxis]) * down <= 0) {
       out.push({ level: lower.level, text: `it is placed above ${upper.level} (levels go down the spine in order: was a level skipped or repeated?)`, short: `above ${upper.level}` });
       continue;
     }

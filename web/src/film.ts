@@ -92,11 +92,11 @@ export class FilmEditor {
   cursor: Vec2 | null = null;
   /** Set when the last level (L5) was completed: a click then places nothing until a level is chosen. */
   finished = false;
-  /** The film's rows run toward the patient's head (orientation [_, "H"]): "down the spine" is −row. */
-  rowsTowardHead = false;
-  /** The film's rows run toward the head or the feet (orientation [_, "H" or "F"]): the levels' order down the
-   * spine is judged only then, as the service judges it (a film turned in its plane runs along its rows). */
-  upright = true;
+  /** The film's head-to-feet axis runs toward the patient's head: "down the spine" is −row (or −column). */
+  towardHead = false;
+  /** The film's head-to-feet axis: 1 when its rows run toward H or F, 0 when its columns do (a film turned a
+   * quarter), null when neither; the levels' order down the spine is judged along it, as the service does. */
+  headAxis: 0 | 1 | null = 1;
   /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
   blankNote: string | null = null;
   /** Levels the service refused (its 422 named their landmarks), each with its mark as it was then: ringed
@@ -308,7 +308,7 @@ export class FilmEditor {
 
   /** What is wrong with the complete marks (crossed or non-convex corners, order, overlaps). */
   problems(): MarkProblem[] {
-    return filmProblems(this.marks, this.rowsTowardHead, this.upright);
+    return filmProblems(this.marks, this.towardHead, this.headAxis);
   }
 
   private snapshot(): Snapshot {

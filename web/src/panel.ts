@@ -686,12 +686,13 @@ export class FilmPanel {
     this.editor.draw();
   }
 
-  /** The editor's order check follows the orientation: down the spine is +row, or −row when the rows run toward
-   * the head, and judged only when the rows run toward the head or the feet (validation.py `_order_errors`). */
+  /** The editor's order check follows the orientation: down the spine along the rows when they run toward the
+   * head or the feet, else along the columns when they do (validation.py `_order_errors`), backward toward H. */
   private syncOrientation(): void {
-    const row = this.orientation()[1];
-    this.editor.rowsTowardHead = row === "H";
-    this.editor.upright = row === "H" || row === "F";
+    const o = this.orientation();
+    const axis = o[1] === "H" || o[1] === "F" ? 1 : o[0] === "H" || o[0] === "F" ? 0 : null;
+    this.editor.headAxis = axis;
+    this.editor.towardHead = axis !== null && o[axis] === "H";
   }
 
   update(): void {

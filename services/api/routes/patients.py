@@ -45,7 +45,14 @@ from services.db import jobs as jobs_repo
 from services.db.job_forms import job_study
 from services.db.models import Job
 from spine_engine.levels import apex_words
-from spine_engine.models import DICOM_LO_MAX_LENGTH, DICOM_TEXT_PATTERN, CobbCurve, LargestCobbAngle, RegistrationResult
+from spine_engine.models import (
+    DICOM_LO_MAX_LENGTH,
+    DICOM_TEXT_PATTERN,
+    CobbCurve,
+    LargestCobbAngle,
+    RegistrationResult,
+    read_study_date,
+)
 
 
 class AnyTextConvertor(PathConvertor):
@@ -73,15 +80,6 @@ RULE = (
 def _study(job: Job) -> dict[str, Any]:
     """The job's study with the header's values (``services.db.job_forms``, the one owner of a job's forms)."""
     return job_study(job) or {}
-
-
-def _date(value: Any) -> date | None:
-    if isinstance(value, str):
-        try:
-            return date.fromisoformat(value)
-        except ValueError:
-            return None
-    return value if isinstance(value, date) else None
 
 
 def _cobb(curve: CobbCurve | None, estimate: str | None) -> MeasureValue | None:
@@ -119,7 +117,7 @@ def visit(job: Job) -> Visit:
     study = _study(job)
     return Visit(
         job_id=job.id,
-        study_date=_date(study.get("study_date")),
+        study_date=read_study_date(study.get("study_date")),
         study_instance_uid=study.get("study_instance_uid"),
         accession_number=study.get("accession_number"),
         finished_at=job.finished_at,
