@@ -138,7 +138,7 @@ export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | nul
 }
 
 /**
- * The spacing in the service's words (services/dicom/header.py, Cornerstone3D's
+ * The spacing in the service's words (spine_client/dicom/header.py, Cornerstone3D's
  * getPixelSpacingInformation): Imager Pixel Spacing divided by the magnification, ERMF (0018,1114)
  * when > 1, else SID/SOD when SOD < SID, is "calibrated (ERMF)"; otherwise the page's own reading.
  * The page sends the detector spacing and the geometry, which the service turns into the same mm.
