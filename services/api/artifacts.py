@@ -45,7 +45,7 @@ from services.db.models import Job
 
 ArtifactKind = Literal["figure.png", "figure.svg", "sr.dcm", "figure.dcm", "fhir"]
 
-ARTIFACT_REVISION = "6"
+ARTIFACT_REVISION = "7"
 """Bump when the service's code builds different bytes for the same job (the SR's content tree, the
 figure's drawing, the Bundle's shape) without a new version of a library listed in ``BUILD``."""
 

@@ -24,9 +24,14 @@ Content (PS3.16 TID 1500 → TID 1501 / TID 1410 groups, each measurement a TID 
 
 Every measurement carries: its method (private ``MEASURED`` or ``MODEL_BASED``: model-based when
 ``fit.unreliable`` names its quantity, or for an axial rotation when ``fit.assumed`` names
-``population_axial_rotation``, ``model_based``; DESIGN.md), its standard deviation when the engine gives
-one (``*_sd_deg``) as TID 310 upper and lower measurement uncertainty (371886008 / 371885007 SCT)
-both equal to one SD; each group carries the algorithm identification (TID 4019: name, version,
+``population_axial_rotation``, ``model_based``; DESIGN.md; a curve's plane of maximum curvature, the
+Cobb angle in it and its endplate variant also when its Cobb angle is, ``cobb``), its standard deviation
+when the result gives one as TID 310 upper and lower measurement uncertainty (371886008 / 371885007
+SCT) both equal to one SD: the Cobb angles (``angle_sd_deg``), the sagittal measures (``*_sd_deg``),
+each vertebra's axial rotation and the curve's apical one (the apex's ``axial_rotation_sd_deg``), and
+the endplate variant of a model-estimated Cobb angle (that angle's SD); the result gives none of the
+plane of maximum curvature, the Cobb angle in it, a measured endplate variant, bending, twist or the
+registration error, and none is written; each group carries the algorithm identification (TID 4019: name, version,
 profile), once per group rather than once per measurement (TID 1501 row 5 and TID 300 row 9 both
 allow it; per measurement it tripled the document's size and build time).
 
@@ -53,6 +58,7 @@ from pydicom.valuerep import DA, DT, TM, PersonName
 
 from services.core.estimates import model_estimate_reason
 from spine_client.dicom.datetimes import format_utc_offset, parse_utc_offset
+from spine_engine.models import read_study_date
 
 from .cobb_lines import cobb_lines_px
 from .uids import job_uids
@@ -235,7 +241,7 @@ class StudyIdentity:
             patient_id=study.get("patient_id"),
             patient_name=study.get("patient_name"),
             accession_number=study.get("accession_number"),
-            study_date=date.fromisoformat(when) if isinstance(when, str) else when,
+            study_date=read_study_date(when),
             study_time=study.get("study_time"),
             study_id=study.get("study_id"),
             patient_birth_date=study.get("patient_birth_date"),
@@ -294,8 +300,12 @@ class _Builder:
         self.groups: list[Any] = []
 
     def measurement(self, name: CodedConcept, value: float | None, *, unit: CodedConcept = DEGREE,
-                    quantity: str | None = None, level: str | None = None, sd: float | None = None,
+                    quantity: str | tuple[str, ...] | None = None, level: str | None = None,
+                    sd: float | None = None,
                     sites: Sequence[hd.sr.FindingSite] = ()) -> hd.sr.Measurement | None:  # fmt: skip
+        """A TID 300 NUM of ``value`` in ``unit``: method ``MODEL_BASED`` when ``model_based`` says so of
+        ``quantity`` (or of any of several: a value that depends on each), else ``MEASURED``; ``sd`` (1 SD,
+        in ``unit``) as TID 310 upper and lower measurement uncertainty. None when ``value`` is None."""
         if value is None:
             return None
         properties = None
@@ -305,7 +315,9 @@ class _Builder:
             for item in properties:  # highdicom writes (1, UCUM, "no units"); an SD has the value's unit
                 if item.ValueType == "NUM":
                     item.MeasuredValueSequence[0].MeasurementUnitsCodeSequence = [unit]
-        method = PrivateCodes.MODEL_BASED if model_based(self.fit, quantity, level) else PrivateCodes.MEASURED
+        quantities = (quantity,) if isinstance(quantity, str) else quantity or ()
+        estimate = any(model_based(self.fit, q, level) for q in quantities)
+        method = PrivateCodes.MODEL_BASED if estimate else PrivateCodes.MEASURED
         return hd.sr.Measurement(
             name=name, value=ds_number(value), unit=unit, method=method, properties=properties,
             finding_sites=list(sites) or None,
@@ -447,20 +459,30 @@ def build_sr(
     b = _Builder(result, algorithm, job)
     measures = result.get("measures") or {}
 
+    rotation_sd = {v["level"]: v.get("axial_rotation_sd_deg") for v in result.get("vertebrae") or []}
+    cobb_estimated = model_based(b.fit, "cobb")
     for i, c in enumerate(measures.get("cobb") or [], start=1):
         sites = [vertebra(c["upper"], SUPERIOR), vertebra(c["lower"], INFERIOR), vertebra(c["apex"], APICAL)]
-        cobb = b.measurement(COBB_ANGLE, c["angle_deg"], sd=c.get("angle_sd_deg"), quantity="cobb", sites=sites)
+        cobb_sd = c.get("angle_sd_deg")
+        cobb = b.measurement(COBB_ANGLE, c["angle_deg"], sd=cobb_sd, quantity="cobb", sites=sites)
         b.group(
             f"Cobb curve {i} {c['upper']}-{c['lower']}",
             [
                 cobb,
+                # the apex's own SD (the result's vertebra); the plane and the angle in it have none in the
+                # result, and are the prior's too when the curve's Cobb angle is (docs/measures.md: `cobb`)
                 b.measurement(PrivateCodes.APEX_AXIAL_ROTATION, c.get("apex_axial_rotation_deg"),
-                              quantity="axial_rotation", level=c["apex"], sites=[vertebra(c["apex"], APICAL)]),
+                              quantity="axial_rotation", level=c["apex"], sd=rotation_sd.get(c["apex"]),
+                              sites=[vertebra(c["apex"], APICAL)]),
                 b.measurement(PrivateCodes.PLANE_MAX_CURVATURE, c.get("plane_of_max_curvature_deg"),
-                              quantity="plane_of_max_curvature"),
+                              quantity=("plane_of_max_curvature", "cobb")),
                 b.measurement(PrivateCodes.MAX_CURVATURE, c.get("max_curvature_deg"),
-                              quantity="plane_of_max_curvature"),
-                b.measurement(PrivateCodes.ENDPLATE_ANGLE, c.get("endplate_angle_deg")),
+                              quantity=("plane_of_max_curvature", "cobb")),
+                # the endplate variant of a model-estimated Cobb angle is the same estimate (its value is the
+                # angle's when no corners drew the endplates): its mark and its SD; measured, the result has
+                # no SD of it
+                b.measurement(PrivateCodes.ENDPLATE_ANGLE, c.get("endplate_angle_deg"), quantity="cobb",
+                              sd=cobb_sd if cobb_estimated else None),
             ],
             sites=sites,
             evaluations=[

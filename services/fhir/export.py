@@ -24,7 +24,10 @@ referenced in ``derivedFrom`` as an ImagingStudy identifier (system ``urn:dicom:
 Model estimates: a value from the spine model's prior (``services.core.estimates.model_estimate_reason``,
 the SR's rule) has
 ``interpretation`` the local code ``MODEL-BASED`` (the SR's method code) and a note giving the
-result's reason, on the Observation or on the Cobb Observation's component.
+result's reason, on the Observation or on the Cobb Observation's component; a Cobb angle's end-plate
+variant, plane of maximum curvature and Cobb angle in that plane are flagged with the Cobb angle when it
+is one (``fit.unreliable`` ``cobb``), as the SR marks them. An SD the result gives is a component whose
+text says where it comes from (``sd_component_text``).
 
 Subject and time: ``subject`` is the Patient by identifier (DICOM Patient ID (0010,0020)) whenever a
 patient ID is known, with ``system`` the film's issuer when its Issuer of Patient ID Qualifiers Sequence
@@ -44,9 +47,10 @@ from typing import Any
 
 from fhir.resources.R4B.bundle import Bundle
 
-from services.core.estimates import model_estimate_reason
+from services.core.estimates import EXACT_ENDS, model_estimate_reason
 from spine_client.dicom.datetimes import iso_offset, parse_utc_offset
 from spine_engine.levels import apex_words
+from spine_engine.models import read_study_date
 
 FHIR_MEDIA_TYPE = "application/fhir+json"
 FHIR_VERSION = "4.0.1"
@@ -90,10 +94,62 @@ MODEL_BASED = {"coding": [{"system": LOCAL_CODE_SYSTEM, "version": LOCAL_CODE_SY
 ``MODEL-BASED`` (99SPINE), in the local code system."""
 
 
-SD_COMPONENT = (
-    "Standard deviation of the value (1 SD from the fit's curvature, calibrated on held-out spines; "
-    "a 95 % interval is ±1.96 SD)"
-)
+SD_COMPONENT = "Standard deviation of the value"
+"""How the text of an Observation's SD component begins (``sd_component_text`` says where the SD comes from)."""
+
+_LAPLACE = "the fit's Laplace SD, scaled by constants fitted on VerSe dev spines (fit.uncertainty_scale)"
+_MODEL_TILT_ENDS = ("model", "mixed")
+"""``tilt_source`` of a Cobb angle some of whose end vertebrae's tilts are the model's (no corners)."""
+
+
+def _assumed(fit: Mapping[str, Any], name: str) -> bool:
+    return any(isinstance(a, Mapping) and a.get("name") == name for a in fit.get("assumed") or [])
+
+
+def sd_component_text(fit: Mapping[str, Any], quantity: str, *, level: str | None = None,
+                      tilt_source: str | None = None) -> str:  # fmt: skip
+    """The text of an SD component (1 SD of the Observation's value, degrees): where the engine's SD of
+    ``quantity`` (``cobb``, ``kyphosis``, ``lordosis``, ``axial_rotation`` of ``level``) comes from, as the
+    result's ``fit`` says (docs/engine.md "Honest SDs", docs/measures.md, docs/accuracy.md "Intervals"):
+
+    - every SD starts from the fit's Laplace SD scaled by constants fitted on VerSe dev
+      (``fit.uncertainty_scale``);
+    - a Cobb angle with an end vertebra of model tilt (``tilt_source`` model or mixed) adds the spread of
+      real endplates (AASCE 2019 training); with ``cobb`` in ``fit.unreliable`` an angle that depends on
+      a level the PA film's landmarks do not show has at least the population's SD of the major Cobb
+      angle (18.4°), the others their own: the result does not say which, so the text says both;
+    - kyphosis and lordosis when no film places the spine in depth (``depth`` in ``fit.unreliable``: no
+      boundary, fewer than 2 lateral landmarks) have at least the population's SD (VerSe dev);
+    - an axial rotation of the population's (``fit.assumed`` ``population_axial_rotation``) adds the
+      population's spread at its curve's Cobb angle, except T1's and L5's given exactly."""
+    unreliable = set(fit.get("unreliable") or [])
+    source = _LAPLACE
+    if quantity == "cobb":
+        if tilt_source in _MODEL_TILT_ENDS:
+            source += (
+                ", with the spread of real endplates about the centreline added for the end vertebrae "
+                "no corners drew (calibrated on AASCE 2019 training)"
+            )
+        if "cobb" in unreliable:
+            source = (
+                "at least the population's SD of the major Cobb angle (AASCE 2019 training) if the angle "
+                f"depends on a level the PA film's landmarks do not show (fit.unreliable: cobb), else {source}"
+            )
+    elif quantity in ("kyphosis", "lordosis") and "depth" in unreliable:
+        source = (
+            f"the population's SD (VerSe dev) or {_LAPLACE}, whichever is larger: no film places the "
+            "spine in depth (fit.unreliable: depth)"
+        )
+    elif (
+        quantity == "axial_rotation"
+        and _assumed(fit, "population_axial_rotation")
+        and not (fit.get("boundary", "given") == "given" and level in EXACT_ENDS)
+    ):
+        source += (
+            ", with the population's spread of axial rotation at its curve's Cobb angle added "
+            "(fit.assumed: population_axial_rotation)"
+        )
+    return f"{SD_COMPONENT} (1 SD: {source}; a 95 % interval is ±1.96 SD)"
 
 
 def _deg(value: float) -> dict[str, Any]:
@@ -117,13 +173,13 @@ def _coded(text: str, coding: dict[str, Any] | None) -> dict[str, Any]:
 
 
 _ESTIMATE_KEY = "_estimate"
-"""A component's model-estimate reason while the Observation is built (``_component_estimate_notes``
+"""A component's model-estimate reason while the Observation is built (``_estimate_notes``
 moves it into a note; never in the JSON)."""
 
 
 def _component(name: str, code: str | None = None, estimate: str | None = None, **value: Any) -> dict[str, Any]:
     """An Observation component; ``estimate`` (why its value is a model estimate) flags it with
-    ``interpretation`` ``MODEL_BASED`` and, through ``_component_estimate_notes``, a note."""
+    ``interpretation`` ``MODEL_BASED`` and, through ``_estimate_notes``, a note."""
     component = {"code": _coded(name, _local(code) if code else None), **value}
     if estimate:
         component["interpretation"] = [MODEL_BASED]
@@ -131,15 +187,21 @@ def _component(name: str, code: str | None = None, estimate: str | None = None, 
     return component
 
 
-def _component_estimate_notes(components: Sequence[dict[str, Any]]) -> list[str]:
-    """One note per reason of the model-estimate components (naming them), their reasons taken out of
-    the components."""
-    by_reason: dict[str, list[str]] = {}
+def _estimate_notes(estimate: str | None, components: Sequence[dict[str, Any]]) -> list[str]:
+    """The model-estimate notes of an Observation whose value is one for the reason ``estimate`` (None:
+    measured): one per reason, naming the components it flags (their reasons taken out of them), the
+    value's first; components with the value's reason are named in its note (a Cobb angle's end-plate
+    variant), not in a second note repeating it."""
+    by_reason: dict[str, list[str]] = {estimate: []} if estimate else {}
     for component in components:
         reason = component.pop(_ESTIMATE_KEY, None)
         if reason:
             by_reason.setdefault(reason, []).append(component["code"]["text"])
-    return [_estimate_note(reason, "components: " + "; ".join(names)) for reason, names in by_reason.items()]
+    notes = []
+    for reason, names in by_reason.items():
+        parts = (["the value"] if reason == estimate else []) + (["components: " + "; ".join(names)] if names else [])
+        notes.append(_estimate_note(reason, "; ".join(parts) if names else None))
+    return notes
 
 
 def _derived_from(study: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -240,10 +302,10 @@ def _study_date_time(study: Mapping[str, Any]) -> str | None:
     """The study's Study Date (0008,0020), with its Study Time (0008,0030) when the study also gives
     its Timezone Offset From UTC (0008,0201): FHIR R4 ``dateTime`` SHALL have a time zone when it has
     a time (datatypes §2.24.0.1), and a DICOM TM alone is in no stated zone."""
-    when = study.get("study_date")
-    if not when:
+    when = read_study_date(study.get("study_date"))
+    if when is None:
         return None
-    day = when.isoformat() if isinstance(when, date) else str(when)
+    day = when.isoformat()
     time_match = _DICOM_TM.match(str(study.get("study_time") or ""))
     zone = parse_utc_offset(study.get("timezone_offset_from_utc"))
     if time_match is None or zone is None:
@@ -346,13 +408,13 @@ def observation_bundle(
 
     def observation(key: str, name: str, value: float, *, coding: dict[str, Any], notes: Sequence[str] = (),
                     components: Sequence[dict[str, Any]] = (), estimate: str | None = None,
-                    sd: float | None = None) -> dict[str, Any]:  # fmt: skip
-        """``estimate``: why the value is a model estimate (``model_estimate_reason``), None when measured."""
+                    sd: float | None = None, sd_text: str = SD_COMPONENT) -> dict[str, Any]:  # fmt: skip
+        """``estimate``: why the value is a model estimate (``model_estimate_reason``), None when measured;
+        ``sd``: its SD, a component named ``sd_text`` (``sd_component_text``)."""
         if sd is not None:
-            components = [*components, _component(SD_COMPONENT, valueQuantity=_deg(sd))]
+            components = [*components, _component(sd_text, valueQuantity=_deg(sd))]
         obs_id = str(uuid.uuid5(_NAMESPACE, f"{job_id}:{key}"))
-        estimate_notes = [_estimate_note(estimate)] if estimate else []
-        estimate_notes += _component_estimate_notes(components)
+        estimate_notes = _estimate_notes(estimate, components)
         texts = [{"text": n} for n in [*notes, *estimate_notes]] + image_note
         body: dict[str, Any] = {
             "resourceType": "Observation",
@@ -380,6 +442,10 @@ def observation_bundle(
 
     observations: list[dict[str, Any]] = []
     curves = sorted(measures.get("cobb") or [], key=lambda c: not c.get("major"))
+    cobb_estimate = model_estimate_reason(fit, "cobb")
+    # the plane of maximum curvature and the Cobb angle in it: the prior's without depth, and a curve's
+    # whose Cobb angle is the prior's (docs/measures.md, `cobb`), as in the SR
+    plane_estimate = model_estimate_reason(fit, "plane_of_max_curvature") or cobb_estimate
     for i, curve in enumerate(curves):
         kind = "major curve" if curve.get("major") else "minor curve"
         components = [
@@ -392,16 +458,14 @@ def observation_bundle(
                        valueQuantity=_deg(curve["apex_axial_rotation_deg"]),
                        estimate=model_estimate_reason(fit, "axial_rotation", curve["apex"])),
             _component("Plane of maximum curvature, azimuth from the frontal plane toward anterior", "PMC-ORIENT",
-                       valueQuantity=_deg(curve["plane_of_max_curvature_deg"]),
-                       estimate=model_estimate_reason(fit, "plane_of_max_curvature")),
+                       valueQuantity=_deg(curve["plane_of_max_curvature_deg"]), estimate=plane_estimate),
             _component("Cobb angle in the plane of maximum curvature", "PMC-COBB",
-                       valueQuantity=_deg(curve["max_curvature_deg"]),
-                       estimate=model_estimate_reason(fit, "plane_of_max_curvature")),
+                       valueQuantity=_deg(curve["max_curvature_deg"]), estimate=plane_estimate),
         ]  # fmt: skip
-        if curve.get("endplate_angle_deg") is not None:
+        if curve.get("endplate_angle_deg") is not None:  # the same estimate as the Cobb angle it is a variant of
             endplates = _deg(curve["endplate_angle_deg"])
             components.append(_component("Cobb angle between end plates, frontal plane", "ENDPLATE-COBB",
-                                         valueQuantity=endplates))  # fmt: skip
+                                         valueQuantity=endplates, estimate=cobb_estimate))  # fmt: skip
         note = (
             f"{kind.capitalize()} {curve['upper']}–{curve['lower']}, "
             f"apex {apex_words(curve['apex'], bool(curve.get('apical_disc')))}, "
@@ -410,7 +474,8 @@ def observation_bundle(
         observations.append(
             observation(f"cobb:{i}:{curve['upper']}-{curve['lower']}", f"Cobb angle, frontal plane, {kind}",
                         curve["angle_deg"], coding=COBB_ANGLE, notes=[note], components=components,
-                        sd=curve.get("angle_sd_deg"), estimate=model_estimate_reason(fit, "cobb"))
+                        sd=curve.get("angle_sd_deg"), estimate=cobb_estimate,
+                        sd_text=sd_component_text(fit, "cobb", tilt_source=curve.get("tilt_source")))
         )  # fmt: skip
     largest = measures.get("largest_cobb")
     if largest and not largest.get("reported_as_curve"):  # no curve of 10°: `cobb` is empty
@@ -420,7 +485,8 @@ def observation_bundle(
             observation(f"cobb:largest:{largest['upper']}-{largest['lower']}",
                         "Cobb angle, frontal plane, largest (below the 10° of a scoliotic curve)",
                         largest["angle_deg"], coding=COBB_ANGLE, notes=[note], sd=largest.get("angle_sd_deg"),
-                        estimate=model_estimate_reason(fit, "cobb"),
+                        estimate=cobb_estimate,
+                        sd_text=sd_component_text(fit, "cobb", tilt_source=largest.get("tilt_source")),
                         components=[_component("Upper end vertebra", valueString=largest["upper"]),
                                     _component("Lower end vertebra", valueString=largest["lower"])])
         )  # fmt: skip
@@ -437,7 +503,8 @@ def observation_bundle(
             sign = "positive when convex posteriorly" if flag == "kyphosis" else "positive when convex anteriorly"
             observations.append(observation(key, name, measures[field], coding=_local(code), notes=[f"Sign: {sign}."],
                                             estimate=model_estimate_reason(fit, flag),
-                                            sd=measures.get(field.replace("_deg", "_sd_deg"))))  # fmt: skip
+                                            sd=measures.get(field.replace("_deg", "_sd_deg")),
+                                            sd_text=sd_component_text(fit, flag)))  # fmt: skip
     if major is not None:
         apex = [v for v in result.get("vertebrae") or [] if v.get("level") == major["apex"]]
         apex_sd = apex[0].get("axial_rotation_sd_deg") if apex else None
@@ -451,6 +518,7 @@ def observation_bundle(
                 components=[_component("Apex vertebra", valueString=major["apex"])],
                 estimate=model_estimate_reason(fit, "axial_rotation", major["apex"]),
                 sd=apex_sd,
+                sd_text=sd_component_text(fit, "axial_rotation", level=major["apex"]),
             )
         )
     bundle = {

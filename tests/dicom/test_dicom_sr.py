@@ -413,3 +413,90 @@ def sr_groups(sr: Dataset) -> list[Any]:
     sr.save_as(buffer, enforce_file_format=True)
     buffer.seek(0)
     return list(hd.sr.srread(buffer).content.get_planar_roi_measurement_groups())
+
+
+UPPER_UNCERTAINTY, LOWER_UNCERTAINTY = "371886008", "371885007"  # TID 310 (PS3.16), one SD each
+
+
+def _uncertainty(measurement: Any) -> tuple[float, float] | None:
+    """A NUM's TID 310 upper and lower measurement uncertainty (its SD, the value's unit checked), None
+    when it has none."""
+    found = {item.ConceptNameCodeSequence[0].CodeValue: item.MeasuredValueSequence[0]
+             for item in measurement[0].ContentSequence if item.ValueType == "NUM"}  # fmt: skip
+    if not found:
+        return None
+    units = {v.MeasurementUnitsCodeSequence[0].CodeValue for v in found.values()}
+    assert units == {measurement.unit.value}
+    return float(found[UPPER_UNCERTAINTY].NumericValue), float(found[LOWER_UNCERTAINTY].NumericValue)
+
+
+def _cobb_groups(sr: Dataset, tmp_path: Path) -> list[dict[str, Any]]:
+    """Each Cobb curve's group, its measurements by code value."""
+    content: Any = hd.sr.srread(_write(sr, tmp_path / "cobb.dcm")).content  # a MeasurementReport
+    return [{m.name.value: m for m in g.get_measurements()} for g in content.get_planar_roi_measurement_groups()
+            if g.tracking_identifier == COBB_TOOL]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def short_film(case: dict[str, Any]) -> tuple[dict[str, Any], Dataset]:
+    """The case's spine with PA landmarks on T1–T7 only: the frontal Cobb angles depend on levels the film
+    does not show, so ``fit.unreliable`` names ``cobb`` (the reviewer's job); its result and SR."""
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["pa"]["pixel_spacing"] = [SPACING, SPACING]
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][:7]
+    result = register(payload)
+    assert "cobb" in result["fit"]["unreliable"] and result["measures"]["cobb"]
+    sr = build_sr(result, payload, JOB, case["identity"], {"pa": case["source"]},
+                  content_datetime=datetime(2026, 12, 1, 12, 0, 0))  # fmt: skip
+    return result, sr
+
+
+def test_the_endplate_variant_of_a_model_estimated_cobb_angle_is_the_same_estimate(
+    case: dict[str, Any], short_film: tuple[dict[str, Any], Dataset], tmp_path: Path
+) -> None:
+    """``fit.unreliable`` ``cobb``: the Cobb angle between the end vertebrae's endplates is the same model
+    estimate as the Cobb angle (MODEL-BASED, its SD as TID 310 uncertainty), not a MEASURED value without
+    one; on the full film both are MEASURED and the variant has no SD (the result gives none)."""
+    result, sr = short_film
+    groups = _cobb_groups(sr, tmp_path)
+    assert len(groups) == len(result["measures"]["cobb"])
+    for group, curve in zip(groups, result["measures"]["cobb"], strict=True):
+        cobb, endplates = group[COBB_ANGLE.value], group[PrivateCodes.ENDPLATE_ANGLE.value]
+        assert endplates.value == pytest.approx(curve["endplate_angle_deg"], rel=1e-12)
+        assert cobb.method.value == endplates.method.value == PrivateCodes.MODEL_BASED.value
+        assert _uncertainty(endplates) == _uncertainty(cobb) == pytest.approx((curve["angle_sd_deg"],) * 2, rel=1e-12)
+    for group in _cobb_groups(_sr(case), tmp_path):
+        endplates = group[PrivateCodes.ENDPLATE_ANGLE.value]
+        assert endplates.method.value == PrivateCodes.MEASURED.value and _uncertainty(endplates) is None
+
+
+def test_each_cobb_groups_apical_rotation_carries_the_apexs_sd(
+    case: dict[str, Any], short_film: tuple[dict[str, Any], Dataset], tmp_path: Path
+) -> None:
+    """The apical axial rotation NUM of every Cobb group has the apex vertebra's ``axial_rotation_sd_deg``
+    as its uncertainty, as the vertebra's own group has; the plane of maximum curvature and the Cobb angle
+    in it have none (the result gives none) and are MODEL-BASED with the Cobb angle (``cobb``)."""
+    for result, sr in ((case["result"], _sr(case)), short_film):
+        sds = {v["level"]: v["axial_rotation_sd_deg"] for v in result["vertebrae"]}
+        groups = _cobb_groups(sr, tmp_path)
+        assert len(groups) == len(result["measures"]["cobb"]) >= 1
+        for group, curve in zip(groups, result["measures"]["cobb"], strict=True):
+            apex = group[PrivateCodes.APEX_AXIAL_ROTATION.value]
+            assert sds[curve["apex"]] is not None
+            assert _uncertainty(apex) == pytest.approx((sds[curve["apex"]],) * 2, rel=1e-12)
+            expected = "MODEL-BASED" if "cobb" in result["fit"]["unreliable"] else "MEASURED"
+            for code in (PrivateCodes.PLANE_MAX_CURVATURE, PrivateCodes.MAX_CURVATURE):
+                assert _uncertainty(group[code.value]) is None
+                assert group[code.value].method.value == expected
+
+
+def test_the_sr_of_a_short_pa_film_passes_dciodvfy_and_dsrdump(
+    short_film: tuple[dict[str, Any], Dataset], tmp_path: Path
+) -> None:
+    if shutil.which("dciodvfy") is None or shutil.which("dsrdump") is None:
+        pytest.skip("dicom3tools' dciodvfy or dcmtk's dsrdump is not installed (apt-get install dicom3tools dcmtk)")
+    path = _write(short_film[1], tmp_path / "sr.dcm")
+    run = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True, timeout=60)
+    assert [line for line in (run.stdout + run.stderr).splitlines() if line.startswith("Error")] == []
+    run = subprocess.run(["dsrdump", "-v", str(path)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "E:" not in run.stderr and "W:" not in run.stderr, run.stderr

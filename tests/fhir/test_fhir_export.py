@@ -39,6 +39,17 @@ def free() -> dict[str, Any]:
     return out
 
 
+@pytest.fixture(scope="module")
+def short() -> dict[str, Any]:
+    """T1 and L5 given, PA landmarks on T1–T7 only: the frontal Cobb angles depend on levels the film does not
+    show (``fit.unreliable`` ``cobb``, their SDs the population's floor)."""
+    payload = spine_payload(curve_mm=25.0)
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][:7]
+    out: dict[str, Any] = register(payload)
+    assert "cobb" in out["fit"]["unreliable"]
+    return out
+
+
 def _observations(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
     bundle = observation_bundle(uuid.uuid4(), result, finished_at=FINISHED, created_at=CREATED)
     Bundle.model_validate(bundle)
@@ -139,3 +150,73 @@ def test_sr_and_fhir_flag_the_same_values_of_real_results(given: dict[str, Any],
         fit = result["fit"]
         assert ("interpretation" in parts["APEX-AXROT"]) == model_based(fit, "axial_rotation", major["apex"])
         assert ("interpretation" in parts["PMC-ORIENT"]) == model_based(fit, "plane_of_max_curvature")
+
+
+ENDPLATES = "Cobb angle between end plates, frontal plane"
+PLANE = ("Plane of maximum curvature, azimuth from the frontal plane toward anterior",
+         "Cobb angle in the plane of maximum curvature")  # fmt: skip
+
+
+def test_the_endplate_variant_of_a_model_estimated_cobb_angle_is_flagged(
+    short: dict[str, Any], given: dict[str, Any]
+) -> None:
+    """``fit.unreliable`` ``cobb``: every Cobb Observation is a model estimate, and so are its end-plate
+    variant, plane of maximum curvature and the Cobb angle in it (the SR's MODEL-BASED), named in the
+    value's note rather than in a second note repeating its reason; measured on the whole film, none is."""
+    cobbs = _cobb_observations(short)
+    assert len(cobbs) == len(short["measures"]["cobb"]) >= 1
+    for cobb in cobbs:
+        parts = {c["code"]["text"]: c for c in cobb["component"]}
+        assert cobb["interpretation"] == [MODEL_BASED]
+        for name in (ENDPLATES, *PLANE):
+            assert parts[name]["interpretation"] == [MODEL_BASED], name
+        notes = [n for n in _estimate_notes(cobb) if "fit.unreliable: cobb" in n]
+        assert len(notes) == 1 and all(name in notes[0] for name in (ENDPLATES, *PLANE)), notes
+        assert notes[0].startswith("Model estimate (the value; components: ")
+    measured = _observations(given)["Cobb angle, frontal plane, major curve"]
+    assert "cobb" not in given["fit"]["unreliable"] and "interpretation" not in measured
+    parts = {c["code"]["text"]: c for c in measured["component"]}
+    assert not any("interpretation" in parts[name] for name in (ENDPLATES, *PLANE))
+
+
+def _cobb_observations(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The frontal Cobb Observations (the minor curves share a text)."""
+    bundle = observation_bundle(uuid.uuid4(), result, finished_at=FINISHED, created_at=CREATED)
+    return [e["resource"] for e in bundle["entry"] if e["resource"]["code"]["text"].startswith("Cobb angle, frontal")]
+
+
+def _sd_text(obs: dict[str, Any]) -> str:
+    [text] = [c["code"]["text"] for c in obs.get("component", [])
+              if c["code"]["text"].startswith("Standard deviation of the value")]  # fmt: skip
+    return text
+
+
+def _sd_texts(result: dict[str, Any]) -> dict[str, str]:
+    """Each Observation's SD component text, by the Observation's text (one of the minor curves')."""
+    return {text: _sd_text(o) for text, o in _observations(result).items() if o.get("component")
+            and any(c["code"]["text"].startswith("Standard deviation") for c in o["component"])}  # fmt: skip
+
+
+def test_the_sd_component_says_where_the_sd_comes_from(
+    short: dict[str, Any], given: dict[str, Any], free: dict[str, Any]
+) -> None:
+    """An SD that is the population's floor says so, one from the fit says that: a Cobb angle beyond the
+    film (``fit.unreliable`` ``cobb``, 18.4°), kyphosis and lordosis without depth (no boundary, one PA film:
+    ``fit.unreliable`` ``depth``, 10.1°) name the population's SD; the fit's own SDs (T1 and L5 given: the
+    kyphosis is not floored) name the Laplace SD calibrated on VerSe dev, never held-out spines."""
+    kyphosis = "Thoracic kyphosis T4–T12 (sagittal Cobb angle)"
+    population = "at least the population's SD of the major Cobb angle"
+    for result in (short, given, free):
+        assert not any("held-out" in text for text in _sd_texts(result).values())
+    cobb = [_sd_text(o) for o in _cobb_observations(short)]
+    assert len(cobb) == len(short["measures"]["cobb"]) and all(population in t and "fit.unreliable: cobb" in t
+                                                                 for t in cobb)  # fmt: skip
+    assert [c["angle_sd_deg"] for c in short["measures"]["cobb"]] == pytest.approx([18.42] * len(cobb), abs=0.01)
+    # 18.42: the population's SD of the major Cobb angle (docs/engine.md "Honest SDs"), the floor here
+    assert "depth" in free["fit"]["unreliable"] and "population's SD (VerSe dev)" in _sd_texts(free)[kyphosis]
+    assert free["measures"]["thoracic_kyphosis_t4_t12_sd_deg"] == pytest.approx(10.07, abs=0.01)
+    # 10.07: the population's SD of kyphosis T4–T12 (VerSe dev, docs/engine.md "Honest SDs": 10.1°), the floor
+    own = _sd_texts(given)
+    assert "population" not in own[kyphosis] and "population" not in own["Cobb angle, frontal plane, major curve"]
+    assert "Laplace SD" in own[kyphosis] and "VerSe dev" in own[kyphosis]
+    assert "population_axial_rotation" in own["Apical vertebral axial rotation of the major curve"]
