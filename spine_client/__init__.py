@@ -19,6 +19,7 @@ from spine_client.errors import (
     JobNotCancellable,
     NotFound,
     RateLimited,
+    RouteNotFound,
     ServerError,
     ServiceUnreachable,
     SpineError,
@@ -26,6 +27,10 @@ from spine_client.errors import (
     WaitTimeout,
 )
 from spine_client.models import BatchEntry, BatchResult, Job, JobPage, Problem
+
+__version__ = "0.1.0"
+"""The client's version, as spine_client/pyproject.toml gives it (``spine --version``;
+tests/cli/test_client_scripting.py holds the two equal)."""
 
 __all__ = [
     "ApiError",
@@ -43,10 +48,12 @@ __all__ = [
     "NotFound",
     "Problem",
     "RateLimited",
+    "RouteNotFound",
     "ServerError",
     "ServiceUnreachable",
     "SpineClient",
     "SpineError",
     "Unauthorized",
     "WaitTimeout",
+    "__version__",
 ]

@@ -6,7 +6,8 @@ Exit codes (docs/client.md), for scripts:
     1  a job failed or was cancelled
     2  usage error or invalid input (bad arguments, unreadable JSON, a payload the service refused)
     3  timeout: a job did not finish within --timeout
-    4  server or network error (5xx, 429 or no answer, still after the retries)
+    4  server or network error (5xx, 429 or no answer, still after the retries), or a URL that is not
+       the service's (an answer not of its API; a 404 route-not-found: the service has no such path)
     5  not found (no such job)
     6  authentication or authorisation refused (401, 403: check --api-key / SPINE_API_KEY)
     7  conflict with the job's state (cancel of a finished job, CSV or FHIR of a job without result,
@@ -30,7 +31,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from spine_client import optional, tables
+from spine_client import __version__, optional, tables
 from spine_client.client import API_KEY_ENV, DEFAULT_URL, URL_ENV, SpineClient, base_url_problem, service_url
 from spine_client.errors import (
     ApiError,
@@ -38,6 +39,7 @@ from spine_client.errors import (
     Forbidden,
     InvalidRequest,
     NotFound,
+    RouteNotFound,
     SpineError,
     Unauthorized,
     WaitTimeout,
@@ -67,6 +69,8 @@ class UsageError(Exception):
 
 
 def exit_code(exc: BaseException) -> int:
+    if isinstance(exc, RouteNotFound):  # a 404 of the URL, not of a job: check --url
+        return EXIT_SERVER
     if isinstance(exc, WaitTimeout):
         return EXIT_TIMEOUT
     if isinstance(exc, NotFound):
@@ -94,6 +98,9 @@ def _report(exc: BaseException) -> None:
         _err(f"error: {exc}")
         for e in exc.problem.errors or []:
             _err(f"  {e.path or '(body)'}: {e.msg}")
+        if isinstance(exc, RouteNotFound):
+            _err(f"  the service has no such path: check --url (or ${URL_ENV}), the service's base URL, "
+                 f"such as {DEFAULT_URL}")  # fmt: skip
     else:
         _err(f"error: {exc}")
 
@@ -304,17 +311,22 @@ def cmd_get(args: argparse.Namespace) -> int:
                         raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
                     _err(f"wrote {path} ({len(data)} bytes)")
         return EXIT_OK
+    output = args.format or ("csv" if args.measures else "json")  # --measures alone: CSV, as it always was
     with _client(args) as client:
         body = client.get_json(args.job_id)
-    if args.format == "json" and not args.measures:
+    if output == "json" and not args.measures:
         _print_json(body)
         return EXIT_OK
     status = body.get("status")
     if status != "succeeded" or not body.get("result"):
-        _err(f"error: job {args.job_id} is {status}: there is no result to write as CSV")
+        what = "its measures" if args.measures else "as CSV"
+        _err(f"error: job {args.job_id} is {status}: there is no result to write {what}")
         return EXIT_JOB_FAILED if status in ("failed", "cancelled") else EXIT_CONFLICT
     result = body["result"]
-    sys.stdout.write(tables.measures_csv(result) if args.measures else tables.vertebrae_csv(result))
+    if output == "json":
+        _print_json({"job_id": body.get("id"), "measures": tables.measure_records(result)})
+    else:
+        sys.stdout.write(tables.measures_csv(result) if args.measures else tables.vertebrae_csv(result))
     return EXIT_OK
 
 
@@ -332,19 +344,15 @@ def cmd_list(args: argparse.Namespace) -> int:
     if args.format == "json":
         _print_json({"jobs": jobs, "next_cursor": next_cursor})
         return EXIT_OK
-    rows = [tables.summary_row("", j) for j in jobs]
-    for row, job in zip(rows, jobs, strict=True):
-        row.update(created_at=job["created_at"], finished_at=job.get("finished_at"))
-    columns = ["job_id", "status", "created_at", "finished_at", "major_cobb_deg", "major_upper", "major_lower",
-               "problem_type"]  # fmt: skip
+    rows = [tables.list_row(j) for j in jobs]
     if args.format == "csv":
-        sys.stdout.write(tables._csv(columns, rows))
+        sys.stdout.write(tables.list_csv(rows))
         return EXIT_OK
     more = f" (more: --cursor {next_cursor})" if next_cursor else ""
-    cells = [[("" if row.get(c) is None else f"{row[c]:.1f}" if isinstance(row[c], float) else str(row[c]))
-              for c in columns] for row in rows]  # fmt: skip
+    cells = [tables.list_cells(row) for row in rows]
     try:
-        optional.print_table(columns, cells, f"{len(rows)} jobs{more}", width=None if sys.stdout.isatty() else 200)
+        optional.print_table(tables.LIST_TABLE_COLUMNS, cells, f"{len(rows)} jobs{more}",
+                             width=None if sys.stdout.isatty() else 200)  # fmt: skip
     except SystemExit:  # rich's Console.on_broken_pipe: stdout's reader is gone, stdout already the null device
         return EXIT_BROKEN_PIPE
     return EXIT_OK
@@ -471,6 +479,8 @@ def build_parser() -> argparse.ArgumentParser:
         "5 not found, 6 auth refused, 7 conflict with the job's state, 130 interrupted (Ctrl-C), 141 stdout closed "
         "(| head)",
     )  # fmt: skip
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the client's version and exit")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("submit", parents=[common], help="submit a job payload (JSON file, - for stdin), or a "
@@ -513,8 +523,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("get", parents=[common], help="print a job (JSON), or its vertebrae or measures (CSV)")
     p.add_argument("job_id", metavar="ID")
-    p.add_argument("--format", choices=["json", "csv"], default="json")
-    p.add_argument("--measures", action="store_true", help="CSV of the measures instead of the vertebrae")
+    p.add_argument("--format", choices=["json", "csv"], default=None,
+                   help="json: the job (the default), with --measures its measures; csv: the vertebrae, with "
+                   "--measures the measures (the default with --measures)")  # fmt: skip
+    p.add_argument("--measures", action="store_true", help="the measures instead of the job or the vertebrae")
     p.add_argument("--sr", default=None, metavar="OUT.dcm", help="write the result as a DICOM SR (TID 1500); "
                    "- writes it to stdout")  # fmt: skip
     p.add_argument("--figure-dcm", default=None, metavar="OUT.dcm", help="write the figure as a DICOM "
@@ -576,8 +588,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "format", None) == "json" and getattr(args, "measures", False):
-        args.format = "csv"
     if getattr(args, "run_key", "unset") is None:
         args.run_key = uuid.uuid4().hex
     if getattr(args, "batch_size", 1) < 1:

@@ -10,6 +10,9 @@ import httpx
 from spine_client.contract import Job, Problem
 
 PROBLEM_BASE = "https://spine.example/problems/"
+ROUTE_NOT_FOUND = "route-not-found"
+"""The service's problem type (after ``PROBLEM_BASE``) of a 404 for a path it does not serve
+(services/core/problems.py), as opposed to ``not-found``: a job the path names that is not there."""
 
 
 class SpineError(Exception):
@@ -46,6 +49,12 @@ class Forbidden(ApiError):
 
 class NotFound(ApiError):
     """404: no such job (or not one of this API key's)."""
+
+
+class RouteNotFound(ApiError):
+    """404 ``route-not-found``: the service has no such path, so the base URL is not the service's (a
+    path added to it, such as ``…/docs``), not that a job is missing. Not a ``NotFound``: code that
+    reads ``NotFound`` as "no such job" must not take a wrong URL for one."""
 
 
 class Conflict(ApiError):
@@ -137,6 +146,8 @@ def error_for(response: httpx.Response) -> ApiError:
         cls = _CONFLICTS.get(problem.type.removeprefix(PROBLEM_BASE), Conflict)
     elif status in (400, 413, 415, 422):
         cls = InvalidRequest
+    elif status == 404 and problem.type == PROBLEM_BASE + ROUTE_NOT_FOUND:
+        cls = RouteNotFound
     else:
         cls = {401: Unauthorized, 403: Forbidden, 404: NotFound, 429: RateLimited}.get(
             status, ServerError if status >= 500 else ApiError

@@ -5,7 +5,10 @@ Every number with its trust, as in the page's CSVs (web/src/csv.ts, web/src/resu
 standard deviations the result gives (``position_sd_*_mm``, ``axial_rotation_sd_deg``; a measure's
 ``sd`` in its unit) and a ``model_estimate`` mark on what comes from the model's prior rather than the
 landmarks (``fit.unreliable``): per vertebra, the columns so estimated joined by ``;`` (the same on
-every row); per measure, ``model estimate`` or empty."""
+every row); per measure, ``model estimate`` or empty; per job (``spine list``, ``submit-dir``'s summary),
+the job's columns so estimated joined by ``;``, with the SD of each angle in a ``_sd_deg`` column.
+Columns a version adds go at the end, so that a script reading columns by position keeps reading the
+same ones (docs/client.md)."""
 
 from __future__ import annotations
 
@@ -31,14 +34,34 @@ MODEL_COLUMNS: dict[str, tuple[str, ...]] = {
     "axial_rotation": ("axial_rotation_deg",),
     "twist": ("u3_rad_per_mm", "twist_deg"),
     "kyphosis": ("sagittal_bending_deg", "pa_bending_deg"),
+    "cobb": ("frontal_tilt_deg",),
 }
 """The vertebra columns that come from the model's prior when ``fit.unreliable`` names the quantity
-(the page's ``MODEL_COLUMNS``, with the deprecated alias ``pa_bending_deg`` while it is a column)."""
+(the page's ``MODEL_COLUMNS``, with the deprecated alias ``pa_bending_deg`` while it is a column, and
+``frontal_tilt_deg``, which the page's CSV does not have: the tilts the frontal Cobb angles are read
+from, the prior's where no PA landmark shows them, docs/measures.md)."""
+JOB_MEASURES = (
+    ("major_cobb_deg", "major_cobb_sd_deg", "cobb"),
+    ("thoracic_kyphosis_t4_t12_deg", "thoracic_kyphosis_t4_t12_sd_deg", "kyphosis"),
+    ("lumbar_lordosis_l1_l5_deg", "lumbar_lordosis_l1_l5_sd_deg", "lordosis"),
+)
+"""A job's row's angles (deg): the column, the column of its SD (deg) and the ``fit.unreliable``
+quantity that makes it a model estimate (docs/measures.md: ``cobb`` covers every frontal Cobb angle,
+``kyphosis`` and ``lordosis`` their measures)."""
 SUMMARY_COLUMNS = [
     "file", "job_id", "status", "major_cobb_deg", "major_upper", "major_lower", "major_apex", "major_convexity",
     "thoracic_kyphosis_t4_t12_deg", "lumbar_lordosis_l1_l5_deg", "mean_registration_error_mm", "problem_type",
-    "detail",
+    "detail", "major_cobb_sd_deg", "thoracic_kyphosis_t4_t12_sd_deg", "lumbar_lordosis_l1_l5_sd_deg",
+    "model_estimate",
 ]  # fmt: skip
+"""``submit-dir``'s summary.csv; the SDs and the model-estimate mark came last, after ``detail``."""
+LIST_COLUMNS = [
+    "job_id", "status", "created_at", "finished_at", "major_cobb_deg", "major_upper", "major_lower", "problem_type",
+    "major_cobb_sd_deg", "model_estimate",
+]  # fmt: skip
+"""``spine list --format csv``; the SD and the model-estimate mark came last, after ``problem_type``."""
+LIST_TABLE_COLUMNS = [c for c in LIST_COLUMNS if c not in ("major_cobb_sd_deg", "model_estimate")]
+"""``spine list``'s table: the major Cobb angle's cell reads ``value ± SD`` and its mark (``list_cells``)."""
 
 
 def _csv(columns: Sequence[str], rows: Iterable[dict[str, Any]]) -> str:
@@ -134,6 +157,18 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
+def measure_records(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The measures' rows as JSON objects (``spine get --measures --format json``): every column of
+    ``MEASURE_COLUMNS``, null where the CSV's cell is empty, ``major`` and ``model_estimate`` booleans
+    (``model_estimate`` true where the CSV says ``model estimate``)."""
+    records = []
+    for row in measure_rows(result):
+        record = {c: row.get(c) for c in MEASURE_COLUMNS}
+        record["model_estimate"] = row.get("model_estimate") == MODEL_MARK
+        records.append(record)
+    return records
+
+
 def measures_csv(result: dict[str, Any]) -> str:
     """One row per measure: every Cobb curve (angle, apical rotation, plane and magnitude of maximum
     curvature), the largest frontal angle when no curve reaches 10°, kyphosis, lordosis and the mean
@@ -141,22 +176,32 @@ def measures_csv(result: dict[str, Any]) -> str:
     return _csv(MEASURE_COLUMNS, measure_rows(result))
 
 
+def _job_measures(result: dict[str, Any]) -> dict[str, Any]:
+    """A job's row's measures: the major curve (its Cobb angle and SD, deg; ends, apex, convexity), the
+    kyphosis T4–T12 and lordosis L1–L5 with their SDs (deg), the mean registration error (mm), and
+    ``model_estimate``: the columns of ``JOB_MEASURES`` with a value that ``fit.unreliable`` makes the
+    model's prior's, joined by ``;``."""
+    measures = result.get("measures") or {}
+    major = next((c for c in measures.get("cobb") or [] if c.get("major")), None) or {}
+    row = {
+        "major_cobb_deg": major.get("angle_deg"), "major_cobb_sd_deg": major.get("angle_sd_deg"),
+        "major_upper": major.get("upper"), "major_lower": major.get("lower"), "major_apex": major.get("apex"),
+        "major_convexity": major.get("convexity"),
+        "mean_registration_error_mm": (result.get("fit") or {}).get("mean_registration_error_mm"),
+    }  # fmt: skip
+    for name in ("thoracic_kyphosis_t4_t12", "lumbar_lordosis_l1_l5"):
+        row[f"{name}_deg"], row[f"{name}_sd_deg"] = measures.get(f"{name}_deg"), measures.get(f"{name}_sd_deg")
+    unreliable = set(_unreliable(result))
+    row["model_estimate"] = ";".join(c for c, _, q in JOB_MEASURES if q in unreliable and row[c] is not None)
+    return row
+
+
 def summary_row(file: str, job: dict[str, Any] | None, *, status: str | None = None,
                 problem: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
     row: dict[str, Any] = {"file": file, "status": status or (job or {}).get("status")}
     if job is not None:
         row["job_id"] = job.get("id")
-        result = job.get("result") or {}
-        measures = result.get("measures") or {}
-        major = next((c for c in measures.get("cobb") or [] if c.get("major")), None) or {}
-        row.update({
-            "major_cobb_deg": major.get("angle_deg"), "major_upper": major.get("upper"),
-            "major_lower": major.get("lower"), "major_apex": major.get("apex"),
-            "major_convexity": major.get("convexity"),
-            "thoracic_kyphosis_t4_t12_deg": measures.get("thoracic_kyphosis_t4_t12_deg"),
-            "lumbar_lordosis_l1_l5_deg": measures.get("lumbar_lordosis_l1_l5_deg"),
-            "mean_registration_error_mm": (result.get("fit") or {}).get("mean_registration_error_mm"),
-        })  # fmt: skip
+        row.update(_job_measures(job.get("result") or {}))
         problem = problem or job.get("error")
     if problem:
         row["problem_type"] = str(problem.get("type", "")).rsplit("/", 1)[-1]
@@ -166,3 +211,39 @@ def summary_row(file: str, job: dict[str, Any] | None, *, status: str | None = N
 
 def summary_csv(rows: Iterable[dict[str, Any]]) -> str:
     return _csv(SUMMARY_COLUMNS, rows)
+
+
+def list_row(job: dict[str, Any]) -> dict[str, Any]:
+    """A row of ``spine list``: the job's summary row with its times, its ``model_estimate`` naming only
+    the columns ``LIST_COLUMNS`` has."""
+    row = summary_row("", job)
+    row.update(created_at=job.get("created_at"), finished_at=job.get("finished_at"))
+    row["model_estimate"] = ";".join(c for c in (row.get("model_estimate") or "").split(";") if c in LIST_COLUMNS)
+    return row
+
+
+def list_csv(rows: Iterable[dict[str, Any]]) -> str:
+    return _csv(LIST_COLUMNS, rows)
+
+
+def with_sd(value: float, sd: float | None, marked: bool) -> str:
+    """An angle (deg) as a person reads it in a table: one decimal, ``± SD`` when the result gives one,
+    and ``(model estimate)`` when it comes from the model's prior."""
+    text = f"{value:.1f}" if sd is None else f"{value:.1f} ± {sd:.1f}"
+    return f"{text} ({MODEL_MARK})" if marked else text
+
+
+def list_cells(row: dict[str, Any]) -> list[str]:
+    """A ``spine list`` row as its table shows it: ``LIST_COLUMNS`` without the SD and the mark, which
+    the major Cobb angle's cell carries (``with_sd``)."""
+    marked = set((row.get("model_estimate") or "").split(";"))
+    cells = []
+    for c in LIST_TABLE_COLUMNS:
+        value = row.get(c)
+        if value is None:
+            cells.append("")
+        elif c == "major_cobb_deg":
+            cells.append(with_sd(float(value), row.get("major_cobb_sd_deg"), c in marked))
+        else:
+            cells.append(f"{value:.1f}" if isinstance(value, float) else str(value))
+    return cells

@@ -26,7 +26,8 @@ IMPORTS = """
 import importlib.metadata, json, sys
 import spine_client, spine_client.cli, spine_client.client, spine_client.models
 print(json.dumps({"modules": sorted({m.split(".")[0] for m in sys.modules}),
-                  "requires": importlib.metadata.requires("spine-client")}))
+                  "requires": importlib.metadata.requires("spine-client"),
+                  "version": importlib.metadata.version("spine-client")}))
 """
 
 
@@ -54,6 +55,9 @@ def test_client_installs_alone_and_submits_to_the_service(tmp_path: Path) -> Non
         assert not set(FORBIDDEN) & set(loaded["modules"]), set(FORBIDDEN) & set(loaded["modules"])
         required = {r.split("==")[0] for r in loaded["requires"] if "extra ==" not in r}
         assert required == {"httpx", "pydantic"}, loaded["requires"]
+        # the installed command's version is the installed package's (spine_client/pyproject.toml)
+        shown = subprocess.run([str(spine), "--version"], capture_output=True, text=True, cwd=tmp_path)
+        assert (shown.returncode, shown.stdout) == (0, f"spine {loaded['version']}\n"), shown.stderr
 
         (tmp_path / "payload.json").write_text(json.dumps(spine_payload()), encoding="utf-8")
         argv = ["--url", serve.base, "--api-key", serve.api_key]

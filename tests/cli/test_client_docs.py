@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from spine_client import tables
 from spine_client.cli import build_parser
 
 CLIENT_DOC = Path(__file__).resolve().parents[2] / "docs" / "client.md"
@@ -39,3 +40,47 @@ def test_the_command_table_names_every_option(command: str) -> None:
 def test_the_common_options_are_documented_once() -> None:
     text = CLIENT_DOC.read_text()
     assert all(f"`{o}" in text for o in ("--url", "--api-key", "--retries", "--request-timeout"))
+
+
+def _bullet(starts: str) -> str:
+    """The CSV formats' bullet of docs/client.md that starts with ``starts``, up to the next one."""
+    text = CLIENT_DOC.read_text()
+    start = text.index(f"- {starts}")
+    end = text.find("\n- ", start + 1)
+    return " ".join(text[start : end if end > 0 else None].split())
+
+
+def test_the_measure_rows_a_model_estimate_marks_are_those_documented() -> None:
+    """docs/client.md's list of the `--measures` rows that get `model_estimate` left out `cobb_angle`,
+    which `fit.unreliable` `cobb` marks. A result (fed to ``tables.measure_rows``, no service) whose
+    ``fit.unreliable`` lists every quantity docs/measures.md's table has: each row it marks is named in
+    the sentence, and a row it leaves unmarked is not among them."""
+    curve = {"upper": "T5", "lower": "T12", "apex": "T9", "convexity": "right", "major": True, "angle_deg": 30.0,
+             "angle_sd_deg": 3.0, "apex_axial_rotation_deg": -8.0, "plane_of_max_curvature_deg": 20.0,
+             "max_curvature_deg": 31.0}  # fmt: skip
+    largest = {"upper": "T5", "lower": "T12", "angle_deg": 8.0, "reported_as_curve": False}
+    measures = {"cobb": [curve], "largest_cobb": largest, "thoracic_kyphosis_t4_t12_deg": 30.0,
+                "thoracic_kyphosis_t5_t12_deg": 28.0, "lumbar_lordosis_l1_l5_deg": 40.0}  # fmt: skip
+    every = ["scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"]
+    result = {"vertebrae": [], "measures": measures, "fit": {"mean_registration_error_mm": 0.5, "unreliable": every}}
+    rows = tables.measure_rows(result)
+    marked = {r["measure"] for r in rows if r.get("model_estimate")}
+    unmarked = {r["measure"] for r in rows} - marked
+    assert "cobb_angle" in marked and unmarked == {"mean_registration_error"}
+    bullet = _bullet("`spine get ID --measures` (a separate table")
+    start = bullet.index("`model_estimate` is `model estimate`")
+    sentence = bullet[start : bullet.index("else empty", start)]
+    named = set(re.findall(r"`([a-z0-9_]+)`", sentence))
+    assert marked <= named, f"docs/client.md does not name {sorted(marked - named)} among the marked rows"
+    assert not unmarked & named, sentence
+
+
+def test_the_csv_columns_and_marks_are_those_documented() -> None:
+    """The column lists of `spine list --format csv` and summary.csv, and the vertebra columns each
+    `fit.unreliable` quantity marks, read as docs/client.md gives them."""
+    text = " ".join(CLIENT_DOC.read_text().split())
+    assert f"`{','.join(tables.LIST_COLUMNS)}`" in text
+    assert f"`{','.join(tables.SUMMARY_COLUMNS)}`" in text
+    vertebrae = _bullet("`spine get ID --format csv`")
+    for quantity, columns in tables.MODEL_COLUMNS.items():
+        assert f"`{';'.join(columns)}`" in vertebrae, (quantity, columns)

@@ -8,11 +8,15 @@ ends as the wait times out is printed and exits as ended; a service that stops a
 by its timeout, naming the job made; a failed job says why on stderr; a summary that cannot be written
 is refused before any job is made; a batch over the service's body limit is halved instead of sinking
 the run; a run cut short names its run key; a server's control characters never reach the terminal;
-`--help` shows the option values docs/client.md names."""
+`get --measures --format json` prints JSON; `--version` prints the version; a URL the service has no
+route for exits 4 (check --url), not 5 (no such job); `list` and summary.csv give each angle with its SD
+and model-estimate mark, in columns added at the end, and `get --format csv` marks the frontal tilts
+when `cobb` is unreliable; `--help` shows the option values docs/client.md names."""
 
 from __future__ import annotations
 
 import argparse
+import csv
 import http.server
 import io
 import json
@@ -23,17 +27,21 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 import uuid
 from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 from unittest import mock
 
 import pytest
 
-from spine_client import SpineClient, cli
+import spine_client
+from spine_client import NotFound, RouteNotFound, SpineClient, cli, tables
 from spine_client.client import LAST_LOOK_S
 from spine_client.errors import WaitTimeout
+from spine_engine.levels import LEVELS
 from tests.cli.test_service_cli import Serve
 from tests.conftest import engine_refused_payload, spine_payload
 
@@ -379,6 +387,141 @@ def test_a_servers_control_characters_never_reach_the_terminal(capsys: pytest.Ca
         httpd.server_close()
     err = capsys.readouterr().err
     assert err == "spine: error: 500 Internal Server Error: \\x1b[2J\\x1b[31mproxy down\\x0d\\x0areally\\x07\n"
+
+
+# ------------------------------------------------------------------ what the commands print
+
+
+@pytest.fixture(scope="module")
+def cut_film(serve: Serve) -> dict[str, Any]:
+    """A succeeded job whose PA film shows T1–T8 only (T1 and L5 given): its frontal Cobb angles depend on
+    levels no landmark shows, so ``fit.unreliable`` lists ``cobb`` (docs/measures.md, "What the input
+    does not determine"), and with no lateral film its kyphosis and lordosis come from the prior."""
+    payload = spine_payload(curve_mm=30.0)
+    payload["pa"]["landmarks"] = payload["pa"]["landmarks"][: LEVELS.index("T8") + 1]
+    job = serve.wait(serve.client.post("/v1/jobs", json=payload).json()["id"])
+    assert job["status"] == "succeeded", job["error"]
+    assert "cobb" in job["result"]["fit"]["unreliable"], job["result"]["fit"]
+    return job
+
+
+def _major(job: dict[str, Any]) -> dict[str, Any]:
+    return next(c for c in job["result"]["measures"]["cobb"] if c["major"])
+
+
+def _marks(job: dict[str, Any]) -> set[str]:
+    """The columns of a job's row (summary.csv) that ``fit.unreliable`` makes the model's prior's."""
+    unreliable = set(job["result"]["fit"]["unreliable"])
+    return {c for c, q in (("major_cobb_deg", "cobb"), ("thoracic_kyphosis_t4_t12_deg", "kyphosis"),
+                           ("lumbar_lordosis_l1_l5_deg", "lordosis")) if q in unreliable}  # fmt: skip
+
+
+def test_measures_as_json_when_json_is_asked(
+    serve: Serve, cut_film: dict[str, Any], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`get --measures --format json` printed CSV; `--measures` alone stays CSV (docs/client.md)."""
+    job_id = cut_film["id"]
+    assert cli.main(["get", job_id, "--measures", "--format", "json", *_argv(serve)]) == cli.EXIT_OK
+    printed = json.loads(capsys.readouterr().out)
+    assert cli.main(["get", job_id, "--measures", *_argv(serve)]) == cli.EXIT_OK
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert printed["job_id"] == job_id and [r["measure"] for r in printed["measures"]] == [r["measure"] for r in rows]
+    for record, row in zip(printed["measures"], rows, strict=True):
+        assert set(record) == set(row)
+        assert record["value"] == float(row["value"]) and record["sd"] == (float(row["sd"]) if row["sd"] else None)
+        assert record["model_estimate"] is (row["model_estimate"] == "model estimate")
+    cobb = next(r for r in printed["measures"] if r["measure"] == "cobb_angle" and r["major"])
+    assert (cobb["value"], cobb["sd"], cobb["model_estimate"]) == (_major(cut_film)["angle_deg"],
+                                                                   _major(cut_film)["angle_sd_deg"], True)  # fmt: skip
+
+
+def test_version_prints_the_packages_version(capsys: pytest.CaptureFixture[str]) -> None:
+    """`spine --version` was a usage error (exit 2, "COMMAND required"); it prints the version, exit 0:
+    the client's (spine_client/pyproject.toml) and the service's command's (pyproject.toml, installed)."""
+    with pytest.raises(SystemExit) as stopped:
+        cli.main(["--version"])
+    assert stopped.value.code == 0
+    assert capsys.readouterr().out == f"spine {spine_client.__version__}\n"
+    declared = tomllib.loads((ROOT / "spine_client" / "pyproject.toml").read_text())["project"]["version"]
+    assert spine_client.__version__ == declared
+    done = subprocess.run([sys.executable, "-m", "services.cli", "--version"], capture_output=True, text=True,
+                          cwd=ROOT, timeout=60)  # fmt: skip
+    assert (done.returncode, done.stdout) == (0, f"spine {metadata.version('spine-reconstruction')}\n"), done.stderr
+
+
+def test_a_url_that_is_not_the_services_base_exits_4_not_5(serve: Serve, capsys: pytest.CaptureFixture[str]) -> None:
+    """A path added to the service's URL answers 404 ``route-not-found``: a wrong URL (exit 4, check
+    --url), not a job that does not exist (exit 5, which a job id the service does not have still is)."""
+    argv = ["--api-key", serve.api_key, "--retries", "0"]
+    assert cli.main(["list", "--url", f"{serve.base}/docs", *argv]) == cli.EXIT_SERVER
+    err = capsys.readouterr().err
+    assert "route-not-found" not in err and "check --url" in err, err
+    assert cli.main(["get", str(uuid.uuid4()), "--url", f"{serve.base}/docs", *argv]) == cli.EXIT_SERVER
+    assert "check --url" in capsys.readouterr().err
+    assert cli.main(["get", str(uuid.uuid4()), "--url", serve.base, *argv]) == cli.EXIT_NOT_FOUND
+    assert "check --url" not in capsys.readouterr().err
+    with SpineClient(f"{serve.base}/docs", serve.api_key, retries=0) as client, pytest.raises(RouteNotFound) as wrong:
+        client.list()
+    assert not isinstance(wrong.value, NotFound) and wrong.value.kind == "route-not-found"
+
+
+LIST_CSV_BEFORE = ["job_id", "status", "created_at", "finished_at", "major_cobb_deg", "major_upper", "major_lower",
+                   "problem_type"]  # fmt: skip
+"""`spine list --format csv`'s columns before the SD and the mark: a script's contract, kept in place."""
+SUMMARY_BEFORE = ["file", "job_id", "status", "major_cobb_deg", "major_upper", "major_lower", "major_apex",
+                  "major_convexity", "thoracic_kyphosis_t4_t12_deg", "lumbar_lordosis_l1_l5_deg",
+                  "mean_registration_error_mm", "problem_type", "detail"]  # fmt: skip
+"""summary.csv's columns before the SDs and the mark: a script's contract, kept in place."""
+
+
+def test_list_gives_the_major_cobb_angle_with_its_sd_and_mark(
+    serve: Serve, succeeded: str, cut_film: dict[str, Any], capsys: pytest.CaptureFixture[str]
+) -> None:
+    full = serve.client.get(f"/v1/jobs/{succeeded}").json()
+    assert cli.main(["list", "--format", "csv", "--limit", "500", *_argv(serve)]) == cli.EXIT_OK
+    out = capsys.readouterr().out
+    header = out.splitlines()[0].split(",")
+    assert header[: len(LIST_CSV_BEFORE)] == LIST_CSV_BEFORE and header == tables.LIST_COLUMNS
+    rows = {r["job_id"]: r for r in csv.DictReader(io.StringIO(out))}
+    for job in (cut_film, full):
+        row = rows[job["id"]]
+        assert float(row["major_cobb_sd_deg"]) == _major(job)["angle_sd_deg"]
+        assert set(filter(None, row["model_estimate"].split(";"))) == _marks(job) & {"major_cobb_deg"}
+    assert rows[cut_film["id"]]["model_estimate"] == "major_cobb_deg"  # the film shows T1-T8 only
+
+    assert cli.main(["list", "--limit", "500", *_argv(serve)]) == cli.EXIT_OK
+    table = capsys.readouterr().out
+    major = _major(cut_film)
+    assert f"{major['angle_deg']:.1f} ± {major['angle_sd_deg']:.1f} (model estimate)" in table, table
+
+
+def test_get_csv_marks_the_frontal_tilts_when_the_cobb_angles_are_the_priors(
+    serve: Serve, cut_film: dict[str, Any], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main(["get", cut_film["id"], "--format", "csv", *_argv(serve)]) == cli.EXIT_OK
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert all("frontal_tilt_deg" in r["model_estimate"].split(";") for r in rows), rows[0]["model_estimate"]
+
+
+def test_the_summary_gives_each_angle_with_its_sd_and_mark(
+    serve: Serve, cut_film: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "cut.json").write_text(json.dumps(cut_film["payload"]), encoding="utf-8")
+    (tmp_path / "full.json").write_text(json.dumps(spine_payload()), encoding="utf-8")
+    argv = ["submit-dir", str(tmp_path), "--no-progress", "--timeout", "120", *_argv(serve)]
+    assert cli.main(argv) == cli.EXIT_OK, capsys.readouterr().err
+    summary = (tmp_path / "summary.csv").read_text(encoding="utf-8")
+    header = summary.splitlines()[0].split(",")
+    assert header[: len(SUMMARY_BEFORE)] == SUMMARY_BEFORE and header == tables.SUMMARY_COLUMNS
+    for row in csv.DictReader(io.StringIO(summary)):
+        job = serve.client.get(f"/v1/jobs/{row['job_id']}").json()
+        measures = job["result"]["measures"]
+        assert float(row["major_cobb_sd_deg"]) == _major(job)["angle_sd_deg"]
+        for name in ("thoracic_kyphosis_t4_t12", "lumbar_lordosis_l1_l5"):
+            assert float(row[f"{name}_sd_deg"]) == measures[f"{name}_sd_deg"]
+        assert set(filter(None, row["model_estimate"].split(";"))) == _marks(job)
+        if row["file"] == "cut.json":
+            assert "major_cobb_deg" in row["model_estimate"].split(";")
 
 
 # ------------------------------------------------------------------ --help and docs/client.md

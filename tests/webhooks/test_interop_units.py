@@ -372,6 +372,9 @@ def test_csvs_carry_the_sds_and_the_model_estimate_marks_as_the_page_does(result
     estimated["fit"]["unreliable"] = ["cobb"]
     rows = {r["measure"]: r for r in csv.DictReader(io.StringIO(tables.measures_csv(estimated)))}
     assert {name for name, r in rows.items() if r["model_estimate"] == "model estimate"} == {"cobb_angle"}
+    # the frontal tilts the Cobb angles are read from are the prior's too (docs/measures.md: `cobb`)
+    marks = {r["model_estimate"] for r in csv.DictReader(io.StringIO(tables.vertebrae_csv(estimated)))}
+    assert marks == {"frontal_tilt_deg"}
 
 
 # ------------------------------------------------------------------ API checks
