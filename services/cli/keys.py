@@ -12,6 +12,7 @@ first ``spine serve``.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 import urllib.request
@@ -76,9 +77,18 @@ def cmd_webhook_secret(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_list(_: argparse.Namespace) -> int:
+def cmd_list(args: argparse.Namespace) -> int:
+    """The keys, as a table or (``--format json``) one JSON array of {id, name, role, created_at,
+    revoked_at} (ISO 8601 UTC times, ``revoked_at`` null while active) for scripts."""
     with _session(get_settings()) as session:
         keys = list_keys(session)
+    if args.format == "json":
+        print(json.dumps([
+            {"id": k.id, "name": k.name, "role": k.role, "created_at": k.created_at.isoformat(),
+             "revoked_at": k.revoked_at.isoformat() if k.revoked_at else None}
+            for k in keys
+        ], indent=2))  # fmt: skip
+        return 0
     print(f"{'id':<14} {'name':<24} {'role':<7} {'created':<26} revoked")
     for k in keys:
         revoked = k.revoked_at.isoformat(timespec="seconds") if k.revoked_at else "-"
@@ -112,6 +122,8 @@ def add_keys_parser(sub: Any) -> None:
                         help="client: sees only its own jobs (default); admin: every job")  # fmt: skip
     create.set_defaults(func=cmd_create)
     listing = actions.add_parser("list", help="list keys (ids, names, roles; never the keys)")
+    listing.add_argument("--format", choices=["table", "json"], default="table",
+                         help="table (default), or json: [{id, name, role, created_at, revoked_at}]")  # fmt: skip
     listing.set_defaults(func=cmd_list)
     revoke = actions.add_parser("revoke", help="revoke a key by id, or every active key of a client by name")
     revoke.add_argument("key", metavar="ID_OR_NAME")
