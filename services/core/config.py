@@ -147,7 +147,8 @@ class Settings(BaseSettings):
         description="A queued job whose message the broker is missing (it holds fewer messages than queued "
         "jobs) is enqueued again once it has waited this long since it was last enqueued (a job handed back "
         "while its PACS was unavailable: since it is due again); a broker that restarted has all queued jobs "
-        "that are due enqueued again at once. Sized for a 5 ms fit: 10 s is 2000 fits of one process, far "
+        "that are due enqueued again at once, and those not due yet enqueued for their due time. Sized for a "
+        "5 ms fit: 10 s is 2000 fits of one process, far "
         "longer than a prefetched message waits.",
     )
     lease_s: float = Field(

@@ -35,7 +35,7 @@ from datetime import datetime
 from typing import Any, NamedTuple, TypeAlias
 
 from celery import Celery
-from sqlalchemy import ColumnElement, CursorResult, and_, exists, func, insert, or_, select, update
+from sqlalchemy import ColumnElement, CursorResult, and_, case, exists, func, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -144,17 +144,26 @@ def _record_due(settings: Settings, job_id: uuid.UUID, status: str, url: str) ->
 
 def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception) -> None:
     """Mark the message's outbox row "not published" (writing it if it is not there), its ``attempted_at``
-    when the broker refused, on the database's clock."""
+    when the broker refused, on the database's clock.
+
+    The refusal may come after the reconciler's sweep already published the message again: a publish to a
+    broker that refuses or does not answer is retried (``task_publish_retry_policy``) for longer than
+    ``SPINE_WEBHOOK_SWEEP_AFTER_S`` may be, while the row written before it is due. The sweep's own note
+    ("no attempt within …") is then replaced, so that the job shows the refusal all the same (only a
+    "not published" row is listed), and the row's due time, which the sweep moved ahead, is kept: the
+    message is not published a second time for it. A second refusal of the same message keeps the first."""
     error = f"{NOT_PUBLISHED}{type(exc).__name__}; the reconciler publishes it again"
     mid = message_id(job_id, status)
+    noted = WebhookDelivery.error
     try:
-        with session_scope(settings) as session:  # a second failure for the same message finds the first row
+        with session_scope(settings) as session:
             outbox = (WebhookDelivery.message_id == mid, WebhookDelivery.attempt == OUTBOX_ATTEMPT)
             marked: CursorResult[Any] = session.execute(  # type: ignore[assignment]
                 update(WebhookDelivery)
-                .where(*outbox, WebhookDelivery.error.is_(None))
-                .values(error=error, attempted_at=db_now(), next_attempt_at=db_now())
-            )
+                .where(*outbox, or_(noted.is_(None), ~noted.startswith(NOT_PUBLISHED)))
+                .values(error=error, attempted_at=db_now(),
+                        next_attempt_at=case((noted.is_(None), db_now()), else_=WebhookDelivery.next_attempt_at))
+            )  # fmt: skip
             if marked.rowcount == 0:
                 row = {**outbox_row(job_id, status, url, db_now()), "error": error, "next_attempt_at": db_now()}
                 claim(session, **row)
@@ -205,6 +214,14 @@ def finish(session: Session, row_id: int, **values: Any) -> None:
     """Write an attempt's outcome (status code, error, duration, next attempt: a ``Moment`` on the
     database's clock, e.g. ``db_now_plus_s(delay)``) on its claimed row."""
     session.execute(update(WebhookDelivery).where(WebhookDelivery.id == row_id).values(**values))
+
+
+def note(session: Session, row_id: int, error: str) -> None:
+    """Write ``error`` on a row that has none yet: the sweep's note on an outbox row it published again
+    leaves a refusal recorded meanwhile ("not published", ``job_ended``) as it is."""
+    session.execute(
+        update(WebhookDelivery).where(WebhookDelivery.id == row_id, WebhookDelivery.error.is_(None)).values(error=error)
+    )
 
 
 def settle_earlier(session: Session, message_id: str, attempt: int, attempted_at: datetime) -> None:

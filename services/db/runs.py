@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import uuid
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any, cast
 
@@ -36,7 +36,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.dialects.postgresql import JSON
 from sqlalchemy.orm import Session
 
-from services.core.jobqueue import enqueue
+from services.core.jobqueue import RUN_JOB, enqueue
 from services.core.status import JobStatus
 from services.db import deliveries
 from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param, seconds_until
@@ -275,6 +275,10 @@ class Reconciliation:
     """Jobs to publish again: queued too long since last enqueued, or taken back from a lost run."""
     failed: list[uuid.UUID]
     """Jobs stranded in running after their last allowed attempt, now failed."""
+    later: list[tuple[uuid.UUID, float]] = field(default_factory=list)
+    """Queued jobs not due yet (runs handed back until later, ``release_claim``) whose messages a broker
+    restart lost (``reconcile(not_due=True)``): each with the seconds (s) until it is due on the
+    database's clock, the countdown to publish it with (``publish_later``)."""
 
 
 def reconcile(
@@ -285,6 +289,7 @@ def reconcile(
     lost_problem: dict[str, Any],
     batch: int = 1000,
     republish_queued: int | None = None,
+    not_due: bool = False,
 ) -> Reconciliation:
     """Find jobs a lost message or a dead worker stranded, and hand them back or fail them.
 
@@ -294,8 +299,11 @@ def reconcile(
     (``enqueued_at``, written and compared on the database's clock too; for a released run, when it is
     due again: ``release_claim``) more than ``queued_timeout`` ago or is marked unpublished; with
     ``republish_queued`` set, only that many of the oldest such jobs are taken (the broker is
-    missing about that many messages), and ``queued_timeout`` zero takes every queued job
-    (the broker lost its messages).
+    missing about that many messages), and ``queued_timeout`` zero takes every queued job that is due
+    (the broker lost its messages). With ``not_due`` (the broker lost its messages too), the queued jobs
+    not due yet are listed in ``later`` with the seconds until they are due, their ``enqueued_at`` (the
+    due time) untouched: their messages, held until their ETA, are gone, and the queued timeout would
+    publish them again only that long after they are due.
     """
     requeue: list[uuid.UUID] = []
     failed: list[uuid.UUID] = []
@@ -347,8 +355,14 @@ def reconcile(
             .returning(Job.id)
         ).all()
         requeue.extend(touched)
+    later: list[tuple[uuid.UUID, float]] = []
+    if not_due:
+        waiting = select(Job.id, Job.enqueued_at, db_now()).where(
+            Job.status == JobStatus.queued.value, Job.enqueued_at > db_now()
+        )
+        later = [(job_id, seconds_until(due, now)) for job_id, due, now in session.execute(waiting.limit(batch))]
     session.commit()
-    return Reconciliation(requeue, failed)
+    return Reconciliation(requeue, failed, later)
 
 
 def mark_unpublished(session: Session, job_ids: Sequence[uuid.UUID]) -> None:
@@ -378,6 +392,24 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
     return sent
 
 
+def publish_later(app: Celery, queue: str, later: Sequence[tuple[uuid.UUID, float]]) -> int:
+    """Publish each job's message with its countdown (s): jobs not due yet whose messages were lost
+    (``Reconciliation.later``). A message that comes before its job is due on the database's clock (its
+    ETA is on this process's clock) is published again for the time left by the worker. Those that
+    cannot be published are not marked (a job marked unpublished could be claimed before it is due): the
+    queued timeout past their due time, or the next broker restart, publishes them. Never raises; returns
+    how many were published."""
+    sent = 0
+    try:
+        with app.producer_or_acquire() as producer:
+            for job_id, countdown in later:
+                app.send_task(RUN_JOB, args=[str(job_id)], countdown=countdown or None, queue=queue, producer=producer)
+                sent += 1
+    except Exception as exc:
+        log.warning("could not publish %d job messages due later (the queued timeout will): %s", len(later) - sent, exc)
+    return sent
+
+
 def release_claim(session: Db, claim: Claim, delay_s: float) -> bool:
     """running → queued for this run (fenced by attempt), to run again ``delay_s`` (s) later: a dependency
     of the run (the PACS) was unavailable. The attempt stays counted, so ``SPINE_MAX_ATTEMPTS`` bounds
@@ -387,7 +419,9 @@ def release_claim(session: Db, claim: Claim, delay_s: float) -> bool:
     Until then ``claim_job`` does not take it (a message that came early, its ETA on another host's
     clock, is published again for ``due_in_s``), and the reconciler's queued timeout counts from then:
     the message waits in a worker until its ETA, not in the broker, so the job counts as missing a
-    message, and is published again only once ``enqueued_at + SPINE_QUEUED_TIMEOUT_S`` is past."""
+    message, and is published again only once ``enqueued_at + SPINE_QUEUED_TIMEOUT_S`` is past. A broker
+    restart, which loses that message (the worker drops the messages it holds when its connection is
+    lost), has it published again at once with the time left (``reconcile(not_due=True)``)."""
     done: CursorResult[Any] = session.execute(  # type: ignore[assignment]
         update(Job)
         .where(Job.id == claim.job_id, Job.status == JobStatus.running.value, Job.attempts == claim.attempt)

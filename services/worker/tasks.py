@@ -353,7 +353,8 @@ def missing_messages(session: Session, app: Celery, settings: Settings) -> int |
     missing too: their jobs are the oldest, and re-publishing them adds a duplicate that is
     skipped (the claim is conditional). So does the message of a run handed back until later (the
     PACS unavailable), held by a worker until its ETA: its job's ``enqueued_at`` is when it is due
-    (``runs.release_claim``), so it is published again only ``SPINE_QUEUED_TIMEOUT_S`` after that."""
+    (``runs.release_claim``), so it is published again only ``SPINE_QUEUED_TIMEOUT_S`` after that
+    (after a broker restart, which loses it, ``reconcile_once`` publishes it at once for its due time)."""
     try:
         depth = queue_depth(app, settings.queue_name)
     except Exception:
@@ -365,7 +366,9 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
     """One pass of the reconciler: take back running jobs whose lease expired (or fail those out of
     attempts), and publish again the queued jobs whose message is missing: all of them when the
     broker restarted, else as many of the oldest as the broker lacks messages, once they waited
-    ``SPINE_QUEUED_TIMEOUT_S``; jobs marked unpublished at once."""
+    ``SPINE_QUEUED_TIMEOUT_S``; jobs marked unpublished at once. When the broker restarted, the jobs not
+    due yet (runs handed back until later) are published too, each with a countdown to its due time on
+    the database's clock (``runs.publish_later``): the messages held until then are gone with it."""
     lost = problem(
         "worker-lost",
         f"the job's worker stopped renewing its lease (SPINE_LEASE_S {settings.lease_s:g} s), "
@@ -384,10 +387,14 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
             max_attempts=settings.max_attempts,
             lost_problem=lost,
             republish_queued=missing,
+            not_due=restarted,
         )
     if outcome.requeue:
         with session_scope(settings) as session:
             runs.publish(session, app, outcome.requeue)
+    if outcome.later:
+        runs.publish_later(app, settings.queue_name, outcome.later)
+        log.info("reconciler: published %d jobs not due yet again, each for its due time", len(outcome.later))
     if outcome.failed:  # their webhooks' outbox rows were written with their failure
         with session_scope(settings) as session:
             deliveries.jobs_ended(session, settings, outcome.failed, app, recorded=True)

@@ -85,7 +85,7 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
             if lost:
                 deliveries.finish(session, row.id, error=_LOST)
             elif row.attempt == deliveries.OUTBOX_ATTEMPT and row.error is None:
-                deliveries.finish(session, row.id, error=_NEVER_CAME.format(after=settings.webhook_sweep_after_s))
+                deliveries.note(session, row.id, _NEVER_CAME.format(after=settings.webhook_sweep_after_s))
             deliveries.postpone(session, row.id, db_now_plus_s(after_s))
             published += 1
     if published:

@@ -84,6 +84,75 @@ def test_an_unpublished_webhook_is_recorded_and_swept_once(db_settings: Settings
     assert postponed.next_attempt_at is not None and postponed.next_attempt_at > row.next_attempt_at  # type: ignore[operator]
 
 
+REFUSED = "redis://127.0.0.1:1/0"
+"""A broker that refuses connections: a publish to it fails after Celery's publish retries (about 0.5 s)."""
+
+
+@BACKENDS
+def test_a_refusal_recorded_after_the_sweep_published_the_message_is_shown(
+    db_settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The broker refuses the publish of a cancelled job's webhook, but only after its outbox row (written
+    first, due at once) has become overdue and the reconciler's sweep has published the message again
+    (``SPINE_WEBHOOK_SWEEP_AFTER_S`` shorter than the publish's retries). The job still shows the refusal
+    (attempt 0 "not published"), and the row keeps the due time the sweep gave it (the refusal does not
+    make it due again at once)."""
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.2})
+    settle_earlier_tests(settings)
+    job_id = cancelled_job_with_callback(settings)
+    broker = make_celery(settings)  # the embedded broker: the sweep's publish is taken
+    refused = make_celery(settings.model_copy(update={"broker_url": REFUSED}))
+    publish = store.publish_webhook
+    swept: list[WebhookDelivery] = []
+
+    def sweep_then_refuse(*args: Any, **kwargs: Any) -> None:  # the order under test; the refusal is real
+        [row] = rows(settings, job_id)
+        assert row.error is None and row.next_attempt_at is not None
+        wait_past(row.next_attempt_at, 0.25)
+        assert webhook_tasks.sweep(settings, broker) == 1
+        swept.extend(rows(settings, job_id))
+        publish(*args, **kwargs)
+
+    monkeypatch.setattr(store, "publish_webhook", sweep_then_refuse)
+    assert not store.job_ended(settings, job_id, "cancelled", url=URL, celery=refused)
+    assert queue_depth(broker, settings.webhook_queue) == 1
+    [row] = rows(settings, job_id)
+    assert row.error is not None and row.error.startswith("not published: "), row.error
+    with session_scope(settings) as session:
+        assert [(d.attempt, d.status_code) for d in store.deliveries(session, job_id)] == [(0, None)]
+    assert row.next_attempt_at == swept[0].next_attempt_at  # the sweep's: SWEEP_AFTER_S after it published
+
+
+@BACKENDS
+def test_a_refusal_recorded_while_the_sweep_publishes_the_message_is_kept(
+    db_settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The sweep read the overdue outbox row (no error yet) and publishes the message when the refusal of
+    the job's own publish is recorded: the sweep's note ("no attempt within …") does not replace it."""
+    settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.2})
+    settle_earlier_tests(settings)
+    job_id = cancelled_job_with_callback(settings)
+    with session_scope(settings) as session:  # what job_ended writes before it publishes
+        store.record_due(session, job_id, "cancelled", URL, utcnow())
+    [row] = rows(settings, job_id)
+    assert row.next_attempt_at is not None
+    wait_past(row.next_attempt_at, 0.25)
+    broker = make_celery(settings)
+    refused = make_celery(settings.model_copy(update={"broker_url": REFUSED}))
+    publish = webhook_tasks.publish_webhook
+
+    def publish_while_refused(*args: Any, **kwargs: Any) -> None:  # the order under test; the refusal is real
+        publish(*args, **kwargs)
+        assert not store.job_ended(settings, job_id, "cancelled", url=URL, celery=refused)
+
+    monkeypatch.setattr(webhook_tasks, "publish_webhook", publish_while_refused)
+    assert webhook_tasks.sweep(settings, broker) == 1
+    [row] = rows(settings, job_id)
+    assert row.error is not None and row.error.startswith("not published: "), row.error
+    with session_scope(settings) as session:
+        assert [(d.attempt, d.status_code) for d in store.deliveries(session, job_id)] == [(0, None)]
+
+
 @BACKENDS
 def test_a_message_whose_next_attempt_came_is_not_swept(db_settings: Settings) -> None:
     settings = db_settings.model_copy(update={"webhook_sweep_after_s": 0.05})

@@ -3,7 +3,8 @@
 database's clock (its ``enqueued_at``), and that backoff holds against the two things that used to cut it
 short. The reconciler, which counts the run's message as missing (a worker holds it until its ETA, it does
 not wait in the broker), publishes it again only once ``SPINE_QUEUED_TIMEOUT_S`` past that due time, not
-past the hand-back. A message that comes before the due time (its ETA on its publisher's clock, compared
+past the hand-back; after a broker restart, which loses the run's message, it publishes it at once for
+its due time. A message that comes before the due time (its ETA on its publisher's clock, compared
 by the consumer with its own) claims nothing and spends no attempt: it is published again for the time
 left.
 
@@ -17,7 +18,10 @@ host's; the consumer and the database keep the host's clock.
 
 from __future__ import annotations
 
+import logging
+import time
 import uuid
+from collections.abc import Iterator
 from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -34,6 +38,7 @@ from services.db.models import Job
 from services.worker.tasks import RunLater, execute_job, reconcile_once, register_tasks
 from tests.conftest import spine_payload
 from tests.faults import SkewedClock, db_clock, free_port, wait_until
+from tools.loadbench import OwnRedis
 
 DUE_S = 6.0
 """The hand-back delay under test (SPINE_DICOMWEB_RETRY_BASE_S): above QUEUED_TIMEOUT_S plus this 2-core
@@ -165,3 +170,61 @@ def test_a_run_published_by_a_worker_whose_clock_is_behind_waits_until_its_job_i
     assert job.started_at is not None and job.started_at >= before + timedelta(seconds=DUE_S)  # not at once
     due = handed_back.enqueued_at  # the hand-back plus DUE_S, on the database's clock
     assert due is not None and before + timedelta(seconds=DUE_S) <= due <= job.started_at
+
+
+@pytest.fixture
+def own_redis(tmp_path: Path) -> Iterator[OwnRedis]:
+    """A throwaway redis-server of the test's own (no persistence: a restart loses every message)."""
+    own = OwnRedis(tmp_path / "redis")
+    try:
+        own.start()
+    except (SystemExit, OSError) as exc:
+        pytest.skip(f"no throwaway redis-server: {exc}")
+    yield own
+    own.stop()
+
+
+def test_a_handed_back_job_whose_message_a_broker_restart_lost_runs_once_due(
+    tmp_path: Path, fresh_postgres_url: str, own_redis: OwnRedis, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The run's message (a countdown of DUE_S) waits in the broker when the broker restarts and loses it
+    (a worker holding it until its ETA drops it too when its connection is lost: Celery's
+    ``Consumer.on_close``). The reconciler's pass that finds the restart, before the job is due, publishes
+    it for its due time: a real worker makes attempt 2 (the last: the job fails ``dicomweb-unavailable``)
+    no earlier than the job is due and before the due time plus the default SPINE_QUEUED_TIMEOUT_S (10 s),
+    when the queued timeout alone would publish it. The passes, every second as beat runs them,
+    publish nothing twice."""
+    pacs = f"http://127.0.0.1:{free_port()}/dicom-web"  # refused: the PACS is unavailable
+    settings = Settings(DATABASE_URL=fresh_postgres_url, CELERY_BROKER_URL=own_redis.url, data_dir=tmp_path,
+                        dicomweb_url=pacs, dicomweb_timeout_s=2, dicomweb_retry_base_s=DUE_S,
+                        max_attempts=2)  # fmt: skip
+    upgrade(settings, quiet=True)
+    queued_timeout = timedelta(seconds=settings.queued_timeout_s)  # the default
+    app = make_celery(settings)
+    register_tasks(app, settings)
+    reconcile_once(settings, app)  # its first look at the broker: the broker's run id
+    job_id = _by_reference_job(settings)
+    app.tasks[RUN_JOB](str(job_id))  # attempt 1: the PACS refused; the run published again for DUE_S
+    due = _job(settings, job_id).enqueued_at
+    assert due is not None and queue_depth(app, settings.queue_name) == 1
+    own_redis.stop()  # SIGKILL, then a new run: the message is gone
+    own_redis.start()
+    assert queue_depth(app, settings.queue_name) == 0
+    with caplog.at_level(logging.INFO, logger="services.worker.tasks"):
+        restart = reconcile_once(settings, app)
+    assert "the broker restarted" in caplog.text
+    assert db_clock(settings) < due, "the machine was too slow: the restart's pass came after the due time"
+    assert [job for job, _ in restart.later] == [job_id] and job_id not in restart.requeue
+    assert queue_depth(app, settings.queue_name) == 1
+    consumer = make_celery(settings)
+    register_tasks(consumer, settings)
+    with start_worker(consumer, perform_ping_check=False, queues=[settings.queue_name], shutdown_timeout=30.0):
+        deadline = time.monotonic() + DUE_S + queued_timeout.total_seconds() + WAIT_S
+        while _job(settings, job_id).status != "failed" and time.monotonic() < deadline:
+            passed = reconcile_once(settings, app)  # as beat runs it, every second
+            assert job_id not in passed.requeue and passed.later == []
+            time.sleep(1.0)
+    job = _job(settings, job_id)
+    assert job.status == "failed" and job.attempts == 2
+    assert job.error is not None and job.error["type"].endswith("dicomweb-unavailable")
+    assert job.started_at is not None and due <= job.started_at < due + queued_timeout
