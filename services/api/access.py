@@ -68,6 +68,12 @@ class Access:
         """The owner whose jobs the caller may see and cancel (None: an admin sees every job)."""
         return self.caller.read_scope
 
+    @property
+    def client(self) -> str:
+        """The client whose Idempotency-Keys the caller sends: its key's name (docs/security.md, "A key's
+        name is its client"), an admin's too, whatever jobs it may see."""
+        return self.caller.name
+
     def record(
         self, session: Session, action: AuditAction, job_ids: Sequence[uuid.UUID], *, commit: bool = True
     ) -> None:

@@ -24,6 +24,7 @@ def batch_response(
     queue: Any,
     *,
     owner: str | None,
+    client: str,
     key: str,
     total: int,
     valid: list[tuple[int, dict[str, Any]]],
@@ -34,10 +35,11 @@ def batch_response(
     """The answer of a batch sent with an Idempotency-Key (``entries`` holds the rejected ones), and
     whether it only replayed jobs (then the answer carries ``Idempotent-Replayed: true``).
 
-    ``admit(n)`` gets the number of new jobs before they are inserted (the cap; replays are not counted);
-    ``on_insert(session, ids)`` runs in the inserting transaction.
+    ``client``: whose key it is (the API key's name, an admin's too). ``admit(n)`` gets the number of new
+    jobs before they are inserted (the cap; replays are not counted); ``on_insert(session, ids)`` runs in
+    the inserting transaction.
     """
-    outcomes = create_jobs_idempotent(session, valid, owner=owner, key=key, on_insert=on_insert,
+    outcomes = create_jobs_idempotent(session, valid, owner=owner, client=client, key=key, on_insert=on_insert,
                                       admit=admit) if valid else []  # fmt: skip
     created: list[uuid.UUID] = []
     replayed = 0

@@ -109,7 +109,8 @@ route would otherwise take as a job id): its methods are not allowed ones."""
 def _allowed_methods(request: Request) -> list[str]:
     """The methods the request's path answers (RFC 9110 §15.5.6: a 405 "MUST generate an Allow header
     field containing a list of the target resource's currently supported methods"): each method of a
-    route whose path matches, when the first route that the router would take for it is not a guard.
+    route whose path matches, when the first route that the router would take for it is not a guard,
+    and HEAD wherever GET is (``security.HeadAsGet`` answers it).
     Routes are walked as the router walks them, included routers flattened (``iter_route_contexts``)."""
     routes = list(iter_route_contexts(request.app.router.routes))
     # the scope as the app's router saw it (a mount that answered extended root_path for its own app)
@@ -126,6 +127,8 @@ def _allowed_methods(request: Request) -> list[str]:
         first = next((r for r in routes if r.matches(scope)[0] == Match.FULL), None)
         if first is not None and first.name != METHOD_GUARD:
             allowed.append(method)
+    if "GET" in allowed and "HEAD" not in allowed:  # every GET answers HEAD too (security.HeadAsGet)
+        allowed = sorted([*allowed, "HEAD"])
     return allowed
 
 

@@ -71,7 +71,10 @@ class Job(BaseModel):
 
     id: uuid.UUID
     status: JobStatusName
-    owner: str | None = Field(description="Owner of the job (API key's owner); null until keys exist.")
+    owner: str | None = Field(
+        description="The client whose job it is (the name of the client API key that created it); null for a job an "
+        "admin key created, which every admin key sees, or one made before API keys existed."
+    )
     created_at: UtcTimestamp
     started_at: UtcTimestamp | None
     finished_at: UtcTimestamp | None

@@ -13,6 +13,8 @@
   ``A-Za-z0-9._-``, else generated; echoed on the answer), the security headers on every answer,
   and one JSON access-log line per request (``SPINE_ACCESS_LOG``).
 
+``HeadAsGet`` (inside those two, outside the metrics): HEAD is answered as GET without the content.
+
 CORS (Starlette's middleware) sits between the two when ``SPINE_CORS_ORIGINS`` is set: it lets a page of those
 origins send ``CORS_ALLOW_HEADERS`` and read ``CORS_EXPOSE_HEADERS`` (``ETag`` and ``If-None-Match`` included, for
 the artifacts' conditional GET).
@@ -277,8 +279,37 @@ def install_auth(app: FastAPI, settings: Settings) -> None:
     app.add_middleware(AuthMiddleware, settings=settings, cache=app.state.key_cache)
 
 
+class HeadAsGet:
+    """HEAD answered as GET without the content (RFC 9110 §9.1: a general-purpose server MUST support
+    GET and HEAD; §9.3.2: HEAD's answer has GET's status and header fields, ``Content-Length``,
+    ``ETag`` and ``Cache-Control`` included, and no content): a 304 to ``If-None-Match`` and a 401 or
+    403 alike. FastAPI's routes answer only the methods they declare (Starlette's ``Route`` adds HEAD to
+    GET, FastAPI's ``APIRoute`` does not: fastapi/fastapi#1773), and listing HEAD on each would add an
+    operation per route to the contract: the request goes on as GET, and only its content is held back.
+    A path without GET answers HEAD as it answers GET (405, its ``Allow`` from ``errors._allowed_methods``).
+
+    The access log (outside) writes HEAD; the metrics (inside) count it as a GET."""
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope["method"] != "HEAD":
+            await self.app(scope, receive, send)
+            return
+
+        async def headers_only(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                await send(message)
+            elif not message.get("more_body", False):  # the last body (or a file sent by path): none
+                await send({"type": "http.response.body", "body": b"", "more_body": False})
+
+        await self.app({**scope, "method": "GET"}, receive, headers_only)  # one "state": the access log's caller
+
+
 def install_edge(app: FastAPI, settings: Settings) -> None:
-    """CORS (when origins are configured) and the edge middleware; call last (outermost)."""
+    """HEAD as GET, CORS (when origins are configured) and the edge middleware; call last (outermost)."""
+    app.add_middleware(HeadAsGet)
     origins = cors_origins(settings)
     if origins:
         app.add_middleware(

@@ -12,6 +12,11 @@ single submission's key and a batch entry's are apart (``jobs.idempotency_kind``
 entry, NULL for a single key), so a single POST keyed ``abc#0`` and entry 0 of the batch keyed ``abc``
 never answer for each other; a key with a ``#`` stored before migration 0012 (kind ``either``: the
 row does not say which request stored it) still answers both, as it did.
+
+Keys are per client (``jobs.idempotency_client``, migration 0013: the name of the API keys that sent
+them), not per owner: an admin key's jobs have no owner (every admin sees them), yet two admin clients'
+keys are apart. A key an admin stored before 0013 that the audit trail did not name (client NULL) is
+still replayed to every admin key, as it was: a request retried across the upgrade makes no second job.
 """
 
 from __future__ import annotations
@@ -148,6 +153,7 @@ def create_job(
     payload: dict[str, Any],
     *,
     owner: str | None = None,
+    client: str | None = None,
     idempotency_key: str | None = None,
     on_insert: InsertHook | None = None,
     dicom: dict[str, Any] | None = None,
@@ -156,20 +162,24 @@ def create_job(
     """Store a queued job; return it and whether it is new (False: an idempotent replay). ``dicom``:
     what the client read from its image files (``jobs.dicom``, as the worker stores its PACS reads).
 
-    Raises ``IdempotencyConflict`` when ``idempotency_key`` was used by this owner with another body.
+    ``client``: whose ``idempotency_key`` it is (the API key's name; ``owner`` when not given).
+    Raises ``IdempotencyConflict`` when ``idempotency_key`` was used by this client with another body.
     ``admit(1)`` runs only when the job is new, before the insert (the API's cap: a replay is not
     counted against it); ``on_insert(session, [job id])`` runs in the inserting transaction (the API's
     audit row).
     """
     body = payload if dicom is None else {**payload, "dicom": dicom}
     digest = request_hash(body) if idempotency_key is not None else None
+    client = owner if client is None else client
     if idempotency_key is not None:
-        existing = _by_idempotency_key(session, owner, idempotency_key)
+        existing = _by_idempotency_key(session, owner, client, idempotency_key)
         if existing is not None:
             return _replay(existing, digest)
     if admit is not None:
         admit(1)
     extra: dict[str, Any] = {"dicom": dicom} if dicom is not None else {}
+    if idempotency_key is not None:
+        extra["idempotency_client"] = client
     values = _new_job(payload, owner, idempotency_key=idempotency_key, request_hash=digest, **extra)
     try:
         _insert(session, [values])
@@ -180,7 +190,7 @@ def create_job(
         session.rollback()
         if idempotency_key is None:
             raise
-        existing = _by_idempotency_key(session, owner, idempotency_key)
+        existing = _by_idempotency_key(session, owner, client, idempotency_key)
         if existing is None:
             raise
         return _replay(existing, digest)
@@ -191,8 +201,8 @@ def _detached(values: dict[str, Any]) -> Job:
     """A Job object holding what was just inserted (``created_at`` as the insert returned it); its
     ``enqueued_at``, the database's clock, is not known here (None; nothing shows it)."""
     row = {"started_at": None, "finished_at": None, "result": None, "error": None, "engine_version": None,
-           "idempotency_key": None, "idempotency_kind": None, "request_hash": None, "callback_url": None,
-           "lease_expires_at": None, "dicom": None, "enqueued_at": None, **values}  # fmt: skip
+           "idempotency_key": None, "idempotency_kind": None, "idempotency_client": None, "request_hash": None,
+           "callback_url": None, "lease_expires_at": None, "dicom": None, "enqueued_at": None, **values}  # fmt: skip
     return Job(**row)
 
 
@@ -212,10 +222,33 @@ EITHER = "either"
 """``jobs.idempotency_kind`` of a key with a ``#`` stored before migration 0012: a single's or an entry's."""
 
 
-def _by_idempotency_key(session: Session, owner: str | None, key: str) -> Job | None:
+def _key_scope(owner: str | None, client: str | None) -> ColumnElement[bool]:
+    """The jobs whose Idempotency-Keys ``client`` replays: its own (``owner``'s, and of its name), written
+    as ``_owner_match`` writes the owner, for the unique index's first two columns. An admin client (no
+    owner) also replays the keys stored before migration 0013 that no client was found for (client NULL,
+    owner NULL), as every admin did then; its own is taken first (``_OWN_FIRST``). ``client`` None: the
+    keys stored without a client (a caller of this module that names none, and no owner)."""
+    named = func.coalesce(Job.idempotency_client, literal_column("''"))
+    if client is None:
+        return and_(_owner_match(owner), named == "", Job.idempotency_client.is_(None))
+    own = and_(named == client, Job.idempotency_client == client)
+    if owner is not None:
+        return and_(_owner_match(owner), own)
+    unnamed = Job.idempotency_client.is_(None)
+    return and_(_owner_match(None), named.in_([client, ""]), or_(Job.idempotency_client == client, unnamed))
+
+
+_OWN_FIRST = Job.idempotency_client.is_(None)
+"""The order of ``_key_scope``'s rows of one key: the client's own (false sorts first), then one stored
+without a client for every admin (the two meet only when a caller of this module that names no client
+stores a key an admin client holds)."""
+
+
+def _by_idempotency_key(session: Session, owner: str | None, client: str | None, key: str) -> Job | None:
     """The job stored under a single submission's ``key`` (one stored as ``either`` included)."""
     single = or_(Job.idempotency_kind.is_(None), Job.idempotency_kind == EITHER)
-    return session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key == key, single)).first()
+    query = select(Job).where(_key_scope(owner, client), Job.idempotency_key == key, single).order_by(_OWN_FIRST)
+    return session.scalars(query).first()
 
 
 def _replay(existing: Job, digest: str | None) -> tuple[Job, bool]:
@@ -369,24 +402,29 @@ def create_jobs_idempotent(
     *,
     owner: str | None,
     key: str,
+    client: str | None = None,
     on_insert: InsertHook | None = None,
     admit: AdmitHook | None = None,
 ) -> list[Outcome]:
-    """Store the (index, payload) pairs under ``key#index`` (kind ``batch``); replay those already
-    stored. ``admit(n)`` runs with the number of new jobs before they are inserted, in the inserting
-    transaction (replays are not counted).
+    """Store the (index, payload) pairs under ``key#index`` (kind ``batch``) of ``client`` (the API key's
+    name; ``owner`` when not given); replay those already stored. ``admit(n)`` runs with the number of
+    new jobs before they are inserted, in the inserting transaction (replays are not counted).
 
     When a concurrent request stored some of the keys first (the insert breaks the unique index), the
     keys are looked up again and the rest inserted, admitted again: every job made here passes
     ``admit``. Each such round inserts fewer rows than the one before (a key it lost is now stored);
     an insert refused with as many rows as the round before is not a concurrent key, and is raised."""
     keys = [entry_key(key, i) for i, _ in payloads]
+    client = owner if client is None else client
     digests = [request_hash(payload) for _, payload in payloads]
     entries = or_(Job.idempotency_kind == BATCH_ENTRY, Job.idempotency_kind == EITHER)
+    scope = _key_scope(owner, client)
     refused_with: int | None = None
     while True:
-        stored = session.scalars(select(Job).where(_owner_match(owner), Job.idempotency_key.in_(keys), entries))
-        existing = {j.idempotency_key: j for j in stored}
+        stored = session.scalars(select(Job).where(scope, Job.idempotency_key.in_(keys), entries).order_by(_OWN_FIRST))
+        existing: dict[str | None, Job] = {}
+        for job in stored:
+            existing.setdefault(job.idempotency_key, job)
         outcomes: list[Outcome | None] = []
         rows: list[dict[str, Any]] = []
         slots: list[int] = []
@@ -398,7 +436,7 @@ def create_jobs_idempotent(
             slots.append(len(outcomes))
             outcomes.append(None)
             rows.append(_new_job(payload, owner, idempotency_key=job_key, idempotency_kind=BATCH_ENTRY,
-                                 request_hash=digest))  # fmt: skip
+                                 idempotency_client=client, request_hash=digest))  # fmt: skip
         if rows:
             if admit is not None:
                 admit(len(rows))

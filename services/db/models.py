@@ -102,6 +102,11 @@ class Job(Base):
     """Which request's key ``idempotency_key`` is (migration 0012): NULL a single submission's (or no key),
     ``batch`` entry i of a batch's key K (stored as ``K#i``), ``either`` a key with a ``#`` stored before
     0012, when the two shared one namespace (``services.db.jobs``: it answers both, as it did)."""
+    idempotency_client: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    """The client (its API keys' name) whose ``idempotency_key`` it is (migration 0013), NULL without a key:
+    the key's scope, apart from ``owner``, which an admin key's jobs do not have (admins see every job,
+    but each admin client has its own keys). NULL with a key: stored before 0013 by an admin key that the
+    audit trail does not name; every admin key still replays it (``services.db.jobs``)."""
     request_hash: Mapped[str | None] = mapped_column(String(64), nullable=True)
     callback_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
@@ -144,11 +149,13 @@ class Job(Base):
         # The reconciler's search for running jobs whose lease expired (services/db/runs.py).
         Index("ix_jobs_running_lease", "lease_expires_at", postgresql_where=text("status = 'running'"),
               sqlite_where=text("status = 'running'")),
-        # Unique per owner and kind (a single key and a batch entry's K#i are apart, migration 0012); jobs
-        # without a key have no entry (NULLs never conflict in a unique index).
+        # Unique per owner, client and kind (a single key and a batch entry's K#i are apart, migration 0012;
+        # two admin clients' keys, both of owner NULL, are apart, 0013); jobs without a key have no entry
+        # (NULLs never conflict in a unique index).
         Index(
             "uq_jobs_owner_idempotency_key",
             func.coalesce(owner, ""),  # type: ignore[arg-type]
+            func.coalesce(idempotency_client, ""),  # type: ignore[arg-type]
             idempotency_key,  # type: ignore[arg-type]
             func.coalesce(idempotency_kind, ""),  # type: ignore[arg-type]
             unique=True,

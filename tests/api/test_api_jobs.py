@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from services.api.app import create_app
 from services.core.config import Settings
-from services.core.problems import PROBLEM_BASE
+from services.core.problems import PROBLEM_BASE, PROBLEM_MEDIA_TYPE
 from services.db.migrate import upgrade
 from services.db.models import iso_utc
 from tests.conftest import make_key, problem_of, spine_payload
@@ -260,14 +260,16 @@ def test_unknown_job_and_unknown_route_are_404_problems(api: TestClient) -> None
 @pytest.mark.parametrize(
     ("method", "path", "allow"),
     [
-        ("DELETE", "/v1/jobs", "GET, POST"),
-        ("PUT", "/v1/jobs/{id}", "GET"),
+        ("DELETE", "/v1/jobs", "GET, HEAD, POST"),  # HEAD wherever GET is (security.HeadAsGet)
+        ("PUT", "/v1/jobs/{id}", "GET, HEAD"),
         ("DELETE", "/v1/jobs/{id}/cancel", "POST"),
-        ("POST", "/v1/jobs/{id}/fhir", "GET"),
+        ("HEAD", "/v1/jobs/{id}/cancel", "POST"),  # HEAD is not answered where GET is not
+        ("POST", "/v1/jobs/{id}/fhir", "GET, HEAD"),
         ("GET", "/v1/jobs/batch", "POST"),  # not the job route's GET of a job id "batch"
+        ("HEAD", "/v1/jobs/batch", "POST"),
         ("TRACE", "/v1/jobs/batch", "POST"),
-        ("POST", "/healthz", "GET"),
-        ("POST", "/v1/pacs", "GET"),
+        ("POST", "/healthz", "GET, HEAD"),
+        ("POST", "/v1/pacs", "GET, HEAD"),
         ("POST", "/", "GET, HEAD"),  # the page
         ("POST", "/assets/any.js", "GET, HEAD"),  # a mount of static files
     ],
@@ -278,6 +280,9 @@ def test_a_405_lists_the_methods_the_resource_has(api: TestClient, method: str, 
     response = api.request(method, path.replace("{id}", str(uuid.uuid4())))
     assert response.status_code == 405, response.text
     assert response.headers["allow"] == allow
+    if method == "HEAD":  # GET's answer without its content
+        assert response.content == b"" and response.headers["content-type"] == PROBLEM_MEDIA_TYPE
+        return
     assert problem_of(response)["type"] == PROBLEM_BASE + "method-not-allowed"
 
 

@@ -45,6 +45,9 @@ EXPECTED = {
     "unknown field": (422, "validation-error"),
     "unknown profile": (422, "validation-error"),
     "NUL character in a text": (422, "validation-error"),
+    "study date not YYYY-MM-DD": (422, "validation-error"),
+    "study date as a number": (422, "validation-error"),
+    "blank Patient ID": (422, "validation-error"),
     "deep nesting (parser)": (400, "malformed-json"),
     "deep nesting (in a field)": (422, "validation-error"),
     "10 MB body": (413, "payload-too-large"),
@@ -59,7 +62,7 @@ EXPECTED = {
     "control character in a DICOM filter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
     "timestamp beyond year 9999 in UTC": (422, "validation-error"),
-    "method not allowed": ("405 (Allow: GET, POST)", "method-not-allowed"),
+    "method not allowed": ("405 (Allow: GET, HEAD, POST)", "method-not-allowed"),
     "bad job id": (422, "validation-error"),
     "another client's job": (404, "not-found"),
     "unknown job": (404, "not-found"),
@@ -96,6 +99,9 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert validation["duplicate key in a batch entry"] == "jobs[0].pa.units"
     assert validation["NUL character in a text"] == "options.profile"
     assert validation["unknown profile"] == "options.profile"
+    assert validation["study date not YYYY-MM-DD"] == validation["study date as a number"] == "study.study_date"
+    assert "written YYYY-MM-DD" in details["study date as a number"]
+    assert validation["blank Patient ID"] == "study.patient_id"
     assert validation["corners turned upside down"] == "pa.landmarks[4].corners"
     assert validation["pedicles swapped"] == "pa.landmarks[4].pedicles"
     assert validation["no room for the spine"] == "pa.acquisition.distance_source_to_detector_mm"

@@ -12,16 +12,20 @@ from typing import Any
 import pytest
 import yaml
 from fastapi.testclient import TestClient
-from sqlalchemy import select
+from sqlalchemy import create_engine, insert, select
 
+from services.api.app import create_app
 from services.core.config import Settings
+from services.db import jobs as repo
 from services.db.engine import session_factory
-from services.db.models import Job
-from tests.conftest import problem_of, spine_payload
+from services.db.keys import key_id_of
+from services.db.migrate import downgrade, upgrade
+from services.db.models import Job, JobAudit, utcnow
+from tests.conftest import make_key, problem_of, spine_payload
 
 ROOT = Path(__file__).resolve().parents[2]
 BACKENDS = pytest.mark.parametrize("db_settings", ["sqlite", "postgresql"], indirect=True)
-ROW_OWN = {"id", "created_at", "enqueued_at", "idempotency_key", "idempotency_kind", "request_hash"}
+ROW_OWN = {"id", "created_at", "enqueued_at", "request_hash", *(f"idempotency_{c}" for c in ("key", "kind", "client"))}
 """Columns that differ between two jobs of one payload whatever path made them."""
 
 
@@ -141,3 +145,93 @@ def test_a_single_key_and_a_batch_entry_never_answer_for_each_other(client: Test
     changed = client.post("/v1/jobs", json=other, headers={"Idempotency-Key": "abc#0"})
     assert changed.status_code == 409 and problem_of(changed)["job"] == f"/v1/jobs/{same.json()['id']}"
     assert len(client.get("/v1/jobs").json()["jobs"]) == 5
+
+
+def _bearer(key: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {key}"}
+
+
+@BACKENDS
+def test_two_admin_clients_keys_are_apart_and_each_replays_its_own(db_settings: Settings) -> None:
+    """Idempotency keys are per client (docs/security.md), admin clients included. An admin key's jobs
+    have no owner, and keys were per owner: an admin reusing a key another admin had sent got that
+    admin's job replayed (same body) or a 409 naming it (another body). Admins still see every job."""
+    tag = uuid.uuid4().hex[:8]
+    ops1, ops2 = (_bearer(make_key(db_settings, f"{who}-{tag}", "admin")) for who in ("ops1", "ops2"))
+    key, p, q = f"k-{tag}", spine_payload(), spine_payload(curve_mm=25.0)
+    with TestClient(create_app(db_settings)) as c:
+        first = c.post("/v1/jobs", json=p, headers={**ops1, "Idempotency-Key": key})
+        other = c.post("/v1/jobs", json=p, headers={**ops2, "Idempotency-Key": key})
+        assert first.status_code == other.status_code == 202, other.text
+        assert "Idempotent-Replayed" not in other.headers and other.json()["id"] != first.json()["id"]
+        changed = c.post("/v1/jobs", json=q, headers={**ops2, "Idempotency-Key": key})
+        assert changed.status_code == 409 and problem_of(changed)["job"] == f"/v1/jobs/{other.json()['id']}"
+        for who, made in ((ops1, first), (ops2, other)):
+            again = c.post("/v1/jobs", json=p, headers={**who, "Idempotency-Key": key})
+            assert again.json()["id"] == made.json()["id"] and again.headers["Idempotent-Replayed"] == "true"
+        seen = c.get(f"/v1/jobs/{other.json()['id']}", headers=ops1)  # every admin sees every job
+        assert seen.status_code == 200 and seen.json()["owner"] is None
+        batches = [c.post("/v1/jobs/batch", json={"jobs": [p]}, headers={**who, "Idempotency-Key": key})
+                   for who in (ops1, ops2, ops2)]  # fmt: skip
+        entries = [b.json()["results"][0]["job"]["id"] for b in batches]
+        assert entries[0] != entries[1] == entries[2], [b.text for b in batches]
+        assert "Idempotent-Replayed" not in batches[1].headers and batches[2].headers["Idempotent-Replayed"] == "true"
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def empty_db(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
+    """Settings of an empty database of the test's own (nothing migrated)."""
+    if request.param == "postgresql":
+        return Settings(DATABASE_URL=request.getfixturevalue("fresh_postgres_url"), data_dir=tmp_path)
+    return Settings(data_dir=tmp_path)
+
+
+def test_an_admins_request_retried_across_the_upgrade_replays_its_job(empty_db: Settings) -> None:
+    """Keys stored before revision 0013 (owner NULL for every admin's job) are given their client: the
+    owner of a client's job, the name of the key that created an admin's job (its audit row), so that
+    a request retried after the upgrade replays its job and another admin's key is apart; an admin's
+    job no audit row names (made before keys existed) is replayed to every admin key, as before. Going
+    down, where two admins stored one key, the first stored keeps it (the older index holds one)."""
+    upgrade(empty_db, "0012_idempotency_kind", quiet=True)
+    names = {"ops1": "admin", "ops2": "admin", "clinic": "client"}
+    keys = {name: make_key(empty_db, name, role) for name, role in names.items()}
+    p, q = spine_payload(), spine_payload(curve_mm=25.0)
+    legacy = {"named": (None, "k1"), "unnamed": (None, "k2"), "client's": ("clinic", "k1")}
+    ids = {what: uuid.uuid4() for what in legacy}
+    now = utcnow()
+    engine = create_engine(empty_db.sqlalchemy_url)
+    try:
+        with engine.begin() as conn:  # the columns of 0012: no idempotency_client
+            conn.execute(insert(Job), [
+                {"id": ids[what], "owner": owner, "status": "queued", "created_at": now, "enqueued_at": now,
+                 "attempts": 0, "payload": p, "idempotency_key": key, "request_hash": repo.request_hash(p)}
+                for what, (owner, key) in legacy.items()
+            ])  # fmt: skip
+            conn.execute(insert(JobAudit), [
+                {"at": now, "key_id": key_id_of(keys[name]), "action": "create", "job_id": ids[what]}
+                for what, name in (("named", "ops1"), ("client's", "clinic"))
+            ])  # fmt: skip
+        upgrade(empty_db, quiet=True)
+        with engine.connect() as conn:
+            clients = dict(conn.execute(select(Job.id, Job.idempotency_client)).all())
+        assert clients == {ids["named"]: "ops1", ids["unnamed"]: None, ids["client's"]: "clinic"}
+
+        def post(name: str, key: str, body: dict[str, Any]) -> Any:
+            return c.post("/v1/jobs", json=body, headers={**_bearer(keys[name]), "Idempotency-Key": key})
+
+        with TestClient(create_app(empty_db)) as c:
+            for name, key, what in (("ops1", "k1", "named"), ("ops1", "k2", "unnamed"), ("ops2", "k2", "unnamed"),
+                                    ("clinic", "k1", "client's")):  # fmt: skip
+                retried = post(name, key, p)
+                assert retried.status_code == 202 and retried.headers.get("Idempotent-Replayed") == "true", (name, key)
+                assert retried.json()["id"] == str(ids[what]), (name, key)
+            apart = post("ops2", "k1", p)  # ops1's key, not ops2's
+            assert apart.status_code == 202 and "Idempotent-Replayed" not in apart.headers
+            assert problem_of(post("ops2", "k2", q))["job"] == f"/v1/jobs/{ids['unnamed']}"
+        downgrade(empty_db, "0012_idempotency_kind")
+        with engine.connect() as conn:
+            kept = dict(conn.execute(select(Job.id, Job.idempotency_key)).all())
+        assert kept[ids["named"]] == "k1" and kept[uuid.UUID(apart.json()["id"])] is None
+        assert kept[ids["unnamed"]] == "k2" and kept[ids["client's"]] == "k1"
+    finally:
+        engine.dispose()

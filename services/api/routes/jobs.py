@@ -127,8 +127,8 @@ def submit_job(
     except InvalidInput as exc:
         raise ProblemError(field_problem(exc.errors)) from None
     try:  # the cap (access.admit) is applied after the key's lookup: a replay makes no job and is never a 429
-        job, created = jobs_repo.create_job(session, payload, owner=access.owner, idempotency_key=idempotency_key,
-                                            on_insert=access.created, dicom=dicom,
+        job, created = jobs_repo.create_job(session, payload, owner=access.owner, client=access.client,
+                                            idempotency_key=idempotency_key, on_insert=access.created, dicom=dicom,
                                             admit=partial(access.admit, session))  # fmt: skip
     except jobs_repo.IdempotencyConflict as exc:
         raise ProblemError(
@@ -193,7 +193,8 @@ def submit_batch(
             p = field_problem(errors, instance="/v1/jobs/batch")
             entries[i] = BatchEntry(index=i, status=p["status"], problem=Problem.model_validate(p))
     if idempotency_key is not None:  # the cap counts the new jobs only, after the keys' lookup
-        answer, replayed_only = batch_response(session, queue, owner=access.owner, key=idempotency_key,
+        answer, replayed_only = batch_response(session, queue, owner=access.owner, client=access.client,
+                                               key=idempotency_key,
                                                total=len(payloads), valid=valid, entries=entries,
                                                on_insert=access.created,
                                                admit=partial(access.admit, session))  # fmt: skip
