@@ -217,6 +217,8 @@ def cases() -> list[Case]:
              params={"stauts": "queued"}, content_type=None),
         Case("control character in a DICOM filter", "`GET /v1/jobs?patient_id=A%0AB` (a line break in an LO)",
              method="GET", path="/v1/jobs", params={"patient_id": "A\nB"}, content_type=None),
+        Case("empty DICOM filter", "`GET /v1/jobs?patient_id=` (no Patient ID is empty)",
+             method="GET", path="/v1/jobs", params={"patient_id": ""}, content_type=None),
         Case("number as a timestamp", "`GET /v1/jobs?created_after=0.5`", method="GET", path="/v1/jobs",
              params={"created_after": "0.5"}, content_type=None),
         Case("timestamp beyond year 9999 in UTC", "`GET /v1/jobs?created_before=9999-12-31T23:59:59-14:00`",

@@ -60,6 +60,7 @@ EXPECTED = {
     "empty Idempotency-Key": (422, "validation-error"),
     "unknown query parameter": (422, "validation-error"),
     "control character in a DICOM filter": (422, "validation-error"),
+    "empty DICOM filter": (422, "validation-error"),
     "number as a timestamp": (422, "validation-error"),
     "timestamp beyond year 9999 in UTC": (422, "validation-error"),
     "method not allowed": ("405 (Allow: GET, HEAD, POST)", "method-not-allowed"),
@@ -109,6 +110,7 @@ def test_every_bad_input_gets_its_problem(rows: list[dict[str, Any]]) -> None:
     assert "turned by 90° or more" in details["corners turned upside down"]
     assert "image-right first" in details["pedicles swapped"]
     assert validation["control character in a DICOM filter"] == "query.patient_id"
+    assert validation["empty DICOM filter"] == "query.patient_id"
     assert validation["empty Idempotency-Key"] == "header.idempotency-key"
     assert "the Idempotency-Key header is empty" in details["empty Idempotency-Key"]
 

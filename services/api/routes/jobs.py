@@ -241,12 +241,12 @@ def list_jobs(
     ] = None,
     accession_number: Annotated[
         str | None,
-        Query(max_length=DICOM_SH_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
+        Query(min_length=1, max_length=DICOM_SH_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
               description="Jobs of this Accession Number (0008,0050): DICOM SH."),
     ] = None,
     patient_id: Annotated[
         str | None,
-        Query(max_length=DICOM_LO_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
+        Query(min_length=1, max_length=DICOM_LO_MAX_LENGTH, pattern=DICOM_TEXT_PATTERN,
               description="Jobs of this Patient ID (0010,0020): DICOM LO."),
     ] = None,
 ) -> JobPage:
