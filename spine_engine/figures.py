@@ -192,6 +192,22 @@ def _with_trust(value: float, sd: float | None, estimate: bool) -> str:
     return text + (" (model estimate)" if estimate else "")
 
 
+def _depth_note(fit: Mapping[str, Any]) -> str:
+    """The lateral projection's second title line when no film places the spine in depth (``fit.unreliable``
+    ``depth``): the depths drawn are the population prior's sagittal shape, not a measurement."""
+    if "depth" not in set(fit.get("unreliable") or []):
+        return ""
+    return "\nmodel estimate: no film shows depth"
+
+
+def _strain_note(fit: Mapping[str, Any]) -> str:
+    """The angular strain panel's note naming the components that are model estimates: u1 without depth
+    (``fit.unreliable`` ``depth``), u3 without pedicles (``twist``)."""
+    unreliable = set(fit.get("unreliable") or [])
+    named = [name for name, flag in (("u1", "depth"), ("u3", "twist")) if flag in unreliable]
+    return f" ({' and '.join(named)}: model estimates)" if named else ""
+
+
 def _summary(result: Mapping[str, Any]) -> str:
     measures = result.get("measures", {})
     fit = result.get("fit", {})
@@ -282,7 +298,7 @@ def render_figure(
             row = float(np.mean(pa_centre[:, 1]) - scale * np.mean(positions @ e_r))  # the PA panel's mean row
             _draw_view(
                 ax_lat,
-                title="Lateral projection of the model (anterior right)",
+                title="Lateral projection of the model (anterior right)" + _depth_note(fit),
                 positions=positions, directors=directors, across=1,
                 projector=lambda r: project(r, e_c, e_r, scale, np.array([0.0, row])),
                 colours=colours, landmarks=[], residuals={},
@@ -293,7 +309,7 @@ def render_figure(
         u = np.array([v["u"] for v in seg], dtype=float).reshape(-1, 3) * 1e3
         vv = np.array([v["v"] for v in seg], dtype=float).reshape(-1, 3)
         _strain_panel(ax_u, seg_levels, u, ("u1 sagittal bending", "u2 frontal bending", "u3 twist"),
-                      "Angular strain u per segment", "u (10⁻³ rad/mm)")  # fmt: skip
+                      "Angular strain u per segment" + _strain_note(fit), "u (10⁻³ rad/mm)")  # fmt: skip
         _strain_panel(ax_v, seg_levels, vv, ("v1 shear", "v2 shear", "v3 stretch"),
                       "Linear strain v per segment", "v (dimensionless)")  # fmt: skip
 

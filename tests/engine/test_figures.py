@@ -88,6 +88,23 @@ def test_the_title_marks_a_model_estimated_cobb_angle_and_names_an_apical_disc(
     assert "L4–L5, apex L4/L5 disc" in render_figure(disc, payload, "svg").decode()
 
 
+def test_panels_drawn_from_the_prior_say_so() -> None:
+    """One PA film without boundary (``fit.unreliable`` has ``depth`` and ``twist``): the lateral projection is
+    the prior's sagittal shape and says so, and the angular strain panel names u1 and u3 as model estimates;
+    with T1 and L5 given neither note appears on the sagittal side."""
+    payload = spine_payload(curve_mm=30.0)
+    del payload["boundary"]
+    result = register(payload)
+    assert {"depth", "twist"} <= set(result["fit"]["unreliable"])
+    svg = render_figure(result, payload, "svg").decode()
+    assert "model estimate: no film shows depth" in svg and "(u1 and u3: model estimates)" in svg
+    given = spine_payload(curve_mm=30.0)
+    with_ends = register(given)
+    assert "depth" not in with_ends["fit"]["unreliable"]
+    svg = render_figure(with_ends, given, "svg").decode()
+    assert "no film shows depth" not in svg and "u1 and" not in svg
+
+
 def test_unknown_format_is_refused(fitted: tuple[dict[str, Any], dict[str, Any]]) -> None:
     with pytest.raises(ValueError, match="unknown figure format"):
         render_figure(*fitted, "gif")  # type: ignore[arg-type]
