@@ -129,7 +129,9 @@ class JobStateCollector(Collector):
             jobs.add_metric([status], n)
         yield jobs
         if waiting is not None:
-            depth = GaugeMetricFamily("spine_queue_depth", "Job messages waiting on the broker.")
+            depth = GaugeMetricFamily(
+                "spine_queue_depth", "Messages waiting in the job queue on the broker: job runs and reconciler passes."
+            )
             depth.add_metric([], waiting)
             yield depth
         yield up
