@@ -254,7 +254,12 @@ def _dicom_payload(args: argparse.Namespace) -> dict[str, Any]:
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"cannot read {exc.filename}: {exc.strerror or exc}") from None
+    used = {(r["field"], json.dumps(r["value"])) for r in provenance["study"] if r["used"]}
     for c in provenance["conflicts"]:
+        if (c["field"], json.dumps(c["header"])) in used:  # a study value that is the film's (merge.FILM_VALUES)
+            _err(f"warning: {c['field']}: the header's {c['attribute']} {c['header']!r} is used, as the film's "
+                 f"study has it; the payload's {c['payload']!r} is not")  # fmt: skip
+            continue
         _err(f"warning: {c['field']}: the payload's {c['payload']!r} is kept; the header's {c['attribute']} "
              f"says {c['header']!r}")  # fmt: skip
     return {**payload, "dicom": provenance}

@@ -33,7 +33,7 @@ from services.core.config import Settings
 from services.db.job_forms import apply_reads, engine_payload
 from services.dicom.reference import views_to_fetch
 from services.webhooks.submission import check_callback
-from spine_client.dicom.merge import DicomProvenance, client_provenance_errors
+from spine_client.dicom.merge import DicomProvenance, client_identity_errors, client_provenance_errors
 from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.models import JobPayload
 from spine_engine.validation import validate_payload
@@ -129,7 +129,10 @@ def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     from its image files (``spine submit --pa-dicom``; ``DicomProvenance``, every view's ``source``
     ``file``): kept on the job as the service keeps its own PACS reads, it completes the payload as
     a header does (``spine_client.dicom.merge.client_provenance_errors``). Raises ``InvalidInput`` naming
-    each wrong member by its JSON path under ``dicom``."""
+    each wrong member by its JSON path under ``dicom``; and, as ``patient_conflict``, the payload's study
+    field on which the payload and the films, or the two films, are not of one patient and study, or the
+    read of a film's study value the payload replaced (``client_identity_errors``): never reconstructed
+    nor stored into the film's study."""
     if not isinstance(body, dict) or body.get("dicom") is None:
         return (({k: v for k, v in body.items() if k != "dicom"}) if isinstance(body, dict) else body), None
     check_text(body["dicom"], ("dicom",))
@@ -141,6 +144,9 @@ def split_dicom(body: Any) -> tuple[Any, dict[str, Any] | None]:
     errors = client_provenance_errors(provenance)
     if errors:
         raise InvalidInput([FieldError(("dicom", *loc), reason, "dicom_read") for loc, reason in errors[:MAX_ERRORS]])
+    conflicts = client_identity_errors(payload, provenance)
+    if conflicts:
+        raise InvalidInput([FieldError(loc, reason, "patient_conflict") for loc, reason in conflicts[:MAX_ERRORS]])
     return payload, provenance.model_dump(mode="json")
 
 

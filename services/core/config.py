@@ -258,7 +258,8 @@ class Settings(BaseSettings):
     dicomweb_store_results: bool = Field(
         False,
         description="Store each succeeded job's SR and figure (Secondary Capture) in its study by STOW-RS "
-        "(needs SPINE_DICOMWEB_URL); every attempt is recorded on the job (dicom_stores).",
+        "(needs SPINE_DICOMWEB_URL); every attempt is recorded on the job (dicom_stores). Only a job whose study has "
+        "a Patient ID is stored.",
     )
     dicomweb_timeout_s: float = Field(10.0, gt=0, description="Time limit of one DICOMweb request.")
     dicomweb_max_attempts: int = Field(

@@ -46,6 +46,7 @@ KINDS: dict[str, tuple[str, int]] = {
     "dicom-missing-attribute": ("The image's header lacks an attribute the job needs", 422),
     "dicom-invalid-attribute": ("An attribute of the image's header is not usable", 422),
     "dicom-unsupported-orientation": ("The image is not a PA/AP or lateral radiograph, or not the view given", 422),
+    "dicom-patient-conflict": ("The payload and the films, or the two films, are not of one patient", 422),
     "dicomweb-unavailable": ("The PACS (DICOMweb) did not answer, after the retries", 503),
     "dicomweb-instance-not-found": ("The PACS does not hold the image the job names", 422),
     "dicomweb-study-not-found": ("The PACS holds no image of this study", 404),

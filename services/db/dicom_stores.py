@@ -35,7 +35,11 @@ class DicomStoreAttempt(BaseModel):
     attempted_at: datetime
     ok: bool
     stored: list[str] = Field(default_factory=list, description="SOP Instance UIDs the PACS stored.")
-    problem_type: str | None = Field(None, description="dicomweb-unavailable, dicomweb-store-refused, ...")
+    problem_type: str | None = Field(
+        None,
+        description="dicomweb-unavailable, dicomweb-store-refused, dicom-no-patient-identity (not stored: no study "
+        "or no Patient ID), ...",
+    )
     error: str | None = None
     duration_ms: float | None = None
     next_attempt_at: datetime | None = Field(None, description="When the next attempt is due; null: none.")

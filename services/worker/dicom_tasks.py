@@ -10,6 +10,12 @@ attempt to the job, and when the PACS was unavailable or refused, publishes the 
 derive from the job, so a repeated attempt stores the same instances again (PACS replace or ignore
 them; none is duplicated).
 
+Only a job with the patient's identity is stored (``services.dicom.results.not_storable``, checked by
+``store_job_results`` before anything is built or sent, so on every path: the first attempt, a retry,
+the sweep's): a job without ``study``, or whose study has no Patient ID, gets one attempt recorded with
+``ok`` false, ``problem_type`` ``dicom-no-patient-identity``, the reason in ``error`` and no next attempt;
+nothing reaches the PACS, and the job stays succeeded.
+
 The due time the reconciler's sweep looks for (``jobs.dicom_store_due_at``) is written and compared on
 the database's clock (``services.db.dicom_stores``), never this process's own; so are the times of an
 attempt shown on the job (``attempted_at``, ``next_attempt_at``).
@@ -40,7 +46,7 @@ from services.db import dicom_stores
 from services.db.dicom_stores import DicomStoreAttempt
 from services.db.engine import session_scope
 from services.dicom.errors import DicomwebError
-from services.dicom.results import store_job_results
+from services.dicom.results import NoPatientIdentity, store_job_results
 from spine_client.dicom.errors import DicomError
 
 log = logging.getLogger(__name__)
@@ -119,7 +125,9 @@ def attempt_wait_s(settings: Settings, job_id: uuid.UUID, attempt: int, *, sched
 
 
 def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStoreAttempt:
-    """One STOW-RS attempt of the job's SR and SC; recorded on the job. Raises nothing from the PACS."""
+    """One STOW-RS attempt of the job's SR and SC; recorded on the job. Raises nothing from the PACS. A job
+    without the patient's identity (``NoPatientIdentity``) is recorded as not stored, with its reason,
+    and not retried."""
     config = settings.dicomweb
     with session_scope(settings) as session:
         source = dicom_stores.store_source(session, job_id)
@@ -132,6 +140,9 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         outcome.ok = True
     except DicomwebError as exc:
         outcome.problem_type, outcome.error = exc.problem, str(exc)
+    except NoPatientIdentity as exc:  # nothing sent: not a failure of the PACS nor of the job, not retried
+        outcome.problem_type, outcome.error = exc.problem, str(exc)
+        attempt = settings.dicomweb_max_attempts
     except DicomError as exc:  # a result that cannot be put in DICOM: not retried
         outcome.problem_type, outcome.error = exc.problem, str(exc)
         attempt = settings.dicomweb_max_attempts

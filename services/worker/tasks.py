@@ -42,7 +42,7 @@ from services.dicom.dicomweb import Pacs
 from services.dicom.errors import PacsUnavailable
 from services.dicom.reference import resolve_by_reference, views_to_fetch
 from services.worker import dicom_tasks, webhook_tasks
-from spine_client.dicom.errors import DicomError
+from spine_client.dicom.errors import DicomError, PatientConflict
 from spine_engine.errors import FitFailed, InvalidInput
 from spine_engine.models import RegistrationResult
 from spine_engine.reconstruction import register_model
@@ -183,13 +183,18 @@ def resolve_dicom(settings: Settings, claim: runs.Claim, instance: str) -> tuple
     fill what the payload lacks (``services.dicom.reference``), recorded on the job. Returns
     (payload, None) or (payload, problem). A PACS that is unavailable hands the job back to the queue
     (``RunLater``) until its attempts (SPINE_MAX_ATTEMPTS) are spent, then fails it
-    (``dicomweb-unavailable``); a missing instance or an unusable header fails it at once."""
+    (``dicomweb-unavailable``); a missing instance or an unusable header fails it at once, and so do
+    films that are not of the payload's patient and study, or of one patient (``dicom-patient-conflict``),
+    however the job was read."""
     config = settings.dicomweb
     payload = apply_reads(claim.payload, claim.dicom)  # the client's reads of its files, or an earlier run's
     if config is None or (claim.dicom is not None and not views_to_fetch(payload)):
         return engine_payload(payload), None
     if not views_to_fetch(payload):  # read only for the SR's reference: a PACS problem does not fail the job
-        return engine_payload(_reference_reads(settings, config, claim, payload)), None
+        try:
+            return engine_payload(_reference_reads(settings, config, claim, payload)), None
+        except PatientConflict as exc:
+            return payload, problem(exc.problem, str(exc), instance=instance, **exc.problem_fields)
     try:
         with Pacs(config) as pacs:
             resolved, provenance = resolve_by_reference(payload, pacs)
@@ -214,12 +219,16 @@ def _reference_reads(
 ) -> dict[str, Any]:
     """The payload with the headers of the images its study names, read although it gives all it needs
     (``resolve_by_reference(all_named=True)``) and recorded on the job; unchanged when the PACS cannot
-    give them (logged)."""
+    give them (logged). Raises ``PatientConflict`` when the films are not of the payload's patient and
+    study, or of one patient: the job needs nothing from them, but its results would go into the film's
+    study under another patient."""
     if not views_to_fetch(payload, all_named=True):
         return payload
     try:
         with Pacs(config) as pacs:
             resolved, provenance = resolve_by_reference(payload, pacs, all_named=True)
+    except PatientConflict:
+        raise
     except DicomError as exc:
         log.warning("job %s: the images its study names were not read (%s); it runs without them", claim.job_id, exc)
         return payload

@@ -74,3 +74,12 @@ class UnsupportedOrientation(DicomError):
     """The image is not a frontal (PA/AP) or lateral projection of a standing spine, or not the view it was given as."""
 
     problem = "dicom-unsupported-orientation"
+
+
+class PatientConflict(DicomError):
+    """The payload and a film, or the PA and the lateral films, disagree on who the patient is (Patient
+    ID, its issuer, the Patient's Name without an agreeing Patient ID) or the payload names another study
+    than the PA film's: a study belongs to one patient (PS3.3 §C.7.1.1, §C.7.2.1), so the job is refused,
+    never reconstructed nor stored. ``field`` is the first such field (``study.patient_id``)."""
+
+    problem = "dicom-patient-conflict"

@@ -2,6 +2,13 @@
 disagrees is reported as a conflict (never silently taken), and what was read is recorded with its
 attribute (``DicomProvenance``, shown on the job as ``dicom`` in openapi.yaml).
 
+Except who the patient is and which study it is: the SR and SC go into the film's study, which belongs to
+one patient (PS3.3 §C.7.1.1, §C.7.2.1). A payload and a film, or the PA and the lateral films, that
+disagree on the Patient ID, its issuer, the Patient's Name without a Patient ID both give alike, or a
+payload naming another study than the PA film's, are refused (``PatientConflict``, ``identity_problems``);
+the study's other values (``FILM_VALUES``: accession number, date, the name when the Patient ID agrees...)
+are the film's, the payload's value recorded as a conflict.
+
 Works on the payload as JSON (a dict), so that fields the engine adds (``acquisition``,
 ``pixel_spacing_calibration``) pass through whatever version of the contract the reader holds.
 """
@@ -11,11 +18,12 @@ from __future__ import annotations
 import copy
 import math
 import re
+from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from spine_client.dicom.errors import UnsupportedOrientation, attribute_label
+from spine_client.dicom.errors import PatientConflict, UnsupportedOrientation, attribute_label
 
 from .datetimes import parse_iso_datetime
 from .header import (
@@ -99,19 +107,21 @@ class _Merger:
         self.provenance = provenance
 
     def fill(self, target: dict[str, Any], key: str, path: str, value: Any, attribute: str,
-             reads: list[AttributeRead]) -> bool:  # fmt: skip
-        """Put ``value`` into ``target[key]`` unless the payload has it; record the read and any conflict.
-        Returns True when the header's value is used."""
+             reads: list[AttributeRead], *, header_wins: bool = False) -> bool:  # fmt: skip
+        """Put ``value`` into ``target[key]`` unless the payload has it (or, ``header_wins``, has another
+        value: then the header's is put in its place); record the read and any conflict. Returns True when
+        the header's value is used."""
         value = _jsonable(value)
         given = target.get(key)
-        if given is None:
+        differs = given is not None and not _same(_jsonable(given), value)
+        if differs:
+            self.provenance.conflicts.append(Conflict(field=path, payload=_jsonable(given), header=value,
+                                                      attribute=attribute))  # fmt: skip
+        if given is None or (differs and header_wins):
             target[key] = value
             reads.append(AttributeRead(field=path, value=value, attribute=attribute, used=True))
             return True
         reads.append(AttributeRead(field=path, value=value, attribute=attribute, used=False))
-        if not _same(_jsonable(given), value):
-            self.provenance.conflicts.append(Conflict(field=path, payload=_jsonable(given), header=value,
-                                                      attribute=attribute))  # fmt: skip
         return False
 
 
@@ -189,6 +199,114 @@ for the SR, the SC and the FHIR export. Two films of one study that disagree on 
 with another Timezone Offset From UTC) are a conflict like any other: the PA's value is used."""
 
 
+FILM_VALUES = frozenset({
+    "patient_name", "patient_id_issuer", "accession_number", "study_date", "study_time", "study_id",
+    "patient_birth_date", "patient_sex", "referring_physician_name", "timezone_offset_from_utc",
+})  # fmt: skip
+"""The study's values that are the film's when the payload gives another (the conflict recorded): the SR and
+SC repeat the film's Patient and General Study Modules in its study (PS3.3 §C.7.1.1, §C.7.2.1), so a typed
+Accession Number or Patient's Name does not make one study say two things. Between the films, the PA's.
+Who the patient is and which study is never taken over: ``identity_problems`` refuses a disagreement."""
+
+LATERAL_PREFIX = "lateral image's "
+"""How a study read of the lateral film names its attribute (``merge_study``), apart from the PA's."""
+
+WHO_FIELDS = {"study_instance_uid": "StudyInstanceUID", "patient_id": "PatientID",
+              "patient_id_issuer": "IssuerOfPatientID", "patient_name": "PatientName"}  # fmt: skip
+"""The study's values that say who the patient is and which study (``identity_problems``), with their keyword."""
+
+
+def normalised_person_name(value: str) -> str:
+    """A PN as compared: case-folded, each component without its leading and trailing spaces, and no
+    trailing empty component or component group (PS3.5 §6.2.1: trailing ``^`` and ``=`` may be left out,
+    so ``Doe^Jane^^^`` is ``DOE^JANE``; the case of a name is how it was typed, not who it names)."""
+    groups = []
+    for group in value.split("="):
+        components = [c.strip().casefold() for c in group.split("^")]
+        while components and not components[-1]:
+            components.pop()
+        groups.append("^".join(components))
+    while groups and not groups[-1]:
+        groups.pop()
+    return "=".join(groups)
+
+
+def _text(value: Any) -> str:
+    """A Patient ID or UID as compared: an LO's and a UI's leading and trailing spaces are padding (PS3.5 §6.2)."""
+    return str(value).strip()
+
+
+def _issuers_differ(a: Any, b: Any) -> bool:
+    """Whether two ``patient_id_issuer`` values name two issuers: the local names (Issuer of Patient ID)
+    both give differ, or the universal IDs both give differ (with their Type). Two that share no member
+    name none in common: not a disagreement."""
+    a = a if isinstance(a, Mapping) else {}
+    b = b if isinstance(b, Mapping) else {}
+    local = (a.get("issuer_of_patient_id"), b.get("issuer_of_patient_id"))
+    if None not in local and _text(local[0]) != _text(local[1]):
+        return True
+    if a.get("universal_entity_id") is not None and b.get("universal_entity_id") is not None:
+        keys = ("universal_entity_id", "universal_entity_id_type")
+        return tuple(_text(a.get(k)) for k in keys) != tuple(_text(b.get(k)) for k in keys)
+    return False
+
+
+_WHO_PAIRS = (("payload", "pa"), ("payload", "lateral"), ("pa", "lateral"))
+
+
+def identity_problems(payload_study: Mapping[str, Any], reads: Sequence[AttributeRead]) -> list[tuple[str, str, str]]:
+    """(field, reason, keyword) for each of ``WHO_FIELDS`` on which the payload's study (the values it gives
+    itself) and the films' headers (the study reads, the lateral's named with ``LATERAL_PREFIX``), or the
+    two films, disagree; empty when they are of one patient and study:
+
+    - Patient ID: after its padding; with its issuer, when both give one (``_issuers_differ``);
+    - Patient's Name, as ``normalised_person_name``, when the two do not give the same Patient ID: a
+      Patient ID is the identifier, and when both give it alike a name that differs is one spelling
+      against another (the film's is used, ``FILM_VALUES``); without it, the name is all that says who
+      the patient is;
+    - Study Instance UID, the payload's against the PA film's (the study the SR and SC go into). A lateral
+      of another study of the same patient is a conflict recorded, the PA's used."""
+    claims: dict[str, dict[str, tuple[str, Any]]] = {"payload": {}, "pa": {}, "lateral": {}}
+    for key in WHO_FIELDS:
+        value = payload_study.get(key)
+        if value is not None and not (isinstance(value, str) and not value.strip()):
+            claims["payload"][key] = (f"the payload's study.{key}", value)
+    for read in reads:
+        key = read.field.removeprefix("study.")
+        if key not in WHO_FIELDS or read.value is None:
+            continue
+        lateral = read.attribute.startswith(LATERAL_PREFIX)
+        role = "lateral" if lateral else "pa"
+        claims[role].setdefault(key, (f"the {role if lateral else 'PA'} film's "
+                                      f"{read.attribute.removeprefix(LATERAL_PREFIX)}", read.value))  # fmt: skip
+    problems: list[tuple[str, str, str]] = []
+    for key, keyword in WHO_FIELDS.items():
+        for a, b in _WHO_PAIRS:
+            if key not in claims[a] or key not in claims[b] or (key == "study_instance_uid" and b != "pa"):
+                continue
+            (a_label, a_value), (b_label, b_value) = claims[a][key], claims[b][key]
+            if key == "patient_name":
+                ids = (claims[a].get("patient_id"), claims[b].get("patient_id"))
+                if normalised_person_name(str(a_value)) == normalised_person_name(str(b_value)) or (
+                        None not in ids and _text(ids[0][1]) == _text(ids[1][1])):  # type: ignore[index]
+                    continue
+                why = "name two patients, and no Patient ID given by both says they are one"
+            elif key == "patient_id_issuer":
+                if not _issuers_differ(a_value, b_value):
+                    continue
+                why = "name two issuers of the Patient ID: the same ID from two issuers may be two patients"
+            elif _text(a_value) == _text(b_value):
+                continue
+            elif key == "patient_id":
+                why = "name two patients"
+            else:
+                why = "name two studies: the results go into the film's study"
+            problems.append((f"study.{key}", f"{a_label} {_jsonable(a_value)!r} and {b_label} "
+                                             f"{_jsonable(b_value)!r} {why}", keyword))  # fmt: skip
+            break
+    return problems
+
+
 ISSUER_ATTRIBUTES = (f"{attribute_label('IssuerOfPatientID')}, {attribute_label('IssuerOfPatientIDQualifiersSequence')}"
                      f" > {attribute_label('UniversalEntityID')}, {attribute_label('UniversalEntityIDType')}")
 """The attributes ``study.patient_id_issuer`` is read from (``header._patient_id_issuer``)."""
@@ -199,24 +317,36 @@ def merge_study(
 ) -> None:
     """Fill ``payload["study"]`` from the headers (the PA's first): study UID, patient, accession,
     date, and each view's SOP Instance UID (and the PA's series). Conflicts between payload and
-    header, or between the two images, are recorded."""
+    header, or between the two images, are recorded; of ``FILM_VALUES`` the film's value is used (the
+    PA's, the lateral's where the PA has none). Raises ``PatientConflict`` when the payload and the
+    films, or the two films, are not of one patient and study (``identity_problems``)."""
     study = payload.get("study") or {}
+    given = dict(study)
     merger = _Merger(provenance)
+    pa = headers.get("pa")
     for role in ("pa", "lateral"):
         header = headers.get(role)  # type: ignore[call-overload]
         if header is None:
             continue
-        prefix = "" if role == "pa" else "lateral image's "
+        prefix = "" if role == "pa" else LATERAL_PREFIX
         for key, keyword in STUDY_FIELDS:
             value = getattr(header, key)
             label = ISSUER_ATTRIBUTES if key == "patient_id_issuer" else attribute_label(keyword)
+            over_payload = role == "pa" or pa is None or getattr(pa, key) is None
             if value is not None:
-                merger.fill(study, key, f"study.{key}", value, prefix + label, provenance.study)
+                merger.fill(study, key, f"study.{key}", value, prefix + label, provenance.study,
+                            header_wins=key in FILM_VALUES and over_payload)  # fmt: skip
         merger.fill(study, f"{role}_sop_instance_uid", f"study.{role}_sop_instance_uid", header.sop_instance_uid,
                     attribute_label("SOPInstanceUID"), provenance.study)  # fmt: skip
         if role == "pa" and header.series_instance_uid is not None:
             merger.fill(study, "series_instance_uid", "study.series_instance_uid", header.series_instance_uid,
                         attribute_label("SeriesInstanceUID"), provenance.study)  # fmt: skip
+    problems = identity_problems(given, provenance.study)
+    if problems:
+        detail = "; ".join(f"{field}: {reason}" for field, reason, _ in problems)
+        raise PatientConflict(f"{detail}: refused, a job's payload and films must be of one patient and study "
+                              "(PS3.3 §C.7.1.1)", attributes=tuple(keyword for _, _, keyword in problems),
+                              field=problems[0][0])  # fmt: skip
     payload["study"] = study
 
 
@@ -308,4 +438,32 @@ def client_provenance_errors(provenance: DicomProvenance) -> list[tuple[tuple[st
                 reason = f"{read.value[:80]!r} {problem}" if problem is not None else None
             if reason is not None:
                 errors.append(((*base, i, "value"), reason))
+    return errors
+
+
+def client_identity_errors(
+    payload: Mapping[str, Any], provenance: DicomProvenance
+) -> list[tuple[tuple[str | int, ...], str]]:
+    """What in a payload and the ``dicom`` block a client read from its image files says that they are
+    not of one patient and study, as (JSON path in the posted body, reason), as ``merge_study`` refuses it
+    on the client (a client that sends it anyway, or one older than that refusal): each of
+    ``identity_problems`` between the payload's study (its values no read fills) and the study reads, at
+    the study's field; and a read of ``FILM_VALUES`` from the PA film that is not used where the payload
+    gives another value (the SR and SC would carry the payload's into the film's study), at the read."""
+    study = payload.get("study")
+    study = study if isinstance(study, Mapping) else {}
+    used = {read.field for read in provenance.study if read.used}
+    own = {key: value for key, value in study.items() if f"study.{key}" not in used}
+    errors: list[tuple[tuple[str | int, ...], str]] = [
+        (tuple(field.split(".")), reason) for field, reason, _ in identity_problems(own, provenance.study)]
+    for i, read in enumerate(provenance.study):
+        key = read.field.removeprefix("study.")
+        if key not in FILM_VALUES or read.used or read.attribute.startswith(LATERAL_PREFIX):
+            continue
+        given = study.get(key)
+        if given is not None and not _same(_jsonable(given), read.value):
+            errors.append((("dicom", "study", i, "used"),
+                           f"the PA film's {read.attribute} {read.value!r} is the study's, not the payload's "
+                           f"{_jsonable(given)!r}: the SR and SC go into the film's study with the film's values "
+                           f"(give the film's value in study.{key}, or leave it out)"))  # fmt: skip
     return errors

@@ -280,10 +280,14 @@ def test_webhook_attempts_are_claimed_on_the_databases_clock(
 # ------------------------------------------------------------------ STOW-RS attempts
 
 
+STOW_STUDY = {"study_instance_uid": "1.2.3", "patient_id": "P-STOW"}
+"""The study of a job whose results are stored: only one with a Patient ID is (``results.not_storable``)."""
+
+
 def _succeeded_job(settings: Settings) -> uuid.UUID:
     """A job run by the engine to success (its result stored), with no STOW-RS published yet."""
     with session_scope(settings) as session:
-        job, _ = jobs.create_job(session, spine_payload())
+        job, _ = jobs.create_job(session, {**spine_payload(), "study": STOW_STUDY})
     assert execute_job(settings.model_copy(update={"dicomweb_store_results": False}), job.id) == "succeeded"
     return job.id
 

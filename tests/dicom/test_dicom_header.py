@@ -301,12 +301,12 @@ def test_a_projection_radiograph_is_sent_as_a_point_source_film(film: dict[str, 
 def test_merge_fills_missing_and_reports_conflicts() -> None:
     pa = read_header(synthetic.radiograph(imager_pixel_spacing=(0.15, 0.15), ermf=1.25, sid=1800.0))
     lateral_ds = synthetic.radiograph(patient_orientation=("A", "F"), view_position="LL",
-                                      study_instance_uid=pa.study_instance_uid, patient_id="OTHER")  # fmt: skip
+                                      study_instance_uid=pa.study_instance_uid, accession_number="ACC-LAT")  # fmt: skip
     lateral = read_header(lateral_ds)
     payload = {
         "pa": {"units": "px", "landmarks": []},
         "lateral": {"units": "px", "pixel_spacing": [0.2, 0.2], "patient_orientation": ["A", "F"], "landmarks": []},
-        "study": {"study_instance_uid": pa.study_instance_uid, "accession_number": "TYPED"},
+        "study": {"study_instance_uid": pa.study_instance_uid, "study_id": "TYPED"},
     }
     merged, provenance = apply_headers(payload, {"pa": pa, "lateral": lateral}, source="file")
     assert payload["pa"] == {"units": "px", "landmarks": []}  # the input is not changed
@@ -319,18 +319,20 @@ def test_merge_fills_missing_and_reports_conflicts() -> None:
                                            "image_size": [32.0, 64.0]}  # fmt: skip
     assert merged["lateral"]["pixel_spacing"] == [0.2, 0.2]  # the payload wins
     assert "pixel_spacing_calibration" not in merged["lateral"]  # the header's calibration is not of this spacing
-    assert merged["study"]["accession_number"] == "TYPED"
+    assert merged["study"]["study_id"] == "1"  # the film's (merge.FILM_VALUES): the SR goes into its study
+    assert merged["study"]["accession_number"] == "ACC-42"  # the PA's, the lateral's a conflict
     assert merged["study"]["patient_id"] == "P-0001" and merged["study"]["patient_name"] == "Doe^Jane"
     assert merged["study"]["study_date"] == "2026-11-30"
     assert merged["study"]["pa_sop_instance_uid"] == pa.sop_instance_uid
     assert merged["study"]["lateral_sop_instance_uid"] == lateral.sop_instance_uid
     assert merged["study"]["series_instance_uid"] == pa.series_instance_uid
     conflicts = {c.field: c for c in provenance.conflicts}
-    assert set(conflicts) == {"lateral.pixel_spacing", "study.accession_number", "study.patient_id"}
+    assert set(conflicts) == {"lateral.pixel_spacing", "study.accession_number", "study.study_id"}
     assert conflicts["lateral.pixel_spacing"].header == [0.15, 0.15]
     assert conflicts["lateral.pixel_spacing"].attribute == "ImagerPixelSpacing (0018,1164)"
-    assert conflicts["study.accession_number"].payload == "TYPED"
-    assert conflicts["study.patient_id"].attribute == "lateral image's PatientID (0010,0020)"
+    assert (conflicts["study.study_id"].payload, conflicts["study.study_id"].header) == ("TYPED", "1")
+    assert conflicts["study.accession_number"].attribute == "lateral image's AccessionNumber (0008,0050)"
+    assert next(r for r in provenance.study if r.field == "study.study_id").used  # the PA film's: the job's study
     assert provenance.pa is not None and provenance.pa.cornerstone_calibration_type == "ERMF"
     read = {r.field: r for r in provenance.pa.read}
     assert read["pa.pixel_spacing"].used and "EstimatedRadiographicMagnificationFactor (0018,1114)" in read[

@@ -23,6 +23,7 @@ from pydicom.dataset import Dataset
 from services.db.job_forms import engine_payload
 from services.dicom.sc import build_sc
 from services.dicom.sr import StudyIdentity, build_sr
+from spine_client.dicom.errors import PatientConflict
 from spine_client.dicom.header import UNIVERSAL_ENTITY_ID_TYPES, PatientIdIssuer, read_header
 from spine_client.dicom.merge import ISSUER_ATTRIBUTES, apply_headers
 from spine_engine import register
@@ -104,7 +105,7 @@ def test_the_issuer_goes_into_the_jobs_study_and_the_contract_takes_it() -> None
     pa = synthetic.radiograph(extra={"IssuerOfPatientID": "HOSP-A",
                                      "IssuerOfPatientIDQualifiersSequence": qualifiers(OID, "ISO")})  # fmt: skip
     lateral = synthetic.radiograph(study_instance_uid=pa.StudyInstanceUID, patient_orientation=("A", "F"),
-                                   view_position="LL", extra={"IssuerOfPatientID": "HOSP-B"})  # fmt: skip
+                                   view_position="LL", extra={"IssuerOfPatientID": "HOSP-A"})  # fmt: skip
     merged, provenance = apply_headers(spine_payload(), {"pa": read_header(pa), "lateral": read_header(lateral)},
                                        source="file")  # fmt: skip
     expected = {"issuer_of_patient_id": "HOSP-A", "universal_entity_id": OID, "universal_entity_id_type": "ISO"}
@@ -112,8 +113,14 @@ def test_the_issuer_goes_into_the_jobs_study_and_the_contract_takes_it() -> None
     read = next(r for r in provenance.study if r.field == "study.patient_id_issuer" and r.used)
     assert read.attribute == ISSUER_ATTRIBUTES and "(0010,0021)" in read.attribute and "(0010,0024)" in read.attribute
     assert [c.header for c in provenance.conflicts if c.field == "study.patient_id_issuer"] == [
-        {"issuer_of_patient_id": "HOSP-B"}]  # the lateral's other issuer: a conflict, the PA's is used
+        {"issuer_of_patient_id": "HOSP-A"}]  # the lateral's, without the universal ID: a conflict, the PA's used
     assert Study.model_validate(engine_payload(merged)["study"]).patient_id_issuer is not None
+    # a lateral whose Patient ID another issuer gave may be another patient: refused (merge.identity_problems)
+    other = synthetic.radiograph(study_instance_uid=pa.StudyInstanceUID, patient_orientation=("A", "F"),
+                                 view_position="LL", extra={"IssuerOfPatientID": "HOSP-B"})  # fmt: skip
+    with pytest.raises(PatientConflict, match=r"'HOSP-A'.*'HOSP-B'") as refused:
+        apply_headers(spine_payload(), {"pa": read_header(pa), "lateral": read_header(other)}, source="file")
+    assert refused.value.field == "study.patient_id_issuer"
 
 
 @pytest.mark.parametrize(

@@ -28,6 +28,7 @@ from services.core.config import DicomwebConfig, Settings
 from services.db.migrate import upgrade
 from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
+from services.dicom.uids import job_uids
 from tests.conftest import Service, _purge_queue, make_key, spawned_service, spine_payload
 from tools.dicom import synthetic
 from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
@@ -487,3 +488,98 @@ def test_a_dicom_block_completes_the_payload_only_as_a_header_does(
         assert refused(when) == ["dicom.pa.film_datetime"], value
         detail = a.post("/v1/jobs", json={**payload, "dicom": when}).json()["errors"][0]["msg"]
         assert "film's date must be a date (YYYY-MM-DD) or a date and time with its UTC offset" in detail
+
+
+NOT_STORED = "dicom-no-patient-identity"
+"""The ``problem_type`` of the STOW-RS attempt of a job whose results are not stored for want of the
+patient's identity (``services.dicom.results.NoPatientIdentity``)."""
+
+
+def _complete_payload() -> dict[str, Any]:
+    """px landmarks with all the PA's header would give typed in (spacing and orientation): a job that
+    needs no header, whose header read (when its study names the film) may fail without failing it."""
+    payload = spine_payload(spacing_mm=SPACING)
+    payload["pa"].update(pixel_spacing=[SPACING, SPACING], patient_orientation=["L", "F"])
+    return payload
+
+
+def _first_store(service: Service, job_id: str) -> list[dict[str, Any]]:
+    """The job's ``dicom_stores`` once its first STOW-RS attempt is recorded (within ``STORE_TIMEOUT_S``)."""
+    _wait_until(lambda: bool(service.job(job_id)["dicom_stores"]), STORE_TIMEOUT_S,
+                f"a STOW-RS attempt on job {job_id}:\n{service.worker_log()[-3000:]}")  # fmt: skip
+    return list(service.job(job_id)["dicom_stores"])
+
+
+def _held_anywhere(pacs: Pacs, sop_instance_uid: str) -> list[dict[str, Any]]:
+    """QIDO-RS of every study's instances with this SOP Instance UID (PS3.18 §10.6: /instances)."""
+    return list(pacs.client.search_for_instances(search_filters={"SOPInstanceUID": sop_instance_uid}))
+
+
+def _assert_not_stored(service: Service, orthanc: OrthancServer, job_id: str, reason: str) -> None:
+    """The job succeeded, its one STOW-RS attempt says why nothing was stored, is not retried (no next
+    attempt; still one attempt after twice the first retry's delay, SPINE_DICOMWEB_RETRY_BASE_S 2 s),
+    and the PACS holds neither its SR nor its figure, in any study."""
+    stores = _first_store(service, job_id)
+    time.sleep(2 * service.settings.dicomweb_retry_base_s)  # a retry would be recorded by now
+    job = service.job(job_id)
+    assert job["status"] == "succeeded" and job["error"] is None
+    assert job["dicom_stores"] == stores and len(stores) == 1, stores
+    attempt = stores[0]
+    assert (attempt["ok"], attempt["stored"], attempt["problem_type"], attempt["next_attempt_at"]) == (
+        False, [], NOT_STORED, None), attempt  # fmt: skip
+    assert reason in attempt["error"], attempt["error"]
+    uids = job_uids(job_id)
+    with _pacs(orthanc) as pacs:
+        for role in ("sr", "sc"):
+            assert _held_anywhere(pacs, uids[role]) == [], role
+        assert pacs.search_instances(uids["study"]) == []
+
+
+def test_a_job_without_a_study_is_not_stored_in_the_pacs(pacs_service: Service, orthanc: OrthancServer) -> None:
+    """A job whose payload names no study (a CSV or the web page's job, its geometry typed): its results have
+    no patient's study to go into, and are not stored (they made a new, patient-less study)."""
+    payload = _complete_payload()
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
+    assert job["status"] == "succeeded" and job["study"] is None, job.get("error")
+    _assert_not_stored(pacs_service, orthanc, job["id"], "the job has no study")
+
+
+def test_a_study_without_a_patient_id_is_not_stored_in_the_pacs(pacs_service: Service, orthanc: OrthancServer) -> None:
+    """A by-reference job whose header read failed (its SOP Instance UID is not in the PACS) but whose
+    payload is complete (spacing and orientation typed): it succeeds without a header (``dicom`` null), its study has no
+    Patient ID, and its results are not stored in the patient's study (they went in with an empty
+    Patient ID, Name, Accession Number and Study Date): the film's study keeps the film only."""
+    film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
+                                accession_number="ACC-NOID", patient_id="P-NOID")  # fmt: skip
+    with _pacs(orthanc) as pacs:
+        pacs.store([film])
+    payload = _complete_payload()
+    payload["study"] = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.98"}
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
+    assert job["status"] == "succeeded" and job["dicom"] is None, job.get("error")
+    assert "patient_id" not in job["study"]
+    _assert_not_stored(pacs_service, orthanc, job["id"], "has no Patient ID")
+    with _pacs(orthanc) as pacs:
+        assert len(pacs.search_instances(film.StudyInstanceUID)) == 1  # the film alone
+
+
+def test_a_study_with_the_payloads_patient_id_is_stored(pacs_service: Service, orthanc: OrthancServer) -> None:
+    """The same job with the patient's ID typed in its study (no header read either): its SR and figure
+    are stored in the study, with that Patient ID."""
+    film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
+                                accession_number="ACC-TYPED", patient_id="P-TYPED")  # fmt: skip
+    with _pacs(orthanc) as pacs:
+        pacs.store([film])
+    payload = _complete_payload()
+    payload["study"] = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.97",
+                        "patient_id": "P-TYPED"}  # fmt: skip
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
+    assert job["status"] == "succeeded" and job["dicom"] is None, job.get("error")
+    stores = _first_store(pacs_service, job["id"])
+    assert stores[-1]["ok"] and len(stores[-1]["stored"]) == 2, stores
+    uids = job_uids(job["id"])
+    with _pacs(orthanc) as pacs:
+        assert len(pacs.search_instances(film.StudyInstanceUID)) == 3  # film, SR, figure
+        for role in ("sr", "sc"):
+            stored = pacs.retrieve_explicit_le(film.StudyInstanceUID, uids[f"{role}-series"], uids[role])
+            assert (stored.StudyInstanceUID, stored.PatientID) == (film.StudyInstanceUID, "P-TYPED"), role

@@ -20,8 +20,9 @@ from services.db.jobs import create_job
 from services.db.migrate import upgrade
 from services.db.models import Job
 from services.db.runs import claim_job, due_in_s
+from services.dicom.results import NOT_STORABLE
 from services.worker import dicom_tasks
-from services.worker.tasks import RunLater, resolve_dicom
+from services.worker.tasks import RunLater, execute_job, resolve_dicom
 from tests.conftest import spine_payload
 from tests.faults import free_port
 
@@ -64,6 +65,34 @@ def test_the_stow_delays_double_from_the_base_up_to_the_cap() -> None:
     assert [dicom_tasks.retry_delay_s(settings, attempt) for attempt in (1, 2, 3, 4, 5)] == [0.5, 1, 2, 3, 3]
     default = Settings()
     assert [dicom_tasks.retry_delay_s(default, attempt) for attempt in (1, 4, 5, 6)] == [2, 16, 32, 60]
+
+
+@pytest.mark.parametrize(
+    ("study", "reason"),
+    [(None, "the job has no study"), ({"study_instance_uid": "1.2.3"}, "study 1.2.3 has no Patient ID")],
+    ids=["no-study", "no-patient-id"],
+)
+def test_results_without_the_patients_identity_are_not_stored_nor_retried(
+    settings: Settings, study: dict[str, str] | None, reason: str
+) -> None:
+    """A succeeded job without a study, or whose study has no Patient ID: its STOW-RS attempt sends nothing
+    (the PACS, a refused port, would make it ``dicomweb-unavailable`` and retried), is recorded with the
+    reason, no next attempt and no due time for the sweep, and the job stays succeeded."""
+    stow = settings.model_copy(update={"dicomweb_store_results": True})
+    payload = spine_payload()
+    if study is not None:
+        payload["study"] = study
+    with session_scope(settings) as session:
+        job, _ = create_job(session, payload)
+    assert execute_job(settings, job.id) == "succeeded"  # results not stored by this run: no message published
+    outcome = dicom_tasks.store_once(stow, job.id, 1)
+    assert (outcome.ok, outcome.stored, outcome.problem_type, outcome.next_attempt_at) == (False, [], NOT_STORABLE,
+                                                                                         None)  # fmt: skip
+    assert outcome.error is not None and reason in outcome.error
+    with session_scope(settings) as session:
+        row = session.get(Job, job.id)
+        assert row is not None and (row.status, row.error, row.dicom_store_due_at) == ("succeeded", None, None)
+        assert [(s["attempt"], s["problem_type"]) for s in row.dicom_stores or []] == [(1, NOT_STORABLE)]
 
 
 @pytest.mark.parametrize("variable", ["SPINE_DICOMWEB_RETRY_BASE_S", "SPINE_DICOMWEB_RETRY_MAX_S"])

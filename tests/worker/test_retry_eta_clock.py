@@ -155,10 +155,14 @@ def test_a_webhook_retry_published_by_a_worker_whose_clock_is_behind_waits_its_d
     assert receiver.requests == 2
 
 
+STOW_STUDY = {"study_instance_uid": "1.2.3", "patient_id": "P-STOW"}
+"""The study of a job whose results are stored: only one with a Patient ID is (``results.not_storable``)."""
+
+
 def _succeeded_job(settings: Settings) -> uuid.UUID:
     """A job run by the engine to success (its result stored), with no STOW-RS published yet."""
     with session_scope(settings) as session:
-        job, _ = jobs.create_job(session, spine_payload())
+        job, _ = jobs.create_job(session, {**spine_payload(), "study": STOW_STUDY})
     assert execute_job(settings, job.id) == "succeeded"
     return job.id
 
