@@ -288,8 +288,8 @@ _ASSUMPTION_REASONS = {
     "mean",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, at the apex about a third of its Cobb angle for a "
-    "thoracic apex and a quarter below T11, 0 at its end vertebrae), with the population's SD; T1 and L5 given exactly keep the payload's; the directors stay "
-    "the fit's",
+    "thoracic apex and a quarter below T11, 0 at its end vertebrae), with the population's SD; T1 and L5 "
+    "given exactly keep the payload's; the directors stay the fit's",
 }
 
 

@@ -5,33 +5,15 @@ the test's own, one that does not exist, a closed port, one migrated by a "newer
 
 from __future__ import annotations
 
-import os
 import subprocess
-from contextlib import redirect_stderr, redirect_stdout
-from io import StringIO
 from pathlib import Path
-from unittest import mock
 
 import pytest
 from sqlalchemy import create_engine, text
 
-from services.cli import main as spine_main
-from services.core.config import Settings, get_settings
+from services.core.config import Settings
 from services.db.migrate import upgrade
-
-
-def spine(tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess[str]:
-    """``spine <args>`` in this process with ``env`` (e.g. DATABASE_URL) on top of a clean environment."""
-    clean = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "CELERY_BROKER_URL")}
-    out, err = StringIO(), StringIO()
-    with mock.patch.dict(os.environ, {**clean, "SPINE_DATA_DIR": str(tmp_path), **env}, clear=True), \
-            redirect_stdout(out), redirect_stderr(err):  # fmt: skip
-        get_settings.cache_clear()
-        try:
-            code = spine_main(list(args))
-        finally:
-            get_settings.cache_clear()
-    return subprocess.CompletedProcess(["spine", *args], code, out.getvalue(), err.getvalue())
+from tests.cli.operator_cli import spine
 
 
 def one_line(done: subprocess.CompletedProcess[str], code: int, *words: str) -> str:

@@ -12,24 +12,21 @@ from __future__ import annotations
 import io
 import json
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pydicom
 import pytest
 
-from services.core.config import DicomwebConfig
-from services.dicom.dicomweb import Pacs
 from spine_client.cli import EXIT_USAGE, main
 from spine_client.dicom.errors import PatientConflict
 from spine_client.dicom.header import read_header
 from spine_client.dicom.merge import apply_headers, normalised_person_name
 from spine_client.dicom_input import payload_from_dicom
-from tests.conftest import Service, spawned_service, spine_payload
+from tests.conftest import Service, spine_payload
 from tools.dicom import synthetic
 
-from .conftest import OrthancServer
+from .conftest import OrthancServer, pacs_of
 
 SPACING = 0.15
 STORE_TIMEOUT_S = 60.0
@@ -135,22 +132,6 @@ def test_spine_submit_refuses_a_lateral_of_another_patient(tmp_path: Path, capsy
 # ------------------------------------------------------------------ the service (real Orthanc, PostgreSQL, Redis)
 
 
-@pytest.fixture(scope="module")
-def service(
-    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str, orthanc: OrthancServer
-) -> Iterator[Service]:
-    with spawned_service(
-        "identity", tmp_path_factory.mktemp("identity-service"), postgres_url=postgres_url, redis_url=redis_url,
-        SPINE_DICOMWEB_URL=orthanc.dicomweb_url, SPINE_DICOMWEB_USERNAME=orthanc.username,
-        SPINE_DICOMWEB_PASSWORD=orthanc.password, SPINE_DICOMWEB_STORE_RESULTS="true",
-    ) as spawned:  # fmt: skip
-        yield spawned
-
-
-def _pacs(orthanc: OrthancServer) -> Pacs:
-    return Pacs(DicomwebConfig(orthanc.dicomweb_url, orthanc.username, orthanc.password))
-
-
 def _client_block(
     tmp_path: Path, pa: pydicom.Dataset, lateral: pydicom.Dataset
 ) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -161,7 +142,7 @@ def _client_block(
     return payload_from_dicom(_landmarks(tmp_path), tmp_path / "pa.dcm", tmp_path / "lat.dcm", base=base)
 
 
-def test_the_api_refuses_a_client_read_block_of_two_patients(service: Service, tmp_path: Path) -> None:
+def test_the_api_refuses_a_client_read_block_of_two_patients(pacs_service: Service, tmp_path: Path) -> None:
     """What a client that does not refuse sends (the client of before, or one that sends anyway): the
     payload's Patient ID kept against the film's, a lateral read of another patient, a film's Accession
     Number not used: each a 422 naming the field and both values, and no job. The same films of one
@@ -171,7 +152,7 @@ def test_the_api_refuses_a_client_read_block_of_two_patients(service: Service, t
     assert block["conflicts"] == []
 
     def refused(body: dict[str, Any]) -> list[dict[str, Any]]:
-        response = service.client.post("/v1/jobs", json=body)
+        response = pacs_service.client.post("/v1/jobs", json=body)
         assert response.status_code == 422, response.text
         return list(response.json()["errors"])
 
@@ -199,7 +180,7 @@ def test_the_api_refuses_a_client_read_block_of_two_patients(service: Service, t
     assert error["loc"] == ["dicom", "study", index["study.accession_number"], "used"]
     assert "'ACC-42'" in error["msg"] and "'TYPED'" in error["msg"]
 
-    assert service.client.post("/v1/jobs", json={**payload, "dicom": block}).status_code == 202
+    assert pacs_service.client.post("/v1/jobs", json={**payload, "dicom": block}).status_code == 202
 
 
 def _lateral_view() -> dict[str, Any]:
@@ -208,14 +189,14 @@ def _lateral_view() -> dict[str, Any]:
                                          for lm in points]}  # fmt: skip
 
 
-def test_by_reference_films_of_another_patient_fail_the_job(service: Service, orthanc: OrthancServer) -> None:
+def test_by_reference_films_of_another_patient_fail_the_job(pacs_service: Service, orthanc: OrthancServer) -> None:
     """Stored in Orthanc: a PA of P-REF, a lateral of P-LAT in the same study. A job naming the PA with
     another Patient ID (its spacing typed: the header is read only for the SR, where a PACS problem
     would not fail it), and one naming both films (read before the fit), each fail at once with
     ``dicom-patient-conflict`` naming the field and both values; nothing is stored in the study."""
     pa = _pa(patient_id="P-REF", patient_name="Ref^Anna")
     lateral = _lateral_of(pa, patient_id="P-LAT", patient_name="Lat^Otto")
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([pa, lateral])
     typed = spine_payload(spacing_mm=SPACING)
     typed["pa"].update(pixel_spacing=[SPACING, SPACING], patient_orientation=["L", "F"])
@@ -225,35 +206,37 @@ def test_by_reference_films_of_another_patient_fail_the_job(service: Service, or
     both["lateral"] = _lateral_view()
     both["study"] = {"study_instance_uid": pa.StudyInstanceUID, "pa_sop_instance_uid": pa.SOPInstanceUID,
                      "lateral_sop_instance_uid": lateral.SOPInstanceUID}  # fmt: skip
-    jobs = [service.submit(typed)["id"], service.submit(both)["id"]]
+    jobs = [pacs_service.submit(typed)["id"], pacs_service.submit(both)["id"]]
     for job_id, values in zip(jobs, (("'P-TYPED'", "'P-REF'"), ("'P-REF'", "'P-LAT'")), strict=True):
-        job = service.wait(job_id, timeout=120)
-        assert job["status"] == "failed" and job["attempts"] == 1, (job.get("error"), service.worker_log()[-3000:])
+        job = pacs_service.wait(job_id, timeout=120)
+        assert job["status"] == "failed" and job["attempts"] == 1, (job.get("error"), pacs_service.worker_log()[-3000:])
         error = job["error"]
         assert error["type"].endswith("/dicom-patient-conflict") and error["field"] == "study.patient_id", error
         assert all(value in error["detail"] for value in values), error["detail"]
         assert "PatientID (0010,0020)" in error["attributes"] and job["result"] is None
     time.sleep(2.0)  # a store task would have run by now (it follows a success at once)
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         assert len(pacs.search_instances(pa.StudyInstanceUID)) == 2  # the two films, no SR nor figure
 
 
-def test_by_reference_the_sr_carries_the_films_accession_and_name(service: Service, orthanc: OrthancServer) -> None:
+def test_by_reference_the_sr_carries_the_films_accession_and_name(
+    pacs_service: Service, orthanc: OrthancServer
+) -> None:
     """A by-reference job whose payload types another Accession Number and a misspelt name of the film's
     Patient ID succeeds; its SR and SC in the film's study carry the film's values, not the payload's."""
     pa = _pa(patient_id="P-ACC", patient_name="Acc^Maria", accession_number="ACC-FILM")
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([pa])
     payload = spine_payload(spacing_mm=SPACING)
     payload["study"] = {"study_instance_uid": pa.StudyInstanceUID, "pa_sop_instance_uid": pa.SOPInstanceUID,
                         "patient_id": "P-ACC", "patient_name": "Acc^Mario",
                         "accession_number": "ACC-TYPED"}  # fmt: skip
-    job = service.wait(service.submit(payload)["id"], timeout=120)
+    job = pacs_service.wait(pacs_service.submit(payload)["id"], timeout=120)
     assert job["status"] == "succeeded", job.get("error")
     assert {c["field"] for c in job["dicom"]["conflicts"]} == {"study.patient_name", "study.accession_number"}
     assert (job["study"]["accession_number"], job["study"]["patient_name"]) == ("ACC-FILM", "Acc^Maria")
     for artifact in ("sr.dcm", "figure.dcm"):
-        response = service.client.get(f"/v1/jobs/{job['id']}/{artifact}")
+        response = pacs_service.client.get(f"/v1/jobs/{job['id']}/{artifact}")
         assert response.status_code == 200, response.text
         ds = pydicom.dcmread(io.BytesIO(response.content))
         assert (ds.StudyInstanceUID, ds.PatientID, str(ds.PatientName), ds.AccessionNumber) == (

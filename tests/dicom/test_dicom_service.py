@@ -24,7 +24,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from services.api.app import create_app
-from services.core.config import DicomwebConfig, Settings
+from services.core.config import Settings
 from services.db.migrate import upgrade
 from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
@@ -34,7 +34,7 @@ from tools.dicom import synthetic
 from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
 
-from .conftest import OrthancServer
+from .conftest import OrthancServer, pacs_of
 
 SPACING = 0.15
 STORE_TIMEOUT_S = 60.0
@@ -42,26 +42,12 @@ STORE_TIMEOUT_S = 60.0
 building the SR on two loaded cores."""
 
 
-@pytest.fixture(scope="module")
-def pacs_service(
-    tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str, orthanc: OrthancServer
-) -> Iterator[Service]:
-    with spawned_service(
-        "dicom", tmp_path_factory.mktemp("dicom-service"), postgres_url=postgres_url, redis_url=redis_url,
-        SPINE_DICOMWEB_URL=orthanc.dicomweb_url, SPINE_DICOMWEB_USERNAME=orthanc.username,
-        SPINE_DICOMWEB_PASSWORD=orthanc.password, SPINE_DICOMWEB_STORE_RESULTS="true",
-    ) as service:  # fmt: skip
-        yield service
-
-
-def _pacs(orthanc: OrthancServer) -> Pacs:
-    return Pacs(DicomwebConfig(orthanc.dicomweb_url, orthanc.username, orthanc.password))
 
 
 def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServer) -> None:
     image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
                                  accession_number="ACC-E2E", patient_id="P-E2E")  # fmt: skip
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([image])
     by_reference = spine_payload(spacing_mm=SPACING)
     by_reference["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
@@ -96,7 +82,7 @@ def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServ
     # the SR and the figure land in the study: once the job records the STOW-RS answered, as the SR alone can
     # be found while the same request still stores the figure
     deadline = time.monotonic() + STORE_TIMEOUT_S
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         while True:
             found = pacs.search_instances(image.StudyInstanceUID, Modality="SR")
             stored = any(attempt["ok"] for attempt in pacs_service.job(ref_job["id"])["dicom_stores"] or [])
@@ -124,7 +110,7 @@ def test_job_by_reference_end_to_end(pacs_service: Service, orthanc: OrthancServ
 
 def test_missing_instance_fails_the_job(pacs_service: Service, orthanc: OrthancServer) -> None:
     image = synthetic.radiograph()
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([image])
     payload = spine_payload(spacing_mm=SPACING)
     payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.99"}
@@ -141,7 +127,7 @@ def test_a_control_character_in_the_headers_patient_id_fails_the_job_at_once(
     the problem naming the attribute as the header has it (Orthanc cuts a value at a NUL, so a NUL
     does not come through it; ``test_dicom_header`` holds the reader's refusal of one)."""
     image = synthetic.radiograph(patient_id="P\nLF")
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([image])
     payload = spine_payload(spacing_mm=SPACING)
     payload["study"] = {"study_instance_uid": image.StudyInstanceUID, "pa_sop_instance_uid": image.SOPInstanceUID}
@@ -227,7 +213,7 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
     image = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200)
     proc, before = start_orthanc(folder)  # the PACS before its outage: it receives the image, then stops
     try:
-        with _pacs(before) as pacs:
+        with pacs_of(before) as pacs:
             pacs.store([image])
     finally:
         stop_orthanc(proc)
@@ -378,7 +364,7 @@ def test_every_artifact_of_a_job_made_each_way(
     film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
                                 accession_number="ACC-WAYS", patient_id="P-WAYS",
                                 extra={"TimezoneOffsetFromUTC": "+0100"})  # fmt: skip
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([film])
     synthetic.write(film, tmp_path / "pa.dcm")
     study = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": film.SOPInstanceUID}
@@ -529,7 +515,7 @@ def _assert_not_stored(service: Service, orthanc: OrthancServer, job_id: str, re
         False, [], NOT_STORED, None), attempt  # fmt: skip
     assert reason in attempt["error"], attempt["error"]
     uids = job_uids(job_id)
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         for role in ("sr", "sc"):
             assert _held_anywhere(pacs, uids[role]) == [], role
         assert pacs.search_instances(uids["study"]) == []
@@ -551,7 +537,7 @@ def test_a_study_without_a_patient_id_is_not_stored_in_the_pacs(pacs_service: Se
     Patient ID, Name, Accession Number and Study Date): the film's study keeps the film only."""
     film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
                                 accession_number="ACC-NOID", patient_id="P-NOID")  # fmt: skip
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([film])
     payload = _complete_payload()
     payload["study"] = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.98"}
@@ -559,7 +545,7 @@ def test_a_study_without_a_patient_id_is_not_stored_in_the_pacs(pacs_service: Se
     assert job["status"] == "succeeded" and job["dicom"] is None, job.get("error")
     assert "patient_id" not in job["study"]
     _assert_not_stored(pacs_service, orthanc, job["id"], "has no Patient ID")
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         assert len(pacs.search_instances(film.StudyInstanceUID)) == 1  # the film alone
 
 
@@ -568,7 +554,7 @@ def test_a_study_with_the_payloads_patient_id_is_stored(pacs_service: Service, o
     are stored in the study, with that Patient ID."""
     film = synthetic.radiograph(imager_pixel_spacing=(SPACING, SPACING), rows=3200, columns=1200,
                                 accession_number="ACC-TYPED", patient_id="P-TYPED")  # fmt: skip
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         pacs.store([film])
     payload = _complete_payload()
     payload["study"] = {"study_instance_uid": film.StudyInstanceUID, "pa_sop_instance_uid": "1.2.826.0.1.97",
@@ -578,7 +564,7 @@ def test_a_study_with_the_payloads_patient_id_is_stored(pacs_service: Service, o
     stores = _first_store(pacs_service, job["id"])
     assert stores[-1]["ok"] and len(stores[-1]["stored"]) == 2, stores
     uids = job_uids(job["id"])
-    with _pacs(orthanc) as pacs:
+    with pacs_of(orthanc) as pacs:
         assert len(pacs.search_instances(film.StudyInstanceUID)) == 3  # film, SR, figure
         for role in ("sr", "sc"):
             stored = pacs.retrieve_explicit_le(film.StudyInstanceUID, uids[f"{role}-series"], uids[role])
