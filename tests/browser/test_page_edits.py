@@ -13,6 +13,7 @@ import pytest
 from page_fixtures import (
     click_pa_midpoints,
     make_dicom,
+    make_png,
     open_film,
     open_page,
     payload_preview,
@@ -78,6 +79,34 @@ def test_close_film_is_undone_with_its_landmarks_and_says_what_it_removed(
     page.keyboard.press("Control+z")
     assert payload_preview(page) == "Give landmarks first."
     assert "pa-other.dcm" in (page.get_attribute("#pa-canvas", "aria-label") or "")
+    assert not watch.errors, watch.errors
+    context.close()
+
+
+def test_ctrl_z_in_the_film_panel_undoes_landmarks_never_the_typed_spacing(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """A PNG's pixel spacing typed, 5 midpoints placed, the Undo button clicked: Ctrl+Z with the focus on
+    that button (or on the level list) undid the browser's last typing, the spacing 0.45 → 0.4, out of sight,
+    and the page said "Ready to send". It undoes a landmark; in the spacing field it undoes its typing."""
+    make_png(tmp_path / "pa.png")
+    context, page, watch = open_page(browser, f"{live_url}/", api_key, height=1100)
+    page.set_input_files("#pa-file", str(tmp_path / "pa.png"))
+    page.wait_for_selector("#pa-header dd")
+    page.click("#pa-spacing")
+    page.keyboard.type("0.45")
+    click_pa_midpoints(page, range(5))
+    page.click("#pa-undo")
+    assert _levels(page) == ["T1", "T2", "T3", "T4"]
+    page.keyboard.press("Control+z")  # the focus on the Undo button
+    assert page.input_value("#pa-spacing") == "0.45"
+    assert _levels(page) == ["T1", "T2", "T3"]
+    page.focus("#pa-level")
+    page.keyboard.press("Control+Shift+z")
+    assert page.input_value("#pa-spacing") == "0.45" and _levels(page) == ["T1", "T2", "T3", "T4"]
+    page.focus("#pa-spacing")  # in the field itself, Ctrl+Z is the field's own
+    page.keyboard.press("Control+z")
+    assert page.input_value("#pa-spacing") != "0.45" and _levels(page) == ["T1", "T2", "T3", "T4"]
     assert not watch.errors, watch.errors
     context.close()
 

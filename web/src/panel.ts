@@ -51,6 +51,13 @@ function labelled(id: string, label: string, input: HTMLElement, help?: string):
   return row;
 }
 
+/** Whether a key event's target takes typed text (its own Ctrl+Z undoes its typing). */
+function typesText(target: EventTarget | null): boolean {
+  if (target instanceof HTMLTextAreaElement) return true;
+  if (target instanceof HTMLElement && target.isContentEditable) return true;
+  return target instanceof HTMLInputElement && !["button", "checkbox", "radio", "file", "submit", "reset", "range", "color"].includes(target.type);
+}
+
 export class FilmPanel {
   readonly editor: FilmEditor;
   dicom: DicomFilm | null = null;
@@ -245,6 +252,16 @@ export class FilmPanel {
     });
     undo.addEventListener("click", () => this.editor.undo());
     redo.addEventListener("click", () => this.editor.redo());
+    // Ctrl+Z anywhere in the film's panel undoes its landmarks (the canvas handles its own keys): on a
+    // button or a list the browser's own undo would otherwise edit the text field typed in last, out of
+    // sight (the pixel spacing, the API key). In a text field it undoes that field's typing, as usual.
+    container.addEventListener("keydown", (e) => {
+      const key = e.key.toLowerCase();
+      if (!(e.ctrlKey || e.metaKey) || (key !== "z" && key !== "y") || e.target === canvas || typesText(e.target)) return;
+      if (e.shiftKey || key === "y") this.editor.redo();
+      else this.editor.undo();
+      e.preventDefault();
+    });
     del.addEventListener("click", () => this.editor.removeSelected());
     clear.addEventListener("click", () => this.editor.clear());
     close.addEventListener("click", () => this.close());
