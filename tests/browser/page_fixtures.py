@@ -316,10 +316,21 @@ def reconstruct_on_page(page: Any) -> dict[str, Any]:
     with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/v1/jobs")) as posted:
         page.click("#submit")
     assert posted.value.status == 202, posted.value.text()
+    job_id = posted.value.json()["id"]
+    # the status of this job, not the previous one's "succeeded" still shown right after the POST's answer
     page.wait_for_function(
-        "() => ['succeeded', 'failed'].includes(document.getElementById('job-status').dataset.status)", timeout=120_000
+        "(id) => { const s = document.getElementById('job-status'); "
+        "return (s.textContent || '').includes(id) && ['succeeded', 'failed'].includes(s.dataset.status); }",
+        arg=job_id, timeout=120_000,
     )
-    assert page.get_attribute("#job-status", "data-status") == "succeeded", page.text_content("#problem")
+    if page.get_attribute("#job-status", "data-status") != "succeeded":  # the job's own error says why
+        job = page.evaluate(
+            "(id) => fetch('/v1/jobs/' + id, {headers: {Authorization: 'Bearer ' + "
+            "document.getElementById('api-key').value}}).then((r) => r.json())",
+            job_id,
+        )
+        raise AssertionError(f"job {job_id} did not succeed: {job.get('status')} {job.get('error')}; the page "
+                             f"says {page.text_content('#problem')!r}")  # fmt: skip
     assert page.locator("#problem").is_hidden()
     sent: dict[str, Any] = json.loads(posted.value.request.post_data or "{}")
     return sent

@@ -93,7 +93,8 @@ def test_trust_marks_and_sd_from_a_result_with_uncertainty(
     assert "± 4.0" in rotation and "model estimate" in rotation and "toward the" in rotation
     assert "model estimate" in (table.locator("tr", has_text="PA film scale").text_content() or "")
     strains_head = page.locator("#strains thead").text_content() or ""
-    assert strains_head.count("model estimate") == 4  # twist strain, sagittal bending, twist, axial rotation
+    # sagittal bending strain u1 and sagittal bending (kyphosis), twist strain u3 and twist, axial rotation
+    assert strains_head.count("model estimate") == 5
     assert "1.0 6.5 0.5" in (page.locator("#strains tbody tr").first.text_content() or "")
     with page.expect_download() as info:
         page.click("#download-csv")
@@ -106,6 +107,7 @@ def test_trust_marks_and_sd_from_a_result_with_uncertainty(
         "axial_rotation_deg",
         "u3_rad_per_mm",
         "twist_deg",
+        "u1_rad_per_mm",
         "sagittal_bending_deg",
     }
     with page.expect_download() as info:

@@ -85,7 +85,7 @@ export const RESULT_CSV_COLUMNS = [
 
 /** Columns that come from the model's prior when fit.unreliable names the quantity. */
 const MODEL_COLUMNS: Record<string, string[]> = {
-  depth: ["y_mm"], axial_rotation: ["axial_rotation_deg"], twist: ["u3_rad_per_mm", "twist_deg"], kyphosis: ["sagittal_bending_deg"],
+  depth: ["y_mm"], axial_rotation: ["axial_rotation_deg"], twist: ["u3_rad_per_mm", "twist_deg"], kyphosis: ["u1_rad_per_mm", "sagittal_bending_deg"],
 };
 
 /** A number as a spreadsheet reads one: left as it is, whatever its sign. */

@@ -254,6 +254,7 @@ function draftChanged(): void {
   $<HTMLButtonElement>("download-landmarks").disabled = !(v.pa?.landmarks.length || v.lateral?.landmarks.length);
   applyAutoL5();
   updatePreview();
+  updateStale();
 }
 
 // ------------------------------------------------------------------ boundary conditions (advanced)
@@ -616,14 +617,18 @@ submitButton.addEventListener("click", async () => {
   showProblem(problemBox, null);
   submitButton.disabled = true;
   statusLine.textContent = "Submitting…";
+  // The PA film as sent: taken now, not when the service answers (the film may be closed or replaced meanwhile).
+  const under = source === "image" && !panels.pa.reopened ? panels.pa.backdrop() : Promise.resolve(null);
   try {
     const { job, replayed } = await api.submit(payload, idempotencyKey(payload));
+    sentPayloads.set(job.id, payload);
     history.replaceState(null, "", `#/jobs/${job.id}`);
     if (backdrop) URL.revokeObjectURL(backdrop.url);
-    backdrop = source === "image" && !panels.pa.reopened ? await panels.pa.backdrop() : null;
+    backdrop = await under;
     replayedJob = replayed ? job.id : null;
     track(job);
   } catch (error) {
+    void under.then((b) => b && URL.revokeObjectURL(b.url));
     statusLine.textContent = "The job was not accepted.";
     showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) }, payload);
   } finally {
@@ -685,6 +690,7 @@ function track(job: Job, started = Date.now(), failures = 0): void {
 function noResult(job: Job): void {
   $("result").hidden = true;
   delete $("result").dataset.jobId;
+  updateStale();
   delete $("view3d").dataset.shown;
   const empty = $("result-empty");
   empty.hidden = false;
@@ -734,20 +740,95 @@ function showResult(job: Job): void {
   $<HTMLInputElement>("print-followup").checked = false;
   $("report-followup").hidden = true;
   $("result").dataset.jobId = job.id;
+  updateStale();
   $("download-sr").hidden = !caps?.srExport;
   $("download-figure-dcm").hidden = !caps?.figureDcm;
   $("download-fhir").hidden = !caps?.fhirExport;
   figureLoading = loadFigure(job.id);
 }
 
-/** The result's PA and lateral projections, over the PA film when the page has it. */
+/** The result's PA and lateral projections, over the PA film when the page has it and the result is
+ * still of the films and landmarks on screen (a stale result's projection is not drawn over the film). */
 function drawViews(job: Job): void {
   if (!job.result) return;
-  const payload = (job.payload ?? buildPayload()) as JobPayload;
-  const under = backdrop && payload.pa.units === "px" ? backdrop : null;
+  const payload = sentPayload(job);
+  if (!payload) return;
+  const under = backdrop && payload.pa.units === "px" && !staleReasons(job).length ? backdrop : null;
   const { lateralFromImage } = drawProjections($("view-pa"), $("view-lateral"), job.result, payload, under);
   $("pa-caption").textContent = under ? " over the film" : " (detector mm)";
   $("lateral-caption").textContent = lateralFromImage ? "Lateral projection (detector mm)" : "Lateral projection of the model (anterior right)";
+}
+
+// ------------------------------------------------------------------ a result of other films or landmarks
+
+/** The payloads this page sent, by job: the POST's answer has none (only GET /v1/jobs/{id} gives it). */
+const sentPayloads = new Map<string, JobPayload>();
+
+/** The payload job `job` was sent with: the service's copy, or this page's; null when neither is known. */
+function sentPayload(job: Job): JobPayload | null {
+  return job.payload ?? sentPayloads.get(job.id) ?? null;
+}
+
+/** The job's patient and study in words: "DOE JANE, ID PAT-0042, study date 2026-11-30". */
+function jobPatientWords(job: Job): string {
+  const study = job.study ?? job.payload?.study ?? sentPayloads.get(job.id)?.study ?? null;
+  return [personName(study?.patient_name ?? undefined), study?.patient_id && `patient ID ${study.patient_id}`, study?.study_date && `study date ${study.study_date}`]
+    .filter(Boolean).join(", ") || "no patient named";
+}
+
+/** Why the result of `job` is not of the films and landmarks on screen now (empty when it is theirs, or
+ * when the page cannot tell: no payload known): other landmarks than the job's, or a film of another
+ * patient or study than the job's. */
+function staleReasons(job: Job): string[] {
+  const payload = sentPayload(job);
+  if (!payload) return [];
+  const now = views();
+  const keys = (view: ViewPayload | null | undefined): string => JSON.stringify((view?.landmarks ?? []).map(landmarkKey).sort());
+  const out: string[] = [];
+  if (keys(payload.pa) !== keys(now.pa) || keys(payload.lateral) !== keys(now.lateral)) {
+    const where = source === "image" ? "on the films" : source === "csv" ? "of the CSV" : "of the payload";
+    out.push(now.pa?.landmarks.length || now.lateral?.landmarks.length
+      ? `sent with other landmarks than those ${where} now`
+      : `sent with landmarks that are no longer ${where} (none now)`);
+  }
+  const study = job.study ?? payload.study ?? null;
+  if (source === "image" && study) {
+    for (const name of ["pa", "lateral"] as const) {
+      const film = panels[name].dicom?.study;
+      if (!film) continue;
+      const words = name === "pa" ? "PA" : "lateral";
+      if (film.patient_id && study.patient_id && film.patient_id !== study.patient_id) {
+        const who = personName(film.patient_name ?? undefined);
+        out.push(`the ${words} film now open is of another patient (patient ID ${film.patient_id}${who ? `, ${who}` : ""})`);
+      } else if (film.study_instance_uid && study.study_instance_uid && film.study_instance_uid !== study.study_instance_uid) {
+        out.push(`the ${words} film now open is of another study (${film.study_instance_uid})`);
+      }
+    }
+  }
+  return out;
+}
+
+/** Above the result: a notice, while the films or landmarks on screen are not those its job was sent
+ * with (a polite live region, so that a screen reader hears it once it appears). */
+const staleNotice = Object.assign(document.createElement("p"), { id: "result-stale", className: "stale-notice no-print" });
+staleNotice.setAttribute("role", "status");
+$("result").prepend(staleNotice);
+
+/** Mark the result shown stale (`data-stale`, the notice, its PA projection no longer over the film) or
+ * not, as the films and landmarks on screen now say; the mark goes with a new result or when the
+ * landmarks are back to exactly the ones sent. */
+function updateStale(): void {
+  const box = $("result");
+  const job = currentJob?.result && box.dataset.jobId === currentJob.id ? currentJob : null;
+  const reasons = job ? staleReasons(job) : [];
+  const was = box.dataset.stale === "true";
+  if (!job) delete box.dataset.stale;
+  else box.dataset.stale = String(reasons.length > 0);
+  staleNotice.textContent = job && reasons.length
+    ? `This result is of job ${job.id.slice(0, 8)} (${jobPatientWords(job)}), ${reasons.join("; ")}: Reconstruct again to see theirs. ` +
+      "Its PA projection is not drawn over the film meanwhile."
+    : "";
+  if (job && was !== reasons.length > 0) drawViews(job);
 }
 
 function fillReportHead(job: Job): void {

@@ -204,8 +204,10 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
   container.append(p, table, facts);
 }
 
+/** The strains table's columns: head, tooltip, and the fit.unreliable entry that makes the column a model
+ * estimate (u1 is the sagittal bending strain: marked as "Sagittal bending (°)" is, by `kyphosis`). */
 const STRAIN_COLUMNS: [string, string, string | null][] = [
-  ["Level", "", null], ["u1", "sagittal bending strain", null], ["u2", "frontal bending strain", null], ["u3", "twist strain", "twist"],
+  ["Level", "", null], ["u1", "sagittal bending strain", "kyphosis"], ["u2", "frontal bending strain", null], ["u3", "twist strain", "twist"],
   ["v1", "shear", null], ["v2", "shear", null], ["v3", "stretch", null], ["Sagittal bending (°)", "", "kyphosis"], ["Frontal bending (°)", "", null],
   ["Twist (°)", "", "twist"], ["Axial rotation (°)", "positive toward the patient's left", "axial_rotation"], ["Position SD (mm, x y z)", "", null], ["PA residual (mm)", "", null],
 ];
