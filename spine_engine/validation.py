@@ -88,6 +88,17 @@ def _payload_index(raw: Any) -> dict[Any, int] | None:
     return {lm.get("level"): i for i, lm in enumerate(landmarks) if isinstance(lm, dict)}
 
 
+def _head_to_feet_axis(view: PAView | LateralView) -> int | None:
+    """The image axis that runs head to feet: 1 when the view's rows run toward H or F, else 0 when its
+    columns do (a film turned a quarter), else None (patient orientation, DICOM PS3.3 C.7.6.1.1.1)."""
+    return next((k for k in (1, 0) if view.patient_orientation[k] in _UPRIGHT_ROWS), None)
+
+
+def _has_scale(view: PAView | LateralView) -> bool:
+    """Whether the view's coordinates convert to mm: given in mm, or px with a pixel spacing."""
+    return view.units == "mm" or view.pixel_spacing is not None
+
+
 def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool = True) -> list[FieldError]:
     """Along the view's head-to-feet axis (its rows toward F or H, or, on a film turned a quarter, its
     columns) the levels must follow each other head to feet.
@@ -103,7 +114,7 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     fewer than three levels without a scale are held strictly. Locations use the payload's own
     indices.
     """
-    axis = next((k for k in (1, 0) if view.patient_orientation[k] in _UPRIGHT_ROWS), None)
+    axis = _head_to_feet_axis(view)
     index = _payload_index(raw)
     if axis is None or index is None:
         return []
@@ -114,7 +125,7 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     points = [_top_midpoint(lm) for lm in view.landmarks]
     noise_mm = NOISE_SDS * math.sqrt(2.0) * view.sd_mm
     allowance = 0.0
-    if scaled and (view.units == "mm" or view.pixel_spacing is not None):
+    if scaled and _has_scale(view):
         allowance = noise_mm / _mm_per_unit(view)[axis]
     elif not scaled and (spacing := _median_spacing(_consecutive_pairs(levels, points))) is not None:
         allowance = _in_stand_in_units(noise_mm, spacing)
@@ -152,7 +163,7 @@ def _across_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
     ``ACROSS_MAX_DEG`` of the view's head-to-feet axis (its rows or columns toward F or H): the angle
     atan(|across| / |head to feet|) of their separation in mm. Refused at the view's orientation, the
     likelier mistake than every landmark."""
-    axis = next((k for k in (1, 0) if view.patient_orientation[k] in _UPRIGHT_ROWS), None)
+    axis = _head_to_feet_axis(view)
     if axis is None or len(view.landmarks) < 2:
         return []
     top, bottom = view.landmarks[0], view.landmarks[-1]
@@ -166,7 +177,7 @@ def _across_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
     if angle <= ACROSS_MAX_DEG:
         return []
     units = ("columns", "rows")
-    length = "mm" if view.units == "mm" or view.pixel_spacing is not None else "px"
+    length = "mm" if _has_scale(view) else "px"
     return [
         FieldError(
             (name, "patient_orientation"),
@@ -342,7 +353,7 @@ def _mm_per_unit(view: PAView | LateralView) -> Point:
 
 def _mm_per_unit_if_known(view: PAView | LateralView) -> Point:
     """``_mm_per_unit``, or (1, 1) for px without a spacing (refused apart, ``_view_errors``)."""
-    return _mm_per_unit(view) if view.units == "mm" or view.pixel_spacing is not None else (1.0, 1.0)
+    return _mm_per_unit(view) if _has_scale(view) else (1.0, 1.0)
 
 
 def _magnification_range(view: PAView | LateralView) -> tuple[float, float]:

@@ -13,7 +13,7 @@ import os
 import sqlite3
 import threading
 import uuid
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import closing, contextmanager
 from typing import Any
 
@@ -169,8 +169,9 @@ def _use_wal(path: str) -> None:
         db.execute("PRAGMA journal_mode=WAL")
 
 
-def enqueue(app: Celery, job_ids: Iterable[uuid.UUID]) -> int:
-    """Publish one message per job id; return how many were published.
+def enqueue(app: Celery, job_ids: Iterable[uuid.UUID], countdowns_s: Sequence[float] | None = None) -> int:
+    """Publish one message per job id, each with its countdown (s) when ``countdowns_s`` is given (a job not
+    due yet, ``services.db.runs.Reconciliation.later``); return how many were published.
 
     A failure to publish is logged, not raised: the job is stored as queued and the reconciler
     publishes it again (``services.db.runs.publish`` marks it for the reconciler's next pass).
@@ -178,8 +179,9 @@ def enqueue(app: Celery, job_ids: Iterable[uuid.UUID]) -> int:
     sent = 0
     try:
         with app.producer_or_acquire() as producer:
-            for job_id in job_ids:
-                app.send_task(RUN_JOB, args=[str(job_id)], producer=producer)
+            for k, job_id in enumerate(job_ids):
+                countdown = countdowns_s[k] if countdowns_s is not None else None
+                app.send_task(RUN_JOB, args=[str(job_id)], countdown=countdown or None, producer=producer)
                 sent += 1
     except Exception as exc:
         log.warning("could not publish job messages (the reconciler will): %s", exc)

@@ -36,7 +36,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.dialects.postgresql import JSON
 from sqlalchemy.orm import Session
 
-from services.core.jobqueue import RUN_JOB, enqueue
+from services.core.jobqueue import enqueue
 from services.core.status import JobStatus
 from services.db import deliveries
 from services.db.clock import db_now, db_now_plus, db_now_plus_s, seconds_param, seconds_until
@@ -392,22 +392,14 @@ def publish(session: Session, app: Celery, job_ids: Sequence[uuid.UUID]) -> int:
     return sent
 
 
-def publish_later(app: Celery, queue: str, later: Sequence[tuple[uuid.UUID, float]]) -> int:
-    """Publish each job's message with its countdown (s): jobs not due yet whose messages were lost
+def publish_later(app: Celery, later: Sequence[tuple[uuid.UUID, float]]) -> int:
+    """``enqueue`` each job with its countdown (s): jobs not due yet whose messages were lost
     (``Reconciliation.later``). A message that comes before its job is due on the database's clock (its
     ETA is on this process's clock) is published again for the time left by the worker. Those that
     cannot be published are not marked (a job marked unpublished could be claimed before it is due): the
     queued timeout past their due time, or the next broker restart, publishes them. Never raises; returns
     how many were published."""
-    sent = 0
-    try:
-        with app.producer_or_acquire() as producer:
-            for job_id, countdown in later:
-                app.send_task(RUN_JOB, args=[str(job_id)], countdown=countdown or None, queue=queue, producer=producer)
-                sent += 1
-    except Exception as exc:
-        log.warning("could not publish %d job messages due later (the queued timeout will): %s", len(later) - sent, exc)
-    return sent
+    return enqueue(app, [job_id for job_id, _ in later], [countdown for _, countdown in later])
 
 
 def release_claim(session: Db, claim: Claim, delay_s: float) -> bool:

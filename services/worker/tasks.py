@@ -402,7 +402,7 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
         with session_scope(settings) as session:
             runs.publish(session, app, outcome.requeue)
     if outcome.later:
-        runs.publish_later(app, settings.queue_name, outcome.later)
+        runs.publish_later(app, outcome.later)
         log.info("reconciler: published %d jobs not due yet again, each for its due time", len(outcome.later))
     if outcome.failed:  # their webhooks' outbox rows were written with their failure
         with session_scope(settings) as session:
