@@ -37,6 +37,7 @@ from services.db.migrate import upgrade
 from spine_engine.levels import LEVELS
 from tests import stopping
 from tools.dicom.orthanc import OrthancServer, orthanc_missing, running_orthanc
+from tools.loadbench import OwnRedis
 
 PG_ADMIN_URL = os.environ.get("SPINE_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
 REDIS_URL = os.environ.get("SPINE_TEST_REDIS", "redis://127.0.0.1:6379/0")
@@ -407,16 +408,32 @@ def queued_job(settings: Settings, callback_url: str | None = None) -> uuid.UUID
     return job.id
 
 
+def fresh_settings(request: pytest.FixtureRequest, tmp_path: Path, **fields: Any) -> Settings:
+    """Settings (``fields`` on top) of a migrated database of the test's own, by the fixture's parameter:
+    an SQLite file in ``tmp_path`` ("sqlite"), or a new PostgreSQL database ("postgresql")."""
+    if request.param == "postgresql":
+        fields["DATABASE_URL"] = request.getfixturevalue("fresh_postgres_url")
+    made = Settings(data_dir=tmp_path, **fields)
+    upgrade(made, quiet=True)
+    return made
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def fresh_db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     """Settings of a migrated database of the test's own: an SQLite file, then a new PostgreSQL
     database (for tests whose state no other test may share, e.g. clocks and reconciles)."""
-    if request.param == "postgresql":
-        made = Settings(DATABASE_URL=request.getfixturevalue("fresh_postgres_url"), data_dir=tmp_path)
-    else:
-        made = Settings(data_dir=tmp_path)
-    upgrade(made, quiet=True)
-    return made
+    return fresh_settings(request, tmp_path)
+
+
+def start_own_redis(log_dir: Path) -> OwnRedis:
+    """A throwaway redis-server of the test's own on a free loopback port, started (no persistence: a
+    restart loses every message); the test is skipped, saying why, when none can start (a failure in CI)."""
+    own = OwnRedis(log_dir)
+    try:
+        own.start()
+    except (SystemExit, OSError) as exc:
+        pytest.skip(f"no throwaway redis-server: {exc}")
+    return own
 
 
 def problem_of(response: Any) -> dict[str, Any]:

@@ -377,6 +377,16 @@ def click_pa_midpoints(page: Any, levels: Any) -> None:
         page.mouse.click(*canvas_point(page, "pa", col, row))
 
 
+def click_pa_pedicles(page: Any, body: Any) -> None:
+    """Click, on the PA film's canvas, two pedicle centres inside the synthetic body with corners ``body``
+    (``pa_corners()[i]``: top-left, top-right, bottom-left, bottom-right): a quarter and three quarters
+    across its top edge, 0.3 of its height down."""
+    tl, tr, bl, _ = body
+    for f in (0.25, 0.75):
+        page.mouse.click(*canvas_point(page, "pa", tl[0] + f * (tr[0] - tl[0]) + 0.3 * (bl[0] - tl[0]),
+                                       tl[1] + f * (tr[1] - tl[1]) + 0.3 * (bl[1] - tl[1])))  # fmt: skip
+
+
 def canvas_point(page: Any, view: str, col: float, row: float) -> tuple[float, float]:
     """Page coordinates (CSS px) of an image point on a fitted film canvas (scrolled to the window's top)."""
     page.evaluate("(view) => document.getElementById(view + '-canvas').scrollIntoView({block: 'start'})", view)

@@ -24,6 +24,7 @@ from page_fixtures import (
     PA_SPACING,
     canvas_grey,
     canvas_point,
+    click_pa_pedicles,
     lateral_points,
     make_dicom,
     open_page,
@@ -100,10 +101,7 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     # pedicles on T8: two clicks inside the body
     page.check("#pa-mode-pedicles")
     page.select_option("#pa-level", "T8")
-    tl, tr, bl, _ = corners[7]
-    for f in (0.25, 0.75):
-        page.mouse.click(*canvas_point(page, "pa", tl[0] + f * (tr[0] - tl[0]) + 0.3 * (bl[0] - tl[0]),
-                                       tl[1] + f * (tr[1] - tl[1]) + 0.3 * (bl[1] - tl[1])))  # fmt: skip
+    click_pa_pedicles(page, corners[7])
     assert "1 with pedicles" in (page.text_content("#pa-status") or "")
 
     # -- the lateral film, T4–L5 only

@@ -26,6 +26,7 @@ from page_fixtures import (
     canvas_point,
     centreline,
     click_pa_midpoints,
+    click_pa_pedicles,
     lateral_points,
     make_dicom,
     open_film,
@@ -136,10 +137,7 @@ def test_every_orientation_is_named_before_sending_as_the_service_refuses_it(
         page.mouse.click(*canvas_point(page, "pa", col, row))
     page.check("#pa-mode-pedicles")
     page.select_option("#pa-level", "T8")
-    tl, tr, bl, _ = corners[7]
-    for f in (0.25, 0.75):
-        page.mouse.click(*canvas_point(page, "pa", tl[0] + f * (tr[0] - tl[0]) + 0.3 * (bl[0] - tl[0]),
-                                       tl[1] + f * (tr[1] - tl[1]) + 0.3 * (bl[1] - tl[1])))  # fmt: skip
+    click_pa_pedicles(page, corners[7])
     assert "17 vertebrae on the PA film (T1–L5): 16 midpoints, 1 with four corners, 1 with pedicles" in (
         page.text_content("#pa-status") or "")  # fmt: skip
     open_film(page, "lateral", tmp_path / "lateral.dcm")

@@ -34,11 +34,10 @@ from services.core.webhook_policy import decode_secret
 from services.db import deliveries, jobs, keys
 from services.db.clock import db_now_plus_s
 from services.db.engine import session_scope
-from services.db.migrate import upgrade
 from services.db.models import ApiKey, Job, JobAudit, WebhookDelivery
 from services.worker import dicom_tasks, webhook_tasks
 from services.worker.tasks import execute_job
-from tests.conftest import spine_payload
+from tests.conftest import fresh_settings, spine_payload
 from tests.faults import SkewedClock, assert_within, free_port, on_db_clock
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver
 
@@ -53,15 +52,8 @@ REFUSED_BROKER = "redis://127.0.0.1:1/0"
 def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     """A migrated database of the test's own, with a PACS that refuses (STOW-RS results stored) and the
     webhook settings of the loopback receiver's tests."""
-    common: dict[str, Any] = {
-        "data_dir": tmp_path, "dicomweb_url": f"http://127.0.0.1:{free_port()}/dicom-web", "dicomweb_timeout_s": 2,
-        "dicomweb_store_results": True, "webhook_secret": TEST_WEBHOOK_SECRET,
-    }  # fmt: skip
-    if request.param == "postgresql":
-        common["DATABASE_URL"] = request.getfixturevalue("fresh_postgres_url")
-    made = Settings(**common)
-    upgrade(made, quiet=True)
-    return made
+    return fresh_settings(request, tmp_path, dicomweb_url=f"http://127.0.0.1:{free_port()}/dicom-web",
+                          dicomweb_timeout_s=2, dicomweb_store_results=True, webhook_secret=TEST_WEBHOOK_SECRET)
 
 
 @pytest.fixture

@@ -33,7 +33,7 @@ from services.db.jobs import create_job
 from services.db.migrate import upgrade
 from services.db.models import Job
 from services.worker.tasks import reconcile_once
-from tests.conftest import make_key, spine_payload
+from tests.conftest import make_key, spine_payload, start_own_redis
 from tools.loadbench import OwnRedis
 
 BROKER_TIMEOUT_S = 0.5
@@ -66,11 +66,7 @@ def finishes_within(limit: float, call: Callable[[], Any]) -> tuple[Any, float]:
 def stalled_redis(tmp_path: Path) -> Iterator[OwnRedis]:
     """A redis-server of the test's own on a free port, to be stopped with SIGSTOP; continued and
     killed at the end."""
-    redis = OwnRedis(tmp_path / "redis")
-    try:
-        redis.start()
-    except (SystemExit, OSError) as exc:
-        pytest.skip(f"no throwaway redis-server: {exc}")
+    redis = start_own_redis(tmp_path / "redis")
     yield redis
     assert redis.proc is not None
     os.kill(redis.proc.pid, signal.SIGCONT)

@@ -27,9 +27,8 @@ from sqlalchemy import select, text
 from services.db.deliveries import message_id
 from services.db.engine import get_engine, session_scope
 from services.db.models import WebhookDelivery
-from tests.conftest import Service, service_env, spawned_service, spine_payload
+from tests.conftest import Service, service_env, spawned_service, spine_payload, start_own_redis
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver, wait_until
-from tools.loadbench import OwnRedis
 
 pytestmark = pytest.mark.integration
 
@@ -64,11 +63,7 @@ def deliveries(service: Service, job_id: str) -> list[dict[str, Any]]:
 def test_a_first_webhook_message_lost_in_a_broker_restart_is_delivered_once(
     tmp_path: Path, fresh_postgres_url: str, receiver: Receiver
 ) -> None:
-    own = OwnRedis(tmp_path / "redis")
-    try:
-        own.start()
-    except (SystemExit, OSError) as exc:
-        pytest.skip(f"no throwaway redis-server: {exc}")
+    own = start_own_redis(tmp_path / "redis")
     env = service_env(tmp_path, DATABASE_URL=fresh_postgres_url, CELERY_BROKER_URL=own.url, **webhook_env(receiver))
     service = Service("outbox", env, tmp_path)  # its worker is started after the restart
     try:

@@ -24,7 +24,6 @@ import uuid
 from collections.abc import Iterator
 from datetime import datetime, timedelta
 from pathlib import Path
-from typing import Any
 
 import pytest
 from celery.contrib.testing.worker import start_worker
@@ -36,7 +35,7 @@ from services.db.engine import session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job
 from services.worker.tasks import RunLater, execute_job, reconcile_once, register_tasks
-from tests.conftest import spine_payload
+from tests.conftest import fresh_settings, spine_payload, start_own_redis
 from tests.faults import SkewedClock, db_clock, free_port, wait_until
 from tools.loadbench import OwnRedis
 
@@ -58,15 +57,8 @@ ends as soon as the outcome is there)."""
 @pytest.fixture(params=["sqlite", "postgresql"])
 def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     pacs = f"http://127.0.0.1:{free_port()}/dicom-web"  # refused: the PACS is unavailable
-    common: dict[str, Any] = {
-        "data_dir": tmp_path, "dicomweb_url": pacs, "dicomweb_timeout_s": 2, "dicomweb_retry_base_s": DUE_S,
-        "max_attempts": 6, "queued_timeout_s": QUEUED_TIMEOUT_S,
-    }  # fmt: skip
-    if request.param == "postgresql":
-        common["DATABASE_URL"] = request.getfixturevalue("fresh_postgres_url")
-    made = Settings(**common)
-    upgrade(made, quiet=True)
-    return made
+    return fresh_settings(request, tmp_path, dicomweb_url=pacs, dicomweb_timeout_s=2, dicomweb_retry_base_s=DUE_S,
+                          max_attempts=6, queued_timeout_s=QUEUED_TIMEOUT_S)  # fmt: skip
 
 
 def _by_reference_job(settings: Settings) -> uuid.UUID:
@@ -175,11 +167,7 @@ def test_a_run_published_by_a_worker_whose_clock_is_behind_waits_until_its_job_i
 @pytest.fixture
 def own_redis(tmp_path: Path) -> Iterator[OwnRedis]:
     """A throwaway redis-server of the test's own (no persistence: a restart loses every message)."""
-    own = OwnRedis(tmp_path / "redis")
-    try:
-        own.start()
-    except (SystemExit, OSError) as exc:
-        pytest.skip(f"no throwaway redis-server: {exc}")
+    own = start_own_redis(tmp_path / "redis")
     yield own
     own.stop()
 

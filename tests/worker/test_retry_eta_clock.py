@@ -32,13 +32,12 @@ from services.core.config import Settings
 from services.core.jobqueue import DELIVER_WEBHOOK, STORE_DICOM, make_celery
 from services.db import jobs
 from services.db.engine import session_scope
-from services.db.migrate import upgrade
 from services.db.models import Job, WebhookDelivery
 from services.worker import dicom_tasks
 from services.worker.dicom_tasks import register_dicom_tasks
 from services.worker.tasks import execute_job
 from services.worker.webhook_tasks import register_webhook_tasks
-from tests.conftest import spine_payload
+from tests.conftest import fresh_settings, spine_payload
 from tests.faults import SkewedClock, free_port, wait_until
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
 
@@ -79,16 +78,9 @@ def receiver() -> Iterator[Receiver]:
 @pytest.fixture(params=["sqlite", "postgresql"])
 def settings(request: pytest.FixtureRequest, tmp_path: Path, receiver: Receiver) -> Settings:
     pacs = f"http://127.0.0.1:{free_port()}/dicom-web"  # refused: every STOW-RS attempt fails, unavailable
-    common: dict[str, Any] = {
-        "data_dir": tmp_path, "dicomweb_url": pacs, "dicomweb_store_results": False, "dicomweb_timeout_s": 2,
-        "dicomweb_retry_base_s": DELAY_S, "webhook_retry_base_s": DELAY_S, "webhook_secret": TEST_WEBHOOK_SECRET,
-        "webhook_allowed_urls": receiver.url(HOOK),
-    }  # fmt: skip
-    if request.param == "postgresql":
-        common["DATABASE_URL"] = request.getfixturevalue("fresh_postgres_url")
-    made = Settings(**common)
-    upgrade(made, quiet=True)
-    return made
+    return fresh_settings(request, tmp_path, dicomweb_url=pacs, dicomweb_store_results=False, dicomweb_timeout_s=2,
+                          dicomweb_retry_base_s=DELAY_S, webhook_retry_base_s=DELAY_S,
+                          webhook_secret=TEST_WEBHOOK_SECRET, webhook_allowed_urls=receiver.url(HOOK))  # fmt: skip
 
 
 def _publisher_behind(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Celery:
