@@ -34,6 +34,7 @@ from spine_engine.errors import SpineEngineError
 from spine_engine.fit.types import Solution
 from spine_engine.fit.uncertainty import (
     PRIOR_ONLY_ALPHA,
+    PRIOR_ONLY_LENKE,
     PRIOR_ONLY_MEASURES,
     Calibration,
     PriorOnlyReading,
@@ -140,21 +141,29 @@ def calibrate(
 
 def prior_only_readings(samples: Sequence[Sample]) -> dict[str, PriorOnlyReading]:
     """``Calibration.prior_only`` from ``samples`` (the PA-only case): per sagittal measure the
-    correlation of the fit's reading y with the truth (Pearson, one-sided p), the median of truth − y
+    rank correlation of the fit's reading y with the truth (Spearman, one-sided p: one spine far out, as
+    dev's T2–T5 kyphosis of 45°, does not decide it), the median of truth − y
     and the truth's mean, the truth's measured on its centreline frames as the clinic bench measures
     it; {} without samples (``fit.uncertainty.PriorOnlyReading``)."""
     if len(samples) < 3:
         return {}
     pairs = [(compute_measures(s.truth.positions, frames_from_centreline(s.truth.positions)), s.measures)
              for s in samples]
+    values: dict[str, tuple[list[float], list[float]]] = {
+        name: ([getattr(t, key) for t, _ in pairs], [getattr(f, key) for _, f in pairs])
+        for name, key in PRIOR_ONLY_MEASURES.items()
+    }
+    values.update({
+        name: ([getattr(t.lenke, key) for t, _ in pairs], [getattr(f.lenke, key) for _, f in pairs])
+        for name, key in PRIOR_ONLY_LENKE.items()
+    })
     out = {}
-    for name, key in PRIOR_ONLY_MEASURES.items():
-        truth = np.array([getattr(t, key) for t, _ in pairs], dtype=float)
-        film = np.array([getattr(f, key) for _, f in pairs], dtype=float)
-        test = stats.pearsonr(film, truth, alternative="greater")
+    for name, (truth_values, film_values) in values.items():
+        truth, film = np.array(truth_values, dtype=float), np.array(film_values, dtype=float)
+        test = stats.spearmanr(film, truth, alternative="greater")
         out[name] = PriorOnlyReading(
             bool(test.pvalue < PRIOR_ONLY_ALPHA), float(np.median(truth - film)), float(truth.mean()),
-            float(test.statistic), float(test.pvalue),
+            float(test.statistic), float(test.pvalue), float(truth.std(ddof=1)),
         )
     return out
 
@@ -166,9 +175,10 @@ def provenance(command: str, split: str, n_spines: int, cases: Sequence[Case], n
         "method": "Laplace approximation at the fit's optimum; prior_weight: the rod rows' weight in the Hessian at "
         "which the PA-only case (e) covers 95 % with scale 1 (bisection on log10); uncertainty_scale: then the "
         "factor on every SD for 95 % coverage of the centroid-relative position coordinates of all cases pooled, "
-        "each case weighing the same; prior_only: on the PA-only case (e), per sagittal measure, the Pearson "
+        "each case weighing the same; prior_only: on the PA-only case (e), per sagittal measure, the Spearman rank "
         "correlation of the fit's reading with the truth (one-sided p; film_predicts when p < 0.05), the median of "
-        "truth − reading (offset_deg) and the truth's mean (population_mean_deg) (benches.uncertainty_calibration)",
+        "truth − reading (offset_deg), the truth's mean (population_mean_deg) and SD (population_sd_deg; Lenke's "
+        "regional kyphoses T2–T5 and T10–L2 too) (benches.uncertainty_calibration)",
         "command": command,
         "training_set": f"VerSe {split} split ({n_spines} spines), {split}.csv; simulated series of "
         "benches.clinic_films",

@@ -311,6 +311,7 @@ class LenkeCurve(OpenModel):
     major: bool
     structural_by_magnitude: bool
     structural_by_kyphosis: bool
+    structural_by_kyphosis_probability: float | None = None
 
 
 class LenkeInputs(OpenModel):
@@ -321,7 +322,11 @@ class LenkeInputs(OpenModel):
     t2_t5_kyphosis_deg: float
     t5_t12_kyphosis_deg: float
     t10_l2_kyphosis_deg: float
+    t2_t5_kyphosis_sd_deg: float | None = None
+    t5_t12_kyphosis_sd_deg: float | None = None
+    t10_l2_kyphosis_sd_deg: float | None = None
     sagittal_thoracic_modifier: Literal["-", "N", "+"]
+    sagittal_thoracic_modifier_probability: float | None = None
     not_supported: list[str]
 
 

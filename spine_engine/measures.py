@@ -433,6 +433,49 @@ def lenke_modifier(t5_t12_kyphosis_deg: float) -> Literal["-", "N", "+"]:
     return "-" if t5_t12_kyphosis_deg < lo else ("+" if t5_t12_kyphosis_deg > hi else "N")
 
 
+def _normal_below(x: float, mean: float, sd: float) -> float:
+    """P(X < x) for X ~ N(mean, sd²): ½(1 + erf((x − mean) / (sd √2)))."""
+    return 0.5 * (1.0 + math.erf((x - mean) / (sd * math.sqrt(2.0))))
+
+
+def lenke_with_kyphoses(lenke: LenkeInputs, t2_t5: float, t5_t12: float, t10_l2: float) -> LenkeInputs:
+    """``lenke`` with its regional kyphoses (degrees) replaced, and what they decide (each curve's
+    ``structural_by_kyphosis``, the sagittal modifier) decided again."""
+    curves = [
+        c.model_copy(update={"structural_by_kyphosis": (t2_t5 if c.region == "proximal_thoracic" else t10_l2)
+                             >= LENKE_STRUCTURAL_KYPHOSIS_DEG})
+        for c in lenke.curves
+    ]
+    return lenke.model_copy(update={
+        "curves": curves, "t2_t5_kyphosis_deg": t2_t5, "t5_t12_kyphosis_deg": t5_t12, "t10_l2_kyphosis_deg": t10_l2,
+        "sagittal_thoracic_modifier": lenke_modifier(t5_t12),
+    })
+
+
+def lenke_probabilities(lenke: LenkeInputs) -> LenkeInputs:
+    """``lenke`` with the probabilities of its sagittal criteria under N(k, SD²) of the kyphosis k each
+    is read from: a curve's regional kyphosis ≥ 20° (P(k ≥ 20°), whatever ``structural_by_kyphosis``
+    decided) and the sagittal modifier given (P(k < 10°), P(10° ≤ k ≤ 40°) or P(k > 40°)); None where
+    that SD is None."""
+    def structural(value: float, sd: float | None) -> float | None:
+        if sd is None or not sd > 0.0:
+            return None
+        return 1.0 - _normal_below(LENKE_STRUCTURAL_KYPHOSIS_DEG, value, sd)
+
+    curves = [
+        c.model_copy(update={"structural_by_kyphosis_probability": structural(
+            *((lenke.t2_t5_kyphosis_deg, lenke.t2_t5_kyphosis_sd_deg) if c.region == "proximal_thoracic"
+              else (lenke.t10_l2_kyphosis_deg, lenke.t10_l2_kyphosis_sd_deg)))})
+        for c in lenke.curves
+    ]
+    modifier = None
+    sd = lenke.t5_t12_kyphosis_sd_deg
+    if sd is not None and sd > 0.0:
+        lo, hi = (_normal_below(b, lenke.t5_t12_kyphosis_deg, sd) for b in LENKE_MODIFIER_DEG)
+        modifier = {"-": lo, "N": hi - lo, "+": 1.0 - hi}[lenke.sagittal_thoracic_modifier]
+    return lenke.model_copy(update={"curves": curves, "sagittal_thoracic_modifier_probability": modifier})
+
+
 def lenke_inputs(cobb: list[CobbCurve], beta: FloatArray) -> LenkeInputs:
     """The Lenke classification inputs a reconstruction supports (model estimates); ``beta``: the
     sagittal inclinations (``sagittal_inclinations``)."""

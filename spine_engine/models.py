@@ -802,6 +802,11 @@ class LenkeCurve(BaseModel):
     structural_by_kyphosis: bool = Field(
         description="Regional kyphosis ≥ +20° (T2–T5 for proximal thoracic, T10–L2 otherwise), from the 3D model."
     )
+    structural_by_kyphosis_probability: float | None = Field(
+        None,
+        description="Probability that the regional kyphosis is ≥ +20°, under a normal distribution of the reported "
+        "regional kyphosis and its SD (LenkeInputs); null without that SD.",
+    )
 
 
 class LenkeInputs(BaseModel):
@@ -810,11 +815,31 @@ class LenkeInputs(BaseModel):
 
     model_estimate: Literal[True] = True
     curves: list[LenkeCurve]
-    t2_t5_kyphosis_deg: float
-    t5_t12_kyphosis_deg: float
-    t10_l2_kyphosis_deg: float
+    t2_t5_kyphosis_deg: float = Field(
+        description="T2–T5 kyphosis, degrees (+: convex posteriorly), read as the other sagittal measures. Without a "
+        "lateral film as calibrated on VerSe dev: the centreline's reading plus an offset where one PA film predicts "
+        "it, else the population's mean (docs/engine.md)."
+    )
+    t5_t12_kyphosis_deg: float = Field(description="T5–T12 kyphosis, degrees: measures.thoracic_kyphosis_t5_t12_deg.")
+    t10_l2_kyphosis_deg: float = Field(description="T10–L2 kyphosis, degrees, as the T2–T5 one.")
+    t2_t5_kyphosis_sd_deg: float | None = Field(
+        None,
+        description="1 SD of t2_t5_kyphosis_deg, degrees (Laplace, calibrated; without a lateral film at least the "
+        "population's SD on VerSe dev); null when not computed.",
+    )
+    t5_t12_kyphosis_sd_deg: float | None = Field(
+        None, description="1 SD of t5_t12_kyphosis_deg, degrees: measures.thoracic_kyphosis_t5_t12_sd_deg."
+    )
+    t10_l2_kyphosis_sd_deg: float | None = Field(
+        None, description="1 SD of t10_l2_kyphosis_deg, degrees, as the T2–T5 one."
+    )
     sagittal_thoracic_modifier: Literal["-", "N", "+"] = Field(
         description="T5–T12 kyphosis < 10° '-', 10–40° 'N', > 40° '+'."
+    )
+    sagittal_thoracic_modifier_probability: float | None = Field(
+        None,
+        description="Probability of the modifier given, under a normal distribution of t5_t12_kyphosis_deg and its "
+        "SD; null without that SD.",
     )
     not_supported: list[str] = Field(
         description="Lenke inputs the reconstruction cannot give (e.g. side-bending Cobb angles, the lumbar "

@@ -65,6 +65,7 @@ from .fit import (
 from .fit.types import CENTRAL_RAY_PRIOR_SD_MM, DEPTH_PRIOR_SD_MM
 from .fit.uncertainty import (
     AXIAL_ROTATION_SD_CAP_DEG,
+    PRIOR_ONLY_LENKE,
     PRIOR_ONLY_MEASURES,
     PriorOnlyReading,
     Uncertainty,
@@ -73,7 +74,7 @@ from .fit.uncertainty import (
 )
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
-from .measures import compute_measures, frontal_tilts, lenke_modifier
+from .measures import compute_measures, frontal_tilts, lenke_probabilities, lenke_with_kyphoses
 from .models import (
     LANDMARK_SD_MM_DEFAULT,
     Assumption,
@@ -961,7 +962,9 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
         measures = _with_model_tilt_sd(measures, tilts.model_tilt_cobb_sd_deg(inputs.tilt_prior))
         measures = _with_unseen_cobb_floor(measures, unseen, profile)
         if sagittal_from_prior:
-            measures = _with_prior_floor(measures, profile)
+            measures = _with_prior_floor(measures, profile, calibration().prior_only)
+        if measures.lenke is not None:
+            measures = measures.model_copy(update={"lenke": lenke_probabilities(measures.lenke)})
         if axial_rotation is not None:
             uncertainty = _with_axial_rotation_floor(uncertainty, measures, exact_ends)
         inputs = dataclasses.replace(inputs, unreliable=_unreliable_by_sd(measures, profile, inputs.unreliable))
@@ -1008,6 +1011,13 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
         major_sd = next((c.angle_sd_deg for c in cobb if c.major), None)
         [sd] = [major_sd] if largest.reported_as_curve else unlisted_sds
         largest = largest.model_copy(update={"angle_sd_deg": sd})
+    lenke = measures.lenke
+    if lenke is not None:
+        lenke = lenke.model_copy(update={
+            "t2_t5_kyphosis_sd_deg": uncertainty.kyphosis_t2_t5_sd_deg,
+            "t5_t12_kyphosis_sd_deg": uncertainty.kyphosis_t5_t12_sd_deg,
+            "t10_l2_kyphosis_sd_deg": uncertainty.kyphosis_t10_l2_sd_deg,
+        })
     return measures.model_copy(
         update={
             "cobb": cobb,
@@ -1015,6 +1025,7 @@ def _measures_with_sds(measures: Measures, uncertainty: Uncertainty) -> Measures
             "thoracic_kyphosis_t4_t12_sd_deg": uncertainty.kyphosis_t4_t12_sd_deg,
             "thoracic_kyphosis_t5_t12_sd_deg": uncertainty.kyphosis_t5_t12_sd_deg,
             "lumbar_lordosis_l1_l5_sd_deg": uncertainty.lordosis_l1_l5_sd_deg,
+            "lenke": lenke,
         }
     )
 
@@ -1165,30 +1176,39 @@ def _with_unseen_cobb_floor(measures: Measures, unseen: list[bool], profile: Pro
 def _prior_only_reported(measures: Measures, readings: dict[str, PriorOnlyReading]) -> Measures:
     """Sagittal measures that no film determined (no lateral view) as calibrated on dev
     (``fit.uncertainty.PriorOnlyReading.reported``): the film's reading plus its offset where the
-    film predicts the measure, else the population's mean, degrees; the Lenke inputs' T5–T12
-    kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
+    film predicts the measure, else the population's mean, degrees. The Lenke inputs' T5–T12
+    kyphosis is the reported T5–T12 kyphosis, their T2–T5 and T10–L2 kyphoses are reported so too
+    (``PRIOR_ONLY_LENKE``), and what they decide follows them (``measures.lenke_with_kyphoses``)."""
     update: dict[str, Any] = {
         PRIOR_ONLY_MEASURES[name]: reading.reported(getattr(measures, PRIOR_ONLY_MEASURES[name]))
-        for name, reading in readings.items()
+        for name, reading in readings.items() if name in PRIOR_ONLY_MEASURES
     }
-    t5_t12 = update.get(PRIOR_ONLY_MEASURES["kyphosis_t5_t12"])
-    if measures.lenke is not None and t5_t12 is not None:  # Lenke's T5–T12 is the reported one
-        update["lenke"] = measures.lenke.model_copy(
-            update={"t5_t12_kyphosis_deg": t5_t12, "sagittal_thoracic_modifier": lenke_modifier(t5_t12)}
+    lenke = measures.lenke
+    if lenke is not None:
+        regional = {
+            field: readings[name].reported(getattr(lenke, field)) if name in readings else getattr(lenke, field)
+            for name, field in PRIOR_ONLY_LENKE.items()
+        }
+        t5_t12 = update.get(PRIOR_ONLY_MEASURES["kyphosis_t5_t12"], lenke.t5_t12_kyphosis_deg)
+        update["lenke"] = lenke_with_kyphoses(
+            lenke, regional["t2_t5_kyphosis_deg"], t5_t12, regional["t10_l2_kyphosis_deg"]
         )
     return measures.model_copy(update=update)
 
 
-def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
+def _with_prior_floor(measures: Measures, profile: Profile, readings: dict[str, PriorOnlyReading]) -> Measures:
     """Sagittal measures that no film determined (no lateral view: ``fit.unreliable`` has "kyphosis"
     and "lordosis") come from the population prior, so their SD is at least the population's
-    (``anatomy.PopulationPrior.measure_sd_deg``, VerSe dev): SD = max(Laplace SD, population SD)."""
+    (``anatomy.PopulationPrior.measure_sd_deg``, VerSe dev): SD = max(Laplace SD, population SD). Lenke's
+    T5–T12 kyphosis takes the T5–T12 kyphosis's SD; its T2–T5 and T10–L2 kyphoses are floored by their
+    SD on dev as the calibration recorded it (``PriorOnlyReading.population_sd_deg``), else by the
+    kyphosis's."""
     prior = population_prior(profile)
     if prior is None:
         return measures
     kyphosis = prior.measure_sd_deg["kyphosis_t4_t12_deg"]
     lordosis = prior.measure_sd_deg["lordosis_l1_l5_deg"]
-    update = {
+    update: dict[str, Any] = {
         name: max(float(getattr(measures, name) or 0.0), floor)
         for name, floor in (
             ("thoracic_kyphosis_t4_t12_sd_deg", kyphosis),
@@ -1196,6 +1216,18 @@ def _with_prior_floor(measures: Measures, profile: Profile) -> Measures:
             ("lumbar_lordosis_l1_l5_sd_deg", lordosis),
         )
     }
+    lenke = measures.lenke
+    if lenke is not None:
+        def floored(name: str, field: str) -> float:
+            reading = readings.get(name)
+            floor = reading.population_sd_deg if reading is not None and reading.population_sd_deg else kyphosis
+            return max(float(getattr(lenke, field) or 0.0), floor)
+
+        update["lenke"] = lenke.model_copy(update={
+            "t2_t5_kyphosis_sd_deg": floored("kyphosis_t2_t5", "t2_t5_kyphosis_sd_deg"),
+            "t5_t12_kyphosis_sd_deg": update["thoracic_kyphosis_t5_t12_sd_deg"],
+            "t10_l2_kyphosis_sd_deg": floored("kyphosis_t10_l2", "t10_l2_kyphosis_sd_deg"),
+        })
     return measures.model_copy(update=update)
 
 

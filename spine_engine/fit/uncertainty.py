@@ -102,6 +102,9 @@ class Uncertainty(NamedTuple):
     kyphosis_t4_t12_sd_deg: float
     kyphosis_t5_t12_sd_deg: float
     lordosis_l1_l5_sd_deg: float
+    kyphosis_t2_t5_sd_deg: float
+    """Of Lenke's regional kyphoses (``measures.lenke_inputs``), degrees, as the other sagittal ones."""
+    kyphosis_t10_l2_sd_deg: float
     cobb_sd_deg: list[float]
     """Of each Cobb curve given to ``laplace_uncertainty``, in order, degrees."""
     scale: float
@@ -131,7 +134,7 @@ class PriorOnlyReading(NamedTuple):
     """The report of a sagittal measure that one PA film leaves to the prior, calibrated on dev.
 
     The film's reading y (the fitted centreline's) is reported as y + ``offset_deg`` when, on dev, y
-    predicts the truth (``film_predicts``: Pearson correlation > 0 at one-sided p < ``PRIOR_ONLY_ALPHA``);
+    predicts the truth (``film_predicts``: Spearman rank correlation > 0 at one-sided p < ``PRIOR_ONLY_ALPHA``);
     else the population's mean ``population_mean_deg`` is reported (what the film tells of it is noise).
     ``offset_deg``: the median on dev of truth − y, so that the reported value's median error is 0 (the
     MAE's best shift): the fitted centreline reads less lordosis than the population's because the rod's
@@ -142,6 +145,10 @@ class PriorOnlyReading(NamedTuple):
     population_mean_deg: float
     correlation: float
     p_value: float
+    population_sd_deg: float | None = None
+    """The truth's SD on dev (ddof 1), degrees: the floor of the reported SD where the profile's
+    population prior has none for the measure (Lenke's regional kyphoses); None in files written
+    before it was recorded."""
 
     def reported(self, film_deg: float) -> float:
         """The value reported for the film's reading ``film_deg``, degrees."""
@@ -162,6 +169,13 @@ PRIOR_ONLY_MEASURES = {
 }
 """The sagittal measures that one PA film leaves to the prior: ``Calibration.prior_only``'s
 keys, and the ``models.Measures`` field each offsets."""
+
+PRIOR_ONLY_LENKE = {
+    "kyphosis_t2_t5": "t2_t5_kyphosis_deg",
+    "kyphosis_t10_l2": "t10_l2_kyphosis_deg",
+}
+"""Lenke's regional kyphoses that one PA film leaves to the prior: further ``Calibration.prior_only``
+keys, and the ``models.LenkeInputs`` field each offsets (T5–T12 there is ``kyphosis_t5_t12``'s)."""
 
 
 @lru_cache(maxsize=4)
@@ -189,10 +203,10 @@ def write_calibration(constants: Calibration, path: Path | None = None) -> Path:
         value = getattr(constants, name)
         if not (np.isfinite(value) and value > 0.0):
             raise ValueError(f"{name} must be positive and finite, got {value}")
-    unknown = set(constants.prior_only) - set(PRIOR_ONLY_MEASURES)
+    unknown = set(constants.prior_only) - set(PRIOR_ONLY_MEASURES) - set(PRIOR_ONLY_LENKE)
     values = [(r.offset_deg, r.population_mean_deg) for r in constants.prior_only.values()]
     if unknown or not np.all(np.isfinite(values)):
-        raise ValueError(f"prior_only takes finite readings of {list(PRIOR_ONLY_MEASURES)}")
+        raise ValueError(f"prior_only takes finite readings of {[*PRIOR_ONLY_MEASURES, *PRIOR_ONLY_LENKE]}")
     record = constants._asdict()
     record["prior_only"] = {k: r._asdict() for k, r in constants.prior_only.items()}
     file = path or CALIBRATION_FILE
@@ -292,8 +306,9 @@ def _centreline_angle_rows(
 
 class Functionals(NamedTuple):
     """Gradient rows G (m, n_params) of the reported quantities, in this order: 3N centroid-
-    relative coordinates (vertebra-major), N axial rotations, kyphosis T4–T12, T5–T12, lordosis
-    L1–L5, then one row per Cobb curve."""
+    relative coordinates (vertebra-major), N axial rotations, the sagittal measures of
+    ``_SAGITTAL`` (kyphosis T4–T12, T5–T12, lordosis L1–L5, kyphosis T2–T5, T10–L2), then one row
+    per Cobb curve."""
 
     G: FloatArray
     n_vertebrae: int
@@ -305,7 +320,7 @@ def _position_rows(n: int, n_params: int, n_curves: int, pos_bytes: bytes) -> Fl
     """G's rows that depend on the layout only, the others zero: the 3N position rows
     (r_i,k − (1/N) Σ_j r_j,k: 1 − 1/N on δr_i,k's column, −1/N on every other free one)."""
     pos = np.frombuffer(pos_bytes, dtype=np.intp).reshape(n, 3)
-    G = np.zeros((4 * n + 3 + n_curves, n_params))
+    G = np.zeros((4 * n + len(_SAGITTAL) + n_curves, n_params))
     for k in range(3):
         free = pos[:, k] >= 0
         rows = 3 * np.arange(n) + k
@@ -315,21 +330,23 @@ def _position_rows(n: int, n_params: int, n_curves: int, pos_bytes: bytes) -> Fl
     return G
 
 
-_SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0))
-"""(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1."""
+_SAGITTAL = (("T4", "T12", 1.0), ("T5", "T12", 1.0), ("L1", "L5", -1.0), ("T2", "T5", 1.0), ("T10", "L2", 1.0))
+"""(first, second, sign): kyphosis = β_T4 − β_T12, β_T5 − β_T12; lordosis = β_L5 − β_L1; Lenke's
+regional kyphoses β_T2 − β_T5 and β_T10 − β_L2 (``measures.lenke_inputs``)."""
 
 
 @lru_cache(maxsize=32)
 def _angle_terms(n: int, curves: tuple[tuple[str, str], ...]) -> tuple[IntArray, IntArray, FloatArray, IntArray]:
     """Row of G, vertebra, sign and Cobb ends of each term of ``_centreline_angle_rows``, in order:
-    kyphosis and lordosis (``_SAGITTAL``, rows 4N … 4N + 2, ends −1), then each Cobb curve
-    (row 4N + 3 + c, ends its (upper, lower) vertebrae); two terms each, first +sign, second −sign."""
+    the sagittal measures (``_SAGITTAL``, rows 4N … 4N + S − 1, ends −1), then each Cobb curve
+    (row 4N + S + c, ends its (upper, lower) vertebrae); two terms each, first +sign, second −sign."""
     terms = [(4 * n + k, LEVEL_INDEX[level], s, -1, -1)
              for k, (first, second, sign) in enumerate(_SAGITTAL)
              for level, s in ((first, sign), (second, -sign))]
     for c, (upper, lower) in enumerate(curves):
         ends = (LEVEL_INDEX[upper], LEVEL_INDEX[lower])
-        terms += [(4 * n + 3 + c, ends[0], 1.0, *ends), (4 * n + 3 + c, ends[1], -1.0, *ends)]
+        row = 4 * n + len(_SAGITTAL) + c
+        terms += [(row, ends[0], 1.0, *ends), (row, ends[1], -1.0, *ends)]
     rows, vert, sign, up, low = zip(*terms, strict=True)
     out = (np.array(rows, dtype=np.intp), np.array(vert, dtype=np.intp), np.array(sign, dtype=float),
            np.stack((np.array(up, dtype=np.intp), np.array(low, dtype=np.intp)), axis=1))
@@ -531,7 +548,9 @@ def laplace_uncertainty(
         kyphosis_t4_t12_sd_deg=float(sd[4 * n]),
         kyphosis_t5_t12_sd_deg=float(sd[4 * n + 1]),
         lordosis_l1_l5_sd_deg=float(sd[4 * n + 2]),
-        cobb_sd_deg=[float(v) for v in sd[4 * n + 3 :]],
+        kyphosis_t2_t5_sd_deg=float(sd[4 * n + 3]),
+        kyphosis_t10_l2_sd_deg=float(sd[4 * n + 4]),
+        cobb_sd_deg=[float(v) for v in sd[4 * n + len(_SAGITTAL) :]],
         scale=c,
     )
 

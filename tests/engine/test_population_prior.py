@@ -3,6 +3,7 @@ silent: one PA film (its prior predictive check, ``spine bench prior``: tests/be
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,52 @@ def test_prior_only_sagittal_sds_are_at_least_the_populations() -> None:
     assert m["thoracic_kyphosis_t4_t12_sd_deg"] >= floor.measure_sd_deg["kyphosis_t4_t12_deg"]
     assert m["lumbar_lordosis_l1_l5_sd_deg"] >= floor.measure_sd_deg["lordosis_l1_l5_deg"]
     assert {"kyphosis", "lordosis"} <= set(result["fit"]["unreliable"])
+
+
+def test_prior_only_lenke_kyphoses_have_at_least_the_populations_sd() -> None:
+    """One PA film: Lenke's regional kyphoses come from the prior too; each has an SD of at least its
+    SD over VerSe dev (recorded by the calibration, ``PriorOnlyReading.population_sd_deg``; T5–T12
+    the measures' own), and the probabilities of the criteria they decide follow from value and SD."""
+    from spine_engine.fit.uncertainty import calibration
+    from spine_engine.measures import LENKE_STRUCTURAL_KYPHOSIS_DEG
+
+    readings = calibration().prior_only
+    result = register(_pa_only(SPINES[0][1], SPINES[0][0]))
+    m = result["measures"]
+    lenke = m["lenke"]
+    for name, key in (("kyphosis_t2_t5", "t2_t5"), ("kyphosis_t10_l2", "t10_l2")):
+        sd = readings[name].population_sd_deg
+        assert sd is not None and sd > 5.0  # VerSe dev: T2–T5 10.0°, T10–L2 7.9°
+        assert lenke[f"{key}_kyphosis_sd_deg"] >= sd
+    assert lenke["t5_t12_kyphosis_sd_deg"] == m["thoracic_kyphosis_t5_t12_sd_deg"]
+    assert 0.0 < lenke["sagittal_thoracic_modifier_probability"] < 1.0
+    for curve in lenke["curves"]:
+        key = "t2_t5" if curve["region"] == "proximal_thoracic" else "t10_l2"
+        value, sd = lenke[f"{key}_kyphosis_deg"], lenke[f"{key}_kyphosis_sd_deg"]
+        z = (LENKE_STRUCTURAL_KYPHOSIS_DEG - value) / sd
+        expected = 0.5 * math.erfc(z / math.sqrt(2.0))
+        assert curve["structural_by_kyphosis_probability"] == pytest.approx(expected, rel=1e-9)
+        assert curve["structural_by_kyphosis"] == (value >= LENKE_STRUCTURAL_KYPHOSIS_DEG)
+
+
+def test_pa_only_lenke_kyphoses_no_worse_than_the_dev_mean() -> None:
+    """The last 6 dev spines, one PA film each: the mean error of Lenke's T2–T5 and T10–L2 kyphoses is
+    no worse than answering the mean of the other 18 dev spines (held out), as for T4–T12."""
+    from spine_engine.measures import lenke_inputs, sagittal_inclination_deg
+
+    def regional(positions: np.ndarray) -> tuple[float, float]:
+        lenke = lenke_inputs([], sagittal_inclination_deg(frames_from_centreline(positions)))
+        return lenke.t2_t5_kyphosis_deg, lenke.t10_l2_kyphosis_deg
+
+    truth = np.array([regional(p) for _, p in SPINES])
+    n_fit = len(SPINES) - 6
+    mean = truth[:n_fit].mean(axis=0)
+    errors = []
+    for i in range(n_fit, len(SPINES)):
+        lenke = register(_pa_only(SPINES[i][1], SPINES[i][0]))["measures"]["lenke"]
+        errors.append(np.abs(np.array([lenke["t2_t5_kyphosis_deg"], lenke["t10_l2_kyphosis_deg"]]) - truth[i]))
+    floor = np.abs(truth[n_fit:] - mean).mean(axis=0)
+    assert np.all(np.mean(errors, axis=0) <= floor)
 
 
 def test_pa_only_kyphosis_no_worse_than_the_dev_mean() -> None:
@@ -120,12 +167,12 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
     (``fit.uncertainty.PriorOnlyReading``): the population's mean where the film does not predict it on
     dev, the centreline's reading plus the offset where it does; with a lateral film, the reading as it is.
     The Lenke inputs' T5–T12 kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
-    from spine_engine.fit.uncertainty import PRIOR_ONLY_MEASURES, calibration
+    from spine_engine.fit.uncertainty import PRIOR_ONLY_LENKE, PRIOR_ONLY_MEASURES, calibration
     from spine_engine.frames import frames_from_centreline as frames
-    from spine_engine.measures import compute_measures, lenke_modifier
+    from spine_engine.measures import LENKE_STRUCTURAL_KYPHOSIS_DEG, compute_measures, lenke_modifier
 
     readings = calibration().prior_only
-    assert set(readings) == set(PRIOR_ONLY_MEASURES)
+    assert set(readings) == set(PRIOR_ONLY_MEASURES) | set(PRIOR_ONLY_LENKE)
     positions, spine_id = SPINES[1][1], SPINES[1][0]
     result = register(_pa_only(positions, spine_id))
     r = np.array([v["position"] for v in result["vertebrae"]])
@@ -138,6 +185,14 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
     lenke = result["measures"]["lenke"]
     assert lenke["t5_t12_kyphosis_deg"] == result["measures"]["thoracic_kyphosis_t5_t12_deg"]
     assert lenke["sagittal_thoracic_modifier"] == lenke_modifier(lenke["t5_t12_kyphosis_deg"])
+    assert centreline.lenke is not None
+    for name, key in PRIOR_ONLY_LENKE.items():  # Lenke's regional kyphoses are reported by the same rule
+        reading, film = readings[name], getattr(centreline.lenke, key)
+        expected = film + reading.offset_deg if reading.film_predicts else reading.population_mean_deg
+        assert lenke[key] == pytest.approx(expected, abs=1e-6)
+    for curve in lenke["curves"]:
+        kyphosis = lenke["t2_t5_kyphosis_deg" if curve["region"] == "proximal_thoracic" else "t10_l2_kyphosis_deg"]
+        assert curve["structural_by_kyphosis"] == (kyphosis >= LENKE_STRUCTURAL_KYPHOSIS_DEG)
     truth = clinic_films.Truth(spine_id, positions, frames_from_centreline(positions))
     series = clinic_films.simulate_series(truth, noise_mm=1.0, seed=0)
     both = register(

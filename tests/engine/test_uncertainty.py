@@ -12,7 +12,7 @@ from benches import clinic, clinic_films
 from spine_engine.fit import uncertainty as unc
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import N_LEVELS
-from spine_engine.measures import frontal_tilt_deg, kyphosis_lordosis_deg
+from spine_engine.measures import frontal_tilt_deg, kyphosis_lordosis_deg, lenke_inputs, sagittal_inclination_deg
 from spine_engine.rotations import exp_so3
 from spine_engine.synthetic import generate_spine
 
@@ -24,15 +24,18 @@ def _all_free(n: int) -> unc.PoseColumns:
 
 def _values(r: np.ndarray, R: np.ndarray, curves: list[tuple[str, str]]) -> np.ndarray:
     """The reported quantities by the engine's own functions: positions relative to the centroid,
-    the directors' axial rotation, and kyphosis, lordosis and Cobb angles of the centreline frames
-    (the functionals whose SDs ``uncertainty`` reports)."""
+    the directors' axial rotation, and kyphosis, lordosis, Lenke's regional kyphoses T2–T5 and
+    T10–L2 and Cobb angles of the centreline frames (the functionals whose SDs ``uncertainty``
+    reports)."""
     from spine_engine.levels import LEVEL_INDEX
 
     rel = (r - r.mean(axis=0)).ravel()
     frames = frames_from_centreline(r)
     theta = frontal_tilt_deg(frames)
     cobb = [abs(theta[LEVEL_INDEX[u]] - theta[LEVEL_INDEX[lo]]) for u, lo in curves]
-    return np.concatenate([rel, axial_rotation_deg(R), kyphosis_lordosis_deg(frames), cobb])
+    lenke = lenke_inputs([], sagittal_inclination_deg(frames))
+    regional = [lenke.t2_t5_kyphosis_deg, lenke.t10_l2_kyphosis_deg]
+    return np.concatenate([rel, axial_rotation_deg(R), kyphosis_lordosis_deg(frames), regional, cobb])
 
 
 def test_functional_gradients_match_finite_differences() -> None:
