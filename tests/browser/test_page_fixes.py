@@ -80,12 +80,9 @@ def test_files_spacing_downloads_lenke_axes_and_print(
     lenke = job["result"]["measures"]["lenke"]
     rows = page.locator("#lenke tbody tr")
     for i, curve in enumerate(lenke["curves"]):
-        span, value = (
-            ("T2–T5", lenke["t2_t5_kyphosis_deg"])
-            if curve["region"] == "proximal_thoracic"
-            else ("T10–L2", lenke["t10_l2_kyphosis_deg"])
-        )
-        assert f"({span} {value:.1f}°)" in (rows.nth(i).locator("td").last.text_content() or "")
+        span, key = ("T2–T5", "t2_t5") if curve["region"] == "proximal_thoracic" else ("T10–L2", "t10_l2")
+        value, sd = lenke[f"{key}_kyphosis_deg"], lenke[f"{key}_kyphosis_sd_deg"]
+        assert f"({span} {value:.1f}° ± {sd:.1f}°" in (rows.nth(i).locator("td").last.text_content() or "")
     page.wait_for_selector("#view3d[data-shown]")
     labels = page.locator("#view3d .axis-label")
     assert sorted(labels.all_text_contents()) == ["x left", "y posterior", "z head"]

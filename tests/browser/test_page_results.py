@@ -47,7 +47,7 @@ def test_measures_csv_names_the_patient_in_utf8_and_holds_no_formula(
     raw = Path(info.value.path()).read_bytes()
     assert raw.startswith(BOM), raw[:20]
     rows = list(csv.reader(io.StringIO(raw.decode("utf-8-sig"))))
-    assert rows[0] == ["measure", "value", "model_estimate", "note"]
+    assert rows[0] == ["measure", "value", "sd", "unit", "model_estimate", "note"]
     about = {r[0]: r[1] for r in rows[1:5]}
     assert about["Patient"] == "Ørsted Zoë", about  # the report head's form of the DICOM PN
     assert about["Patient ID"] == "'=cmd", about  # text, not a formula
@@ -55,12 +55,12 @@ def test_measures_csv_names_the_patient_in_utf8_and_holds_no_formula(
     assert any("Cobb angle" in r[0] for r in rows), rows
     formulas = [c for r in rows for c in r if FORMULA_START.match(c) and not NUMBER.match(c)]
     assert not formulas, formulas
-    # a negative measure stays text with its sign and ± (unmarked, a spreadsheet takes "-11.3° ± 14.2°" for a
-    # formula and shows an error); the page's table gives the same value without the text mark
-    negative = [r for r in rows[5:] if r[1].startswith("'-")]
+    # a negative measure is a plain number a spreadsheet computes with (its SD a cell of its own), no text mark;
+    # the page's table gives the same value
+    negative = [r for r in rows[5:] if NUMBER.match(r[1]) and float(r[1]) < 0]
     assert negative, rows
     shown = page.locator("#measures tr", has_text=negative[0][0]).first.text_content() or ""
-    assert negative[0][1][1:] in shown, (negative[0], shown)
+    assert f"{float(negative[0][1]):.1f}°" in shown, (negative[0], shown)
     assert not watch.errors, watch.errors
     context.close()
 

@@ -27,9 +27,18 @@ export function saveApiKey(key: string): void {
 }
 
 export class ApiError extends Error {
-  constructor(readonly problem: Problem) {
+  /** `retryAfterMs`: the answer's Retry-After (RFC 9110 §10.2.3: delay-seconds or an HTTP-date), in ms from now. */
+  constructor(readonly problem: Problem, readonly retryAfterMs: number | null = null) {
     super(problem.detail || problem.title);
   }
+}
+
+/** A Retry-After header's wait in ms from now (delay-seconds or an HTTP-date, RFC 9110 §10.2.3); null without one. */
+function retryAfterMs(header: string | null): number | null {
+  if (!header) return null;
+  const text = header.trim();
+  const ms = /^\d+$/.test(text) ? Number(text) * 1000 : Date.parse(text) - Date.now();
+  return Number.isFinite(ms) ? Math.max(0, ms) : null;
 }
 
 function asProblem(status: number, body: unknown, fallback: string): Problem {
@@ -79,7 +88,7 @@ export class Api {
         : `HTTP ${response.status} ${response.statusText}`;
       const problem = asProblem(response.status, body, fallback);
       if (response.status === 401 || response.status === 403) this.onRefused(problem);
-      throw new ApiError(problem);
+      throw new ApiError(problem, retryAfterMs(response.headers.get("Retry-After")));
     }
     return body as T;
   }

@@ -80,7 +80,7 @@ export const RESULT_CSV_COLUMNS = [
   "d1_x", "d1_y", "d1_z", "d2_x", "d2_y", "d2_z", "d3_x", "d3_y", "d3_z",
   "u1_rad_per_mm", "u2_rad_per_mm", "u3_rad_per_mm", "v1", "v2", "v3",
   "sagittal_bending_deg", "frontal_bending_deg", "twist_deg", "axial_rotation_deg", "axial_rotation_sd_deg",
-  "pa_residual_mm", "model_estimate",
+  "pa_residual_mm", "model_estimate", "lateral_residual_mm",
 ];
 
 /** Columns that come from the model's prior when fit.unreliable names the quantity. */
@@ -109,9 +109,12 @@ export function csvBlob(text: string): Blob {
   return new Blob(["\ufeff", text.replace(/\r?\n/g, "\r\n")], { type: "text/csv;charset=utf-8" });
 }
 
-/** One row per vertebra: pose (LPS mm, directors as rows) with SDs, strains, angles, PA residual and model marks. */
+/** One row per vertebra: pose (LPS mm, directors as rows) with SDs, strains, angles, PA residual and model marks,
+ * then the lateral residual (appended last, so the earlier columns keep their places; empty for a level
+ * without a lateral landmark or a PA-only job). */
 export function resultCsv(result: RegistrationResult): string {
   const residual = new Map(result.fit.residuals.filter((r) => r.view === "pa").map((r) => [r.level, r.residual_mm]));
+  const lateral = new Map(result.fit.residuals.filter((r) => r.view === "lateral").map((r) => [r.level, r.residual_mm]));
   const model = (result.fit.unreliable ?? []).flatMap((q) => MODEL_COLUMNS[q] ?? []).join(";");
   const rows = [RESULT_CSV_COLUMNS.join(",")];
   for (const v of result.vertebrae) {
@@ -119,18 +122,39 @@ export function resultCsv(result: RegistrationResult): string {
       v.level, ...v.position, ...(v.position_sd_mm ?? [null, null, null]), ...v.directors.flat(),
       ...(v.u ?? [null, null, null]), ...(v.v ?? [null, null, null]),
       sagittalBending(v), frontalBending(v), v.twist_deg,
-      v.axial_rotation_deg, v.axial_rotation_sd_deg, residual.get(v.level), model,
+      v.axial_rotation_deg, v.axial_rotation_sd_deg, residual.get(v.level), model, lateral.get(v.level),
     ].map(cell).join(","));
   }
   return rows.join("\n") + "\n";
 }
 
-/** The measures as the page shows them: name, value with ±, whether it is a model estimate, and the note;
- * first the rows `about` that say whose they are (patient, patient ID, study date, job), as the printed
- * report's head does, so that a file saved apart from the page still names its patient. */
-export function measuresCsv(rows: { name: string; value: string; model: boolean; note?: string }[], about: [string, string][] = []): string {
-  const out = ["measure,value,model_estimate,note"];
-  for (const [name, value] of about) out.push([name, value, "", ""].map(cell).join(","));
-  for (const r of rows) out.push([r.name, r.value, r.model ? "model estimate" : "", r.note ?? ""].map(cell).join(","));
+/** The measures CSV's columns: `value`, `sd` and `unit` named as the CLI's (`spine get --measures --format csv`,
+ * spine_client/tables.py `MEASURE_COLUMNS`), the model-estimate mark and the page's note after them. */
+export const MEASURES_CSV_COLUMNS = ["measure", "value", "sd", "unit", "model_estimate", "note"];
+
+/** One row of the measures CSV: its name, value, SD, unit, model-estimate mark and note; `amount` the value as a
+ * number (a measure without one keeps its words in `value`, its `sd` and `unit` empty). */
+interface MeasuresCsvRow {
+  name: string;
+  value: string;
+  model: boolean;
+  note?: string;
+  amount?: { value: number | null | undefined; sd?: number | null; unit: string };
+  more?: MeasuresCsvRow[];
+}
+
+/** The measures as the page shows them, each number in a cell of its own that a spreadsheet computes with:
+ * value and SD (plain numbers, in `unit`), whether it is a model estimate, and the note; a value in words
+ * ("none of 10° or more", the fit, the engine) stays words. First the rows `about` that say whose they are
+ * (patient, patient ID, study date, job), as the printed report's head does, so that a file saved apart
+ * from the page still names its patient. */
+export function measuresCsv(rows: MeasuresCsvRow[], about: [string, string][] = []): string {
+  const out = [MEASURES_CSV_COLUMNS.join(",")];
+  const finite = (x: number | null | undefined): number | null => (typeof x === "number" && Number.isFinite(x) ? x : null);
+  for (const [name, value] of about) out.push([name, value, "", "", "", ""].map(cell).join(","));
+  for (const r of rows.flatMap((row) => [row, ...(row.more ?? [])])) {
+    const [value, sd, unit] = r.amount ? [finite(r.amount.value), finite(r.amount.sd), r.amount.unit] : [r.value, null, ""];
+    out.push([r.name, value, sd, unit, r.model ? "model estimate" : "", r.note ?? ""].map(cell).join(","));
+  }
   return out.join("\n") + "\n";
 }

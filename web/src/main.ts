@@ -5,12 +5,12 @@
 import "./style.css";
 import { Api, ApiError, loadApiKey, saveApiKey } from "./api";
 import { capabilities, type Capabilities } from "./capabilities";
-import { GEOMETRY_FIELD_WORDS, geometryProblems } from "./checks";
+import { GEOMETRY_FIELD_WORDS, geometryProblems, skippedVertebraWarnings } from "./checks";
 import { csvBlob, landmarkCsv, measuresCsv, parseLandmarkCsv, resultCsv } from "./csv";
 import { personName } from "./dicom";
 import { changesTable, estimateNotes, fillFollowUp, notVisitWords, RULE_WORDS, undatedWords, visitsTable } from "./followup";
 import { NoPacs, PacsOpener } from "./pacs";
-import { orientationWords, sentences } from "./messages";
+import { orientationWords, sentences, warningList } from "./messages";
 import { FilmPanel, type JobFilm, type ViewName } from "./panel";
 import { defaultBoundary, l5FromLandmarks, samplePayload } from "./payload";
 import { drawProjections, type Backdrop } from "./projections";
@@ -459,11 +459,18 @@ function missing(): string[] {
   return out;
 }
 
+/** The payload (as JSON) of the last send the service refused as it was (`REFUSES_DRAFT`): while the draft is
+ * still exactly that, "Before sending" says so instead of "Ready to send". */
+let refusedDraft: string | null = null;
+/** The answers to POST /v1/jobs that refuse its payload: malformed, too large, not JSON, or not a usable job. */
+const REFUSES_DRAFT = new Set([400, 413, 415, 422]);
+
 function updatePreview(): void {
   const payload = buildPayload();
   $("payload-preview").textContent = payload ? JSON.stringify(payload, null, 2) : "Give landmarks first.";
   const box = $("missing");
   const list = missing();
+  const refusedNow = !!payload && refusedDraft !== null && refusedDraft === JSON.stringify(payload);
   box.replaceChildren();
   if (list.length) {
     const p = document.createElement("p");
@@ -475,19 +482,28 @@ function updatePreview(): void {
       ul.append(li);
     }
     box.append(p, ul);
+  } else if (refusedNow) {
+    const p = document.createElement("p");
+    p.className = "refused";
+    p.textContent = "Refused when last sent: the service did not take this draft, for the reasons shown under the Reconstruct button. Change what they name, then send again.";
+    box.append(p);
   } else if (payload) {
     const p = document.createElement("p");
     p.className = "ready";
     p.textContent = `Ready to send: ${payload.lateral ? "PA and lateral films" : "the PA film"}, ${payload.boundary ? "with the given T1 and L5 poses" : "no T1/L5 poses assumed"}.`;
     box.append(p);
   }
+  const warnings = payload ? skippedVertebraWarnings(payload) : [];
+  if (warnings.length) box.append(warningList(warnings));
   box.dataset.ready = String(!list.length && !!payload);
+  box.dataset.refused = String(!list.length && refusedNow);
 }
 
 const statusLine = $("job-status");
 const problemBox = $("problem");
 const submitButton = $<HTMLButtonElement>("submit");
 const cancelButton = $<HTMLButtonElement>("cancel-job");
+const checkButton = $<HTMLButtonElement>("check-job");
 
 function showProblem(box: HTMLElement, problem: Problem | null, payload?: unknown): void {
   box.hidden = !problem;
@@ -613,7 +629,7 @@ submitButton.addEventListener("click", async () => {
     $("missing").focus?.();
     return;
   }
-  window.clearTimeout(pollTimer);
+  stopPolling();
   showProblem(problemBox, null);
   submitButton.disabled = true;
   statusLine.textContent = "Submitting…";
@@ -626,11 +642,15 @@ submitButton.addEventListener("click", async () => {
     if (backdrop) URL.revokeObjectURL(backdrop.url);
     backdrop = await under;
     replayedJob = replayed ? job.id : null;
+    refusedDraft = null;
     track(job);
   } catch (error) {
     void under.then((b) => b && URL.revokeObjectURL(b.url));
     statusLine.textContent = "The job was not accepted.";
     showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) }, payload);
+    // a refusal of the payload itself, not of the key (401, 403) nor a service out of reach (0, 429, 5xx)
+    refusedDraft = error instanceof ApiError && REFUSES_DRAFT.has(error.problem.status) ? JSON.stringify(payload) : null;
+    updatePreview();
   } finally {
     submitButton.disabled = false;
     // A disabled button loses the focus (to the page's body): give it back when the answer is in.
@@ -650,8 +670,45 @@ cancelButton.addEventListener("click", async () => {
   }
 });
 
-function track(job: Job, started = Date.now(), failures = 0): void {
+/** When the service last answered about the tracked job (ms since the epoch), and how many polls in a
+ * row since then it has not (no answer, or an answer that waiting may change). */
+let lastAnswer = 0;
+let unanswered = 0;
+/** The job whose poll is waiting for the service ("Check now" then asks nothing more). */
+let polling: string | null = null;
+/** The job the page polls, and since when it has followed it (ms): none once another job is opened or sent. */
+let following: { id: string; started: number } | null = null;
+
+/** Poll no more (another job is opened or sent): an answer about the job followed until now is dropped. */
+function stopPolling(): void {
+  window.clearTimeout(pollTimer);
+  following = null;
+  checkButton.hidden = true;
+  delete statusLine.dataset.tracking;
+}
+
+/** An answer that waiting may change: none at all (network error, status 0), 408, 429 and 5xx (an API
+ * restarting, a proxy without its upstream). 401/403 (the key) and 404 (no such job) will not. */
+const transient = (status: number): boolean => !status || status === 408 || status === 429 || status >= 500;
+
+/** The wait (ms) before the next poll after `tries` unanswered polls in a row: 1 s doubling to at most 30 s,
+ * or the answer's Retry-After when it gives one (at least 1 s; at most 10 min, "Check now" asks sooner). */
+function retryDelay(tries: number, retryAfterMs: number | null): number {
+  if (retryAfterMs !== null) return Math.min(Math.max(retryAfterMs, 1000), 600_000);
+  return Math.min(1000 * 2 ** (tries - 1), 30_000);
+}
+
+const clock = (ms: number): string => new Date(ms).toLocaleTimeString();
+
+/** Show the job as the service last gave it and, until it is final, poll it again (every 0.4 s for its first
+ * 30 s, then every 2 s). Called with each answer about the job. */
+function track(job: Job, started = Date.now()): void {
   currentJob = job;
+  following = { id: job.id, started };
+  lastAnswer = Date.now();
+  unanswered = 0;
+  checkButton.hidden = true;
+  delete statusLine.dataset.tracking;
   const seconds = ((Date.now() - started) / 1000).toFixed(1);
   statusLine.dataset.status = job.status;
   const final = FINAL_STATUSES.has(job.status);
@@ -665,23 +722,69 @@ function track(job: Job, started = Date.now(), failures = 0): void {
   noResult(job);
   if (job.status === "failed" && job.error) showProblem(problemBox, job.error, job.payload);
   if (final) return;
-  const delay = Date.now() - started < 30_000 ? 400 : 2000;
-  pollTimer = window.setTimeout(async () => {
-    try {
-      const now = await api.job(job.id);
-      if (currentJob?.id !== job.id) return; // another job was opened while the service answered
-      track(now, started, 0);
-    } catch (error) {
-      if (currentJob?.id !== job.id) return;
-      if (failures >= 5) {
-        statusLine.textContent = `Lost track of job ${job.id}.`;
-        if (error instanceof ApiError) showProblem(problemBox, error.problem);
-        return;
-      }
-      track(job, started, failures + 1);
-    }
-  }, delay);
+  schedulePoll(job, started, Date.now() - started < 30_000 ? 400 : 2000);
 }
+
+function schedulePoll(job: Job, started: number, delay: number): void {
+  window.clearTimeout(pollTimer);
+  pollTimer = window.setTimeout(() => void poll(job, started), delay);
+}
+
+/** Ask the service for the job once. Without an answer, or with one that waiting may change, ask again
+ * later (`retryDelay`), for as long as the job is the page's: the service keeps the job (stored in its
+ * database) and its worker goes on with it whether or not the page reaches it. An answer that waiting
+ * will not change (401, 403, 404, …) stops the polling and is shown. */
+async function poll(job: Job, started: number): Promise<void> {
+  window.clearTimeout(pollTimer);
+  polling = job.id;
+  let answer: Job;
+  try {
+    answer = await api.job(job.id);
+  } catch (error) {
+    if (following?.id !== job.id || currentJob?.id !== job.id) return; // another job was opened or sent meanwhile
+    const problem: Problem = error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) };
+    if (!transient(problem.status)) {
+      stopTracking(job, problem);
+      return;
+    }
+    unanswered += 1;
+    const wait = retryDelay(unanswered, error instanceof ApiError ? error.retryAfterMs : null);
+    sayUnanswered(job, problem, wait);
+    schedulePoll(job, started, wait);
+    return;
+  } finally {
+    if (polling === job.id) polling = null;
+  }
+  if (following?.id !== job.id || currentJob?.id !== job.id) return; // another job was opened or sent while the service answered
+  track(answer, started);
+}
+
+/** The status line while the service does not answer about the job: since when, why, when the page asks again. */
+function sayUnanswered(job: Job, problem: Problem, wait: number): void {
+  statusLine.dataset.tracking = "retrying";
+  const why = problem.status ? `HTTP ${problem.status}, ${problem.detail || problem.title}` : problem.detail || problem.title;
+  statusLine.textContent = `The service has not answered about job ${job.id} since ${clock(lastAnswer)} (${unanswered} ${unanswered === 1 ? "try" : "tries"}; the last: ${why}). ` +
+    `The job is kept by the service, which goes on with it (it was ${job.status} then). ` +
+    `The page asks again at ${clock(Date.now() + wait)}, or at once with “Check now”.`;
+  checkButton.hidden = false;
+}
+
+/** Stop polling the job: the service's answer (401, 403, 404, …) will not change by waiting. */
+function stopTracking(job: Job, problem: Problem): void {
+  statusLine.dataset.tracking = "stopped";
+  checkButton.hidden = true;
+  const why = problem.status === 404
+    ? "the service has no such job for this API key"
+    : problem.status === 401 || problem.status === 403
+    ? "the service refused the API key (said at the top of the page)"
+    : `the service answered HTTP ${problem.status}`;
+  statusLine.textContent = `Stopped following job ${job.id}: ${why}, which waiting will not change (the problem is shown below).`;
+  showProblem(problemBox, problem);
+}
+
+checkButton.addEventListener("click", () => {
+  if (currentJob && following?.id === currentJob.id && polling !== currentJob.id) void poll(currentJob, following.started);
+});
 
 // ------------------------------------------------------------------ result and report
 
@@ -1084,7 +1187,7 @@ let openingJob: string | null = null;
 async function openJob(id: string): Promise<void> {
   openingJob = id;
   if (currentJob?.id === id) return;
-  window.clearTimeout(pollTimer);
+  stopPolling();
   statusLine.textContent = `Opening job ${id}…`;
   try {
     const job = await api.job(id);

@@ -81,3 +81,22 @@ export function orientationWords(error: { type: string; msg: string }, sent: [st
   }
   return `Refused by the service: ${said}${/[.!?]$/.test(said) ? "" : "."} Set the film's orientation here (the landmarks stay where they are) and Reconstruct again.`;
 }
+
+/** Warnings before sending, which do not stop it (the clinician may know better): a box "Check before
+ * sending" with one paragraph each, shown in the pre-send list's live region (`#missing`, polite); not
+ * list items, so that `#missing li` stays what stops the send. */
+export function warningList(lines: string[]): HTMLElement {
+  const box = document.createElement("div");
+  box.id = "send-warnings";
+  box.className = "warning";
+  const head = document.createElement("p");
+  head.textContent = "Check before sending (a warning: Reconstruct still sends it):";
+  box.append(head);
+  for (const line of lines) {
+    const p = document.createElement("p");
+    p.className = "send-warning";
+    p.textContent = line;
+    box.append(p);
+  }
+  return box;
+}

@@ -46,6 +46,14 @@ export function apexWords(curve: Pick<CobbCurve, "apex" | "apical_disc">): strin
   return curve.apical_disc && below ? `${curve.apex}/${below} disc` : curve.apex;
 }
 
+/** A measure as a number, for the measures CSV's `value`, `sd` and `unit` columns (the CLI's names and units,
+ * spine_client/tables.py `MEASURE_COLUMNS`: deg, mm; empty for a factor); null where the result gives none. */
+export interface Amount {
+  value: number | null | undefined;
+  sd?: number | null;
+  unit: string;
+}
+
 export interface MeasureRow {
   name: string;
   value: string;
@@ -53,6 +61,10 @@ export interface MeasureRow {
   note?: string;
   /** Why the value is a model estimate, where the page says more than the general mark. */
   reason?: string;
+  /** The value as a number with its SD (the CSV); absent where the value is words ("none of 10° or more"). */
+  amount?: Amount;
+  /** Rows of the CSV only: further numbers the value's words hold (the Cobb angle in the plane of maximum curvature). */
+  more?: MeasureRow[];
 }
 
 /** The measures as rows of words (the page's table, the printed report and the CSV share them). */
@@ -70,6 +82,7 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
     rows.push({
       name: `Largest frontal angle ${largest.upper}–${largest.lower}`,
       value: withSd(largest.angle_deg, largest.angle_sd_deg),
+      amount: { value: largest.angle_deg, sd: largest.angle_sd_deg, unit: "deg" },
       model: cobb,
       note: "below the 10° of a scoliotic curve",
       reason: cobbReason,
@@ -79,6 +92,7 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
     rows.push({
       name: `${c.major ? "Major" : "Minor"} curve ${c.upper}–${c.lower}, Cobb angle`,
       value: withSd(c.angle_deg, c.angle_sd_deg),
+      amount: { value: c.angle_deg, sd: c.angle_sd_deg, unit: "deg" },
       model: cobb,
       note: `apex ${apexWords(c)}, convex to the patient's ${c.convexity}`,
       reason: cobbReason,
@@ -89,22 +103,30 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
       // an apical disc has no rotation of its own: the engine gives its upper vertebra's (`apex`)
       name: c.apical_disc ? `Apex ${apexWords(c)}: ${c.apex} axial rotation` : `Apex ${c.apex} axial rotation`,
       value: withSd(rotation, byLevel.get(c.apex)?.axial_rotation_sd_deg),
+      amount: { value: rotation, sd: byLevel.get(c.apex)?.axial_rotation_sd_deg, unit: "deg" },
       model: u.has("axial_rotation"),
       note: `the vertebral body turned ${toward || "straight ahead"} (positive: toward the patient's left, seen from above)`,
     });
     rows.push({
       name: `Plane of maximum curvature ${c.upper}–${c.lower}`,
       value: `${num(c.plane_of_max_curvature_deg)}° (Cobb ${num(c.max_curvature_deg)}° in it)`,
+      amount: { value: c.plane_of_max_curvature_deg, unit: "deg" },
       model: u.has("plane_of_max_curvature"),
       note: "azimuth from the frontal plane, toward anterior",
+      more: [{
+        name: `Cobb angle in the plane of maximum curvature ${c.upper}–${c.lower}`,
+        value: `${num(c.max_curvature_deg)}°`,
+        amount: { value: c.max_curvature_deg, unit: "deg" },
+        model: u.has("plane_of_max_curvature"),
+      }],
     });
   }
   if (cobb) rows.push({ name: "Frontal Cobb angles", value: "from the model's prior", model: true, note: COBB_ESTIMATE_REASON.replace(/^t/, "T"), reason: cobbReason });
-  if (m.aasce2019) rows.push({ name: `AASCE 2019 major angle ${m.aasce2019.upper}–${m.aasce2019.lower}`, value: `${num(m.aasce2019.angle_deg)}°`, model: false, note: "from the four corners" });
+  if (m.aasce2019) rows.push({ name: `AASCE 2019 major angle ${m.aasce2019.upper}–${m.aasce2019.lower}`, value: `${num(m.aasce2019.angle_deg)}°`, amount: { value: m.aasce2019.angle_deg, unit: "deg" }, model: false, note: "from the four corners" });
   const kyph = u.has("kyphosis");
-  rows.push({ name: "Thoracic kyphosis T4–T12", value: withSd(m.thoracic_kyphosis_t4_t12_deg, m.thoracic_kyphosis_t4_t12_sd_deg), model: kyph, note: "positive: convex posteriorly" });
-  rows.push({ name: "Thoracic kyphosis T5–T12", value: withSd(m.thoracic_kyphosis_t5_t12_deg, m.thoracic_kyphosis_t5_t12_sd_deg), model: kyph, note: "positive: convex posteriorly" });
-  rows.push({ name: "Lumbar lordosis L1–L5", value: withSd(m.lumbar_lordosis_l1_l5_deg, m.lumbar_lordosis_l1_l5_sd_deg), model: u.has("lordosis"), note: "positive: convex anteriorly" });
+  rows.push({ name: "Thoracic kyphosis T4–T12", value: withSd(m.thoracic_kyphosis_t4_t12_deg, m.thoracic_kyphosis_t4_t12_sd_deg), amount: { value: m.thoracic_kyphosis_t4_t12_deg, sd: m.thoracic_kyphosis_t4_t12_sd_deg, unit: "deg" }, model: kyph, note: "positive: convex posteriorly" });
+  rows.push({ name: "Thoracic kyphosis T5–T12", value: withSd(m.thoracic_kyphosis_t5_t12_deg, m.thoracic_kyphosis_t5_t12_sd_deg), amount: { value: m.thoracic_kyphosis_t5_t12_deg, sd: m.thoracic_kyphosis_t5_t12_sd_deg, unit: "deg" }, model: kyph, note: "positive: convex posteriorly" });
+  rows.push({ name: "Lumbar lordosis L1–L5", value: withSd(m.lumbar_lordosis_l1_l5_deg, m.lumbar_lordosis_l1_l5_sd_deg), amount: { value: m.lumbar_lordosis_l1_l5_deg, sd: m.lumbar_lordosis_l1_l5_sd_deg, unit: "deg" }, model: u.has("lordosis"), note: "positive: convex anteriorly" });
   const f = result.fit;
   for (const view of ["pa", "lateral"] as const) {
     const p = f[view];
@@ -114,17 +136,18 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
     rows.push({
       name: `${view === "pa" ? "PA" : "Lateral"} film scale`,
       value: `${num(p.scale, 3)}`,
+      amount: { value: p.scale, unit: "" },
       model: u.has("scale") || p.scale_source === "prior",
       note: `detector mm per patient mm${source}${p.model ? `, ${p.model.replace("_", " ")} projection` : ""}${p.rotation_deg !== undefined ? `, film rotated ${num(p.rotation_deg)}°` : ""}${cal}`,
     });
   }
   if (u.has("depth")) rows.push({ name: "Depth (front–back position)", value: "from the model", model: true, note: "no lateral film constrains it" });
   if (u.has("twist")) rows.push({ name: "Twist between vertebrae", value: "see the strains table", model: true });
-  rows.push({ name: "Mean PA registration error", value: `${num(f.mean_registration_error_mm, 2)} mm`, model: false });
+  rows.push({ name: "Mean PA registration error", value: `${num(f.mean_registration_error_mm, 2)} mm`, amount: { value: f.mean_registration_error_mm, unit: "mm" }, model: false });
   rows.push({ name: "Fit", value: `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`, model: false });
   const boundary = { given: "given (fixed)", soft: "given with an uncertainty", estimated: "not given: estimated from the landmarks and the model" }[f.boundary ?? "given"];
   rows.push({ name: "T1 and L5 poses", value: boundary, model: false });
-  if (f.uncertainty_scale !== undefined) rows.push({ name: "Uncertainty calibration factor", value: num(f.uncertainty_scale, 2), model: false, note: "applied to the standard deviations" });
+  if (f.uncertainty_scale !== undefined) rows.push({ name: "Uncertainty calibration factor", value: num(f.uncertainty_scale, 2), amount: { value: f.uncertainty_scale, unit: "" }, model: false, note: "applied to the standard deviations" });
   rows.push({ name: "Engine", value: `${result.engine.version}, profile ${result.engine.profile}`, model: false, note: `job ${job.id}` });
   return rows;
 }
@@ -159,6 +182,11 @@ export function fillMeasures(table: HTMLTableElement, job: Job, result: Registra
   table.tBodies[0].replaceChildren(...rows);
 }
 
+/** "; P(≥ +20°) 0.86": the probability the result gives of a Lenke criterion, or nothing without one. */
+function chance(p: number | null | undefined, what: string): string {
+  return p === null || p === undefined || !Number.isFinite(p) ? "" : `; P(${what}) ${p.toFixed(2)}`;
+}
+
 export function fillLenke(container: HTMLElement, result: RegistrationResult): void {
   const l = result.measures.lenke;
   const cobb = unreliable(result).has("cobb");
@@ -172,6 +200,7 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
   const table = document.createElement("table");
   table.className = "data";
   const cap = table.createCaption();
+  cap.id = "lenke-caption";
   cap.textContent = "Lenke inputs";
   const head = table.createTHead().insertRow();
   for (const h of ["Region", "Curve", "Apex", "Cobb", "Major", "≥ 25° (by magnitude)", "Regional kyphosis ≥ +20°"]) {
@@ -192,16 +221,26 @@ export function fillLenke(container: HTMLElement, result: RegistrationResult): v
     const curve = result.measures.cobb.find((k) => k.upper === c.upper && k.lower === c.lower && k.apex === c.apex);
     // Lenke's kyphosis criterion is regional (docs/measures.md): T2–T5 for the proximal thoracic curve,
     // T10–L2 for the others; the thoracic T5–T12 kyphosis sets the sagittal modifier, not this column.
-    const [span, kyphosis] = c.region === "proximal_thoracic" ? ["T2–T5", l.t2_t5_kyphosis_deg] : ["T10–L2", l.t10_l2_kyphosis_deg];
+    const [span, kyphosis, sd] = c.region === "proximal_thoracic"
+      ? ["T2–T5", l.t2_t5_kyphosis_deg, l.t2_t5_kyphosis_sd_deg] : ["T10–L2", l.t10_l2_kyphosis_deg, l.t10_l2_kyphosis_sd_deg];
     tr.append(td(region[c.region] ?? c.region), td(`${c.upper}–${c.lower}`), td(apexWords({ apex: c.apex, apical_disc: curve?.apical_disc })), td(`${num(c.angle_deg)}°`), td(c.major ? "yes" : "no"), td(c.structural_by_magnitude ? "yes" : "no"),
-      td(`${c.structural_by_kyphosis ? "yes" : "no"} (${span} ${num(kyphosis)}°)`));
+      td(`${c.structural_by_kyphosis ? "yes" : "no"} (${span} ${withSd(kyphosis, sd)}${chance(c.structural_by_kyphosis_probability, "≥ +20°")})`));
   }
   const facts = document.createElement("p");
   const modifier = { "-": "− (hypokyphotic, T5–T12 < 10°)", N: "N (normal, 10–40°)", "+": "+ (hyperkyphotic, > 40°)" }[l.sagittal_thoracic_modifier];
   facts.textContent = "The kyphosis criterion of a minor curve is regional (T2–T5 above a proximal thoracic curve, T10–L2 for the others); " +
-    `the thoracic kyphosis T5–T12 gives the sagittal modifier. Sagittal thoracic modifier ${modifier}; kyphosis T2–T5 ${num(l.t2_t5_kyphosis_deg)}°, T5–T12 ${num(l.t5_t12_kyphosis_deg)}°, T10–L2 ${num(l.t10_l2_kyphosis_deg)}°.` +
+    `the thoracic kyphosis T5–T12 gives the sagittal modifier. Sagittal thoracic modifier ${modifier}${chance(l.sagittal_thoracic_modifier_probability, "this class")}; ` +
+    `kyphosis T2–T5 ${withSd(l.t2_t5_kyphosis_deg, l.t2_t5_kyphosis_sd_deg)}, T5–T12 ${withSd(l.t5_t12_kyphosis_deg, l.t5_t12_kyphosis_sd_deg)}, T10–L2 ${withSd(l.t10_l2_kyphosis_deg, l.t10_l2_kyphosis_sd_deg)}.` +
     (l.not_supported.length ? ` Not given by the reconstruction: ${l.not_supported.join("; ").replace(/_/g, " ")}.` : "");
-  container.append(p, table, facts);
+  // Scrolled within its own box, as the other result tables: a phone-width window (320 CSS px, WCAG 2.1
+  // SC 1.4.10 Reflow) keeps the page from scrolling sideways; focusable and named so it scrolls by keyboard.
+  const scroll = document.createElement("div");
+  scroll.className = "table-scroll";
+  scroll.tabIndex = 0;
+  scroll.setAttribute("role", "region");
+  scroll.setAttribute("aria-labelledby", cap.id);
+  scroll.append(table);
+  container.append(p, scroll, facts);
 }
 
 /** The strains table's columns: head, tooltip, and the fit.unreliable entry that makes the column a model
@@ -210,6 +249,7 @@ const STRAIN_COLUMNS: [string, string, string | null][] = [
   ["Level", "", null], ["u1", "sagittal bending strain", "kyphosis"], ["u2", "frontal bending strain", null], ["u3", "twist strain", "twist"],
   ["v1", "shear", null], ["v2", "shear", null], ["v3", "stretch", null], ["Sagittal bending (°)", "", "kyphosis"], ["Frontal bending (°)", "", null],
   ["Twist (°)", "", "twist"], ["Axial rotation (°)", "positive toward the patient's left", "axial_rotation"], ["Position SD (mm, x y z)", "", null], ["PA residual (mm)", "", null],
+  ["Lateral residual (mm)", "“—” where the level has no landmark on the lateral film", null],
 ];
 
 export function fillStrains(table: HTMLTableElement, result: RegistrationResult): void {
@@ -228,6 +268,7 @@ export function fillStrains(table: HTMLTableElement, result: RegistrationResult)
   }
   table.tHead?.replaceChildren(head);
   const residual = new Map(result.fit.residuals.filter((r) => r.view === "pa").map((r) => [r.level, r.residual_mm]));
+  const lateral = new Map(result.fit.residuals.filter((r) => r.view === "lateral").map((r) => [r.level, r.residual_mm]));
   const rows = result.vertebrae.map((v) => {
     const tr = document.createElement("tr");
     const th = document.createElement("th");
@@ -241,6 +282,7 @@ export function fillStrains(table: HTMLTableElement, result: RegistrationResult)
       withSd(v.axial_rotation_deg, v.axial_rotation_sd_deg, ""),
       v.position_sd_mm ? v.position_sd_mm.map((x) => num(x, 1)).join(" ") : "—",
       num(residual.get(v.level), 2),
+      num(lateral.get(v.level), 2),
     ];
     for (const text of cells) tr.append(td(text));
     return tr;

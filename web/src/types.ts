@@ -90,11 +90,20 @@ export interface CobbCurve {
 
 export interface LenkeInputs {
   model_estimate: true;
-  curves: { region: string; upper: Level; lower: Level; apex: Level; angle_deg: number; major: boolean; structural_by_magnitude: boolean; structural_by_kyphosis: boolean }[];
+  curves: {
+    region: string; upper: Level; lower: Level; apex: Level; angle_deg: number; major: boolean; structural_by_magnitude: boolean; structural_by_kyphosis: boolean;
+    /** P(regional kyphosis ≥ +20°) under a normal of its value and SD; absent in results made before it. */
+    structural_by_kyphosis_probability?: number | null;
+  }[];
   t2_t5_kyphosis_deg: number;
   t5_t12_kyphosis_deg: number;
   t10_l2_kyphosis_deg: number;
+  t2_t5_kyphosis_sd_deg?: number | null;
+  t5_t12_kyphosis_sd_deg?: number | null;
+  t10_l2_kyphosis_sd_deg?: number | null;
   sagittal_thoracic_modifier: "-" | "N" | "+";
+  /** Probability of the modifier given under a normal of the T5–T12 kyphosis and its SD. */
+  sagittal_thoracic_modifier_probability?: number | null;
   not_supported: string[];
 }
 
