@@ -1,4 +1,4 @@
-"""The client's command line: ``spine submit | submit-dir | get | list | cancel | fhir``.
+"""The client's command line: ``spine submit | submit-dir | get | list | cancel | store | fhir``.
 
 Exit codes (docs/client.md), for scripts:
 
@@ -11,7 +11,8 @@ Exit codes (docs/client.md), for scripts:
     5  not found (no such job)
     6  authentication or authorisation refused (401, 403: check --api-key / SPINE_API_KEY)
     7  conflict with the job's state (cancel of a finished job, CSV or FHIR of a job without result,
-       an Idempotency-Key reused with another body)
+       an Idempotency-Key reused with another body, store of a job whose results are being stored or
+       are never stored)
   130  interrupted (Ctrl-C: SIGINT, 128 + 2, as a shell reports a command a signal ended)
   141  stdout closed by its reader (`| head -1`: SIGPIPE, 128 + 13); what was written stays written
 """
@@ -370,6 +371,34 @@ def cmd_cancel(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _store_line(job_id: str, attempt: dict[str, Any] | None) -> str:
+    """``spine store``'s line: the job's last STOW-RS entry in words (the request's, as the service answers
+    it: its run's first attempt, due)."""
+    if attempt is None:
+        return f"job {job_id}: no STOW-RS attempt listed"
+    number = attempt.get("attempt")
+    if attempt.get("requested_by"):
+        due = attempt.get("next_attempt_at") or attempt.get("attempted_at")
+        note = f"; {attempt['error']}" if attempt.get("error") else ""
+        return (f"job {job_id}: STOW-RS attempt {number} due at {due}, requested by {attempt['requested_by']}"
+                f"{note}")  # fmt: skip
+    if attempt.get("ok"):
+        return f"job {job_id}: STOW-RS attempt {number} stored {len(attempt.get('stored') or [])} instances"
+    return f"job {job_id}: STOW-RS attempt {number} failed: {attempt.get('problem_type')}: {attempt.get('error')}"
+
+
+def cmd_store(args: argparse.Namespace) -> int:
+    with _client(args) as client:
+        job = client.store_dicom(args.job_id)
+    body = job.model_dump(mode="json")
+    attempt = (body.get("dicom_stores") or [None])[-1]
+    if args.format == "json":
+        _print_json({"job_id": body.get("id"), "dicom_store": attempt})
+    else:
+        sys.stdout.write(_store_line(str(body.get("id")), attempt).translate(_CONTROLS) + "\n")
+    return EXIT_OK
+
+
 def cmd_fhir(args: argparse.Namespace) -> int:
     with _client(args) as client:
         bundle = client.fhir(args.job_id)
@@ -556,6 +585,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cancel", parents=[common], help="cancel a queued or running job")
     p.add_argument("job_id", metavar="ID")
     p.set_defaults(func=cmd_cancel)
+
+    p = sub.add_parser("store", parents=[common], help="store a succeeded job's results (SR, figure) in the "
+                       "service's PACS again; print the new attempt")  # fmt: skip
+    p.add_argument("job_id", metavar="ID")
+    p.add_argument("--format", choices=["text", "json"], default="text",
+                   help="text: one line (the default); json: the job's id and its last STOW-RS entry")  # fmt: skip
+    p.set_defaults(func=cmd_store)
 
     p = sub.add_parser("fhir", parents=[common], help="print a succeeded job's measures as a FHIR R4 Bundle")
     p.add_argument("job_id", metavar="ID")

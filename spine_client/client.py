@@ -331,6 +331,15 @@ class SpineClient:
         """POST /v1/jobs/{id}/cancel; ``JobNotCancellable`` when it already succeeded or failed."""
         return self._model(Job, "POST", f"/v1/jobs/{job_id}/cancel")
 
+    def store_dicom(self, job_id: uuid.UUID | str) -> Job:
+        """POST /v1/jobs/{id}/dicom-store: store a succeeded job's results (SR and figure) in the service's
+        PACS again, by a new run of attempts; the job as GET answers it, its ``dicom_stores`` ending with the
+        request's entry (``requested_by``, due now). ``DicomStorePending`` while an attempt is due or under
+        way (also when a retry of this request finds the first one taken), ``NoPatientIdentity`` for results
+        never stored, ``JobHasNoResult`` unless succeeded, ``NotFound`` for no such job or a service that
+        stores no results (its problem type says which)."""
+        return self._model(Job, "POST", f"/v1/jobs/{job_id}/dicom-store")
+
     # -- exports
     def fhir(self, job_id: uuid.UUID | str) -> dict[str, Any]:
         """GET /v1/jobs/{id}/fhir: the FHIR R4 Bundle of a succeeded job's measures."""

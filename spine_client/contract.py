@@ -168,6 +168,7 @@ class DicomStoreAttempt(OpenModel):
     error: str | None = None
     duration_ms: float | None = None
     next_attempt_at: datetime | None = None
+    requested_by: str | None = None
 
 
 class EngineInfo(OpenModel):

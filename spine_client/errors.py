@@ -73,6 +73,16 @@ class JobHasNoResult(Conflict):
     """The job has not succeeded (yet): no figure, CSV or FHIR export."""
 
 
+class DicomStorePending(Conflict):
+    """``spine store``: an attempt to store the job's results in the PACS is still due or under way (its
+    ``Retry-After``: the seconds until it is due)."""
+
+
+class NoPatientIdentity(Conflict):
+    """``spine store``: the job's results are never stored in a PACS: it has no study, or its study no
+    Patient ID."""
+
+
 class RateLimited(ApiError):
     """429, still after the client's retries."""
 
@@ -113,6 +123,8 @@ _CONFLICTS = {
     "idempotency-conflict": IdempotencyConflict,
     "job-not-cancellable": JobNotCancellable,
     "job-has-no-result": JobHasNoResult,
+    "dicom-store-pending": DicomStorePending,
+    "dicom-no-patient-identity": NoPatientIdentity,
 }
 
 

@@ -307,6 +307,7 @@ CLIENT_COMMANDS = {
     "get": "client: print a job as JSON, or its vertebrae or measures as CSV",
     "list": "client: list jobs, newest first",
     "cancel": "client: cancel a queued or running job",
+    "store": "client: store a succeeded job's results in the PACS again",
     "fhir": "client: print a succeeded job's measures as a FHIR R4 Bundle",
 }
 """Commands of the service's client (``spine_client.cli``), talking to SPINE_URL with SPINE_API_KEY."""

@@ -9,19 +9,30 @@ differ by more than ``SPINE_DICOMWEB_SWEEP_AFTER_S``. The times of an attempt, s
 they are ordered with the job's times and one another whatever the workers' clocks: ``attempted_at``
 is the database's time read with the job the attempt stores (``store_source``), or when attempt 0 is
 recorded (``record_unpublished``); ``next_attempt_at`` is ``attempted_at`` plus the retry delay.
+
+A run of attempts is ``SPINE_DICOMWEB_MAX_ATTEMPTS`` attempts from its first: the one the job's success
+publishes (attempt 1), or the one a request to store the results again (``POST
+/v1/jobs/{id}/dicom-store``, ``request_run``) makes due. Such a request is an entry of its own in
+``jobs.dicom_stores``, marked by ``requested_by``: it sends nothing, its ``attempt`` is the number of
+its run's first attempt (the last recorded attempt + 1, numbers go on) and its ``next_attempt_at`` when
+that attempt is due. The last request entry is where the budget starts (``first_of_run``).
 """
 
 from __future__ import annotations
 
+import logging
 import uuid
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
+from celery import Celery
 from pydantic import BaseModel, Field
 from sqlalchemy import ColumnElement, select, update
 from sqlalchemy.orm import Session
 
+from services.core.config import Settings
+from services.core.jobqueue import publish_dicom_store
 from services.core.status import JobStatus
 from services.db.clock import db_now, db_now_plus_s, seconds_until
 from services.db.job_forms import JobForms, job_forms
@@ -43,6 +54,28 @@ class DicomStoreAttempt(BaseModel):
     error: str | None = None
     duration_ms: float | None = None
     next_attempt_at: datetime | None = Field(None, description="When the next attempt is due; null: none.")
+    requested_by: str | None = Field(
+        None,
+        description="Set on the entry of a request to store the results again (POST /v1/jobs/{id}/dicom-store): "
+        "the client (API key name) that asked. That entry is no attempt, nothing was sent (ok false): `attempt` is "
+        "the number of the first attempt of the run it starts (numbers go on after the last recorded one), "
+        "`attempted_at` when it was asked, `next_attempt_at` when that attempt is due, and `error` says if its "
+        "message could not be published (the reconciler publishes it later). The run has SPINE_DICOMWEB_MAX_ATTEMPTS "
+        "attempts from that number. Null on an attempt.",
+    )
+
+
+log = logging.getLogger(__name__)
+
+
+class StorePending(Exception):
+    """A STOW-RS attempt of the job is still due or in flight (``dicom_store_due_at`` set): ``attempt``,
+    the number of the next attempt, is due in ``wait_s`` seconds (0: now, or being made)."""
+
+    def __init__(self, attempt: int, wait_s: float):
+        self.attempt = attempt
+        self.wait_s = wait_s
+        super().__init__(f"attempt {attempt} is due in {wait_s:.3f} s")
 
 
 @dataclass(frozen=True)
@@ -53,6 +86,8 @@ class StoreSource:
     finished_at: datetime | None
     read_at: datetime
     """The database's clock when the job was read, just before the attempt: its ``attempted_at``."""
+    first_of_run: int = 1
+    """The number of the first attempt of the attempt's run (``first_of_run``): the run's budget starts there."""
 
 
 def store_source(session: Session, job_id: uuid.UUID) -> StoreSource | None:
@@ -64,7 +99,8 @@ def store_source(session: Session, job_id: uuid.UUID) -> StoreSource | None:
     job, now = row
     if job.status != JobStatus.succeeded.value or job.result is None:
         return None
-    return StoreSource(forms=job_forms(job), finished_at=job.finished_at, read_at=now)
+    return StoreSource(forms=job_forms(job), finished_at=job.finished_at, read_at=now,
+                       first_of_run=first_of_run(job.dicom_stores))  # fmt: skip
 
 
 def due_in(delay: timedelta) -> ColumnElement[datetime]:
@@ -103,9 +139,65 @@ def record_unpublished(session: Session, job_id: uuid.UUID, error: str, sweep_af
     return attempt
 
 
+def _is_request(entry: dict[str, Any]) -> bool:
+    """Whether an entry of ``jobs.dicom_stores`` records a request for a new run, not an attempt."""
+    return bool(entry.get("requested_by"))
+
+
 def _next_number(stores: list[dict[str, Any]] | None) -> int:
-    """The number of the attempt after the last recorded one (1 when none is)."""
-    return max([int(s.get("attempt", 0)) for s in stores or []] + [0]) + 1
+    """The number of the attempt after the last recorded one (1 when none is); request entries are no
+    attempts (their number is the one this gives while their run has made none)."""
+    return max([int(s.get("attempt", 0)) for s in stores or [] if not _is_request(s)] + [0]) + 1
+
+
+def first_of_run(stores: list[dict[str, Any]] | None) -> int:
+    """The number of the first attempt of the job's current run of STOW-RS attempts: the last request
+    entry's (``request_run``), 1 when there is none (the run the job's success started)."""
+    return next((int(s["attempt"]) for s in reversed(stores or []) if _is_request(s)), 1)
+
+
+def request_run(session: Session, job_id: uuid.UUID, requested_by: str, sweep_after: timedelta) -> DicomStoreAttempt:
+    """Start a new run of STOW-RS attempts of a job (its row locked, in the caller's transaction, which
+    commits it before the attempt is published): append the request entry (``requested_by``, the
+    number of the run's first attempt, due now) and set the due time the sweep looks for,
+    ``sweep_after`` from now, on the database's clock. Raises ``StorePending`` when an attempt is still
+    due or in flight (``dicom_store_due_at`` set), with the seconds until it is due."""
+    locked = select(Job, db_now()).where(Job.id == job_id).with_for_update()
+    # populate_existing: the row as the lock found it, not as the session read it earlier (the API's lookup)
+    job, now = session.execute(locked.execution_options(populate_existing=True)).one()
+    stores = list(job.dicom_stores or [])
+    if job.dicom_store_due_at is not None:
+        raise StorePending(_next_number(stores), seconds_until(job.dicom_store_due_at - sweep_after, now))
+    entry = DicomStoreAttempt(attempt=_next_number(stores), attempted_at=now, ok=False, next_attempt_at=now,
+                              requested_by=requested_by)  # fmt: skip
+    session.execute(update(Job).where(Job.id == job_id).values(
+        dicom_stores=[*stores, entry.model_dump(mode="json")], dicom_store_due_at=due_in(sweep_after)))  # fmt: skip
+    return entry
+
+
+def publish_run(settings: Settings, session: Session, job_id: uuid.UUID, attempt: int, celery: Celery) -> bool:
+    """Publish the first attempt of a run ``request_run`` recorded (and committed). Never raises; a
+    message the broker refuses is written on the run's request entry (``error``: not published), its due
+    time set again ``SPINE_DICOMWEB_SWEEP_AFTER_S`` from now, so that the reconciler's sweep publishes it
+    then, as for a first attempt that could not be published (``record_unpublished``)."""
+    try:
+        publish_dicom_store(settings, job_id, attempt, celery=celery)
+        return True
+    except Exception as exc:
+        log.warning("could not publish STOW-RS attempt %d of job %s: %s", attempt, job_id, exc)
+        refused = type(exc).__name__
+    try:
+        locked = select(Job).where(Job.id == job_id).with_for_update().execution_options(populate_existing=True)
+        stores = [dict(s) for s in session.execute(locked).scalar_one().dicom_stores or []]
+        request = next(s for s in reversed(stores) if _is_request(s))
+        request["error"] = f"not published: {refused}"
+        due = due_in(timedelta(seconds=settings.dicomweb_sweep_after_s))
+        session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
+        session.commit()
+    except Exception as db_exc:
+        session.rollback()
+        log.error("STOW-RS attempt %d of job %s neither published nor recorded: %s", attempt, job_id, db_exc)
+    return False
 
 
 def next_attempt(session: Session, job_id: uuid.UUID, sweep_after: timedelta) -> tuple[int, float]:
@@ -123,10 +215,10 @@ def next_attempt(session: Session, job_id: uuid.UUID, sweep_after: timedelta) ->
 
 def overdue(
     session: Session, now: datetime | ColumnElement[datetime] | None = None, limit: int = 100
-) -> list[tuple[uuid.UUID, int]]:
+) -> list[tuple[uuid.UUID, int, int]]:
     """Jobs whose STOW-RS attempt is overdue (``dicom_store_due_at`` before ``now``, by default the
     database's clock: its message was never published or was lost), each with the number of its next
-    attempt (the last recorded + 1)."""
+    attempt (the last recorded + 1) and of the first attempt of its run (``first_of_run``)."""
     before = db_now() if now is None else now
     rows = session.execute(select(Job.id, Job.dicom_stores).where(Job.dicom_store_due_at < before).limit(limit)).all()
-    return [(job_id, _next_number(stores)) for job_id, stores in rows]
+    return [(job_id, _next_number(stores), first_of_run(stores)) for job_id, stores in rows]

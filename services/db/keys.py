@@ -221,7 +221,9 @@ def client_revoked(session: Session, owner: str) -> bool:
 
 # ------------------------------------------------------------------ audit
 
-AuditAction = Literal["create", "read", "list", "cancel"]
+AuditAction = Literal["create", "read", "list", "cancel", "store"]
+"""What a caller did to a job; ``store``: asked for its results to be stored in the PACS again
+(``POST /v1/jobs/{id}/dicom-store``)."""
 
 _AUDIT = insert(cast(Table, JobAudit.__table__)).values(at=db_now())
 """The insert of audit rows, ``at`` the database's clock (``services.db.clock``) in the statement: the

@@ -231,7 +231,8 @@ class ApiKey(Base):
 
 
 class JobAudit(Base):
-    """Who (key id) created, read, listed or cancelled which job, when, in which request."""
+    """Who (key id) created, read, listed, cancelled or had stored in the PACS again which job, when, in which
+    request."""
 
     __tablename__ = "job_audit"
 
@@ -246,7 +247,8 @@ class JobAudit(Base):
     request_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
 
     __table_args__ = (
-        CheckConstraint("action IN ('create', 'read', 'list', 'cancel')", name="action"),
+        # 'store': a request to store the job's results in the PACS again (migration 0014)
+        CheckConstraint("action IN ('create', 'read', 'list', 'cancel', 'store')", name="action"),
         Index("ix_job_audit_job_id_at", "job_id", "at"),
         Index("ix_job_audit_key_id_at", "key_id", "at"),
     )

@@ -10,6 +10,11 @@ attempt to the job, and when the PACS was unavailable or refused, publishes the 
 derive from the job, so a repeated attempt stores the same instances again (PACS replace or ignore
 them; none is duplicated).
 
+Again: ``POST /v1/jobs/{id}/dicom-store`` (``services.db.dicom_stores.request_run``) records a request
+and publishes the next attempt number, which starts a new run of ``SPINE_DICOMWEB_MAX_ATTEMPTS``
+attempts: this task, its retries and the sweep count the budget, and the backoff its delays, from the
+run's first attempt (``dicom_stores.first_of_run``), not from attempt 1.
+
 Only a job with the patient's identity is stored (``services.dicom.results.not_storable``, checked by
 ``store_job_results`` before anything is built or sent, so on every path: the first attempt, a retry,
 the sweep's): a job without ``study``, or whose study has no Patient ID, gets one attempt recorded with
@@ -53,9 +58,9 @@ log = logging.getLogger(__name__)
 
 
 def retry_delay_s(settings: Settings, attempt: int) -> float:
-    """Seconds before attempt ``attempt + 1`` of a STOW-RS push (and before a job whose PACS was
-    unavailable runs again): ``SPINE_DICOMWEB_RETRY_BASE_S`` · 2^(attempt − 1), at most
-    ``SPINE_DICOMWEB_RETRY_MAX_S``."""
+    """Seconds before attempt ``attempt + 1`` of a STOW-RS push, ``attempt`` counted within its run (1: the
+    run's first; and before a job whose PACS was unavailable runs again, ``attempt`` its run number):
+    ``SPINE_DICOMWEB_RETRY_BASE_S`` · 2^(attempt − 1), at most ``SPINE_DICOMWEB_RETRY_MAX_S``."""
     return float(min(settings.dicomweb_retry_max_s, settings.dicomweb_retry_base_s * 2 ** (attempt - 1)))
 
 
@@ -92,16 +97,17 @@ def _record(settings: Settings, job_id: uuid.UUID, attempt: DicomStoreAttempt) -
 def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:
     """Publish the STOW-RS attempt of every job whose attempt is overdue (``dicom_store_due_at`` past:
     its message was never published or was lost), as the next attempt number, and push its due time
-    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts is cleared. Both times are the
+    on by ``SPINE_DICOMWEB_SWEEP_AFTER_S``; a job out of attempts (``SPINE_DICOMWEB_MAX_ATTEMPTS`` from its
+    run's first, ``dicom_stores.first_of_run``) is cleared. Both times are the
     database's clock's (``services.db.clock``). Returns how many."""
     if not settings.stores_dicom_results:
         return 0
     sent = 0
     sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
     with session_scope(settings) as session:
-        for job_id, attempt in dicom_stores.overdue(session, limit=batch):
+        for job_id, attempt, first in dicom_stores.overdue(session, limit=batch):
             due: ColumnElement[datetime] | None = dicom_stores.due_in(sweep_after)
-            if attempt > settings.dicomweb_max_attempts:
+            if attempt > first + settings.dicomweb_max_attempts - 1:  # past its run's budget
                 due = None
             else:
                 publish_dicom_store(settings, job_id, attempt, celery=app)
@@ -125,9 +131,10 @@ def attempt_wait_s(settings: Settings, job_id: uuid.UUID, attempt: int, *, sched
 
 
 def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStoreAttempt:
-    """One STOW-RS attempt of the job's SR and SC; recorded on the job. Raises nothing from the PACS. A job
-    without the patient's identity (``NoPatientIdentity``) is recorded as not stored, with its reason,
-    and not retried."""
+    """One STOW-RS attempt of the job's SR and SC; recorded on the job, with the next attempt's time while
+    the run has attempts left (``SPINE_DICOMWEB_MAX_ATTEMPTS`` from its first, ``source.first_of_run``).
+    Raises nothing from the PACS. A job without the patient's identity (``NoPatientIdentity``) is
+    recorded as not stored, with its reason, and not retried."""
     config = settings.dicomweb
     with session_scope(settings) as session:
         source = dicom_stores.store_source(session, job_id)
@@ -135,6 +142,7 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         raise LookupError(f"job {job_id} has no result to store (or no SPINE_DICOMWEB_URL)")
     started = time.perf_counter()
     outcome = DicomStoreAttempt(attempt=attempt, attempted_at=source.read_at, ok=False)  # the database's clock
+    retried = True
     try:
         outcome.stored = store_job_results(config, job_id, source.forms, source.finished_at)
         outcome.ok = True
@@ -142,13 +150,14 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         outcome.problem_type, outcome.error = exc.problem, str(exc)
     except NoPatientIdentity as exc:  # nothing sent: not a failure of the PACS nor of the job, not retried
         outcome.problem_type, outcome.error = exc.problem, str(exc)
-        attempt = settings.dicomweb_max_attempts
+        retried = False
     except DicomError as exc:  # a result that cannot be put in DICOM: not retried
         outcome.problem_type, outcome.error = exc.problem, str(exc)
-        attempt = settings.dicomweb_max_attempts
+        retried = False
     outcome.duration_ms = (time.perf_counter() - started) * 1000.0
-    if not outcome.ok and attempt < settings.dicomweb_max_attempts:
-        outcome.next_attempt_at = outcome.attempted_at + timedelta(seconds=retry_delay_s(settings, attempt))
+    in_run = attempt - source.first_of_run + 1  # the attempt's place in its run: the budget and the backoff
+    if not outcome.ok and retried and in_run < settings.dicomweb_max_attempts:
+        outcome.next_attempt_at = outcome.attempted_at + timedelta(seconds=retry_delay_s(settings, in_run))
     _record(settings, job_id, outcome)
     return outcome
 
@@ -177,6 +186,6 @@ def register_dicom_tasks(app: Celery, settings: Settings) -> None:
             log.warning("STOW-RS skipped: %s", exc)
             return
         if outcome.next_attempt_at is not None:
-            delay = retry_delay_s(settings, outcome.attempt)
+            delay = (outcome.next_attempt_at - outcome.attempted_at).total_seconds()  # the run's backoff (store_once)
             publish_dicom_store(settings, parsed, outcome.attempt + 1, countdown=delay, celery=app)
         log.info("STOW-RS of job %s attempt %d: %s", job_id, outcome.attempt, "stored" if outcome.ok else outcome.error)

@@ -65,9 +65,10 @@ def _succeed(settings: Settings, job_id: str, result: dict[str, Any]) -> None:
 
 
 def test_every_json_route_answers_through_its_response_model(
-    app_settings: tuple[TestClient, Settings], payload: dict[str, Any], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    api, _ = app_settings
+    app_settings: tuple[TestClient, Settings], payload: dict[str, Any], result: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:  # fmt: skip
+    api, settings = app_settings
     seen: list[Any] = []
     serialize = fastapi.routing.serialize_response
 
@@ -80,13 +81,17 @@ def test_every_json_route_answers_through_its_response_model(
     # has them on a real Orthanc).
     monkeypatch.setattr(Settings, "dicomweb", property(lambda _settings: DicomwebConfig("http://127.0.0.1:9/dicom-web")))
     monkeypatch.setattr(Pacs, "study_images", lambda _self, _study: [])
+    monkeypatch.setattr(Settings, "stores_dicom_results", property(lambda _settings: True))  # for dicom-store
     job_id = api.post("/v1/jobs", json=payload).json()["id"]
+    storable = api.post("/v1/jobs", json={**payload, "study": {"study_instance_uid": "1.2.3", "patient_id": "P-1"}})
+    _succeed(settings, stored_id := storable.json()["id"], result)  # a succeeded job with the patient's identity
     calls: dict[tuple[str, str], tuple[str, str, dict[str, Any] | None]] = {
         ("POST", "/v1/jobs"): ("POST", "/v1/jobs", payload),
         ("POST", "/v1/jobs/batch"): ("POST", "/v1/jobs/batch", {"jobs": [payload, {"not": "a payload"}]}),
         ("GET", "/v1/jobs"): ("GET", "/v1/jobs", None),
         ("GET", "/v1/jobs/{job_id}"): ("GET", f"/v1/jobs/{job_id}", None),
         ("POST", "/v1/jobs/{job_id}/cancel"): ("POST", f"/v1/jobs/{job_id}/cancel", None),
+        ("POST", "/v1/jobs/{job_id}/dicom-store"): ("POST", f"/v1/jobs/{stored_id}/dicom-store", None),
         ("GET", "/v1/pacs"): ("GET", "/v1/pacs", None),
         ("GET", "/v1/pacs/studies/{study_instance_uid}/images"): ("GET", "/v1/pacs/studies/1.2.3/images", None),
         ("GET", "/healthz"): ("GET", "/healthz", None),

@@ -134,7 +134,8 @@ JOB_ID = "00000000-0000-4000-8000-000000000000"
 @pytest.mark.parametrize("call", [
     lambda c: c.get(JOB_ID), lambda c: c.get_json(JOB_ID), lambda c: c.list(), lambda c: c.cancel(JOB_ID),
     lambda c: c.submit({}), lambda c: c.fhir(JOB_ID), lambda c: c.figure(JOB_ID), lambda c: c.sr(JOB_ID),
-], ids=["get", "get_json", "list", "cancel", "submit", "fhir", "figure", "sr"])  # fmt: skip
+    lambda c: c.store_dicom(JOB_ID),
+], ids=["get", "get_json", "list", "cancel", "submit", "fhir", "figure", "sr", "store_dicom"])  # fmt: skip
 def test_an_answer_that_is_not_the_contracts_is_an_unexpected_response(
     status: int, headers: dict[str, str], body: bytes, call: Any
 ) -> None:

@@ -1,9 +1,10 @@
-"""/v1/jobs: create (one or a batch), read, list and cancel jobs."""
+"""/v1/jobs: create (one or a batch), read, list and cancel jobs; store a job's results in the PACS again."""
 
 from __future__ import annotations
 
+import math
 import uuid
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Annotated, Any
 
@@ -25,10 +26,14 @@ from services.api.schemas import (
     problem_responses,
 )
 from services.core.problems import problem, validation_problem
+from services.core.status import JobStatus
+from services.db import dicom_stores
 from services.db import jobs as jobs_repo
 from services.db.deliveries import deliveries, job_ended
+from services.db.job_forms import job_forms
 from services.db.jobs import MAX_BATCH_KEY_LENGTH
 from services.db.runs import publish
+from services.dicom.results import NOT_STORABLE, not_storable
 from spine_engine.errors import FieldError, InvalidInput
 from spine_engine.models import (
     DICOM_LO_MAX_LENGTH,
@@ -309,3 +314,94 @@ def cancel_job(
     if url and cancelled_now:  # a repeated cancel sends no second webhook
         job_ended(settings, job.id, "cancelled", url=url, celery=queue)
     return Job.summary(job)
+
+
+STORE_AGAIN_RESPONSES: dict[int | str, dict[str, Any]] = {
+    202: {
+        "description": "Accepted: the job as GET /v1/jobs/{id} answers it, its `dicom_stores` ending with the "
+        "request's entry (`requested_by`, the new run's first attempt number, due now).",
+        "headers": {
+            "Location": {
+                "description": "The job's URL, `/v1/jobs/{id}` (relative to the service): its attempts' list.",
+                "required": True,
+                "schema": {"type": "string", "format": "uri-reference"},
+            }
+        },
+    },
+    409: {
+        "description": "`job-has-no-result` (the job has not succeeded), `dicom-no-patient-identity` (its results "
+        "are never stored: no study, or no Patient ID), or `dicom-store-pending` (an attempt is still due or under "
+        "way; `Retry-After`: the seconds until it is due, at least 1).",
+        "headers": {
+            "Retry-After": {
+                "description": "With `dicom-store-pending`: the seconds until the attempt is due (at least 1).",
+                "schema": {"type": "integer", "minimum": 1},
+            }
+        },
+    },
+}
+
+
+@router.post(
+    "/{job_id}/dicom-store",
+    status_code=202,
+    response_model=Job,
+    response_model_exclude_unset=True,
+    summary="Store a succeeded job's results in the PACS again",
+    description="Publishes a new run of STOW-RS attempts of the job's SR and figure (Secondary Capture): for the "
+    "results of a job whose attempts all failed (a PACS outage longer than the retries), or that a PACS lost. "
+    "The instances' UIDs derive from the job, so the same instances are stored again. Attempt numbers go on "
+    "after the last recorded one, and the run has SPINE_DICOMWEB_MAX_ATTEMPTS attempts from its first; each "
+    "is listed in the job's `dicom_stores`. Allowed to whoever may cancel the job (its owner, an admin key), "
+    "audited as `store`. 404 `not-found` for a job the key may not see; 404 `dicomweb-not-configured` when the "
+    "service has no PACS (SPINE_DICOMWEB_URL unset), 404 `dicomweb-store-disabled` when it stores no results "
+    "(SPINE_DICOMWEB_STORE_RESULTS off); 409 `job-has-no-result`, `dicom-no-patient-identity` or "
+    "`dicom-store-pending` (with Retry-After).",
+    responses={
+        202: STORE_AGAIN_RESPONSES[202],
+        **problem_responses(404),
+        409: {**problem_responses(409)[409], **STORE_AGAIN_RESPONSES[409]},  # the problem with its Retry-After
+        **problem_responses(422),
+    },
+)
+def store_job_again(
+    job_id: uuid.UUID,
+    response: Response,
+    session: SessionDep,
+    access: AccessDep,
+    queue: QueueDep,
+    settings: SettingsDep,
+) -> Job:
+    try:
+        job = jobs_repo.get_job(session, job_id, owner=access.owner)
+    except jobs_repo.JobNotFound:
+        raise job_reads.not_found(job_id) from None
+    location = _location(job_id)
+    if settings.dicomweb is None:
+        raise ProblemError(problem("dicomweb-not-configured", "the service is not connected to a PACS "
+                                   "(SPINE_DICOMWEB_URL is unset), so it stores no results there"))  # fmt: skip
+    if not settings.stores_dicom_results:  # the worker's test (dicom_tasks.job_succeeded)
+        raise ProblemError(problem("dicomweb-store-disabled", "the service does not store results in its PACS "
+                                   "(SPINE_DICOMWEB_STORE_RESULTS is off)"))  # fmt: skip
+    if job.status != JobStatus.succeeded.value or job.result is None:
+        detail = f"job {job_id} is {job.status}: only a succeeded job's results are stored in the PACS"
+        raise ProblemError(problem("job-has-no-result", detail, job_status=str(job.status), job=location))
+    reason = not_storable(job_forms(job))
+    if reason is not None:
+        raise ProblemError(problem(NOT_STORABLE, f"job {job_id}'s results are {reason}", job=location))
+    sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
+    try:
+        entry = dicom_stores.request_run(session, job_id, access.client, sweep_after)
+    except dicom_stores.StorePending as exc:
+        session.rollback()
+        wait_s = max(1, math.ceil(exc.wait_s))  # Retry-After: whole seconds (RFC 9110 §10.2.3), at least 1
+        when = f"due in about {wait_s} s" if exc.wait_s > 0 else "due now or under way"
+        detail = (f"attempt {exc.attempt} to store job {job_id}'s results in the PACS is {when}; ask again once it "
+                  "is recorded on the job (dicom_stores)")  # fmt: skip
+        raise ProblemError(problem("dicom-store-pending", detail, attempt=exc.attempt, job=location),
+                           headers={"Retry-After": str(wait_s)}) from None  # fmt: skip
+    access.record(session, "store", [job_id])  # commits the request with its audit row, before publishing
+    dicom_stores.publish_run(settings, session, job_id, entry.attempt, queue)
+    session.refresh(job)
+    response.headers["Location"] = location
+    return Job.detail(job, deliveries(session, job.id) if job.callback_url is not None else [])
