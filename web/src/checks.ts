@@ -171,10 +171,12 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
     if (top) placed.push({ level, top, corners });
   }
   const bad = new Set(out.map((p) => p.level));
+  // landmarks in order along another direction than the orientation's: the orientation is blamed, not the order
+  const judgeOrder = headAxis !== null && !orderAlongAnother(placed.map((p) => p.top), headAxis, towardHead);
   for (let i = 1; i < placed.length; i++) {
     const upper = placed[i - 1];
     const lower = placed[i];
-    if (headAxis !== null && (lower.top[headAxis] - upper.top[headAxis]) * down <= 0) {
+    if (judgeOrder && headAxis !== null && (lower.top[headAxis] - upper.top[headAxis]) * down <= 0) {
       out.push({ level: lower.level, text: `it is placed above ${upper.level} (levels go down the spine in order: was a level skipped or repeated?)`, short: `above ${upper.level}` });
       continue;
     }
@@ -187,6 +189,64 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
     }
   }
   return out;
+}
+
+// ---------------------------------------------------------------- the order that says the orientation is wrong
+
+/** The fewest placed levels whose order is taken as evidence of the film's head-to-feet direction: two steps
+ * that agree (with one step, a level placed above the one before it is as likely a mislabel). */
+export const ORDER_EVIDENCE_LEVELS = 3;
+
+/** An image direction: along columns (0) or rows (1), toward the patient's head or feet as the index grows. */
+export interface HeadToFeet {
+  axis: 0 | 1;
+  toward: "H" | "F";
+}
+
+/**
+ * When the top endplate midpoints `tops` (in level order, image (column, row)) are out of order along the stated
+ * head-to-feet direction (`headAxis`, toward the head when `towardHead`: validation.py `_head_to_feet_axis`,
+ * `_order_errors`, held strictly as the page's order check is) but every step runs one way along the opposite
+ * direction or along the other image axis, the direction they do run in (the landmarks run head to feet in level
+ * order: growing rows are toward F, shrinking toward H); null otherwise, or with fewer than ORDER_EVIDENCE_LEVELS
+ * levels. A film clicked top to bottom whose rows are said to run toward H, or whose rows and columns are
+ * swapped, reads so: the orientation, not every landmark, is the likelier mistake (the service says so at
+ * `<view>.patient_orientation` as `spine_across_the_film` when the order is within its noise allowance).
+ */
+export function orderAlongAnother(tops: Vec2[], headAxis: 0 | 1 | null, towardHead: boolean): HeadToFeet | null {
+  if (headAxis === null || tops.length < ORDER_EVIDENCE_LEVELS) return null;
+  const steps = tops.slice(1).map((p, i): Vec2 => [p[0] - tops[i][0], p[1] - tops[i][1]]);
+  const inOrder = (axis: 0 | 1, sign: number): boolean => steps.every((d) => d[axis] * sign > 0);
+  const stated = towardHead ? -1 : 1;
+  if (inOrder(headAxis, stated)) return null;
+  const other: 0 | 1 = headAxis === 1 ? 0 : 1;
+  const found = ([[headAxis, -stated], [other, 1], [other, -1]] as [0 | 1, number][]).find(([axis, sign]) => inOrder(axis, sign));
+  return found ? { axis: found[0], toward: found[1] > 0 ? "F" : "H" } : null;
+}
+
+/**
+ * The words of `orderAlongAnother`'s finding on a film with orientation [column, row], and the orientation
+ * controls to change (0: toward the image's right, 1: toward its bottom): the landmarks `first`–`last` run in
+ * order along another direction than the orientation says, so the orientation is likely wrong; what to choose.
+ */
+export function orientationFromOrder(view: "pa" | "lateral", orientation: readonly [string, string], found: HeadToFeet, first: Level, last: Level): { text: string; controls: (0 | 1)[] } {
+  const where = ["toward the image's right", "toward its bottom"];
+  const runs = found.axis === 1 ? (found.toward === "F" ? "down the image (head at its top)" : "up the image (head at its bottom)")
+    : found.toward === "F" ? "across the image, head at its left" : "across the image, head at its right";
+  const statedAxis = UPRIGHT_ROWS.includes(orientation[1]) ? 1 : 0;
+  const says = `the orientation says the patient's ${dir(orientation[statedAxis])} is ${where[statedAxis]}`;
+  const other: 0 | 1 = found.axis === 1 ? 0 : 1;
+  const across = view === "pa" ? "L (left side) or R (right side)" : "A (front, anterior) or P (back, posterior)";
+  const controls: (0 | 1)[] = [found.axis];
+  let choose = `choose “${dir(found.toward)}” for “${ORIENTATION_LABELS[found.axis]}”`;
+  if (UPRIGHT_ROWS.includes(orientation[other])) {
+    choose += ` and ${across} for “${ORIENTATION_LABELS[other]}”`;
+    controls.push(other);
+  }
+  return {
+    text: `the landmarks ${first}–${last} run in order ${runs}, but ${says}, so they read as out of order: the orientation is likely wrong, not the landmarks. Look at the film: if the patient's ${found.toward === "F" ? "feet are" : "head is"} ${found.axis === 1 ? "toward its bottom" : "toward its right"}, ${choose} under the film (the landmarks stay where they are)`,
+    controls: controls.sort(),
+  };
 }
 
 // ---------------------------------------------------------------- acquisition geometry

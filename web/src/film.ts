@@ -97,6 +97,8 @@ export class FilmEditor {
   /** The film's head-to-feet axis: 1 when its rows run toward H or F, 0 when its columns do (a film turned a
    * quarter), null when neither; the levels' order down the spine is judged along it, as the service does. */
   headAxis: 0 | 1 | null = 1;
+  /** Called when the keyboard moves the crosshair (the arrow keys; not the mouse): the panel says where it is. */
+  onCrosshair: (() => void) | null = null;
   /** Drawn in the blank frame of landmarks without their film: why the film is not there. */
   blankNote: string | null = null;
   /** Levels the service refused (its 422 named their landmarks), each with its mark as it was then: ringed
@@ -491,6 +493,10 @@ export class FilmEditor {
 
   /** The role of the next click in a few words, drawn at the cursor (e.g. "T3 top-right", "T3 midpoint,
    * replaces its four corners"). */
+  role(): string {
+    return this.nextRole();
+  }
+
   private nextRole(): string {
     if (this.finished) return `${this.level} complete`;
     const gone = this.replaces();
@@ -762,6 +768,7 @@ export class FilmEditor {
       } else {
         this.cursor = [Math.min(this.extent.width, Math.max(0, c[0] + dx)), Math.min(this.extent.height, Math.max(0, c[1] + dy))];
         this.keepInView(this.cursor);
+        this.onCrosshair?.();
       }
       this.draw();
     } else if (e.key === "Enter" || e.key === " ") {

@@ -117,6 +117,15 @@ const panels: Record<ViewName, FilmPanel> = {
   lateral: new FilmPanel("lateral", $("film-lateral"), () => filmsChanged()),
 };
 
+// A lateral film opened starts at the first level placed on the PA film that the lateral does not yet have
+// (a lateral most often starts lower than T1, at the PA's first level); T1 when the PA has none.
+panels.lateral.startLevel = () => {
+  const onLateral = new Set(panels.lateral.editor.landmarks().map((lm) => lm.level));
+  const onPa = panels.pa.editor.landmarks().map((lm) => lm.level);
+  if (!onPa.length) return onLateral.has("T1") ? null : "T1";
+  return onPa.find((lv) => !onLateral.has(lv)) ?? null;
+};
+
 const pacs = new PacsOpener({
   api,
   open: async (view, file) => {
@@ -630,6 +639,7 @@ submitButton.addEventListener("click", async () => {
     return;
   }
   stopPolling();
+  openingJob = null; // a job still being opened by its address (its read retried) is not shown over the one sent
   showProblem(problemBox, null);
   submitButton.disabled = true;
   statusLine.textContent = "Submitting…";
@@ -682,6 +692,7 @@ let following: { id: string; started: number } | null = null;
 /** Poll no more (another job is opened or sent): an answer about the job followed until now is dropped. */
 function stopPolling(): void {
   window.clearTimeout(pollTimer);
+  openRetry?.stop(); // a reopened job's first read waiting to ask again: another job was opened or sent
   following = null;
   checkButton.hidden = true;
   delete statusLine.dataset.tracking;
@@ -783,6 +794,7 @@ function stopTracking(job: Job, problem: Problem): void {
 }
 
 checkButton.addEventListener("click", () => {
+  if (openRetry) return openRetry.now(); // a reopened job's first read, waiting to ask again
   if (currentJob && following?.id === currentJob.id && polling !== currentJob.id) void poll(currentJob, following.started);
 });
 
@@ -1183,15 +1195,71 @@ function statusWords(job: Job): string {
 /** The job asked for last (its address): an earlier job's answer arriving after it is dropped. */
 let openingJob: string | null = null;
 
-/** Reopen a job: its films' landmarks (from the stored payload) in the editors, its result. */
+/** The first read of a job opened by its address, waiting to ask the service again: "Check now" asks at once
+ * (`now`), and opening or sending another job ends the wait (`stop`). */
+let openRetry: { id: string; timer: number; now: () => void; stop: () => void } | null = null;
+
+/** Wait `ms` before asking again for the job being opened; true: ask (the time is up, or "Check now"), false:
+ * another job was opened or sent meanwhile. */
+function waitToReopen(id: string, ms: number): Promise<boolean> {
+  return new Promise((resolve) => {
+    const end = (ask: boolean): void => {
+      if (openRetry?.id === id) {
+        window.clearTimeout(openRetry.timer);
+        openRetry = null;
+      }
+      resolve(ask);
+    };
+    openRetry = { id, timer: window.setTimeout(() => end(true), ms), now: () => end(true), stop: () => end(false) };
+  });
+}
+
+/** Reopen a job: its films' landmarks (from the stored payload) in the editors, its result. Its first read is
+ * retried as the polling is (`poll`): without an answer, or with one that waiting may change (`transient`:
+ * none, 408, 429, 5xx), it asks again 1 s later, doubling to at most 30 s or after the answer's Retry-After,
+ * saying since when the service has not answered ("Check now" asks at once); 401, 403 and 404 stop it, the
+ * problem shown. */
 async function openJob(id: string): Promise<void> {
   openingJob = id;
   if (currentJob?.id === id) return;
   stopPolling();
   statusLine.textContent = `Opening job ${id}…`;
+  const since = Date.now();
+  let tries = 0;
+  let job: Job;
+  for (;;) {
+    try {
+      job = await api.job(id);
+      break;
+    } catch (error) {
+      if (openingJob !== id) return;
+      const problem: Problem = error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) };
+      if (!transient(problem.status)) {
+        statusLine.dataset.tracking = "stopped";
+        checkButton.hidden = true;
+        const why = problem.status === 404
+          ? "the service has no such job for this API key"
+          : problem.status === 401 || problem.status === 403
+          ? "the service refused the API key (said at the top of the page)"
+          : `the service answered HTTP ${problem.status}`;
+        statusLine.textContent = `Job ${id} could not be opened: ${why}, which waiting will not change (the problem is shown below).`;
+        showProblem(problemBox, problem);
+        return;
+      }
+      tries += 1;
+      const wait = retryDelay(tries, error instanceof ApiError ? error.retryAfterMs : null);
+      const last = problem.status ? `HTTP ${problem.status}, ${problem.detail || problem.title}` : problem.detail || problem.title;
+      statusLine.dataset.tracking = "retrying";
+      statusLine.textContent = `Opening job ${id}: the service has not answered since ${clock(since)} (${tries} ${tries === 1 ? "try" : "tries"}; the last: ${last}). ` +
+        `The job is kept by the service. The page asks again at ${clock(Date.now() + wait)}, or at once with “Check now”.`;
+      checkButton.hidden = false;
+      if (!(await waitToReopen(id, wait)) || openingJob !== id) return;
+    }
+  }
+  if (openingJob !== id) return; // another job was asked for meanwhile
+  checkButton.hidden = true;
+  delete statusLine.dataset.tracking;
   try {
-    const job = await api.job(id);
-    if (openingJob !== id) return; // another job was asked for meanwhile
     backdrop = null;
     showProblem(problemBox, null); // another job's refusal or failure is not this one's
     if (job.payload) {

@@ -2,7 +2,7 @@
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
 import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
-import { DIRECTION_WORDS, ORIENTATION_LABELS, orientationProblems, type OrientationProblem } from "./checks";
+import { DIRECTION_WORDS, ORIENTATION_LABELS, orderAlongAnother, orientationFromOrder, orientationProblems, type OrientationProblem } from "./checks";
 import { FilmEditor, type EditorState, type Mark, type Mode, type OuterEdit } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
 
@@ -71,6 +71,11 @@ export class FilmPanel {
   private readonly levelSelect: HTMLSelectElement;
   private readonly prompt: HTMLElement;
   private readonly status: HTMLElement;
+  /** The crosshair's place in words (a polite live region, visually hidden). */
+  private readonly crosshair: HTMLElement;
+  private crosshairTimer: number | undefined;
+  /** When the crosshair's place was last said (ms, performance.now()). */
+  private crosshairSaid = -Infinity;
   private readonly error: HTMLElement;
   private readonly warning: HTMLElement;
   private readonly fileInput: HTMLInputElement;
@@ -82,6 +87,9 @@ export class FilmPanel {
   private readonly orientError: HTMLElement;
   /** What the service would refuse in the orientation, found before sending (checks.ts orientationProblems). */
   private readonly orientCheck: HTMLElement;
+  /** The landmarks in order along another direction than the orientation's: the orientation likely wrong
+   * (checks.ts orientationFromOrder), said here rather than blaming their order. */
+  private readonly orientOrder: HTMLElement;
   /** The service's refusal of the orientation sent, in words, while it stands; null: none. */
   private refusal: string | null = null;
   /** The orientation chosen on the page (the controls), over the header's or the reopened job's; null: not chosen. */
@@ -91,6 +99,8 @@ export class FilmPanel {
   private dropNote: string | null = null;
   /** The landmarks are a reopened job's (on a blank frame, or on the job's film opened under them). */
   fromJob = false;
+  /** The level a film opened in this panel starts at (null: as the editor left it); unset: T1. */
+  startLevel: (() => Level | null) | null = null;
   private readonly zoomOut: HTMLOutputElement;
   private readonly undoButton: HTMLButtonElement;
   private readonly redoButton: HTMLButtonElement;
@@ -159,10 +169,12 @@ export class FilmPanel {
     this.orientError.hidden = true;
     this.orientCheck = el("p", { id: id("orientation-check"), class: "error", "aria-live": "polite" });
     this.orientCheck.hidden = true;
+    this.orientOrder = el("p", { id: id("orientation-order"), class: "error", "aria-live": "polite" });
+    this.orientOrder.hidden = true;
     const orientation = el("fieldset", { id: id("orientation"), class: "orientation" });
     orientation.append(el("legend", {}, "Orientation (DICOM Patient Orientation)"),
       labelled(id("orientation-column"), ORIENTATION_LABELS[0], this.orient[0]),
-      labelled(id("orientation-row"), ORIENTATION_LABELS[1], this.orient[1]), this.orientHelp, this.orientCheck, this.orientError);
+      labelled(id("orientation-row"), ORIENTATION_LABELS[1], this.orient[1]), this.orientHelp, this.orientCheck, this.orientOrder, this.orientError);
 
     const modes = el("fieldset", { class: "modes" });
     modes.append(el("legend", {}, "Click mode"));
@@ -184,6 +196,9 @@ export class FilmPanel {
     });
     this.prompt = el("p", { id: id("prompt"), class: "prompt", "aria-live": "polite" }, `Open the ${view === "pa" ? "PA" : "lateral"} film to start.`);
     this.status = el("p", { id: id("status"), class: "summary", "aria-live": "polite" });
+    // Where the keyboard's crosshair is, for a screen reader (the canvas itself says nothing): updated as it
+    // moves by the arrow keys, at most every CROSSHAIR_SAY_MS (and once more where it stops), not by the mouse.
+    this.crosshair = el("p", { id: id("crosshair"), class: "visually-hidden", "aria-live": "polite", "aria-atomic": "true" });
     const keys = el("p", { id: id("keys"), class: "help" },
       "Mouse: a click always places the next point (its role is shown at the cursor), even on another point; " +
       "drag a point to move it, drag elsewhere to pan, Shift+click selects a point, wheel zooms. " +
@@ -216,7 +231,7 @@ export class FilmPanel {
       this.ignoreRow,
       labelled(id("spacing"), "Pixel spacing (mm per pixel)", this.spacing,
         "Read from the DICOM header when it has one; a PNG or JPEG does not carry it: enter it (e.g. from the PACS)."),
-      orientation, this.wlRow, tools, this.prompt, canvas, keys, buttons, this.status,
+      orientation, this.wlRow, tools, this.prompt, canvas, this.crosshair, keys, buttons, this.status,
     );
 
     this.editor = new FilmEditor(canvas, (what) => {
@@ -225,6 +240,7 @@ export class FilmPanel {
       this.update();
       if (what === "marks") this.onChange();
     });
+    this.editor.onCrosshair = () => this.sayCrosshair();
     file.addEventListener("change", () => void this.open(file.files?.[0]));
     this.ignoreGeometry.addEventListener("change", () => {
       this.fillHeader();
@@ -345,6 +361,8 @@ export class FilmPanel {
       this.fileName = file.name;
       this.reopened = null;
       this.chosen = null;
+      const start = this.startLevel?.();
+      if (start) this.editor.setLevel(start);
       this.refuseOrientation(null);
       this.ignoreGeometry.checked = false;
       if (!keep) this.fromJob = false;
@@ -499,6 +517,8 @@ export class FilmPanel {
     this.header.replaceChildren();
     this.prompt.textContent = `Open the ${this.view === "pa" ? "PA" : "lateral"} film to start.`;
     this.editor.canvas.setAttribute("aria-label", `${TITLES[this.view]}: no film open`);
+    window.clearTimeout(this.crosshairTimer);
+    this.crosshair.textContent = "";
     this.editor.reset();
     this.update();
   }
@@ -517,19 +537,64 @@ export class FilmPanel {
     return this.hasFilm() ? orientationProblems(this.view, this.orientation(), this.editor.landmarks()) : [];
   }
 
+  /** The landmarks in order along another direction than the orientation says (checks.ts `orderAlongAnother`):
+   * the words saying the orientation is likely wrong and the controls to change; null when they are not. */
+  orientationFromOrder(): { text: string; controls: (0 | 1)[] } | null {
+    if (!this.hasFilm()) return null;
+    this.syncOrientation();
+    const placed = this.editor.landmarks();
+    const tops = placed.map((lm): Vec2 => lm.point ?? [(lm.corners![0][0] + lm.corners![1][0]) / 2, (lm.corners![0][1] + lm.corners![1][1]) / 2]);
+    const found = orderAlongAnother(tops, this.editor.headAxis, this.editor.towardHead);
+    return found ? orientationFromOrder(this.view, this.orientation(), found, placed[0].level, placed[placed.length - 1].level) : null;
+  }
+
   /** The orientation controls marked invalid (`aria-invalid`, the words in their description) while the page's
-   * check or the service's refusal stands; the check's words under them. */
+   * check or the service's refusal stands, or (only the control to change) while the landmarks' order says the
+   * orientation is likely wrong; the check's words under them. */
   private markOrientation(): void {
     const found = this.orientationProblems();
     const words = found.map((p) => `${p.text.charAt(0).toUpperCase()}${p.text.slice(1)}.`).join(" ");
     this.orientCheck.hidden = !found.length;
     this.orientCheck.textContent = found.length ? `The service refuses this orientation: ${words} (Its words: ${found.map((p) => p.service).join("; ")}.)` : "";
-    const described = [`${this.view}-orientation-help`, ...(found.length ? [`${this.view}-orientation-check`] : []), ...(this.refusal ? [`${this.view}-orientation-error`] : [])];
-    for (const select of this.orient) {
+    const order = this.orientationFromOrder();
+    this.orientOrder.hidden = !order;
+    this.orientOrder.textContent = order ? `${order.text.charAt(0).toUpperCase()}${order.text.slice(1)}.` : "";
+    this.orient.forEach((select, k) => {
+      const byOrder = !!order?.controls.includes(k as 0 | 1);
+      const described = [`${this.view}-orientation-help`, ...(found.length ? [`${this.view}-orientation-check`] : []),
+        ...(byOrder ? [`${this.view}-orientation-order`] : []), ...(this.refusal ? [`${this.view}-orientation-error`] : [])];
       select.setAttribute("aria-describedby", described.join(" "));
-      if (found.length || this.refusal) select.setAttribute("aria-invalid", "true");
+      if (found.length || this.refusal || byOrder) select.setAttribute("aria-invalid", "true");
       else select.removeAttribute("aria-invalid");
-    }
+    });
+  }
+
+  /** Say where the crosshair is (moved by the keyboard): at once, unless it was said less than CROSSHAIR_SAY_MS
+   * ago; then once that time is up, where it is by then (a held arrow key is not read out at every step). */
+  private sayCrosshair(): void {
+    window.clearTimeout(this.crosshairTimer);
+    const wait = this.crosshairSaid + CROSSHAIR_SAY_MS - performance.now();
+    const say = (): void => {
+      this.crosshairSaid = performance.now();
+      this.crosshair.textContent = this.crosshairWords();
+    };
+    if (wait <= 0) say();
+    else this.crosshairTimer = window.setTimeout(say, wait);
+  }
+
+  /** The crosshair's place in the film's terms: what Enter places there, its column and row (px), and in mm
+   * from the film's top-left corner when the pixel spacing is known. */
+  crosshairWords(): string {
+    const c = this.editor.cursor;
+    if (!c) return "";
+    const [col, row] = [Math.round(c[0]), Math.round(c[1])];
+    // a reopened job's landmarks in mm without a spacing are on a blank frame of 1 px = 1 mm
+    const inMm = !this.editor.source && this.reopenedInMm();
+    const s = this.editor.source || !this.reopened ? this.pixelSpacing() : this.reopened.units === "px" ? (this.reopened.pixel_spacing as Vec2 | null | undefined) ?? null : null;
+    const mm = s && !inMm ? ` (${(c[0] * s[1]).toFixed(1)} mm across, ${(c[1] * s[0]).toFixed(1)} mm down from the film's top-left corner)` : "";
+    const frame = this.editor.source ? "film" : "frame";
+    const enter = this.editor.finished ? "Enter places nothing until a level is chosen" : "Enter places it there";
+    return `${this.editor.role()} next: crosshair at column ${col}, row ${row} ${inMm ? "mm" : "px"}${mm} of the ${frame}; ${enter}.`;
   }
 
   /** Bring the orientation controls into view and focus the first. */
@@ -671,6 +736,8 @@ export class FilmPanel {
     out.push(...this.editor.incomplete().map((s) => `${name} film, ${s}: finish or delete it.`));
     this.syncOrientation();
     out.push(...this.editor.problems().map((p) => `${name} film, ${p.level}: ${p.text} (drawn in red): move its points, or undo.`));
+    const fromOrder = this.orientationFromOrder();
+    if (fromOrder) out.push(`${name === "PA" ? "PA" : "Lateral"} film, orientation likely wrong (said under the film, at “Orientation”): ${fromOrder.text}.`);
     // Said at the controls whenever a film is open; listed here when the view is sent (it has landmarks).
     for (const p of n ? this.orientationProblems() : []) {
       out.push(`${name === "PA" ? "PA" : "Lateral"} film, orientation (under the film, DICOM Patient Orientation): ${p.text}. The service refuses it: ${p.service}.`);
@@ -743,6 +810,9 @@ export class FilmPanel {
 }
 
 const round = (x: number): number => Math.round(x * 100) / 100;
+/** The least time between two sayings of the crosshair's place (ms): a held arrow key repeats about every
+ * 33 ms (30 Hz), each saying would cut the last one short; half a second lets a short phrase be heard. */
+const CROSSHAIR_SAY_MS = 500;
 
 /** A landmark's points, without its level: a reopened job's landmark relabelled is still the job's. */
 const pointsKey = (lm: ViewPayload["landmarks"][number]): string => JSON.stringify([lm.point ?? null, lm.corners ?? null, lm.pedicles ?? null]);
