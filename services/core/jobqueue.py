@@ -28,7 +28,9 @@ log = logging.getLogger(__name__)
 RUN_JOB = "spine.run_job"
 RECONCILE = "spine.reconcile"
 DELIVER_WEBHOOK = "spine.deliver_webhook"
-"""args: job id, final status, attempt (1, 2, …)."""
+"""args: job id, final status, attempt (1, 2, …); for the event of a run of STOW-RS attempts, its name
+after ``job.`` (``dicom_stored``, ``dicom_store_failed``), the attempt, and the number of the run's first
+STOW-RS attempt."""
 STORE_DICOM = "spine.dicom_store"
 """args: job id, attempt (1, 2, …)."""
 REDIS_TRANSPORT = "services.core.jobqueue:RedisTransport"
@@ -131,14 +133,16 @@ def publisher(settings: Settings) -> Celery:
 
 
 def publish_webhook(
-    settings: Settings, job_id: uuid.UUID | str, status: str, attempt: int, *, countdown: float = 0.0,
-    celery: Celery | None = None,
+    settings: Settings, job_id: uuid.UUID | str, status: str, attempt: int, *, run: int | None = None,
+    countdown: float = 0.0, celery: Celery | None = None,
 ) -> None:  # fmt: skip
-    """Publish attempt ``attempt`` of the webhook of a job that ended in ``status``, after ``countdown`` s,
-    with ``celery`` (default: the process's ``publisher``). Raises when the broker cannot take it."""
+    """Publish attempt ``attempt`` of the webhook of a job that ended in ``status`` (or of event
+    ``job.<status>`` of its run of STOW-RS attempts ``run``), after ``countdown`` s, with ``celery``
+    (default: the process's ``publisher``). Raises when the broker cannot take it. A job's end's message
+    has the three arguments it always had."""
     app = celery or publisher(settings)
-    app.send_task(DELIVER_WEBHOOK, args=[str(job_id), status, attempt], countdown=countdown or None,
-                  queue=settings.webhook_queue)  # fmt: skip
+    args: list[object] = [str(job_id), status, attempt, *([] if run is None else [run])]
+    app.send_task(DELIVER_WEBHOOK, args=args, countdown=countdown or None, queue=settings.webhook_queue)
 
 
 def publish_dicom_store(

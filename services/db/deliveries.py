@@ -23,6 +23,13 @@ outbox row's the job's ``finished_at`` as the job shows it, or when the broker r
 job without ``callback_url`` because callers look at the payload first. The message id is derived
 from the job and its final status, so every attempt of a message carries the same ``webhook-id`` and a
 message that a receiver already accepted is not sent again.
+
+The events of a run of STOW-RS attempts (``RUN_EVENTS``: ``job.dicom_stored``, ``job.dicom_store_failed``)
+go the same way, one message per run: their outbox row is written with the attempt that ended the run
+(``services.db.dicom_stores.record``, due at that attempt's ``attempted_at`` as the job shows it), then
+``job_ended`` publishes it with ``recorded`` and the run (``run``: the number of the run's first attempt,
+``dicom_stores.first_of_run``), which is part of their message id: a retried delivery keeps its
+``webhook-id``, a new run's event is a new message.
 """
 
 from __future__ import annotations
@@ -55,10 +62,20 @@ Moment: TypeAlias = datetime | ColumnElement[datetime]
 _NAMESPACE = uuid.UUID("0b7e3b9e-4f53-5a8e-9c4e-5e1f2a6c9d01")
 
 
-def message_id(job_id: uuid.UUID | str, status: str) -> str:
-    """The Standard Webhooks message id of a job's end (``webhook-id``): the same on every attempt, and
-    with the attempt number the key of a row."""
-    return "msg_" + uuid.uuid5(_NAMESPACE, f"{job_id}:{status}").hex
+RUN_EVENTS = frozenset({"dicom_stored", "dicom_store_failed"})
+"""The events (after ``job.``) that end a run of STOW-RS attempts, one message per run: the attempt that
+ended it stored the SR and SC (``dicom_stored``), or it failed with no attempt after it or the results are
+not storable (``dicom_store_failed``). Any other event is the job's end (its final status)."""
+
+
+def message_id(job_id: uuid.UUID | str, status: str, run: int | None = None) -> str:
+    """The Standard Webhooks message id (``webhook-id``) of event ``job.<status>``: the same on every
+    attempt, and with the attempt number the key of a row. The job's end (``run`` None): UUIDv5 of
+    ``"{job_id}:{status}"``, as ever (receivers drop duplicates by it); an event of a run of STOW-RS
+    attempts (``RUN_EVENTS``): of ``"{job_id}:{status}:{run}"``, ``run`` the number of the run's first
+    attempt, so that each run's event is a message of its own."""
+    key = f"{job_id}:{status}" if run is None else f"{job_id}:{status}:{run}"
+    return "msg_" + uuid.uuid5(_NAMESPACE, key).hex
 
 
 @dataclass(frozen=True)
@@ -69,8 +86,10 @@ class DeliveryJob:
     owner: str | None
     """The job owner's key id: whose webhook secret signs (``services.webhooks.signing.secret_for``)."""
     data: dict[str, Any]
-    """The job as ``GET /v1/jobs/{id}`` shows it (``services.db.jobs.job_json``)."""
+    """The job as ``GET /v1/jobs`` lists it (``services.db.jobs.job_json``)."""
     finished_at: datetime | None
+    dicom_stores: list[dict[str, Any]] | None = None
+    """The job's STOW-RS attempts (``jobs.dicom_stores``) as stored."""
 
 
 def delivery_job(session: Session, job_id: uuid.UUID) -> DeliveryJob | None:
@@ -78,7 +97,8 @@ def delivery_job(session: Session, job_id: uuid.UUID) -> DeliveryJob | None:
     job = session.get(Job, job_id)
     if job is None or not job.callback_url:
         return None
-    return DeliveryJob(callback_url=job.callback_url, owner=job.owner, data=job_json(job), finished_at=job.finished_at)
+    return DeliveryJob(callback_url=job.callback_url, owner=job.owner, data=job_json(job), finished_at=job.finished_at,
+                       dicom_stores=job.dicom_stores)  # fmt: skip
 
 
 OUTBOX_ATTEMPT = 0
@@ -87,43 +107,49 @@ NOT_PUBLISHED = "not published: "
 """How the ``error`` of an outbox row whose message the broker refused begins."""
 
 
-def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: Moment) -> dict[str, Any]:
+def outbox_row(job_id: uuid.UUID, status: str, url: str, ended_at: Moment, run: int | None = None) -> dict[str, Any]:
     """The values of the outbox row of the message a job that ended in ``status`` at ``ended_at`` (as
-    the job shows it) sends: attempt 0, no outcome. Its due time is not among them: the statement that
-    writes the row sets ``next_attempt_at`` to the database's clock (``db_now()``), the job's end as the
-    sweep compares it."""
-    return {"job_id": job_id, "message_id": message_id(job_id, status), "event": f"job.{status}",
+    the job shows it) sends, or of event ``job.<status>`` of the run of STOW-RS attempts ``run`` that
+    ended at ``ended_at`` (the last attempt's ``attempted_at``): attempt 0, no outcome. Its due time is not
+    among them: the statement that writes the row sets ``next_attempt_at`` to the database's clock
+    (``db_now()``), the event's time as the sweep compares it."""
+    return {"job_id": job_id, "message_id": message_id(job_id, status, run), "event": f"job.{status}",
             "attempt": OUTBOX_ATTEMPT, "url": url, "attempted_at": ended_at, "status_code": None, "error": None,
             "duration_ms": None}  # fmt: skip
 
 
-def record_due(session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: Moment) -> None:
-    """Write the message's outbox row in ``session``'s transaction (nothing when it is there already),
-    due now on the database's clock; ``ended_at``: the job's ``finished_at`` as stored, or an SQL
-    expression of it (``_stored_end``)."""
-    claim(session, **outbox_row(job_id, status, url, ended_at), next_attempt_at=db_now())
+def record_due(
+    session: Session, job_id: uuid.UUID, status: str, url: str, ended_at: Moment, run: int | None = None
+) -> bool:
+    """Write the message's outbox row in ``session``'s transaction, due now on the database's clock;
+    ``ended_at``: the job's ``finished_at`` as stored, or an SQL expression of it (``_stored_end``), or
+    for an event of run ``run`` of STOW-RS attempts the time of the attempt that ended it. False (nothing
+    written) when the row is there already."""
+    return claim(session, **outbox_row(job_id, status, url, ended_at, run), next_attempt_at=db_now()) is not None
 
 
 def job_ended(
     settings: Settings, job_id: uuid.UUID | str, status: str, *, url: str | None = None,
-    celery: Celery | None = None, recorded: bool = False,
+    celery: Celery | None = None, recorded: bool = False, run: int | None = None,
 ) -> bool:  # fmt: skip
-    """Publish the first delivery of a job's webhook. Never raises; False when publishing failed.
+    """Publish the first delivery of a job's webhook: of its end (``status`` its final status), or of the
+    end of its run ``run`` of STOW-RS attempts (``status`` one of ``RUN_EVENTS``). Never raises; False
+    when publishing failed.
 
     With ``url`` (the job's callback_url), the message's outbox row is written first unless the caller
-    wrote it with the job's end (``recorded``); when publishing fails, the row says so ("not
+    wrote it with the job's end or the run's (``recorded``); when publishing fails, the row says so ("not
     published"). Either way the reconciler's sweep publishes the message if no attempt comes.
     """
     job_uuid = uuid.UUID(str(job_id))
     if url and not recorded:
         _record_due(settings, job_uuid, status, url)
     try:
-        publish_webhook(settings, job_uuid, status, 1, celery=celery)
+        publish_webhook(settings, job_uuid, status, 1, run=run, celery=celery)
         return True
     except Exception as exc:
         log.warning("could not publish the webhook of job %s (%s): %s", job_id, status, exc)
         if url:
-            _record_unpublished(settings, job_uuid, status, url, exc)
+            _record_unpublished(settings, job_uuid, status, url, exc, run)
         return False
 
 
@@ -142,7 +168,9 @@ def _record_due(settings: Settings, job_id: uuid.UUID, status: str, url: str) ->
         log.warning("webhook of job %s (%s): its outbox row could not be written: %s", job_id, status, exc)
 
 
-def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception) -> None:
+def _record_unpublished(
+    settings: Settings, job_id: uuid.UUID, status: str, url: str, exc: Exception, run: int | None = None
+) -> None:
     """Mark the message's outbox row "not published" (writing it if it is not there), its ``attempted_at``
     when the broker refused, on the database's clock.
 
@@ -153,7 +181,7 @@ def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url:
     "not published" row is listed), and the row's due time, which the sweep moved ahead, is kept: the
     message is not published a second time for it. A second refusal of the same message keeps the first."""
     error = f"{NOT_PUBLISHED}{type(exc).__name__}; the reconciler publishes it again"
-    mid = message_id(job_id, status)
+    mid = message_id(job_id, status, run)
     noted = WebhookDelivery.error
     try:
         with session_scope(settings) as session:
@@ -165,7 +193,7 @@ def _record_unpublished(settings: Settings, job_id: uuid.UUID, status: str, url:
                         next_attempt_at=case((noted.is_(None), db_now()), else_=WebhookDelivery.next_attempt_at))
             )  # fmt: skip
             if marked.rowcount == 0:
-                row = {**outbox_row(job_id, status, url, db_now()), "error": error, "next_attempt_at": db_now()}
+                row = {**outbox_row(job_id, status, url, db_now(), run), "error": error, "next_attempt_at": db_now()}
                 claim(session, **row)
     except Exception as db_exc:  # the database is down too: nothing left to remember it by
         log.error("webhook of job %s (%s) lost: neither published nor recorded: %s", job_id, status, db_exc)

@@ -16,6 +16,12 @@ publishes (attempt 1), or the one a request to store the results again (``POST
 ``jobs.dicom_stores``, marked by ``requested_by``: it sends nothing, its ``attempt`` is the number of
 its run's first attempt (the last recorded attempt + 1, numbers go on) and its ``next_attempt_at`` when
 that attempt is due. The last request entry is where the budget starts (``first_of_run``).
+
+A run ends with the attempt that stored the SR and SC, or with one that failed and has no next attempt
+(the run's last, or results that are not storable: ``dicom-no-patient-identity``). For a job with a
+``callback_url``, ``record`` writes that run's webhook outbox row (``job.dicom_stored`` or
+``job.dicom_store_failed``, ``services.db.deliveries``) in the transaction that appends the attempt, and
+returns what the worker publishes then (``RunEnd``), so that a crash between the two loses nothing.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from sqlalchemy.orm import Session
 from services.core.config import Settings
 from services.core.jobqueue import publish_dicom_store
 from services.core.status import JobStatus
+from services.db import deliveries
 from services.db.clock import db_now, db_now_plus_s, seconds_until
 from services.db.job_forms import JobForms, job_forms
 from services.db.models import Job
@@ -114,13 +121,36 @@ def set_due(session: Session, job_id: uuid.UUID, due_at: datetime | ColumnElemen
     session.execute(update(Job).where(Job.id == job_id).values(dicom_store_due_at=due_at))
 
 
-def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, sweep_after: timedelta) -> None:
+@dataclass(frozen=True)
+class RunEnd:
+    """A run of STOW-RS attempts that ended, as ``record`` returns it once it wrote the outbox row of the
+    run's webhook: event ``job.<event>`` (``deliveries.RUN_EVENTS``) of run ``run`` (the number of the run's
+    first attempt), to ``url`` (the job's callback_url)."""
+
+    event: str
+    run: int
+    url: str
+
+
+def ends_run(attempt: DicomStoreAttempt) -> bool:
+    """Whether a recorded attempt ends its run: it stored the SR and SC, or it failed with no next attempt
+    (attempt 0, the first attempt's message not published, is no attempt; a request entry neither)."""
+    return attempt.attempt >= 1 and not attempt.requested_by and (attempt.ok or attempt.next_attempt_at is None)
+
+
+def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, sweep_after: timedelta) -> RunEnd | None:
     """Append the attempt to the job (its row locked); the due time is ``sweep_after`` past the next
     attempt (none: cleared), or past now for attempt 0 (the message was not published), counted on the
     database's clock from when the attempt is recorded (the next attempt is published then, with its
-    delay: ``next_attempt_at − attempted_at``)."""
+    delay: ``next_attempt_at − attempted_at``).
+
+    When the attempt ends its run (``ends_run``) and the job has a ``callback_url``, the run's webhook
+    outbox row is written too, in this transaction (``deliveries.record_due``, due now, its
+    ``attempted_at`` the attempt's), and returned for the caller to publish once committed; None otherwise,
+    and when the row was there already (the attempt recorded twice)."""
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
-    stores = [*(job.dicom_stores or []), attempt.model_dump(mode="json")]
+    earlier = list(job.dicom_stores or [])
+    stores = [*earlier, attempt.model_dump(mode="json")]
     if attempt.attempt == 0:
         due: ColumnElement[datetime] | None = due_in(sweep_after)
     elif attempt.next_attempt_at is not None:
@@ -128,6 +158,11 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     else:
         due = None
     session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
+    if not job.callback_url or not ends_run(attempt):
+        return None
+    end = RunEnd("dicom_stored" if attempt.ok else "dicom_store_failed", first_of_run(earlier), job.callback_url)
+    written = deliveries.record_due(session, job_id, end.event, end.url, attempt.attempted_at, end.run)
+    return end if written else None
 
 
 def record_unpublished(session: Session, job_id: uuid.UUID, error: str, sweep_after: timedelta) -> DicomStoreAttempt:
@@ -154,6 +189,32 @@ def first_of_run(stores: list[dict[str, Any]] | None) -> int:
     """The number of the first attempt of the job's current run of STOW-RS attempts: the last request
     entry's (``request_run``), 1 when there is none (the run the job's success started)."""
     return next((int(s["attempt"]) for s in reversed(stores or []) if _is_request(s)), 1)
+
+
+def run_firsts(stores: list[dict[str, Any]] | None) -> list[int]:
+    """The number of the first attempt of each run of the job's STOW-RS attempts, oldest first: 1 (the run
+    the job's success started) and each request entry's."""
+    return [1, *(int(s["attempt"]) for s in stores or [] if _is_request(s))]
+
+
+def run_stores(stores: list[dict[str, Any]] | None, first: int) -> list[dict[str, Any]]:
+    """The job's ``dicom_stores`` up to the attempt that ended the run whose first attempt is ``first``
+    (``ends_run``: the first such attempt numbered ``first`` or after), each entry as ``GET /v1/jobs/{id}``
+    shows it; all of them when that run has not ended."""
+    shown = [DicomStoreAttempt.model_validate(s).model_dump(mode="json") for s in stores or []]
+    for index, entry in enumerate(stores or []):
+        attempt = DicomStoreAttempt.model_validate(entry)
+        if attempt.attempt >= first and ends_run(attempt):
+            return shown[: index + 1]
+    return shown
+
+
+def run_of_message(session: Session, job_id: uuid.UUID, event: str, message_id: str) -> int | None:
+    """The run (the number of its first attempt) of the job's run event ``event`` (``deliveries.RUN_EVENTS``)
+    whose message id is ``message_id`` (``deliveries.message_id``), found among the job's runs; None when
+    none matches (or no such job)."""
+    stores = session.scalar(select(Job.dicom_stores).where(Job.id == job_id))
+    return next((run for run in run_firsts(stores) if deliveries.message_id(job_id, event, run) == message_id), None)
 
 
 def request_run(session: Session, job_id: uuid.UUID, requested_by: str, sweep_after: timedelta) -> DicomStoreAttempt:

@@ -1,4 +1,5 @@
-"""Webhooks: a job's ``callback_url`` receives the job when it ends, signed as Standard Webhooks do.
+"""Webhooks: a job's ``callback_url`` receives the job when it ends, and when a run of STOW-RS attempts of
+its results ends (``job.dicom_stored``, ``job.dicom_store_failed``), signed as Standard Webhooks do.
 
 - ``signing``: ``webhook-id``, ``webhook-timestamp`` and ``webhook-signature`` headers, and the
   signing secret of a job's owner (its API key's secret, else the service-wide ``SPINE_WEBHOOK_SECRET``).

@@ -10,12 +10,16 @@ from services.db.models import UtcTimestamp
 class WebhookDeliveryAttempt(BaseModel):
     """One attempt to POST a job's webhook to its callback_url."""
 
-    event: str = Field(description="job.succeeded, job.failed or job.cancelled.")
+    event: str = Field(
+        description="job.succeeded, job.failed or job.cancelled (the job's end); job.dicom_stored or "
+        "job.dicom_store_failed (a run of STOW-RS attempts of its SR and figure ended: stored, or not stored and no "
+        "attempt follows; only when the service stores results in the PACS), one message per run."
+    )
     message_id: str = Field(description="The webhook-id header: the same on every attempt of a message.")
     attempt: int = Field(
         description="1 for the first attempt of the message; 0 when the message could not be published as the "
-        "job ended (no request was made; the reconciler publishes it again when next_attempt_at is "
-        "SPINE_WEBHOOK_SWEEP_AFTER_S past)."
+        "job (or its run of STOW-RS attempts) ended (no request was made; the reconciler publishes it again when "
+        "next_attempt_at is SPINE_WEBHOOK_SWEEP_AFTER_S past)."
     )
     url: str
     attempted_at: UtcTimestamp

@@ -15,6 +15,12 @@ and publishes the next attempt number, which starts a new run of ``SPINE_DICOMWE
 attempts: this task, its retries and the sweep count the budget, and the backoff its delays, from the
 run's first attempt (``dicom_stores.first_of_run``), not from attempt 1.
 
+The end of a run, for a job with a ``callback_url``: the attempt that stored the SR and SC, or the one
+that failed with no next attempt (the run's last, or results that are not storable), is recorded with
+the outbox row of its webhook (``job.dicom_stored``, ``job.dicom_store_failed``:
+``dicom_stores.record``), which is then published (``deliveries.job_ended`` with the run), delivered
+as the job's end's webhook is, and published by the webhook sweep if its message is lost.
+
 Only a job with the patient's identity is stored (``services.dicom.results.not_storable``, checked by
 ``store_job_results`` before anything is built or sent, so on every path: the first attempt, a retry,
 the sweep's): a job without ``study``, or whose study has no Patient ID, gets one attempt recorded with
@@ -47,7 +53,7 @@ from sqlalchemy import ColumnElement
 from services.core.config import Settings
 from services.core.jobqueue import STORE_DICOM, publish_dicom_store
 from services.core.retry import TRANSIENT
-from services.db import dicom_stores
+from services.db import deliveries, dicom_stores
 from services.db.dicom_stores import DicomStoreAttempt
 from services.db.engine import session_scope
 from services.dicom.errors import DicomwebError
@@ -90,8 +96,12 @@ def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None =
 
 
 def _record(settings: Settings, job_id: uuid.UUID, attempt: DicomStoreAttempt) -> None:
+    """Record the attempt on the job; when it ends its run, publish the run's webhook, whose outbox row
+    was written with the attempt (``dicom_stores.record``)."""
     with session_scope(settings) as session:
-        dicom_stores.record(session, job_id, attempt, timedelta(seconds=settings.dicomweb_sweep_after_s))
+        end = dicom_stores.record(session, job_id, attempt, timedelta(seconds=settings.dicomweb_sweep_after_s))
+    if end is not None:
+        deliveries.job_ended(settings, job_id, end.event, url=end.url, recorded=True, run=end.run)
 
 
 def sweep(settings: Settings, app: Celery, batch: int = 100) -> int:

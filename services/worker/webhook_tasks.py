@@ -4,7 +4,9 @@ The task POSTs the job (``services.webhooks.delivery``), records the attempt in
 ``webhook_deliveries`` and, unless the receiver answered 2xx (or 410 Gone), publishes the next attempt
 with exponential backoff (``Retry-After`` honoured), up to ``SPINE_WEBHOOK_MAX_ATTEMPTS``. The first
 attempt is published by ``services.db.deliveries.job_ended`` as the job ends, after its outbox row
-(attempt 0) is written.
+(attempt 0) is written; so is the first attempt of the event that ends a run of STOW-RS attempts
+(``job.dicom_stored``, ``job.dicom_store_failed``: ``services.worker.dicom_tasks``), whose message also
+carries the run (the number of its first STOW-RS attempt, part of its message id).
 
 Time limits: the task's soft limit is its attempt's deadline (``SPINE_WEBHOOK_TIMEOUT_S``, which
 bounds the claim and the request) plus ``SPINE_WEBHOOK_TASK_MARGIN_S`` (writing the outcome, retried
@@ -30,7 +32,7 @@ from __future__ import annotations
 import logging
 import time
 import uuid
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 from celery import Celery, Task
@@ -39,7 +41,7 @@ from services.core.config import Settings
 from services.core.jobqueue import DELIVER_WEBHOOK, HARD_LIMIT_GRACE_S, publish_webhook
 from services.core.retry import TRANSIENT, write_retry
 from services.core.webhook_policy import WebhooksDisabled, allow_list, destination_problem
-from services.db import deliveries
+from services.db import deliveries, dicom_stores
 from services.db.clock import db_now, db_now_plus_s
 from services.db.engine import session_scope
 from services.db.models import WebhookDelivery
@@ -77,15 +79,24 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
                 deliveries.finish(session, row.id, next_attempt_at=None, **final)
                 continue
             status = row.event.removeprefix("job.")
+            run = None
+            if status in deliveries.RUN_EVENTS:  # the run is in the message id: found among the job's runs
+                run = dicom_stores.run_of_message(session, row.job_id, status, row.message_id)
+                if run is None:
+                    log.error("webhook sweep: message %s (%s) of job %s matches none of its STOW-RS runs: dropped",
+                              row.message_id, row.event, row.job_id)  # fmt: skip
+                    deliveries.finish(session, row.id, next_attempt_at=None)
+                    continue
             try:
-                publish_webhook(settings, row.job_id, status, row.attempt + 1, celery=celery)
+                publish_webhook(settings, row.job_id, status, row.attempt + 1, run=run, celery=celery)
             except Exception as exc:
                 log.warning("webhook sweep: could not publish for job %s: %s", row.job_id, exc)
                 break
             if lost:
                 deliveries.finish(session, row.id, error=_LOST)
             elif row.attempt == deliveries.OUTBOX_ATTEMPT and row.error is None:
-                deliveries.note(session, row.id, _NEVER_CAME.format(after=settings.webhook_sweep_after_s))
+                since = "the job's end" if run is None else "the end of its STOW-RS run"
+                deliveries.note(session, row.id, _NEVER_CAME.format(after=settings.webhook_sweep_after_s, since=since))
             deliveries.postpone(session, row.id, db_now_plus_s(after_s))
             published += 1
     if published:
@@ -94,7 +105,7 @@ def sweep(settings: Settings, celery: Celery, window: timedelta = timedelta(days
 
 
 _LOST = "no outcome recorded: the worker stopped during the attempt"
-_NEVER_CAME = ("no attempt within {after:g} s of the job's end (SPINE_WEBHOOK_SWEEP_AFTER_S): its message was lost "
+_NEVER_CAME = ("no attempt within {after:g} s of {since} (SPINE_WEBHOOK_SWEEP_AFTER_S): its message was lost "
                "or is still waiting; the reconciler published it again")  # fmt: skip
 
 
@@ -103,8 +114,12 @@ def _in_flight(row: WebhookDelivery) -> bool:
     return bool(row.attempt > 0 and row.status_code is None and row.error is None and row.duration_ms is None)
 
 
-def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float | None:
-    """Make attempt ``attempt`` of the job's webhook; return the delay before the next one, or None.
+def deliver_once(
+    settings: Settings, job_id: uuid.UUID, status: str, attempt: int, run: int | None = None
+) -> float | None:
+    """Make attempt ``attempt`` of the job's webhook (of its end, ``status`` its final status; or, with
+    ``run``, of event ``job.<status>`` of that run of STOW-RS attempts); return the delay before the next
+    one, or None.
 
     An attempt beyond ``SPINE_WEBHOOK_MAX_ATTEMPTS`` (or below 1) is dropped before anything is
     recorded or sent. The next attempt is due ``delay`` after this one ended (its row's
@@ -122,7 +137,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
         log.warning("dropping attempt %d of the webhook of job %s (%s): SPINE_WEBHOOK_MAX_ATTEMPTS is %d",
                     attempt, job_id, status, settings.webhook_max_attempts)  # fmt: skip
         return None
-    mid = deliveries.message_id(job_id, status)
+    mid = deliveries.message_id(job_id, status, run)
     started = time.monotonic()  # the request's deadline is counted from here: a duration on this process's clock
     with session_scope(settings) as session:
         job = deliveries.delivery_job(session, job_id)
@@ -137,7 +152,7 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
             return None
         row_id = claimed.id
         deliveries.settle_earlier(session, mid, attempt, claimed.attempted_at)
-        body = webhook_body(job.data, status, job.finished_at)
+        body = _body(job, status, run)
         key = secret_for(session, job.owner, settings)
     try:
         refused = destination_problem(url, allow_list(settings.webhook_allowed_urls))
@@ -166,11 +181,24 @@ def deliver_once(settings: Settings, job_id: uuid.UUID, status: str, attempt: in
     return delay
 
 
-def retry_wait_s(settings: Settings, job_id: uuid.UUID, status: str, attempt: int) -> float:
+def _body(job: deliveries.DeliveryJob, status: str, run: int | None) -> bytes:
+    """The body of event ``job.<status>``: for the job's end (``run`` None), the job as ``GET /v1/jobs``
+    lists it, timed at the job's end; for the end of run ``run`` of STOW-RS attempts, the same with the
+    job's ``dicom_stores`` as ``GET /v1/jobs/{id}`` shows them up to the attempt that ended the run
+    (``dicom_stores.run_stores``: a later run does not change the message), timed at that attempt's
+    ``attempted_at``."""
+    if run is None:
+        return webhook_body(job.data, status, job.finished_at)
+    stores = dicom_stores.run_stores(job.dicom_stores, run)
+    at = datetime.fromisoformat(stores[-1]["attempted_at"]) if stores else job.finished_at
+    return webhook_body({**job.data, "dicom_stores": stores}, status, at)
+
+
+def retry_wait_s(settings: Settings, job_id: uuid.UUID, status: str, attempt: int, run: int | None = None) -> float:
     """Seconds until attempt ``attempt`` of the job's webhook is due on the database's clock (the attempt
     before it wrote that time: ``deliver_once``); 0 when it is due."""
     with session_scope(settings) as session:
-        return deliveries.wait_s(session, deliveries.message_id(job_id, status), attempt)
+        return deliveries.wait_s(session, deliveries.message_id(job_id, status, run), attempt)
 
 
 @write_retry
@@ -190,20 +218,23 @@ def register_webhook_tasks(app: Celery, settings: Settings) -> None:
     @app.task(name=DELIVER_WEBHOOK, bind=True, shared=False, ignore_result=True, acks_late=True,
               autoretry_for=TRANSIENT, retry_backoff=True, retry_backoff_max=60, max_retries=10,
               soft_time_limit=soft_limit, time_limit=soft_limit + HARD_LIMIT_GRACE_S)  # fmt: skip
-    def deliver_webhook(task: Task, job_id: str, status: str, attempt: int) -> None:
+    def deliver_webhook(task: Task, job_id: str, status: str, attempt: int, run: int | None = None) -> None:
         try:
             parsed = uuid.UUID(job_id)
         except ValueError:
             log.error("dropping a webhook message with a malformed job id %r", job_id)
             return
+        if (run is None) == (status in deliveries.RUN_EVENTS):
+            log.error("dropping a webhook message of job %s: event job.%s with run %r", parsed, status, run)
+            return
         if task.request.eta is not None:  # a retry: its ETA is on its publisher's clock, compared with ours
-            wait = retry_wait_s(settings, parsed, status, attempt)
+            wait = retry_wait_s(settings, parsed, status, attempt, run)
             if wait > 0:
                 log.info("webhook of job %s attempt %d came %.3f s before it is due on the database's clock "
                          "(this worker's clock and its publisher's differ): published again for then",
                          parsed, attempt, wait)  # fmt: skip
-                publish_webhook(settings, parsed, status, attempt, countdown=wait, celery=app)
+                publish_webhook(settings, parsed, status, attempt, run=run, countdown=wait, celery=app)
                 return
-        delay = deliver_once(settings, parsed, status, attempt)
+        delay = deliver_once(settings, parsed, status, attempt, run)
         if delay is not None:
-            publish_webhook(settings, parsed, status, attempt + 1, countdown=delay, celery=app)
+            publish_webhook(settings, parsed, status, attempt + 1, run=run, countdown=delay, celery=app)
