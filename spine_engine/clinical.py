@@ -134,8 +134,11 @@ def landmark_arrays(view: PAView | LateralView) -> LandmarkArrays:
 
 
 def is_frontal(e_c: FloatArray, e_r: FloatArray) -> bool:
-    """Columns along ±x and rows along ±z: a PA or AP radiograph shown upright."""
-    return abs(float(e_c @ _X)) == 1.0 and abs(float(e_r @ _Z)) == 1.0
+    """A PA or AP radiograph: columns along ±x and rows along ±z (shown upright), or turned a quarter
+    (columns along ±z, rows along ±x). Its chords' frontal angles, and so the tilt prior, are the same
+    either way (``observations.chord_angles_deg`` reads them in the patient's frame)."""
+    upright = abs(float(e_c @ _X)) == 1.0 and abs(float(e_r @ _Z)) == 1.0
+    return upright or (abs(float(e_c @ _Z)) == 1.0 and abs(float(e_r @ _X)) == 1.0)
 
 
 def chords_by_level(arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> FloatArray:
@@ -146,8 +149,13 @@ def chords_by_level(arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) ->
 
 
 def prior_tilts_deg(prior: TiltPrior, arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> FloatArray:
-    """Tilt predicted by the prior for every level (17,), NaN where a needed chord is missing."""
-    return predict_tilts_deg(prior, chords_by_level(arrays, e_c, e_r))
+    """Tilt predicted by the prior for every level (17,), NaN where a needed chord is missing or runs
+    toward the head (|φ| ≥ 90°: two levels whose order the landmarks' noise reversed, which validation
+    allows within their noise; such a chord's angle says nothing of the tilts, and read as one it turned
+    T1 past 90° on a film of 5 mm noise)."""
+    chords = chords_by_level(arrays, e_c, e_r)
+    chords[np.abs(chords) >= 90.0] = np.nan
+    return predict_tilts_deg(prior, chords)
 
 
 def polyline_length(points: FloatArray) -> float:
@@ -256,7 +264,7 @@ def with_observations(
             tilt_indices=np.asarray(tilt_idx, dtype=int),
             tilt_directions=np.asarray(tilt_dirs, dtype=float),
             tilt_weights=np.asarray(tilt_w, dtype=float),
-            tilt_director=transverse_director(e_c),
+            tilt_director=transverse_director(e_c, e_r),
         )
     with_pedicles = arrays.has_pedicles
     if with_pedicles.any():
@@ -444,6 +452,10 @@ def place_without_boundary(
     lateral_estimated = False
     if lateral is not None and model.lateral is not None and len(lateral.indices):
         lc, lr = image_axes(model.lateral.patient_orientation)
+        # the lateral's image axis along the vertical, which both films share: its rows, or its columns
+        # on a film turned a quarter; the other one runs along the PA's normal (depth)
+        vertical = 1 if abs(float(lr @ _Z)) == 1.0 else 0
+        across = 1 - vertical
         centre = inplane[:, :1] * e_c + inplane[:, 1:] * e_r + depth[:, None] * normal
         if model.lateral.projection is not None:
             sl = float(model.lateral.projection.scale)
@@ -451,24 +463,22 @@ def place_without_boundary(
         else:
             lateral_estimated = True
             acq = model.lateral.acquisition
-            rows_model = centre[lateral.indices] @ lr
+            model_2d = np.stack([centre[lateral.indices] @ lc, centre[lateral.indices] @ lr], axis=1)
             if acq is not None and acq.magnification is not None:
                 sl = float(acq.magnification)
-            elif len(lateral.indices) >= 2 and np.ptp(rows_model) > 0:
-                # the axis both films share (the vertical): the lateral's rows against the model's
-                sl = float(np.polyfit(rows_model, lateral.points[:, 1], 1)[0])
+            elif len(lateral.indices) >= 2 and np.ptp(model_2d[:, vertical]) > 0:
+                # the vertical: the lateral's landmarks along it against the model's
+                sl = float(np.polyfit(model_2d[:, vertical], lateral.points[:, vertical], 1)[0])
                 sl = sl if sl > 0 else s
             else:
                 sl = s
-            model_2d = np.stack([centre[lateral.indices] @ lc, rows_model], axis=1)
             Tl = (lateral.points - sl * model_2d).mean(axis=0)
         lateral_projection = (sl, Tl)
-        # depth along the normal of the PA view from the lateral columns (the axis both views share
-        # is the vertical; the lateral column axis lc is the PA normal up to its sign)
-        along = float(lc @ normal)
+        # depth along the normal of the PA view from the lateral's other axis (up to its sign)
+        along = float((lc, lr)[across] @ normal)
         if abs(along) == 1.0:
             measured = np.full(N_LEVELS, np.nan)
-            measured[lateral.indices] = (lateral.points[:, 0] - Tl[0]) / sl * along
+            measured[lateral.indices] = (lateral.points[:, across] - Tl[across]) / sl * along
             ok = np.isfinite(measured)
             if ok.sum() >= 2:
                 offset = np.interp(arc, arc[ok], measured[ok] - depth[ok])

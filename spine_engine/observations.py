@@ -81,18 +81,22 @@ def corner_geometry(corners: npt.ArrayLike, e_r: npt.ArrayLike) -> CornerGeometr
     )
 
 
-def transverse_director(e_c: npt.ArrayLike) -> FloatArray:
-    """Body-frame director e (3,) whose projection a view's column axis shows, signed so that
-    R e ≈ e_c for an upright vertebra facing forward.
+def transverse_director(e_c: npt.ArrayLike, e_r: npt.ArrayLike | None = None) -> FloatArray:
+    """Body-frame director e (3,) whose projection a view's left–right image axis shows, signed so
+    that R e ≈ e_c (e_r on a PA turned a quarter) for an upright vertebra facing forward.
 
     e_c = ±x (PA or AP view): e = ±(1, 0, 0), i.e. ±d1; e_c = ±y (lateral view): d2 ≈ −y, so
-    e = ∓(0, 1, 0). Raises ValueError for e_c = ±z (a view whose columns run head–feet).
+    e = ∓(0, 1, 0); e_c = ±z and e_r = ±x (a PA turned a quarter, its rows left–right): e = ±d1 along
+    e_r. Raises ValueError for any other view whose columns run head–feet.
     """
     ec = np.asarray(e_c, dtype=float)
     if abs(float(ec @ _X)) == 1.0:
         return np.array([float(ec @ _X), 0.0, 0.0])
     if abs(float(ec @ _Y)) == 1.0:
         return np.array([0.0, -float(ec @ _Y), 0.0])
+    er = None if e_r is None else np.asarray(e_r, dtype=float)
+    if er is not None and abs(float(ec @ _Z)) == 1.0 and abs(float(er @ _X)) == 1.0:
+        return np.array([float(er @ _X), 0.0, 0.0])
     raise ValueError("the column direction must be horizontal (L, R, A or P) for tilts and pedicles")
 
 
@@ -102,14 +106,23 @@ def frontal_tilt_deg_of_image_vectors(vectors: npt.ArrayLike, e_c: npt.ArrayLike
     turned toward patient left (v ← −v when e_c = −x), and θ = atan2(v_z, v_x).
 
     vectors (..., 2) detector mm (their length and a uniform magnification do not matter).
-    Raises ValueError unless e_c = ±x and e_r = ±z.
+    Raises ValueError unless the view is frontal (``_toward_left``).
     """
     ec, er = np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float)
-    if abs(float(ec @ _X)) != 1.0 or abs(float(er @ _Z)) != 1.0:
-        raise ValueError("frontal tilts need a frontal view: columns L or R and rows H or F")
     v = np.asarray(vectors, dtype=float)
-    v3 = float(ec @ _X) * (v[..., :1] * ec + v[..., 1:2] * er)
+    v3 = _toward_left(ec, er) * (v[..., :1] * ec + v[..., 1:2] * er)
     return np.degrees(np.arctan2(v3[..., 2], v3[..., 0]))
+
+
+def _toward_left(ec: FloatArray, er: FloatArray) -> float:
+    """±1: the sign that turns an image vector along the image axis running left–right in the patient
+    toward the patient's left (+x): e_c·x on a frontal view shown upright (columns L or R, rows H or F),
+    e_r·x on one turned a quarter (rows L or R, columns H or F). Raises ValueError on any other view."""
+    if abs(float(ec @ _X)) == 1.0 and abs(float(er @ _Z)) == 1.0:
+        return float(ec @ _X)
+    if abs(float(er @ _X)) == 1.0 and abs(float(ec @ _Z)) == 1.0:
+        return float(er @ _X)
+    raise ValueError("frontal tilts need a frontal view: one image axis L or R, the other H or F")
 
 
 def image_vectors_of_frontal_tilt(tilt_deg: npt.ArrayLike, e_c: npt.ArrayLike, e_r: npt.ArrayLike) -> FloatArray:
@@ -117,7 +130,7 @@ def image_vectors_of_frontal_tilt(tilt_deg: npt.ArrayLike, e_c: npt.ArrayLike, e
     ``frontal_tilt_deg_of_image_vectors``; the patient direction ±(cos θ, 0, sin θ) projected."""
     ec, er = np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float)
     t = np.radians(np.asarray(tilt_deg, dtype=float))
-    d = float(ec @ _X) * np.stack([np.cos(t), np.zeros_like(t), np.sin(t)], axis=-1)
+    d = _toward_left(ec, er) * np.stack([np.cos(t), np.zeros_like(t), np.sin(t)], axis=-1)
     return np.stack([d @ ec, d @ er], axis=-1)
 
 

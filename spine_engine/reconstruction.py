@@ -563,13 +563,18 @@ def patient_rest_model(profile: Profile, inputs: RegistrationInputs) -> RestMode
 
     It is turned rigidly so that its T1→L5 chord has the direction of the patient's (known from
     the boundary), then scaled so that its projection on the PA view is as long as the PA
-    landmarks' polyline, times the population's ``anatomy.length_correction``. Strains do not
-    depend on the turn; the scale sets the rest lengths.
+    landmarks' polyline, times the population's ``anatomy.length_correction``; with one PA landmark
+    (allowed only with its projection and T1 and L5 given exactly) so that its T1–L5 chord is as long
+    as the given one. Strains do not depend on the turn; the scale sets the rest lengths.
     """
     generic = rest_shape_unit(profile)[1]
-    turn = rotation_between(generic[-1] - generic[0], inputs.bottom[0] - inputs.top[0])
+    chord = inputs.bottom[0] - inputs.top[0]
+    turn = rotation_between(generic[-1] - generic[0], chord)
     turned = generic @ turn.T
-    scale = projected_arc_scale(turned, inputs.views[0]) * length_correction(profile)
+    if len(inputs.views[0].indices) >= 2:
+        scale = projected_arc_scale(turned, inputs.views[0]) * length_correction(profile)
+    else:  # one PA landmark (its projection and T1, L5 given exactly): the given T1–L5 chord sets the size
+        scale = float(np.linalg.norm(chord) / np.linalg.norm(generic[-1] - generic[0]))
     scaled = rest_model(profile, length_scale=scale)
     return dataclasses.replace(
         scaled, positions=scaled.positions @ turn.T, rotations=np.einsum("ij,njk->nik", turn, scaled.rotations)

@@ -69,14 +69,22 @@ def _landmark_form_errors(name: str, view: PAView | LateralView, raw: Any) -> li
     return errors
 
 
-def _top_midpoint(landmark: Landmark) -> Point:
-    """Image (column, row) of a landmark's top endplate midpoint: its point, or the mean of its top
-    corners (the model requires one of the two)."""
+def _top_midpoint(landmark: Landmark, rows_toward_head: bool = False) -> Point:
+    """Image (column, row) of a landmark's superior (top) endplate midpoint: its point, or the mean of
+    its top corners, the image's bottom ones on a film whose rows run toward the head (the superior
+    endplate then lies lower in the image, as ``observations.corner_geometry`` reads it; the model
+    requires a point or corners)."""
     if landmark.point is not None:
         return float(landmark.point[0]), float(landmark.point[1])
     assert landmark.corners is not None
-    (c0, r0), (c1, r1) = landmark.corners[0], landmark.corners[1]
+    (c0, r0), (c1, r1) = landmark.corners[2:4] if rows_toward_head else landmark.corners[0:2]
     return 0.5 * (c0 + c1), 0.5 * (r0 + r1)
+
+
+def _top_midpoints(view: PAView | LateralView) -> list[Point]:
+    """``_top_midpoint`` of each of the view's landmarks, in its order, read under its orientation."""
+    head_up = view.patient_orientation[1] == "H"
+    return [_top_midpoint(lm, head_up) for lm in view.landmarks]
 
 
 def _payload_index(raw: Any) -> dict[Any, int] | None:
@@ -122,7 +130,7 @@ def _order_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bool 
     toward_feet = 1.0 if direction == "F" else -1.0
     unit = ("column", "row")[axis]
     levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
-    points = [_top_midpoint(lm) for lm in view.landmarks]
+    points = _top_midpoints(view)
     noise_mm = NOISE_SDS * math.sqrt(2.0) * view.sd_mm
     allowance = 0.0
     if scaled and _has_scale(view):
@@ -170,7 +178,8 @@ def _across_errors(name: str, view: PAView | LateralView) -> list[FieldError]:
     if LEVEL_INDEX[bottom.level] - LEVEL_INDEX[top.level] < ACROSS_SPAN_LEVELS:
         return []
     scale = _mm_per_unit_if_known(view)
-    (c0, r0), (c1, r1) = _top_midpoint(top), _top_midpoint(bottom)
+    tops = _top_midpoints(view)
+    (c0, r0), (c1, r1) = tops[0], tops[-1]
     apart = ((c1 - c0) * scale[0], (r1 - r0) * scale[1])
     along, across = abs(apart[axis]), abs(apart[1 - axis])
     angle = math.degrees(math.atan2(across, along))
@@ -432,7 +441,7 @@ def _geometry_errors(name: str, view: PAView | LateralView, scaled: bool = True)
             field_name, (ray_c, ray_r) = ray
             column_mm, row_mm = _mm_per_unit_if_known(view)
             farthest = max(math.hypot((c - ray_c) * column_mm, (r - ray_r) * row_mm)
-                           for c, r in map(_top_midpoint, view.landmarks))  # fmt: skip
+                           for c, r in _top_midpoints(view))  # fmt: skip
             if farthest > sid * math.tan(math.radians(RAY_OBLIQUITY_MAX_DEG)):
                 errors.append(FieldError(
                     (name, "acquisition", field_name),
@@ -552,7 +561,7 @@ def _distance_errors(name: str, view: PAView | LateralView, raw: Any, scaled: bo
         return []
     column_mm, row_mm = _mm_per_unit(view)
     levels = [LEVEL_INDEX[lm.level] for lm in view.landmarks]  # sorted by level
-    points = [(column * column_mm, row * row_mm) for column, row in map(_top_midpoint, view.landmarks)]  # film mm
+    points = [(column * column_mm, row * row_mm) for column, row in _top_midpoints(view)]  # film mm
     m_min, m_max = _magnification_range(view)
     sigma = view.sd_mm
     noise = NOISE_SDS * math.sqrt(2.0) * sigma
@@ -665,7 +674,7 @@ def _profile_errors(name: str, view: LateralView) -> list[FieldError]:
     endplate midpoints in film mm (``_mm_per_unit``: a non-square pixel spacing would change angles)."""
     column_mm, row_mm = _mm_per_unit(view)
     landmarks = [(LEVEL_INDEX[lm.level], c * column_mm, r * row_mm)
-                 for lm, (c, r) in zip(view.landmarks, map(_top_midpoint, view.landmarks), strict=True)]  # fmt: skip
+                 for lm, (c, r) in zip(view.landmarks, _top_midpoints(view), strict=True)]  # fmt: skip
     return inverted_profile_errors(name, view.patient_orientation, landmarks, view.sd_mm)
 
 
