@@ -8,13 +8,18 @@ why (CI counts skips as failures). ``dcmtk`` (dsrdump) and ``dicom3tools`` (dcio
 
 from __future__ import annotations
 
+import contextlib
+import socket
+import threading
 from collections.abc import Iterator
+from typing import Any
+from urllib.parse import urlsplit
 
 import pytest
 
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
-from tests.conftest import Service, spawned_service
+from tests.conftest import Service, spawned_service, spine_payload
 from tools.dicom.orthanc import OrthancServer, free_port
 
 __all__ = ["OrthancServer", "free_port", "pacs_of"]
@@ -37,3 +42,71 @@ def pacs_service(
 def pacs_of(orthanc: OrthancServer) -> Pacs:
     """A DICOMweb client of the session's Orthanc, with its credentials."""
     return Pacs(DicomwebConfig(orthanc.dicomweb_url, orthanc.username, orthanc.password))
+
+
+# ---------------------------------------------------------------- a PACS that is down until a test opens it
+
+STORE_TIMEOUT_S = 60.0
+"""Seconds for a run of attempts to be recorded: as tests/dicom/test_dicom_service.py's, building the SR and
+SC on two loaded cores, here plus a run's delays (a second or so)."""
+STORE_SPACING_MM = 0.15
+"""Pixel spacing of ``complete_payload``'s films (mm)."""
+
+
+class PortRelay:
+    """A TCP relay from a free loopback port to ``target`` (host, port), listening only once ``open``:
+    before, a connection to the port is refused, as to a PACS that is down."""
+
+    def __init__(self, target: tuple[str, int]):
+        self.port = free_port()
+        self.target = target
+        self._server: socket.socket | None = None
+        self._sockets: list[socket.socket] = []
+
+    def open(self) -> None:
+        self._server = socket.create_server(("127.0.0.1", self.port))
+        threading.Thread(target=self._accept, args=(self._server,), daemon=True).start()
+
+    def _accept(self, server: socket.socket) -> None:
+        while True:
+            try:
+                near, _ = server.accept()
+            except OSError:  # closed
+                return
+            far = socket.create_connection(self.target)
+            self._sockets += [near, far]
+            for source, sink in ((near, far), (far, near)):
+                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+
+    @staticmethod
+    def _pump(source: socket.socket, sink: socket.socket) -> None:
+        try:
+            while data := source.recv(65536):
+                sink.sendall(data)
+        except OSError:
+            pass
+        with contextlib.suppress(OSError):
+            sink.shutdown(socket.SHUT_WR)
+
+    def close(self) -> None:
+        for sock in [*([self._server] if self._server else []), *self._sockets]:
+            with contextlib.suppress(OSError):
+                sock.close()
+
+
+@pytest.fixture(scope="module")
+def relay(orthanc: OrthancServer) -> Iterator[PortRelay]:
+    where = urlsplit(orthanc.dicomweb_url)
+    made = PortRelay((where.hostname or "127.0.0.1", where.port or 80))
+    yield made
+    made.close()
+
+
+def complete_payload(study: dict[str, str] | None) -> dict[str, Any]:
+    """px landmarks with the spacing and orientation typed (no header to read: the PACS may be down), and
+    ``study`` when given."""
+    payload = spine_payload(spacing_mm=STORE_SPACING_MM)
+    payload["pa"].update(pixel_spacing=[STORE_SPACING_MM, STORE_SPACING_MM], patient_orientation=["L", "F"])
+    if study is not None:
+        payload["study"] = study
+    return payload

@@ -7,10 +7,7 @@ it opens, the PACS is back. The runs are short: ``MAX_ATTEMPTS`` attempts ``RETR
 
 from __future__ import annotations
 
-import contextlib
 import json
-import socket
-import threading
 import uuid
 from collections.abc import Iterator
 from datetime import datetime, timedelta
@@ -39,67 +36,14 @@ from services.worker.tasks import execute_job
 from tests.conftest import Service, _purge_queue, make_key, problem_of, spawned_service, spine_payload
 from tests.faults import wait_until
 
-from .conftest import OrthancServer, free_port, pacs_of
+from .conftest import STORE_TIMEOUT_S, OrthancServer, PortRelay, complete_payload, free_port, pacs_of
 
-SPACING = 0.15
 MAX_ATTEMPTS = 2
 """SPINE_DICOMWEB_MAX_ATTEMPTS of the module's service: a run of two attempts."""
 RETRY_BASE_S = 0.5
 """SPINE_DICOMWEB_RETRY_BASE_S of the module's service: the delay before a run's second attempt (s)."""
-STORE_TIMEOUT_S = 60.0
-"""Seconds for a run of attempts to be recorded: as tests/dicom/test_dicom_service.py's, building the SR and
-SC on two loaded cores, here plus the run's one delay (RETRY_BASE_S)."""
 PENDING_S = 30
 """How far ahead the pending refusal's attempt is put (s): its Retry-After counts down from it."""
-
-
-class PortRelay:
-    """A TCP relay from a free loopback port to ``target`` (host, port), listening only once ``open``:
-    before, a connection to the port is refused, as to a PACS that is down."""
-
-    def __init__(self, target: tuple[str, int]):
-        self.port = free_port()
-        self.target = target
-        self._server: socket.socket | None = None
-        self._sockets: list[socket.socket] = []
-
-    def open(self) -> None:
-        self._server = socket.create_server(("127.0.0.1", self.port))
-        threading.Thread(target=self._accept, args=(self._server,), daemon=True).start()
-
-    def _accept(self, server: socket.socket) -> None:
-        while True:
-            try:
-                near, _ = server.accept()
-            except OSError:  # closed
-                return
-            far = socket.create_connection(self.target)
-            self._sockets += [near, far]
-            for source, sink in ((near, far), (far, near)):
-                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
-
-    @staticmethod
-    def _pump(source: socket.socket, sink: socket.socket) -> None:
-        try:
-            while data := source.recv(65536):
-                sink.sendall(data)
-        except OSError:
-            pass
-        with contextlib.suppress(OSError):
-            sink.shutdown(socket.SHUT_WR)
-
-    def close(self) -> None:
-        for sock in [*([self._server] if self._server else []), *self._sockets]:
-            with contextlib.suppress(OSError):
-                sock.close()
-
-
-@pytest.fixture(scope="module")
-def relay(orthanc: OrthancServer) -> Iterator[PortRelay]:
-    where = urlsplit(orthanc.dicomweb_url)
-    made = PortRelay((where.hostname or "127.0.0.1", where.port or 80))
-    yield made
-    made.close()
 
 
 @pytest.fixture(scope="module")
@@ -117,16 +61,6 @@ def store_service(
         SPINE_DICOMWEB_MAX_ATTEMPTS=str(MAX_ATTEMPTS), SPINE_DICOMWEB_RETRY_BASE_S=str(RETRY_BASE_S),
     ) as service:  # fmt: skip
         yield service
-
-
-def _complete_payload(study: dict[str, str] | None) -> dict[str, Any]:
-    """px landmarks with the spacing and orientation typed (no header to read: the PACS may be down), and
-    ``study`` when given."""
-    payload = spine_payload(spacing_mm=SPACING)
-    payload["pa"].update(pixel_spacing=[SPACING, SPACING], patient_orientation=["L", "F"])
-    if study is not None:
-        payload["study"] = study
-    return payload
 
 
 def _auth(key: str) -> dict[str, str]:
@@ -161,7 +95,7 @@ def jobs(store_service: Service) -> dict[str, Any]:
     study_uid = f"2.25.{uuid.uuid4().int}"
     ids = {}
     for name, study in (("storable", {"study_instance_uid": study_uid, "patient_id": "P-AGAIN"}), ("no_study", None)):
-        answer = store_service.client.post("/v1/jobs", json=_complete_payload(study), headers=_auth(keys["clinic-a"]))
+        answer = store_service.client.post("/v1/jobs", json=complete_payload(study), headers=_auth(keys["clinic-a"]))
         assert answer.status_code == 202, answer.text
         ids[name] = answer.json()["id"]
     for job in store_service.wait_all(list(ids.values()), timeout=120):
@@ -298,7 +232,7 @@ def test_each_refusal_names_its_reason(
         assert variable in refused(storable, 404, kind, app=other).json()["detail"]
 
     with session_scope(store_service.settings) as session:  # not published: it stays queued
-        queued, _ = create_job(session, _complete_payload(None), owner="clinic-a")
+        queued, _ = create_job(session, complete_payload(None), owner="clinic-a")
     assert refused(str(queued.id), 409, "job-has-no-result").json()["job_status"] == "queued"
     with session_scope(store_service.settings) as session:
         cancel_job(session, queued.id)
@@ -339,7 +273,7 @@ def test_a_request_the_broker_refuses_is_recorded_and_published_by_the_sweep(tmp
                     dicomweb_max_attempts=MAX_ATTEMPTS)  # fmt: skip
     upgrade(base, quiet=True)
     with session_scope(base) as session:
-        job, _ = create_job(session, _complete_payload({"study_instance_uid": "1.2.3", "patient_id": "P-1"}),
+        job, _ = create_job(session, complete_payload({"study_instance_uid": "1.2.3", "patient_id": "P-1"}),
                             owner="clinic-a")  # fmt: skip
     assert execute_job(base, job.id) == "succeeded"  # results not stored by this run: no message published
     failed = {"attempted_at": utcnow().isoformat(), "ok": False, "problem_type": "dicomweb-unavailable"}

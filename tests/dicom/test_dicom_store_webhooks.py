@@ -24,8 +24,7 @@ from services.dicom.uids import job_uids
 from tests.conftest import Service, spawned_service
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Received, Receiver, wait_until
 
-from .conftest import OrthancServer
-from .test_dicom_store_again import STORE_TIMEOUT_S, PortRelay, _complete_payload
+from .conftest import STORE_TIMEOUT_S, OrthancServer, PortRelay, complete_payload
 
 MAX_ATTEMPTS = 2
 """SPINE_DICOMWEB_MAX_ATTEMPTS of the module's service: a run of two attempts."""
@@ -38,14 +37,6 @@ SECRET = TEST_WEBHOOK_SECRET.get_secret_value()
 @pytest.fixture(scope="module")
 def receiver() -> Iterator[Receiver]:
     made = Receiver()
-    yield made
-    made.close()
-
-
-@pytest.fixture(scope="module")
-def relay(orthanc: OrthancServer) -> Iterator[PortRelay]:
-    where = urlsplit(orthanc.dicomweb_url)
-    made = PortRelay((where.hostname or "127.0.0.1", where.port or 80))
     yield made
     made.close()
 
@@ -71,7 +62,7 @@ def hooked_service(
 def _submit(service: Service, receiver: Receiver, study: dict[str, str] | None) -> tuple[str, str]:
     """A job (the service's admin key) calling back a path of its own on ``receiver``: its id and the path."""
     path = f"/hooks/{uuid.uuid4().hex}"
-    job = service.submit({**_complete_payload(study), "callback_url": receiver.url(path)})
+    job = service.submit({**complete_payload(study), "callback_url": receiver.url(path)})
     return job["id"], path
 
 

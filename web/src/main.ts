@@ -657,7 +657,7 @@ submitButton.addEventListener("click", async () => {
   } catch (error) {
     void under.then((b) => b && URL.revokeObjectURL(b.url));
     statusLine.textContent = "The job was not accepted.";
-    showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) }, payload);
+    showProblem(problemBox, problemOf(error), payload);
     // a refusal of the payload itself, not of the key (401, 403) nor a service out of reach (0, 429, 5xx)
     refusedDraft = error instanceof ApiError && REFUSES_DRAFT.has(error.problem.status) ? JSON.stringify(payload) : null;
     updatePreview();
@@ -753,7 +753,7 @@ async function poll(job: Job, started: number): Promise<void> {
     answer = await api.job(job.id);
   } catch (error) {
     if (following?.id !== job.id || currentJob?.id !== job.id) return; // another job was opened or sent meanwhile
-    const problem: Problem = error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) };
+    const problem = problemOf(error);
     if (!transient(problem.status)) {
       stopTracking(job, problem);
       return;
@@ -780,16 +780,25 @@ function sayUnanswered(job: Job, problem: Problem, wait: number): void {
   checkButton.hidden = false;
 }
 
-/** Stop polling the job: the service's answer (401, 403, 404, …) will not change by waiting. */
-function stopTracking(job: Job, problem: Problem): void {
-  statusLine.dataset.tracking = "stopped";
-  checkButton.hidden = true;
-  const why = problem.status === 404
+/** The problem an API call's error carries: the service's problem+json, or one made of an error with no answer. */
+function problemOf(error: unknown): Problem {
+  return error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) };
+}
+
+/** Why an answer about a job will not change by waiting (401, 403, 404, …), in words. */
+function finalWhy(problem: Problem): string {
+  return problem.status === 404
     ? "the service has no such job for this API key"
     : problem.status === 401 || problem.status === 403
     ? "the service refused the API key (said at the top of the page)"
     : `the service answered HTTP ${problem.status}`;
-  statusLine.textContent = `Stopped following job ${job.id}: ${why}, which waiting will not change (the problem is shown below).`;
+}
+
+/** Stop polling the job: the service's answer (401, 403, 404, …) will not change by waiting. */
+function stopTracking(job: Job, problem: Problem): void {
+  statusLine.dataset.tracking = "stopped";
+  checkButton.hidden = true;
+  statusLine.textContent = `Stopped following job ${job.id}: ${finalWhy(problem)}, which waiting will not change (the problem is shown below).`;
   showProblem(problemBox, problem);
 }
 
@@ -1149,7 +1158,7 @@ async function moreJobs(): Promise<void> {
   } catch (error) {
     if (jobsPaging !== paging) return;
     more.hidden = true;
-    showProblem($("jobs-problem"), error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+    showProblem($("jobs-problem"), problemOf(error));
   } finally {
     more.disabled = false;
   }
@@ -1233,16 +1242,11 @@ async function openJob(id: string): Promise<void> {
       break;
     } catch (error) {
       if (openingJob !== id) return;
-      const problem: Problem = error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) };
+      const problem = problemOf(error);
       if (!transient(problem.status)) {
         statusLine.dataset.tracking = "stopped";
         checkButton.hidden = true;
-        const why = problem.status === 404
-          ? "the service has no such job for this API key"
-          : problem.status === 401 || problem.status === 403
-          ? "the service refused the API key (said at the top of the page)"
-          : `the service answered HTTP ${problem.status}`;
-        statusLine.textContent = `Job ${id} could not be opened: ${why}, which waiting will not change (the problem is shown below).`;
+        statusLine.textContent = `Job ${id} could not be opened: ${finalWhy(problem)}, which waiting will not change (the problem is shown below).`;
         showProblem(problemBox, problem);
         return;
       }
@@ -1284,7 +1288,7 @@ async function openJob(id: string): Promise<void> {
   } catch (error) {
     if (openingJob !== id) return;
     statusLine.textContent = `Job ${id} could not be opened.`;
-    showProblem(problemBox, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+    showProblem(problemBox, problemOf(error));
   }
 }
 
@@ -1344,7 +1348,7 @@ async function showFollowUp(idOrJob: string): Promise<void> {
     box.dataset.patient = patientId;
   } catch (error) {
     if (request !== followRequest) return;
-    showProblem(problem, error instanceof ApiError ? error.problem : { type: "about:blank", title: "Error", status: 0, detail: String(error) });
+    showProblem(problem, problemOf(error));
   }
 }
 
