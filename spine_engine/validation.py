@@ -394,16 +394,24 @@ def _geometry_errors(name: str, view: PAView | LateralView, scaled: bool = True)
     """A point-source view's geometry, with what it lacks filled in (``Acquisition.point_source_distances``),
     must hold the spine at least ``SOURCE_TO_SPINE_MIN_MM`` from the source and magnify it at most as
     much as the widest reading of unverified millimetres (``MAGNIFICATION_RANGE`` × ``UNVERIFIED_SCALE``,
-    3.5); an ERMF likewise within that reading both ways. Beyond, the fit would place a spine
+    3.5); an ERMF, and a given projection's scale, likewise within that reading both ways (a scale of
+    1000 ended in ``FitFailed``). Beyond, the fit would place a spine
     millimetres or metres long (an SID of 150 mm, the SOD assumed 200 mm nearer the source, put it
     behind the source). The central ray's distance from the landmarks is a distance in film mm, so
     with ``scaled`` False (a stand-in spacing until the header is read) it is judged once the header
     gives the spacing, as ``_distance_errors``' absolute bound."""
-    acq = view.acquisition
-    if acq is None:
-        return []
     low, high = MAGNIFICATION_RANGE[0] / UNVERIFIED_SCALE, MAGNIFICATION_RANGE[1] * UNVERIFIED_SCALE
     errors = []
+    if view.projection is not None and not low <= view.projection.scale <= high:
+        errors.append(FieldError(
+            (name, "projection", "scale"),
+            f"a projection scale of {view.projection.scale:g} is beyond any radiograph's: the spine's image is "
+            f"{low:.2g}–{high:.2g} times its size (detector mm per patient mm)",
+            "implausible_geometry",
+        ))  # fmt: skip
+    acq = view.acquisition
+    if acq is None:
+        return errors
     if acq.magnification is not None and not low <= acq.magnification <= high:
         errors.append(FieldError(
             (name, "acquisition", "magnification"),

@@ -177,3 +177,15 @@ def test_the_tilt_prior_does_not_turn_a_vertebra_past_90_degrees_on_a_noisy_film
     largest = result["measures"]["largest_cobb"]
     assert abs(largest["angle_deg"] - NOISY_PA_TRUE_COBB_DEG) < 3.0 * largest["angle_sd_deg"]
 
+
+
+def test_a_projection_scale_beyond_any_radiographs_is_refused_naming_it() -> None:
+    """A given projection's scale is a magnification (detector mm per patient mm): held to the range an ERMF is
+    held to (``validation.MAGNIFICATION_RANGE`` widened by ``UNVERIFIED_SCALE``: 0.36–3.5). The probe's payloads
+    with a scale up to 1000 ended in FitFailed instead of a refusal that names the field."""
+    payload = {"pa": {"landmarks": [{"level": lv, "point": [c, r]} for lv, c, r in VERSE270_PA],
+                      "projection": {"scale": 1000.0, "translation": [200.0, 180.0]}}}
+    with pytest.raises(InvalidInput) as refused:
+        register(payload)
+    assert any(e.loc == ("pa", "projection", "scale") and e.type == "implausible_geometry"
+               for e in refused.value.errors), refused.value.errors
