@@ -42,6 +42,7 @@ from services.core.jobqueue import publish_dicom_store
 from services.core.status import JobStatus
 from services.db import deliveries
 from services.db.clock import db_now, db_now_plus_s, seconds_until
+from services.db.engine import sqlite_write_lock
 from services.db.job_forms import JobForms, job_forms
 from services.db.models import Job
 
@@ -115,6 +116,28 @@ def due_in(delay: timedelta) -> ColumnElement[datetime]:
     return db_now_plus_s(delay.total_seconds())
 
 
+def _locked_job(session: Session, job_id: uuid.UUID) -> tuple[Job, datetime]:
+    """The job's row and the database's clock, the row locked until the transaction ends (``FOR UPDATE``
+    on PostgreSQL, the database's write lock on SQLite: ``engine.sqlite_write_lock``), read as the lock
+    found it (``populate_existing``: not as the session read it earlier, e.g. the API's lookup)."""
+    sqlite_write_lock(session)
+    locked = select(Job, db_now()).where(Job.id == job_id).with_for_update()
+    job, now = session.execute(locked.execution_options(populate_existing=True)).one()
+    return job, now
+
+
+def start_first_run(session: Session, job_id: uuid.UUID, sweep_after: timedelta) -> bool:
+    """Mark the first run of a succeeded job's STOW-RS attempts as due (``sweep_after`` from now, as
+    ``set_due``), its row locked; False, and nothing written, when a run has started already: a due time
+    is set, or the job lists an attempt or a request (a ``POST …/dicom-store`` made as the job succeeded,
+    before this: its request published attempt 1, which must not be published twice)."""
+    job, _ = _locked_job(session, job_id)
+    if job.dicom_store_due_at is not None or job.dicom_stores:
+        return False
+    set_due(session, job_id, due_in(sweep_after))
+    return True
+
+
 def set_due(session: Session, job_id: uuid.UUID, due_at: datetime | ColumnElement[datetime] | None) -> None:
     """The time by which the job's next attempt is overdue (None: no attempt follows): ``due_in(delay)``,
     on the database's clock as the sweep compares it."""
@@ -144,6 +167,9 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     database's clock from when the attempt is recorded (the next attempt is published then, with its
     delay: ``next_attempt_at − attempted_at``).
 
+    An attempt numbered below the current run's first (``first_of_run``: a copy of an earlier run's attempt,
+    recorded after a new run was requested) is appended and nothing else.
+
     When the attempt ends its run (``ends_run``) and the job has a ``callback_url``, the run's webhook
     outbox row is written too, in this transaction (``deliveries.record_due``, due now, its
     ``attempted_at`` the attempt's), and returned for the caller to publish once committed; None otherwise,
@@ -151,6 +177,11 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
     earlier = list(job.dicom_stores or [])
     stores = [*earlier, attempt.model_dump(mode="json")]
+    if 0 < attempt.attempt < first_of_run(earlier):
+        # a second copy of an attempt of a run that ended before a new one was requested, made as the first
+        # was: listed (it reached the PACS), but it neither moves the new run's due time nor ends that run
+        session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores))
+        return None
     if attempt.attempt == 0:
         due: ColumnElement[datetime] | None = due_in(sweep_after)
     elif attempt.next_attempt_at is not None:
@@ -222,10 +253,9 @@ def request_run(session: Session, job_id: uuid.UUID, requested_by: str, sweep_af
     commits it before the attempt is published): append the request entry (``requested_by``, the
     number of the run's first attempt, due now) and set the due time the sweep looks for,
     ``sweep_after`` from now, on the database's clock. Raises ``StorePending`` when an attempt is still
-    due or in flight (``dicom_store_due_at`` set), with the seconds until it is due."""
-    locked = select(Job, db_now()).where(Job.id == job_id).with_for_update()
-    # populate_existing: the row as the lock found it, not as the session read it earlier (the API's lookup)
-    job, now = session.execute(locked.execution_options(populate_existing=True)).one()
+    due or in flight (``dicom_store_due_at`` set), with the seconds until it is due. Two requests at once:
+    the second waits for the first's lock (``_locked_job``), then finds its due time."""
+    job, now = _locked_job(session, job_id)
     stores = list(job.dicom_stores or [])
     if job.dicom_store_due_at is not None:
         raise StorePending(_next_number(stores), seconds_until(job.dicom_store_due_at - sweep_after, now))

@@ -42,6 +42,20 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cursor.close()
 
 
+def sqlite_write_lock(session: Session) -> None:
+    """On SQLite, take the database's write lock now, until the session's transaction ends: SQLite has no
+    row locks (``FOR UPDATE`` is left out) and one writer at a time, and ``BEGIN IMMEDIATE`` takes the
+    write lock at once instead of at the first write ("BEGIN TRANSACTION", sqlite.org/lang_transaction.html),
+    so a read and the write that follows run with no other writer in between. Python's sqlite3 driver opens
+    a transaction only before an INSERT, UPDATE or DELETE (Python 3.11 docs, sqlite3, "Transaction
+    control"): a transaction already open has written, so it holds the lock already. Nothing elsewhere."""
+    connection = session.connection()
+    if connection.dialect.name != "sqlite":
+        return
+    if not getattr(connection.connection.dbapi_connection, "in_transaction", False):
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+
 def create_db_engine(url: str, pool_size: int = 10, **postgres_options: Any) -> Engine:
     """An engine for ``url``: WAL and a busy timeout on SQLite, a sized pool on PostgreSQL
     (``postgres_options`` go to ``create_engine`` there, e.g. an isolation level)."""

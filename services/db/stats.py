@@ -15,6 +15,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import Session
 
 from services.core.status import JobStatus
+from services.db.engine import sqlite_write_lock
 from services.db.models import Job
 
 
@@ -100,8 +101,7 @@ def lock_submissions(session: Session, owner: str) -> None:
     if dialect == "postgresql":
         connection.execute(select(func.pg_advisory_xact_lock(SUBMISSION_LOCK_SPACE, owner_lock_key(owner))))
     elif dialect == "sqlite":
-        if not getattr(connection.connection.dbapi_connection, "in_transaction", False):
-            connection.exec_driver_sql("BEGIN IMMEDIATE")
+        sqlite_write_lock(session)
     else:  # no lock known for it: a cap that could be passed is refused rather than kept silently
         raise NotImplementedError(f"no submission lock for the {dialect} database")
 

@@ -73,13 +73,16 @@ def retry_delay_s(settings: Settings, attempt: int) -> float:
 def job_succeeded(settings: Settings, job_id: uuid.UUID, celery: Celery | None = None) -> bool:
     """Publish the first STOW-RS attempt of a succeeded job when results are to be stored. Never
     raises; a message that cannot be published is recorded as attempt 0 on the job, and the
-    reconciler's ``sweep`` publishes it once ``SPINE_DICOMWEB_SWEEP_AFTER_S`` overdue."""
+    reconciler's ``sweep`` publishes it once ``SPINE_DICOMWEB_SWEEP_AFTER_S`` overdue. Nothing is published
+    when a run has started already (``dicom_stores.start_first_run``)."""
     if not settings.stores_dicom_results:
         return False
     sweep_after = timedelta(seconds=settings.dicomweb_sweep_after_s)
     try:
         with session_scope(settings) as session:
-            dicom_stores.set_due(session, job_id, dicom_stores.due_in(sweep_after))
+            if not dicom_stores.start_first_run(session, job_id, sweep_after):
+                log.info("STOW-RS of job %s: a run has started already (a request as the job succeeded)", job_id)
+                return False
     except Exception as exc:
         log.warning("could not mark the STOW-RS of job %s as due: %s", job_id, exc)
     try:
@@ -150,6 +153,9 @@ def store_once(settings: Settings, job_id: uuid.UUID, attempt: int) -> DicomStor
         source = dicom_stores.store_source(session, job_id)
     if source is None or config is None:
         raise LookupError(f"job {job_id} has no result to store (or no SPINE_DICOMWEB_URL)")
+    if attempt < source.first_of_run:  # recorded before the request that started the current run
+        raise LookupError(f"job {job_id}'s attempt {attempt} is of a run before the one requested from attempt "
+                          f"{source.first_of_run}: a second copy of its message, not made")  # fmt: skip
     started = time.perf_counter()
     outcome = DicomStoreAttempt(attempt=attempt, attempted_at=source.read_at, ok=False)  # the database's clock
     retried = True
