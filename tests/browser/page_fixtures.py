@@ -377,6 +377,19 @@ def click_pa_midpoints(page: Any, levels: Any) -> None:
         page.mouse.click(*canvas_point(page, "pa", col, row))
 
 
+def place_pa_and_lateral(page: Any, tmp_path: Any) -> None:
+    """Open the synthetic PA and lateral DICOM films (``make_dicom``, written under ``tmp_path``) on ``page``
+    and click T1–L5's midpoints on the PA and T4–L5's on the lateral: a lateral from T4, as clinics send."""
+    make_dicom(tmp_path / "pa.dcm", view="pa")
+    make_dicom(tmp_path / "lat.dcm", view="lateral")
+    open_film(page, "pa", tmp_path / "pa.dcm")
+    click_pa_midpoints(page, range(len(LEVELS)))
+    open_film(page, "lateral", tmp_path / "lat.dcm")
+    page.select_option("#lateral-level", "T4")
+    for _, col, row in lateral_points("T4"):
+        page.mouse.click(*canvas_point(page, "lateral", col, row))
+
+
 def click_pa_pedicles(page: Any, body: Any) -> None:
     """Click, on the PA film's canvas, two pedicle centres inside the synthetic body with corners ``body``
     (``pa_corners()[i]``: top-left, top-right, bottom-left, bottom-right): a quarter and three quarters

@@ -22,9 +22,8 @@ from page_fixtures import (
     canvas_point,
     click_pa_midpoints,
     lateral_points,
-    make_dicom,
-    open_film,
     open_page,
+    place_pa_and_lateral,
     reconstruct_on_page,
     run_axe,
 )
@@ -120,15 +119,8 @@ def test_a_skipped_vertebra_is_warned_before_sending_naming_its_levels(
     context.close()
 
     # -- on the films: T1–L5 on the PA (the page's test spine) and T4–L5 on the lateral, no warning
-    make_dicom(tmp_path / "pa.dcm", view="pa")
-    make_dicom(tmp_path / "lat.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    open_film(page, "pa", tmp_path / "pa.dcm")
-    click_pa_midpoints(page, range(len(LEVELS)))
-    open_film(page, "lateral", tmp_path / "lat.dcm")
-    page.select_option("#lateral-level", "T4")
-    for _, col, row in lateral_points("T4"):
-        page.mouse.click(*canvas_point(page, "lateral", col, row))
+    place_pa_and_lateral(page, tmp_path)
     assert "Ready to send" in (page.text_content("#missing") or "")
     assert _warnings(page) == [] and not page.locator("#send-warnings").count()
 
@@ -167,15 +159,8 @@ def test_a_skipped_vertebra_is_warned_before_sending_naming_its_levels(
 def test_the_lateral_residuals_are_shown_beside_the_pas(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
-    make_dicom(tmp_path / "pa.dcm", view="pa")
-    make_dicom(tmp_path / "lat.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    open_film(page, "pa", tmp_path / "pa.dcm")
-    click_pa_midpoints(page, range(len(LEVELS)))
-    open_film(page, "lateral", tmp_path / "lat.dcm")
-    page.select_option("#lateral-level", "T4")
-    for _, col, r in lateral_points("T4"):
-        page.mouse.click(*canvas_point(page, "lateral", col, r))
+    place_pa_and_lateral(page, tmp_path)
     sent = reconstruct_on_page(page)
     assert len(sent["lateral"]["landmarks"]) == 14
     job_id = page.get_attribute("#result", "data-job-id")

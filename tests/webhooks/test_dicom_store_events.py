@@ -41,13 +41,6 @@ SWEEP_AFTER_S = 0.2
 
 
 @pytest.fixture
-def receiver() -> Iterator[Receiver]:
-    made = Receiver()
-    yield made
-    made.close()
-
-
-@pytest.fixture
 def settings(db_settings: Settings, redis_url: str, receiver: Receiver) -> Iterator[Settings]:
     """``db_settings`` storing results in a PACS nobody listens at (port 9), on a Redis queue of the test's
     own, calling back ``receiver``; nothing of the shared PostgreSQL store's earlier tests is due."""

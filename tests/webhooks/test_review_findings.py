@@ -84,13 +84,6 @@ class HeldPacs:
 
 
 @pytest.fixture
-def receiver() -> Iterator[Receiver]:
-    made = Receiver()
-    yield made
-    made.close()
-
-
-@pytest.fixture
 def settings(db_settings: Settings, redis_url: str, receiver: Receiver) -> Iterator[Settings]:
     """``db_settings`` storing results (a run of one attempt: the boundary SPINE_DICOMWEB_MAX_ATTEMPTS=1) in a
     PACS nobody listens at, on a Redis queue of the test's own, calling back ``receiver``."""

@@ -11,7 +11,6 @@ attempt is recorded on the job, "not sent", and no request is made."""
 from __future__ import annotations
 
 import uuid
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -28,13 +27,6 @@ from tests.conftest import spine_payload
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Receiver
 
 BACKENDS = pytest.mark.parametrize("db_settings", ["postgresql", "sqlite"], indirect=True)
-
-
-@pytest.fixture
-def receiver() -> Iterator[Receiver]:
-    r = Receiver()
-    yield r
-    r.close()
 
 
 def _cancelled_job(settings: Settings, owner: str | None, url: str) -> uuid.UUID:
