@@ -78,7 +78,7 @@ from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
 from spine_engine.anatomy import load_profile, rest_shape_unit
 from spine_engine.errors import InvalidInput, SpineEngineError
-from spine_engine.fit.uncertainty import calibration
+from spine_engine.fit.uncertainty import PRIOR_ONLY_LENKE, calibration
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
 from spine_engine.measures import compute_measures, frontal_tilt_deg
@@ -177,7 +177,8 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
         "lordosis_l1_l5": ("lumbar_lordosis_l1_l5_deg", "lumbar_lordosis_l1_l5_sd_deg"),
     }
     lenke, truth_lenke = m.get("lenke"), truth_m.lenke
-    for name, lenke_key in LENKE_KYPHOSES.items():  # reported only: the Lenke inputs of the result's measures
+    # Lenke's regional kyphoses T2–T5 and T10–L2, reported only (reported_mae_deg, coverage_reported, floor_mae_deg)
+    for name, lenke_key in PRIOR_ONLY_LENKE.items():
         if lenke is None or truth_lenke is None:
             break
         out.truth_deg[name] = float(getattr(truth_lenke, lenke_key))
@@ -333,9 +334,6 @@ def generated_truths(n: int, seed: int) -> list[Truth]:
 
 
 MEASURES = ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "cobb", "axial_rotation")
-LENKE_KYPHOSES = {"kyphosis_t2_t5": "t2_t5_kyphosis_deg", "kyphosis_t10_l2": "t10_l2_kyphosis_deg"}
-"""Lenke's regional kyphoses, read on the result's ``measures.lenke`` against the truth's (its centreline
-frames): in ``reported_mae_deg``, ``coverage_reported`` and, against VerSe dev's means, ``floor_mae_deg``."""
 
 
 def _mean(values: list[float]) -> float | None:
@@ -361,7 +359,7 @@ def population_means(profile: str = "default") -> dict[str, float]:
     means = {name: float(population[key]["mean"]) for name, key in (
         ("kyphosis_t4_t12", "kyphosis_t4_t12_deg"), ("lordosis_l1_l5", "lordosis_l1_l5_deg")) if key in population}
     readings = calibration().prior_only  # Lenke's regional kyphoses: VerSe dev's means, as the calibration read them
-    means.update({name: readings[name].population_mean_deg for name in LENKE_KYPHOSES if name in readings})
+    means.update({name: readings[name].population_mean_deg for name in PRIOR_ONLY_LENKE if name in readings})
     return means
 
 
@@ -396,7 +394,7 @@ def summarise(
         "directors_axial_rotation_mae_deg": _mean([o.directors_axial_rotation_mae_deg for o in ok]),
         "reported_mae_deg": {
             name: _mean([abs(o.reported_errors_deg.get(name, np.nan)) for o in ok])
-            for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb", *LENKE_KYPHOSES)
+            for name in ("kyphosis_t4_t12", "kyphosis_t5_t12", "lordosis_l1_l5", "major_cobb", *PRIOR_ONLY_LENKE)
         },
         "reported_bias_deg": {
             name: _mean([o.reported_errors_deg.get(name, np.nan) for o in ok])
@@ -417,7 +415,8 @@ def summarise(
         row[f"coverage_{name}"] = coverage(z)
         row[f"coverage_{name}_n"] = len(z)
     row["coverage_reported"] = {
-        name: coverage([v for o in ok for v in o.reported_z.get(name, [])]) for name in (*MEASURES[:4], *LENKE_KYPHOSES)
+        name: coverage([v for o in ok for v in o.reported_z.get(name, [])])
+        for name in (*MEASURES[:4], *PRIOR_ONLY_LENKE)
     }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None

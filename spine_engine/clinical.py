@@ -35,6 +35,7 @@ from .models import JobPayload, LateralView, PAView, Unreliable
 from .observations import (
     chord_angles_deg,
     corner_geometry,
+    frontal_sign,
     frontal_tilt_deg_of_image_vectors,
     image_vectors_of_frontal_tilt,
     inferior_midpoint_offsets,
@@ -137,8 +138,7 @@ def is_frontal(e_c: FloatArray, e_r: FloatArray) -> bool:
     """A PA or AP radiograph: columns along ±x and rows along ±z (shown upright), or turned a quarter
     (columns along ±z, rows along ±x). Its chords' frontal angles, and so the tilt prior, are the same
     either way (``observations.chord_angles_deg`` reads them in the patient's frame)."""
-    upright = abs(float(e_c @ _X)) == 1.0 and abs(float(e_r @ _Z)) == 1.0
-    return upright or (abs(float(e_c @ _Z)) == 1.0 and abs(float(e_r @ _X)) == 1.0)
+    return frontal_sign(e_c, e_r) is not None
 
 
 def chords_by_level(arrays: LandmarkArrays, e_c: FloatArray, e_r: FloatArray) -> FloatArray:

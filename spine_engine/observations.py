@@ -94,9 +94,9 @@ def transverse_director(e_c: npt.ArrayLike, e_r: npt.ArrayLike | None = None) ->
         return np.array([float(ec @ _X), 0.0, 0.0])
     if abs(float(ec @ _Y)) == 1.0:
         return np.array([0.0, -float(ec @ _Y), 0.0])
-    er = None if e_r is None else np.asarray(e_r, dtype=float)
-    if er is not None and abs(float(ec @ _Z)) == 1.0 and abs(float(er @ _X)) == 1.0:
-        return np.array([float(er @ _X), 0.0, 0.0])
+    sign = None if e_r is None else frontal_sign(ec, e_r)
+    if sign is not None:  # a PA turned a quarter: its rows run left–right
+        return np.array([sign, 0.0, 0.0])
     raise ValueError("the column direction must be horizontal (L, R, A or P) for tilts and pedicles")
 
 
@@ -114,15 +114,24 @@ def frontal_tilt_deg_of_image_vectors(vectors: npt.ArrayLike, e_c: npt.ArrayLike
     return np.degrees(np.arctan2(v3[..., 2], v3[..., 0]))
 
 
-def _toward_left(ec: FloatArray, er: FloatArray) -> float:
+def frontal_sign(e_c: npt.ArrayLike, e_r: npt.ArrayLike) -> float | None:
     """±1: the sign that turns an image vector along the image axis running left–right in the patient
     toward the patient's left (+x): e_c·x on a frontal view shown upright (columns L or R, rows H or F),
-    e_r·x on one turned a quarter (rows L or R, columns H or F). Raises ValueError on any other view."""
+    e_r·x on one turned a quarter (rows L or R, columns H or F); None on any other view (not frontal)."""
+    ec, er = np.asarray(e_c, dtype=float), np.asarray(e_r, dtype=float)
     if abs(float(ec @ _X)) == 1.0 and abs(float(er @ _Z)) == 1.0:
         return float(ec @ _X)
     if abs(float(er @ _X)) == 1.0 and abs(float(ec @ _Z)) == 1.0:
         return float(er @ _X)
-    raise ValueError("frontal tilts need a frontal view: one image axis L or R, the other H or F")
+    return None
+
+
+def _toward_left(ec: FloatArray, er: FloatArray) -> float:
+    """``frontal_sign``; raises ValueError on a view that is not frontal."""
+    sign = frontal_sign(ec, er)
+    if sign is None:
+        raise ValueError("frontal tilts need a frontal view: one image axis L or R, the other H or F")
+    return sign
 
 
 def image_vectors_of_frontal_tilt(tilt_deg: npt.ArrayLike, e_c: npt.ArrayLike, e_r: npt.ArrayLike) -> FloatArray:

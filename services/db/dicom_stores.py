@@ -177,7 +177,8 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()).scalar_one()
     earlier = list(job.dicom_stores or [])
     stores = [*earlier, attempt.model_dump(mode="json")]
-    if 0 < attempt.attempt < first_of_run(earlier):
+    run = first_of_run(earlier)
+    if 0 < attempt.attempt < run:
         # a second copy of an attempt of a run that ended before a new one was requested, made as the first
         # was: listed (it reached the PACS), but it neither moves the new run's due time nor ends that run
         session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores))
@@ -191,7 +192,7 @@ def record(session: Session, job_id: uuid.UUID, attempt: DicomStoreAttempt, swee
     session.execute(update(Job).where(Job.id == job_id).values(dicom_stores=stores, dicom_store_due_at=due))
     if not job.callback_url or not ends_run(attempt):
         return None
-    end = RunEnd("dicom_stored" if attempt.ok else "dicom_store_failed", first_of_run(earlier), job.callback_url)
+    end = RunEnd("dicom_stored" if attempt.ok else "dicom_store_failed", run, job.callback_url)
     written = deliveries.record_due(session, job_id, end.event, end.url, attempt.attempted_at, end.run)
     return end if written else None
 
@@ -219,7 +220,7 @@ def _next_number(stores: list[dict[str, Any]] | None) -> int:
 def first_of_run(stores: list[dict[str, Any]] | None) -> int:
     """The number of the first attempt of the job's current run of STOW-RS attempts: the last request
     entry's (``request_run``), 1 when there is none (the run the job's success started)."""
-    return next((int(s["attempt"]) for s in reversed(stores or []) if _is_request(s)), 1)
+    return run_firsts(stores)[-1]
 
 
 def run_firsts(stores: list[dict[str, Any]] | None) -> list[int]:

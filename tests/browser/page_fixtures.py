@@ -377,6 +377,31 @@ def click_pa_midpoints(page: Any, levels: Any) -> None:
         page.mouse.click(*canvas_point(page, "pa", col, row))
 
 
+JOB_READ = re.compile(r"/v1/jobs/[0-9a-f-]{36}$")
+"""GET /v1/jobs/{id}: the page's read of a job (its poll), not of the job's figures or downloads."""
+
+
+def unavailable_once(page: Any, url: str | re.Pattern[str], detail: str = "the API is restarting") -> list[float]:
+    """Route the page's requests to ``url`` (a Playwright glob or pattern) so that the first is answered 503 with
+    Retry-After: 30 and a problem+json saying ``detail``, the others reach the service; returns the list
+    to which each request's time (``time.monotonic()``) is appended."""
+    reads: list[float] = []
+    unavailable = [1]
+
+    def answer(route: Any) -> None:
+        reads.append(time.monotonic())
+        if unavailable[0]:
+            unavailable[0] -= 1
+            route.fulfill(status=503, headers={"Retry-After": "30"}, content_type="application/problem+json",
+                          body=json.dumps({"type": "about:blank", "title": "Service Unavailable", "status": 503,
+                                           "detail": detail}))  # fmt: skip
+        else:
+            route.continue_()
+
+    page.route(url, answer)
+    return reads
+
+
 def place_pa_and_lateral(page: Any, tmp_path: Any) -> None:
     """Open the synthetic PA and lateral DICOM films (``make_dicom``, written under ``tmp_path``) on ``page``
     and click T1–L5's midpoints on the PA and T4–L5's on the lateral: a lateral from T4, as clinics send."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import re
 import time
 import uuid
 from datetime import UTC, datetime, timedelta
@@ -20,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from page_fixtures import open_page, pa_points_payload, run_job
+from page_fixtures import JOB_READ, open_page, pa_points_payload, run_job, unavailable_once
 from sqlalchemy import delete, select
 
 from services.core.config import Settings
@@ -30,7 +29,6 @@ from spine_client.tables import MEASURE_COLUMNS, measure_rows
 
 pytestmark = pytest.mark.browser
 
-JOB_READ = re.compile(r"/v1/jobs/[0-9a-f-]{36}$")  # GET /v1/jobs/{id}: the page's poll (not its figures)
 # The old page gave up after 6 failed polls 0.4 s apart, 2.0 s after the first failure (web/src/main.ts
 # before this fix); the reads stay unanswered longer than that.
 OLD_GIVE_UP_S = 6 * 0.4 - 0.4
@@ -120,20 +118,7 @@ def test_tracking_honours_retry_after_checks_now_and_stops_at_404(
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     page.evaluate(f"() => location.hash = '#/jobs/{job_id}'")
     page.wait_for_selector("#job-status[data-status=running]")
-    reads: list[float] = []
-    unavailable = [1]
-
-    def answer(route: Any) -> None:
-        reads.append(time.monotonic())
-        if unavailable[0]:
-            unavailable[0] -= 1
-            route.fulfill(status=503, headers={"Retry-After": "30"}, content_type="application/problem+json",
-                          body=json.dumps({"type": "about:blank", "title": "Service Unavailable", "status": 503,
-                                           "detail": "the API is restarting"}))  # fmt: skip
-        else:
-            route.continue_()
-
-    page.route(f"**/v1/jobs/{job_id}", answer)
+    reads = unavailable_once(page, f"**/v1/jobs/{job_id}")
     for _ in range(100):  # the next poll (every 0.4 s) meets the 503
         if reads:
             break

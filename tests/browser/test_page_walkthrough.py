@@ -10,7 +10,6 @@ the PA film's first level."""
 from __future__ import annotations
 
 import itertools
-import re
 import time
 import uuid
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 import httpx
 import pytest
 from page_fixtures import (
+    JOB_READ,
     LEVELS,
     canvas_point,
     click_pa_midpoints,
@@ -28,11 +28,11 @@ from page_fixtures import (
     pa_points_payload,
     payload_preview,
     run_job,
+    unavailable_once,
 )
 
 pytestmark = pytest.mark.browser
 
-JOB_READ = re.compile(r"/v1/jobs/[0-9a-f-]{36}$")  # GET /v1/jobs/{id}: the page's read of a job (not its figures)
 # The reads stay unanswered longer than the first backoff (main.ts retryDelay: 1 s, doubling) and the second
 # (2 s): at least two retries are seen before the service answers again.
 UNANSWERED_S = 2.0
@@ -128,20 +128,7 @@ def test_a_reopened_job_honours_retry_after_checks_now_and_stops_at_404(
     (its real 404) is said as such and not read again."""
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     job_id = fitted_job["id"]
-    reads: list[float] = []
-    unavailable = [1]
-
-    def answer(route: Any) -> None:
-        reads.append(time.monotonic())
-        if unavailable[0]:
-            unavailable[0] -= 1
-            route.fulfill(status=503, headers={"Retry-After": "30"}, content_type="application/problem+json",
-                          body='{"type": "about:blank", "title": "Service Unavailable", "status": 503, '
-                               '"detail": "the API is restarting"}')  # fmt: skip
-        else:
-            route.continue_()
-
-    page.route(JOB_READ, answer)
+    reads = unavailable_once(page, JOB_READ)
     page.evaluate(f"() => location.hash = '#/jobs/{job_id}'")
     page.wait_for_selector("#job-status[data-tracking=retrying]", timeout=10_000)
     page.wait_for_timeout(1500)  # longer than the first backoff (1 s): Retry-After: 30 holds the read back

@@ -12,6 +12,8 @@ import contextlib
 import socket
 import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -110,3 +112,21 @@ def complete_payload(study: dict[str, str] | None) -> dict[str, Any]:
     if study is not None:
         payload["study"] = study
     return payload
+
+
+@contextmanager
+def relayed_store_service(
+    name: str, data_dir: Path, postgres_url: str, redis_url: str, orthanc: OrthancServer, relay: PortRelay,
+    max_attempts: int, retry_base_s: float, **env: str,
+) -> Iterator[Service]:  # fmt: skip
+    """A `spine serve` (``spawned_service``: PostgreSQL, Redis, its worker) storing results in ``orthanc``
+    through ``relay`` (closed until a test opens it), runs of ``max_attempts`` attempts ``retry_base_s``
+    apart, a 2 s DICOMweb timeout, and ``env`` besides."""
+    url = urlsplit(orthanc.dicomweb_url)._replace(netloc=f"127.0.0.1:{relay.port}").geturl()
+    with spawned_service(
+        name, data_dir, postgres_url=postgres_url, redis_url=redis_url,
+        SPINE_DICOMWEB_URL=url, SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
+        SPINE_DICOMWEB_STORE_RESULTS="true", SPINE_DICOMWEB_TIMEOUT_S="2",
+        SPINE_DICOMWEB_MAX_ATTEMPTS=str(max_attempts), SPINE_DICOMWEB_RETRY_BASE_S=str(retry_base_s), **env,
+    ) as service:  # fmt: skip
+        yield service

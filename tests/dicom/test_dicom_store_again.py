@@ -13,7 +13,6 @@ from collections.abc import Iterator
 from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import pytest
 import redis
@@ -33,10 +32,18 @@ from services.db.models import ApiKey, Job, utcnow
 from services.dicom.uids import job_uids
 from services.worker import dicom_tasks
 from services.worker.tasks import execute_job
-from tests.conftest import Service, _purge_queue, make_key, problem_of, spawned_service, spine_payload
+from tests.conftest import Service, _purge_queue, make_key, problem_of, spine_payload
 from tests.faults import wait_until
 
-from .conftest import STORE_TIMEOUT_S, OrthancServer, PortRelay, complete_payload, free_port, pacs_of
+from .conftest import (
+    STORE_TIMEOUT_S,
+    OrthancServer,
+    PortRelay,
+    complete_payload,
+    free_port,
+    pacs_of,
+    relayed_store_service,
+)
 
 MAX_ATTEMPTS = 2
 """SPINE_DICOMWEB_MAX_ATTEMPTS of the module's service: a run of two attempts."""
@@ -53,13 +60,8 @@ def store_service(
 ) -> Iterator[Service]:  # fmt: skip
     """A `spine serve` of the module's own (PostgreSQL, Redis, its worker) storing results in the session's
     Orthanc through ``relay``, closed until a test opens it."""
-    url = urlsplit(orthanc.dicomweb_url)._replace(netloc=f"127.0.0.1:{relay.port}").geturl()
-    with spawned_service(
-        "dicom-again", tmp_path_factory.mktemp("dicom-again"), postgres_url=postgres_url, redis_url=redis_url,
-        SPINE_DICOMWEB_URL=url, SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
-        SPINE_DICOMWEB_STORE_RESULTS="true", SPINE_DICOMWEB_TIMEOUT_S="2",
-        SPINE_DICOMWEB_MAX_ATTEMPTS=str(MAX_ATTEMPTS), SPINE_DICOMWEB_RETRY_BASE_S=str(RETRY_BASE_S),
-    ) as service:  # fmt: skip
+    with relayed_store_service("dicom-again", tmp_path_factory.mktemp("dicom-again"), postgres_url, redis_url,
+                               orthanc, relay, MAX_ATTEMPTS, RETRY_BASE_S) as service:  # fmt: skip
         yield service
 
 

@@ -14,17 +14,16 @@ import uuid
 from collections.abc import Iterator
 from datetime import datetime
 from typing import Any
-from urllib.parse import urlsplit
 
 import pytest
 from standardwebhooks import Webhook
 
 from services.db.deliveries import message_id
 from services.dicom.uids import job_uids
-from tests.conftest import Service, spawned_service
+from tests.conftest import Service
 from tests.interop_helpers import TEST_WEBHOOK_SECRET, Received, Receiver, wait_until
 
-from .conftest import STORE_TIMEOUT_S, OrthancServer, PortRelay, complete_payload
+from .conftest import STORE_TIMEOUT_S, OrthancServer, PortRelay, complete_payload, relayed_store_service
 
 MAX_ATTEMPTS = 2
 """SPINE_DICOMWEB_MAX_ATTEMPTS of the module's service: a run of two attempts."""
@@ -48,13 +47,9 @@ def hooked_service(
 ) -> Iterator[Service]:  # fmt: skip
     """A `spine serve` of the module's own (PostgreSQL, Redis, its worker) storing results in the session's
     Orthanc through ``relay``, and calling back ``receiver``."""
-    url = urlsplit(orthanc.dicomweb_url)._replace(netloc=f"127.0.0.1:{relay.port}").geturl()
-    with spawned_service(
-        "dicom-hooks", tmp_path_factory.mktemp("dicom-hooks"), postgres_url=postgres_url, redis_url=redis_url,
-        SPINE_DICOMWEB_URL=url, SPINE_DICOMWEB_USERNAME=orthanc.username, SPINE_DICOMWEB_PASSWORD=orthanc.password,
-        SPINE_DICOMWEB_STORE_RESULTS="true", SPINE_DICOMWEB_TIMEOUT_S="2",
-        SPINE_DICOMWEB_MAX_ATTEMPTS=str(MAX_ATTEMPTS), SPINE_DICOMWEB_RETRY_BASE_S=str(RETRY_BASE_S),
-        SPINE_WEBHOOK_ALLOWED_URLS=receiver.url("/hooks/"), SPINE_WEBHOOK_SECRET=SECRET,
+    with relayed_store_service(
+        "dicom-hooks", tmp_path_factory.mktemp("dicom-hooks"), postgres_url, redis_url, orthanc, relay,
+        MAX_ATTEMPTS, RETRY_BASE_S, SPINE_WEBHOOK_ALLOWED_URLS=receiver.url("/hooks/"), SPINE_WEBHOOK_SECRET=SECRET,
     ) as service:  # fmt: skip
         yield service
 

@@ -167,10 +167,7 @@ export function filmProblems(marks: Map<Level, { point?: Vec2; corners?: Vec2[];
     const corners = m.corners?.length === 4 ? m.corners : null;
     if (corners) for (const [text, short] of cornerProblems(corners, level)) out.push({ level, text, short });
     if (m.pedicles?.length === 2) for (const [text, short] of pedicleProblems(m.pedicles, level)) out.push({ level, text, short });
-    // the superior endplate's midpoint: the image's top corners, its bottom ones when the rows run toward the head
-    // (as the service reads them: validation.py `_top_midpoint`)
-    const [a, b] = towardHead ? [BL, BR] : [TL, TR];
-    const top = m.point ?? (corners ? ([(corners[a][0] + corners[b][0]) / 2, (corners[a][1] + corners[b][1]) / 2] as Vec2) : null);
+    const top = m.point ?? (corners ? landmarkPoint({ corners }, towardHead) : null);
     if (top) placed.push({ level, top, corners });
   }
   const bad = new Set(out.map((p) => p.level));

@@ -19,11 +19,14 @@ export interface Landmark {
   [extra: string]: unknown;
 }
 
-/** The landmark's top endplate midpoint: its point, or the middle of its two top corners. */
-export function landmarkPoint(lm: Landmark): Vec2 {
+/** The landmark's top (superior) endplate midpoint: its point, or the middle of its two top corners, its two
+ * bottom ones on a film whose rows run toward the head (`towardHead`: as the service reads them,
+ * validation.py `_top_midpoint`). */
+export function landmarkPoint(lm: Pick<Landmark, "point"> & { level?: Level; corners?: Vec2[] | null }, towardHead = false): Vec2 {
   if (lm.point) return lm.point;
-  if (lm.corners) return [(lm.corners[0][0] + lm.corners[1][0]) / 2, (lm.corners[0][1] + lm.corners[1][1]) / 2];
-  throw new Error(`landmark ${lm.level} has neither point nor corners`);
+  const [a, b] = towardHead ? [2, 3] : [0, 1];
+  if (lm.corners) return [(lm.corners[a][0] + lm.corners[b][0]) / 2, (lm.corners[a][1] + lm.corners[b][1]) / 2];
+  throw new Error(`landmark ${lm.level ?? ""} has neither point nor corners`);
 }
 
 export interface ViewPayload {
