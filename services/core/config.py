@@ -97,14 +97,16 @@ class Settings(BaseSettings):
         "dropped NAT entry, a cable) is closed after this: data unacknowledged this long (libpq tcp_user_timeout) "
         "or an idle connection whose keepalive probes go unanswered (first probe after a third of it). The "
         "kernel's defaults are 2 h of idleness (tcp_keepalive_time) and about 15 min of retransmissions "
-        "(tcp_retries2), tcp(7).",
+        "(tcp_retries2), tcp(7). Added to SPINE_DB_STATEMENT_TIMEOUT_S it bounds the wait for any answer on an "
+        "open connection (a hung pooler or proxy that acknowledges and never forwards): 503, or a worker retry.",
     )
     db_statement_timeout_s: float = Field(
         30.0,
         ge=0,
         description="PostgreSQL: a statement (lock waits included) still running after this is cancelled by the "
         "server (statement_timeout); the API answers 503, a worker retries. 0: no limit. The service's "
-        "statements take milliseconds; migrations (`spine migrate`) have no limit.",
+        "statements take milliseconds; migrations (`spine migrate`) have no limit. This plus SPINE_DB_TCP_TIMEOUT_S "
+        "bounds the wait for any answer on an open connection (none when 0).",
     )
     broker_timeout_s: float = Field(
         5.0,

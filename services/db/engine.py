@@ -7,10 +7,16 @@ import os
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Final, TypeVar
 
+import psycopg
+from psycopg.abc import PQGen
+from psycopg.connection import _WAIT_INTERVAL
+from psycopg.errors import _WaitTimeout
 from sqlalchemy import Connection, Engine, create_engine, event, make_url
+from sqlalchemy.engine.interfaces import Dialect
 from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import ConnectionPoolEntry
 
 from services.core.config import Settings, TcpKeepalive
 
@@ -134,6 +140,79 @@ def postgres_connect_args(settings: Settings, *server_settings: str) -> dict[str
     return {name: value for name, value in args.items() if name == "options" or name not in given}
 
 
+def answer_timeout_s(settings: Settings) -> float | None:
+    """The longest the service waits for PostgreSQL's answer on an open connection, in seconds:
+    ``SPINE_DB_STATEMENT_TIMEOUT_S + SPINE_DB_TCP_TIMEOUT_S`` (default 30 + 30 = 60 s); None (no bound)
+    when the statement timeout is 0 (no limit).
+
+    A statement the server gets ends by the statement timeout (PostgreSQL 15 documentation, §20.11.1
+    "Statement Behavior"), and its answer then takes a round trip and, for a commit, the WAL flush, which
+    the statement timeout does not count (the server disarms it before committing, ``finish_xact_command``
+    in ``postgres.c``). The margin is the stall the service already tolerates from the path at the TCP
+    level (``tcp_user_timeout``): an answer later than both is not coming; the path acknowledges and does
+    not forward (a hung pooler or proxy), where no libpq parameter ends the wait (§34.1.2 bounds the
+    connection, TCP and idle keepalives only)."""
+    if not settings.db_statement_timeout_s:
+        return None
+    return settings.db_statement_timeout_s + settings.db_tcp_timeout_s
+
+
+class _OwnBound:
+    """``AnswerBoundConnection.wait``'s default timeout: the connection's ``answer_timeout_s``."""
+
+
+_OWN_BOUND: Final = _OwnBound()
+_RV = TypeVar("_RV")
+
+
+class AnswerBoundConnection(psycopg.Connection[Any]):
+    """A psycopg connection whose every wait for the server (a statement's execute and results, a commit,
+    a rollback) ends after ``answer_timeout_s`` seconds (None: no bound): the connection is then closed
+    (``PGconn.finish``: ``closed`` and ``broken``, which SQLAlchemy's psycopg dialect takes for a
+    disconnect, so that the pool discards it and the engine's other pooled connections are replaced)
+    and the wait is a ``psycopg.OperationalError`` (an ``OperationalError`` past SQLAlchemy: the API's
+    503 ``service-unavailable``, a transient fault that the worker retries).
+
+    The bound is psycopg's own: ``Connection.wait``'s ``timeout``, handed to its wait function (the C
+    ``wait_c``, a poll() with a deadline), which raises ``_WaitTimeout`` and leaves the connection in an
+    unknown state, closed then as psycopg closes a connection whose cancelled query never ends
+    (``Connection.wait``; https://github.com/psycopg/psycopg/issues/1371). It runs in the thread that
+    waits: no watchdog thread, no race with the connection's next use, nothing per statement but a
+    deadline. A cancel request (``cancel_safe(timeout=…)``) would not help: it goes through a new
+    connection to the same hung path, and the server never got the statement. ``_WaitTimeout`` and
+    ``_WAIT_INTERVAL`` are psycopg's internal names (3.3.9, pinned in pyproject.toml):
+    tests/db/test_hung_database_path.py fails if they stop doing this. A caller's explicit ``timeout``
+    (``notifies(timeout=…)``; None there: wait for notifications without end) is its own."""
+
+    answer_timeout_s: float | None = None
+
+    def wait(
+        self, gen: PQGen[_RV], interval: float = _WAIT_INTERVAL, timeout: float | _OwnBound | None = _OWN_BOUND
+    ) -> _RV:
+        if not isinstance(timeout, _OwnBound):
+            return super().wait(gen, interval, timeout)
+        try:
+            return super().wait(gen, interval, self.answer_timeout_s)
+        except _WaitTimeout:
+            self.pgconn.finish()
+            raise psycopg.OperationalError(
+                f"no answer from the database within {self.answer_timeout_s:g} s (SPINE_DB_STATEMENT_TIMEOUT_S + "
+                "SPINE_DB_TCP_TIMEOUT_S): the connection is closed"
+            ) from None
+
+
+def bound_answers(engine: Engine, timeout_s: float | None) -> None:
+    """Make ``engine`` connect with ``AnswerBoundConnection`` (SQLAlchemy's ``do_connect`` event, with the
+    parameters its dialect would give ``psycopg.connect``), each bounding its waits to ``timeout_s``."""
+
+    def connect(_dialect: Dialect, _record: ConnectionPoolEntry, cargs: list[Any], cparams: dict[str, Any]) -> Any:
+        connection = AnswerBoundConnection.connect(*cargs, **cparams)
+        connection.answer_timeout_s = timeout_s
+        return connection
+
+    event.listen(engine, "do_connect", connect)
+
+
 def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
     key = (settings.sqlalchemy_url, os.getpid())
     with _LOCK:
@@ -143,6 +222,8 @@ def _entry(settings: Settings) -> tuple[Engine, sessionmaker[Session]]:
             if settings.sqlalchemy_url.startswith("postgresql"):
                 options["connect_args"] = postgres_connect_args(settings)
             engine = create_db_engine(settings.sqlalchemy_url, settings.db_pool_size, **options)
+            if engine.dialect.name == "postgresql":
+                bound_answers(engine, answer_timeout_s(settings))
             _ENGINES[key] = (engine, sessionmaker(engine, expire_on_commit=False))
         return _ENGINES[key]
 
@@ -192,6 +273,7 @@ def _worker_engine(settings: Settings, durable: bool) -> Engine:
         extra = () if durable else ("synchronous_commit=off",)
         engine = create_db_engine(settings.sqlalchemy_url, pool_size=2, isolation_level="AUTOCOMMIT",
                                   connect_args=postgres_connect_args(settings, *extra))  # fmt: skip
+        bound_answers(engine, answer_timeout_s(settings))
     with _LOCK:
         return _WORKER_ENGINES.setdefault(key, engine)
 
