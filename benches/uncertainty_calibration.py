@@ -4,7 +4,8 @@
 case (``clinic_films.simulate_series``, ``clinic_films.build_payload``), fits it once (``reconstruction``'s
 ``prepare_inputs`` and ``fit_patient_rod``: the same fit as ``register``, kept to reuse its
 ``Solution``) and then, with z = |error| / SD of every position coordinate relative to the
-centroid (``fit.uncertainty``):
+centroid (``fit.uncertainty``; the SD as ``register`` reports it before c, widened by its image
+points' misfit max(1, B), ``fit.uncertainty.solution_misfit``):
 
 1. λ (the rod's weight as a prior in the Laplace Hessian): the value at which the PA-only case
    (e), where the prior decides the depth, covers ``target`` (95 %) with c = 1; bisection on
@@ -38,6 +39,7 @@ from spine_engine.fit.uncertainty import (
     PRIOR_ONLY_MEASURES,
     Calibration,
     PriorOnlyReading,
+    solution_misfit,
     solution_uncertainty,
     write_calibration,
 )
@@ -101,10 +103,11 @@ def collect(truths: Sequence[Truth], cases: Sequence[Case], noise_mm: float, see
 
 
 def position_z(samples: Sequence[Sample], prior_weight: float) -> dict[str, np.ndarray]:
-    """Per case, z = |error| / raw SD (c = 1) of every centroid-relative coordinate."""
+    """Per case, z = |error| / SD (c = 1, widened by max(1, B)) of every centroid-relative coordinate."""
     z: dict[str, list[np.ndarray]] = {}
     for s in samples:
-        u = solution_uncertainty(s.solution, scale=1.0, prior_weight=prior_weight)
+        widen = max(1.0, solution_misfit(s.solution).ratio)
+        u = solution_uncertainty(s.solution, scale=widen, prior_weight=prior_weight)
         r, t = s.solution.positions, s.truth.positions
         error = (r - r.mean(axis=0)) - (t - t.mean(axis=0))
         z.setdefault(s.case, []).append((np.abs(error) / u.position_sd_mm).ravel())

@@ -207,6 +207,7 @@ class FitReport(OpenModel):
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)
     pedicle_residuals: list[PedicleResidual] = Field(default_factory=list)
     uncertainty_scale: float | None = None
+    landmark_misfit_ratio: float | None = None
     assumed: list[Assumption] = Field(default_factory=list)
 
 

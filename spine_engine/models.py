@@ -1008,8 +1008,16 @@ class FitReport(BaseModel):
     pedicle_residuals: list[PedicleResidual] = Field(default_factory=list)
     uncertainty_scale: float | None = Field(
         None,
-        description="Calibrated factor applied to the Laplace standard deviations (calibrated on VerSe dev so "
-        "that ±1.96 SD covers 95 % of truth). Null when no uncertainty was computed.",
+        description="Factor applied to the Laplace standard deviations: the constant calibrated on VerSe dev so "
+        "that ±1.96 SD covers 95 % of truth, times landmark_misfit_ratio when that exceeds 1. Null when no "
+        "uncertainty was computed.",
+    )
+    landmark_misfit_ratio: float | None = Field(
+        None,
+        description="Birge ratio √(χ²/ν) of the image landmarks (points, corners' midpoints, pedicles) about the "
+        "fitted spine against their landmark SDs, ν their count less the parameters they determine: about 1 or "
+        "less when they scatter as stated; above 1 every SD is widened by it (a projection model that is not the "
+        "film's, or an SD stated below the clicks' scatter). Null when no uncertainty was computed.",
     )
     assumed: list[Assumption] = Field(
         default_factory=list,

@@ -742,11 +742,12 @@ def _sagittal_assumptions(inputs: RegistrationInputs) -> list[Assumption]:
 
 
 def _fit_report(
-    inputs: RegistrationInputs, out: FitOutput, runtime_ms: float, uncertainty_scale: float | None = None,
+    inputs: RegistrationInputs, out: FitOutput, runtime_ms: float, uncertainty: Uncertainty | None = None,
     population_axial_rotation: bool = False,
 ) -> FitReport:
-    """The fit's report; ``population_axial_rotation``: the axial rotations reported are the
-    population's (``population_axial_rotation_deg``), which ``assumed`` then names."""
+    """The fit's report; ``uncertainty``: the SDs reported (their scale and misfit ratio), None when
+    not computed; ``population_axial_rotation``: the axial rotations reported are the population's
+    (``population_axial_rotation_deg``), which ``assumed`` then names."""
     residuals = _RESIDUAL_LIST.validate_python(
         [
             {"view": view.name, "level": LEVELS[idx], "residual_mm": res}
@@ -791,7 +792,8 @@ def _fit_report(
                 if src in ("image_left", "image_right")
             ]
         ),
-        uncertainty_scale=uncertainty_scale,
+        uncertainty_scale=None if uncertainty is None else uncertainty.scale,
+        landmark_misfit_ratio=None if uncertainty is None else uncertainty.landmark_misfit_ratio,
         assumed=[a for setup in inputs.setups.values() for a in setup.assumed]
         + _sagittal_assumptions(inputs)
         + ([_assumption("population_axial_rotation", None)] if population_axial_rotation else []),
@@ -976,8 +978,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
     return RegistrationResult(
         vertebrae=_vertebrae(out, rest, inputs.observed_tilt_deg, uncertainty, axial_rotation),
         measures=measures,
-        fit=_fit_report(inputs, out, runtime_ms, None if uncertainty is None else uncertainty.scale,
-                        population_axial_rotation=axial_rotation is not None),
+        fit=_fit_report(inputs, out, runtime_ms, uncertainty, population_axial_rotation=axial_rotation is not None),
         engine=EngineInfo(version=__version__, profile=profile.name),
     )
 

@@ -49,6 +49,21 @@ tests/engine/test_uncertainty.py):
 
 The delta method is conditional on the curve's end vertebrae (chosen by the tilt sequence) and
 linear: SDs of several degrees on an angle near a branch of atan2 are approximate.
+
+A misfit the stated noise does not explain widens every SD (``landmark_misfit``). The image-point rows
+(landmarks and offset points, variance τ each under the model) give
+
+    χ² = Σ ρ_i² / τ,   ν = n − tr(S),   B = √(χ²/ν),
+
+with n their count and tr(S) = Σ_i J_i H₁⁻¹ J_iᵀ their leverages in the fit's own Hessian H₁ = JᵀJ
+(every row at weight 1, as the fit weighs them): the effective number of parameters the points
+pay for, so that E[χ²] ≈ ν when the points scatter as stated about a spine the model can take. B is
+the Birge ratio; ``reported_uncertainty`` multiplies the SDs by max(1, B), the scale factor with
+which the Particle Data Group widens the errors of measurements that disagree by more than they
+say (Review of Particle Physics, "Introduction", §5.2.2 "Unconstrained averaging"; B ≤ 1 changes
+nothing). A view read in weak perspective whose film came from a point source (the clinic's case
+(h)), or a stated SD below the clicks' scatter, reads B > 1; beyond 4 × the SD the landmarks are
+refused instead (``reconstruction.LANDMARK_SD_CONTRADICTED``).
 """
 
 from __future__ import annotations
@@ -108,7 +123,10 @@ class Uncertainty(NamedTuple):
     cobb_sd_deg: list[float]
     """Of each Cobb curve given to ``laplace_uncertainty``, in order, degrees."""
     scale: float
-    """The calibrated factor c that multiplied the Laplace SDs."""
+    """The factor that multiplied the Laplace SDs: the calibrated c, times max(1, B) in
+    ``reported_uncertainty`` (``landmark_misfit``)."""
+    landmark_misfit_ratio: float | None = None
+    """B of ``landmark_misfit`` (``reported_uncertainty``); None where not computed."""
 
 
 # ---------------------------------------------------------------- calibration file
@@ -596,14 +614,64 @@ def solution_uncertainty(
     )
 
 
+class LandmarkMisfit(NamedTuple):
+    """How far a fit's image points lie from it against their stated SD (module docstring)."""
+
+    chi2: float
+    """χ² = Σ ρ_i²/τ over the image-point rows (dimensionless)."""
+    dof: float
+    """ν = n − tr(S): the rows' count less their leverages in the fit's Hessian."""
+
+    @property
+    def ratio(self) -> float:
+        """B = √(χ²/ν), the Birge ratio; 1 (nothing to judge) when ν < 1."""
+        return math.sqrt(self.chi2 / self.dof) if self.dof >= 1.0 else 1.0
+
+
+@lru_cache(maxsize=32)
+def _image_rows(kinds: tuple[str, ...]) -> npt.NDArray[np.bool_]:
+    """Mask of the rows of image points: landmarks and offset points (``fit.problem``'s kinds)."""
+    mask = np.array([kind.startswith(("landmark:", "offset:")) for kind in kinds], dtype=bool)
+    mask.flags.writeable = False
+    return mask
+
+
+def landmark_misfit(
+    jacobian: FloatArray, residuals: FloatArray, rows: npt.NDArray[np.bool_], temperature_nmm: float
+) -> LandmarkMisfit:
+    """χ² and ν of the rows ``rows`` of whitened residuals ρ (variance τ = ``temperature_nmm`` each):
+    χ² = Σ ρ_i²/τ, ν = n − Σ_i J_i H₁⁻¹ J_iᵀ with H₁ = JᵀJ, the leverages by ``functional_variances``
+    (each row J_i a functional's gradient). For a linear model y = J x + e without prior, tr(S) is
+    the number of parameters and E[χ²] = ν exactly (tests/engine/test_uncertainty.py)."""
+    J = np.ascontiguousarray(jacobian, dtype=float)
+    H = weighted_gram(J, np.ones(len(J)))
+    leverage = functional_variances(H, J[rows])
+    chi2 = float(np.sum(np.square(residuals[rows]))) / float(temperature_nmm)
+    return LandmarkMisfit(chi2, float(np.count_nonzero(rows)) - float(np.sum(leverage)))
+
+
+def solution_misfit(solution: Solution) -> LandmarkMisfit:
+    """``landmark_misfit`` of a solver's ``Solution``: its image-point rows, τ = κ/2."""
+    return landmark_misfit(
+        solution.jacobian, solution.residuals, _image_rows(solution.row_kinds), 0.5 * float(solution.energy_unit)
+    )
+
+
 def reported_uncertainty(
     solution: Solution,
     curves: Sequence[tuple[str, str]] = (),
     scale: float | None = None,
     prior_weight: float | None = None,
 ) -> Uncertainty:
-    """The SDs a result reports: ``solution_uncertainty`` (c and λ default to the calibrated
-    values, ``calibration``) with the axial rotation SDs capped at ``AXIAL_ROTATION_SD_CAP_DEG``;
+    """The SDs a result reports: ``solution_uncertainty`` with c (default the calibrated value,
+    ``calibration``) times max(1, B), B the image points' Birge ratio (``landmark_misfit``), and the
+    axial rotation SDs capped at ``AXIAL_ROTATION_SD_CAP_DEG``; λ defaults to the calibrated value;
     ``curves``: the (upper, lower) end levels of the result's Cobb curves, in order."""
-    u = solution_uncertainty(solution, curves, scale, prior_weight)
-    return u._replace(axial_rotation_sd_deg=np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG))
+    misfit = solution_misfit(solution)
+    c = calibration().uncertainty_scale if scale is None else float(scale)
+    widen = max(1.0, misfit.ratio)
+    u = solution_uncertainty(solution, curves, c * widen if widen > 1.0 else c, prior_weight)
+    return u._replace(
+        axial_rotation_sd_deg=np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG),
+        landmark_misfit_ratio=misfit.ratio,
+    )
