@@ -12,8 +12,8 @@ alone cannot see negative curvature: from near a weak saddle its steps grow by a
 iteration (100 iterations were not enough on AASCE radiographs, docs/accuracy.md), and from a point
 with a near-zero gradient it stops there, "converged" on the saddle. D is the running maximum of
 diag(JᵀJ); λ starts at 1e-8 and follows Nielsen's rule (× max(0.1, 1 − (2ϱ − 1)³) on success, × 2,
-4, 8, … on failure), with ϱ the ratio of actual to predicted decrease at the damping of the step
-taken. A trial step is accepted when it lowers E.
+4, 8, … on failure, from at least LAMBDA_MIN = 2.2e-16, machine epsilon), with ϱ the ratio of actual
+to predicted decrease at the damping of the step taken. A trial step is accepted when it lowers E.
 
 Convergence (with λ ≤ 1e-3, so that the step is not a damped one):
   * the step moves every position by ≤ XTOL_MM = 1e-6 mm, every rotation by ≤ XTOL_RAD = 1e-8 rad
@@ -56,6 +56,14 @@ LAMBDA_GN = 1e-3
 """Damping below which a step is a Gauss–Newton step, for the stationarity test."""
 LAMBDA_MAX = 1e12
 """Damping at which the search gives up on decreasing E further."""
+LAMBDA_MIN = float(np.finfo(float).eps)
+"""Least damping a rejected step is retried from (then × ν): machine epsilon, 2.2e-16, below which λD
+is under the rounding unit of D, the largest diagonal of JᵀJ met so far, and a retry changes the step
+little or not at all. Without it a damping decayed to 0.0 stayed there: on a Gauss–Newton crawl whose
+gain ratio ϱ stays near 2 every accepted step divides λ by 10 (``LAMBDA_DOWN``), and 1e-8 underflows to
+0.0 after some 320 steps (seen on case (g) film pairs with SID 540 mm and landmark noise twice the
+stated SD); a step rejected at 0.0 was retried at 0·ν = 0, the same step, until ν overflowed to ∞ after
+1023 doublings and λ = 0·∞ = NaN ended the search unconverged, as if λ had passed ``LAMBDA_MAX``."""
 MAX_ITERATIONS = 500
 """Accepted steps before the search ends unconverged; ``spine bench clinic --split dev --seeds 3``
 (every case, 1188 runs) needs at most 14, and 19 with the central ray 80 mm from the spine
@@ -200,7 +208,7 @@ def minimise(
                 # Gauss–Newton at the same damping before damping more.
                 ab = system.ab
                 continue
-            lam *= nu
+            lam = max(lam, LAMBDA_MIN) * nu
             nu *= 2.0
         if converged or not accepted:
             break

@@ -9,9 +9,13 @@ against the Gauss–Newton curvature (the geometry of the AASCE radiographs that
 docs/accuracy.md): Gauss–Newton's steps away from the straight shape then grow by a few per cent per
 iteration. The solver used to fall back to those steps whenever Newton's matrix was indefinite, and
 did not converge in 100 iterations from a bow of 0.01 mm, or stopped on the saddle from 0.001 mm.
+
+Also: a damping decayed to 0.0 still rises after a rejected step (``solver.LAMBDA_MIN``).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +25,7 @@ from spine_engine.projection import image_axes, project
 
 N = 17
 SEGMENT_MM = 30.0
+VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
 
 
 def _compressed_rod(overlength: float) -> tuple[RegistrationProblem, np.ndarray, np.ndarray]:
@@ -76,6 +81,7 @@ def test_linearise_at_the_optimum_is_the_solvers_solution() -> None:
     np.testing.assert_allclose(same.x, solution.x, rtol=0, atol=0)
     assert same.layout == solution.layout and same.row_kinds == solution.row_kinds
     pa = prob.views[0]
+    assert pa.camera is not None
     held_free = pa.camera.free.copy()
     held_free[0] = False
     held = dataclasses.replace(pa, camera=dataclasses.replace(pa.camera, free=held_free))
@@ -87,3 +93,55 @@ def test_linearise_at_the_optimum_is_the_solvers_solution() -> None:
     assert fitted.jacobian.shape[1] == prob.n_params - 1
     s_row = next(k for k, kind in enumerate(free.row_kinds) if kind == "camera")
     assert free.jacobian[s_row].any()  # the scale's prior row, absent from the held problem's columns
+
+
+def test_a_step_rejected_at_zero_damping_is_damped(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A damping decayed to 0.0 (``solver.LAMBDA_MIN``: a Gauss–Newton crawl whose every accepted step
+    divides λ by 10 underflows 1e-8 to 0.0 after some 320 steps) must still rise when a step is rejected.
+    It used to stay 0·ν = 0: the same undamped step was tried 1024 times, until ν overflowed and λ = NaN
+    ended the search unconverged at its start ("did not converge in 0 iterations"). The search is started
+    at λ = 0 (``LAMBDA0``), the state such a crawl leaves it in; the two-view problem's first undamped step,
+    from 2 mm and 0.05 rad off, is rejected there (on seeds 0–5 of its noise, every one). Cost: about
+    0.02 s (0.2 s on the old code)."""
+    from spine_engine.fit import solver
+    from tests.engine import test_cameras
+
+    monkeypatch.setattr(test_cameras, "RNG", np.random.default_rng(0))  # the same problem in any test order
+    prob, r, R = test_cameras._joint_problem()
+    reference = solve(prob, r, R).output  # from the usual λ = 1e-8
+    monkeypatch.setattr(solver, "LAMBDA0", 0.0)
+    out = solve(prob, r, R).output
+    assert out.converged and out.iterations > 0
+    # the same minimum, to the flatness of its valley (the cameras and the spine trade there, solver.
+    # MAX_ITERATIONS): on seeds 0–5 the two runs stop within 9e-8·E and 1.1e-3 mm of each other; bounds
+    # 1e-6·E and 0.01 mm, a hundredth of the landmarks' noise SD (1 mm, ``_joint_problem``)
+    assert out.energy_fit + out.energy_internal == pytest.approx(
+        reference.energy_fit + reference.energy_internal, rel=1e-6
+    )
+    np.testing.assert_allclose(out.positions, reference.positions, rtol=0, atol=1e-2)
+
+
+@pytest.mark.parametrize("case", ["d", "g"])
+def test_clinic_films_fitted_from_zero_damping(monkeypatch: pytest.MonkeyPatch, case: str) -> None:
+    """``register()`` with the damping at 0.0 (as ``test_a_step_rejected_at_zero_damping_is_damped``), on
+    point-source films of VerSe dev's verse074 (``benches.clinic_films``, 0.5 mm noise stated as drawn,
+    seed 3): case (g), SID and SOD without the central ray, used to end FitFailed "did not converge in 0
+    iterations"; case (d), geometry unknown, was refused ``landmark_sd_contradicted`` for landmarks that fit
+    the spine to 0.5 mm, since the check reads the residuals where the search stopped (its start). Both
+    now fit as from λ = 1e-8. Cost: about 0.02 s per case (0.2 s for the first, importing the benches)."""
+    from benches.clinic import truths_of_csv
+    from benches.clinic_films import CASES, build_payload, simulate_series
+    from spine_engine import register
+    from spine_engine.fit import solver
+
+    truth = next(t for t in truths_of_csv(VERSE_DEV) if t.spine_id == "verse074")
+    payload = build_payload(simulate_series(truth, 0.5, 3), CASES[case]).model_dump(mode="json", exclude_none=True)
+    reference = register(payload)
+    monkeypatch.setattr(solver, "LAMBDA0", 0.0)
+    result = register(payload)
+    assert result["fit"]["converged"]
+    # the same fit: the two runs' vertebrae lie within 2.3e-5 mm (d) and 2.6e-6 mm (g) of each other; bound
+    # 1e-3 mm, 1/500 of the stated landmark SD (0.5 mm)
+    np.testing.assert_allclose(
+        [v["position"] for v in result["vertebrae"]], [v["position"] for v in reference["vertebrae"]], rtol=0, atol=1e-3
+    )
