@@ -154,6 +154,8 @@ def measure_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     fit = result.get("fit") or {}
     if fit.get("mean_registration_error_mm") is not None:
         rows.append({"measure": "mean_registration_error", "value": fit["mean_registration_error_mm"], "unit": "mm"})
+    if fit.get("landmark_misfit_ratio") is not None:
+        rows.append({"measure": "landmark_misfit_ratio", "value": fit["landmark_misfit_ratio"], "unit": "1"})
     return rows
 
 

@@ -169,6 +169,7 @@ class PrivateCodes:
     FRONTAL_BENDING = _private("FRONT-BEND", "Frontal bending of the segment below the vertebra")
     TWIST = _private("TWIST", "Twist of the segment below the vertebra")
     REGISTRATION_ERROR = _private("REG-ERR", "Mean registration error of the PA landmarks")
+    MISFIT_RATIO = _private("MISFIT-RATIO", "Landmark misfit ratio against the stated landmark SD")
     COBB_LINES = _private("COBB-LINES", "Lines across the end vertebrae (upper, then lower)")
     MEASURED = _private("MEASURED", "Measured (determined by the image landmarks)")
     MODEL_BASED = _private("MODEL-BASED", "Model-based estimate (from the spine model's prior)")
@@ -182,6 +183,8 @@ class PrivateCodes:
 
 DEGREE = CodedConcept("deg", "UCUM", "degree")
 MILLIMETRE = CodedConcept("mm", "UCUM", "millimeter")
+NO_UNITS = CodedConcept("1", "UCUM", "no units")
+"""A ratio's unit (PS3.16 CID 7181 "Abstract Multi-dimensional Image Model Component Units": (1, UCUM, "no units"))."""
 COBB_ANGLE = CodedConcept("285285000", "SCT", "Cobb angle")
 SUPERIOR, INFERIOR, APICAL = codes.SCT.Superior, codes.SCT.Inferior, codes.SCT.Apical
 PROCEDURE = CodedConcept("363680008", "SCT", "Radiographic imaging procedure")
@@ -515,6 +518,7 @@ def build_sr(
                       sd=measures.get("lumbar_lordosis_l1_l5_sd_deg"),
                       sites=[vertebra("L1", SUPERIOR), vertebra("L5", INFERIOR)]),
         b.measurement(PrivateCodes.REGISTRATION_ERROR, fit.get("mean_registration_error_mm"), unit=MILLIMETRE),
+        b.measurement(PrivateCodes.MISFIT_RATIO, fit.get("landmark_misfit_ratio"), unit=NO_UNITS),
     ])  # fmt: skip
 
     for v in result.get("vertebrae") or []:

@@ -97,7 +97,10 @@ MODEL_BASED = {"coding": [{"system": LOCAL_CODE_SYSTEM, "version": LOCAL_CODE_SY
 SD_COMPONENT = "Standard deviation of the value"
 """How the text of an Observation's SD component begins (``sd_component_text`` says where the SD comes from)."""
 
-_LAPLACE = "the fit's Laplace SD, scaled by constants fitted on VerSe dev spines (fit.uncertainty_scale)"
+_LAPLACE = (
+    "the fit's Laplace SD, scaled by constants fitted on VerSe dev spines and widened by the landmarks' misfit beyond "
+    "their stated SD (fit.uncertainty_scale, fit.landmark_misfit_ratio)"
+)
 _MODEL_TILT_ENDS = ("model", "mixed")
 """``tilt_source`` of a Cobb angle some of whose end vertebrae's tilts are the model's (no corners)."""
 
@@ -112,8 +115,8 @@ def sd_component_text(fit: Mapping[str, Any], quantity: str, *, level: str | Non
     ``quantity`` (``cobb``, ``kyphosis``, ``lordosis``, ``axial_rotation`` of ``level``) comes from, as the
     result's ``fit`` says (docs/engine.md "Honest SDs", docs/measures.md, docs/accuracy.md "Intervals"):
 
-    - every SD starts from the fit's Laplace SD scaled by constants fitted on VerSe dev
-      (``fit.uncertainty_scale``);
+    - every SD starts from the fit's Laplace SD scaled by constants fitted on VerSe dev and widened by
+      the landmarks' misfit beyond their stated SD (``fit.uncertainty_scale``, ``fit.landmark_misfit_ratio``);
     - a Cobb angle with an end vertebra of model tilt (``tilt_source`` model or mixed) adds the spread of
       real endplates (AASCE 2019 training); with ``cobb`` in ``fit.unreliable`` an angle that depends on
       a level the PA film's landmarks do not show has at least the population's SD of the major Cobb

@@ -238,6 +238,8 @@ def test_the_measures_csv_gives_values_and_sds_numeric_cells(
     assert float(kyphosis["sd"]) == measures["thoracic_kyphosis_t4_t12_sd_deg"], kyphosis
     error = rows["Mean PA registration error"]
     assert float(error["value"]) == result["fit"]["mean_registration_error_mm"] and error["unit"] == "mm", error
+    misfit = rows["Landmark misfit ratio"]  # how far the landmarks fit, against their stated SD (dimensionless)
+    assert float(misfit["value"]) == result["fit"]["landmark_misfit_ratio"] and misfit["unit"] == "1", misfit
     # every row with a unit holds numbers only; the model-estimate mark is its own column
     for row in rows.values():
         if row["unit"]:

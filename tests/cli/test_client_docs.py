@@ -62,11 +62,12 @@ def test_the_measure_rows_a_model_estimate_marks_are_those_documented() -> None:
     measures = {"cobb": [curve], "largest_cobb": largest, "thoracic_kyphosis_t4_t12_deg": 30.0,
                 "thoracic_kyphosis_t5_t12_deg": 28.0, "lumbar_lordosis_l1_l5_deg": 40.0}  # fmt: skip
     every = ["scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"]
-    result = {"vertebrae": [], "measures": measures, "fit": {"mean_registration_error_mm": 0.5, "unreliable": every}}
+    fit = {"mean_registration_error_mm": 0.5, "landmark_misfit_ratio": 1.3, "unreliable": every}
+    result = {"vertebrae": [], "measures": measures, "fit": fit}
     rows = tables.measure_rows(result)
     marked = {r["measure"] for r in rows if r.get("model_estimate")}
     unmarked = {r["measure"] for r in rows} - marked
-    assert "cobb_angle" in marked and unmarked == {"mean_registration_error"}
+    assert "cobb_angle" in marked and unmarked == {"mean_registration_error", "landmark_misfit_ratio"}
     bullet = _bullet("`spine get ID --measures` (a separate table")
     start = bullet.index("`model_estimate` is `model estimate`")
     sentence = bullet[start : bullet.index("else empty", start)]

@@ -147,7 +147,16 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
   rows.push({ name: "Fit", value: `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`, model: false });
   const boundary = { given: "given (fixed)", soft: "given with an uncertainty", estimated: "not given: estimated from the landmarks and the model" }[f.boundary ?? "given"];
   rows.push({ name: "T1 and L5 poses", value: boundary, model: false });
-  if (f.uncertainty_scale !== undefined) rows.push({ name: "Uncertainty calibration factor", value: num(f.uncertainty_scale, 2), amount: { value: f.uncertainty_scale, unit: "" }, model: false, note: "applied to the standard deviations" });
+  const misfit = f.landmark_misfit_ratio;
+  if (misfit != null) {
+    rows.push({
+      name: "Landmark misfit ratio", value: num(misfit, 2), amount: { value: misfit, unit: "1" }, model: false,
+      note: misfit > 1
+        ? "the landmarks lie farther from the fitted spine than their stated SD explains (a projection that is not the film's, or an SD stated too small): every standard deviation is widened by it"
+        : "the landmarks lie within what their stated SD explains",
+    });
+  }
+  if (f.uncertainty_scale != null) rows.push({ name: "Uncertainty scale", value: num(f.uncertainty_scale, 2), amount: { value: f.uncertainty_scale, unit: "" }, model: false, note: "applied to the standard deviations: calibrated on real spines, times the misfit ratio when above 1" });
   rows.push({ name: "Engine", value: `${result.engine.version}, profile ${result.engine.profile}`, model: false, note: `job ${job.id}` });
   return rows;
 }

@@ -155,7 +155,11 @@ export interface RegistrationResult {
     /** Quantities from the model's prior: scale, depth, kyphosis, lordosis, plane_of_max_curvature, axial_rotation,
      * twist, cobb (every frontal Cobb angle: measures.cobb, largest_cobb, the Lenke curves). */
     unreliable?: string[];
-    uncertainty_scale?: number;
+    /** The factor applied to the Laplace SDs: the calibrated constant, times landmark_misfit_ratio when above 1. */
+    uncertainty_scale?: number | null;
+    /** Birge ratio of the image landmarks about the fitted spine against their stated SDs: above 1 every SD is
+     * widened by it. */
+    landmark_misfit_ratio?: number | null;
   };
   engine: { version: string; profile: string };
 }
