@@ -99,7 +99,15 @@ pacs:
 # and its lock), for the DICOM tests that load the service's SR in Node (tests/dicom/ohif.py). Node and npm
 # are Debian's nodejs and npm, installed with apt-get as above when missing.
 NODE_STAMP := tests/node/node_modules/.installed
-node-deps: $(NODE_STAMP)
+# The page's own packages (web/package-lock.json): tests/dicom/test_header_agreement.py bundles the page's
+# DICOM reader for Node with them, to hold it to the service's.
+WEB_STAMP := web/node_modules/.installed
+node-deps: $(NODE_STAMP) $(WEB_STAMP)
+
+$(WEB_STAMP): web/package.json web/package-lock.json $(NODE_STAMP)
+	@if command -v npm >/dev/null 2>&1; then \
+		cd web && npm ci --no-audit --no-fund --loglevel=error && touch node_modules/.installed; \
+	fi
 
 $(NODE_STAMP): tests/node/package.json tests/node/package-lock.json
 	@if ! command -v npm >/dev/null 2>&1; then \

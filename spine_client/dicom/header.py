@@ -16,7 +16,9 @@ radiograph SOP class (CR, DX, MG, IO, XA, RF, the same list as Cornerstone3D):
 2. Else Imager Pixel Spacing (0018,1164) present: the magnification M is, in this order,
    Estimated Radiographic Magnification Factor (0018,1114) when > 1; SID/SOD when SOD < SID
    (Distance Source to Detector (0018,1110) over Distance Source to Patient (0018,1111), or
-   Distance Source to Entrance (0040,0306) when (0018,1111) is absent); "already applied" when
+   Distance Source to Entrance (0040,0306) when (0018,1111) is absent; with both, their mid-plane, the
+   SOD the view's acquisition carries, where Cornerstone3D takes (0018,1111): the engine multiplies
+   calibrated mm by that acquisition's SID/SOD, so both must be one ratio); "already applied" when
    Imager Pixel Spacing > Pixel Spacing. Then spacing = Imager Pixel Spacing / M (type ``ERMF``),
    or Pixel Spacing when already applied (type ``ERMF``), else Pixel Spacing or Imager Pixel
    Spacing unchanged (type ``Proj``: millimetres at the detector).
@@ -598,19 +600,35 @@ class SpacingReading:
     warnings: tuple[str, ...] = ()
 
 
+def _source_to_patient(ds: Dataset) -> tuple[float, str] | None:
+    """The SOD of the spine's mid-plane from the header's distances, without ERMF (module docstring, rules
+    (b) and (c)), with its rule in words; None when neither distance is given."""
+    dsp = _positive_numbers(ds, "DistanceSourceToPatient", 1)
+    dse = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
+    if dsp is not None and dse is not None:
+        return (dsp[0] + dse[0]) / 2, (f"mid-plane: ({attribute_label('DistanceSourceToPatient')} + "
+                                       f"{attribute_label('DistanceSourceToEntrance')}) / 2")  # fmt: skip
+    if dsp is not None:
+        surface = "detector-side surface, approximates the mid-plane"
+        return dsp[0], f"{attribute_label('DistanceSourceToPatient')} ({surface})"
+    if dse is not None:
+        return dse[0], f"{attribute_label('DistanceSourceToEntrance')} (source-side skin, approximates the mid-plane)"
+    return None
+
+
 def _ermf(ds: Dataset, ps: tuple[float, ...] | None, ips: tuple[float, ...]) -> tuple[float | bool | None, str]:
-    """Cornerstone3D's ``getERMF``: (magnification > 1 | True when already applied | None, its source)."""
+    """Cornerstone3D's ``getERMF``: (magnification > 1 | True when already applied | None, its source). Its SOD
+    is (0018,1111), else (0040,0306); with both, the mid-plane between them (``_source_to_patient``), the SOD the
+    view's ``acquisition`` carries: the engine multiplies 'calibrated' mm by that acquisition's SID/SOD
+    (``spine_engine.clinical.calibrated_magnification``), so the spacing must be divided by the same ratio to
+    give the engine back Imager Pixel Spacing, the detector's (PS3.3 §C.8.11.4)."""
     ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
     sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
-    sod = _positive_numbers(ds, "DistanceSourceToPatient", 1)
-    sod_kw = "DistanceSourceToPatient"
-    if sod is None:
-        sod = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
-        sod_kw = "DistanceSourceToEntrance"
+    sod = _source_to_patient(ds)
     if ermf is not None and ermf[0] > 1:
         return ermf[0], attribute_label("EstimatedRadiographicMagnificationFactor")
     if sid is not None and sod is not None and sod[0] < sid[0]:
-        return sid[0] / sod[0], f"{attribute_label('DistanceSourceToDetector')} / {attribute_label(sod_kw)}"
+        return sid[0] / sod[0], f"{attribute_label('DistanceSourceToDetector')} / {sod[1]}"
     if ps is not None and ips[0] > ps[0]:
         return True, attribute_label("PixelSpacing")
     if ermf is not None:
@@ -662,8 +680,7 @@ def read_acquisition(ds: Dataset) -> tuple[Acquisition, dict[str, str]]:
     """SID, SOD of the spine's mid-plane and ERMF (module docstring, rules (a)–(c)), with their sources."""
     ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
     sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
-    dsp = _positive_numbers(ds, "DistanceSourceToPatient", 1)
-    dse = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
+    from_distances = _source_to_patient(ds)
     sources: dict[str, str] = {}
     magnification = ermf[0] if ermf is not None and ermf[0] > 1 else None
     if magnification is not None:
@@ -675,16 +692,8 @@ def read_acquisition(ds: Dataset) -> tuple[Acquisition, dict[str, str]]:
         sod = sid[0] / magnification
         ermf_label = attribute_label("EstimatedRadiographicMagnificationFactor")
         rule = f"{attribute_label('DistanceSourceToDetector')} / {ermf_label}"
-    elif dsp is not None and dse is not None:
-        sod = (dsp[0] + dse[0]) / 2
-        rule = (f"mid-plane: ({attribute_label('DistanceSourceToPatient')} + "
-                f"{attribute_label('DistanceSourceToEntrance')}) / 2")  # fmt: skip
-    elif dsp is not None:
-        sod = dsp[0]
-        rule = f"{attribute_label('DistanceSourceToPatient')} (detector-side surface, approximates the mid-plane)"
-    elif dse is not None:
-        sod = dse[0]
-        rule = f"{attribute_label('DistanceSourceToEntrance')} (source-side skin, approximates the mid-plane)"
+    elif from_distances is not None:
+        sod, rule = from_distances
     if sod is not None:
         if sid is not None and sod >= sid[0]:
             raise InvalidAttribute(

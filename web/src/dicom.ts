@@ -84,6 +84,7 @@ const tags = {
   ermf: "x00181114",
   sid: "x00181110",
   sod: "x00181111",
+  dse: "x00400306",
   patientOrientation: "x00200020",
   studyUid: "x0020000d",
   seriesUid: "x0020000e",
@@ -101,26 +102,49 @@ const text = (ds: DataSet, tag: string): string | undefined => {
   const v = ds.string(tag);
   return v === undefined || v.trim() === "" ? undefined : v.trim();
 };
-const decimal = (ds: DataSet, tag: string, index = 0): number | undefined => {
-  const v = ds.floatString(tag, index);
-  return v !== undefined && Number.isFinite(v) ? v : undefined;
+/** A Decimal String (DS) value, PS3.5 §6.2: a fixed or floating point number, "0"-"9", "+", "-", "E", "e",
+ * "." and leading or trailing spaces only, at most 16 bytes (parseFloat would read "0.15mm" as 0.15). */
+const DS_VALUE = /^ *[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)? *$/;
+/** The attribute's values as numbers when it holds exactly `count` of them, each a DS value (PS3.5 §6.2) and
+ * finite; undefined otherwise (absent, another multiplicity than the attribute's VM, PS3.6 §6, or not a DS). */
+const decimals = (ds: DataSet, tag: string, count: number): number[] | undefined => {
+  if (!ds.elements[tag] || ds.numStringValues(tag) !== count) return undefined;
+  const values: number[] = [];
+  for (let i = 0; i < count; i++) {
+    const raw = ds.string(tag, i);
+    if (raw === undefined || raw.length > 16 || !DS_VALUE.test(raw)) return undefined;
+    const v = Number(raw.trim());
+    if (!Number.isFinite(v)) return undefined;
+    values.push(v);
+  }
+  return values;
+};
+const decimal = (ds: DataSet, tag: string): number | undefined => decimals(ds, tag, 1)?.[0];
+/** The first of a DS attribute's values whatever their number (Window Center and Width, VM 1-n: the first
+ * window is the default, PS3.3 §C.11.2.1.2). */
+const firstDecimal = (ds: DataSet, tag: string): number | undefined => {
+  const count = ds.elements[tag] ? ds.numStringValues(tag) : undefined;
+  return count === undefined || count < 1 ? undefined : decimals(ds, tag, count)?.[0];
 };
 const pair = (ds: DataSet, tag: string): Vec2 | null => {
-  const a = decimal(ds, tag, 0);
-  const b = decimal(ds, tag, 1);
-  return a !== undefined && b !== undefined && a > 0 && b > 0 ? [a, b] : null;
+  const v = decimals(ds, tag, 2);
+  return v && v[0] > 0 && v[1] > 0 ? [v[0], v[1]] : null;
 };
+/** Pixel Spacing Calibration Type (0028,0A02) Enumerated Values (PS3.3 §10.7.1.2); another value says nothing. */
+const CALIBRATION_TYPES = new Set(["GEOMETRY", "FIDUCIAL"]);
 const close = (a: Vec2, b: Vec2): boolean => Math.abs(a[0] - b[0]) < 1e-6 && Math.abs(a[1] - b[1]) < 1e-6;
 const mm = (v: Vec2): string => (v[0] === v[1] ? `${v[0]} mm` : `${v[0]} × ${v[1]} mm (row × column)`);
 
 /**
  * Which spacing gives millimetres, after PS3.3 §10.7.1.1 (Basic Pixel Spacing Calibration Macro)
  * as Cornerstone3D and OHIF read it: Pixel Spacing (0028,0030) is in the patient plane when a
- * Pixel Spacing Calibration Type (0028,0A02) is present or it differs from Imager Pixel Spacing
+ * Pixel Spacing Calibration Type (0028,0A02) of its Enumerated Values GEOMETRY or FIDUCIAL (§10.7.1.2;
+ * another value is ignored, as the service ignores it) is present or it differs from Imager Pixel Spacing
  * (0018,1164) ("calibrated"); equal values are detector spacing ("projection"); Imager Pixel Spacing
  * alone is at the detector ("detector"), magnified by ERMF (0018,1114) or SID/SOD.
  */
-export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | null, calibrationType: string | undefined): Spacing {
+export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | null, calibrationTypeRead: string | undefined): Spacing {
+  const calibrationType = calibrationTypeRead && CALIBRATION_TYPES.has(calibrationTypeRead.toUpperCase()) ? calibrationTypeRead.toUpperCase() : undefined;
   if (pixelSpacing && (calibrationType || (imagerSpacing && !close(pixelSpacing, imagerSpacing)))) {
     const why = calibrationType ? `calibration type ${calibrationType}` : `different from the Imager Pixel Spacing ${mm(imagerSpacing as Vec2)}`;
     return { value: pixelSpacing, calibration: "calibrated", explanation: `Pixel Spacing ${mm(pixelSpacing)} in the patient plane (${why}).` };
@@ -154,12 +178,38 @@ export function serviceSpacingWords(spacing: Spacing, acquisition: Acquisition, 
   return `The service reads it as ${v[0] === v[1] ? v[0] : v.join(" × ")} mm calibrated (ERMF): Imager Pixel Spacing / ${source}, the same millimetres in the patient.`;
 }
 
-/** Patient Orientation (0020,0020) as two single-letter directions, or null when it is not of that form. */
+/** Patient Orientation (0020,0020) as the principal directions of its two values, or null when it is not of
+ * that form. PS3.3 §C.7.6.1.1.1: each value is one of L, R, A, P, H, F, refined by "one or two additional
+ * letters", "the principal orientation designated in the first character" (an oblique "FL\\RF" is F, R). */
 export function readOrientation(raw: string | undefined): [string, string] | null {
   if (!raw) return null;
   const parts = raw.split("\\").map((p) => p.trim().toUpperCase());
-  if (parts.length !== 2 || !parts.every((p) => /^[LRAPHF]$/.test(p))) return null;
-  return [parts[0], parts[1]];
+  if (parts.length !== 2 || !parts.every((p) => /^[LRAPHF]{1,3}$/.test(p))) return null;
+  return [parts[0][0], parts[1][0]];
+}
+
+/**
+ * The view's acquisition geometry from the header, by the rules of spine_client/dicom/header.py (docs/dicom.md,
+ * "Acquisition geometry"): magnification = ERMF (0018,1114) when > 1 (≤ 1 is no radiograph's, ignored as
+ * Cornerstone3D does); SID = (0018,1110); the SOD of the spine's mid-plane = (a) SID / ERMF (ERMF is SID/SOD of
+ * the object of interest, PS3.3 §C.8.11.7), else (b) the mid-point of Distance Source to Patient (0018,1111,
+ * the detector-side surface) and Distance Source to Entrance (0040,0306, the source-side skin), else (c) either
+ * alone. Non-positive values are not distances: left out.
+ */
+export function readAcquisition(ermf: number | undefined, sid: number | undefined, dsp: number | undefined, dse: number | undefined): Acquisition {
+  const positive = (v: number | undefined): number | undefined => (v !== undefined && v > 0 ? v : undefined);
+  const m = ermf !== undefined && ermf > 1 ? ermf : undefined;
+  const d = positive(sid);
+  const p = positive(dsp);
+  const e = positive(dse);
+  const acquisition: Acquisition = {};
+  if (m !== undefined) acquisition.magnification = m;
+  if (d !== undefined) acquisition.distance_source_to_detector_mm = d;
+  // kept as the header says, even not below the SID: the page names it before sending (checks.ts
+  // geometryProblems) rather than sending the SID alone with an assumed SOD
+  const sod = d !== undefined && m !== undefined ? d / m : p !== undefined && e !== undefined ? (p + e) / 2 : p ?? e;
+  if (sod !== undefined) acquisition.distance_source_to_patient_mm = sod;
+  return acquisition;
 }
 
 /** DICOM DA (YYYYMMDD) as ISO YYYY-MM-DD, or undefined. */
@@ -233,20 +283,12 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     if (v < min) min = v;
     if (v > max) max = v;
   }
-  const center = decimal(ds, tags.windowCenter);
-  const widthW = decimal(ds, tags.windowWidth);
+  const center = firstDecimal(ds, tags.windowCenter);
+  const widthW = firstDecimal(ds, tags.windowWidth);
   const window = center !== undefined && widthW !== undefined && widthW >= 1
     ? { center, width: widthW, fromHeader: true }
     : { center: (min + max) / 2, width: Math.max(1, max - min), fromHeader: false };
-  const acquisition: Acquisition = {};
-  const ermf = decimal(ds, tags.ermf);
-  const sid = decimal(ds, tags.sid);
-  const sod = decimal(ds, tags.sod);
-  if (ermf && ermf > 0) acquisition.magnification = ermf;
-  if (sid && sid > 0) acquisition.distance_source_to_detector_mm = sid;
-  // kept as the header says, even not below the SID: the page names it before sending (checks.ts
-  // geometryProblems) rather than sending the SID alone with an assumed SOD
-  if (sod && sod > 0) acquisition.distance_source_to_patient_mm = sod;
+  const acquisition = readAcquisition(decimal(ds, tags.ermf), decimal(ds, tags.sid), decimal(ds, tags.sod), decimal(ds, tags.dse));
   const orientationRaw = text(ds, tags.patientOrientation) ?? null;
   return {
     width,

@@ -1,0 +1,198 @@
+"""The two readers of a radiograph's header agree on what the engine receives.
+
+A film reaches the engine through the service's reader (``spine_client/dicom/header.py``, merged into the
+view by ``spine_client/dicom/merge.py``) or through the web page's (``web/src/dicom.ts``, whose film
+``web/src/panel.ts`` ``payload()`` turns into the view). Their payloads may differ in form (the service
+divides Imager Pixel Spacing by the magnification and says ``calibrated``, the page sends the detector's
+spacing with the geometry), so each view is compared as the engine takes it: detector mm per pixel
+(``clinical.detector_spacing``), the point-source geometry (``clinical.pinhole_geometry``), the
+fit's initial magnification (``clinical._scale_prior``), the orientation and the image size.
+
+``web/src/dicom.ts`` runs in Node, bundled with the rolldown Vite installs under web/node_modules; the
+page's ``payload()`` is restated in ``PAGE_PAYLOAD_JS`` (panel.ts needs a DOM): a film opened in the
+panel of its role, its header's spacing confirmed, geometry not ignored, every optional member accepted.
+The corpus is written with ``tools.dicom.synthetic`` (explicit and implicit VR little endian), values the
+writer cannot make (malformed decimal strings) as raw bytes. The wider differential check, 85 variants,
+is described in the report that added this file; it lives outside the repository.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pydicom.datadict import dictionary_VR, tag_for_keyword
+from pydicom.dataelem import RawDataElement
+from pydicom.tag import Tag
+
+from spine_client.dicom.errors import InvalidAttribute, MissingAttribute
+from spine_client.dicom.header import read_header
+from spine_client.dicom.merge import DicomProvenance, merge_view
+from spine_engine import clinical, models
+from tools.dicom import synthetic
+
+ROOT = Path(__file__).resolve().parents[2]
+WEB = ROOT / "web"
+ROLLDOWN = WEB / "node_modules" / ".bin" / "rolldown"
+
+PAGE_PAYLOAD_JS = r"""
+// web/src/panel.ts payload() for a DICOM film opened in the panel of its role (orientation not chosen,
+// spacing confirmed as read, header geometry not ignored, every optional member accepted).
+import { readFileSync } from "node:fs";
+const { parseFilm } = await import(process.argv[2]);
+const DEFAULT = { pa: ["L", "F"], lateral: ["A", "F"] };
+const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
+const out = JSON.parse(readFileSync(0, "utf8")).map(({ path, role }) => {
+  let d;
+  try {
+    d = parseFilm(new Uint8Array(readFileSync(path)), path);
+  } catch (e) {
+    return { error: e.constructor.name, message: String(e.message ?? e) };
+  }
+  const typed = d.spacing.value ? String(d.spacing.value[1]) : "";
+  const t = Number(typed);
+  let spacing = null;
+  if (typed.trim() !== "" && t > 0 && t <= 10) {
+    spacing = Math.abs(d.spacing.value[1] - t) < 1e-9 ? d.spacing.value : [t, t];
+  }
+  const view = { units: "px", pixel_spacing: spacing, patient_orientation: d.orientation ?? DEFAULT[role] };
+  const confirmed = d.spacing.value && view.pixel_spacing === d.spacing.value;
+  view.pixel_spacing_calibration = confirmed ? d.spacing.calibration : "unknown";
+  const acq = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
+  acq.image_size = [d.width, d.height];
+  const magnifies = acq.magnification === undefined || acq.magnification > 1;
+  const pointSource = POINT_SOURCE_MODALITIES.has(d.modality ?? "");
+  if (d.spacing.calibration !== "calibrated" && magnifies && pointSource) acq.projection_model = "perspective";
+  view.acquisition = acq;
+  return { view };
+});
+process.stdout.write(JSON.stringify(out));
+"""
+
+IPS = (0.15, 0.15)
+"""Imager Pixel Spacing of every film (synthetic's default), mm: what the engine's detector mm must be."""
+
+# (name, role, synthetic.radiograph kwargs, raw DS/CS values by keyword, the engine's detector mm per px
+# (column, row) when the header gives a usable spacing, else None)
+CASES: list[tuple[str, str, dict[str, Any], dict[str, str], tuple[float, float] | None]] = [
+    ("imager spacing only", "pa", {}, {}, IPS),
+    ("pixel = imager spacing, implicit VR", "pa", dict(pixel_spacing=IPS, transfer_syntax="implicit"), {}, IPS),
+    ("GEOMETRY", "pa", dict(pixel_spacing=(0.12, 0.12), calibration_type="GEOMETRY"), {}, (0.12, 0.12)),
+    ("ERMF 1.1", "pa", dict(ermf=1.1), {}, IPS),
+    # PS3.3 §C.8.11.7: ERMF is SID/SOD; ≤ 1 is no radiograph's, ignored by both (Cornerstone3D's getERMF)
+    ("ERMF 0.9", "pa", dict(ermf=0.9), {}, IPS),
+    # docs/dicom.md rule (a): the SOD is SID / ERMF, not (0018,1111)
+    ("ERMF, SID and (0018,1111)", "pa", dict(ermf=1.1, sid=1800.0, sod=1640.0), {}, IPS),
+    # rule (b): the mid-plane between (0018,1111) and (0040,0306); the service's spacing divided by the same SOD
+    ("SID, (0018,1111), (0040,0306), implicit VR", "pa",
+     dict(sid=1800.0, sod=1700.0, dse=1450.0, transfer_syntax="implicit"), {}, IPS),
+    ("SID, (0040,0306)", "pa", dict(sid=1800.0, dse=1450.0), {}, IPS),
+    # PS3.3 §10.7.1.2: GEOMETRY and FIDUCIAL are the Enumerated Values; another says nothing
+    ("calibration type not enumerated", "pa", dict(pixel_spacing=IPS, calibration_type="XYZ"), {}, IPS),
+    # PS3.3 §C.7.6.1.1.1: the first letter of each value is the principal direction
+    ("oblique turned film", "pa", dict(patient_orientation=("FL", "RF")), {}, IPS),
+    ("mirrored film", "pa", dict(patient_orientation=("R", "F")), {}, IPS),
+    ("lateral by View Position", "lateral", dict(patient_orientation=None, view_position="LL"), {}, IPS),
+    ("DS exponent and spaces", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": " 1.5E-1\\15e-2"}, IPS),
+    # PS3.6: Imager Pixel Spacing has VM 2; PS3.5 §6.2: a DS holds digits, sign, exponent, point and spaces only
+    ("one spacing value", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": "0.15"}, None),
+    ("spacing with units", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": "0.15mm\\0.15"}, None),
+]  # fmt: skip
+
+
+def _film(path: Path, kwargs: dict[str, Any], raw: dict[str, str]) -> Path:
+    """A synthetic film with ``raw`` values written as their bytes (a malformed DS pydicom would not write)."""
+    ds = synthetic.radiograph(**kwargs)
+    implicit = kwargs.get("transfer_syntax") == "implicit"
+    for keyword, text in raw.items():
+        tag = Tag(tag_for_keyword(keyword) or 0)
+        data = text.encode("ascii")
+        data += b" " * (len(data) % 2)  # PS3.5 §7.1.1: even length, DS padded with a space
+        vr = None if implicit else dictionary_VR(tag)
+        ds._dict[tag] = RawDataElement(tag, vr, len(data), data, 0, implicit, True)
+    synthetic.write(ds, path)
+    return path
+
+
+def _page_views(tmp_path: Path, films: list[tuple[Path, str]]) -> list[dict[str, Any]]:
+    bundle = tmp_path / "dicom.mjs"
+    subprocess.run([str(ROLLDOWN), "src/dicom.ts", "--platform", "node", "--format", "esm", "--file", str(bundle)],
+                   cwd=WEB, check=True, capture_output=True, timeout=60)  # fmt: skip
+    script = tmp_path / "page_payload.mjs"
+    script.write_text(PAGE_PAYLOAD_JS)
+    request = json.dumps([{"path": str(p), "role": role} for p, role in films])
+    done = subprocess.run(["node", str(script), str(bundle)], input=request, capture_output=True, text=True,
+                          check=True, timeout=60)  # fmt: skip
+    views: list[dict[str, Any]] = json.loads(done.stdout)
+    return views
+
+
+def _service_view(path: Path, role: str) -> dict[str, Any] | None:
+    """The view the service builds from the film (None when it refuses the film for its spacing)."""
+    header = read_header(path)
+    payload: dict[str, Any] = {role: {"units": "px", "landmarks": []}}
+    try:
+        merge_view(payload, role, header, source="file", provenance=DicomProvenance())  # type: ignore[arg-type]
+    except MissingAttribute:
+        return None
+    view: dict[str, Any] = payload[role]
+    return view
+
+
+def _engine(view: dict[str, Any], role: str) -> dict[str, Any]:
+    """What the engine takes from a view (module docstring), rounded to 1e-6 (DS values carry at most 16
+    characters, PS3.5 §6.2; the readers' arithmetic differs in the last bits)."""
+    cls = models.PAView if role == "pa" else models.LateralView
+    model = cls.model_validate({**view, "landmarks": [{"level": "T1", "point": [10.0, 10.0]}]})
+    pinhole = clinical.pinhole_geometry(model, role)
+    scale, from_prior = clinical._scale_prior(model)  # the fit's initial magnification, and whether it is the prior
+    acq = model.acquisition
+    geometry = None
+    if pinhole is not None:
+        geometry = [round(pinhole.sid_mm, 6), round(pinhole.sod_mm, 6), pinhole.depth_prior_sd_mm, pinhole.assumed]
+    return {
+        "detector_mm_per_px": [round(float(v), 6) for v in clinical.detector_spacing(model)],
+        "pinhole": geometry,
+        "initial_scale": [round(scale, 6), from_prior],
+        "orientation": list(model.patient_orientation),
+        "image_size": None if acq is None or acq.image_size is None else list(acq.image_size),
+    }
+
+
+@pytest.fixture(scope="module")
+def readings(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[str, Any, Any, Any]]:
+    if shutil.which("node") is None or not ROLLDOWN.exists():
+        pytest.skip("needs node and web/node_modules (make node-deps)")
+    tmp_path = tmp_path_factory.mktemp("agreement")
+    films = [(_film(tmp_path / f"{i}.dcm", kwargs, raw), role) for i, (_, role, kwargs, raw, _) in enumerate(CASES)]
+    pages = _page_views(tmp_path, films)
+    out = []
+    for (name, role, _, _, detector), (path, _), page in zip(CASES, films, pages, strict=True):
+        service: dict[str, Any] | InvalidAttribute | None
+        try:
+            service = _service_view(path, role)
+        except InvalidAttribute as exc:
+            service = exc
+        out.append((name, detector, service, page))
+    return out
+
+
+@pytest.mark.parametrize("case", [c[0] for c in CASES])
+def test_page_and_service_give_the_engine_the_same_film(case: str, readings: list[tuple[str, Any, Any, Any]]) -> None:
+    _, detector, service, page = next(r for r in readings if r[0] == case)
+    role = next(c[1] for c in CASES if c[0] == case)
+    assert "error" not in page, f"the page failed to open the film: {page}"
+    if detector is None:
+        # neither reader takes a spacing from the header: the service refuses the film naming the attribute,
+        # the page asks for the spacing (its view has none)
+        assert isinstance(service, InvalidAttribute | type(None)), service
+        assert page["view"]["pixel_spacing"] is None
+        return
+    assert not isinstance(service, Exception) and service is not None, service
+    service_engine, page_engine = _engine(service, role), _engine(page["view"], role)
+    assert service_engine == page_engine
+    assert service_engine["detector_mm_per_px"] == pytest.approx(detector, rel=1e-9)
