@@ -41,11 +41,11 @@ ROLLDOWN = WEB / "node_modules" / ".bin" / "rolldown"
 
 PAGE_PAYLOAD_JS = r"""
 // web/src/panel.ts payload() for a DICOM film opened in the panel of its role (orientation not chosen,
-// spacing confirmed as read, header geometry not ignored, every optional member accepted).
+// spacing confirmed as read, header geometry not ignored, every optional member accepted); its acquisition
+// is the page's own viewAcquisition.
 import { readFileSync } from "node:fs";
-const { parseFilm } = await import(process.argv[2]);
+const { parseFilm, viewAcquisition } = await import(process.argv[2]);
 const DEFAULT = { pa: ["L", "F"], lateral: ["A", "F"] };
-const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
 const out = JSON.parse(readFileSync(0, "utf8")).map(({ path, role }) => {
   let d;
   try {
@@ -62,12 +62,7 @@ const out = JSON.parse(readFileSync(0, "utf8")).map(({ path, role }) => {
   const view = { units: "px", pixel_spacing: spacing, patient_orientation: d.orientation ?? DEFAULT[role] };
   const confirmed = d.spacing.value && view.pixel_spacing === d.spacing.value;
   view.pixel_spacing_calibration = confirmed ? d.spacing.calibration : "unknown";
-  const acq = d.spacing.calibration === "calibrated" ? { magnification: 1 } : { ...d.acquisition };
-  acq.image_size = [d.width, d.height];
-  const magnifies = acq.magnification === undefined || acq.magnification > 1;
-  const pointSource = POINT_SOURCE_MODALITIES.has(d.modality ?? "");
-  if (d.spacing.calibration !== "calibrated" && magnifies && pointSource) acq.projection_model = "perspective";
-  view.acquisition = acq;
+  view.acquisition = viewAcquisition(d, { imageSize: true, projectionModel: true }, false);
   return { view };
 });
 process.stdout.write(JSON.stringify(out));
@@ -96,6 +91,8 @@ CASES: list[tuple[str, str, dict[str, Any], dict[str, str], tuple[float, float] 
     # PS3.3 §C.7.6.1.1.1: the first letter of each value is the principal direction
     ("oblique turned film", "pa", dict(patient_orientation=("FL", "RF")), {}, IPS),
     ("mirrored film", "pa", dict(patient_orientation=("R", "F")), {}, IPS),
+    # docs/dicom.md: a point source by the SOP Class (PS3.4 Annex B.5), whatever the Modality says
+    ("DX storage, Modality OT, SID and SOD", "pa", dict(sid=1800.0, sod=1600.0), {"Modality": "OT"}, IPS),
     ("lateral by View Position", "lateral", dict(patient_orientation=None, view_position="LL"), {}, IPS),
     ("DS exponent and spaces", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": " 1.5E-1\\15e-2"}, IPS),
     # PS3.6: Imager Pixel Spacing has VM 2; PS3.5 §6.2: a DS holds digits, sign, exponent, point and spaces only

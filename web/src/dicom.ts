@@ -52,8 +52,64 @@ export interface DicomFilm {
   orientationRaw: string | null;
   study: DicomStudy;
   modality: string | null;
+  /** SOP Class UID (0008,0016). */
+  sopClassUid: string | null;
   viewPosition: string | null;
   transferSyntax: string;
+}
+
+/** Storage SOP Classes of projection radiographs (PS3.4 Annex B.5: CR, DX, MG, IO, XA, RF), the list of
+ * spine_client/dicom/header.py's PROJECTION_RADIOGRAPH_SOP_CLASSES and Cornerstone3D's: their image is cast
+ * from a point source, whatever the Modality (0008,0060) says. */
+export const PROJECTION_RADIOGRAPH_SOP_CLASSES: ReadonlySet<string> = new Set([
+  "1.2.840.10008.5.1.4.1.1.1", // CR Image Storage
+  "1.2.840.10008.5.1.4.1.1.1.1", // Digital X-Ray Image Storage - For Presentation
+  "1.2.840.10008.5.1.4.1.1.1.1.1", // Digital X-Ray Image Storage - For Processing
+  "1.2.840.10008.5.1.4.1.1.1.2", // Digital Mammography X-Ray Image Storage - For Presentation
+  "1.2.840.10008.5.1.4.1.1.1.2.1", // Digital Mammography X-Ray Image Storage - For Processing
+  "1.2.840.10008.5.1.4.1.1.1.3", // Digital Intra-Oral X-Ray Image Storage - For Presentation
+  "1.2.840.10008.5.1.4.1.1.1.3.1", // Digital Intra-Oral X-Ray Image Storage - For Processing
+  "1.2.840.10008.5.1.4.1.1.12.1", // X-Ray Angiographic Image Storage
+  "1.2.840.10008.5.1.4.1.1.12.1.1", // Enhanced XA Image Storage
+  "1.2.840.10008.5.1.4.1.1.12.2", // X-Ray Radiofluoroscopic Image Storage
+  "1.2.840.10008.5.1.4.1.1.12.2.1", // Enhanced XRF Image Storage
+  "1.2.840.10008.5.1.4.1.1.12.3", // X-Ray Angiographic Bi-plane Image Storage (retired)
+]);
+
+/** The acquisition members that state a film's geometry. */
+export const GEOMETRY_KEYS = ["magnification", "distance_source_to_detector_mm", "distance_source_to_patient_mm"] as const;
+
+/** An acquisition without its geometry: what a film whose header gives none is sent with. */
+export function withoutGeometry(acq: Acquisition | null | undefined): Acquisition {
+  const out: Acquisition = { ...(acq ?? {}) };
+  for (const k of GEOMETRY_KEYS) delete out[k];
+  return out;
+}
+
+/** What the service's schema accepts of a view's acquisition (capabilities.ts). */
+export interface AcquisitionMembers {
+  imageSize: boolean;
+  projectionModel: boolean;
+}
+
+/**
+ * The acquisition a view of this film is sent with, as spine_client/dicom/header.py's
+ * ``RadiographHeader.view_acquisition`` makes it: millimetres already in the patient plane are not
+ * magnified again (magnification 1); "Ignore header geometry" sends it as a film whose header gives no
+ * ERMF, SID or SOD; the film's extent in px (the payload's units), for the central ray at its centre; and
+ * a point source (projection_model "perspective") for a projection radiograph's SOP class
+ * (PROJECTION_RADIOGRAPH_SOP_CLASSES) unless its millimetres are in the patient plane or its magnification
+ * does not magnify.
+ */
+export function viewAcquisition(d: DicomFilm, accepts: AcquisitionMembers, geometryIgnored: boolean): Acquisition {
+  const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : geometryIgnored ? withoutGeometry(d.acquisition) : { ...d.acquisition };
+  if (accepts.imageSize) acq.image_size = [d.width, d.height];
+  const magnifies = acq.magnification === undefined || acq.magnification > 1;
+  const pointSource = d.sopClassUid !== null && PROJECTION_RADIOGRAPH_SOP_CLASSES.has(d.sopClassUid);
+  if (accepts.projectionModel && d.spacing.calibration !== "calibrated" && magnifies && pointSource) {
+    acq.projection_model = "perspective";
+  }
+  return acq;
 }
 
 export const UNCOMPRESSED_SYNTAXES: Record<string, string> = {
@@ -89,6 +145,7 @@ const tags = {
   studyUid: "x0020000d",
   seriesUid: "x0020000e",
   sopUid: "x00080018",
+  sopClass: "x00080016",
   patientId: "x00100020",
   patientName: "x00100010",
   accession: "x00080050",
@@ -314,6 +371,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
       study_date: isoDate(text(ds, tags.studyDate)),
     },
     modality: text(ds, tags.modality) ?? null,
+    sopClassUid: text(ds, tags.sopClass)?.replace(/\0+$/, "") ?? null,
     viewPosition: text(ds, tags.viewPosition) ?? null,
     transferSyntax: syntax,
   };

@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, parseFilm, personName, serviceSpacingWords, type Acquisition, type DicomFilm } from "./dicom";
+import { DicomError, GEOMETRY_KEYS, parseFilm, personName, serviceSpacingWords, viewAcquisition, withoutGeometry, type Acquisition, type DicomFilm } from "./dicom";
 import { DIRECTION_WORDS, ORIENTATION_LABELS, orderAlongAnother, orientationFromOrder, orientationProblems, type OrientationProblem } from "./checks";
 import { FilmEditor, type EditorState, type Mark, type Mode, type OuterEdit } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
@@ -11,7 +11,6 @@ const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "La
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
 export { DIRECTION_WORDS, ORIENTATION_LABELS };
 /** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
-const POINT_SOURCE_MODALITIES = new Set(["CR", "DX"]);
 /** View Position (0018,5101) defined terms, PS3.3 §C.8.11.5.1.1: frontal and lateral projections. */
 const FRONTAL_POSITIONS = new Set(["PA", "AP"]);
 const LATERAL_POSITIONS = new Set(["LL", "RL", "LATERAL"]);
@@ -703,17 +702,7 @@ export class FilmPanel {
     const d = this.dicom;
     if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
     if (d && accepts.acquisition) {
-      // Millimetres already in the patient plane are not magnified again.
-      // "Ignore header geometry": as a film whose header gives no ERMF, SID or SOD.
-      const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : this.geometryIgnored() ? withoutGeometry(d.acquisition) : { ...d.acquisition };
-      // The film's extent in px (the payload's units): with SID and SOD, the central ray at its centre.
-      if (accepts.imageSize) acq.image_size = [d.width, d.height];
-      // A CR or DX film comes from a point source (DICOM PS3.3 C.7.3.1.1.1 Modality); millimetres already in
-      // the patient plane, or a magnification that does not magnify, leave it a weak perspective.
-      const magnifies = acq.magnification === undefined || acq.magnification > 1;
-      if (accepts.projectionModel && d.spacing.calibration !== "calibrated" && magnifies && POINT_SOURCE_MODALITIES.has(d.modality ?? "")) {
-        acq.projection_model = "perspective";
-      }
+      const acq = viewAcquisition(d, accepts, this.geometryIgnored());
       if (Object.keys(acq).length) view.acquisition = acq;
     }
     return view;
@@ -880,14 +869,7 @@ export function otherFilm(job: JobFilm | null, film: DicomFilm): OtherFilm | nul
 }
 
 /** The acquisition members that state the film's geometry (DICOM ERMF (0018,1114), SID (0018,1110), SOD (0018,1111)). */
-const GEOMETRY_KEYS = ["magnification", "distance_source_to_detector_mm", "distance_source_to_patient_mm"] as const;
 
-/** An acquisition without its geometry: what a film whose header gives none is sent with. */
-function withoutGeometry(acq: Acquisition | null | undefined): Acquisition {
-  const out: Acquisition = { ...(acq ?? {}) };
-  for (const k of GEOMETRY_KEYS) delete out[k];
-  return out;
-}
 
 function toMm(lm: ViewPayload["landmarks"][number], spacing: Vec2): ViewPayload["landmarks"][number] {
   const mm = (p: Vec2): Vec2 => [Math.round(p[0] * spacing[1] * 1000) / 1000, Math.round(p[1] * spacing[0] * 1000) / 1000];
