@@ -641,8 +641,9 @@ def landmark_misfit(
 ) -> LandmarkMisfit:
     """χ² and ν of the rows ``rows`` of whitened residuals ρ (variance τ = ``temperature_nmm`` each):
     χ² = Σ ρ_i²/τ, ν = n − Σ_i J_i H₁⁻¹ J_iᵀ with H₁ = JᵀJ, the leverages by ``functional_variances``
-    (each row J_i a functional's gradient). For a linear model y = J x + e without prior, tr(S) is
-    the number of parameters and E[χ²] = ν exactly (tests/engine/test_uncertainty.py)."""
+    (each row J_i a functional's gradient). For a linear model y = J x + e whose prior rows and noise
+    are as stated, E[χ²] = ν exactly (Woodbury: I − S = (I + J_L P⁻¹ J_Lᵀ)⁻¹), and without a prior
+    tr(S) is the number of parameters (tests/engine/test_uncertainty.py)."""
     J = np.ascontiguousarray(jacobian, dtype=float)
     H = weighted_gram(J, np.ones(len(J)))
     leverage = functional_variances(H, J[rows])
@@ -669,8 +670,7 @@ def reported_uncertainty(
     ``curves``: the (upper, lower) end levels of the result's Cobb curves, in order."""
     misfit = solution_misfit(solution)
     c = calibration().uncertainty_scale if scale is None else float(scale)
-    widen = max(1.0, misfit.ratio)
-    u = solution_uncertainty(solution, curves, c * widen if widen > 1.0 else c, prior_weight)
+    u = solution_uncertainty(solution, curves, c * max(1.0, misfit.ratio), prior_weight)
     return u._replace(
         axial_rotation_sd_deg=np.minimum(u.axial_rotation_sd_deg, AXIAL_ROTATION_SD_CAP_DEG),
         landmark_misfit_ratio=misfit.ratio,
