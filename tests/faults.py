@@ -483,3 +483,44 @@ def on_db_clock(settings: Settings, clock: SkewedClock, offset: timedelta, act: 
 def assert_within(value: datetime | None, window: Window, what: str) -> None:
     """``value`` (a time the database stored) lies in ``window`` (``on_db_clock``)."""
     assert value is not None and window[0] <= value <= window[1], f"{what} {value} is not within {window}"
+
+
+class PortRelay:
+    """A TCP relay from a free loopback port to ``target`` (host, port), listening only once ``open``:
+    before, a connection to the port is refused, as to a PACS that is down."""
+
+    def __init__(self, target: tuple[str, int]):
+        self.port = free_port()
+        self.target = target
+        self._server: socket.socket | None = None
+        self._sockets: list[socket.socket] = []
+
+    def open(self) -> None:
+        self._server = socket.create_server(("127.0.0.1", self.port))
+        threading.Thread(target=self._accept, args=(self._server,), daemon=True).start()
+
+    def _accept(self, server: socket.socket) -> None:
+        while True:
+            try:
+                near, _ = server.accept()
+            except OSError:  # closed
+                return
+            far = socket.create_connection(self.target)
+            self._sockets += [near, far]
+            for source, sink in ((near, far), (far, near)):
+                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+
+    @staticmethod
+    def _pump(source: socket.socket, sink: socket.socket) -> None:
+        try:
+            while data := source.recv(65536):
+                sink.sendall(data)
+        except OSError:
+            pass
+        with contextlib.suppress(OSError):
+            sink.shutdown(socket.SHUT_WR)
+
+    def close(self) -> None:
+        for sock in [*([self._server] if self._server else []), *self._sockets]:
+            with contextlib.suppress(OSError):
+                sock.close()

@@ -6,7 +6,7 @@ the connection is closed rather than pooled again, and once the path forwards ag
 answer, no restart.
 
 Real PostgreSQL (the session's store database) behind the test's own TCP relay
-(``tests.dicom.conftest.PortRelay``), hung the way such a proxy hangs: it keeps reading what the
+(``tests.faults.PortRelay``), hung the way such a proxy hangs: it keeps reading what the
 service sends (its kernel acknowledges every byte, so neither ``tcp_user_timeout`` nor the keepalives
 see anything wrong) and forwards nothing until it is told to. Each call that could hang runs in a thread
 joined with a bound (``finishes_within``): on code without the bound the test fails there instead of
@@ -33,7 +33,7 @@ from services.db import runs
 from services.db.engine import dispose_engines, get_engine, worker_connection
 from services.db.migrate import upgrade
 from tests.conftest import make_key, queued_job
-from tests.dicom.conftest import PortRelay
+from tests.faults import PortRelay
 from tests.integration.test_dependency_timeouts import MACHINE_SLACK_S, finishes_within
 
 STATEMENT_TIMEOUT_S = 0.5

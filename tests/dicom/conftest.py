@@ -8,9 +8,6 @@ why (CI counts skips as failures). ``dcmtk`` (dsrdump) and ``dicom3tools`` (dcio
 
 from __future__ import annotations
 
-import contextlib
-import socket
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,9 +19,10 @@ import pytest
 from services.core.config import DicomwebConfig
 from services.dicom.dicomweb import Pacs
 from tests.conftest import Service, spawned_service, spine_payload
+from tests.faults import PortRelay
 from tools.dicom.orthanc import OrthancServer, free_port
 
-__all__ = ["OrthancServer", "free_port", "pacs_of"]
+__all__ = ["OrthancServer", "PortRelay", "free_port", "pacs_of"]
 
 
 @pytest.fixture(scope="module")
@@ -53,47 +51,6 @@ STORE_TIMEOUT_S = 60.0
 SC on two loaded cores, here plus a run's delays (a second or so)."""
 STORE_SPACING_MM = 0.15
 """Pixel spacing of ``complete_payload``'s films (mm)."""
-
-
-class PortRelay:
-    """A TCP relay from a free loopback port to ``target`` (host, port), listening only once ``open``:
-    before, a connection to the port is refused, as to a PACS that is down."""
-
-    def __init__(self, target: tuple[str, int]):
-        self.port = free_port()
-        self.target = target
-        self._server: socket.socket | None = None
-        self._sockets: list[socket.socket] = []
-
-    def open(self) -> None:
-        self._server = socket.create_server(("127.0.0.1", self.port))
-        threading.Thread(target=self._accept, args=(self._server,), daemon=True).start()
-
-    def _accept(self, server: socket.socket) -> None:
-        while True:
-            try:
-                near, _ = server.accept()
-            except OSError:  # closed
-                return
-            far = socket.create_connection(self.target)
-            self._sockets += [near, far]
-            for source, sink in ((near, far), (far, near)):
-                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
-
-    @staticmethod
-    def _pump(source: socket.socket, sink: socket.socket) -> None:
-        try:
-            while data := source.recv(65536):
-                sink.sendall(data)
-        except OSError:
-            pass
-        with contextlib.suppress(OSError):
-            sink.shutdown(socket.SHUT_WR)
-
-    def close(self) -> None:
-        for sock in [*([self._server] if self._server else []), *self._sockets]:
-            with contextlib.suppress(OSError):
-                sock.close()
 
 
 @pytest.fixture(scope="module")
