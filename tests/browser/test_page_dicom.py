@@ -34,6 +34,8 @@ from page_fixtures import (
 
 pytestmark = pytest.mark.browser
 
+PA_ERMF = 1.2  # the fixtures' PA film's ERMF (0018,1114) (page_fixtures.make_dicom)
+
 
 def _service_takes_lateral_subsets(url: str) -> bool:
     """The engine release with acquisition geometry also takes any levels on the lateral film."""
@@ -57,10 +59,12 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     page.set_input_files("#pa-file", str(pa_file))
     page.wait_for_selector("#pa-header dd")
     header = page.text_content("#pa-header") or ""
-    for text in ("DOE JANE", "PAT-0042", "2026-11-30", "ACC-7", "Imager Pixel Spacing 0.4 mm", "detector",
+    # the spacing as the service reads it (Cornerstone3D's getERMF): Imager Pixel Spacing / ERMF, calibrated
+    for text in ("DOE JANE", "PAT-0042", "2026-11-30", "ACC-7",
+                 "Imager Pixel Spacing 0.4 mm / ERMF 1.2 = 0.3333 mm in the patient plane", "Calibration: calibrated",
                  "magnification (ERMF) 1.2", "SID 1800 mm", "SOD 1500 mm", "L, F"):  # fmt: skip
         assert text in header, (text, header)
-    assert page.input_value("#pa-spacing") == str(PA_SPACING)
+    assert page.input_value("#pa-spacing") == str(PA_SPACING / PA_ERMF)
 
     # -- window/level: the film's grey changes with the window
     corners = pa_corners()
@@ -134,7 +138,8 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
     body_sent = watch.posted_jobs()[0].post_data_json
     assert "boundary" not in body_sent
     assert all(lm.get("corners") and len(lm["corners"]) == 4 for lm in body_sent["pa"]["landmarks"])
-    assert body_sent["pa"]["landmarks"][7]["pedicles"] and body_sent["pa"]["pixel_spacing"] == [PA_SPACING, PA_SPACING]
+    pa_spacing = PA_SPACING / PA_ERMF  # calibrated, as the service reads the film
+    assert body_sent["pa"]["landmarks"][7]["pedicles"] and body_sent["pa"]["pixel_spacing"] == [pa_spacing, pa_spacing]
     assert body_sent["pa"]["patient_orientation"] == ["L", "F"]
     assert body_sent["study"]["study_instance_uid"] == "1.2.826.0.1.3680043.8.498.1001"
     spec = httpx.get(f"{live_url}/openapi.json", timeout=10).json()
@@ -151,10 +156,11 @@ def test_dicom_films_corners_lateral_result_reopen_and_print(
             assert body_sent["pa"]["acquisition"]["image_size"] == list(FILM_SIZE)
             assert body_sent["lateral"]["acquisition"]["image_size"] == list(FILM_SIZE)
         if "projection_model" in spec["components"]["schemas"]["Acquisition"]["properties"]:
-            # a DX film comes from a point source; the lateral's mm are in the patient plane (no magnification)
+            # a DX film comes from a point source, its ERMF above 1; the lateral's mm are in the patient plane
+            # with no ERMF (header.py's rule: no projection_model)
             assert body_sent["pa"]["acquisition"]["projection_model"] == "perspective"
             assert "projection_model" not in body_sent["lateral"]["acquisition"]
-        assert body_sent["pa"]["pixel_spacing_calibration"] == "detector"
+        assert body_sent["pa"]["pixel_spacing_calibration"] == "calibrated"
         assert body_sent["lateral"]["pixel_spacing_calibration"] == "calibrated"
     else:
         assert "lateral" not in body_sent

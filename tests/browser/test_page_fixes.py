@@ -65,7 +65,9 @@ def test_files_spacing_downloads_lenke_axes_and_print(
     make_dicom(film, view="pa")  # Imager Pixel Spacing 0.4 mm, ERMF 1.2: the service reads 0.4 / 1.2 mm, calibrated
     page.set_input_files("#pa-file", str(film))
     page.wait_for_selector("#pa-header dd")
-    assert "0.3333 mm calibrated (ERMF): Imager Pixel Spacing / ERMF 1.2" in (page.text_content("#pa-header") or "")
+    header = page.text_content("#pa-header") or ""
+    assert "Imager Pixel Spacing 0.4 mm / ERMF 1.2 = 0.3333 mm in the patient plane. Calibration: calibrated." in header
+    assert page.input_value("#pa-spacing") == str(0.4 / 1.2)  # the page reads the film as the service does
 
     job_id = _succeeded_job(live_url, api_key)
     page.goto(f"{live_url}/#/jobs/{job_id}")

@@ -223,7 +223,8 @@ def _red(page: Any, x: float, y: float) -> bool:
 def test_a_refusal_naming_landmarks_rings_them_on_the_film(
     browser: Any, live_url: str, api_key: str, tmp_path: Path
 ) -> None:
-    """T1 and T2 328 mm apart on the film: the page's own checks pass them, the service refuses T2's
+    """T1 and T2 820 px apart, 273 mm in the patient plane at the film's calibrated spacing (Imager Pixel Spacing
+    0.4 mm / ERMF 1.2, as the service reads it): the page's own checks pass them, the service refuses T2's
     landmark (`pa.landmarks[1]`, implausible_distance); the page rings T2 in red and says so; moving T2
     takes the ring away."""
     make_dicom(tmp_path / "pa.dcm", view="pa")
@@ -242,7 +243,7 @@ def test_a_refusal_naming_landmarks_rings_them_on_the_film(
     assert page.get_attribute("#pa-canvas", "data-refused") == "T2"
     note = page.text_content("#refused-note") or ""
     assert "ringed in red on the PA film (T2)" in note, note
-    assert "T1 and T2 are 328 mm apart" in (page.text_content("#problem") or "")
+    assert "T1 and T2 are 273 mm apart" in (page.text_content("#problem") or "")  # 820 px · 0.4 / 1.2 mm
     x, y = canvas_point(page, "pa", *t2)
     ring = 14  # CSS px: the ring's radius around a single point (web/src/film.ts, at least 14)
     assert all(_red(page, x + dx, y + dy) for dx, dy in ((ring, 0), (-ring, 0), (0, ring), (0, -ring)))
@@ -255,4 +256,60 @@ def test_a_refusal_naming_landmarks_rings_them_on_the_film(
     assert not _red(page, x + ring, y)
     unexpected = [e for e in watch.errors if "status of 422" not in e]  # the refusal itself is logged
     assert not unexpected, unexpected
+    context.close()
+
+
+def _preview(page: Any) -> dict[str, Any]:
+    view: dict[str, Any] = json.loads(page.text_content("#payload-preview") or "{}")["pa"]
+    return view
+
+
+def test_ignoring_a_calibrated_films_geometry_reads_its_spacing_without_it(
+    browser: Any, live_url: str, api_key: str, tmp_path: Path
+) -> None:
+    """The fixtures' PA film (Imager Pixel Spacing 0.4 mm, ERMF 1.2, SID 1800, SOD 1500 mm) reads, as the service
+    reads it, 0.4 / 1.2 mm calibrated, sent with its geometry; "Ignore header geometry" sends it as a header
+    without ERMF, SID and SOD gives it (0.4 mm at the detector, no geometry, still a point source: a DX film,
+    PS3.4 Annex B.5), the spacing field following; untick, and it is back. A FIDUCIAL film with SID and SOD keeps
+    them (the box shown), and without them stays calibrated."""
+    make_dicom(tmp_path / "ermf.dcm", view="pa")
+    fiducial = {"PixelSpacing": [0.35, 0.35], "ImagerPixelSpacing": [0.4, 0.4]}
+    make_dicom(tmp_path / "fiducial.dcm", view="pa", spacing=fiducial,
+               study={"PixelSpacingCalibrationType": "FIDUCIAL", "DistanceSourceToDetector": "1800",
+                      "DistanceSourceToPatient": "1575"})  # fmt: skip
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    open_film(page, "pa", tmp_path / "ermf.dcm")
+    click_pa_midpoints(page, range(3))
+    calibrated = PA_SPACING / 1.2  # the fixtures' ERMF (page_fixtures.make_dicom)
+    assert page.input_value("#pa-spacing") == str(calibrated)
+    view = _preview(page)
+    assert view["pixel_spacing"] == [calibrated, calibrated] and view["pixel_spacing_calibration"] == "calibrated"
+    assert {k: view["acquisition"][k] for k in (ERMF, SID, SOD, "projection_model")} == {
+        ERMF: 1.2, SID: 1800, SOD: 1500, "projection_model": "perspective"}  # fmt: skip
+
+    page.check("#pa-ignore-geometry")
+    assert page.input_value("#pa-spacing") == str(PA_SPACING)
+    view = _preview(page)
+    assert view["pixel_spacing"] == [PA_SPACING, PA_SPACING] and view["pixel_spacing_calibration"] == "detector"
+    assert not {SID, SOD, ERMF} & set(view["acquisition"]) and view["acquisition"]["projection_model"] == "perspective"
+    header = page.text_content("#pa-header") or ""
+    assert "Calibration: detector." in header and "ignored: sent as an uncalibrated film" in header, header
+    page.uncheck("#pa-ignore-geometry")
+    assert page.input_value("#pa-spacing") == str(calibrated)
+    assert _preview(page)["pixel_spacing_calibration"] == "calibrated"
+
+    open_film(page, "pa", tmp_path / "fiducial.dcm")
+    click_pa_midpoints(page, range(3))
+    assert page.is_visible("#pa-ignore-geometry")  # calibrated, but its geometry goes with it
+    view = _preview(page)
+    assert view["pixel_spacing"] == [0.35, 0.35] and view["pixel_spacing_calibration"] == "calibrated"
+    # header.py: no projection_model for calibrated mm without an ERMF; SID and SOD make it a point source
+    assert view["acquisition"][SID] == 1800 and view["acquisition"][SOD] == 1575
+    assert "projection_model" not in view["acquisition"]
+    page.check("#pa-ignore-geometry")
+    assert page.input_value("#pa-spacing") == "0.35"
+    view = _preview(page)
+    assert view["pixel_spacing_calibration"] == "calibrated" and not {SID, SOD, ERMF} & set(view["acquisition"])
+    assert "ignored: sent as a film without geometry" in (page.text_content("#pa-header") or "")
+    assert not watch.errors, watch.errors
     context.close()

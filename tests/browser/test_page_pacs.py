@@ -88,7 +88,8 @@ def test_open_a_film_from_the_pacs_landmark_it_and_send(
     header = page.text_content("#pa-header") or ""
     for text in ("DOE JANE", "PAT-0042", "Imager Pixel Spacing 0.4 mm", film.StudyInstanceUID):
         assert text in header, (text, header)
-    assert page.input_value("#pa-spacing") == str(PA_SPACING)
+    spacing = PA_SPACING / 1.2  # the fixtures' film: Imager Pixel Spacing / its ERMF, as the service reads it
+    assert page.input_value("#pa-spacing") == str(spacing)
     assert "from the PACS as the PA film" in (page.text_content("#pacs-note") or "")
 
     # -- 17 top endplate midpoints, sent
@@ -106,7 +107,7 @@ def test_open_a_film_from_the_pacs_landmark_it_and_send(
     study = job["payload"]["study"]
     assert study["study_instance_uid"] == film.StudyInstanceUID
     assert study["pa_sop_instance_uid"] == film.SOPInstanceUID
-    assert job["payload"]["pa"]["pixel_spacing"] == [PA_SPACING, PA_SPACING]
+    assert job["payload"]["pa"]["pixel_spacing"] == [spacing, spacing]
 
     # -- reopened from its URL in a new page: the film fetched again from the PACS under the landmarks
     page.goto(f"{pacs_serve.url}/#/jobs/{job_id}")

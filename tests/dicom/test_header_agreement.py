@@ -2,9 +2,9 @@
 
 A film reaches the engine through the service's reader (``spine_client/dicom/header.py``, merged into the
 view by ``spine_client/dicom/merge.py``) or through the web page's (``web/src/dicom.ts``, whose film
-``web/src/panel.ts`` ``payload()`` turns into the view). Their payloads may differ in form (the service
-divides Imager Pixel Spacing by the magnification and says ``calibrated``, the page sends the detector's
-spacing with the geometry), so each view is compared as the engine takes it: detector mm per pixel
+``web/src/panel.ts`` ``payload()`` turns into the view). Both read the spacing as Cornerstone3D does (Imager
+Pixel Spacing divided by the ERMF or SID/SOD, ``calibrated``) and send a calibrated film with the header's
+geometry; each view is compared as the engine takes it: detector mm per pixel
 (``clinical.detector_spacing``), the point-source geometry (``clinical.pinhole_geometry``), the
 fit's initial magnification (``clinical._scale_prior``), the orientation and the image size.
 
@@ -98,6 +98,29 @@ CASES: list[tuple[str, str, dict[str, Any], dict[str, str], tuple[float, float] 
     # PS3.6: Imager Pixel Spacing has VM 2; PS3.5 §6.2: a DS holds digits, sign, exponent, point and spaces only
     ("one spacing value", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": "0.15"}, None),
     ("spacing with units", "pa", dict(imager_pixel_spacing=None), {"ImagerPixelSpacing": "0.15mm\\0.15"}, None),
+    # Cornerstone3D's getERMF without a calibration type (docs/dicom.md "Pixel spacing"): Pixel Spacing below Imager
+    # Pixel Spacing has the magnification taken out ('calibrated') when the header gives no magnification ...
+    ("pixel < imager spacing", "pa", dict(pixel_spacing=(0.12, 0.12)), {}, (0.12, 0.12)),
+    # ... but ERMF > 1, then SID/SOD, come first: Imager Pixel Spacing / (1800/1600), multiplied back by the engine
+    ("pixel < imager spacing, SID and SOD", "pa", dict(pixel_spacing=(0.12, 0.12), sid=1800.0, sod=1600.0), {}, IPS),
+    # Pixel Spacing above Imager Pixel Spacing stands for the detector's ('projection'), a point source
+    ("pixel > imager spacing", "pa", dict(pixel_spacing=(0.18, 0.18)), {}, (0.18, 0.18)),
+    # calibrated films keep the header's geometry (header.py view_acquisition): the engine multiplies their
+    # patient-plane mm by the ERMF (0.12 · 1.25 = 0.15), else SID/SOD (0.13 · 1800/1560 = 0.15)
+    ("GEOMETRY with ERMF", "pa", dict(pixel_spacing=(0.12, 0.12), calibration_type="GEOMETRY", ermf=1.25), {}, IPS),
+    ("FIDUCIAL with SID and SOD", "pa",
+     dict(pixel_spacing=(0.13, 0.13), calibration_type="FIDUCIAL", sid=1800.0, sod=1560.0), {}, IPS),
+    # PS3.3 §C.8.11.7: an ERMF ≤ 1 is ignored, so no point source for calibrated mm (header.py projection_model) ...
+    ("GEOMETRY with ERMF 0.9", "pa", dict(pixel_spacing=(0.12, 0.12), calibration_type="GEOMETRY", ermf=0.9), {},
+     (0.12, 0.12)),
+    # ... but SID and SOD still make one: 0.12 · 1800/1600 = 0.135 mm at the detector
+    ("GEOMETRY with ERMF 0.9, SID and SOD", "pa",
+     dict(pixel_spacing=(0.12, 0.12), calibration_type="GEOMETRY", ermf=0.9, sid=1800.0, sod=1600.0), {},
+     (0.135, 0.135)),
+    # PS3.4 Annex B.5: Secondary Capture (1.2.840.10008.5.1.4.1.1.7) is no projection radiograph; its Imager Pixel
+    # Spacing says nothing of the image (Cornerstone3D reads Pixel Spacing only)
+    ("Secondary Capture, imager spacing only", "pa", dict(extra={"SOPClassUID": "1.2.840.10008.5.1.4.1.1.7"}), {},
+     None),
 ]  # fmt: skip
 
 

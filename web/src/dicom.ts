@@ -20,7 +20,8 @@ export interface Acquisition {
   distance_source_to_patient_mm?: number;
   /** [columns, rows] of the image in the view's units (px here): DICOM Columns (0028,0011), Rows (0028,0010). */
   image_size?: [number, number];
-  /** "perspective" for a CR or DX film: projected from a point source, its SID and SOD assumed when missing. */
+  /** "perspective" for a projection radiograph's SOP Class (CR, DX...): projected from a point source, its SID and
+   * SOD assumed when missing. */
   projection_model?: "perspective" | "weak_perspective";
 }
 
@@ -44,9 +45,10 @@ export interface DicomFilm {
   monochrome1: boolean;
   photometric: string;
   window: { center: number; width: number; fromHeader: boolean };
+  /** The spacing as the service reads the header (readSpacing). */
   spacing: Spacing;
-  /** The header has Imager Pixel Spacing (0018,1164). */
-  hasImagerSpacing: boolean;
+  /** The spacing read as if the header gave no ERMF, SID or SOD: what "Ignore header geometry" sends. */
+  spacingWithoutGeometry: Spacing;
   acquisition: Acquisition;
   orientation: [string, string] | null;
   orientationRaw: string | null;
@@ -92,21 +94,28 @@ export interface AcquisitionMembers {
   projectionModel: boolean;
 }
 
+/** The header's spacing reading that goes with the film's acquisition: without its geometry when "Ignore header
+ * geometry" is ticked. */
+export function filmSpacing(d: DicomFilm, geometryIgnored: boolean): Spacing {
+  return geometryIgnored ? d.spacingWithoutGeometry : d.spacing;
+}
+
 /**
  * The acquisition a view of this film is sent with, as spine_client/dicom/header.py's
- * ``RadiographHeader.view_acquisition`` makes it: millimetres already in the patient plane are not
- * magnified again (magnification 1); "Ignore header geometry" sends it as a film whose header gives no
- * ERMF, SID or SOD; the film's extent in px (the payload's units), for the central ray at its centre; and
- * a point source (projection_model "perspective") for a projection radiograph's SOP class
- * (PROJECTION_RADIOGRAPH_SOP_CLASSES) unless its millimetres are in the patient plane or its magnification
- * does not magnify.
+ * ``RadiographHeader.view_acquisition`` makes it: the header's ERMF, SID and SOD (readAcquisition), for a
+ * calibrated spacing too (the engine multiplies its patient-plane mm by that magnification back to the
+ * detector's, spine_engine/clinical.py `calibrated_magnification`); the film's extent in px (the payload's
+ * units), for the central ray at its centre; and a point source (projection_model "perspective") for a
+ * projection radiograph's SOP class (PROJECTION_RADIOGRAPH_SOP_CLASSES) unless its spacing is calibrated
+ * without an ERMF (header.py's `sources["acquisition.projection_model"]` rule). "Ignore header geometry"
+ * sends it as a film whose header gives no ERMF, SID or SOD, its spacing read so (filmSpacing).
  */
 export function viewAcquisition(d: DicomFilm, accepts: AcquisitionMembers, geometryIgnored: boolean): Acquisition {
-  const acq: Acquisition = d.spacing.calibration === "calibrated" ? { magnification: 1 } : geometryIgnored ? withoutGeometry(d.acquisition) : { ...d.acquisition };
+  const acq: Acquisition = geometryIgnored ? withoutGeometry(d.acquisition) : { ...d.acquisition };
   if (accepts.imageSize) acq.image_size = [d.width, d.height];
-  const magnifies = acq.magnification === undefined || acq.magnification > 1;
   const pointSource = d.sopClassUid !== null && PROJECTION_RADIOGRAPH_SOP_CLASSES.has(d.sopClassUid);
-  if (accepts.projectionModel && d.spacing.calibration !== "calibrated" && magnifies && pointSource) {
+  const calibrated = filmSpacing(d, geometryIgnored).calibration === "calibrated";
+  if (accepts.projectionModel && pointSource && (!calibrated || acq.magnification !== undefined)) {
     acq.projection_model = "perspective";
   }
   return acq;
@@ -192,47 +201,81 @@ const CALIBRATION_TYPES = new Set(["GEOMETRY", "FIDUCIAL"]);
 const close = (a: Vec2, b: Vec2): boolean => Math.abs(a[0] - b[0]) < 1e-6 && Math.abs(a[1] - b[1]) < 1e-6;
 const mm = (v: Vec2): string => (v[0] === v[1] ? `${v[0]} mm` : `${v[0]} × ${v[1]} mm (row × column)`);
 
-/**
- * Which spacing gives millimetres, after PS3.3 §10.7.1.1 (Basic Pixel Spacing Calibration Macro)
- * as Cornerstone3D and OHIF read it: Pixel Spacing (0028,0030) is in the patient plane when a
- * Pixel Spacing Calibration Type (0028,0A02) of its Enumerated Values GEOMETRY or FIDUCIAL (§10.7.1.2;
- * another value is ignored, as the service ignores it) is present or it differs from Imager Pixel Spacing
- * (0018,1164) ("calibrated"); equal values are detector spacing ("projection"); Imager Pixel Spacing
- * alone is at the detector ("detector"), magnified by ERMF (0018,1114) or SID/SOD.
- */
-export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | null, calibrationTypeRead: string | undefined): Spacing {
-  const calibrationType = calibrationTypeRead && CALIBRATION_TYPES.has(calibrationTypeRead.toUpperCase()) ? calibrationTypeRead.toUpperCase() : undefined;
-  if (pixelSpacing && (calibrationType || (imagerSpacing && !close(pixelSpacing, imagerSpacing)))) {
-    const why = calibrationType ? `calibration type ${calibrationType}` : `different from the Imager Pixel Spacing ${mm(imagerSpacing as Vec2)}`;
-    return { value: pixelSpacing, calibration: "calibrated", explanation: `Pixel Spacing ${mm(pixelSpacing)} in the patient plane (${why}).` };
-  }
-  if (pixelSpacing && imagerSpacing) {
-    return { value: pixelSpacing, calibration: "projection", explanation: `Pixel Spacing ${mm(pixelSpacing)} equals the Imager Pixel Spacing: millimetres at the detector, magnified.` };
-  }
-  if (imagerSpacing) {
-    return { value: imagerSpacing, calibration: "detector", explanation: `Imager Pixel Spacing ${mm(imagerSpacing)}: millimetres at the detector, magnified.` };
-  }
-  if (pixelSpacing) {
-    return { value: pixelSpacing, calibration: "unknown", explanation: `Pixel Spacing ${mm(pixelSpacing)} without Imager Pixel Spacing or calibration type: the plane it measures is not known.` };
-  }
-  return { value: null, calibration: "unknown", explanation: "The header gives no pixel spacing: enter it." };
+/** What a header says of the film's magnification, for its spacing (readSpacing): ERMF (0018,1114) as read (≤ 1
+ * named and ignored), SID (0018,1110), and the SOD of the spine's mid-plane from (0018,1111) and (0040,0306)
+ * (sourceToPatient) with its rule in words. Empty for a film sent without its header's geometry. */
+export interface SpacingGeometry {
+  ermf?: number;
+  sid?: number;
+  sod?: { mm: number; rule: string };
 }
 
+/** The SOD of the spine's mid-plane from the header's distances, without ERMF (spine_client/dicom/header.py
+ * `_source_to_patient`, docs/dicom.md "Acquisition geometry" rules (b) and (c)), with its rule in words:
+ * (DSP + DSE) / 2 with both, else either alone; undefined without a positive one. */
+export function sourceToPatient(dsp: number | undefined, dse: number | undefined): { mm: number; rule: string } | undefined {
+  const p = dsp !== undefined && dsp > 0 ? dsp : undefined;
+  const e = dse !== undefined && dse > 0 ? dse : undefined;
+  if (p !== undefined && e !== undefined) return { mm: (p + e) / 2, rule: "the mid-plane between Distance Source to Patient (0018,1111) and Distance Source to Entrance (0040,0306)" };
+  if (p !== undefined) return { mm: p, rule: "Distance Source to Patient (0018,1111), the detector-side surface" };
+  if (e !== undefined) return { mm: e, rule: "Distance Source to Entrance (0040,0306), the source-side skin" };
+  return undefined;
+}
+
+/** A spacing rounded for words (4 decimals), in mm. */
+const mmRounded = (v: Vec2): string => mm([Number(v[0].toFixed(4)), Number(v[1].toFixed(4))]);
+
 /**
- * The spacing in the service's words (spine_client/dicom/header.py, Cornerstone3D's
- * getPixelSpacingInformation): Imager Pixel Spacing divided by the magnification, ERMF (0018,1114)
- * when > 1, else SID/SOD when SOD < SID, is "calibrated (ERMF)"; otherwise the page's own reading.
- * The page sends the detector spacing and the geometry, which the service turns into the same mm.
+ * Which spacing gives millimetres, as spine_client/dicom/header.py `read_spacing` reads it: PS3.3 §10.7.1.1
+ * (Basic Pixel Spacing Calibration Macro) and §C.8.11.4 (Imager Pixel Spacing) as Cornerstone3D's
+ * getPixelSpacingInformation and getERMF (which OHIF uses) read them. Only a projection radiograph's SOP Class
+ * (PROJECTION_RADIOGRAPH_SOP_CLASSES) has an imager spacing that says anything: another film's Pixel Spacing
+ * (0028,0030) is taken as it is ("unknown"). For a projection radiograph, in this order:
+ * 1. Pixel Spacing with Pixel Spacing Calibration Type (0028,0A02) GEOMETRY or FIDUCIAL (its Enumerated Values,
+ *    §10.7.1.2; another value says nothing): "calibrated", in the patient plane.
+ * 2. With Imager Pixel Spacing (0018,1164), the magnification M: ERMF (0018,1114) when > 1, else SID/SOD when
+ *    the SOD (sourceToPatient) is below the SID (0018,1110); spacing = Imager Pixel Spacing / M, "calibrated".
+ *    Without M, Pixel Spacing smaller than Imager Pixel Spacing (row values) has the magnification already
+ *    taken out: "calibrated"; else Pixel Spacing ("projection") or Imager Pixel Spacing ("detector"), mm at
+ *    the detector.
+ * 3. Else Pixel Spacing alone: "unknown".
  */
-export function serviceSpacingWords(spacing: Spacing, acquisition: Acquisition, imagerSpacing: boolean): string | null {
-  if (!spacing.value || !imagerSpacing || spacing.calibration === "calibrated") return null;
-  const ermf = acquisition.magnification;
-  const sid = acquisition.distance_source_to_detector_mm;
-  const sod = acquisition.distance_source_to_patient_mm;
-  const [m, source] = ermf && ermf > 1 ? [ermf, `ERMF ${ermf}`] : sid && sod && sod < sid ? [sid / sod, `SID/SOD ${sid}/${sod}`] : [null, ""];
-  if (!m) return null;
-  const v = spacing.value.map((x) => Number((x / m).toFixed(4)));
-  return `The service reads it as ${v[0] === v[1] ? v[0] : v.join(" × ")} mm calibrated (ERMF): Imager Pixel Spacing / ${source}, the same millimetres in the patient.`;
+export function readSpacing(pixelSpacing: Vec2 | null, imagerSpacing: Vec2 | null, calibrationTypeRead: string | undefined,
+  sopClassUid: string | null, geometry: SpacingGeometry = {}): Spacing {
+  const ps = pixelSpacing;
+  const ips = imagerSpacing;
+  if (sopClassUid === null || !PROJECTION_RADIOGRAPH_SOP_CLASSES.has(sopClassUid)) {
+    const what = `SOP Class ${sopClassUid ?? "(not given)"} is not a projection radiograph's (PS3.4 Annex B.5)`;
+    if (!ps) return { value: null, calibration: "unknown", explanation: `The header gives no pixel spacing of the image (${what}): enter it.` };
+    return { value: ps, calibration: "unknown", explanation: `Pixel Spacing ${mm(ps)} taken as it is: ${what}, so the plane it measures is not known.` };
+  }
+  const calibrationType = calibrationTypeRead && CALIBRATION_TYPES.has(calibrationTypeRead.toUpperCase()) ? calibrationTypeRead.toUpperCase() : undefined;
+  if (ps && calibrationType) {
+    const same = calibrationType === "GEOMETRY" && ips && close(ps, ips) ? " (though it equals the Imager Pixel Spacing)" : "";
+    return { value: ps, calibration: "calibrated", explanation: `Pixel Spacing ${mm(ps)} in the patient plane (calibration type ${calibrationType}${same}).` };
+  }
+  if (ips) {
+    const { ermf, sid, sod } = geometry;
+    const illegal = ermf !== undefined && !(ermf > 1) ? ` Its ERMF ${ermf} (≤ 1) is no radiograph's: ignored.` : "";
+    const m: [number, string] | null = ermf !== undefined && ermf > 1 ? [ermf, `ERMF ${ermf}`]
+      : sid !== undefined && sod !== undefined && sod.mm < sid ? [sid / sod.mm, `SID/SOD ${sid}/${Number(sod.mm.toFixed(4))} mm (SOD: ${sod.rule})`] : null;
+    if (m) {
+      const v: Vec2 = [ips[0] / m[0], ips[1] / m[0]];
+      return { value: v, calibration: "calibrated", explanation: `Imager Pixel Spacing ${mm(ips)} / ${m[1]} = ${mmRounded(v)} in the patient plane.` };
+    }
+    if (ps && ips[0] > ps[0]) {
+      return { value: ps, calibration: "calibrated", explanation: `Pixel Spacing ${mm(ps)} in the patient plane: smaller than the Imager Pixel Spacing ${mm(ips)}, the magnification already taken out.${illegal}` };
+    }
+    if (ps) {
+      const words = close(ps, ips) ? "equals the Imager Pixel Spacing:" : `is larger than the Imager Pixel Spacing ${mm(ips)}, which it stands for:`;
+      return { value: ps, calibration: "projection", explanation: `Pixel Spacing ${mm(ps)} ${words} millimetres at the detector, magnified.${illegal}` };
+    }
+    return { value: ips, calibration: "detector", explanation: `Imager Pixel Spacing ${mm(ips)}: millimetres at the detector, magnified.${illegal}` };
+  }
+  if (ps) {
+    return { value: ps, calibration: "unknown", explanation: `Pixel Spacing ${mm(ps)} without Imager Pixel Spacing or calibration type: the plane it measures is not known.` };
+  }
+  return { value: null, calibration: "unknown", explanation: "The header gives no pixel spacing: enter it." };
 }
 
 /** Patient Orientation (0020,0020) as the principal directions of its two values, or null when it is not of
@@ -345,7 +388,11 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
   const window = center !== undefined && widthW !== undefined && widthW >= 1
     ? { center, width: widthW, fromHeader: true }
     : { center: (min + max) / 2, width: Math.max(1, max - min), fromHeader: false };
-  const acquisition = readAcquisition(decimal(ds, tags.ermf), decimal(ds, tags.sid), decimal(ds, tags.sod), decimal(ds, tags.dse));
+  const [ermf, sid, dsp, dse] = [decimal(ds, tags.ermf), decimal(ds, tags.sid), decimal(ds, tags.sod), decimal(ds, tags.dse)];
+  const acquisition = readAcquisition(ermf, sid, dsp, dse);
+  const sopClassUid = text(ds, tags.sopClass)?.replace(/\0+$/, "") ?? null;
+  const spacingRead = (geometry: SpacingGeometry): Spacing =>
+    readSpacing(pair(ds, tags.pixelSpacing), pair(ds, tags.imagerPixelSpacing), text(ds, tags.calibrationType), sopClassUid, geometry);
   const orientationRaw = text(ds, tags.patientOrientation) ?? null;
   return {
     width,
@@ -356,8 +403,8 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     monochrome1: photometric === "MONOCHROME1",
     photometric,
     window,
-    spacing: readSpacing(pair(ds, tags.pixelSpacing), pair(ds, tags.imagerPixelSpacing), text(ds, tags.calibrationType)),
-    hasImagerSpacing: pair(ds, tags.imagerPixelSpacing) !== null,
+    spacing: spacingRead({ ermf, sid: sid !== undefined && sid > 0 ? sid : undefined, sod: sourceToPatient(dsp, dse) }),
+    spacingWithoutGeometry: spacingRead({}),
     acquisition,
     orientation: readOrientation(orientationRaw ?? undefined),
     orientationRaw,
@@ -371,7 +418,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
       study_date: isoDate(text(ds, tags.studyDate)),
     },
     modality: text(ds, tags.modality) ?? null,
-    sopClassUid: text(ds, tags.sopClass)?.replace(/\0+$/, "") ?? null,
+    sopClassUid,
     viewPosition: text(ds, tags.viewPosition) ?? null,
     transferSyntax: syntax,
   };

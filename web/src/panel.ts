@@ -1,7 +1,7 @@
 // The controls of one film (PA or lateral): open a DICOM, PNG or JPEG file, what its header says,
 // the pixel spacing (asked for when the file has none), window/level, click mode, level, and the
 // landmark editor. Builds its own DOM into a container; ids are prefixed with the view's name.
-import { DicomError, GEOMETRY_KEYS, parseFilm, personName, serviceSpacingWords, viewAcquisition, withoutGeometry, type Acquisition, type DicomFilm } from "./dicom";
+import { DicomError, GEOMETRY_KEYS, filmSpacing, parseFilm, personName, viewAcquisition, withoutGeometry, type Acquisition, type DicomFilm } from "./dicom";
 import { DIRECTION_WORDS, ORIENTATION_LABELS, orderAlongAnother, orientationFromOrder, orientationProblems, type OrientationProblem } from "./checks";
 import { FilmEditor, type EditorState, type Mark, type Mode, type OuterEdit } from "./film";
 import { LEVELS, type Level, type Vec2, type ViewPayload } from "./types";
@@ -128,7 +128,7 @@ export class FilmPanel {
     this.ignoreRow = el("div", { class: "row inline-check" });
     this.ignoreRow.append(this.ignoreGeometry, el("label", { for: id("ignore-geometry") }, "Ignore header geometry"),
       el("span", { id: id("ignore-geometry-help"), class: "help" },
-        "When the header's magnification (ERMF), SID or SOD is wrong: the film is then sent without them, as an uncalibrated film (its scale estimated, as for a film whose header gives none)."));
+        "When the header's magnification (ERMF), SID or SOD is wrong: the film is then sent without them, as a film whose header gives none (an uncalibrated film's scale estimated)."));
     this.ignoreGeometry.setAttribute("aria-describedby", id("ignore-geometry-help"));
     this.ignoreRow.hidden = true;
     this.wlCenter = el("input", { id: id("wl-center"), type: "number", step: "any" });
@@ -242,6 +242,13 @@ export class FilmPanel {
     this.editor.onCrosshair = () => this.sayCrosshair();
     file.addEventListener("change", () => void this.open(file.files?.[0]));
     this.ignoreGeometry.addEventListener("change", () => {
+      // the spacing field follows the header's reading it showed (its magnification taken out or not)
+      const d = this.dicom;
+      const shown = d && this.hasGeometry() ? filmSpacing(d, !this.ignoreGeometry.checked).value : null;
+      if (d && shown && this.pixelSpacing(shown) === shown) {
+        const now = filmSpacing(d, this.ignoreGeometry.checked).value;
+        this.spacing.value = now ? String(now[1]) : "";
+      }
       this.fillHeader();
       this.update();
       this.onChange();
@@ -616,8 +623,8 @@ export class FilmPanel {
       rows.push(["Study", [s.study_date, s.accession_number && `accession ${s.accession_number}`].filter(Boolean).join(", ") || "not given"]);
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
-      const service = serviceSpacingWords(d.spacing, this.geometryIgnored() ? {} : d.acquisition, d.hasImagerSpacing);
-      rows.push(["Spacing", `${d.spacing.explanation} Calibration: ${d.spacing.calibration}.${service ? ` ${service}` : ""}`]);
+      const spacing = filmSpacing(d, this.geometryIgnored());
+      rows.push(["Spacing", `${spacing.explanation} Calibration: ${spacing.calibration}.`]);
       const stated = d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
         : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`;
       rows.push(["Orientation", `${stated}${this.chosen ? `; sent as ${this.chosen.join(", ")} (set under Orientation)` : ""}`]);
@@ -627,8 +634,9 @@ export class FilmPanel {
         a.distance_source_to_detector_mm && `SID ${a.distance_source_to_detector_mm} mm`,
         a.distance_source_to_patient_mm && `SOD ${a.distance_source_to_patient_mm} mm`,
       ].filter(Boolean);
-      const ignored = this.geometryIgnored() ? " (ignored: sent as an uncalibrated film)" : "";
-      rows.push(["Geometry", geo.length ? geo.join(", ") + ignored : "not given: the scale is estimated"]);
+      const ignored = this.geometryIgnored() ? ` (ignored: sent as ${this.sentWithoutGeometry()})` : "";
+      const calibrated = spacing.calibration === "calibrated";
+      rows.push(["Geometry", geo.length ? geo.join(", ") + ignored : calibrated ? "not given: the calibrated spacing gives the size" : "not given: the scale is estimated"]);
     } else if (this.fileName) {
       rows.push(["Image", `${this.fileName}: no header, so no spacing, patient or study`]);
     }
@@ -636,14 +644,19 @@ export class FilmPanel {
     this.ignoreRow.hidden = !this.hasGeometry();
   }
 
-  /** The film's payload would carry a magnification, SID or SOD: from its DICOM header (not for
-   * millimetres already in the patient plane, sent with magnification 1 and nothing of the header's
-   * geometry), or from the reopened job's payload while its landmarks are on a blank frame. */
+  /** The film's payload would carry a magnification, SID or SOD: from its DICOM header (calibrated or not), or
+   * from the reopened job's payload while its landmarks are on a blank frame. */
   hasGeometry(): boolean {
     const acq = this.dicom
-      ? (this.dicom.spacing.calibration === "calibrated" ? null : this.dicom.acquisition)
+      ? this.dicom.acquisition
       : this.reopened && !this.editor.source ? (this.reopened.acquisition as Acquisition | null | undefined) : null;
     return !!acq && GEOMETRY_KEYS.some((k) => acq[k] !== undefined && acq[k] !== null);
+  }
+
+  /** What the film is sent as with "Ignore header geometry" ticked, in words: its spacing read without the
+   * header's geometry may still be calibrated (a calibration type, or Pixel Spacing below Imager Pixel Spacing). */
+  private sentWithoutGeometry(): string {
+    return this.dicom?.spacingWithoutGeometry.calibration === "calibrated" ? "a film without geometry, its calibrated spacing as it is" : "an uncalibrated film";
   }
 
   /** "Ignore header geometry" is ticked (and applies to this film). */
@@ -655,15 +668,15 @@ export class FilmPanel {
   geometryRemedy(): string {
     const name = this.view === "pa" ? "PA" : "lateral";
     return this.hasGeometry()
-      ? `tick “Ignore header geometry” under the ${name} film to send it without the header's ERMF, SID and SOD (as an uncalibrated film), or correct the header`
+      ? `tick “Ignore header geometry” under the ${name} film to send it without the header's ERMF, SID and SOD (as ${this.sentWithoutGeometry()}), or correct the header`
       : "correct the payload's acquisition";
   }
 
-  /** The spacing the user confirmed or typed, mm per pixel [row, column]; null when missing or invalid. */
-  pixelSpacing(): Vec2 | null {
+  /** The spacing the user confirmed or typed, mm per pixel [row, column]; null when missing or invalid. The
+   * header's (`fromHeader`, by default as read with or without its geometry) when the field shows it. */
+  pixelSpacing(fromHeader: Vec2 | null | undefined = this.dicom && filmSpacing(this.dicom, this.geometryIgnored()).value): Vec2 | null {
     const typed = Number(this.spacing.value);
     if (this.spacing.value.trim() === "" || !(typed > 0) || typed > 10) return null;
-    const fromHeader = this.dicom?.spacing.value;
     if (fromHeader && Math.abs(fromHeader[1] - typed) < 1e-9) return fromHeader;
     return [typed, typed];
   }
@@ -700,7 +713,8 @@ export class FilmPanel {
     }
     const view: ViewPayload = { units: "px", pixel_spacing: this.pixelSpacing(), patient_orientation: this.orientation(), landmarks };
     const d = this.dicom;
-    if (d && accepts.calibration) view.pixel_spacing_calibration = d.spacing.value && view.pixel_spacing === d.spacing.value ? d.spacing.calibration : "unknown";
+    const read = d && filmSpacing(d, this.geometryIgnored());
+    if (read && accepts.calibration) view.pixel_spacing_calibration = read.value && view.pixel_spacing === read.value ? read.calibration : "unknown";
     if (d && accepts.acquisition) {
       const acq = viewAcquisition(d, accepts, this.geometryIgnored());
       if (Object.keys(acq).length) view.acquisition = acq;
