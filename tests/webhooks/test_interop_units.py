@@ -327,7 +327,10 @@ def test_vertebrae_and_measures_csv(result: dict[str, Any]) -> None:
     assert list(measures[0]) == tables.MEASURE_COLUMNS
     cobb = [m for m in measures if m["measure"] == "cobb_angle"]
     assert len(cobb) == len(result["measures"]["cobb"]) and {m["major"] for m in cobb} <= {"true", "false"}
-    assert measures[-1]["measure"] == "mean_registration_error" and measures[-1]["unit"] == "mm"
+    assert measures[-2]["measure"] == "mean_registration_error" and measures[-2]["unit"] == "mm"
+    misfit = measures[-1]  # the fit's last row: how far its landmarks lie against their stated SD
+    assert misfit["measure"] == "landmark_misfit_ratio" and misfit["unit"] == "1"
+    assert float(misfit["value"]) == pytest.approx(result["fit"]["landmark_misfit_ratio"])
 
 
 def test_the_measures_csv_of_a_spine_below_the_threshold_has_its_largest_angle(result: dict[str, Any]) -> None:
