@@ -43,6 +43,12 @@ BODY_HALF_WIDTH = 24.0  # px
 BODY_HEIGHT = 22.0  # px
 
 
+def spacing_shown(mm: float) -> str:
+    """A header's spacing as the page's field shows it: six significant digits (``panel.ts`` ``spacingText``,
+    JavaScript's ``String(Number(mm.toPrecision(6)))``)."""
+    return repr(float(f"{mm:.6g}"))
+
+
 def chromium_path() -> str | None:
     for candidate in (os.environ.get("SPINE_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium")):
         if candidate and os.access(candidate, os.X_OK):

@@ -12,7 +12,7 @@ from typing import Any
 
 import httpx
 import pytest
-from page_fixtures import make_dicom, open_page
+from page_fixtures import make_dicom, open_page, spacing_shown
 
 from tests.conftest import spine_payload
 
@@ -67,7 +67,8 @@ def test_files_spacing_downloads_lenke_axes_and_print(
     page.wait_for_selector("#pa-header dd")
     header = page.text_content("#pa-header") or ""
     assert "Imager Pixel Spacing 0.4 mm / ERMF 1.2 = 0.3333 mm in the patient plane. Calibration: calibrated." in header
-    assert page.input_value("#pa-spacing") == str(0.4 / 1.2)  # the page reads the film as the service does
+    # the page reads the film as the service does, and shows it to six significant digits
+    assert page.input_value("#pa-spacing") == spacing_shown(0.4 / 1.2) == "0.333333"
 
     job_id = _succeeded_job(live_url, api_key)
     page.goto(f"{live_url}/#/jobs/{job_id}")

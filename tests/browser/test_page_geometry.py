@@ -26,6 +26,7 @@ from page_fixtures import (
     make_dicom,
     open_film,
     open_page,
+    spacing_shown,
 )
 
 pytestmark = pytest.mark.browser
@@ -281,21 +282,21 @@ def test_ignoring_a_calibrated_films_geometry_reads_its_spacing_without_it(
     open_film(page, "pa", tmp_path / "ermf.dcm")
     click_pa_midpoints(page, range(3))
     calibrated = PA_SPACING / 1.2  # the fixtures' ERMF (page_fixtures.make_dicom)
-    assert page.input_value("#pa-spacing") == str(calibrated)
+    assert page.input_value("#pa-spacing") == spacing_shown(calibrated)
     view = _preview(page)
     assert view["pixel_spacing"] == [calibrated, calibrated] and view["pixel_spacing_calibration"] == "calibrated"
     assert {k: view["acquisition"][k] for k in (ERMF, SID, SOD, "projection_model")} == {
         ERMF: 1.2, SID: 1800, SOD: 1500, "projection_model": "perspective"}  # fmt: skip
 
     page.check("#pa-ignore-geometry")
-    assert page.input_value("#pa-spacing") == str(PA_SPACING)
+    assert page.input_value("#pa-spacing") == spacing_shown(PA_SPACING)
     view = _preview(page)
     assert view["pixel_spacing"] == [PA_SPACING, PA_SPACING] and view["pixel_spacing_calibration"] == "detector"
     assert not {SID, SOD, ERMF} & set(view["acquisition"]) and view["acquisition"]["projection_model"] == "perspective"
     header = page.text_content("#pa-header") or ""
     assert "Calibration: detector." in header and "ignored: sent as an uncalibrated film" in header, header
     page.uncheck("#pa-ignore-geometry")
-    assert page.input_value("#pa-spacing") == str(calibrated)
+    assert page.input_value("#pa-spacing") == spacing_shown(calibrated)
     assert _preview(page)["pixel_spacing_calibration"] == "calibrated"
 
     open_film(page, "pa", tmp_path / "fiducial.dcm")

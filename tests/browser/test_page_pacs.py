@@ -27,6 +27,7 @@ from page_fixtures import (
     open_page,
     pa_corners,
     run_axe,
+    spacing_shown,
     start_serve,
     stop_serve,
 )
@@ -89,7 +90,7 @@ def test_open_a_film_from_the_pacs_landmark_it_and_send(
     for text in ("DOE JANE", "PAT-0042", "Imager Pixel Spacing 0.4 mm", film.StudyInstanceUID):
         assert text in header, (text, header)
     spacing = PA_SPACING / 1.2  # the fixtures' film: Imager Pixel Spacing / its ERMF, as the service reads it
-    assert page.input_value("#pa-spacing") == str(spacing)
+    assert page.input_value("#pa-spacing") == spacing_shown(spacing)
     assert "from the PACS as the PA film" in (page.text_content("#pacs-note") or "")
 
     # -- 17 top endplate midpoints, sent

@@ -10,10 +10,16 @@ export type ViewName = "pa" | "lateral";
 const TITLES: Record<ViewName, string> = { pa: "PA (frontal) film", lateral: "Lateral film" };
 const DEFAULT_ORIENTATION: Record<ViewName, [string, string]> = { pa: ["L", "F"], lateral: ["A", "F"] };
 export { DIRECTION_WORDS, ORIENTATION_LABELS };
-/** Modalities (0008,0060) of projection radiographs taken from a point source: computed and digital radiography. */
 /** View Position (0018,5101) defined terms, PS3.3 §C.8.11.5.1.1: frontal and lateral projections. */
 const FRONTAL_POSITIONS = new Set(["PA", "AP"]);
 const LATERAL_POSITIONS = new Set(["LL", "RL", "LATERAL"]);
+
+/** A header's spacing as the field shows it: six significant digits (IPS/ERMF reads 0.333333, not
+ * 0.33333333333333337). */
+const spacingText = (mm: number): string => String(Number(mm.toPrecision(6)));
+/** A typed spacing this close to the header's, relative, is the header's (its six digits as shown): the
+ * header's exact value is sent. */
+const SPACING_SHOWN_TOLERANCE = 1e-5;
 
 /** When a DICOM film's header says it is the other view than the panel it was opened in: the words of
  * a warning (View Position, else Patient Orientation's column direction), or null. Not a refusal:
@@ -247,7 +253,7 @@ export class FilmPanel {
       const shown = d && this.hasGeometry() ? filmSpacing(d, !this.ignoreGeometry.checked).value : null;
       if (d && shown && this.pixelSpacing(shown) === shown) {
         const now = filmSpacing(d, this.ignoreGeometry.checked).value;
-        this.spacing.value = now ? String(now[1]) : "";
+        this.spacing.value = now ? spacingText(now[1]) : "";
       }
       this.fillHeader();
       this.update();
@@ -336,7 +342,7 @@ export class FilmPanel {
         const film = parseFilm(bytes, file.name);
         notTheJobs = keep ? otherFilm(this.jobFilm, film) : null;
         this.dicom = film;
-        this.spacing.value = film.spacing.value ? String(film.spacing.value[1]) : "";
+        this.spacing.value = film.spacing.value ? spacingText(film.spacing.value[1]) : "";
         this.wlCenter.value = String(round(film.window.center));
         this.wlWidth.value = String(round(film.window.width));
         this.invert.checked = film.monochrome1;
@@ -677,7 +683,7 @@ export class FilmPanel {
   pixelSpacing(fromHeader: Vec2 | null | undefined = this.dicom && filmSpacing(this.dicom, this.geometryIgnored()).value): Vec2 | null {
     const typed = Number(this.spacing.value);
     if (this.spacing.value.trim() === "" || !(typed > 0) || typed > 10) return null;
-    if (fromHeader && Math.abs(fromHeader[1] - typed) < 1e-9) return fromHeader;
+    if (fromHeader && Math.abs(fromHeader[1] - typed) <= SPACING_SHOWN_TOLERANCE * fromHeader[1]) return fromHeader;
     return [typed, typed];
   }
 
