@@ -33,6 +33,7 @@ from page_fixtures import (
     open_page,
     pa_corners,
     payload_preview,
+    place_pa_and_lateral,
     reconstruct_on_page,
     run_axe,
 )
@@ -225,15 +226,8 @@ def test_an_orientation_on_one_axis_is_said_at_the_control_and_not_sent(
     """Columns toward A and rows toward P chosen under a lateral film with landmarks: said at the lateral film's
     orientation controls in plain words (both marked invalid, the words in their description, axe-core clean),
     listed before sending, and Reconstruct sends nothing; rows toward F again clears the mark and the job goes."""
-    make_dicom(tmp_path / "pa.dcm", view="pa")
-    make_dicom(tmp_path / "lateral.dcm", view="lateral")
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
-    open_film(page, "pa", tmp_path / "pa.dcm")
-    click_pa_midpoints(page, range(len(LEVELS)))
-    open_film(page, "lateral", tmp_path / "lateral.dcm")
-    page.select_option("#lateral-level", "T4")
-    for _, col, row in lateral_points("T4"):
-        page.mouse.click(*canvas_point(page, "lateral", col, row))
+    place_pa_and_lateral(page, tmp_path)
     _choose(page, "lateral", "A", "P")
     check = page.locator("#lateral-orientation-check")
     assert check.is_visible()
