@@ -505,14 +505,15 @@ def test_the_sr_of_a_short_pa_film_passes_dciodvfy_and_dsrdump(
 def test_the_landmark_misfit_ratio_is_a_num_of_no_units(case: dict[str, Any], tmp_path: Path) -> None:
     """``fit.landmark_misfit_ratio`` (above 1: every SD widened by it) reaches the PACS as a NUM of the
     private scheme in UCUM "1" (no units), equal to the result's; a result without it writes none."""
-    result = copy.deepcopy(case["result"])
-    result["fit"]["landmark_misfit_ratio"] = 1.37
-    sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr.dcm"))
-    groups = sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups()
-    found = [m for g in groups for m in g.get_measurements() if m.name.value == PrivateCodes.MISFIT_RATIO.value]
+
+    def misfit_nums(ratio: float | None, name: str) -> list[Any]:
+        result = copy.deepcopy(case["result"])
+        result["fit"]["landmark_misfit_ratio"] = ratio
+        sr = hd.sr.srread(_write(_sr(case, result), tmp_path / name))
+        groups = sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups()
+        return [m for g in groups for m in g.get_measurements() if m.name.value == PrivateCodes.MISFIT_RATIO.value]
+
+    found = misfit_nums(1.37, "sr.dcm")
     assert len(found) == 1 and found[0].value == pytest.approx(1.37, rel=1e-12)
     assert (found[0].unit.value, found[0].unit.scheme_designator) == ("1", "UCUM")
-    result["fit"]["landmark_misfit_ratio"] = None
-    sr = hd.sr.srread(_write(_sr(case, result), tmp_path / "sr-none.dcm"))
-    groups = sr.content.get_image_measurement_groups() + sr.content.get_planar_roi_measurement_groups()
-    assert not [m for g in groups for m in g.get_measurements() if m.name.value == PrivateCodes.MISFIT_RATIO.value]
+    assert not misfit_nums(None, "sr-none.dcm")

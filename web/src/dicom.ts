@@ -297,17 +297,14 @@ export function readOrientation(raw: string | undefined): [string, string] | nul
  * alone. Non-positive values are not distances: left out.
  */
 export function readAcquisition(ermf: number | undefined, sid: number | undefined, dsp: number | undefined, dse: number | undefined): Acquisition {
-  const positive = (v: number | undefined): number | undefined => (v !== undefined && v > 0 ? v : undefined);
   const m = ermf !== undefined && ermf > 1 ? ermf : undefined;
-  const d = positive(sid);
-  const p = positive(dsp);
-  const e = positive(dse);
+  const d = sid !== undefined && sid > 0 ? sid : undefined;
   const acquisition: Acquisition = {};
   if (m !== undefined) acquisition.magnification = m;
   if (d !== undefined) acquisition.distance_source_to_detector_mm = d;
   // kept as the header says, even not below the SID: the page names it before sending (checks.ts
   // geometryProblems) rather than sending the SID alone with an assumed SOD
-  const sod = d !== undefined && m !== undefined ? d / m : p !== undefined && e !== undefined ? (p + e) / 2 : p ?? e;
+  const sod = d !== undefined && m !== undefined ? d / m : sourceToPatient(dsp, dse)?.mm;
   if (sod !== undefined) acquisition.distance_source_to_patient_mm = sod;
   return acquisition;
 }
@@ -403,7 +400,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     monochrome1: photometric === "MONOCHROME1",
     photometric,
     window,
-    spacing: spacingRead({ ermf, sid: sid !== undefined && sid > 0 ? sid : undefined, sod: sourceToPatient(dsp, dse) }),
+    spacing: spacingRead({ ermf, sid: acquisition.distance_source_to_detector_mm, sod: sourceToPatient(dsp, dse) }),
     spacingWithoutGeometry: spacingRead({}),
     acquisition,
     orientation: readOrientation(orientationRaw ?? undefined),

@@ -888,9 +888,6 @@ export function otherFilm(job: JobFilm | null, film: DicomFilm): OtherFilm | nul
   return null;
 }
 
-/** The acquisition members that state the film's geometry (DICOM ERMF (0018,1114), SID (0018,1110), SOD (0018,1111)). */
-
-
 function toMm(lm: ViewPayload["landmarks"][number], spacing: Vec2): ViewPayload["landmarks"][number] {
   const mm = (p: Vec2): Vec2 => [Math.round(p[0] * spacing[1] * 1000) / 1000, Math.round(p[1] * spacing[0] * 1000) / 1000];
   const out: ViewPayload["landmarks"][number] = { level: lm.level };
