@@ -113,9 +113,20 @@ def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, bench_env: dict[
     assert run["jobs_submitted"] == 400 and run["submit_errors"] == 0  # every POST, during the fault too, got 202
     assert run["statuses"] == {"succeeded": 400}
     assert run["jobs_lost"] == 0 and run["jobs_with_two_outcomes"] == 0
-    assert run["last_submission_to_last_final_s"] <= 30, run
+    assert run["last_submission_to_last_final_s"] <= 30, (run, _warnings_logged(tmp_path / "logs"))
     assert run["completed_per_s"] > 0
     assert run["cpu_ms_per_job"]["worker"] > 0 and run["cpu_ms_per_job"]["api"] > 0
+
+
+def _warnings_logged(log_dir: Path, limit: int = 6000) -> str:
+    """The spawned service's log lines above INFO (the fault's trace: reconnections, restarts, the
+    reconciler's passes), each cut to 300 characters, the last ``limit`` characters of them: what a
+    slow recovery in CI is read from."""
+    lines = []
+    for log in sorted(log_dir.glob("*.log")):
+        lines += [f"{log.name}: {line[:300]}" for line in log.read_text(errors="replace").splitlines()
+                  if line.strip() and '"level": "INFO"' not in line]  # fmt: skip
+    return "\n".join(lines)[-limit:]
 
 
 def _session_members(session_ids: set[int]) -> set[int]:
