@@ -38,6 +38,7 @@ from benches.aasce import read_split
 from benches.report import shared_data_dir
 from benches.truth import read_verse
 from spine_engine.levels import LEVELS
+from spine_engine.validation import SPACING_RATIO, spacing_ratios
 
 NEIGHBOURS = 2
 """Gaps on each side of a gap whose median it is compared with (checks.ts ``SKIP_NEIGHBOURS``)."""
@@ -141,7 +142,23 @@ def derive(aasce: Path, verse: Path) -> dict[str, Any]:
         },
         "skip_percentiles": {str(q): round(float(np.nanpercentile(skips, q)), 3) for q in (1, 5, 10, 50)},
         "candidates": {str(t): rates(t, everyone) for t in CANDIDATES},
+        "service_lower_bound": service_lower_bound(rows),
     }
+
+
+def service_lower_bound(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The service's lower scale-free bound (``validation.SPACING_RATIO``, against the neighbours'
+    spacing) on the same films: their lowest ratios, with the ratio against the view's median beside
+    (two labels on one vertebra among AASCE's annotations read lowest)."""
+    found = []
+    for f in rows:
+        pairs = spacing_ratios(list(range(len(LEVELS))), [tuple(p) for p in f["points"]])
+        k = int(np.argmin([local for _, local in pairs]))
+        median, local = pairs[k]
+        found.append({"film": f["name"], "gap": f"{LEVELS[k]}–{LEVELS[k + 1]}",
+                      "against_neighbours": round(local, 3), "against_view_median": round(median, 3)})  # fmt: skip
+    found.sort(key=lambda r: r["against_neighbours"])
+    return {"bound": SPACING_RATIO[0], "lowest": found[:8]}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -174,6 +191,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"skip ratio percentiles: {figures['skip_percentiles']}", file=say)
     for t, r in figures["candidates"].items():
         print(f"  at {t}: false warnings {r['false_warning']:.1%}, skips detected {r['detection']:.1%}", file=say)
+    lower = figures["service_lower_bound"]
+    print(f"service's lower bound {lower['bound']} (against the neighbours' spacing), lowest films: "
+          + ", ".join(f"{r['film']} {r['gap']} {r['against_neighbours']:.2f} ({r['against_view_median']:.2f} of the "
+                      "view's median)" for r in lower["lowest"]), file=say)  # fmt: skip
     text = json.dumps(figures, indent=2) + "\n"
     if ns.out is None:
         sys.stdout.write(text)

@@ -8,11 +8,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benches.report import shared_data_dir
 from benches.truth import read_verse
 from spine_engine import validation
 from spine_engine.errors import InvalidInput
 from spine_engine.levels import LEVELS
 from spine_engine.validation import MIN_LEVELS_LATERAL, MIN_LEVELS_PA, validate_payload
+from tools import spacing_ratio
 
 IDENTITY_LPS = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # rows d1, d2, d3
 
@@ -311,6 +313,41 @@ def test_a_short_projected_segment_within_its_noise_is_not_refused() -> None:
     validate_payload({"pa": by_reference}, unscaled_views=("pa",))
     [(path, kind, msg)] = errors_of({"pa": _view(shorter)})
     assert (path, kind) == ("pa.landmarks[2]", "implausible_distance") and "T2 and T3" in msg
+
+
+def test_a_foreshortened_segment_is_judged_against_its_neighbours() -> None:
+    """verse097's upper thoracic spine leans far out of the film, so on a PA at magnification 1.1
+    T2–T3 (8.8 mm) is 0.41 × the view's median spacing and 0.53 × its neighbours'. Clicks 1 mm off
+    (the default) shorten it by 3.5 mm, 2.5 SDs of the √2 mm SD of a distance between two clicks,
+    about once in 160 films: then 0.246 × the view's median, below the 0.25 that refused 8 % of
+    verse097's perspective payloads in ``spine bench clinic --split dev --synthetic 20 --seeds 20
+    --seed 1000``, and 0.285 × its neighbours', a real spine's film (``SPACING_RATIO``). T3 clicked
+    1 mm from T2 is still refused, naming both (0.05 × its neighbours')."""
+    positions = dict(read_verse(VERSE_DEV))["verse097"]
+    points = {lv: [1.1 * float(r[0]), -1.1 * float(r[2])] for lv, r in zip(LEVELS, positions, strict=True)}
+    t2, t3 = np.array(points["T2"]), np.array(points["T3"])
+    film = float(np.linalg.norm(t3 - t2))
+    shorter = {**points, "T3": (t2 + (t3 - t2) * (film - 3.5) / film).tolist()}
+    validate_payload({"pa": _view(shorter)})
+    doubled = {**points, "T3": (t2 + (t3 - t2) * 1.0 / film).tolist()}
+    [(path, kind, msg)] = errors_of({"pa": _view(doubled)})
+    assert (path, kind) == ("pa.landmarks[2]", "implausible_distance")
+    assert "T2 and T3" in msg and "neighbouring landmarks' spacing" in msg
+
+
+@pytest.mark.skipif(
+    not (shared_data_dir("aasce2019") / "training").is_dir(), reason="AASCE 2019 training not found (tuning data)"
+)
+def test_the_lower_spacing_bound_lies_between_two_labels_on_one_vertebra_and_every_real_film() -> None:
+    """Against the neighbours' spacing, AASCE 2019 training's three annotations with two labels on one
+    vertebra read 0.03–0.05 and every other film of AASCE training and VerSe dev (frontal and lateral)
+    0.53 or more (``python -m tools.spacing_ratio``): ``SPACING_RATIO``'s 0.25 lies more than twice
+    above the first and twice below the second."""
+    films, _ = spacing_ratio.films(shared_data_dir("aasce2019") / "training", shared_data_dir("verse") / "dev.csv")
+    lowest = spacing_ratio.service_lower_bound(films)["lowest"]
+    assert [r["film"].startswith("sunhl-1th-25-Jul-2016") for r in lowest[:4]] == [True, True, True, False]
+    assert lowest[2]["against_neighbours"] < validation.SPACING_RATIO[0] / 2
+    assert lowest[3]["against_neighbours"] > 2 * validation.SPACING_RATIO[0]
 
 
 def test_on_a_film_turned_a_quarter_the_levels_run_head_to_feet_along_its_columns() -> None:

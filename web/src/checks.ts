@@ -495,7 +495,7 @@ export function orientationProblems(view: "pa" | "lateral", orientation: readonl
 /**
  * A gap between consecutive placed levels larger than this many times the median of its neighbouring gaps
  * is warned about as a vertebra possibly skipped (every label below it one level off); the service accepts
- * it (validation.py allows 0.25–2.5 × the median spacing). Derived by `python -m tools.spacing_ratio`
+ * it (validation.py allows up to 2.5 × the median spacing). Derived by `python -m tools.spacing_ratio`
  * (gap: the chain distance between top endplate midpoints per level spanned; neighbours: up to
  * SKIP_NEIGHBOURS gaps on each side, at least SKIP_MIN_NEIGHBOURS): over 458 AASCE 2019 training PA
  * radiographs (23 with levels out of order left out) and 24 VerSe dev spines, frontal and lateral
