@@ -53,6 +53,14 @@ engine's own case (a) errors on the same spine (T1–T3 carrying T4's), a floor 
 (b)'s shape error. That oracle's rotation is given twice: its posterior SD, and the RMS of the best
 rotation that aligns its drawn result on the truth (``unseen_top_rotation``), which is how the
 engine's rotation is measured: a top of the wrong shape turns that alignment too.
+
+**What placing the spine needs of its chords' lengths** (every row's ``chord_lengths_unknown``): an
+oracle that knows the shape but the lengths of the chords T1–T2 … L3–L4 (``CHORD_JOINTS``, stretched
+by ``stretched``; prior: their covariance over VerSe dev relative to the profile's proportions,
+``chord_prior_covariance``) places the spine on the same films; its rotation SD under the engine's
+priors and under the best Gaussian priors, and aligned as the engine's. A perspective PA film sees a
+lean on its rows through the sagittal curve's depths, against the rows' spacing that the chords'
+lengths set, so this oracle leans less surely than the bound's in (c).
 """
 
 from __future__ import annotations
@@ -63,7 +71,7 @@ import datetime as dt
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,6 +86,7 @@ from benches.report import format_table, write_json
 from spine_engine.anatomy import load_profile, population_prior, rest_model
 from spine_engine.clinical import PA_MAGNIFICATION_PRIOR
 from spine_engine.fit.types import DEPTH_PRIOR_SD_MM, FILM_TURN_PRIOR_SD_DEG
+from spine_engine.levels import LEVELS, N_LEVELS
 
 TARGETS_MM = {"a": 1.2, "b": 2.0, "c": 1.5}
 """The clinic's targets for the mean 3D error on VerSe test, 1 mm noise, no boundary."""
@@ -140,11 +149,13 @@ def bent(positions: FloatArray, beta: FloatArray, joints: Sequence[int]) -> Floa
 
 
 def stretched(positions: FloatArray, stretch: FloatArray, joints: Sequence[int]) -> FloatArray:
-    """The positions (N, 3) with the chord from each joint J up to J − 1 lengthened by the fraction
-    ``stretch``[k] (J = ``joints``[k], lowest first), the vertebrae above it carried along."""
-    out = np.array(positions, dtype=float)
-    for fraction, j in zip(stretch, joints, strict=True):
-        out[:j] += fraction * (out[j - 1] - out[j])
+    """The positions (..., N, 3) with the chord from each joint J up to J − 1 lengthened by the fraction
+    ``stretch``[..., k] (J = ``joints``[k], lowest first), the vertebrae above it carried along; leading
+    axes of ``positions`` and ``stretch`` are draws, broadcast together."""
+    fractions = np.asarray(stretch, dtype=float)
+    out = np.array(np.broadcast_to(positions, fractions.shape[:-1] + np.shape(positions)), dtype=float)
+    for k, j in enumerate(joints):
+        out[..., :j, :] += fractions[..., k, None, None] * (out[..., j - 1, :] - out[..., j, :])[..., None, :]
     return out
 
 
@@ -199,17 +210,22 @@ def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArra
 
 
 def posterior_covariance(
-    series: Series, case: Case, priors: Priors, joints: Sequence[int] = (), joint_covariance: FloatArray | None = None
+    series: Series, case: Case, priors: Priors, joints: Sequence[int] = (), joint_covariance: FloatArray | None = None,
+    bends: bool = True,
 ) -> FloatArray:
     """(JᵀJ/σ² + P)⁻¹ over the parameters the case leaves free, in θ's order (ω first, the joints'
-    bends and stretches last, ``simulated_images``), rad² and mm²; ``joint_covariance``
-    (2·len(joints))² is their prior covariance."""
+    bends and stretches last, ``simulated_images``), rad² and mm²; ``joint_covariance`` is their prior
+    covariance, (2·len(joints))², or len(joints)² of the stretches alone when ``bends`` is False (the
+    bends then known: their columns left out)."""
     films = _films(series, case)
     J = image_jacobian(series.truth, films, case.perspective, joints)
+    if joints and not bends:
+        J = np.delete(J, np.s_[J.shape[1] - 2 * len(joints) : J.shape[1] - len(joints)], axis=1)
     precision = J.T @ J / series.noise_mm**2
     if joints:
         assert joint_covariance is not None
-        precision[-2 * len(joints) :, -2 * len(joints) :] += np.linalg.inv(joint_covariance)
+        m = len(joint_covariance)
+        precision[-m:, -m:] += np.linalg.inv(joint_covariance)
     prior = np.zeros(J.shape[1])
     free = np.ones(J.shape[1], dtype=bool)
     if priors.orientation_sd_deg is not None:
@@ -277,18 +293,30 @@ def shape_errors(moved: FloatArray, truth: FloatArray) -> FloatArray:
     return np.asarray(np.linalg.norm(aligned - t[None], axis=2).mean(axis=1))
 
 
-def unseen_top_rotation(truth: FloatArray, posterior: FloatArray, draws: int, seed: int) -> FloatArray:
-    """(3,) RMS over ``draws`` of the best rotation (degrees, about x, y, z) that aligns the oracle of
-    case (b)'s unseen top on the truth, measured as the engine's (``clinic.rigid_difference``):
-    (ω, bends, stretches) drawn jointly from ``posterior`` (their block of ``posterior_covariance``,
-    ω first), the spine deformed (``deformed_top``), turned by ω about its centroid, then aligned. The
-    top's shape error turns the alignment too, as the engine's own shape error turns its."""
+def aligned_rotation_rms(
+    truth: FloatArray, posterior: FloatArray, deform: Callable[[FloatArray, FloatArray], FloatArray], draws: int,
+    seed: int,
+) -> FloatArray:
+    """(3,) RMS over ``draws`` of the best rotation (degrees, about x, y, z) that aligns an oracle's
+    drawn result on the truth, measured as the engine's (``clinic.rigid_difference``): (ω, shape
+    parameters) drawn jointly from ``posterior`` (their block of ``posterior_covariance``, ω first), the
+    spine deformed by ``deform``(truth, parameters (draws, k)) → (draws, N, 3), turned by ω about its
+    centroid, then aligned. A shape of the wrong form turns the alignment too, as the engine's own
+    shape error turns its."""
     draw = np.random.default_rng(seed).multivariate_normal(np.zeros(len(posterior)), posterior, draws)
     turns = Rotation.from_rotvec(draw[:, :3]).as_matrix()
-    shapes = np.array([deformed_top(truth, p, UNSEEN_TOP_JOINTS) for p in draw[:, 3:]])
+    shapes = deform(truth, draw[:, 3:])
     centred = shapes - shapes.mean(axis=1, keepdims=True)
     q, _, _ = best_rotations(np.einsum("dij,dnj->dni", turns, centred), truth)
     return np.asarray(np.sqrt(np.mean(np.square(Rotation.from_matrix(q).as_rotvec(degrees=True)), axis=0)))
+
+
+def unseen_top_rotation(truth: FloatArray, posterior: FloatArray, draws: int, seed: int) -> FloatArray:
+    """``aligned_rotation_rms`` of the oracle of case (b)'s unseen top: its bends and stretches at
+    ``UNSEEN_TOP_JOINTS`` (``deformed_top``)."""
+    return aligned_rotation_rms(
+        truth, posterior, lambda t, p: np.array([deformed_top(t, q, UNSEEN_TOP_JOINTS) for q in p]), draws, seed
+    )
 
 
 def unseen_top_shape(truth: FloatArray, top_posterior: FloatArray, engine_a_errors: FloatArray | None,
@@ -401,10 +429,64 @@ def unseen_top_row(series: Sequence[Series], priors: Priors, top_covariance: Flo
     }
 
 
+CHORD_JOINTS = tuple(range(N_LEVELS - 2, 0, -1))
+"""L4, L3, …, T2 (lowest first, ``stretched``): a stretch at joint J lengthens the chord from J up to
+J − 1, so these fifteen stretches are the lengths of the chords T1–T2 … L3–L4 that the oracle of
+``chord_lengths_row`` does not know. L4–L5's is kept: the chords' lengths relative to the profile's
+proportions at the spine's own T1–L5 length (``relative_segment_lengths``) sum to zero weighted by
+the rest lengths, so fifteen of them carry their whole spread."""
+
+
+def chord_prior_covariance(truths: Sequence[Truth]) -> FloatArray:
+    """(15, 15): the covariance over ``truths`` (VerSe dev) of the relative lengths of the chords that
+    ``CHORD_JOINTS`` stretch (fractions²), in their order: the prior of ``chord_lengths_row``'s oracle."""
+    rest_ds = rest_model(load_profile()).ds
+    relative = np.array([relative_segment_lengths(t.positions, rest_ds) for t in truths])
+    return np.asarray(np.cov(relative[:, [j - 1 for j in CHORD_JOINTS]].T))
+
+
+def chord_lengths_row(series: Sequence[Series], case: Case, settings: dict[str, Priors], chord_covariance: FloatArray,
+                      draws: int, seed: int) -> dict[str, Any]:
+    """What placing the spine needs of its chords' lengths: the rotation of an oracle that knows the
+    spine's shape but the lengths of the chords T1–T2 … L3–L4 (``CHORD_JOINTS``; prior
+    ``chord_covariance``), on the same films as the bound's oracle: its posterior SD about x, y and z
+    under the engine's priors and under the best Gaussian priors (``prior_settings``), and the RMS of
+    the best rotation aligning its drawn result on the truth under the engine's priors
+    (``aligned_rotation_rms``), degrees, RMS over the spines. A lean seen through the depths of the
+    sagittal curve on a film's rows (docs/accuracy.md, "What the films can tell") is read only as well
+    as the rows' spacing, the chords' lengths, is known."""
+    k = len(CHORD_JOINTS)
+    covariances = {
+        name: [posterior_covariance(s, case, settings[name], CHORD_JOINTS, chord_covariance, bends=False)
+               for s in series]
+        for name in ("engine_priors", "bench_turn_and_orientation")
+    }
+    engine = covariances["engine_priors"]
+    block = np.r_[0:3, len(engine[0]) - k : len(engine[0])]
+    return {
+        "chords": f"{LEVELS[0]}-{LEVELS[1]} to {LEVELS[N_LEVELS - 3]}-{LEVELS[N_LEVELS - 2]}",
+        "prior_sd_pct": (100.0 * np.sqrt(np.diag(chord_covariance))).round(2).tolist(),
+        "oracle_rotation_sd_deg_xyz": _rms([np.degrees(np.sqrt(np.diag(c[:3, :3]))) for c in engine]),
+        "oracle_rotation_sd_deg_xyz_best_priors": _rms(
+            [np.degrees(np.sqrt(np.diag(c[:3, :3]))) for c in covariances["bench_turn_and_orientation"]]
+        ),
+        "oracle_aligned_rotation_rms_deg_xyz": _rms(
+            [
+                aligned_rotation_rms(s.truth.positions, c[np.ix_(block, block)],
+                                     lambda t, p: stretched(t, p, CHORD_JOINTS), draws, seed)
+                for s, c in zip(series, engine, strict=True)
+            ]
+        ),
+    }
+
+
 def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Priors], noise_mm: float,
-        seed: int, draws: int, top_covariance: FloatArray | None = None) -> list[dict[str, Any]]:
+        seed: int, draws: int, top_covariance: FloatArray | None = None,
+        chord_covariance: FloatArray | None = None) -> list[dict[str, Any]]:
     """One summary row per case: means over the spines (RMS for angles); case (b)'s row also has the
-    shape its lateral film leaves unseen (``unseen_top_row``) when ``top_covariance`` is given."""
+    shape its lateral film leaves unseen (``unseen_top_row``) when ``top_covariance`` is given, and
+    every row the rotation of an oracle that does not know the chords' lengths (``chord_lengths_row``)
+    when ``chord_covariance`` is."""
     series = [simulate_series(t, noise_mm, seed) for t in truths]
     paper = [engine_case_errors(s, "f") for s in series]
     rows = []
@@ -424,6 +506,8 @@ def run(truths: Sequence[Truth], cases: Sequence[Case], settings: dict[str, Prio
         }
         if case.key == "b" and top_covariance is not None:
             row["unseen_top_shape"] = unseen_top_row(series, settings["engine_priors"], top_covariance, draws, seed)
+        if chord_covariance is not None:
+            row["chord_lengths_unknown"] = chord_lengths_row(series, case, settings, chord_covariance, draws, seed)
         rows.append(row)
     return rows
 
@@ -451,6 +535,14 @@ def pooled(runs: Sequence[Sequence[dict[str, Any]]]) -> list[dict[str, Any]]:
         row = _pool(list(by_seed))
         row["engine_rotation_rms_deg_xyz_by_seed"] = [r["engine_rotation_rms_deg_xyz"] for r in by_seed]
         row["engine_to_oracle_xyz"], row["engine_to_oracle_se_xyz"] = rotation_ratio(by_seed, row)
+        if "chord_lengths_unknown" in row:
+            chords = row["chord_lengths_unknown"]
+            sd = np.asarray(chords["oracle_rotation_sd_deg_xyz"])
+            oracle = np.asarray(row["oracle_rotation_sd_deg_xyz"])
+            chords["to_oracle_xyz"] = (sd / oracle).round(3).tolist()
+            best = np.asarray(chords["oracle_rotation_sd_deg_xyz_best_priors"])
+            chords["best_priors_to_oracle_xyz"] = (best / oracle).round(3).tolist()
+            chords["engine_to_it_xyz"] = (np.asarray(row["engine_rotation_rms_deg_xyz"]) / sd).round(3).tolist()
         rows.append(row)
     return rows
 
@@ -534,9 +626,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     start = time.perf_counter()
-    settings, top = prior_settings(spread), top_prior_covariance(dev)
+    settings, top, chords = prior_settings(spread), top_prior_covariance(dev), chord_prior_covariance(dev)
     seeds = list(range(args.seed, args.seed + args.seeds))
-    rows = pooled([run(truths, [CASES[c] for c in args.cases], settings, args.noise_mm, seed, args.draws, top)
+    rows = pooled([run(truths, [CASES[c] for c in args.cases], settings, args.noise_mm, seed, args.draws, top, chords)
                    for seed in seeds])
     report = {
         "command": "spine bench clinic-bound " + " ".join(argv if argv is not None else sys.argv[1:]),
@@ -557,6 +649,13 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(table(rows))
         for row in rows:
+            if "chord_lengths_unknown" in row:
+                c = row["chord_lengths_unknown"]
+                print(f"case ({row['case']}), chord lengths {c['chords']} unknown: oracle rotation SD x,y,z "
+                      f"{c['oracle_rotation_sd_deg_xyz']} deg ({c['to_oracle_xyz']} x the bound's oracle; best "
+                      f"priors {c['oracle_rotation_sd_deg_xyz_best_priors']}, {c['best_priors_to_oracle_xyz']} x), "
+                      f"aligned as the engine's {c['oracle_aligned_rotation_rms_deg_xyz']} deg; engine / it "
+                      f"{c['engine_to_it_xyz']}")
             if "unseen_top_shape" in row:
                 top = row["unseen_top_shape"]
                 print(f"case (b), T1-T3 unseen: SD prior {top['prior_sd']} -> posterior {top['posterior_sd']}; "

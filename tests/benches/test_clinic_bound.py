@@ -105,6 +105,9 @@ def test_command_on_two_spines(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert all(0.0 < v < 10.0 for v in a["bound_mm"].values())
     assert np.isfinite(a["engine_mean_3d_error_mm"]) and np.isfinite(a["floor_estimate_mm"])
     assert (tmp_path / "clinic-bound-test.json").is_file()
+    chords = report["rows"][1]["chord_lengths_unknown"]  # case (c)
+    assert len(chords["prior_sd_pct"]) == 15
+    assert chords["to_oracle_xyz"][0] >= 1.0 and chords["best_priors_to_oracle_xyz"][0] > 0.0
     assert clinic_bound.main(["--data", str(tmp_path), "--cases", "f"]) == 2
 
 
@@ -250,3 +253,49 @@ def test_one_seed_has_no_ratio_error() -> None:
     row = {"engine_rotation_rms_deg_xyz": [1.0, 1.0, 1.0], "oracle_rotation_sd_deg_xyz": [1.0, 2.0, 4.0]}
     ratio, se = clinic_bound.rotation_ratio([row], row)
     assert ratio == [1.0, 0.5, 0.25] and se == [None, None, None]
+
+
+def test_stretches_of_many_draws_are_each_draws_own() -> None:
+    """``stretched`` with a leading axis of draws gives, draw by draw, what one draw alone gives."""
+    positions = _first_dev_spine()[0]
+    joints = clinic_bound.CHORD_JOINTS
+    fractions = np.random.default_rng(5).normal(scale=0.06, size=(4, len(joints)))
+    batch = clinic_bound.stretched(positions, fractions, joints)
+    assert batch.shape == (4, 17, 3)
+    for got, f in zip(batch, fractions, strict=True):
+        np.testing.assert_allclose(got, clinic_bound.stretched(positions, f, joints), rtol=0, atol=1e-12)
+
+
+def test_chords_alone_are_the_chords_with_their_bends_known() -> None:
+    """``posterior_covariance`` with ``bends`` False leaves the bends' columns out, which is the
+    posterior with them known: the same as with their prior variance 10⁻²⁰ rad² (the precision 10²⁰
+    pins them; the rest agrees to 10⁻⁶ relative)."""
+    series = clinic_films.simulate_series(clinic_films.Truth("dev0", *_first_dev_spine()), noise_mm=1.0, seed=0)
+    case = clinic_films.CASES["c"]
+    priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
+    joints = clinic_bound.UNSEEN_TOP_JOINTS
+    chords = np.diag([0.06, 0.05, 0.07]) ** 2
+    alone = clinic_bound.posterior_covariance(series, case, priors, joints, chords, bends=False)
+    pinned = clinic_bound.posterior_covariance(series, case, priors, joints, np.block(
+        [[np.eye(3) * 1e-20, np.zeros((3, 3))], [np.zeros((3, 3)), chords]]))  # fmt: skip
+    keep = np.r_[0 : len(alone) - 3, len(pinned) - 3 : len(pinned)]
+    np.testing.assert_allclose(alone, pinned[np.ix_(keep, keep)], rtol=1e-6, atol=1e-14)
+
+
+def test_an_oracle_that_does_not_know_the_chords_leans_less_surely_on_perspective_films() -> None:
+    """Perspective films with their geometry (case (c)) show a lean on the PA film's rows through the
+    sagittal curve's depths, read against the chords' lengths: with the fifteen chords' lengths
+    unknown (VerSe dev's spread, ``chord_prior_covariance``) the rotation block exceeds the one with
+    them known (Loewner order, eigenvalues ≥ −10⁻¹²), and most about x."""
+    dev = [clinic_films.Truth(sid, p, np.repeat(np.eye(3)[None], 17, axis=0)) for sid, p in read_verse(DATA)]
+    chords = clinic_bound.chord_prior_covariance(dev)
+    assert chords.shape == (15, 15) and np.linalg.eigvalsh(chords).min() > 0.0
+    series = clinic_films.simulate_series(dev[0], noise_mm=1.0, seed=0)
+    case = clinic_films.CASES["c"]
+    priors = clinic_bound.Priors(orientation_sd_deg=clinic_bound.engine_orientation_sd_deg())
+    known = clinic_bound.rotation_covariance(series, case, priors)
+    unknown = clinic_bound.posterior_covariance(series, case, priors, clinic_bound.CHORD_JOINTS, chords,
+                                                bends=False)[:3, :3]  # fmt: skip
+    assert np.linalg.eigvalsh(unknown - known).min() > -1e-12
+    growth = np.diag(unknown - known)
+    assert growth[0] > 0.0 and growth[0] == growth.max()
