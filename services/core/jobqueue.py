@@ -20,6 +20,7 @@ from typing import Any
 from celery import Celery
 from kombu.exceptions import ChannelError
 from kombu.transport import redis as kombu_redis
+from redis import exceptions as redis_exceptions
 
 from services.core.config import Settings
 
@@ -40,6 +41,11 @@ back) and its hard limit (its pool process is killed): a task stuck on a depende
 it unwinds, e.g. rolling back on a connection whose server went away."""
 
 
+class BrokerConnectionGone(redis_exceptions.ConnectionError):
+    """A command asked of a Redis channel whose kombu connection was closed: one of the transport's
+    connection errors, which kombu and Celery ignore while closing and log when acknowledging."""
+
+
 class _SharedClientChannel(kombu_redis.Channel):
     """kombu's Redis channel, with one ``redis.Redis`` client on the channel's connection pool where
     kombu builds a new one for every call that is given none: the QoS bookkeeping of each delivered
@@ -47,7 +53,21 @@ class _SharedClientChannel(kombu_redis.Channel):
     ``redis.Redis`` rebuilds its table of ~170 response callbacks (redis-py issue #3624): about a
     quarter of the Celery main process's CPU per task here (docs/performance.md). Every
     command still takes a connection from the same pool, so nothing changes on the wire; a new pool
-    (after a reconnection) gets a new client."""
+    (after a reconnection) gets a new client.
+
+    A channel whose kombu connection was already collected (``Connection.collect``: its transport
+    dropped, ``transport.client`` None) has no broker address left to build a pool from: kombu's own
+    channel raises ``AttributeError`` there, which is no connection error. Celery's consumer, after a
+    lost connection, collects the connection and then closes it; a channel the collect left open (a
+    BRPOP in flight and another channel's close failing first) is closed then, and its close restores
+    its unacknowledged messages through a new pool: the ``AttributeError`` escaped Celery's
+    ``ignore_errors`` and stopped the worker ("Unrecoverable error", seen on a Redis restart: the
+    supervisor started it again, and the new pool processes had never seen the broker's run id
+    before the restart). So is an ack of a message delivered on such a channel. This channel raises
+    ``BrokerConnectionGone`` (a ``redis.ConnectionError``, one of the transport's connection errors)
+    instead: the close ends, the ack is logged as not made, and the consumer reconnects. The
+    messages it could not restore stay in the broker's unacked hash (restored after the visibility
+    timeout, or gone with a restarted broker; the reconciler publishes their jobs again)."""
 
     _shared_client: Any = None
 
@@ -56,6 +76,8 @@ class _SharedClientChannel(kombu_redis.Channel):
         if client:
             yield client
             return
+        if self._pool is None and getattr(self.connection, "client", None) is None:
+            raise BrokerConnectionGone("the channel's broker connection was closed (collected); no command is sent")
         pool = self.pool
         shared = self._shared_client
         if shared is None or shared.connection_pool is not pool:
@@ -204,11 +226,21 @@ def queue_depth(app: Celery, queue: str) -> int:
 def broker_run_id(app: Celery) -> str | None:
     """An id of the broker's current run (Redis ``INFO server`` run_id): it changes when the
     broker restarts, and with it every message it held may be gone. None for other brokers."""
+    run = broker_run(app)
+    return run[0] if run is not None else None
+
+
+def broker_run(app: Celery) -> tuple[str, float] | None:
+    """The broker's current run: its id (Redis ``INFO server`` run_id) and how long it has been up, in
+    whole seconds (``uptime_in_seconds``, rounded down: the run started 0 to 1 s before now minus it).
+    None for other brokers."""
     if not app.conf.broker_url.startswith(("redis", "rediss")):
         return None
     with app.connection_for_read() as conn:
         info = conn.default_channel.client.info("server")
-        return str(info.get("run_id")) if info.get("run_id") else None
+    if not info.get("run_id"):
+        return None
+    return str(info["run_id"]), float(info.get("uptime_in_seconds", 0))
 
 
 def ping_broker(app: Celery) -> None:
