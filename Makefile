@@ -28,14 +28,12 @@ lint: $(STAMP)
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
-# pytest on three processes (pytest-xdist) on the 2-core VM: the fault and process tests mostly wait,
-# and a third process fills their waits (8:10 against 9:34 with two, the same suite on this VM). The
-# schemathesis fuzz test gives its 17 operations one node id, which xdist would run once: it runs
-# serially first.
+# pytest on two processes (pytest-xdist): the fault and process tests mostly wait. The schemathesis
+# fuzz test gives its 17 operations one node id, which xdist would run once: it runs serially first.
 FUZZ := tests/api/test_fuzz.py
 test: $(STAMP) lint browser pacs node-deps
 	$(BIN)/python -m pytest -ra $(FUZZ)
-	$(BIN)/python -m pytest -n 3 --dist loadfile -ra --durations=15 --ignore=$(FUZZ)
+	$(BIN)/python -m pytest -n 2 --dist loadfile -ra --durations=15 --ignore=$(FUZZ)
 
 bench-paper: $(STAMP)
 	$(BIN)/spine bench paper
