@@ -226,21 +226,11 @@ def queue_depth(app: Celery, queue: str) -> int:
 def broker_run_id(app: Celery) -> str | None:
     """An id of the broker's current run (Redis ``INFO server`` run_id): it changes when the
     broker restarts, and with it every message it held may be gone. None for other brokers."""
-    run = broker_run(app)
-    return run[0] if run is not None else None
-
-
-def broker_run(app: Celery) -> tuple[str, float] | None:
-    """The broker's current run: its id (Redis ``INFO server`` run_id) and how long it has been up, in
-    whole seconds (``uptime_in_seconds``, rounded down: the run started 0 to 1 s before now minus it).
-    None for other brokers."""
     if not app.conf.broker_url.startswith(("redis", "rediss")):
         return None
     with app.connection_for_read() as conn:
         info = conn.default_channel.client.info("server")
-    if not info.get("run_id"):
-        return None
-    return str(info["run_id"]), float(info.get("uptime_in_seconds", 0))
+        return str(info.get("run_id")) if info.get("run_id") else None
 
 
 def ping_broker(app: Celery) -> None:

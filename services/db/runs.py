@@ -281,15 +281,6 @@ class Reconciliation:
     database's clock, the countdown to publish it with (``publish_later``)."""
 
 
-def queued_since_before(session: Session, seconds: float) -> bool:
-    """Whether a queued job was last enqueued more than ``seconds`` ago on the database's clock
-    (``enqueued_at``, ``services.db.clock``). A job not due yet (its ``enqueued_at`` its due time,
-    ``release_claim``) is not counted."""
-    before = db_now_plus_s(-seconds)
-    waiting = select(Job.id).where(Job.status == JobStatus.queued.value, Job.enqueued_at <= before).limit(1)
-    return session.scalar(waiting) is not None
-
-
 def reconcile(
     session: Session,
     *,

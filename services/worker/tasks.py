@@ -32,7 +32,7 @@ from sqlalchemy.orm import Session
 
 import spine_engine
 from services.core.config import DicomwebConfig, Settings
-from services.core.jobqueue import HARD_LIMIT_GRACE_S, RECONCILE, RUN_JOB, broker_run, queue_depth
+from services.core.jobqueue import HARD_LIMIT_GRACE_S, RECONCILE, RUN_JOB, broker_run_id, queue_depth
 from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, refused_by_database, storage_refusal, write_retry
 from services.db import deliveries, runs, stats
@@ -339,41 +339,21 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
 
 
 _LAST_RUN_ID: dict[str, str] = {}
-UPTIME_MARGIN_S = 1.0
-"""Seconds added to the broker's uptime (whole seconds, rounded down) before a queued job's wait is
-compared with it (``enqueued_before_broker_started``): a job enqueued in the broker's first second is
-not taken for one enqueued before it started."""
 
 
-def broker_restarted(app: Celery) -> tuple[bool, float | None]:
+def broker_restarted(app: Celery) -> bool:
     """Whether the broker restarted since this process last looked (its run id changed): then the
-    messages it held are gone; and the broker's uptime (s), None when unknown. False on the first look
-    and for brokers without a run id: a process that never looked before the restart (a pool process
-    that had run no pass, the worker started again by its supervisor) learns it from the uptime
-    instead (``enqueued_before_broker_started``)."""
+    messages it held are gone. False on the first look and for brokers without a run id."""
     try:
-        run = broker_run(app)
+        run_id = broker_run_id(app)
     except Exception:
-        return False, None
-    if run is None:
-        return False, None
-    run_id, uptime_s = run
+        return False
+    if run_id is None:
+        return False
     url = str(app.conf.broker_url)
     previous = _LAST_RUN_ID.get(url)
     _LAST_RUN_ID[url] = run_id
-    return previous is not None and previous != run_id, uptime_s
-
-
-def enqueued_before_broker_started(session: Session, uptime_s: float) -> bool:
-    """Whether a queued job was last enqueued before the broker's current run started: it has waited, on
-    the database's clock, longer than the broker has been up, u + ``UPTIME_MARGIN_S`` (u: Redis
-    ``uptime_in_seconds``; ``runs.queued_since_before``). Its message went to the broker's previous run:
-    gone with it, unless the broker kept its data (then it is published twice; the second run skips it).
-    Only durations are compared, each on its own clock. Known without having looked before the restart,
-    it holds until the pass that publishes those jobs again (their ``enqueued_at`` becomes now). A job not
-    due yet is not counted: the run id seen before the restart (``broker_restarted``), or the queued
-    timeout past its due time, publishes it again."""
-    return runs.queued_since_before(session, uptime_s + UPTIME_MARGIN_S)
+    return previous is not None and previous != run_id
 
 
 def missing_messages(session: Session, app: Celery, settings: Settings) -> int | None:
@@ -404,16 +384,11 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
         f"{settings.max_attempts} times; its worker stopped or lost it",
     )
     queued_timeout = timedelta(seconds=settings.queued_timeout_s)
-    restarted, uptime_s = broker_restarted(app)
+    restarted = broker_restarted(app)
     with session_scope(settings) as session:
+        missing = None if restarted else missing_messages(session, app, settings)
         if restarted:  # every message is gone: publish every queued job now
             log.warning("reconciler: the broker restarted; publishing every queued job again")
-        elif uptime_s is not None and enqueued_before_broker_started(session, uptime_s):
-            restarted = True
-            log.warning("reconciler: the broker restarted (up %.0f s, queued jobs enqueued before); publishing "
-                        "every queued job again", uptime_s)  # fmt: skip
-        missing = None if restarted else missing_messages(session, app, settings)
-        if restarted:
             queued_timeout = timedelta(0)
         outcome = runs.reconcile(
             session,
