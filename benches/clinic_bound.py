@@ -211,14 +211,15 @@ def rotation_covariance(series: Series, case: Case, priors: Priors) -> FloatArra
 
 def posterior_covariance(
     series: Series, case: Case, priors: Priors, joints: Sequence[int] = (), joint_covariance: FloatArray | None = None,
-    bends: bool = True,
+    bends: bool = True, jacobian: FloatArray | None = None,
 ) -> FloatArray:
     """(JᵀJ/σ² + P)⁻¹ over the parameters the case leaves free, in θ's order (ω first, the joints'
     bends and stretches last, ``simulated_images``), rad² and mm²; ``joint_covariance`` is their prior
     covariance, (2·len(joints))², or len(joints)² of the stretches alone when ``bends`` is False (the
-    bends then known: their columns left out)."""
+    bends then known: their columns left out). ``jacobian``: J (``image_jacobian`` of the case's films
+    with these joints) when already computed for another prior setting; it does not depend on P."""
     films = _films(series, case)
-    J = image_jacobian(series.truth, films, case.perspective, joints)
+    J = image_jacobian(series.truth, films, case.perspective, joints) if jacobian is None else jacobian
     if joints and not bends:
         J = np.delete(J, np.s_[J.shape[1] - 2 * len(joints) : J.shape[1] - len(joints)], axis=1)
     precision = J.T @ J / series.noise_mm**2
@@ -374,7 +375,8 @@ def bound_one(series: Series, case: Case, settings: dict[str, Priors], paper_err
     """The oracle's bound under each prior setting, the engine's result on the same films and the
     floor estimate (module docstring) for one spine."""
     centred = series.truth.positions - series.truth.positions.mean(axis=0)
-    covariances = {name: rotation_covariance(series, case, p) for name, p in settings.items()}
+    J = image_jacobian(series.truth, _films(series, case), case.perspective)
+    covariances = {name: posterior_covariance(series, case, p, jacobian=J)[:3, :3] for name, p in settings.items()}
     samples = {name: rotation_errors(c, centred, draws, seed) for name, c in covariances.items()}
     outcome = run_one(series, case)
     floor = float("nan") if paper_errors is None else mean_error(samples["engine_priors"] + paper_errors[None])
@@ -456,9 +458,10 @@ def chord_lengths_row(series: Sequence[Series], case: Case, settings: dict[str, 
     sagittal curve on a film's rows (docs/accuracy.md, "What the films can tell") is read only as well
     as the rows' spacing, the chords' lengths, is known."""
     k = len(CHORD_JOINTS)
+    jacobians = [image_jacobian(s.truth, _films(s, case), case.perspective, CHORD_JOINTS) for s in series]
     covariances = {
-        name: [posterior_covariance(s, case, settings[name], CHORD_JOINTS, chord_covariance, bends=False)
-               for s in series]
+        name: [posterior_covariance(s, case, settings[name], CHORD_JOINTS, chord_covariance, bends=False, jacobian=J)
+               for s, J in zip(series, jacobians, strict=True)]
         for name in ("engine_priors", "bench_turn_and_orientation")
     }
     engine = covariances["engine_priors"]

@@ -355,9 +355,8 @@ and 0.55 on AASCE training's well-formed annotations, two labels on one vertebra
 (three AASCE annotations), so the lower bound 0.25 lies 3 SDs of 1 mm clicks below verse097's
 (its ratio's SD is about 0.09 there) and refuses a second label on a vertebra clicked within 4.9 mm
 of the first between neighbours 19.5 mm apart (``python -m tools.spacing_ratio`` prints the
-extremes). Against the view's median instead, verse097's 0.41 lay 2.2 SDs above 0.25, and 8 % of
-its payloads of perspective films with 1 mm clicks were refused (``spine bench clinic --split dev
---synthetic 20 --seeds 20 --seed 1000``)."""
+extremes). Against the view's median, verse097's T2–T3 reads 0.41, 2.2 SDs of 1 mm clicks above
+0.25."""
 SPACING_NEIGHBOURS = 2
 """Pairs on each side of a pair whose median q its lower scale-free bound compares it with
 (``SPACING_RATIO``), as the page's skipped-vertebra warning (web/src/checks.ts)."""
