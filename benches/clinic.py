@@ -72,7 +72,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from benches.clinic_films import CASES, Case, FloatArray, Series, Truth, build_payload, seed_of, simulate_series
+from benches.clinic_films import (
+    CASES,
+    SID_MM,
+    Case,
+    FloatArray,
+    Series,
+    Truth,
+    build_payload,
+    seed_of,
+    simulate_series,
+)
 from benches.report import format_table, save_figure, shared_data_dir, subplots, write_json
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate_and_write, coverage
@@ -438,12 +448,14 @@ def run(
     seed: int,
     profile: str = "default",
     registrar: Registrar = register,
+    sid_mm: float = SID_MM,
 ) -> tuple[list[dict[str, Any]], dict[tuple[str, str], list[Outcome]]]:
-    """Every case on every spine of every data set: summary rows and the outcomes behind them."""
+    """Every case on every spine of every data set, the films taken at ``sid_mm``: summary rows and
+    the outcomes behind them."""
     rows, outcomes = [], {}
     floor = population_means(profile)
     for name, truths in datasets.items():
-        series = [simulate_series(t, noise_mm, seed) for t in truths]
+        series = [simulate_series(t, noise_mm, seed, sid_mm) for t in truths]
         for case in cases:
             found = [run_one(s, case, profile, registrar) for s in series]
             outcomes[(name, case.key)] = found
@@ -530,8 +542,9 @@ def convergence_sweep(
     registrar: Registrar = register,
     drop_levels: bool = False,
     stated_sd_mm: float | None = None,
+    sid_mm: float = SID_MM,
 ) -> dict[str, Any]:
-    """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed)``):
+    """Every case on every spine over every noise seed (``simulate_series(truth, noise_mm, seed, sid_mm)``):
     the runs per case and every failure (``FitFailed``, ``InvalidInput`` or any other exception:
     each payload is valid, so each failure is a defect) with its data set, spine, case and seed; per
     case the most solver iterations and the largest and median landmark residual over its stated SD
@@ -552,7 +565,7 @@ def convergence_sweep(
     for seed in seeds:
         for name, truths in datasets.items():
             for truth in truths:
-                series = simulate_series(truth, noise_mm, seed)
+                series = simulate_series(truth, noise_mm, seed, sid_mm)
                 for sc in cases:
                     payload = sweep_payload(series, sc)
                     payload.setdefault("options", {})["profile"] = profile
@@ -779,6 +792,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stated-sd-mm", type=float, default=None, metavar="SD",
                         help="with --seeds: each view states this landmark SD instead of --noise-mm (refusals for "
                              "a contradicted SD are counted, not failures)")
+    parser.add_argument("--sid-mm", type=float, default=SID_MM, metavar="SID",
+                        help="take the films at this SID, the PA's spine 200 mm before its detector (default "
+                             f"{SID_MM:g}, full-spine radiography's); the JSON is then clinic-<split>-sid<SID>, "
+                             "the sweep's clinic-sweep-<split>-sid<SID>")
     parser.add_argument("--profile", default="default")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     parser.add_argument("--out", type=Path, default=Path("bench-out/clinic"), help="folder of the JSON and PNG")
@@ -794,6 +811,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: unknown case(s) {unknown}; known: {list(CASES)}", file=sys.stderr)
         return 2
     cases = [CASES[c] for c in args.cases]
+    if args.sid_mm != SID_MM and args.calibrate_uncertainty:
+        print("error: the calibration's films are taken at full-spine radiography's SID (no --sid-mm)", file=sys.stderr)
+        return 2
     try:
         verse = verse_truths(args.split, args.data)
     except FileNotFoundError as exc:
@@ -815,19 +835,20 @@ def main(argv: list[str] | None = None) -> int:
         datasets["synthetic"] = synthetic_truths(args.synthetic, args.seed, args.split)
     if args.seeds is not None:
         return _sweep_main(args, command, datasets, cases)
-    rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile)
+    rows, _ = run(datasets, cases, args.noise_mm, args.seed, args.profile, sid_mm=args.sid_mm)
     elapsed = time.perf_counter() - start
     report: dict[str, Any] = {
         "command": command,
         "date": dt.date.today().isoformat(),
         "noise_mm": args.noise_mm,
         "seed": args.seed,
+        "sid_mm": args.sid_mm,
         "profile": args.profile,
         "seconds": round(elapsed, 1),
         **calibrated,
         "rows": rows,
     }
-    stem = f"clinic-{args.split}"
+    stem = f"clinic-{args.split}" + ("" if args.sid_mm == SID_MM else f"-sid{args.sid_mm:g}")
     write_json(args.out / f"{stem}.json", report)
     plot(rows, args.out / f"{stem}.png")
     if args.plot:
@@ -851,16 +872,19 @@ SWEEP_SEEDS = range(3)
 
 
 def sweep_stem(
-    split: str, noise_mm: float, drop_levels: bool, seeds: range = SWEEP_SEEDS, stated_sd_mm: float | None = None
+    split: str, noise_mm: float, drop_levels: bool, seeds: range = SWEEP_SEEDS, stated_sd_mm: float | None = None,
+    sid_mm: float = SID_MM,
 ) -> str:
     """The sweep's file name without ``.json``: ``clinic-sweep-<split>``, then ``-noise<N>`` when the
-    landmark noise is not the default 1 mm, ``-stated<SD>`` with ``--stated-sd-mm``, ``-seeds<first>-<last>``
+    landmark noise is not the default 1 mm, ``-stated<SD>`` with ``--stated-sd-mm``, ``-sid<SID>`` with films
+    taken at another SID than ``SID_MM``, ``-seeds<first>-<last>``
     when the seeds are not ``SWEEP_SEEDS`` and ``-drop-levels`` with ``--drop-levels``, so that each sweep
     keeps its own file."""
     noise = "" if noise_mm == 1.0 else f"-noise{noise_mm:g}"
     stated = "" if stated_sd_mm is None else f"-stated{stated_sd_mm:g}"
     drawn = "" if seeds == SWEEP_SEEDS else f"-seeds{seeds[0]}-{seeds[-1]}"
-    return f"clinic-sweep-{split}{noise}{stated}{drawn}" + ("-drop-levels" if drop_levels else "")
+    sid = "" if sid_mm == SID_MM else f"-sid{sid_mm:g}"
+    return f"clinic-sweep-{split}{noise}{stated}{sid}{drawn}" + ("-drop-levels" if drop_levels else "")
 
 
 def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list[Truth]], cases: list[Case]) -> int:
@@ -870,12 +894,12 @@ def _sweep_main(args: argparse.Namespace, command: str, datasets: dict[str, list
     seeds = range(args.seed, args.seed + args.seeds)
     sweep = convergence_sweep(
         datasets, [SweepCase(c) for c in cases] + extra, seeds, args.noise_mm, args.profile,
-        drop_levels=args.drop_levels, stated_sd_mm=args.stated_sd_mm,
+        drop_levels=args.drop_levels, stated_sd_mm=args.stated_sd_mm, sid_mm=args.sid_mm,
     )
-    report = {"command": command, "noise_mm": args.noise_mm, "profile": args.profile,
+    report = {"command": command, "noise_mm": args.noise_mm, "sid_mm": args.sid_mm, "profile": args.profile,
               "seconds": round(time.perf_counter() - start, 1), **sweep}  # fmt: skip
-    write_json(args.out / f"{sweep_stem(args.split, args.noise_mm, args.drop_levels, seeds, args.stated_sd_mm)}.json",
-               report)
+    stem = sweep_stem(args.split, args.noise_mm, args.drop_levels, seeds, args.stated_sd_mm, args.sid_mm)
+    write_json(args.out / f"{stem}.json", report)
     print(json.dumps(report, indent=2) if args.json else sweep_table(sweep))
     return 1 if sweep["failures"] else 0
 

@@ -181,26 +181,29 @@ def seed_of(spine_id: str) -> int:
     return sum((i + 1) * ord(ch) for i, ch in enumerate(spine_id))
 
 
-def simulate_series(truth: Truth, noise_mm: float, seed: int) -> Series:
+def simulate_series(truth: Truth, noise_mm: float, seed: int, sid_mm: float = SID_MM) -> Series:
     """Draw the series geometry and noise of one spine (module docstring), deterministic for
-    (seed, spine id)."""
+    (seed, spine id); ``sid_mm``: both films taken at this SID, the PA's spine mid-plane
+    SID − SOD = 200 mm before its detector as at ``SID_MM`` (the draws do not depend on it)."""
     rng = np.random.default_rng([seed, seed_of(truth.spine_id)])
     centre = truth.positions.mean(axis=0)
+    pa_sod = sid_mm - (SID_MM - PA_SOD_MM)
     films = []
     for orientation, beam, sod in (
-        (PA_ORIENTATION, PA_BEAM, PA_SOD_MM),
+        (PA_ORIENTATION, PA_BEAM, pa_sod),
         (LATERAL_ORIENTATION, LATERAL_BEAM, None),
     ):
         e_c, e_r = image_axes(orientation)
         if sod is None:
             ratio = rng.uniform(*LATERAL_EXTRA_MAGNIFICATION)
-            sod = SID_MM / (SID_MM / PA_SOD_MM * ratio)
+            sod = sid_mm / (sid_mm / pa_sod * ratio)
             turn = rng.uniform(*LATERAL_TURN_DEG) * rng.choice([-1.0, 1.0])
         else:
             turn = 0.0
         offset = rng.normal(0.0, CENTRAL_RAY_SPREAD_MM, 2)
         ray = np.array([rng.uniform(*FILM_OFFSET_MM[0]), rng.uniform(*FILM_OFFSET_MM[1])])
-        films.append(Film(orientation, beam, float(sod), centre + offset[0] * e_c + offset[1] * e_r, ray, float(turn)))
+        principal = centre + offset[0] * e_c + offset[1] * e_r
+        films.append(Film(orientation, beam, float(sod), principal, ray, float(turn), sid_mm))
     pa_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
     lateral_noise = rng.normal(0.0, noise_mm, (N_LEVELS, 2)) if noise_mm > 0 else np.zeros((N_LEVELS, 2))
     return Series(truth, films[0], films[1], pa_noise, lateral_noise, noise_mm)

@@ -97,6 +97,40 @@ def test_bench_runs_on_a_tiny_case(tmp_path: Path, capsys: pytest.CaptureFixture
     assert (tmp_path / "clinic-test.json").is_file() and (tmp_path / "clinic-test.png").is_file()
 
 
+def test_films_taken_at_another_sid_keep_the_spine_200_mm_before_the_pa_detector() -> None:
+    """``sid_mm`` 1000: both films taken at 1000 mm, the PA's spine mid-plane still 200 mm before
+    its detector (magnification 1000/800 = 1.25, against 1800/1600 = 1.125), the lateral's extra
+    magnification and every other draw (central rays, turn, noise) the same as at 1800 mm."""
+    near = clinic_films.simulate_series(_truth(), noise_mm=1.0, seed=4, sid_mm=1000.0)
+    usual = clinic_films.simulate_series(_truth(), noise_mm=1.0, seed=4)
+    assert (near.pa.sid_mm, near.lateral.sid_mm, usual.pa.sid_mm) == (1000.0, 1000.0, clinic_films.SID_MM)
+    assert near.pa.magnification == pytest.approx(1.25) and usual.pa.magnification == pytest.approx(1.125)
+    assert near.lateral.magnification / near.pa.magnification == pytest.approx(
+        usual.lateral.magnification / usual.pa.magnification
+    )
+    np.testing.assert_array_equal(near.pa_noise, usual.pa_noise)
+    np.testing.assert_array_equal(near.lateral.central_ray, usual.lateral.central_ray)
+    assert near.lateral.turn_deg == usual.lateral.turn_deg
+
+
+def test_the_bench_at_another_sid_writes_its_own_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--sid-mm 1000``: the table's JSON is clinic-test-sid1000.json with the SID recorded, the
+    sweep's clinic-sweep-test-sid1000.json; the calibration refuses it (its films are full-spine
+    radiography's), exit 2."""
+    verse = tmp_path / "verse"  # the split's file must exist; --limit 0 reads none of its spines
+    verse.mkdir()
+    (verse / "test.csv").write_bytes((Path(__file__).parents[1] / "data" / "verse_dev.csv").read_bytes())
+    args = ["--data", str(verse), "--limit", "0", "--synthetic", "1", "--cases", "d", "--sid-mm", "1000",
+            "--out", str(tmp_path)]  # fmt: skip
+    assert clinic.main(args) == 0
+    assert json.loads((tmp_path / "clinic-test-sid1000.json").read_text())["sid_mm"] == 1000.0
+    assert clinic.main([*args, "--seeds", "1"]) == 0
+    assert json.loads((tmp_path / "clinic-sweep-test-sid1000-seeds0-0.json").read_text())["sid_mm"] == 1000.0
+    capsys.readouterr()
+    assert clinic.main(["--split", "dev", "--data", str(verse), "--calibrate-uncertainty", "--sid-mm", "1000"]) == 2
+    assert "--sid-mm" in capsys.readouterr().err
+
+
 def test_dev_and_test_draw_different_synthetic_spines() -> None:
     """The synthetic spines tuned on (``--split dev``) are not the ones reported (``--split test``),
     and each split's are the same on every run."""
