@@ -240,7 +240,10 @@ def make_camera(
         ray = acq.central_ray
         sod_assumed = geometry.depth_prior_sd_mm is not None
         depth_sd = geometry.depth_prior_sd_mm if geometry.depth_prior_sd_mm is not None else DEPTH_PRIOR_SD_MM
-        assumed: tuple[Assumption, ...] = (_geometry_assumed(name, geometry, depth_sd),) if geometry.assumed else ()
+        size_assumed = acq.distance_source_to_detector_mm is None and sod_assumed
+        assumed: tuple[Assumption, ...] = (
+            (_geometry_assumed(name, geometry, depth_sd, size_assumed),) if geometry.assumed else ()
+        )
         if ray is None and acq.image_size is not None:
             ray = (0.5 * acq.image_size[0], 0.5 * acq.image_size[1])
             assumed = (*assumed, _ray_at_centre(name, ray, view.units))
@@ -299,15 +302,25 @@ def _assumption(name: str, view: str | None) -> Assumption:
     return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
 
 
-def _geometry_assumed(name: str, geometry: PinholeGeometry, depth_sd_mm: float) -> Assumption:
+_SIZE_FROM_ASSUMED_SID = (
+    "; the spine's size is then right only as far as that geometry is the film's (a film taken at 1000 mm "
+    "reads 11 % too large, docs/accuracy.md): send the SID (acquisition.distance_source_to_detector_mm, "
+    "DICOM (0018,1110)) when it is known"
+)
+"""What ``_geometry_assumed`` adds when nothing states the size (no SID, SOD, ERMF or calibrated mm)."""
+
+
+def _geometry_assumed(name: str, geometry: PinholeGeometry, depth_sd_mm: float, size_assumed: bool) -> Assumption:
     """The record of a point-source film whose SID or SOD was assumed (``clinical.pinhole_geometry``),
-    the spine's distance from the source held with ``depth_sd_mm``."""
+    the spine's distance from the source held with ``depth_sd_mm``; ``size_assumed``: nothing states the
+    spine's size (no SID, and the SOD held by the assumed depth prior: no SOD, ERMF or calibrated mm)."""
     return Assumption(
         name="full_spine_geometry",
         view=name,  # type: ignore[arg-type]
         reason=f"projection_model perspective without SID or SOD: the film was projected from a point source "
         f"with SID {geometry.sid_mm:g} mm and SOD {geometry.sod_mm:g} mm (full-spine radiography), the spine's "
-        f"distance from the source held within {depth_sd_mm:g} mm (SD)",
+        f"distance from the source held within {depth_sd_mm:g} mm (SD)"
+        + (_SIZE_FROM_ASSUMED_SID if size_assumed else ""),
     )
 
 

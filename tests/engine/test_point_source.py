@@ -82,12 +82,15 @@ def test_a_point_source_film_without_geometry_is_projected_in_perspective_and_sa
         ("full_spine_geometry", "lateral"), ("central_ray_near_landmarks", "lateral"), NO_PEDICLES,
     ]
     assert "SID 1800 mm and SOD 1600 mm" in fit["assumed"][0]["reason"]
+    # nothing states the size: the reason says what a film taken nearer reads and what to send
+    assert "11 % too large" in fit["assumed"][0]["reason"] and "(0018,1110)" in fit["assumed"][0]["reason"]
     assert "scale" in fit["unreliable"]
     # with the ERMF given only the SID is assumed: the scale is the acquisition's, not a prior's
     payload["pa"]["acquisition"]["magnification"] = 1.125
     fit = register(payload)["fit"]
     assert fit["pa"]["scale_source"] == "acquisition" and "scale" not in fit["unreliable"]
     assert ("full_spine_geometry", "pa") in [(x["name"], x["view"]) for x in fit["assumed"]]
+    assert "(0018,1110)" not in next(x["reason"] for x in fit["assumed"] if x["view"] == "pa")
 
 
 def test_perspective_films_read_as_point_source_films_are_closer_to_the_truth() -> None:
