@@ -189,12 +189,16 @@ def simulated_images(
 
 
 def image_jacobian(
-    truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool, joints: Sequence[int] = ()
+    truth: Truth, films: Sequence[tuple[Film, int]], perspective: bool, joints: Sequence[int] = (),
+    bends: bool = True,
 ) -> FloatArray:
-    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films + 2·joints)."""
-    n = 3 + FILM_PARAMETERS * len(films) + 2 * len(joints)
+    """∂p/∂θ at θ = 0 by central differences (``STEP``), (2·landmarks, 3 + 5·films + 2·joints); without
+    the joints' bend columns when ``bends`` is False (3 + 5·films + joints: the bends known)."""
+    first_bend = 3 + FILM_PARAMETERS * len(films)
+    n = first_bend + 2 * len(joints)
+    skipped = range(first_bend, first_bend + (0 if bends else len(joints)))
     columns = []
-    for j in range(n):
+    for j in (j for j in range(n) if j not in skipped):
         step = np.zeros(n)
         step[j] = STEP
         plus = simulated_images(step, truth, films, perspective, joints)
@@ -217,11 +221,10 @@ def posterior_covariance(
     bends and stretches last, ``simulated_images``), rad² and mm²; ``joint_covariance`` is their prior
     covariance, (2·len(joints))², or len(joints)² of the stretches alone when ``bends`` is False (the
     bends then known: their columns left out). ``jacobian``: J (``image_jacobian`` of the case's films
-    with these joints) when already computed for another prior setting; it does not depend on P."""
+    with these joints and ``bends``) when already computed for another prior setting; it does not
+    depend on P."""
     films = _films(series, case)
-    J = image_jacobian(series.truth, films, case.perspective, joints) if jacobian is None else jacobian
-    if joints and not bends:
-        J = np.delete(J, np.s_[J.shape[1] - 2 * len(joints) : J.shape[1] - len(joints)], axis=1)
+    J = image_jacobian(series.truth, films, case.perspective, joints, bends) if jacobian is None else jacobian
     precision = J.T @ J / series.noise_mm**2
     if joints:
         assert joint_covariance is not None
@@ -458,7 +461,7 @@ def chord_lengths_row(series: Sequence[Series], case: Case, settings: dict[str, 
     sagittal curve on a film's rows (docs/accuracy.md, "What the films can tell") is read only as well
     as the rows' spacing, the chords' lengths, is known."""
     k = len(CHORD_JOINTS)
-    jacobians = [image_jacobian(s.truth, _films(s, case), case.perspective, CHORD_JOINTS) for s in series]
+    jacobians = [image_jacobian(s.truth, _films(s, case), case.perspective, CHORD_JOINTS, bends=False) for s in series]
     covariances = {
         name: [posterior_covariance(s, case, settings[name], CHORD_JOINTS, chord_covariance, bends=False, jacobian=J)
                for s, J in zip(series, jacobians, strict=True)]
