@@ -28,12 +28,13 @@ lint: $(STAMP)
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
-# pytest on two processes (pytest-xdist): the fault and process tests mostly wait. The schemathesis
-# fuzz test gives its 17 operations one node id, which xdist would run once: it runs serially first.
+# pytest on three processes (pytest-xdist) on the two cores: the fault and process tests mostly wait
+# (two processes left 45 % of the cores idle). The schemathesis fuzz test gives its 17 operations one
+# node id, which xdist would run once: it runs serially first.
 FUZZ := tests/api/test_fuzz.py
 test: $(STAMP) lint browser pacs node-deps
 	$(BIN)/python -m pytest -ra $(FUZZ)
-	$(BIN)/python -m pytest -n 2 --dist loadfile -ra --durations=15 --ignore=$(FUZZ)
+	$(BIN)/python -m pytest -n 3 --dist loadfile -ra --durations=15 --ignore=$(FUZZ)
 
 bench-paper: $(STAMP)
 	$(BIN)/spine bench paper
