@@ -12,7 +12,8 @@ the CPU time per job of each role on this machine (API, workers, PostgreSQL, Red
 generator itself). Exit status 1 when a job was lost or had two outcomes.
 
 ``--spawn`` starts the service itself (migrate, ``spine serve --no-worker`` and W ``spine worker``
-processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, and stops it at the end;
+processes) from the environment's DATABASE_URL / CELERY_BROKER_URL, measures once the API answers
+/readyz and every worker a ping (the report's ``spawned``), and stops it at the end;
 ``--own-redis`` starts a throwaway ``redis-server`` on a free loopback port as the broker.
 
 ``--fault`` injects one fault into the throughput phase once ``--fault-at`` of its jobs were
@@ -46,11 +47,16 @@ from urllib.parse import urlparse
 
 import aiohttp
 import httpx
+from celery import Celery
 
+from services.core.config import Settings
+from services.core.jobqueue import make_celery
 from spine_client.landmarks import LEVELS  # the contract's level names (a client's view)
 from tools.processes import run_tool, stop_processes
 
 FINAL = {"succeeded", "failed", "cancelled"}
+SPAWN_READY_S = 60.0
+"""How long ``--spawn`` waits for its API to answer /readyz and every worker to answer a ping."""
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
 
 
@@ -554,13 +560,38 @@ def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[
         procs.append(_start(cmd, env, log_dir / f"worker-{w}.log"))
         args.worker_procs.append(procs[-1])
     args.service_sessions = [p.pid for p in procs]  # each started its own session (``_start``)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if api_ready(args.url):
-            time.sleep(3)  # let the workers connect
-            return
+    started = time.monotonic()
+    deadline = started + SPAWN_READY_S
+    while not api_ready(args.url):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"the spawned API did not answer /readyz within {SPAWN_READY_S:g} s; see {log_dir}")
         time.sleep(0.5)
-    raise SystemExit("the spawned service did not become ready; see " + str(log_dir))
+    app = make_celery(Settings())
+    try:
+        workers = [p.pid for p in args.worker_procs]
+        while (answering := workers_answering(app, workers)) < len(workers):
+            if time.monotonic() > deadline:
+                raise SystemExit(f"{answering} of the {len(workers)} spawned workers answered a ping within "
+                                 f"{SPAWN_READY_S:g} s; see {log_dir}")  # fmt: skip
+    finally:
+        app.close()
+    args.spawned = {"workers_answering": answering, "ready_after_s": round(time.monotonic() - started, 2)}
+
+
+def workers_answering(app: Celery, supervisors: Sequence[int], timeout_s: float = 1.0) -> int:
+    """How many of the ``spine worker`` processes ``supervisors`` have a Celery node that answers a
+    ping on the broker (Celery's remote control): a worker consuming its queue. Other services' workers
+    on the same broker answer too; a node counts when it is ``spine-<pid>@host`` (``services.cli``'s
+    node name) with the process ``pid`` in a supervisor's session (``_start`` gives each its own)."""
+    sessions = {pid: int(fields[3]) for pid, fields in proc_stats().items()}
+    answered = set()
+    for reply in app.control.ping(timeout=timeout_s) or []:
+        for node in reply:
+            name = node.split("@", 1)[0]
+            pid = int(name.removeprefix("spine-")) if name.removeprefix("spine-").isdigit() else None
+            if pid is not None and sessions.get(pid) in supervisors:
+                answered.add(sessions[pid])
+    return len(answered)
 
 
 def _start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
@@ -604,6 +635,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.jobs = min(args.jobs, 100_000)
     args.worker_procs = []
     args.service_sessions = []
+    args.spawned = None
     args.own_redis_server = None
     check_loopback(args.url)
     if args.fault != "none" and not args.spawn:
@@ -625,8 +657,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if args.own_redis_server is not None:
             args.own_redis_server.stop()
-    hidden = ("api_key", "worker_procs", "service_sessions", "own_redis_server")  # no secret nor process in reports
+    hidden = ("api_key", "worker_procs", "service_sessions", "own_redis_server", "spawned")  # no secret nor process
     report["settings"] = {k: str(v) for k, v in vars(args).items() if k not in hidden}
+    if args.spawned is not None:
+        report["spawned"] = args.spawned
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(report, indent=2))

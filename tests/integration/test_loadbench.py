@@ -18,7 +18,8 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from tests.conftest import PG_ADMIN_URL, _purge_queue
+from services.core.jobqueue import make_celery
+from tests.conftest import PG_ADMIN_URL, Service, _purge_queue
 from tools import loadbench
 
 
@@ -105,7 +106,9 @@ def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, bench_env: dict[
            *(["--own-redis"] if fault == "restart-redis" else [])]  # fmt: skip
     done = subprocess.run(cmd, env=bench_env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    run = json.loads(out.read_text())["throughput"]
+    report = json.loads(out.read_text())
+    assert report["spawned"]["workers_answering"] == 1  # measured once the worker answered, not after a guess
+    run = report["throughput"]
     in_flight = run["fault"]["in_flight_at_fault"]
     assert in_flight["queued"] + in_flight["running"] > 0, run["fault"]  # the fault hit jobs in flight
     if fault == "kill-worker":
@@ -116,6 +119,19 @@ def test_a_run_with_a_fault_recovers_in_seconds(tmp_path: Path, bench_env: dict[
     assert run["last_submission_to_last_final_s"] <= 30, (run, _warnings_logged(tmp_path / "logs"))
     assert run["completed_per_s"] > 0
     assert run["cpu_ms_per_job"]["worker"] > 0 and run["cpu_ms_per_job"]["api"] > 0
+
+
+@pytest.mark.integration
+def test_a_spawned_worker_is_ready_when_its_own_node_answers_a_ping(distributed_service: Service) -> None:
+    """``--spawn`` measures once each worker it started answers a ping; another service's workers on
+    the same broker (the parallel tests' here) answer too and are not counted."""
+    assert distributed_service.worker is not None
+    app = make_celery(distributed_service.settings)
+    try:
+        assert loadbench.workers_answering(app, [distributed_service.worker.pid], timeout_s=2.0) == 1
+        assert loadbench.workers_answering(app, [os.getpid()], timeout_s=1.0) == 0  # no worker in this session
+    finally:
+        app.close()
 
 
 def _warnings_logged(log_dir: Path, limit: int = 6000) -> str:
