@@ -50,6 +50,7 @@ from services.db.engine import dispose_engines, session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job, JobMeasures
 from tests.conftest import _settings_kwargs, make_key, spine_payload
+from tests.interop_helpers import wait_until
 from tools.processes import stop_processes
 
 FINAL = {"succeeded", "failed", "cancelled"}
@@ -60,14 +61,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def wait_until(predicate: Any, timeout: float, what: str, interval: float = 0.1) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(interval)
 
 
 # ------------------------------------------------------------------ throwaway servers

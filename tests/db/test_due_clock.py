@@ -34,8 +34,8 @@ from services.db.engine import session_scope, worker_connection
 from services.db.migrate import upgrade
 from services.worker import dicom_tasks, webhook_tasks
 from tests.conftest import queued_job
-from tests.faults import SkewedClock, db_clock, wait_until
-from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
+from tests.faults import SkewedClock, db_clock
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply, wait_until
 
 SKEW = timedelta(hours=1)
 """How far the skewed process's clock is from the host's: far more than any margin (10 s, 300 s)."""

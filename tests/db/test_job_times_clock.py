@@ -26,7 +26,8 @@ from services.db import jobs, runs
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job, WebhookDelivery
 from tests.conftest import queued_job, spine_payload
-from tests.faults import SkewedClock, assert_within, db_clock, on_db_clock, wait_until
+from tests.faults import SkewedClock, assert_within, db_clock, on_db_clock
+from tests.interop_helpers import wait_until
 
 SKEW = timedelta(hours=1)
 """How far a skewed process's clock is from the host's: far more than any job's run here (seconds)."""

@@ -21,7 +21,8 @@ from services.db.clock import db_now
 from services.db.engine import session_scope, worker_connection
 from services.db.models import Job
 from tests.conftest import queued_job
-from tests.faults import SkewedClock, wait_until
+from tests.faults import SkewedClock
+from tests.interop_helpers import wait_until
 
 SKEW = timedelta(hours=1)
 """How far the skewed process's clock is from the host's: far more than any lease."""

@@ -33,7 +33,7 @@ from services.dicom.uids import job_uids
 from services.worker import dicom_tasks
 from services.worker.tasks import execute_job
 from tests.conftest import Service, _purge_queue, make_key, problem_of, spine_payload
-from tests.faults import wait_until
+from tests.interop_helpers import wait_until
 
 from .conftest import (
     STORE_TIMEOUT_S,

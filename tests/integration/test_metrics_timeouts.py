@@ -20,8 +20,8 @@ from prometheus_client.parser import text_string_to_metric_families
 from services.api.app import create_app
 from services.core.config import Settings
 from services.db.migrate import upgrade
-from tests.faults import wait_until
 from tests.integration.test_dependency_timeouts import MACHINE_SLACK_S, READY_TIMEOUT_S, finishes_within
+from tests.interop_helpers import wait_until
 
 DEPENDENCY_TIMEOUT_S = 5.0
 """SPINE_DB_CONNECT_TIMEOUT_S and SPINE_BROKER_TIMEOUT_S at their defaults: what a scrape waited for a

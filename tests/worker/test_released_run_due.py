@@ -36,7 +36,8 @@ from services.db.migrate import upgrade
 from services.db.models import Job
 from services.worker.tasks import RunLater, execute_job, reconcile_once, register_tasks
 from tests.conftest import fresh_settings, spine_payload, start_own_redis
-from tests.faults import SkewedClock, db_clock, free_port, wait_until
+from tests.faults import SkewedClock, db_clock, free_port
+from tests.interop_helpers import wait_until
 from tools.loadbench import OwnRedis
 
 DUE_S = 6.0

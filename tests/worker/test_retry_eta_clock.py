@@ -38,8 +38,8 @@ from services.worker.dicom_tasks import register_dicom_tasks
 from services.worker.tasks import execute_job
 from services.worker.webhook_tasks import register_webhook_tasks
 from tests.conftest import fresh_settings, spine_payload
-from tests.faults import SkewedClock, free_port, wait_until
-from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply
+from tests.faults import SkewedClock, free_port
+from tests.interop_helpers import TEST_WEBHOOK_SECRET, LoopbackReceiver, reply, wait_until
 
 SKEW = timedelta(hours=1)
 """How far the publisher's clock is behind the host's: far more than any retry delay (at most 120 s)."""
