@@ -13,7 +13,7 @@ import io
 import json
 import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from services.dicom.dicomweb import Pacs
 from services.dicom.sr import CORNERSTONE_COBB_ANGLE
 from services.dicom.uids import job_uids
 from tests.conftest import Service, _purge_queue, make_key, spawned_service, spine_payload
+from tests.interop_helpers import wait_until
 from tools.dicom import synthetic
 from tools.dicom.orthanc import free_port, orthanc_missing, start_orthanc, stop_orthanc
 from tools.sr_adapter import adapter_missing, adapter_tool_state
@@ -193,13 +194,6 @@ def test_pacs_down_retries_then_fails_the_job(
     assert "back to the queue" in service.worker_log()
 
 
-def _wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"not within {timeout:g} s: {what}"
-        time.sleep(0.1)
-
-
 def test_a_pacs_that_comes_back_gets_the_job_done(
     tmp_path_factory: pytest.TempPathFactory, postgres_url: str, redis_url: str
 ) -> None:
@@ -230,7 +224,7 @@ def test_a_pacs_that_comes_back_gets_the_job_done(
             payload["study"] = {"study_instance_uid": image.StudyInstanceUID,
                                 "pa_sop_instance_uid": image.SOPInstanceUID}  # fmt: skip
             job_ids = [service.submit(payload)["id"] for _ in range(2)]
-            _wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
+            wait_until(lambda: all(f"job {j} back to the queue" in service.worker_log() for j in job_ids), 60,
                         "every job handed back to the queue while the PACS is down")  # fmt: skip
             assert all(service.job(j)["status"] in ("queued", "running") for j in job_ids)
             back, server = start_orthanc(folder, port=port)
@@ -491,7 +485,7 @@ def _complete_payload() -> dict[str, Any]:
 
 def _first_store(service: Service, job_id: str) -> list[dict[str, Any]]:
     """The job's ``dicom_stores`` once its first STOW-RS attempt is recorded (within ``STORE_TIMEOUT_S``)."""
-    _wait_until(lambda: bool(service.job(job_id)["dicom_stores"]), STORE_TIMEOUT_S,
+    wait_until(lambda: bool(service.job(job_id)["dicom_stores"]), STORE_TIMEOUT_S,
                 f"a STOW-RS attempt on job {job_id}:\n{service.worker_log()[-3000:]}")  # fmt: skip
     return list(service.job(job_id)["dicom_stores"])
 
