@@ -233,6 +233,21 @@ def broker_run_id(app: Celery) -> str | None:
         return str(info.get("run_id")) if info.get("run_id") else None
 
 
+RESTART_CLAIM_TTL_S = 86_400
+"""How long the broker keeps the mark that one reconciler took a restart (a day: every reconciler
+that looked before the restart looks again within ``SPINE_RECONCILE_INTERVAL_S``)."""
+
+
+def claim_broker_restart(app: Celery, queue: str, run_id: str) -> bool:
+    """Whether the caller is the first to take the broker's run ``run_id`` as a restart for ``queue``:
+    Redis ``SET NX`` of ``spine:<queue>:restart:<run_id>`` (expiring after ``RESTART_CLAIM_TTL_S``).
+    Every pool process of every worker that looked at the broker before it restarted sees the new run
+    id; the one whose claim succeeds publishes every queued job again, the others do not."""
+    with app.connection_for_write() as conn:
+        client = conn.default_channel.client
+        return bool(client.set(f"spine:{queue}:restart:{run_id}", "1", nx=True, ex=RESTART_CLAIM_TTL_S))
+
+
 def ping_broker(app: Celery) -> None:
     """Raise when the broker cannot be reached: one new connection, no retry (a readiness probe asks
     again by itself); on Redis it sends PING, bounded by ``SPINE_BROKER_TIMEOUT_S``."""

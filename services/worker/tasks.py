@@ -17,6 +17,7 @@ store nothing.
 
 from __future__ import annotations
 
+import enum
 import logging
 import os
 import threading
@@ -32,7 +33,14 @@ from sqlalchemy.orm import Session
 
 import spine_engine
 from services.core.config import DicomwebConfig, Settings
-from services.core.jobqueue import HARD_LIMIT_GRACE_S, RECONCILE, RUN_JOB, broker_run_id, queue_depth
+from services.core.jobqueue import (
+    HARD_LIMIT_GRACE_S,
+    RECONCILE,
+    RUN_JOB,
+    broker_run_id,
+    claim_broker_restart,
+    queue_depth,
+)
 from services.core.problems import problem, validation_problem
 from services.core.retry import TRANSIENT, refused_by_database, storage_refusal, write_retry
 from services.db import deliveries, runs, stats
@@ -339,21 +347,45 @@ def execute_job(settings: Settings, job_id: uuid.UUID) -> str:
 
 
 _LAST_RUN_ID: dict[str, str] = {}
+"""The broker's run id this process saw last, by broker URL."""
 
 
-def broker_restarted(app: Celery) -> bool:
-    """Whether the broker restarted since this process last looked (its run id changed): then the
-    messages it held are gone. False on the first look and for brokers without a run id."""
+class BrokerRestart(enum.Enum):
+    """What a reconciler's look at the broker's run id found."""
+
+    NONE = "none"
+    """The run id this process saw last, or its first look, or a broker without a run id."""
+    OURS = "ours"
+    """A new run id, and this process's claim of it (``claim_broker_restart``) succeeded: it publishes
+    every queued job again."""
+    TAKEN = "taken"
+    """A new run id that another reconciler claimed: it publishes every queued job again, this pass of
+    this process publishes none (counted as missing while the other publishes, they would be doubled)."""
+
+
+def broker_restart(app: Celery, queue: str, seen: dict[str, str] = _LAST_RUN_ID) -> BrokerRestart:
+    """Whether the broker restarted since this process last looked (its run id changed: the messages
+    it held are gone), and whether this process is the one to publish ``queue``'s jobs again for it:
+    of the reconcilers that looked before the restart (every pool process of every worker), the one
+    whose ``claim_broker_restart`` succeeds. ``seen`` is the process's memory of run ids, by broker
+    URL; a look or a claim that fails on the broker leaves it, so that the next pass looks again."""
     try:
         run_id = broker_run_id(app)
     except Exception:
-        return False
+        return BrokerRestart.NONE
     if run_id is None:
-        return False
+        return BrokerRestart.NONE
     url = str(app.conf.broker_url)
-    previous = _LAST_RUN_ID.get(url)
-    _LAST_RUN_ID[url] = run_id
-    return previous is not None and previous != run_id
+    previous = seen.get(url)
+    if previous is None or previous == run_id:
+        seen[url] = run_id
+        return BrokerRestart.NONE
+    try:
+        claimed = claim_broker_restart(app, queue, run_id)
+    except Exception:
+        return BrokerRestart.NONE
+    seen[url] = run_id
+    return BrokerRestart.OURS if claimed else BrokerRestart.TAKEN
 
 
 def missing_messages(session: Session, app: Celery, settings: Settings) -> int | None:
@@ -384,9 +416,13 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
         f"{settings.max_attempts} times; its worker stopped or lost it",
     )
     queued_timeout = timedelta(seconds=settings.queued_timeout_s)
-    restarted = broker_restarted(app)
+    restart = broker_restart(app, settings.queue_name)
+    restarted = restart is BrokerRestart.OURS
     with session_scope(settings) as session:
-        missing = None if restarted else missing_messages(session, app, settings)
+        if restart is BrokerRestart.TAKEN:
+            missing: int | None = 0
+        else:
+            missing = None if restarted else missing_messages(session, app, settings)
         if restarted:  # every message is gone: publish every queued job now
             log.warning("reconciler: the broker restarted; publishing every queued job again")
             queued_timeout = timedelta(0)
