@@ -420,6 +420,7 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
     restarted = restart is BrokerRestart.OURS
     with session_scope(settings) as session:
         if restart is BrokerRestart.TAKEN:
+            log.info("reconciler: the broker restarted; another reconciler publishes the queued jobs again")
             missing: int | None = 0
         else:
             missing = None if restarted else missing_messages(session, app, settings)

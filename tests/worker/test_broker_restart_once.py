@@ -11,6 +11,7 @@ run id (each pool process holds its own, ``tasks._LAST_RUN_ID``).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -59,7 +60,7 @@ def test_of_the_processes_that_see_a_restart_one_takes_it(settings: Settings, ow
 
 
 def test_after_a_restart_two_reconcilers_publish_each_queued_job_once(
-    settings: Settings, own_redis: OwnRedis, monkeypatch: pytest.MonkeyPatch
+    settings: Settings, own_redis: OwnRedis, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     app = make_celery(settings)
     register_tasks(app, settings)
@@ -76,5 +77,7 @@ def test_after_a_restart_two_reconcilers_publish_each_queued_job_once(
     ours = reconcile_once(settings, app)
     assert sorted(ours.requeue) == sorted(ids) and queue_depth(app, settings.queue_name) == 3
     monkeypatch.setitem(tasks._LAST_RUN_ID, url, old_run)  # a second pool process, which looked before too
-    taken = reconcile_once(settings, app)
+    with caplog.at_level(logging.INFO, logger="services.worker.tasks"):
+        taken = reconcile_once(settings, app)
     assert taken.requeue == [] and queue_depth(app, settings.queue_name) == 3
+    assert "another reconciler publishes the queued jobs again" in caplog.text  # what an operator reads
