@@ -367,8 +367,10 @@ def broker_restart(app: Celery, queue: str, seen: dict[str, str] = _LAST_RUN_ID)
     """Whether the broker restarted since this process last looked (its run id changed: the messages
     it held are gone), and whether this process is the one to publish ``queue``'s jobs again for it:
     of the reconcilers that looked before the restart (every pool process of every worker), the one
-    whose ``claim_broker_restart`` succeeds. ``seen`` is the process's memory of run ids, by broker
-    URL; a look or a claim that fails on the broker leaves it, so that the next pass looks again."""
+    whose ``claim_broker_restart`` succeeds, or any of them when the claim fails (a broker whose ACL
+    refuses the key: duplicates are harmless, lost messages are not). ``seen`` is the process's memory
+    of run ids, by broker URL; a look that fails on the broker leaves it, so that the next pass looks
+    again."""
     try:
         run_id = broker_run_id(app)
     except Exception:
@@ -382,8 +384,9 @@ def broker_restart(app: Celery, queue: str, seen: dict[str, str] = _LAST_RUN_ID)
         return BrokerRestart.NONE
     try:
         claimed = claim_broker_restart(app, queue, run_id)
-    except Exception:
-        return BrokerRestart.NONE
+    except Exception as exc:  # the run id was read: a broker that refuses the SET (an ACL) more likely than one gone
+        log.warning("reconciler: could not claim the broker's restart (%s); publishing every queued job anyway", exc)
+        claimed = True  # a duplicate message is harmless (the claim of a job is conditional), a lost one is not
     seen[url] = run_id
     return BrokerRestart.OURS if claimed else BrokerRestart.TAKEN
 

@@ -16,9 +16,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import redis
 
 from services.core.config import Settings
-from services.core.jobqueue import make_celery, queue_depth
+from services.core.jobqueue import claim_broker_restart, make_celery, queue_depth
 from services.db import runs
 from services.db.engine import session_scope
 from services.db.migrate import upgrade
@@ -81,3 +82,26 @@ def test_after_a_restart_two_reconcilers_publish_each_queued_job_once(
         taken = reconcile_once(settings, app)
     assert taken.requeue == [] and queue_depth(app, settings.queue_name) == 3
     assert "another reconciler publishes the queued jobs again" in caplog.text  # what an operator reads
+
+
+def test_a_broker_that_refuses_the_claim_still_has_every_queued_job_published_again(
+    settings: Settings, own_redis: OwnRedis
+) -> None:
+    """A broker user whose ACL refuses SET (Redis ACL, ``-set``) cannot claim the restart: the reconciler
+    publishes every queued job anyway (a duplicate is harmless, a lost message is not), as before claims."""
+
+    def refuse_set() -> None:  # a restart forgets the ACL (no configuration file): given again after it
+        with redis.Redis.from_url(own_redis.url) as admin:
+            admin.execute_command("ACL", "SETUSER", "noset", "on", ">pw", "~*", "&*", "+@all", "-set")
+
+    refuse_set()
+    limited = settings.model_copy(update={"broker_url": own_redis.url.replace("redis://", "redis://noset:pw@")})
+    app = make_celery(limited)
+    seen: dict[str, str] = {}
+    assert broker_restart(app, limited.queue_name, seen) is BrokerRestart.NONE
+    own_redis.stop()
+    own_redis.start()
+    refuse_set()
+    with pytest.raises(redis.exceptions.NoPermissionError):
+        claim_broker_restart(app, limited.queue_name, "any")
+    assert broker_restart(app, limited.queue_name, seen) is BrokerRestart.OURS
