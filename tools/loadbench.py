@@ -49,6 +49,7 @@ import aiohttp
 import httpx
 from celery import Celery
 
+from services.cli import worker_node_pid
 from services.core.config import Settings
 from services.core.jobqueue import make_celery
 from spine_client.landmarks import LEVELS  # the contract's level names (a client's view)
@@ -581,16 +582,16 @@ def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[
 def workers_answering(app: Celery, supervisors: Sequence[int], timeout_s: float = 1.0) -> int:
     """How many of the ``spine worker`` processes ``supervisors`` have a Celery node that answers a
     ping on the broker (Celery's remote control): a worker consuming its queue. Other services' workers
-    on the same broker answer too; a node counts when it is ``spine-<pid>@host`` (``services.cli``'s
-    node name) with the process ``pid`` in a supervisor's session (``_start`` gives each its own)."""
+    on the same broker answer too; a node counts when its name's process (``services.cli.worker_node_pid``)
+    is in a supervisor's session (``_start`` gives each its own)."""
     sessions = {pid: int(fields[3]) for pid, fields in proc_stats().items()}
     answered = set()
     for reply in app.control.ping(timeout=timeout_s) or []:
         for node in reply:
-            name = node.split("@", 1)[0]
-            pid = int(name.removeprefix("spine-")) if name.removeprefix("spine-").isdigit() else None
-            if pid is not None and sessions.get(pid) in supervisors:
-                answered.add(sessions[pid])
+            pid = worker_node_pid(node)
+            session = sessions.get(pid) if pid is not None else None
+            if session is not None and session in supervisors:
+                answered.add(session)
     return len(answered)
 
 

@@ -64,8 +64,23 @@ def openapi_yaml() -> str:
     return yaml.safe_dump(schema, sort_keys=False, allow_unicode=True, width=100)
 
 
+NODE_PREFIX = "spine-"
+"""A ``spine worker``'s Celery node is ``spine-<pid>@<host>`` (``worker_node_name``)."""
+
+
+def worker_node_name(pid: int) -> str:
+    """The Celery node name (``-n``) of the worker process ``pid``; Celery expands ``%h`` to the host."""
+    return f"{NODE_PREFIX}{pid}@%h"
+
+
+def worker_node_pid(node: str) -> int | None:
+    """The process id in a node name ``worker_node_name`` made (``spine-<pid>@<host>``), else None."""
+    digits = node.split("@", 1)[0].removeprefix(NODE_PREFIX)
+    return int(digits) if node.startswith(NODE_PREFIX) and digits.isdigit() else None
+
+
 def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list[str]:
-    argv = ["worker", "--loglevel", loglevel, "-Q", queue, "-n", f"spine-{os.getpid()}@%h", "--without-gossip",
+    argv = ["worker", "--loglevel", loglevel, "-Q", queue, "-n", worker_node_name(os.getpid()), "--without-gossip",
             "--without-mingle"]  # fmt: skip
     if concurrency > 0:
         argv += ["--concurrency", str(concurrency)]
