@@ -422,14 +422,15 @@ def reconcile_once(settings: Settings, app: Celery) -> runs.Reconciliation:
     restart = broker_restart(app, settings.queue_name)
     restarted = restart is BrokerRestart.OURS
     with session_scope(settings) as session:
-        if restart is BrokerRestart.TAKEN:
-            log.info("reconciler: the broker restarted; another reconciler publishes the queued jobs again")
-            missing: int | None = 0
-        else:
-            missing = None if restarted else missing_messages(session, app, settings)
+        missing: int | None
         if restarted:  # every message is gone: publish every queued job now
             log.warning("reconciler: the broker restarted; publishing every queued job again")
-            queued_timeout = timedelta(0)
+            missing, queued_timeout = None, timedelta(0)
+        elif restart is BrokerRestart.TAKEN:
+            log.info("reconciler: the broker restarted; another reconciler publishes the queued jobs again")
+            missing = 0
+        else:
+            missing = missing_messages(session, app, settings)
         outcome = runs.reconcile(
             session,
             queued_timeout=queued_timeout,

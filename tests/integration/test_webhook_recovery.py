@@ -25,6 +25,7 @@ import pytest
 import redis
 from sqlalchemy import select, text
 
+from services.core.jobqueue import HARD_LIMIT_GRACE_S
 from services.db.deliveries import message_id
 from services.db.engine import get_engine, session_scope
 from services.db.models import WebhookDelivery
@@ -112,7 +113,7 @@ def test_a_delivery_stuck_on_its_database_is_ended_by_its_time_limit_and_deliver
     env = webhook_env(receiver, SPINE_WEBHOOK_TIMEOUT_S="1", SPINE_WEBHOOK_TASK_MARGIN_S=str(STUCK_SOFT_LIMIT_S - 1),
                       SPINE_DB_STATEMENT_TIMEOUT_S="0")  # fmt: skip
     env["SPINE_WEBHOOK_SWEEP_AFTER_S"] = str(STUCK_SWEEP_AFTER_S)
-    hard_limit_s = STUCK_SOFT_LIMIT_S + 5
+    hard_limit_s = STUCK_SOFT_LIMIT_S + HARD_LIMIT_GRACE_S
     with spawned_service("stuck", tmp_path, postgres_url=fresh_postgres_url, redis_url=redis_url, **env) as service:
         path = f"/hooks/{uuid.uuid4().hex}"
         job = service.submit({**spine_payload(), "callback_url": receiver.url(path)})
@@ -123,7 +124,8 @@ def test_a_delivery_stuck_on_its_database_is_ended_by_its_time_limit_and_deliver
                                 "attempted_at) VALUES (:job, :mid, 'job.cancelled', 1, :url, now())"), row)  # fmt: skip
             started = time.monotonic()
             assert service.client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 200
-            # the soft limit after the task started, the hard one 5 s later; 4 s for the pool's check and the log
+            # the soft limit after the task started, the hard one HARD_LIMIT_GRACE_S later; 4 s for the pool's
+            # check and the log
             limit = re.compile(r"(Soft|Hard) time limit \([\d.]+s\) exceeded for spine\.deliver_webhook")
             wait_until(lambda: limit.search(service.worker_log()), hard_limit_s + 4, "the delivery's time limit")
             stopped_after = time.monotonic() - started
