@@ -20,7 +20,8 @@ COMMANDS = {
     ),
     "recalibrate": (
         "benches.recalibrate",
-        "re-run the calibrations that follow the engine (population prior, tilt prior, uncertainty, Cobb SD)",
+        "re-run the calibrations that follow the engine (population prior, PA reading, tilt prior, uncertainty, "
+        "Cobb SD)",
     ),
     "aasce-bound": (
         "benches.aasce_bound",
@@ -29,6 +30,10 @@ COMMANDS = {
     "pa-bound": (
         "benches.pa_bound",
         "one PA film: the kyphosis and lordosis a learner trained on the tested population reads",
+    ),
+    "pa-reading": (
+        "benches.pa_reading",
+        "one PA film: the kyphosis its foreshortening reads, fitted on VerSe dev (--write: ship it)",
     ),
     "lateral-mirror": (
         "benches.lateral_mirror",

@@ -7,12 +7,14 @@ VerSe dev, AASCE training):
 
 1. the rod's population prior (``spine bench prior --write default``): VerSe dev and AASCE
    training's spreads, scaled by the prior predictive;
-2. the tilt prior (``spine bench aasce --calibrate``): its coefficients, and its weight fraction
+2. the PA film's kyphosis reading (``spine bench pa-reading --write``): VerSe dev's chord shares,
+   inclinations and modes, and its weight chosen through the fits of 1;
+3. the tilt prior (``spine bench aasce --calibrate``): its coefficients, and its weight fraction
    chosen through ``register()``, which fits with the prior of 1;
-3. the uncertainty constants (``spine bench clinic --split dev --calibrate-uncertainty``): λ and c
-   from the fits of 1 and 2;
-4. the tilt prior's ``cobb_sd_deg`` (``spine bench aasce --calibrate-cobb-sd``): from the reported
-   Cobb SD, which holds λ and c of 3 (step 2 also sets it, before 3 has moved them).
+4. the uncertainty constants (``spine bench clinic --split dev --calibrate-uncertainty``): λ and c
+   from the fits of 1 and 3, and the PA-only readings, of 2;
+5. the tilt prior's ``cobb_sd_deg`` (``spine bench aasce --calibrate-cobb-sd``): from the reported
+   Cobb SD, which holds λ and c of 4 (step 3 also sets it, before 4 has moved them).
 
 Upstream of these, the rest shape and the stretch stiffness (``spine bench calibrate``) and the
 landmark weight (``spine bench noise-weight``) were chosen once by searches and are kept
@@ -31,7 +33,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from benches import aasce, clinic, prior
+from benches import aasce, clinic, pa_reading, prior
 from benches.report import shared_data_dir
 
 
@@ -50,15 +52,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     prior.main(["--write", "default", "--verse", str(ns.verse / "dev.csv"), "--aasce", str(ns.aasce / "training"),
                 "--out", str(ns.out)])  # its exit code reports the bands, not the write
     steps: list[tuple[str, int]] = []
-    print("== 2. tilt prior")
+    print("== 2. PA film's kyphosis reading")
+    steps.append(("pa reading", pa_reading.main(["--write", "--data", str(ns.verse), "--out", str(ns.out)])))
+    print("== 3. tilt prior")
     steps.append(("tilt prior", aasce.main(["--calibrate", "--split", "training", "--data", str(ns.aasce),
                                             "--out", str(ns.out)])))
-    print("== 3. uncertainty constants")
+    print("== 4. uncertainty constants")
     steps.append(("uncertainty", clinic.main(["--split", "dev", "--calibrate-uncertainty", "--data", str(ns.verse)])))
-    print("== 4. Cobb SD of model tilts")
+    print("== 5. Cobb SD of model tilts")
     steps.append(("cobb sd", aasce.main(["--calibrate-cobb-sd", "--split", "training", "--data", str(ns.aasce),
                                          "--out", str(ns.out)])))
     failed = [name for name, code in steps if code != 0]
-    print("recalibrated: population prior, tilt prior, uncertainty constants, Cobb SD" if not failed
+    print("recalibrated: population prior, PA reading, tilt prior, uncertainty constants, Cobb SD" if not failed
           else f"error: {', '.join(failed)} did not finish")
     return 1 if failed else 0

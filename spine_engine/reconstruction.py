@@ -95,6 +95,7 @@ from .models import (
 from .projection import estimate_projection, image_axes
 from .rod import strains
 from .rotations import rotation_between
+from .sagittal_reading import ReadingModel, kyphoses_deg, load_reading_model, read_inclinations_deg
 from .tilt_prior import TiltPrior, load_tilt_prior
 from .validation import validate_payload
 from .version import __version__
@@ -359,6 +360,7 @@ def _view_data(
         scale=float(scale),
         translation=np.asarray(initial[1], dtype=float),
         weight=weight * (LANDMARK_SD_MM_DEFAULT / sd) ** 2,
+        landmark_sd_mm=sd,
         camera=camera,
     )
 
@@ -998,7 +1000,17 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
 
 def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     """The measures of a fit, read as its inputs allow (``measures.compute_measures``): the corner
-    lines' tilts where given, the directors' sagittal tilt only where observed. No SDs."""
+    lines' tilts where given, the directors' sagittal tilt only where observed; without a lateral
+    view, the kyphoses blend the rod's reading with the PA film's foreshortening (``with_pa_kyphoses``).
+    No SDs."""
+    measures = rod_measures(inputs, out)
+    model = load_reading_model()
+    return measures if model is None else with_pa_kyphoses(measures, inputs, model)
+
+
+def rod_measures(inputs: RegistrationInputs, out: FitOutput) -> Measures:
+    """The measures of the fitted rod alone (``measures.compute_measures``): the corner lines' tilts
+    where given, the directors' sagittal tilt only where observed. No SDs."""
     return compute_measures(
         out.positions,
         out.rotations,
@@ -1006,6 +1018,33 @@ def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
         observed_endplate_tilt_deg=inputs.observed_endplate_tilt_deg,
         observed_sagittal=inputs.observed_sagittal,
     )
+
+
+def pa_foreshortening_kyphoses(inputs: RegistrationInputs, model: ReadingModel) -> tuple[float, float] | None:
+    """(kyphosis T4–T12, T5–T12), degrees, that the PA film's foreshortening reads
+    (``sagittal_reading``), or None: a lateral view, or too few adjacent PA levels."""
+    if any(view.name == "lateral" for view in inputs.views):
+        return None
+    pa = next(view for view in inputs.views if view.name == "pa")
+    beta = read_inclinations_deg(model, pa.indices, pa.points, pa.landmark_sd_mm)
+    return None if beta is None else kyphoses_deg(beta)
+
+
+def with_pa_kyphoses(measures: Measures, inputs: RegistrationInputs, model: ReadingModel) -> Measures:
+    """Without a lateral view, the kyphoses T4–T12 and T5–T12 as w·K_PA + (1 − w)·K_rod, K_PA the
+    PA film's foreshortening reading (``pa_foreshortening_kyphoses``), K_rod the fitted centreline's and
+    w ``model.weight``; the Lenke inputs' T5–T12 follows. Unchanged with a lateral view."""
+    read = pa_foreshortening_kyphoses(inputs, model)
+    if read is None:
+        return measures
+    w = model.weight
+    t4_t12 = w * read[0] + (1.0 - w) * measures.thoracic_kyphosis_t4_t12_deg
+    t5_t12 = w * read[1] + (1.0 - w) * measures.thoracic_kyphosis_t5_t12_deg
+    update: dict[str, Any] = {"thoracic_kyphosis_t4_t12_deg": t4_t12, "thoracic_kyphosis_t5_t12_deg": t5_t12}
+    lenke = measures.lenke
+    if lenke is not None:
+        update["lenke"] = lenke_with_kyphoses(lenke, lenke.t2_t5_kyphosis_deg, t5_t12, lenke.t10_l2_kyphosis_deg)
+    return measures.model_copy(update=update)
 
 
 def _sd_pairs(measures: Measures) -> list[tuple[str, str]]:

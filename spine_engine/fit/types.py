@@ -166,6 +166,8 @@ class ViewData:
     """(2,) weak-perspective translation T, detector mm (initial value when the camera is estimated)."""
     weight: float
     """Fitting weight w, N/mm."""
+    landmark_sd_mm: float = 1.0
+    """σ, the landmarks' SD per image coordinate, detector mm (``weight`` holds it already)."""
     offset_indices: np.ndarray | None = None
     """(q,) int: vertebra index of each offset-point observation (optional)."""
     offset_vectors: np.ndarray | None = None

@@ -16,13 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benches import aasce, clinic, noise_weight, prior
+from benches import aasce, clinic, noise_weight, pa_reading, prior
 from benches.calibrate import mean_sagittal_shape
 from benches.clinic_films import CASES
 from benches.truth import read_verse
 from benches.uncertainty_calibration import calibrate, collect
 from spine_engine.anatomy import load_profile
 from spine_engine.fit.uncertainty import calibration
+from spine_engine.sagittal_reading import load_reading_model
 from spine_engine.tilt_prior import load_tilt_prior
 
 VERSE_DEV = Path(__file__).resolve().parents[1] / "data" / "verse_dev.csv"
@@ -53,6 +54,25 @@ def test_landmark_weight_is_current() -> None:
                                     shipped["cases"], shipped["noise_mm"], shipped["seed"])  # fmt: skip
     best = min(rows, key=lambda r: r["score_mm"])
     assert best["multiplier"] == 1.0, [(r["multiplier"], round(r["score_mm"], 4)) for r in rows]
+
+
+def test_pa_reading_is_current() -> None:
+    """``spine bench pa-reading --write`` on VerSe dev and the clinic bench's 20 synthetic dev spines gives
+    the shipped reading model (stored to 6 decimals, angles to 4) and weight, and its weight table."""
+    shipped = load_reading_model()
+    assert shipped is not None
+    today, rows = pa_reading.calibrate(clinic.truths_of_csv(VERSE_DEV), clinic.synthetic_truths(20, 0, "dev"))
+    assert today.weight == shipped.weight
+    np.testing.assert_allclose(today.chord_share, shipped.chord_share, atol=5e-7)
+    np.testing.assert_allclose(today.mean_inclination_deg, shipped.mean_inclination_deg, atol=5e-5)
+    np.testing.assert_allclose(today.modes, shipped.modes, atol=5e-7)
+    np.testing.assert_allclose(today.mode_sd_deg, shipped.mode_sd_deg, atol=5e-5)
+    assert today.lean_sd_deg == pytest.approx(shipped.lean_sd_deg, abs=5e-5)
+    assert today.length_sd == pytest.approx(shipped.length_sd, abs=5e-7)
+    table = shipped.provenance["weight_table"]
+    assert [r["weight"] for r in rows] == [r["weight"] for r in table]
+    for ours, theirs in zip(rows, table, strict=True):
+        assert ours["mean_ratio"] == pytest.approx(theirs["mean_ratio"], abs=1e-9), ours["weight"]
 
 
 def test_uncertainty_calibration_is_current() -> None:

@@ -165,21 +165,37 @@ def test_rest_length_from_the_pa_film_is_not_short() -> None:
 def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean() -> None:
     """One PA film: each sagittal measure is reported as the shipped calibration says
     (``fit.uncertainty.PriorOnlyReading``): the population's mean where the film does not predict it on
-    dev, the centreline's reading plus the offset where it does; with a lateral film, the reading as it is.
-    The Lenke inputs' T5–T12 kyphosis and sagittal modifier follow the reported T5–T12 kyphosis."""
+    dev, the film's value plus the offset where it does; the film's value of a kyphosis is
+    w·K_PA + (1 − w)·K_rod (the foreshortening's reading and the centreline's,
+    ``reconstruction.with_pa_kyphoses``), of the lordosis the centreline's; with a lateral film, the
+    centreline's reading as it is. The Lenke inputs' T5–T12 kyphosis and sagittal modifier follow the
+    reported T5–T12 kyphosis."""
+    from spine_engine.anatomy import load_profile
     from spine_engine.fit.uncertainty import PRIOR_ONLY_LENKE, PRIOR_ONLY_MEASURES, calibration
     from spine_engine.frames import frames_from_centreline as frames
     from spine_engine.measures import LENKE_STRUCTURAL_KYPHOSIS_DEG, compute_measures, lenke_modifier
+    from spine_engine.reconstruction import pa_foreshortening_kyphoses, prepare_inputs
+    from spine_engine.sagittal_reading import load_reading_model
+    from spine_engine.validation import validate_payload
 
     readings = calibration().prior_only
     assert set(readings) == set(PRIOR_ONLY_MEASURES) | set(PRIOR_ONLY_LENKE)
     positions, spine_id = SPINES[1][1], SPINES[1][0]
-    result = register(_pa_only(positions, spine_id))
+    payload = _pa_only(positions, spine_id)
+    result = register(payload)
     r = np.array([v["position"] for v in result["vertebrae"]])
     centreline = compute_measures(r, frames(r))
+    model = load_reading_model()
+    assert model is not None and 0.0 < model.weight <= 1.0
+    pa_read = pa_foreshortening_kyphoses(prepare_inputs(validate_payload(payload), load_profile()), model)
+    assert pa_read is not None
+    blended = {
+        "kyphosis_t4_t12": model.weight * pa_read[0] + (1 - model.weight) * centreline.thoracic_kyphosis_t4_t12_deg,
+        "kyphosis_t5_t12": model.weight * pa_read[1] + (1 - model.weight) * centreline.thoracic_kyphosis_t5_t12_deg,
+    }
     for name, key in PRIOR_ONLY_MEASURES.items():
         reading = readings[name]
-        film = getattr(centreline, key)
+        film = blended.get(name, getattr(centreline, key))
         expected = film + reading.offset_deg if reading.film_predicts else reading.population_mean_deg
         assert result["measures"][key] == pytest.approx(expected, abs=1e-6)
     lenke = result["measures"]["lenke"]
@@ -199,9 +215,9 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
         clinic_films.build_payload(series, clinic_films.CASES["a"]).model_dump(mode="json", exclude_none=True)
     )
     r = np.array([v["position"] for v in both["vertebrae"]])
-    assert both["measures"]["lumbar_lordosis_l1_l5_deg"] == pytest.approx(
-        compute_measures(r, frames(r)).lumbar_lordosis_l1_l5_deg, abs=1e-6
-    )
+    with_lateral = compute_measures(r, frames(r))
+    for key in ("lumbar_lordosis_l1_l5_deg", "thoracic_kyphosis_t4_t12_deg", "thoracic_kyphosis_t5_t12_deg"):
+        assert both["measures"][key] == pytest.approx(getattr(with_lateral, key), abs=1e-6), key
 
 
 def test_prior_only_reading_rule() -> None:
