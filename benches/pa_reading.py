@@ -44,6 +44,9 @@ MODES = 2
 two and three modes read kyphosis alike (r 0.34, 0.41, 0.39)."""
 WEIGHTS = tuple(np.round(np.linspace(0.0, 1.0, 11), 2))
 """The grid of w."""
+BY_COBB_SEED = 1000
+"""Seed of ``--by-cobb``'s synthetic spines (with the dev split's offset): others than the 20 the weight is
+chosen on."""
 NOISE_MM = 1.0
 """Landmark noise of the films the weight is chosen on (the clinic bench's)."""
 
@@ -127,12 +130,42 @@ def calibrate(verse_dev: Sequence[Truth], synthetic_dev: Sequence[Truth]) -> tup
     return fit_model(verse_dev, chosen_weight(rows)), rows
 
 
+COBB_BANDS_DEG = ((10.0, 25.0), (25.0, 45.0), (45.0, 90.0))
+"""Bands of the major frontal Cobb angle of ``by_cobb``'s table."""
+
+
+def major_cobb(truth: Truth) -> float:
+    """The major frontal Cobb angle of a truth on its centreline frames (0 without a curve), degrees."""
+    cobb = compute_measures(truth.positions, frames_from_centreline(truth.positions)).cobb
+    return float(max((c.angle_deg for c in cobb), default=0.0))
+
+
+def by_cobb(truths: Sequence[Truth], model: ReadingModel) -> list[dict[str, Any]]:
+    """Per band of the major Cobb angle (``COBB_BANDS_DEG``), over ``truths``: the Pearson correlation of
+    the film's and the rod's readings with the truth and their MAE after each one's median offset
+    (kyphosis T4–T12, case (e)'s film, ``readings``)."""
+    data = readings(truths, [model] * len(truths))
+    angles = np.array([major_cobb(t) for t in truths])
+    rows = []
+    for low, high in COBB_BANDS_DEG:
+        band = data[(angles >= low) & (angles < high)]
+        row: dict[str, Any] = {"major_cobb_deg": [low, high], "spines": len(band)}
+        for name, column in (("film", 0), ("rod", 1)):
+            error = band[:, column] + np.median(band[:, 2] - band[:, column]) - band[:, 2]
+            row[name] = {"correlation": float(np.corrcoef(band[:, column], band[:, 2])[0, 1]),
+                         "mae_deg": float(np.mean(np.abs(error)))}
+        rows.append(row)
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="spine bench pa-reading", description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=shared_data_dir("verse"), help="VerSe folder with dev.csv")
     parser.add_argument("--synthetic", type=int, default=20, help="synthetic dev spines (the clinic bench's)")
     parser.add_argument("--write", action="store_true", help="write the model into spine_engine/priors")
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="folder of the JSON")
+    parser.add_argument("--by-cobb", type=int, default=0, metavar="N",
+                        help="also read N other synthetic dev spines and tabulate both readings by major Cobb angle")
     ns = parser.parse_args(argv)
     verse = truths_of_csv(ns.data / "dev.csv")
     synthetic = synthetic_truths(ns.synthetic, 0, "dev")
@@ -145,7 +178,16 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{r['synthetic_dev']['ratio']:.3f}", round(r["mean_ratio"], 3)] for r in rows],
     ))  # fmt: skip
     command = "spine bench pa-reading " + " ".join(argv if argv is not None else sys.argv[2:])
-    record = {"command": command, "modes": MODES, "weight": model.weight, "rows": rows}
+    record: dict[str, Any] = {"command": command, "modes": MODES, "weight": model.weight, "rows": rows}
+    if ns.by_cobb:
+        others = synthetic_truths(ns.by_cobb, BY_COBB_SEED, "dev")
+        record["by_cobb"] = by_cobb(others, model)
+        print(format_table(
+            ["major Cobb (deg)", "spines", "film's r", "rod's r", "film's MAE", "rod's MAE"],
+            [[f"{r['major_cobb_deg'][0]:g}-{r['major_cobb_deg'][1]:g}", r["spines"], round(r["film"]["correlation"], 2),
+              round(r["rod"]["correlation"], 2), round(r["film"]["mae_deg"], 2), round(r["rod"]["mae_deg"], 2)]
+             for r in record["by_cobb"]],
+        ))  # fmt: skip
     write_json(ns.out / "pa-reading.json", record)
     print(f"w = {model.weight:g}; wrote {ns.out / 'pa-reading.json'}")
     if ns.write:

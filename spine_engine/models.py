@@ -860,8 +860,10 @@ class Measures(BaseModel):
     thoracic_kyphosis_t4_t12_deg: float = Field(
         description="T4–T12 kyphosis, degrees, on the reconstructed centreline (a vertebra's own tilt where a lateral "
         "film's corners or the boundary gave it; docs/measures.md). Without a lateral film (fit.assumed "
-        "population_sagittal_shape) as calibrated on VerSe dev: the centreline's reading plus an offset where "
-        "one PA film predicts the measure, else the population's mean (docs/engine.md)."
+        "population_sagittal_shape) as calibrated on VerSe dev: the film's reading plus an offset where "
+        "one PA film predicts the measure, else the population's mean; a kyphosis's reading is 0.7 of the PA "
+        "film's foreshortening read against VerSe dev's sagittal shapes and 0.3 of the centreline's "
+        "(docs/engine.md)."
     )
     thoracic_kyphosis_t5_t12_deg: float = Field(description="T5–T12 kyphosis, degrees, as the T4–T12 one.")
     lumbar_lordosis_l1_l5_deg: float = Field(description="L1–L5 lordosis, degrees, as the kyphosis.")

@@ -289,8 +289,9 @@ _ASSUMPTION_REASONS = {
     "standing_orientation": "no lateral film: the spine's lean and its turn about the vertical come from the "
     "prior of a standing patient facing the detector (SD about 11° and 5°)",
     "population_sagittal_shape": "no lateral film: kyphosis and lordosis come from the population prior; "
-    "their SDs are at least the population's, and a measure one PA film does not predict is the population's "
-    "mean",
+    "their SDs are at least the population's, a measure one PA film does not predict is the population's "
+    "mean, and the kyphosis is read mostly from how much shorter the PA film shows each segment than the "
+    "population's sagittal shapes predict",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, at the apex about a third of its Cobb angle for a "
     "thoracic apex and a quarter below T11, 0 at its end vertebrae), with the population's SD; T1 and L5 "
@@ -1000,9 +1001,9 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
 
 def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     """The measures of a fit, read as its inputs allow (``measures.compute_measures``): the corner
-    lines' tilts where given, the directors' sagittal tilt only where observed; without a lateral
-    view, the kyphoses blend the rod's reading with the PA film's foreshortening (``with_pa_kyphoses``).
-    No SDs."""
+    lines' tilts where given, the directors' sagittal tilt only where observed; where the prior
+    decides the kyphosis, it blends the rod's reading with the PA film's foreshortening
+    (``with_pa_kyphoses``). No SDs."""
     measures = rod_measures(inputs, out)
     model = load_reading_model()
     return measures if model is None else with_pa_kyphoses(measures, inputs, model)
@@ -1022,8 +1023,9 @@ def rod_measures(inputs: RegistrationInputs, out: FitOutput) -> Measures:
 
 def pa_foreshortening_kyphoses(inputs: RegistrationInputs, model: ReadingModel) -> tuple[float, float] | None:
     """(kyphosis T4–T12, T5–T12), degrees, that the PA film's foreshortening reads
-    (``sagittal_reading``), or None: a lateral view, or too few adjacent PA levels."""
-    if any(view.name == "lateral" for view in inputs.views):
+    (``sagittal_reading``), or None: a lateral view, T1 and L5 given (``kyphosis`` not left to the
+    prior: their poses inform it, docs/engine.md), or too few adjacent PA levels."""
+    if "kyphosis" not in inputs.unreliable or any(view.name == "lateral" for view in inputs.views):
         return None
     pa = next(view for view in inputs.views if view.name == "pa")
     beta = read_inclinations_deg(model, pa.indices, pa.points, pa.landmark_sd_mm)
@@ -1031,9 +1033,10 @@ def pa_foreshortening_kyphoses(inputs: RegistrationInputs, model: ReadingModel) 
 
 
 def with_pa_kyphoses(measures: Measures, inputs: RegistrationInputs, model: ReadingModel) -> Measures:
-    """Without a lateral view, the kyphoses T4–T12 and T5–T12 as w·K_PA + (1 − w)·K_rod, K_PA the
-    PA film's foreshortening reading (``pa_foreshortening_kyphoses``), K_rod the fitted centreline's and
-    w ``model.weight``; the Lenke inputs' T5–T12 follows. Unchanged with a lateral view."""
+    """Where the prior decides the kyphosis (one PA film, no T1 and L5 given), the kyphoses T4–T12 and
+    T5–T12 as w·K_PA + (1 − w)·K_rod, K_PA the PA film's foreshortening reading
+    (``pa_foreshortening_kyphoses``), K_rod the fitted centreline's and w ``model.weight``; the Lenke
+    inputs' T5–T12 follows. Unchanged otherwise."""
     read = pa_foreshortening_kyphoses(inputs, model)
     if read is None:
         return measures

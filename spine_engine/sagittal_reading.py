@@ -93,8 +93,9 @@ def read_inclinations_deg(
     model: ReadingModel, indices: npt.ArrayLike, points_mm: npt.ArrayLike, landmark_sd_mm: float
 ) -> FloatArray | None:
     """(16,) the chord inclinations one PA film reads (module docstring), degrees; None with fewer
-    than ``MIN_CHORDS`` chords between adjacent landmarked levels. ``indices`` (n,) the landmarks'
-    levels, increasing; ``points_mm`` (n, 2) their image points, detector mm."""
+    than ``MIN_CHORDS`` chords between adjacent landmarked levels, or when the search breaks down.
+    ``indices`` (n,) the landmarks' levels, increasing; ``points_mm`` (n, 2) their image points,
+    detector mm."""
     levels = np.asarray(indices, dtype=int)
     points = np.asarray(points_mm, dtype=float)
     adjacent = np.flatnonzero(np.diff(levels) == 1)
@@ -110,7 +111,11 @@ def read_inclinations_deg(
     prior_sd = np.concatenate(([np.radians(model.lean_sd_deg)], np.radians(model.mode_sd_deg)))
     y = np.log(ell) - np.log(model.chord_share[chords])
     start = np.concatenate(([np.log(ell.sum() / model.chord_share[chords].sum())], np.zeros(len(prior_sd))))
-    p = _map_estimate(start, y, noise_sd, mu[chords], modes[:, chords], prior_sd)
+    try:
+        with np.errstate(all="ignore"):
+            p = _map_estimate(start, y, noise_sd, mu[chords], modes[:, chords], prior_sd)
+    except np.linalg.LinAlgError:
+        return None  # a search that breaks down reads nothing, as too few chords do
     beta = np.degrees(mu + p[1] + p[2:] @ modes)
     return np.asarray(beta) if np.all(np.isfinite(beta)) else None
 
