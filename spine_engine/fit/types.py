@@ -167,7 +167,8 @@ class ViewData:
     weight: float
     """Fitting weight w, N/mm."""
     landmark_sd_mm: float = 1.0
-    """σ, the landmarks' SD per image coordinate, detector mm (``weight`` holds it already)."""
+    """σ, the landmarks' SD per image coordinate, detector mm (``weight`` holds it already); the default
+    is the payload's, ``models.LANDMARK_SD_MM_DEFAULT``."""
     offset_indices: np.ndarray | None = None
     """(q,) int: vertebra index of each offset-point observation (optional)."""
     offset_vectors: np.ndarray | None = None
