@@ -92,7 +92,7 @@ def readings(truths: Sequence[Truth], models: Sequence[ReadingModel]) -> np.ndar
         payload = validate_payload(build_payload(series, CASES["e"]).model_dump(mode="json", exclude_none=True))
         inputs = prepare_inputs(payload, profile)
         solution, _ = fit_patient_rod(inputs, profile)
-        read = pa_foreshortening_kyphoses(inputs, model)
+        read = pa_foreshortening_kyphoses(inputs, solution.output, model)
         assert read is not None, truth.spine_id  # 17 PA landmarks
         rod = rod_measures(inputs, solution.output).thoracic_kyphosis_t4_t12_deg
         rows.append((read[0], rod, truth_kyphosis(truth)))

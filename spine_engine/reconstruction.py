@@ -1006,7 +1006,7 @@ def measure_fit(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     (``with_pa_kyphoses``). No SDs."""
     measures = rod_measures(inputs, out)
     model = load_reading_model()
-    return measures if model is None else with_pa_kyphoses(measures, inputs, model)
+    return measures if model is None else with_pa_kyphoses(measures, inputs, out, model)
 
 
 def rod_measures(inputs: RegistrationInputs, out: FitOutput) -> Measures:
@@ -1021,23 +1021,41 @@ def rod_measures(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     )
 
 
-def pa_foreshortening_kyphoses(inputs: RegistrationInputs, model: ReadingModel) -> tuple[float, float] | None:
+def pa_foreshortening_kyphoses(
+    inputs: RegistrationInputs, out: FitOutput, model: ReadingModel
+) -> tuple[float, float] | None:
     """(kyphosis T4–T12, T5–T12), degrees, that the PA film's foreshortening reads
     (``sagittal_reading``), or None: a lateral view, T1 and L5 given (``kyphosis`` not left to the
-    prior: their poses inform it, docs/engine.md), or too few adjacent PA levels."""
+    prior: their poses inform it, docs/engine.md), or too few adjacent PA levels. A point-source film's
+    landmarks are read as in weak perspective first (``weak_perspective_points``)."""
     if "kyphosis" not in inputs.unreliable or any(view.name == "lateral" for view in inputs.views):
         return None
     pa = next(view for view in inputs.views if view.name == "pa")
-    beta = read_inclinations_deg(model, pa.indices, pa.points, pa.landmark_sd_mm)
+    beta = read_inclinations_deg(model, pa.indices, weak_perspective_points(pa, out), pa.landmark_sd_mm)
     return None if beta is None else kyphoses_deg(beta)
 
 
-def with_pa_kyphoses(measures: Measures, inputs: RegistrationInputs, model: ReadingModel) -> Measures:
+def weak_perspective_points(view: ViewData, out: FitOutput) -> np.ndarray:
+    """The view's landmarks (k, 2), detector mm, as a weak perspective at the reference magnification
+    SID/SOD would show them. On a point-source film (``fit.types.Camera``) a point at depth
+    d_i = b·(r_i − o) along the beam is magnified by SID/(SOD + d_i): each landmark is scaled about the
+    central ray's foot c by (SOD + d_i)/SOD, d_i that of its fitted vertebra (a vertebra 30 mm nearer
+    the source is magnified 1.9 % more at SOD 1600 mm, as much as a chord's inclination of 11°
+    foreshortens it). Weak-perspective views: their points as they are."""
+    camera, values = view.camera, out.cameras.get(view.name)
+    if camera is None or camera.kind != "perspective" or values is None:
+        return view.points
+    c, o = np.asarray(values[0:2], dtype=float), np.asarray(values[2:5], dtype=float)
+    depth = (out.positions[view.indices] - o) @ camera.beam_direction(view.e_c, view.e_r)
+    return np.asarray(c + (view.points - c) * ((camera.sod_mm + depth) / camera.sod_mm)[:, None])
+
+
+def with_pa_kyphoses(measures: Measures, inputs: RegistrationInputs, out: FitOutput, model: ReadingModel) -> Measures:
     """Where the prior decides the kyphosis (one PA film, no T1 and L5 given), the kyphoses T4–T12 and
     T5–T12 as w·K_PA + (1 − w)·K_rod, K_PA the PA film's foreshortening reading
     (``pa_foreshortening_kyphoses``), K_rod the fitted centreline's and w ``model.weight``; the Lenke
     inputs' T5–T12 follows. Unchanged otherwise."""
-    read = pa_foreshortening_kyphoses(inputs, model)
+    read = pa_foreshortening_kyphoses(inputs, out, model)
     if read is None:
         return measures
     w = model.weight

@@ -174,7 +174,7 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
     from spine_engine.fit.uncertainty import PRIOR_ONLY_LENKE, PRIOR_ONLY_MEASURES, calibration
     from spine_engine.frames import frames_from_centreline as frames
     from spine_engine.measures import LENKE_STRUCTURAL_KYPHOSIS_DEG, compute_measures, lenke_modifier
-    from spine_engine.reconstruction import pa_foreshortening_kyphoses, prepare_inputs
+    from spine_engine.reconstruction import fit_patient_rod, pa_foreshortening_kyphoses, prepare_inputs
     from spine_engine.sagittal_reading import load_reading_model
     from spine_engine.validation import validate_payload
 
@@ -187,7 +187,8 @@ def test_a_sagittal_measure_one_pa_film_does_not_predict_is_the_populations_mean
     centreline = compute_measures(r, frames(r))
     model = load_reading_model()
     assert model is not None and 0.0 < model.weight <= 1.0
-    pa_read = pa_foreshortening_kyphoses(prepare_inputs(validate_payload(payload), load_profile()), model)
+    inputs = prepare_inputs(validate_payload(payload), load_profile())
+    pa_read = pa_foreshortening_kyphoses(inputs, fit_patient_rod(inputs, load_profile())[0].output, model)
     assert pa_read is not None
     blended = {
         "kyphosis_t4_t12": model.weight * pa_read[0] + (1 - model.weight) * centreline.thoracic_kyphosis_t4_t12_deg,

@@ -127,3 +127,38 @@ def test_a_kyphotic_spines_chords_read_its_kyphosis() -> None:
         assert t4_t12 == pytest.approx(measured.thoracic_kyphosis_t4_t12_deg, abs=2.0), truth.spine_id
         assert t5_t12 == pytest.approx(measured.thoracic_kyphosis_t5_t12_deg, abs=2.0), truth.spine_id
         assert t4_t12 > 0
+
+
+def test_a_point_source_films_landmarks_are_read_at_one_magnification() -> None:
+    """``reconstruction.weak_perspective_points``: the fitted spine projected by the PA film's fitted
+    point-source camera (clinic case (c), SID and SOD given, one PA film), scaled back by its depths,
+    is its weak-perspective projection at SID/SOD: p = c + (SID/SOD)·Rot(ψ)·E(r − o), to 1e-9 mm.
+    A weak-perspective film's points are returned as they are."""
+    import dataclasses
+
+    from spine_engine.anatomy import load_profile
+    from spine_engine.fit.cameras import project
+    from spine_engine.reconstruction import fit_patient_rod, prepare_inputs, weak_perspective_points
+    from spine_engine.validation import validate_payload
+
+    profile = load_profile()
+    truth = VERSE_DEV[2]
+    series = clinic_films.simulate_series(truth, 1.0, 0)
+    for key, perspective in (("c", True), ("e", False)):
+        case = dataclasses.replace(clinic_films.CASES[key], lateral_from=None)
+        payload = clinic_films.build_payload(series, case).model_dump(mode="json", exclude_none=True)
+        inputs = prepare_inputs(validate_payload(payload), profile)
+        out = fit_patient_rod(inputs, profile)[0].output
+        [pa] = inputs.views
+        if not perspective:
+            assert weak_perspective_points(pa, out) is pa.points
+            continue
+        assert pa.camera is not None and pa.camera.kind == "perspective"
+        values = out.cameras["pa"]
+        r = out.positions[pa.indices]
+        projected = dataclasses.replace(pa, points=project(pa.camera, values, r, pa.e_c, pa.e_r).points)
+        psi = values[-1]
+        turn = np.array([[np.cos(psi), -np.sin(psi)], [np.sin(psi), np.cos(psi)]])
+        rel = np.column_stack(((r - values[2:5]) @ pa.e_c, (r - values[2:5]) @ pa.e_r))
+        weak = values[0:2] + pa.camera.sid_mm / pa.camera.sod_mm * rel @ turn.T
+        np.testing.assert_allclose(weak_perspective_points(projected, out), weak, atol=1e-9)
