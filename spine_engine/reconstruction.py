@@ -959,7 +959,7 @@ def _register_model(model: JobPayload, tilt_prior: TiltPrior | None, profile: Pr
     if not (np.isfinite(out.positions).all() and np.isfinite(out.rotations).all()):
         raise FitFailed("the registration produced non-finite coordinates", iterations=out.iterations)
     measures = measure_fit(inputs, out)
-    sagittal_from_prior = "kyphosis" in inputs.unreliable  # no lateral film determined it
+    sagittal_from_prior = sagittal_left_to_prior(inputs)
     if sagittal_from_prior:
         measures = _prior_only_reported(measures, calibration().prior_only)
     axial_rotation = None  # the directors' where pedicles observed it, else the population's
@@ -1021,14 +1021,22 @@ def rod_measures(inputs: RegistrationInputs, out: FitOutput) -> Measures:
     )
 
 
+def sagittal_left_to_prior(inputs: RegistrationInputs) -> bool:
+    """Whether no film determines the sagittal measures (``fit.unreliable`` names "kyphosis" before the
+    fit: no lateral view with two landmarks, no T1 and L5 given): they are then read as calibrated on
+    dev's PA-only fits (``with_pa_kyphoses``, ``_prior_only_reported``)."""
+    return "kyphosis" in inputs.unreliable
+
+
 def pa_foreshortening_kyphoses(
     inputs: RegistrationInputs, out: FitOutput, model: ReadingModel
 ) -> tuple[float, float] | None:
     """(kyphosis T4–T12, T5–T12), degrees, that the PA film's foreshortening reads
-    (``sagittal_reading``), or None: a lateral view, T1 and L5 given (``kyphosis`` not left to the
-    prior: their poses inform it, docs/engine.md), or too few adjacent PA levels. A point-source film's
-    landmarks are read as in weak perspective first (``weak_perspective_points``)."""
-    if "kyphosis" not in inputs.unreliable or any(view.name == "lateral" for view in inputs.views):
+    (``sagittal_reading``), or None: the sagittal measures not left to the prior
+    (``sagittal_left_to_prior``: a lateral film sees them, or T1 and L5 given inform them, docs/engine.md),
+    or too few adjacent PA levels. A point-source film's landmarks are read as in weak perspective first
+    (``weak_perspective_points``)."""
+    if not sagittal_left_to_prior(inputs):
         return None
     pa = next(view for view in inputs.views if view.name == "pa")
     beta = read_inclinations_deg(model, pa.indices, weak_perspective_points(pa, out), pa.landmark_sd_mm)
