@@ -69,3 +69,19 @@ def test_cross_validation_scores_each_radiograph_once_on_unseen_folds() -> None:
         assert again[name][i] == pytest.approx(errors[name][i] - 500.0)
         rest = held & (np.arange(120) != i)
         np.testing.assert_allclose(again[name][rest], errors[name][rest])
+
+
+def test_learners_trained_on_one_set_read_another() -> None:
+    """``--test``'s readout: the learners trained on one made-up set read a second set, which they never
+    saw, as well as the cross-validation reads the first (the tilts' noise, 1.5° per vertebra, moves a
+    range of 17 tilts by a few degrees)."""
+    tilts, chords, major = _made_up(150)
+    _, new_chords, new_major = _made_up(60)
+    angles = aasce_bound.trained_learners(tilts, chords, major, seed=2, new_chords=new_chords)
+    assert set(angles) == {"tilt_prior", "direct"}
+    cv = aasce_bound.cross_validated_errors(tilts, chords, major, seed=1, folds=4)
+    for name, predicted in angles.items():
+        assert predicted.shape == (60,)
+        held_out_mae = np.mean(np.abs(predicted - new_major))
+        assert held_out_mae < 5.0
+        assert held_out_mae < 2.0 * np.mean(np.abs(cv[name])) + 1.0
