@@ -71,3 +71,16 @@ def test_command_on_a_few_spines(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert all(r["kyphosis_t4_t12_mae_deg"] > 0.0 for r in floor)
     assert all(len(r["rotation_rms_deg_xyz"]) == 3 for r in report["rows"])
     assert "ridge on the PA segment lengths" in capsys.readouterr().out
+    interval = report["lordosis_interval"]
+    assert set(interval["half_width_90_deg"]) == {"VerSe test", "clinic bench's synthetic test"}
+    assert interval["verse_dev_half_width_98_deg"] > 0.0
+
+
+def test_half_width_is_the_quantile_of_the_distance_to_the_centre() -> None:
+    """Values 1..10 about 0: 90 % of them lie within 9.1 (between the 9th and 10th, interpolated); about
+    5.5 the distances are 0.5..4.5 twice, so 90 % lie within 4.5."""
+    values = np.arange(1.0, 11.0)
+    assert pa_bound.half_width_deg(values, 0.0, 0.9) == pytest.approx(9.1)
+    assert pa_bound.half_width_deg(values, 5.5, 0.9) == pytest.approx(4.5)
+    inside = np.abs(values - 5.5) <= pa_bound.half_width_deg(values, 5.5, 0.9)
+    assert inside.mean() >= 0.9
