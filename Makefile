@@ -1,20 +1,32 @@
-# One venv, installed from pyproject.toml's pins. `make run` and `make test` are the README's two commands.
+# One venv, installed from pyproject.toml's pins and constraints.txt's versions of everything beneath them.
+# `make run` and `make test` are the README's two commands.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint typecheck unit bench-paper bench-verse bench-perf calibrate openapi loadtest clean web browser pacs node-deps
+.PHONY: install lock run test lint typecheck unit bench-paper bench-verse bench-perf calibrate openapi loadtest clean web browser pacs node-deps
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --upgrade pip -c constraints.txt
+	$(BIN)/python -m pip install --quiet -e '.[dev]' -c constraints.txt
 	@# the engine's numba kernels compiled once into their on-disk cache (3-4 s), not on a first job
 	$(BIN)/python -c "from spine_engine.warmup import warm_up; print(f'engine kernels compiled in {warm_up():.1f} s')"
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# constraints.txt anew: pyproject.toml resolved with today's releases in a throwaway venv, every package's
+# version written down (then `make test` says whether the new set works).
+LOCK_VENV := .lock-venv
+lock:
+	rm -rf $(LOCK_VENV) && $(PYTHON) -m venv $(LOCK_VENV)
+	$(LOCK_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(LOCK_VENV)/bin/python -m pip install --quiet -e '.[dev]'
+	{ sed -n '/^#/p' constraints.txt; $(LOCK_VENV)/bin/python -m pip freeze --all --exclude-editable; } > constraints.txt.new
+	mv constraints.txt.new constraints.txt && rm -rf $(LOCK_VENV)
+	@echo "constraints.txt rewritten: git diff constraints.txt, then make test"
 
 # `make run PORT=8080 HOST=0.0.0.0` serves elsewhere (default 127.0.0.1:8000).
 HOST ?= 127.0.0.1
