@@ -41,8 +41,11 @@ def test_client_installs_alone_and_submits_to_the_service(tmp_path: Path) -> Non
     # installs into it (--python: pip runs under the venv's interpreter, as the venv's own pip would)
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     python, spine = venv / "bin" / "python", venv / "bin" / "spine"
+    # with the project's constraints, as `make install`: httpx's and pydantic's own dependencies at the
+    # versions the suite runs with
     install = subprocess.Popen([sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet",
-                                str(source)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+                                "-c", str(ROOT / "constraints.txt"), str(source)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
     (tmp_path / "data").mkdir()
     serve = Serve(tmp_path / "data")  # started while pip installs
     try:
