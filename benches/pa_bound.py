@@ -27,7 +27,10 @@ Beside it, the clinic bench's floor (VerSe dev's means, ``clinic.population_mean
 rotation, ``clinic.population_sagittal_answer``, VerSe dev's mean sagittal shape as depth) and the
 training spines' own mean. The learner knows the population it is tested on, which a patient's
 answer cannot; its figure says what the films allow in that population, not what an engine
-calibrated on VerSe dev can reach there. The JSON is ``pa-bound.json``.
+calibrated on VerSe dev can reach there. With VerSe, ``lordosis_interval`` says how wide an interval
+about the PA-only lordosis (VerSe dev's mean, as the engine reports it) must be to cover 90 % of each
+test set, and how wide it may be to cover at most 98 % of dev (``lordosis_interval``). The JSON is
+``pa-bound.json``.
 """
 
 from __future__ import annotations
