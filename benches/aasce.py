@@ -148,7 +148,8 @@ def aasce_angles(vectors: np.ndarray, endplate_midpoints: np.ndarray, height_px:
     v = np.asarray(vectors, dtype=np.float32)
     mid = np.asarray(endplate_midpoints, dtype=np.float32)
     norms = np.sqrt(np.sum(v**2, axis=1))[:, None]
-    cosine = np.clip((v @ v.T) / (norms @ norms.T), 0.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # an axis of length 0 reads NaN, as in the script
+        cosine = np.clip((v @ v.T) / (norms @ norms.T), 0.0, 1.0)
     angles = np.arccos(cosine)
     pos1 = np.argmax(angles, axis=1)
     maxt = np.amax(angles, axis=1)
