@@ -44,6 +44,10 @@ interest (PS3.3 §C.8.11.7), so its SOD is the one wanted;
 (c) DSP alone, or DSE alone, unchanged (as Cornerstone3D does), recorded as an approximation: for a
     typical adult trunk 200–300 mm deep the spine lies 100–150 mm from either surface, so at SID
     1800 mm the magnification SID/SOD is off by about 0.5–1 % either way.
+A geometry value (SID, DSP, DSE, ERMF) that is a number but not a positive one (a writer's 0 for
+"not known", say) is no distance or ratio: it is left out with a warning (``GEOMETRY_KEYWORDS``), as
+the page leaves it out (``web/src/dicom.ts`` ``readAcquisition``) and as Weasis ignores a magnification
+that is not positive; one that is not a number refuses the image.
 ``magnification`` = ERMF when given. ``image_size`` = [Columns (0028,0011), Rows (0028,0010)] in px,
 or those times the column and row spacing in mm (``view_acquisition``: the view's units decide): with
 SID and SOD but no central ray the engine puts the ray at the image's centre (the pixel data's extent,
@@ -488,7 +492,9 @@ def _uid(ds: Dataset, keyword: str, *, required: bool) -> str | None:
     return check_uid(value, keyword)
 
 
-def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...] | None:
+def _numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...] | None:
+    """An attribute's ``count`` finite decimal numbers, None when absent or empty; ``InvalidAttribute`` when
+    they are not ``count`` finite numbers."""
     if keyword not in ds or ds[keyword].value in (None, "", []):
         return None
     raw = ds[keyword].value
@@ -503,12 +509,46 @@ def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...
         raise InvalidAttribute(
             f"{attribute_label(keyword)} has {len(numbers)} value(s), expected {count}", attributes=(keyword,)
         )
-    if not all(math.isfinite(n) and n > 0 for n in numbers):
+    if not all(math.isfinite(n) for n in numbers):
+        raise InvalidAttribute(f"{attribute_label(keyword)} is {list(numbers)}: not finite", attributes=(keyword,))
+    return numbers
+
+
+def _positive_numbers(ds: Dataset, keyword: str, count: int) -> tuple[float, ...] | None:
+    numbers = _numbers(ds, keyword, count)
+    if numbers is not None and not all(n > 0 for n in numbers):
         raise InvalidAttribute(
             f"{attribute_label(keyword)} is {list(numbers)}: every value must be a positive number",
             attributes=(keyword,),
         )
     return numbers
+
+
+GEOMETRY_KEYWORDS = (
+    "EstimatedRadiographicMagnificationFactor",
+    "DistanceSourceToDetector",
+    "DistanceSourceToPatient",
+    "DistanceSourceToEntrance",
+)
+"""The attributes of the acquisition geometry, read by ``_geometry_number``."""
+
+
+def _geometry_number(ds: Dataset, keyword: str) -> float | None:
+    """A geometry attribute's one value (``GEOMETRY_KEYWORDS``), None when absent or not positive (module
+    docstring: left out, ``geometry_warnings`` says so); ``InvalidAttribute`` when it is not one finite number."""
+    numbers = _numbers(ds, keyword, 1)
+    return numbers[0] if numbers is not None and numbers[0] > 0 else None
+
+
+def geometry_warnings(ds: Dataset) -> tuple[str, ...]:
+    """One warning per geometry attribute whose value is a number but not a positive one, left out."""
+    warnings = []
+    for keyword in GEOMETRY_KEYWORDS:
+        numbers = _numbers(ds, keyword, 1)
+        if numbers is not None and numbers[0] <= 0:
+            what = "a ratio" if keyword == "EstimatedRadiographicMagnificationFactor" else "a distance"
+            warnings.append(f"{attribute_label(keyword)} is {numbers[0]:g}: not {what}, left out")
+    return tuple(warnings)
 
 
 def _dimension(ds: Dataset, keyword: str) -> int | None:
@@ -603,16 +643,16 @@ class SpacingReading:
 def _source_to_patient(ds: Dataset) -> tuple[float, str] | None:
     """The SOD of the spine's mid-plane from the header's distances, without ERMF (module docstring, rules
     (b) and (c)), with its rule in words; None when neither distance is given."""
-    dsp = _positive_numbers(ds, "DistanceSourceToPatient", 1)
-    dse = _positive_numbers(ds, "DistanceSourceToEntrance", 1)
+    dsp = _geometry_number(ds, "DistanceSourceToPatient")
+    dse = _geometry_number(ds, "DistanceSourceToEntrance")
     if dsp is not None and dse is not None:
-        return (dsp[0] + dse[0]) / 2, (f"mid-plane: ({attribute_label('DistanceSourceToPatient')} + "
+        return (dsp + dse) / 2, (f"mid-plane: ({attribute_label('DistanceSourceToPatient')} + "
                                        f"{attribute_label('DistanceSourceToEntrance')}) / 2")  # fmt: skip
     if dsp is not None:
         surface = "detector-side surface, approximates the mid-plane"
-        return dsp[0], f"{attribute_label('DistanceSourceToPatient')} ({surface})"
+        return dsp, f"{attribute_label('DistanceSourceToPatient')} ({surface})"
     if dse is not None:
-        return dse[0], f"{attribute_label('DistanceSourceToEntrance')} (source-side skin, approximates the mid-plane)"
+        return dse, f"{attribute_label('DistanceSourceToEntrance')} (source-side skin, approximates the mid-plane)"
     return None
 
 
@@ -622,17 +662,17 @@ def _ermf(ds: Dataset, ps: tuple[float, ...] | None, ips: tuple[float, ...]) -> 
     view's ``acquisition`` carries: the engine multiplies 'calibrated' mm by that acquisition's SID/SOD
     (``spine_engine.clinical.calibrated_magnification``), so the spacing must be divided by the same ratio to
     give the engine back Imager Pixel Spacing, the detector's (PS3.3 §C.8.11.4)."""
-    ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
-    sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
+    ermf = _geometry_number(ds, "EstimatedRadiographicMagnificationFactor")
+    sid = _geometry_number(ds, "DistanceSourceToDetector")
     sod = _source_to_patient(ds)
-    if ermf is not None and ermf[0] > 1:
-        return ermf[0], attribute_label("EstimatedRadiographicMagnificationFactor")
-    if sid is not None and sod is not None and sod[0] < sid[0]:
-        return sid[0] / sod[0], f"{attribute_label('DistanceSourceToDetector')} / {sod[1]}"
+    if ermf is not None and ermf > 1:
+        return ermf, attribute_label("EstimatedRadiographicMagnificationFactor")
+    if sid is not None and sod is not None and sod[0] < sid:
+        return sid / sod[0], f"{attribute_label('DistanceSourceToDetector')} / {sod[1]}"
     if ps is not None and ips[0] > ps[0]:
         return True, attribute_label("PixelSpacing")
     if ermf is not None:
-        return None, f"illegal {attribute_label('EstimatedRadiographicMagnificationFactor')} {ermf[0]:g} (≤ 1) ignored"
+        return None, f"illegal {attribute_label('EstimatedRadiographicMagnificationFactor')} {ermf:g} (≤ 1) ignored"
     return None, ""
 
 
@@ -678,31 +718,31 @@ def read_spacing(ds: Dataset) -> SpacingReading:
 
 def read_acquisition(ds: Dataset) -> tuple[Acquisition, dict[str, str]]:
     """SID, SOD of the spine's mid-plane and ERMF (module docstring, rules (a)–(c)), with their sources."""
-    ermf = _positive_numbers(ds, "EstimatedRadiographicMagnificationFactor", 1)
-    sid = _positive_numbers(ds, "DistanceSourceToDetector", 1)
+    ermf = _geometry_number(ds, "EstimatedRadiographicMagnificationFactor")
+    sid = _geometry_number(ds, "DistanceSourceToDetector")
     from_distances = _source_to_patient(ds)
     sources: dict[str, str] = {}
-    magnification = ermf[0] if ermf is not None and ermf[0] > 1 else None
+    magnification = ermf if ermf is not None and ermf > 1 else None
     if magnification is not None:
         sources["acquisition.magnification"] = attribute_label("EstimatedRadiographicMagnificationFactor")
     if sid is not None:
         sources["acquisition.distance_source_to_detector_mm"] = attribute_label("DistanceSourceToDetector")
     sod: float | None = None
     if sid is not None and magnification is not None:
-        sod = sid[0] / magnification
+        sod = sid / magnification
         ermf_label = attribute_label("EstimatedRadiographicMagnificationFactor")
         rule = f"{attribute_label('DistanceSourceToDetector')} / {ermf_label}"
     elif from_distances is not None:
         sod, rule = from_distances
     if sod is not None:
-        if sid is not None and sod >= sid[0]:
+        if sid is not None and sod >= sid:
             raise InvalidAttribute(
                 f"the source-to-patient distance {sod:g} mm ({rule}) is not smaller than "
-                f"{attribute_label('DistanceSourceToDetector')} {sid[0]:g} mm",
+                f"{attribute_label('DistanceSourceToDetector')} {sid:g} mm",
                 attributes=("DistanceSourceToPatient", "DistanceSourceToDetector"),
             )
         sources["acquisition.distance_source_to_patient_mm"] = rule
-    return Acquisition(magnification, sid[0] if sid else None, sod), sources
+    return Acquisition(magnification, sid, sod), sources
 
 
 def view_of_orientation(orientation: tuple[str, str]) -> ViewRole:
@@ -830,5 +870,6 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         view=view,
         acquisition=acquisition,
         sources=sources,
-        warnings=spacing.warnings + orientation_warnings + offset_warnings + film_warnings + issuer_warnings,
+        warnings=spacing.warnings + geometry_warnings(ds) + orientation_warnings + offset_warnings + film_warnings
+        + issuer_warnings,
     )

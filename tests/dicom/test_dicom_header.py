@@ -9,7 +9,9 @@ from datetime import date
 from typing import Any
 
 import pytest
+from pydicom.dataelem import RawDataElement
 from pydicom.dataset import Dataset
+from pydicom.tag import Tag
 
 from services.db.job_forms import engine_payload
 from spine_client.dicom.errors import InvalidAttribute, MissingAttribute, NotDicom, UnsupportedOrientation
@@ -106,6 +108,26 @@ def test_acquisition_geometry() -> None:
     assert only.acquisition.distance_source_to_patient_mm == 1700.0
     assert "DistanceSourceToPatient (0018,1111)" in only.sources["acquisition.distance_source_to_patient_mm"]
     assert read_header(synthetic.radiograph()).acquisition.as_payload() == {}
+
+
+def test_a_geometry_value_that_is_not_positive_is_left_out_with_a_warning() -> None:
+    """A writer's 0 (or a negative value) for SID, DSP, DSE or ERMF is no distance or ratio: the header is read
+    as without it, and says so; a value that is not a number still refuses the image."""
+    header = read_header(synthetic.radiograph(sid=0.0, sod=1600.0))
+    assert header.acquisition.distance_source_to_detector_mm is None
+    assert header.acquisition.distance_source_to_patient_mm == 1600.0
+    assert "DistanceSourceToDetector (0018,1110) is 0: not a distance, left out" in header.warnings
+    both = read_header(synthetic.radiograph(sid=1800.0, sod=-5.0, dse=1450.0, ermf=0.0))
+    assert both.acquisition.distance_source_to_patient_mm == 1450.0  # (0040,0306) alone
+    assert both.acquisition.magnification is None
+    assert both.pixel_spacing == pytest.approx((0.15 * 1450 / 1800, 0.15 * 1450 / 1800))  # SID/SOD
+    assert [w.split(" is ")[0] for w in both.warnings if "left out" in w] == [
+        "EstimatedRadiographicMagnificationFactor (0018,1114)", "DistanceSourceToPatient (0018,1111)"]
+    ds = synthetic.radiograph()
+    tag = Tag(0x0018, 0x1110)
+    ds._dict[tag] = RawDataElement(tag, "DS", 4, b"abc ", 0, False, True)  # not a DS pydicom would write
+    with pytest.raises(InvalidAttribute, match=r"DistanceSourceToDetector \(0018,1110\)"):
+        read_header(ds)
 
 
 @pytest.mark.parametrize(("orientation", "view_position", "expected", "view", "assumed"), [
