@@ -44,10 +44,10 @@ interest (PS3.3 §C.8.11.7), so its SOD is the one wanted;
 (c) DSP alone, or DSE alone, unchanged (as Cornerstone3D does), recorded as an approximation: for a
     typical adult trunk 200–300 mm deep the spine lies 100–150 mm from either surface, so at SID
     1800 mm the magnification SID/SOD is off by about 0.5–1 % either way.
-A geometry value (SID, DSP, DSE, ERMF) that is a number but not a positive one (a writer's 0 for
-"not known", say) is no distance or ratio: it is left out with a warning (``GEOMETRY_KEYWORDS``), as
+A geometry value (SID, DSP, DSE, ERMF) that is no distance or ratio (not one finite number, or not a
+positive one: a writer's 0 for "not known", say) is left out with a warning (``GEOMETRY_KEYWORDS``), as
 the page leaves it out (``web/src/dicom.ts`` ``readAcquisition``) and as Weasis ignores a magnification
-that is not positive; one that is not a number refuses the image.
+that is not positive.
 ``magnification`` = ERMF when given. ``image_size`` = [Columns (0028,0011), Rows (0028,0010)] in px,
 or those times the column and row spacing in mm (``view_acquisition``: the view's units decide): with
 SID and SOD but no central ray the engine puts the ray at the image's centre (the pixel data's extent,
@@ -533,22 +533,29 @@ GEOMETRY_KEYWORDS = (
 """The attributes of the acquisition geometry, read by ``_geometry_number``."""
 
 
+def _geometry_reading(ds: Dataset, keyword: str) -> tuple[float | None, str | None]:
+    """A geometry attribute's one value (``GEOMETRY_KEYWORDS``) and, when the header gives one that is no
+    distance or ratio (not one finite number, or not a positive one), None and the warning that says it is
+    left out (module docstring)."""
+    try:
+        numbers = _numbers(ds, keyword, 1)
+    except InvalidAttribute as exc:
+        return None, f"{exc.message}: left out"
+    if numbers is None or numbers[0] > 0:
+        return (None if numbers is None else numbers[0]), None
+    what = "a ratio" if keyword == "EstimatedRadiographicMagnificationFactor" else "a distance"
+    return None, f"{attribute_label(keyword)} is {numbers[0]:g}: not {what}, left out"
+
+
 def _geometry_number(ds: Dataset, keyword: str) -> float | None:
-    """A geometry attribute's one value (``GEOMETRY_KEYWORDS``), None when absent or not positive (module
-    docstring: left out, ``geometry_warnings`` says so); ``InvalidAttribute`` when it is not one finite number."""
-    numbers = _numbers(ds, keyword, 1)
-    return numbers[0] if numbers is not None and numbers[0] > 0 else None
+    """``_geometry_reading``'s value."""
+    return _geometry_reading(ds, keyword)[0]
 
 
 def geometry_warnings(ds: Dataset) -> tuple[str, ...]:
-    """One warning per geometry attribute whose value is a number but not a positive one, left out."""
-    warnings = []
-    for keyword in GEOMETRY_KEYWORDS:
-        numbers = _numbers(ds, keyword, 1)
-        if numbers is not None and numbers[0] <= 0:
-            what = "a ratio" if keyword == "EstimatedRadiographicMagnificationFactor" else "a distance"
-            warnings.append(f"{attribute_label(keyword)} is {numbers[0]:g}: not {what}, left out")
-    return tuple(warnings)
+    """The warnings of the geometry attributes left out (``_geometry_reading``)."""
+    readings = (_geometry_reading(ds, keyword)[1] for keyword in GEOMETRY_KEYWORDS)
+    return tuple(w for w in readings if w is not None)
 
 
 def _dimension(ds: Dataset, keyword: str) -> int | None:

@@ -86,12 +86,13 @@ CASES: list[tuple[str, str, dict[str, Any], dict[str, str], tuple[float, float] 
     ("SID, (0018,1111), (0040,0306), implicit VR", "pa",
      dict(sid=1800.0, sod=1700.0, dse=1450.0, transfer_syntax="implicit"), {}, IPS),
     ("SID, (0040,0306)", "pa", dict(sid=1800.0, dse=1450.0), {}, IPS),
-    # a geometry value that is a number but not a positive one (a writer's 0 for "not known") is no distance or
-    # ratio: left out by both, the rest of the geometry read as without it (header.py GEOMETRY_KEYWORDS)
+    # a geometry value that is not a positive number (a writer's 0 for "not known", a value with its unit) is no
+    # distance or ratio: left out by both, the rest of the geometry read as without it (header.py GEOMETRY_KEYWORDS)
     ("SID 0, (0018,1111)", "pa", dict(sid=0.0, sod=1600.0), {}, IPS),
     ("SID, (0018,1111) 0, (0040,0306)", "pa", dict(sid=1800.0, sod=0.0, dse=1450.0), {}, IPS),
     ("SID negative, (0018,1111)", "pa", dict(sid=-1800.0, sod=1600.0), {}, IPS),
     ("ERMF 0, SID and (0018,1111)", "pa", dict(ermf=0.0, sid=1800.0, sod=1600.0), {}, IPS),
+    ("SID not a number, (0018,1111)", "pa", dict(sod=1600.0), {"DistanceSourceToDetector": "1800mm"}, IPS),
     # PS3.3 §10.7.1.2: GEOMETRY and FIDUCIAL are the Enumerated Values; another says nothing
     ("calibration type not enumerated", "pa", dict(pixel_spacing=IPS, calibration_type="XYZ"), {}, IPS),
     # PS3.3 §C.7.6.1.1.1: the first letter of each value is the principal direction
