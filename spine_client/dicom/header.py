@@ -685,9 +685,31 @@ def _ermf(ds: Dataset, ps: tuple[float, ...] | None, ips: tuple[float, ...]) -> 
 
 def read_spacing(ds: Dataset) -> SpacingReading:
     """Pixel spacing and its calibration type, as Cornerstone3D's ``getPixelSpacingInformation``
-    (module docstring). Spacing [row, column] in mm; ``spacing`` None when neither attribute is there."""
-    ps = _positive_numbers(ds, "PixelSpacing", 2)
-    ips = _positive_numbers(ds, "ImagerPixelSpacing", 2)
+    (module docstring). Spacing [row, column] in mm; ``spacing`` None when neither attribute is there.
+    Pixel Spacing or Imager Pixel Spacing that is not two positive numbers is left out with a warning when
+    the other gives the spacing, as the page leaves it out (``web/src/dicom.ts``); with neither usable it
+    refuses the image (``InvalidAttribute``, naming it)."""
+    readings = {keyword: _spacing_values(ds, keyword) for keyword in ("PixelSpacing", "ImagerPixelSpacing")}
+    ps, ips = (values for values, _ in readings.values())
+    errors = [error for _, error in readings.values() if error is not None]
+    if errors and ps is None and ips is None:
+        raise errors[0]
+    reading = _spacing_of(ds, ps, ips)
+    left_out = tuple(f"{error.message}: left out" for error in errors)
+    return SpacingReading(reading.spacing, reading.calibration, reading.cornerstone_type, reading.source,
+                          left_out + reading.warnings)  # fmt: skip
+
+
+def _spacing_values(ds: Dataset, keyword: str) -> tuple[tuple[float, ...] | None, InvalidAttribute | None]:
+    """Two positive numbers of a spacing attribute, or None and why they are not."""
+    try:
+        return _positive_numbers(ds, keyword, 2), None
+    except InvalidAttribute as exc:
+        return None, exc
+
+
+def _spacing_of(ds: Dataset, ps: tuple[float, ...] | None, ips: tuple[float, ...] | None) -> SpacingReading:
+    """``read_spacing`` from the usable Pixel Spacing and Imager Pixel Spacing (None: absent or left out)."""
     ctype = (_text(ds, "PixelSpacingCalibrationType") or "").upper()
     ps_label, ips_label = attribute_label("PixelSpacing"), attribute_label("ImagerPixelSpacing")
     ctype_label = attribute_label("PixelSpacingCalibrationType")

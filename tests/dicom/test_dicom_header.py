@@ -281,12 +281,21 @@ def test_missing_study_uid() -> None:
     ("ImagerPixelSpacing", ["nan", "0.1"]),
 ])  # fmt: skip
 def test_bad_spacing_values(keyword: str, value: list[str]) -> None:
-    ds = synthetic.radiograph()
-    setattr(ds, keyword, value)
+    """A spacing that is not two positive numbers refuses the image, naming it, when no other gives the spacing;
+    beside a usable one it is left out with a warning (the page leaves it out too)."""
+    label = {"PixelSpacing": "PixelSpacing (0028,0030)", "ImagerPixelSpacing": "ImagerPixelSpacing (0018,1164)"}
+    other = "ImagerPixelSpacing" if keyword == "PixelSpacing" else "PixelSpacing"
+    alone = synthetic.radiograph(imager_pixel_spacing=None)
+    setattr(alone, keyword, value)
     with pytest.raises(InvalidAttribute) as info:
-        read_header(ds)
-    assert {"PixelSpacing": "PixelSpacing (0028,0030)", "ImagerPixelSpacing": "ImagerPixelSpacing (0018,1164)"}[
-        keyword] in str(info.value)  # fmt: skip
+        read_header(alone)
+    assert label[keyword] in str(info.value)
+    beside = synthetic.radiograph(imager_pixel_spacing=None)
+    setattr(beside, keyword, value)
+    setattr(beside, other, ["0.15", "0.15"])
+    header = read_header(beside)
+    assert header.pixel_spacing == pytest.approx((0.15, 0.15))
+    assert any(w.startswith(label[keyword]) and w.endswith(": left out") for w in header.warnings), header.warnings
 
 
 def test_source_to_patient_beyond_detector() -> None:

@@ -93,6 +93,14 @@ CASES: list[tuple[str, str, dict[str, Any], dict[str, str], tuple[float, float] 
     ("SID negative, (0018,1111)", "pa", dict(sid=-1800.0, sod=1600.0), {}, IPS),
     ("ERMF 0, SID and (0018,1111)", "pa", dict(ermf=0.0, sid=1800.0, sod=1600.0), {}, IPS),
     ("SID not a number, (0018,1111)", "pa", dict(sod=1600.0), {"DistanceSourceToDetector": "1800mm"}, IPS),
+    ("ERMF of two values, SID and (0018,1111)", "pa", dict(sid=1800.0, sod=1600.0),
+     {"EstimatedRadiographicMagnificationFactor": "1.1\\1.2"}, IPS),
+    # a spacing that is not two positive numbers beside one that is: left out by both, the other read
+    ("pixel spacing 0, imager spacing", "pa", dict(pixel_spacing=IPS), {"PixelSpacing": "0\\0"}, IPS),
+    ("pixel spacing negative, imager spacing", "pa", dict(pixel_spacing=IPS), {"PixelSpacing": "-0.15\\-0.15"}, IPS),
+    ("pixel spacing with units, imager spacing", "pa", dict(pixel_spacing=IPS), {"PixelSpacing": "0.15mm\\0.15"},
+     IPS),
+    ("imager spacing 0, pixel spacing", "pa", dict(pixel_spacing=IPS), {"ImagerPixelSpacing": "0\\0"}, IPS),
     # PS3.3 §10.7.1.2: GEOMETRY and FIDUCIAL are the Enumerated Values; another says nothing
     ("calibration type not enumerated", "pa", dict(pixel_spacing=IPS, calibration_type="XYZ"), {}, IPS),
     # PS3.3 §C.7.6.1.1.1: the first letter of each value is the principal direction
