@@ -161,11 +161,14 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
 ) -> None:
     """A DX film whose header says SID 150 mm (no SOD, no ERMF): named before sending as the service
     names it, nothing sent; "Ignore header geometry" sends it without the header's geometry, and the
-    service takes it. A header with its SOD above its SID is named too (it was dropped in silence)."""
+    service takes it. A header with its SOD above its SID is named too (it was dropped in silence), and a SID of 0
+    is left out and said."""
     detector = {"ImagerPixelSpacing": [PA_SPACING, PA_SPACING]}  # and no ERMF, SID or SOD but the study's below
     make_dicom(tmp_path / "sid150.dcm", view="pa", spacing=detector, study={"DistanceSourceToDetector": "150"})
     make_dicom(tmp_path / "sod-over-sid.dcm", view="pa", spacing=detector,
                study={"DistanceSourceToDetector": "1000", "DistanceSourceToPatient": "1200"})  # fmt: skip
+    make_dicom(tmp_path / "sid0.dcm", view="pa", spacing=detector,
+               study={"DistanceSourceToDetector": "0", "DistanceSourceToPatient": "1600"})  # fmt: skip
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "sid150.dcm")
     assert page.is_visible("#pa-ignore-geometry") and not page.is_checked("#pa-ignore-geometry")
@@ -202,6 +205,12 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     ), said
     page.check("#pa-ignore-geometry")
     assert not [m for m in _missing(page) if "SID" in m], _missing(page)
+
+    # a writer's 0 for "not known": left out and said, as the service says it in the job's warnings
+    open_film(page, "pa", tmp_path / "sid0.dcm")
+    header = page.text_content("#pa-header") or ""
+    assert "SID 0" not in header and "SID " not in header.split("SOD 1600 mm")[0], header
+    assert "SOD 1600 mm. Distance Source to Detector (0018,1110) 0 is not a distance: left out." in header
     assert not watch.errors, watch.errors
     context.close()
 

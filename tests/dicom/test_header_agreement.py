@@ -19,6 +19,7 @@ is described in the report that added this file; it lives outside the repository
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -63,7 +64,7 @@ const out = JSON.parse(readFileSync(0, "utf8")).map(({ path, role }) => {
   const confirmed = d.spacing.value && view.pixel_spacing === d.spacing.value;
   view.pixel_spacing_calibration = confirmed ? d.spacing.calibration : "unknown";
   view.acquisition = viewAcquisition(d, { imageSize: true, projectionModel: true }, false);
-  return { view };
+  return { view, leftOut: d.geometryLeftOut };
 });
 process.stdout.write(JSON.stringify(out));
 """
@@ -166,6 +167,15 @@ def _page_views(tmp_path: Path, films: list[tuple[Path, str]]) -> list[dict[str,
     return views
 
 
+GEOMETRY_TAG = re.compile(r"\((0018,111[04]|0018,1111|0040,0306)\)")
+"""The tag of a geometry attribute (header.py GEOMETRY_KEYWORDS) named in a reader's words."""
+
+
+def _geometry_left_out(messages: list[str]) -> list[str]:
+    """The geometry attributes' tags that the messages name as left out, in order."""
+    return [m[1] for m in (GEOMETRY_TAG.search(w) for w in messages if w.endswith("left out")) if m]
+
+
 def _service_view(path: Path, role: str) -> dict[str, Any] | None:
     """The view the service builds from the film (None when it refuses the film for its spacing)."""
     header = read_header(path)
@@ -214,6 +224,20 @@ def readings(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[str, Any, A
             service = exc
         out.append((name, detector, service, page))
     return out
+
+
+@pytest.mark.parametrize("case", [c[0] for c in CASES])
+def test_page_and_service_name_the_same_geometry_left_out(case: str, tmp_path: Path,
+                                                          readings: list[tuple[str, Any, Any, Any]]) -> None:
+    """A geometry value that is no distance or ratio is left out by both readers, and both say which: the
+    service in the job's warnings (``dicom.<view>.warnings``), the page in the film's header panel."""
+    _, _, kwargs, raw, _ = next(c for c in CASES if c[0] == case)
+    page = next(r for r in readings if r[0] == case)[3]
+    try:
+        service: tuple[str, ...] = read_header(_film(tmp_path / "film.dcm", kwargs, raw)).warnings
+    except InvalidAttribute:  # the film refused for its spacing (the test above): no geometry is read of it
+        service = ()
+    assert _geometry_left_out(page["leftOut"]) == _geometry_left_out(list(service)), (page["leftOut"], service)
 
 
 @pytest.mark.parametrize("case", [c[0] for c in CASES])

@@ -50,6 +50,8 @@ export interface DicomFilm {
   /** The spacing read as if the header gave no ERMF, SID or SOD: what "Ignore header geometry" sends. */
   spacingWithoutGeometry: Spacing;
   acquisition: Acquisition;
+  /** The header's geometry values left out of `acquisition`, in words (geometryLeftOut). */
+  geometryLeftOut: string[];
   orientation: [string, string] | null;
   orientationRaw: string | null;
   study: DicomStudy;
@@ -309,6 +311,30 @@ export function readAcquisition(ermf: number | undefined, sid: number | undefine
   return acquisition;
 }
 
+/** The geometry attributes of spine_client/dicom/header.py's GEOMETRY_KEYWORDS, in words, with what a value
+ * of each must be. */
+const GEOMETRY_ATTRIBUTES: [string, string, string][] = [
+  [tags.ermf, "Estimated Radiographic Magnification Factor (0018,1114)", "a ratio"],
+  [tags.sid, "Distance Source to Detector (0018,1110)", "a distance"],
+  [tags.sod, "Distance Source to Patient (0018,1111)", "a distance"],
+  [tags.dse, "Distance Source to Entrance (0040,0306)", "a distance"],
+];
+
+/** Each geometry value the header gives that is no distance or ratio (not one finite number, or not a positive
+ * one: a writer's 0 for "not known"), in words: readAcquisition leaves it out, as the service does with a
+ * warning (docs/dicom.md, "Acquisition geometry"). */
+export function geometryLeftOut(ds: DataSet): string[] {
+  const out: string[] = [];
+  for (const [tag, name, what] of GEOMETRY_ATTRIBUTES) {
+    const element = ds.elements[tag];
+    if (!element || element.length === 0) continue;
+    const value = decimal(ds, tag);
+    if (value === undefined) out.push(`${name} "${(ds.string(tag) ?? "").trim()}" is not one number: left out`);
+    else if (!(value > 0)) out.push(`${name} ${value} is not ${what}: left out`);
+  }
+  return out;
+}
+
 /** DICOM DA (YYYYMMDD) as ISO YYYY-MM-DD, or undefined. */
 export function isoDate(da: string | undefined): string | undefined {
   const m = da?.match(/^(\d{4})(\d{2})(\d{2})$/);
@@ -403,6 +429,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     spacing: spacingRead({ ermf, sid: acquisition.distance_source_to_detector_mm, sod: sourceToPatient(dsp, dse) }),
     spacingWithoutGeometry: spacingRead({}),
     acquisition,
+    geometryLeftOut: geometryLeftOut(ds),
     orientation: readOrientation(orientationRaw ?? undefined),
     orientationRaw,
     study: {

@@ -642,7 +642,8 @@ export class FilmPanel {
       ].filter(Boolean);
       const ignored = this.geometryIgnored() ? ` (ignored: sent as ${this.sentWithoutGeometry()})` : "";
       const calibrated = spacing.calibration === "calibrated";
-      rows.push(["Geometry", geo.length ? geo.join(", ") + ignored : calibrated ? "not given: the calibrated spacing gives the size" : "not given: the scale is estimated"]);
+      const leftOut = d.geometryLeftOut.length ? `. ${d.geometryLeftOut.join("; ")}.` : "";
+      rows.push(["Geometry", (geo.length ? geo.join(", ") + ignored : calibrated ? "not given: the calibrated spacing gives the size" : "not given: the scale is estimated") + leftOut]);
     } else if (this.fileName) {
       rows.push(["Image", `${this.fileName}: no header, so no spacing, patient or study`]);
     }
