@@ -530,7 +530,7 @@ GEOMETRY_KEYWORDS = (
     "DistanceSourceToPatient",
     "DistanceSourceToEntrance",
 )
-"""The attributes of the acquisition geometry, read by ``_geometry_number``."""
+"""The attributes of the acquisition geometry, read by ``_geometry_reading``."""
 
 
 def _geometry_reading(ds: Dataset, keyword: str) -> tuple[float | None, str | None]:
@@ -552,7 +552,7 @@ def _geometry_number(ds: Dataset, keyword: str) -> float | None:
     return _geometry_reading(ds, keyword)[0]
 
 
-def geometry_warnings(ds: Dataset) -> tuple[str, ...]:
+def _geometry_warnings(ds: Dataset) -> tuple[str, ...]:
     """The warnings of the geometry attributes left out (``_geometry_reading``)."""
     readings = (_geometry_reading(ds, keyword)[1] for keyword in GEOMETRY_KEYWORDS)
     return tuple(w for w in readings if w is not None)
@@ -899,6 +899,6 @@ def read_header(source: str | Path | bytes | io.BufferedIOBase | Dataset | Mappi
         view=view,
         acquisition=acquisition,
         sources=sources,
-        warnings=spacing.warnings + geometry_warnings(ds) + orientation_warnings + offset_warnings + film_warnings
+        warnings=spacing.warnings + _geometry_warnings(ds) + orientation_warnings + offset_warnings + film_warnings
         + issuer_warnings,
     )
