@@ -80,6 +80,7 @@ from benches.clinic_films import (
     Series,
     Truth,
     build_payload,
+    centreline_measures,
     seed_of,
     simulate_series,
 )
@@ -91,7 +92,7 @@ from spine_engine.errors import InvalidInput, SpineEngineError
 from spine_engine.fit.uncertainty import PRIOR_ONLY_LENKE, calibration
 from spine_engine.frames import axial_rotation_deg, frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
-from spine_engine.measures import compute_measures, frontal_tilt_deg
+from spine_engine.measures import frontal_tilt_deg
 from spine_engine.models import LANDMARK_SD_MM_DEFAULT
 from spine_engine.reconstruction import register, residual_per_coordinate_mm
 from spine_engine.synthetic import generate_spines
@@ -178,8 +179,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
     out.similarity_error_mm = similarity_difference(r, t)
     out.sagittal_lean_deg = float(out.rotation_error_deg[0])
     # "computed the same way": the measures of the centreline frames of the positions, on both
-    truth_m = compute_measures(t, frames_from_centreline(t))
-    same_m = compute_measures(r, frames_from_centreline(r))
+    truth_m, same_m = centreline_measures(t), centreline_measures(r)
     m = result["measures"]
     pairs = {
         "kyphosis_t4_t12": ("thoracic_kyphosis_t4_t12_deg", "thoracic_kyphosis_t4_t12_sd_deg"),

@@ -29,8 +29,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from spine_engine.frames import frames_from_centreline
 from spine_engine.levels import LEVELS, N_LEVELS
-from spine_engine.models import LATERAL_ORIENTATION, PA_ORIENTATION, Acquisition, JobPayload, LateralView, PAView
+from spine_engine.measures import compute_measures
+from spine_engine.models import (
+    LATERAL_ORIENTATION,
+    PA_ORIENTATION,
+    Acquisition,
+    JobPayload,
+    LateralView,
+    Measures,
+    PAView,
+)
 from spine_engine.projection import image_axes
 
 FloatArray = npt.NDArray[np.float64]
@@ -114,6 +124,14 @@ class Truth:
     axial_rotation_known: bool = True
     """False where the rotations are the centreline's frames only (VerSe gives centroids): their axial
     rotation is a convention, not a measurement, and is not compared."""
+
+
+def centreline_measures(positions: npt.ArrayLike) -> Measures:
+    """The measures of a spine's positions (17, 3) on the frames their centreline puts on them
+    (``frames.frames_from_centreline``): how the benches measure a truth, which has no other frames
+    (VerSe gives centroids), and a result "computed the same way"."""
+    p = np.asarray(positions, dtype=float)
+    return compute_measures(p, frames_from_centreline(p))
 
 
 @dataclass(frozen=True)

@@ -52,10 +52,8 @@ from benches.clinic import (
     synthetic_truths,
     verse_truths,
 )
-from benches.clinic_films import CASES, FloatArray, Truth, build_payload, simulate_series
+from benches.clinic_films import CASES, FloatArray, Truth, build_payload, centreline_measures, simulate_series
 from benches.report import format_table, shared_data_dir, write_json
-from spine_engine.frames import frames_from_centreline
-from spine_engine.measures import compute_measures
 
 TRAIN_SEED = 20_000
 """``generate_spines`` seed of the synthetic training spines: apart from the clinic bench's test (0)
@@ -112,7 +110,7 @@ def film(truths: Sequence[Truth], noise_mm: float, seeds: Sequence[int]) -> Film
         assert payload.pa is not None
         points = np.array([lm.point for lm in payload.pa.landmarks], dtype=float)
         features.append(pa_features(points))
-        m = compute_measures(t.positions, frames_from_centreline(t.positions))
+        m = centreline_measures(t.positions)
         truth.append((m.thoracic_kyphosis_t4_t12_deg, m.lumbar_lordosis_l1_l5_deg))
     return Films(np.array(features), np.array(truth, dtype=float), np.array([t.positions for t in truths]))
 

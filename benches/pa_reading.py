@@ -24,17 +24,16 @@ import argparse
 import datetime as dt
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from benches.clinic import synthetic_truths, truths_of_csv
-from benches.clinic_films import CASES, Truth, build_payload, simulate_series
+from benches.clinic_films import CASES, Truth, build_payload, centreline_measures, simulate_series
 from benches.report import format_table, shared_data_dir, write_json
 from spine_engine.anatomy import load_profile
-from spine_engine.frames import frames_from_centreline
-from spine_engine.measures import compute_measures
 from spine_engine.reconstruction import fit_patient_rod, pa_foreshortening_kyphoses, prepare_inputs, rod_measures
 from spine_engine.sagittal_reading import ReadingModel, chord_inclinations_deg, write_reading_model
 from spine_engine.validation import validate_payload
@@ -78,8 +77,7 @@ def fit_model(truths: Sequence[Truth], weight: float = 0.0, modes: int = MODES) 
 
 def truth_kyphosis(truth: Truth) -> float:
     """Kyphosis T4–T12 of a truth as the clinic bench measures it (its centreline frames), degrees."""
-    measures = compute_measures(truth.positions, frames_from_centreline(truth.positions))
-    return float(measures.thoracic_kyphosis_t4_t12_deg)
+    return float(centreline_measures(truth.positions).thoracic_kyphosis_t4_t12_deg)
 
 
 def readings(truths: Sequence[Truth], models: Sequence[ReadingModel]) -> np.ndarray:
@@ -139,7 +137,7 @@ COBB_BANDS_DEG = ((10.0, 25.0), (25.0, 45.0), (45.0, 90.0))
 
 def major_cobb(truth: Truth) -> float:
     """The major frontal Cobb angle of a truth on its centreline frames (0 without a curve), degrees."""
-    cobb = compute_measures(truth.positions, frames_from_centreline(truth.positions)).cobb
+    cobb = centreline_measures(truth.positions).cobb
     return float(max((c.angle_deg for c in cobb), default=0.0))
 
 
@@ -205,6 +203,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             "date": dt.date.today().isoformat(),
             "weight_table": rows,
         }
-        path = write_reading_model(ReadingModel(**{**model.__dict__, "provenance": provenance}))
+        path = write_reading_model(replace(model, provenance=provenance))
         print(f"wrote {path}")
     return 0

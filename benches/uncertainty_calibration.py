@@ -28,7 +28,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
-from benches.clinic_films import Case, FloatArray, Truth, simulate_series
+from benches.clinic_films import Case, FloatArray, Truth, centreline_measures, simulate_series
 from benches.clinic_films import build_payload as clinic_payload
 from spine_engine.anatomy import load_profile
 from spine_engine.errors import SpineEngineError
@@ -43,8 +43,6 @@ from spine_engine.fit.uncertainty import (
     solution_uncertainty,
     write_calibration,
 )
-from spine_engine.frames import frames_from_centreline
-from spine_engine.measures import compute_measures
 from spine_engine.models import Measures
 from spine_engine.reconstruction import fit_patient_rod, measure_fit, prepare_inputs
 from spine_engine.validation import validate_payload
@@ -150,8 +148,7 @@ def prior_only_readings(samples: Sequence[Sample]) -> dict[str, PriorOnlyReading
     it; {} without samples (``fit.uncertainty.PriorOnlyReading``)."""
     if len(samples) < 3:
         return {}
-    pairs = [(compute_measures(s.truth.positions, frames_from_centreline(s.truth.positions)), s.measures)
-             for s in samples]
+    pairs = [(centreline_measures(s.truth.positions), s.measures) for s in samples]
     values: dict[str, tuple[list[float], list[float]]] = {
         name: ([getattr(t, key) for t, _ in pairs], [getattr(f, key) for _, f in pairs])
         for name, key in PRIOR_ONLY_MEASURES.items()

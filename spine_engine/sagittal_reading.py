@@ -19,8 +19,8 @@ t_T4 − t_T12, and t_T5 − t_T12.
 The fitted rod reads the same foreshortening through its bending prior, whose segments are
 independent, and it may also explain a short chord by turning the frontal curve out of the film's
 plane; a reading held to the population's few sagittal shapes does not (docs/accuracy.md, "One PA
-film"). The model's numbers are VerSe dev's, written with their provenance by ``spine bench prior
---write-reading`` into ``priors/sagittal_reading.json`` (``benches.sagittal_reading``), with ``weight``,
+film"). The model's numbers are VerSe dev's, written with their provenance by ``spine bench pa-reading
+--write`` into ``priors/sagittal_reading.json`` (``benches.pa_reading``), with ``weight``,
 the share of this reading in the film's value of a PA-only kyphosis (the rest the rod's,
 ``reconstruction.measure_fit``).
 """

@@ -72,7 +72,7 @@ import math
 import re
 import string
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import date, timezone
 from pathlib import Path
 from typing import Any, Literal
@@ -696,8 +696,7 @@ def read_spacing(ds: Dataset) -> SpacingReading:
         raise errors[0]
     reading = _spacing_of(ds, ps, ips)
     left_out = tuple(f"{error.message}: left out" for error in errors)
-    return SpacingReading(reading.spacing, reading.calibration, reading.cornerstone_type, reading.source,
-                          left_out + reading.warnings)  # fmt: skip
+    return replace(reading, warnings=left_out + reading.warnings)
 
 
 def _spacing_values(ds: Dataset, keyword: str) -> tuple[tuple[float, ...] | None, InvalidAttribute | None]:

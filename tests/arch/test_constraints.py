@@ -62,11 +62,12 @@ def test_the_venv_holds_what_the_constraints_name() -> None:
         for d in importlib.metadata.distributions()
         if d.metadata["Name"]
     }
+    pinned = constraints()
     differ = {
         name: (version, installed[name])
-        for name, version in constraints().items()
+        for name, version in pinned.items()
         if name in installed and installed[name] != version
     }
     assert not differ, f"installed versions differ from constraints.txt (run `make install`): {differ}"
-    missing = set(constraints()) - set(installed)
+    missing = set(pinned) - set(installed)
     assert not missing, f"constraints.txt names packages the venv lacks (run `make install`): {sorted(missing)}"
