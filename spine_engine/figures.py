@@ -1,8 +1,9 @@
 """Figures of a reconstruction: PA and lateral views with landmarks and residuals, and strains.
 
 ``render_figure(result, payload, fmt)`` is a pure function from a ``RegistrationResult`` dict and
-the ``JobPayload`` dict it came from to the bytes of a PNG or SVG image (matplotlib, Agg; no
-pyplot state, so it is safe in threads). It knows nothing of HTTP.
+the ``JobPayload`` dict it came from to the bytes of a PNG or SVG image. It knows nothing of HTTP.
+This module places what the panels show (projections, landmarks, titles); ``figure_drawing`` draws
+them with matplotlib (Agg; no pyplot state, so it is safe in threads), imported on the first figure.
 
 The figure has four panels:
 
@@ -21,42 +22,20 @@ map, as in Fig. 2 of Li et al. (CAIP 2009). L5 has no segment below it and is dr
 
 from __future__ import annotations
 
-import io
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import numpy as np
-from matplotlib import colormaps, rc_context
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.cm import ScalarMappable
-from matplotlib.collections import LineCollection, PolyCollection
-from matplotlib.colors import Normalize
-from matplotlib.figure import Figure
 
 from .clinical import landmark_arrays
 from .fit import Camera
 from .fit.cameras import project as project_by_camera
-from .levels import LEVEL_INDEX, LEVELS, apex_words
-from .models import LATERAL_ORIENTATION, JobPayload
-from .projection import image_axes, project
+from .models import LATERAL_ORIENTATION, JobPayload, LateralView, PAView
+from .projection import Projector, image_axes, project
 
 FigureFormat = Literal["png", "svg"]
 MEDIA_TYPES: dict[str, str] = {"png": "image/png", "svg": "image/svg+xml"}
-
-BODY_WIDTH = 1.4
-"""Drawn vertebral body width, as a multiple of the segment length (about 36 mm for 26 mm)."""
-BODY_HEIGHT = 0.7
-"""Drawn vertebral body height along d3, as a multiple of the segment length."""
-BENDING_CMAP = "coolwarm"
-
-
-def bending_norm(values: Sequence[float | None]) -> Normalize:
-    """Symmetric colour scale of the frontal bending angles (at least ±1°)."""
-    finite = [abs(v) for v in values if v is not None]
-    limit = max([1.0, *finite])
-    return Normalize(vmin=-limit, vmax=limit)
 
 
 def _detector_mm(view: Any) -> np.ndarray:
@@ -65,8 +44,9 @@ def _detector_mm(view: Any) -> np.ndarray:
     return landmark_arrays(view).points.reshape(-1, 2)
 
 
-Projector = Callable[[np.ndarray], np.ndarray]
-"""Patient points (..., 3), mm → their image (..., 2), detector mm."""
+def _landmarks(view: PAView | LateralView) -> list[tuple[str, np.ndarray]]:
+    """(level, detector mm) of each landmark of ``view`` (``_detector_mm``), as the figure draws them."""
+    return [(lm.level, p) for lm, p in zip(view.landmarks, _detector_mm(view), strict=True)]
 
 
 def view_projection(result: Mapping[str, Any], payload: JobPayload, name: str) -> Projector:
@@ -108,130 +88,12 @@ def model_points(result: Mapping[str, Any], payload: Mapping[str, Any], name: st
     return view_projection(result, JobPayload.model_validate(payload), name)(positions)
 
 
-def _segment_lengths(positions: np.ndarray) -> np.ndarray:
-    gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-    return np.append(gaps, gaps[-1] if gaps.size else 25.0)
-
-
-def _bodies(positions: np.ndarray, directors: np.ndarray, across: int) -> np.ndarray:
-    """(n, 4, 3) corners of each vertebra's box: width along d1 (across=0) or d2 (across=1)."""
-    seg = _segment_lengths(positions)
-    a = directors[:, across, :] * (BODY_WIDTH * seg / 2)[:, None]
-    d = directors[:, 2, :] * (BODY_HEIGHT * seg)[:, None]
-    p = positions
-    return np.stack([p - a, p + a, p + a + d, p - a + d], axis=1)
-
-
-def _draw_view(
-    ax: Axes,
-    *,
-    title: str,
-    positions: np.ndarray,
-    directors: np.ndarray,
-    across: int,
-    projector: Projector,
-    colours: np.ndarray,
-    landmarks: list[tuple[str, np.ndarray]],
-    residuals: Mapping[str, float],
-) -> np.ndarray:
-    """Draw the view; return the model's projected points (``projector`` of ``positions``)."""
-    corners = projector(_bodies(positions, directors, across))
-    ax.add_collection(PolyCollection(list(corners), facecolors=colours, edgecolors="0.25", linewidths=0.6))
-    centre = projector(positions)
-    ax.plot(centre[:, 0], centre[:, 1], "-", color="0.2", linewidth=1.0, label="model (endplate midpoints)")
-    ax.plot(centre[:, 0], centre[:, 1], ".", color="0.2", markersize=3)
-    if landmarks:
-        marks = np.array([p for _, p in landmarks])
-        segments = [[p, centre[LEVEL_INDEX[lv]]] for lv, p in landmarks]
-        ax.add_collection(LineCollection(segments, colors="crimson", linewidths=1.2, label="residual"))
-        ax.plot(marks[:, 0], marks[:, 1], "x", color="black", markersize=5, label="landmark")
-        worst = max(landmarks, key=lambda item: residuals.get(item[0], 0.0))
-        if residuals.get(worst[0], 0.0) > 0:
-            ax.annotate(
-                f"{worst[0]}: {residuals[worst[0]]:.2f} mm",
-                xy=tuple(worst[1]),
-                xytext=(8, 0),
-                textcoords="offset points",
-                fontsize=7,
-                color="crimson",
-                va="center",
-            )
-    for i in (0, len(LEVELS) // 2, len(LEVELS) - 1):
-        if i < len(centre):
-            ax.annotate(LEVELS[i], xy=tuple(centre[i]), xytext=(-30, 0), textcoords="offset points",
-                        fontsize=7, va="center", ha="right")  # fmt: skip
-    ax.set_title(title, fontsize=10, pad=14)  # room for the legend between the title and the plot
-    ax.set_xlabel("column (mm)", fontsize=8)
-    ax.set_ylabel("row (mm)", fontsize=8)
-    ax.tick_params(labelsize=7)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
-    ax.invert_yaxis()
-    # above the plot, under the title: inside, it covered the L5 and worst-residual labels at its foot
-    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=3, fontsize=6, frameon=False, borderaxespad=0.2)
-    return centre
-
-
-def _strain_panel(ax: Axes, levels: list[str], values: np.ndarray, names: Sequence[str], title: str,
-                  ylabel: str) -> None:  # fmt: skip
-    x = np.arange(len(levels))
-    for k, (name, marker) in enumerate(zip(names, "os^", strict=True)):
-        ax.plot(x, values[:, k], marker=marker, markersize=3, linewidth=1.0, label=name)
-    ax.axhline(0.0, color="0.6", linewidth=0.6)
-    ax.set_xticks(x, levels, rotation=90, fontsize=7)
-    ax.tick_params(axis="y", labelsize=7)
-    ax.set_title(title, fontsize=10)
-    ax.set_ylabel(ylabel, fontsize=8)
-    ax.grid(True, linewidth=0.3, alpha=0.6)
-    ax.legend(fontsize=6, frameon=False, ncols=3, loc="upper right")
-
-
-def _with_trust(value: float, sd: float | None, estimate: bool) -> str:
-    """'32.5° ± 2.1°', and ' (model estimate)' when the value comes from the model's prior (fit.unreliable)."""
-    text = f"{value:.1f}°" + (f" ± {sd:.1f}°" if sd is not None else "")
-    return text + (" (model estimate)" if estimate else "")
-
-
 def _depth_note(fit: Mapping[str, Any]) -> str:
     """The lateral projection's second title line when no film places the spine in depth (``fit.unreliable``
     ``depth``): the depths drawn are the population prior's sagittal shape, not a measurement."""
     if "depth" not in set(fit.get("unreliable") or []):
         return ""
     return "\nmodel estimate: no film shows depth"
-
-
-def _strain_note(fit: Mapping[str, Any]) -> str:
-    """The angular strain panel's note naming the components that are model estimates: u1 without depth
-    (``fit.unreliable`` ``depth``), u3 without pedicles (``twist``)."""
-    unreliable = set(fit.get("unreliable") or [])
-    named = [name for name, flag in (("u1", "depth"), ("u3", "twist")) if flag in unreliable]
-    return f" ({' and '.join(named)}: model estimates)" if named else ""
-
-
-def _summary(result: Mapping[str, Any]) -> str:
-    measures = result.get("measures", {})
-    fit = result.get("fit", {})
-    unreliable = set(fit.get("unreliable") or [])
-    parts = []
-    major = next((c for c in measures.get("cobb", []) if c.get("major")), None)
-    if major:
-        angle = _with_trust(major["angle_deg"], major.get("angle_sd_deg"), "cobb" in unreliable)
-        apex = apex_words(major["apex"], bool(major.get("apical_disc")))
-        where = f"{major['upper']}–{major['lower']}, apex {apex}, {major['convexity']}"
-        parts.append(f"major Cobb {angle} ({where})")
-    elif largest := measures.get("largest_cobb"):
-        angle = _with_trust(largest["angle_deg"], largest.get("angle_sd_deg"), "cobb" in unreliable)
-        parts.append(f"no frontal curve of 10°: largest angle {angle} ({largest['upper']}–{largest['lower']})")
-    else:
-        parts.append("no frontal curve")
-    for key, name, flag in (("thoracic_kyphosis_t4_t12", "kyphosis T4–T12", "kyphosis"),
-                            ("lumbar_lordosis_l1_l5", "lordosis L1–L5", "lordosis")):  # fmt: skip
-        if f"{key}_deg" in measures:
-            value = _with_trust(measures[f"{key}_deg"], measures.get(f"{key}_sd_deg"), flag in unreliable)
-            parts.append(f"{name} {value}")
-    if "mean_registration_error_mm" in fit:
-        parts.append(f"mean PA residual {fit['mean_registration_error_mm']:.2f} mm")
-    return parts[0] + "\n" + " · ".join(parts[1:])  # two lines: the title fits the figure's width
 
 
 def render_figure(
@@ -244,82 +106,20 @@ def render_figure(
     """
     if fmt not in MEDIA_TYPES:
         raise ValueError(f"unknown figure format {fmt!r}; expected one of {sorted(MEDIA_TYPES)}")
+    from .figure_drawing import DrawnView, draw_figure  # lazy: matplotlib, a fifth of a process's start, to draw only
+
     model = JobPayload.model_validate(payload)
-    vertebrae = list(result["vertebrae"])
-    levels = [v["level"] for v in vertebrae]
-    positions = np.array([v["position"] for v in vertebrae], dtype=float)
-    directors = np.array([v["directors"] for v in vertebrae], dtype=float)  # rows d1, d2, d3
-    bending = [v.get("frontal_bending_deg", v.get("lateral_bending_deg")) for v in vertebrae]
-    norm = bending_norm(bending)
-    cmap = colormaps[BENDING_CMAP]
-    colours = np.array([cmap(norm(b)) if b is not None else (0.75, 0.75, 0.75, 1.0) for b in bending])
-
     fit = result["fit"]
-    residuals: dict[str, dict[str, float]] = {"pa": {}, "lateral": {}}
-    for r in fit.get("residuals", []):
-        residuals[r["view"]][r["level"]] = float(r["residual_mm"])
-
-    with rc_context({"svg.hashsalt": "spine-figure", "svg.fonttype": "path", "font.family": "DejaVu Sans"}):
-        fig = Figure(figsize=(12.0, 8.0), dpi=dpi, layout="constrained")
-        FigureCanvasAgg(fig)
-        grid = fig.add_gridspec(2, 3, width_ratios=[1.0, 1.0, 1.5])
-        ax_pa = fig.add_subplot(grid[:, 0])
-        ax_lat = fig.add_subplot(grid[:, 1])
-        ax_u = fig.add_subplot(grid[0, 2])
-        ax_v = fig.add_subplot(grid[1, 2])
-
-        pa_proj = fit["pa"]
-        pa_points = _detector_mm(model.pa)
-        pa_centre = _draw_view(
-            ax_pa,
-            title="PA view: landmarks, model and residuals",
-            positions=positions, directors=directors, across=0, projector=view_projection(result, model, "pa"),
-            colours=colours,
-            landmarks=[(lm.level, p) for lm, p in zip(model.pa.landmarks, pa_points, strict=True)],
-            residuals=residuals["pa"],
-        )  # fmt: skip
-
-        lateral = model.lateral
-        lat_proj = fit.get("lateral")
-        if lateral is not None and lateral.landmarks and lat_proj is not None:
-            lat_points = _detector_mm(lateral)
-            _draw_view(
-                ax_lat,
-                title="Lateral view: landmarks, model and residuals",
-                positions=positions, directors=directors, across=1,
-                projector=view_projection(result, model, "lateral"),
-                colours=colours,
-                landmarks=[(lm.level, p) for lm, p in zip(lateral.landmarks, lat_points, strict=True)],
-                residuals=residuals["lateral"],
-            )  # fmt: skip
-        else:
-            e_c, e_r = image_axes(LATERAL_ORIENTATION)
-            scale = float(pa_proj["scale"])  # a point-source PA's: SID/SOD at the spine's mid-plane
-            row = float(np.mean(pa_centre[:, 1]) - scale * np.mean(positions @ e_r))  # the PA panel's mean row
-            _draw_view(
-                ax_lat,
-                title="Lateral projection of the model (anterior right)" + _depth_note(fit),
-                positions=positions, directors=directors, across=1,
-                projector=lambda r: project(r, e_c, e_r, scale, np.array([0.0, row])),
-                colours=colours, landmarks=[], residuals={},
-            )  # fmt: skip
-
-        seg = [v for v in vertebrae if v.get("u") is not None and v.get("v") is not None]
-        seg_levels = [v["level"] for v in seg]
-        u = np.array([v["u"] for v in seg], dtype=float).reshape(-1, 3) * 1e3
-        vv = np.array([v["v"] for v in seg], dtype=float).reshape(-1, 3)
-        _strain_panel(ax_u, seg_levels, u, ("u1 sagittal bending", "u2 frontal bending", "u3 twist"),
-                      "Angular strain u per segment" + _strain_note(fit), "u (10⁻³ rad/mm)")  # fmt: skip
-        _strain_panel(ax_v, seg_levels, vv, ("v1 shear", "v2 shear", "v3 stretch"),
-                      "Linear strain v per segment", "v (dimensionless)")  # fmt: skip
-
-        bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=[ax_pa, ax_lat], location="bottom",
-                           shrink=0.7, pad=0.02)  # fmt: skip
-        bar.set_label("frontal bending u2·Δs of the segment below (degrees); L5 grey", fontsize=8)
-        bar.ax.tick_params(labelsize=7)
-        fig.suptitle(f"Spine reconstruction ({len(levels)} vertebrae) — {_summary(result)}", fontsize=11)
-
-        buffer = io.BytesIO()
-        metadata: dict[str, Any] = {"Date": None} if fmt == "svg" else {"Software": None}
-        fig.savefig(buffer, format=fmt, metadata=metadata)
-    return buffer.getvalue()
+    pa_projector = view_projection(result, model, "pa")
+    pa = DrawnView("PA view: landmarks, model and residuals", pa_projector, _landmarks(model.pa))
+    if model.lateral is not None and model.lateral.landmarks and fit.get("lateral") is not None:
+        lateral = DrawnView("Lateral view: landmarks, model and residuals", view_projection(result, model, "lateral"),
+                            _landmarks(model.lateral))  # fmt: skip
+    else:
+        positions = np.array([v["position"] for v in result["vertebrae"]], dtype=float)
+        e_c, e_r = image_axes(LATERAL_ORIENTATION)
+        scale = float(fit["pa"]["scale"])  # a point-source PA's: SID/SOD at the spine's mid-plane
+        row = float(np.mean(pa_projector(positions)[:, 1]) - scale * np.mean(positions @ e_r))  # the PA's mean row
+        lateral = DrawnView("Lateral projection of the model (anterior right)" + _depth_note(fit),
+                            lambda r: project(r, e_c, e_r, scale, np.array([0.0, row])), [])  # fmt: skip
+    return draw_figure(result, pa, lateral, fmt, dpi=dpi)

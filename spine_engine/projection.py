@@ -7,13 +7,16 @@ and T (2,) the translation in detector mm.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .models import PATIENT_AXES
 
 FloatArray = NDArray[np.float64]
-
+Projector = Callable[[np.ndarray], np.ndarray]
+"""A view's projection: patient points (..., 3), mm → their image (..., 2), detector mm."""
 
 
 def image_axes(orientation: tuple[str, str]) -> tuple[FloatArray, FloatArray]:
