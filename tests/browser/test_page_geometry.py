@@ -162,12 +162,12 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     """A DX film whose header says SID 150 mm (no SOD, no ERMF): named before sending as the service
     names it, nothing sent; "Ignore header geometry" sends it without the header's geometry, and the
     service takes it. A header with its SOD above its SID is named too (it was dropped in silence), and a SID of 0
-    is left out and said."""
+    is left out and said, as is a Pixel Spacing of 0\\0 beside a usable Imager Pixel Spacing."""
     detector = {"ImagerPixelSpacing": [PA_SPACING, PA_SPACING]}  # and no ERMF, SID or SOD but the study's below
     make_dicom(tmp_path / "sid150.dcm", view="pa", spacing=detector, study={"DistanceSourceToDetector": "150"})
     make_dicom(tmp_path / "sod-over-sid.dcm", view="pa", spacing=detector,
                study={"DistanceSourceToDetector": "1000", "DistanceSourceToPatient": "1200"})  # fmt: skip
-    make_dicom(tmp_path / "sid0.dcm", view="pa", spacing=detector,
+    make_dicom(tmp_path / "sid0.dcm", view="pa", spacing={**detector, "PixelSpacing": [0.0, 0.0]},
                study={"DistanceSourceToDetector": "0", "DistanceSourceToPatient": "1600"})  # fmt: skip
     context, page, watch = open_page(browser, f"{live_url}/", api_key)
     open_film(page, "pa", tmp_path / "sid150.dcm")
@@ -211,6 +211,10 @@ def test_a_wrong_header_geometry_is_named_and_can_be_ignored(
     header = page.text_content("#pa-header") or ""
     assert "SID 0" not in header and "SID " not in header.split("SOD 1600 mm")[0], header
     assert "SOD 1600 mm. Distance Source to Detector (0018,1110) 0 is not a distance: left out." in header
+    # and a spacing of 0\0: the Imager Pixel Spacing read, the other named (the service warns of it too)
+    spacing = header.split("Spacing", 1)[1].split("Orientation", 1)[0]
+    assert f"{PA_SPACING}" in spacing, header
+    assert 'Pixel Spacing (0028,0030) "0.0\\0.0" is not two positive numbers: left out.' in spacing, header
     assert not watch.errors, watch.errors
     context.close()
 

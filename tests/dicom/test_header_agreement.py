@@ -64,7 +64,7 @@ const out = JSON.parse(readFileSync(0, "utf8")).map(({ path, role }) => {
   const confirmed = d.spacing.value && view.pixel_spacing === d.spacing.value;
   view.pixel_spacing_calibration = confirmed ? d.spacing.calibration : "unknown";
   view.acquisition = viewAcquisition(d, { imageSize: true, projectionModel: true }, false);
-  return { view, leftOut: d.geometryLeftOut };
+  return { view, leftOut: [...d.geometryLeftOut, ...d.spacingLeftOut] };
 });
 process.stdout.write(JSON.stringify(out));
 """
@@ -167,13 +167,18 @@ def _page_views(tmp_path: Path, films: list[tuple[Path, str]]) -> list[dict[str,
     return views
 
 
-GEOMETRY_TAG = re.compile(r"\((0018,111[04]|0018,1111|0040,0306)\)")
-"""The tag of a geometry attribute (header.py GEOMETRY_KEYWORDS) named in a reader's words."""
+LEFT_OUT_TAG = re.compile(r"\((0018,111[04]|0018,1111|0040,0306|0028,0030|0018,1164)\)")
+"""The tag of a geometry attribute (header.py GEOMETRY_KEYWORDS) or a spacing one (``read_spacing``) named in a
+reader's words."""
 
 
-def _geometry_left_out(messages: list[str]) -> list[str]:
-    """The geometry attributes' tags that the messages name as left out, in order."""
-    return [m[1] for m in (GEOMETRY_TAG.search(w) for w in messages if w.endswith("left out")) if m]
+SPACING_TAGS = ("0028,0030", "0018,1164")
+"""Pixel Spacing and Imager Pixel Spacing."""
+
+
+def _left_out(messages: list[str]) -> list[str]:
+    """The geometry and spacing attributes' tags that the messages name as left out, sorted."""
+    return sorted(m[1] for m in (LEFT_OUT_TAG.search(w) for w in messages if w.endswith("left out")) if m)
 
 
 def _service_view(path: Path, role: str) -> dict[str, Any] | None:
@@ -227,17 +232,21 @@ def readings(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[str, Any, A
 
 
 @pytest.mark.parametrize("case", [c[0] for c in CASES])
-def test_page_and_service_name_the_same_geometry_left_out(case: str, tmp_path: Path,
-                                                          readings: list[tuple[str, Any, Any, Any]]) -> None:
-    """A geometry value that is no distance or ratio is left out by both readers, and both say which: the
-    service in the job's warnings (``dicom.<view>.warnings``), the page in the film's header panel."""
+def test_page_and_service_name_the_same_values_left_out(
+    case: str, tmp_path: Path, readings: list[tuple[str, Any, Any, Any]]
+) -> None:
+    """A geometry value that is no distance or ratio, and a spacing that is not two positive numbers beside a
+    usable one, are left out by both readers, and both say which: the service in the job's warnings
+    (``dicom.<view>.warnings``), the page in the film's header panel (Geometry and Spacing rows)."""
     _, _, kwargs, raw, _ = next(c for c in CASES if c[0] == case)
     page = next(r for r in readings if r[0] == case)[3]
+    page_left_out = _left_out(page["leftOut"])
     try:
         service: tuple[str, ...] = read_header(_film(tmp_path / "film.dcm", kwargs, raw)).warnings
-    except InvalidAttribute:  # the film refused for its spacing (the test above): no geometry is read of it
+    except InvalidAttribute:  # refused for its spacing (the test above), naming it: no geometry is read of it
         service = ()
-    assert _geometry_left_out(page["leftOut"]) == _geometry_left_out(list(service)), (page["leftOut"], service)
+        page_left_out = [tag for tag in page_left_out if tag not in SPACING_TAGS]  # the page asks for a spacing
+    assert page_left_out == _left_out(list(service)), (page["leftOut"], service)
 
 
 @pytest.mark.parametrize("case", [c[0] for c in CASES])

@@ -52,6 +52,8 @@ export interface DicomFilm {
   acquisition: Acquisition;
   /** The header's geometry values left out of `acquisition`, in words (geometryLeftOut). */
   geometryLeftOut: string[];
+  /** The header's spacing attributes left out of `spacing`, in words (spacingLeftOut). */
+  spacingLeftOut: string[];
   orientation: [string, string] | null;
   orientationRaw: string | null;
   study: DicomStudy;
@@ -335,6 +337,25 @@ export function geometryLeftOut(ds: DataSet): string[] {
   return out;
 }
 
+/** The spacing attributes (spine_client/dicom/header.py read_spacing), in words. */
+const SPACING_ATTRIBUTES: [string, string][] = [
+  [tags.pixelSpacing, "Pixel Spacing (0028,0030)"],
+  [tags.imagerPixelSpacing, "Imager Pixel Spacing (0018,1164)"],
+];
+
+/** Each spacing attribute the header gives that is not two positive numbers (`pair`: a writer's "0\0", a
+ * unit in the value), in words: readSpacing reads the other one, as the service does with a warning
+ * (docs/dicom.md, "Pixel spacing"); with neither, the film has no spacing. */
+export function spacingLeftOut(ds: DataSet): string[] {
+  const out: string[] = [];
+  for (const [tag, name] of SPACING_ATTRIBUTES) {
+    const element = ds.elements[tag];
+    if (!element || element.length === 0 || pair(ds, tag) !== null) continue;
+    out.push(`${name} "${(ds.string(tag) ?? "").trim()}" is not two positive numbers: left out`);
+  }
+  return out;
+}
+
 /** DICOM DA (YYYYMMDD) as ISO YYYY-MM-DD, or undefined. */
 export function isoDate(da: string | undefined): string | undefined {
   const m = da?.match(/^(\d{4})(\d{2})(\d{2})$/);
@@ -430,6 +451,7 @@ export function parseFilm(bytes: Uint8Array, name: string): DicomFilm {
     spacingWithoutGeometry: spacingRead({}),
     acquisition,
     geometryLeftOut: geometryLeftOut(ds),
+    spacingLeftOut: spacingLeftOut(ds),
     orientation: readOrientation(orientationRaw ?? undefined),
     orientationRaw,
     study: {

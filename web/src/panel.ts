@@ -630,7 +630,8 @@ export class FilmPanel {
       rows.push(["Study UID", s.study_instance_uid ?? "not given"]);
       rows.push(["Image", `${d.modality ?? "?"} ${d.viewPosition ?? ""} ${d.photometric}, ${d.width} × ${d.height} px`.replace(/\s+/g, " ")]);
       const spacing = filmSpacing(d, this.geometryIgnored());
-      rows.push(["Spacing", `${spacing.explanation} Calibration: ${spacing.calibration}.`]);
+      const spacingLeftOut = d.spacingLeftOut.length ? ` ${d.spacingLeftOut.join("; ")}.` : "";
+      rows.push(["Spacing", `${spacing.explanation} Calibration: ${spacing.calibration}.${spacingLeftOut}`]);
       const stated = d.orientation ? `${d.orientation.join(", ")} (columns toward ${d.orientation[0]}, rows toward ${d.orientation[1]})`
         : `${d.orientationRaw ? `${d.orientationRaw}: not two single directions; ` : "not given; "}taken as ${DEFAULT_ORIENTATION[this.view].join(", ")}`;
       rows.push(["Orientation", `${stated}${this.chosen ? `; sent as ${this.chosen.join(", ")} (set under Orientation)` : ""}`]);
