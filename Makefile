@@ -44,11 +44,12 @@ lint: $(STAMP)
 # (two processes left 45 % of the cores idle). The schemathesis fuzz test gives its 17 operations one
 # node id, which xdist would run once: it runs in a pytest of its own beside them (alone, it kept one
 # core busy and left the other idle for its 40 s), its report printed after theirs; either failing
-# fails the target.
+# fails the target. A shell's background job ignores Ctrl-C, so an interrupt stops it by SIGTERM.
 FUZZ := tests/api/test_fuzz.py
 test: $(STAMP) lint browser pacs node-deps
-	@fuzz_log=$$(mktemp /tmp/spine-fuzz-XXXXXX.log); \
+	@fuzz_log=$$(mktemp /tmp/spine-test-fuzz-XXXXXX.log); \
 	$(BIN)/python -m pytest -ra -p no:cacheprovider $(FUZZ) >"$$fuzz_log" 2>&1 </dev/null & fuzz=$$!; \
+	trap 'kill $$fuzz 2>/dev/null; rm -f "$$fuzz_log"; exit 130' INT TERM; \
 	$(BIN)/python -m pytest -n 3 --dist loadfile -ra --durations=15 --ignore=$(FUZZ); rest=$$?; \
 	wait $$fuzz; fuzzed=$$?; echo "--- $(FUZZ), run beside the tests above (exit $$fuzzed):"; \
 	cat "$$fuzz_log"; rm -f "$$fuzz_log"; [ $$rest = 0 ] && [ $$fuzzed = 0 ]

@@ -11,7 +11,6 @@ per example, the whole module well under a minute on the 2-core CI machine.
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -64,14 +63,14 @@ APP = LazyApp()
 
 
 @pytest.fixture(scope="module", params=["sqlite", "postgresql"])
-def backend(request: pytest.FixtureRequest) -> Iterator[Settings]:
+def backend(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Settings]:
     """Settings of a fresh database of each kind the service runs on: the embedded SQLite, and
     PostgreSQL, whose text and jsonb refuse what SQLite stores (a NUL character)."""
     if request.param == "sqlite":
-        yield Settings(data_dir=Path(tempfile.mkdtemp(prefix="spine-fuzz-")), access_log=False)
+        yield Settings(data_dir=tmp_path_factory.mktemp("fuzz-sqlite"), access_log=False)
         return
     with _postgres_database("fuzz") as url:
-        yield Settings(DATABASE_URL=url, data_dir=Path(tempfile.mkdtemp(prefix="spine-fuzz-")), access_log=False)
+        yield Settings(DATABASE_URL=url, data_dir=tmp_path_factory.mktemp("fuzz-postgresql"), access_log=False)
 SCHEMA = schemathesis.openapi.from_path(ROOT / "openapi.yaml")
 SCHEMA.app = APP
 
