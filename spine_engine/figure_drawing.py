@@ -73,8 +73,9 @@ def _draw_view(
     colours: np.ndarray,
     landmarks: list[tuple[str, np.ndarray]],
     residuals: Mapping[str, float],
-) -> np.ndarray:
-    """Draw the view; return the model's projected points (``projector`` of ``positions``)."""
+) -> None:
+    """Draw the view: the vertebrae as boxes, the model's line through their projected top endplate
+    midpoints, and each landmark with its residual line to the model's point of its level."""
     corners = projector(_bodies(positions, directors, across))
     ax.add_collection(PolyCollection(list(corners), facecolors=colours, edgecolors="0.25", linewidths=0.6))
     centre = projector(positions)
@@ -109,7 +110,6 @@ def _draw_view(
     ax.invert_yaxis()
     # above the plot, under the title: inside, it covered the L5 and worst-residual labels at its foot
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=3, fontsize=6, frameon=False, borderaxespad=0.2)
-    return centre
 
 
 def _strain_panel(ax: Axes, levels: list[str], values: np.ndarray, names: Sequence[str], title: str,
