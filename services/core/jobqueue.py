@@ -15,9 +15,10 @@ import threading
 import uuid
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import closing, contextmanager
-from typing import Any
+from typing import Any, cast
 
 from celery import Celery
+from kombu import Connection
 from kombu.exceptions import ChannelError
 from kombu.transport import redis as kombu_redis
 from redis import exceptions as redis_exceptions
@@ -214,9 +215,26 @@ def enqueue(app: Celery, job_ids: Iterable[uuid.UUID], countdowns_s: Sequence[fl
     return sent
 
 
+@contextmanager
+def broker_connection(app: Celery) -> Iterator[Connection]:
+    """A connection from the app's broker pool (``app.pool``, the one the producers take theirs from),
+    given back after use: the reconciler's looks at the broker every ``SPINE_RECONCILE_INTERVAL_S`` and
+    the metrics' queue depth reuse its sockets, where a new connection each time is a TCP connection to
+    the broker per look (docs/performance.md). A pooled socket the broker closed (a restart) is opened
+    again by its next command (redis-py)."""
+    with app.pool.acquire(block=True) as conn:
+        yield conn
+
+
+def _redis_channel(conn: Connection) -> kombu_redis.Channel:
+    """The default channel of a connection to a Redis broker (``redis``, ``rediss``), with its client."""
+    return cast(kombu_redis.Channel, conn.default_channel)
+
+
 def queue_depth(app: Celery, queue: str) -> int:
-    """Messages waiting in ``queue`` on the broker."""
-    with app.connection_for_read() as conn:
+    """Messages waiting in ``queue`` on the broker, asked on a connection of the app's pool
+    (``broker_connection``)."""
+    with broker_connection(app) as conn:
         try:
             return int(conn.default_channel.queue_declare(queue=queue, passive=True).message_count)
         except ChannelError:  # not declared yet: nothing was ever published to it
@@ -228,8 +246,8 @@ def broker_run_id(app: Celery) -> str | None:
     broker restarts, and with it every message it held may be gone. None for other brokers."""
     if not app.conf.broker_url.startswith(("redis", "rediss")):
         return None
-    with app.connection_for_read() as conn:
-        info = conn.default_channel.client.info("server")
+    with broker_connection(app) as conn:
+        info = _redis_channel(conn).client.info("server")
         return str(info.get("run_id")) if info.get("run_id") else None
 
 
@@ -243,8 +261,8 @@ def claim_broker_restart(app: Celery, queue: str, run_id: str) -> bool:
     Redis ``SET NX`` of ``spine:<queue>:restart:<run_id>`` (expiring after ``RESTART_CLAIM_TTL_S``).
     Every pool process of every worker that looked at the broker before it restarted sees the new run
     id; the one whose claim succeeds publishes every queued job again, the others do not."""
-    with app.connection_for_write() as conn:
-        client = conn.default_channel.client
+    with broker_connection(app) as conn:
+        client = _redis_channel(conn).client
         return bool(client.set(f"spine:{queue}:restart:{run_id}", "1", nx=True, ex=RESTART_CLAIM_TTL_S))
 
 

@@ -11,7 +11,6 @@ import contextlib
 import logging
 import time
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,15 +20,7 @@ from kombu.common import ignore_errors
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery
-from tests.conftest import start_own_redis
 from tools.loadbench import OwnRedis
-
-
-@pytest.fixture
-def own_redis(tmp_path: Path) -> Iterator[OwnRedis]:
-    own = start_own_redis(tmp_path / "redis")
-    yield own
-    own.stop()
 
 
 def _consuming(tmp_path: Path, own_redis: OwnRedis) -> tuple[Connection, Consumer, Message]:

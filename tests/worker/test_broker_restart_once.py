@@ -12,8 +12,6 @@ run id (each pool process holds its own, ``tasks._LAST_RUN_ID``).
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 import redis
@@ -22,24 +20,15 @@ from services.core.config import Settings
 from services.core.jobqueue import claim_broker_restart, make_celery, queue_depth
 from services.db import runs
 from services.db.engine import session_scope
-from services.db.migrate import upgrade
 from services.worker import tasks
 from services.worker.tasks import BrokerRestart, broker_restart, reconcile_once, register_tasks
-from tests.conftest import OwnRedis, queued_job, start_own_redis
+from tests.conftest import queued_job
+from tools.loadbench import OwnRedis
 
 
 @pytest.fixture
-def own_redis(tmp_path: Path) -> Iterator[OwnRedis]:
-    own = start_own_redis(tmp_path / "redis")
-    yield own
-    own.stop()
-
-
-@pytest.fixture
-def settings(tmp_path: Path, fresh_postgres_url: str, own_redis: OwnRedis) -> Settings:
-    made = Settings(DATABASE_URL=fresh_postgres_url, CELERY_BROKER_URL=own_redis.url, data_dir=tmp_path)
-    upgrade(made, quiet=True)
-    return made
+def settings(own_broker_settings: Settings) -> Settings:
+    return own_broker_settings
 
 
 def test_of_the_processes_that_see_a_restart_one_takes_it(settings: Settings, own_redis: OwnRedis) -> None:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import time
 import uuid
-from collections.abc import Iterator
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from services.db.engine import session_scope
 from services.db.migrate import upgrade
 from services.db.models import Job
 from services.worker.tasks import RunLater, execute_job, reconcile_once, register_tasks
-from tests.conftest import fresh_settings, spine_payload, start_own_redis
+from tests.conftest import fresh_settings, spine_payload
 from tests.faults import SkewedClock, db_clock, free_port
 from tests.interop_helpers import wait_until
 from tools.loadbench import OwnRedis
@@ -163,14 +162,6 @@ def test_a_run_published_by_a_worker_whose_clock_is_behind_waits_until_its_job_i
     assert job.started_at is not None and job.started_at >= before + timedelta(seconds=DUE_S)  # not at once
     due = handed_back.enqueued_at  # the hand-back plus DUE_S, on the database's clock
     assert due is not None and before + timedelta(seconds=DUE_S) <= due <= job.started_at
-
-
-@pytest.fixture
-def own_redis(tmp_path: Path) -> Iterator[OwnRedis]:
-    """A throwaway redis-server of the test's own (no persistence: a restart loses every message)."""
-    own = start_own_redis(tmp_path / "redis")
-    yield own
-    own.stop()
 
 
 def test_a_handed_back_job_whose_message_a_broker_restart_lost_runs_once_due(
