@@ -49,7 +49,7 @@ import aiohttp
 import httpx
 from celery import Celery
 
-from services.cli import worker_node_pid
+from services.cli.service_commands import worker_node_pid
 from services.core.config import Settings
 from services.core.jobqueue import make_celery
 from spine_client.landmarks import LEVELS  # the contract's level names (a client's view)
@@ -582,8 +582,9 @@ def spawn(args: argparse.Namespace, log_dir: Path, procs: list[subprocess.Popen[
 def workers_answering(app: Celery, supervisors: Sequence[int], timeout_s: float = 1.0) -> int:
     """How many of the ``spine worker`` processes ``supervisors`` have a Celery node that answers a
     ping on the broker (Celery's remote control): a worker consuming its queue. Other services' workers
-    on the same broker answer too; a node counts when its name's process (``services.cli.worker_node_pid``)
-    is in a supervisor's session (``_start`` gives each its own)."""
+    on the same broker answer too; a node counts when its name's process
+    (``services.cli.service_commands.worker_node_pid``) is in a supervisor's session (``_start`` gives each
+    its own)."""
     sessions = {pid: int(fields[3]) for pid, fields in proc_stats().items()}
     answered = set()
     for reply in app.control.ping(timeout=timeout_s) or []:

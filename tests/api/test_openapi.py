@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from services.cli import openapi_yaml
+from services.cli.service_commands import openapi_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-import services.cli
+import services.cli.service_commands
 from benches.cli import COMMANDS
 
 SPINE = Path(sys.executable).with_name("spine")
@@ -34,7 +34,7 @@ def test_spine_bench_runs_a_bench_outside_the_checkout(tmp_path: Path) -> None:
 def test_spine_bench_without_the_checkout_says_where_to_run_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(services.cli, "BENCHES_DIR", tmp_path / "site-packages" / "benches")
-    assert services.cli.cmd_bench(argparse.Namespace(rest=["paper"])) == 2
+    monkeypatch.setattr(services.cli.service_commands, "BENCHES_DIR", tmp_path / "site-packages" / "benches")
+    assert services.cli.service_commands.cmd_bench(argparse.Namespace(rest=["paper"])) == 2
     err = capsys.readouterr().err
     assert "part of the source repository" in err and "pip install -e ." in err
