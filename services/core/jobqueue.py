@@ -136,7 +136,6 @@ def make_celery(settings: Settings) -> Celery:
         worker_send_task_events=False,
         task_send_sent_event=False,
         enable_utc=True,
-        beat_scheduler="celery.beat:Scheduler",
     )
     return app
 

@@ -18,6 +18,7 @@ from services.core.config import Settings, get_settings
 from services.core.jobqueue import RECONCILE, make_celery
 from services.db.engine import dispose_engines
 from services.worker import tasks
+from services.worker.beat import PromptScheduler
 from services.worker.dicom_tasks import register_dicom_tasks
 from services.worker.heap import freeze_startup_heap
 from services.worker.webhook_tasks import register_webhook_tasks
@@ -60,6 +61,7 @@ tasks.register_tasks(app, settings)
 register_webhook_tasks(app, settings)
 register_dicom_tasks(app, settings)
 app.conf.beat_schedule = beat_schedule(settings)
+app.conf.beat_scheduler = PromptScheduler
 
 
 @worker_process_init.connect
