@@ -21,6 +21,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         from spine_client.cli import main as client_main  # lazy: the client (httpx, its models) only for its commands
 
         return client_main(argv)
-    from services.cli.service_commands import main as service_main  # lazy: the service (SQLAlchemy…) only for its
+    from services.cli.service_commands import main as service_main  # lazy: not for a client command
 
     return service_main(argv)
