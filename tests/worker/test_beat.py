@@ -1,13 +1,13 @@
 """Beat's scheduler (``services.worker.beat.PromptScheduler``) sleeps until the reconciler is due:
 Celery's own woke 10 ms early and then ticked without sleeping until it was due, about 60 ticks a pass.
 
-The real loop of an embedded beat (``celery.beat.Service``) runs for ``RUN_S`` on the worker's app with
-the reconciler every ``INTERVAL_S``; the entries it applies are counted, not sent (no broker needed)."""
+Celery's real beat loop (``celery.beat.Service``) runs for ``RUN_S`` on an app of the service
+(``make_celery``, its embedded broker in the test's folder) with the reconciler every ``INTERVAL_S``;
+the passes are counted, nothing is sent."""
 
 from __future__ import annotations
 
 import itertools
-import os
 import statistics
 import threading
 import time
@@ -31,7 +31,7 @@ def _ticks_and_passes(tmp_path: Path, scheduler_cls: type[beat.Scheduler]) -> tu
     """The ticks of the run, and the time (s, monotonic) of each pass."""
     app = make_celery(Settings(data_dir=tmp_path))
     app.conf.beat_schedule = {"reconcile": {"task": RECONCILE, "schedule": INTERVAL_S}}
-    service = beat.Service(app, scheduler_cls=scheduler_cls, schedule_filename=os.devnull)
+    service = beat.Service(app, scheduler_cls=scheduler_cls, schedule_filename=str(tmp_path / "beat-schedule"))
     scheduler = service.scheduler
     ticks, passes = [0], []
     tick = scheduler.tick
