@@ -66,6 +66,12 @@ def _connections_received(broker_url: str) -> int:
         return int(client.info("stats")["total_connections_received"])
 
 
+def _purge(broker_url: str, queue: str) -> None:
+    """Delete the run's queues (jobs, ``.webhooks``, ``.dicom``) and kombu's bindings of them from Redis."""
+    with redis.Redis.from_url(broker_url) as client:
+        client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
+
+
 def _wait_ready(worker: subprocess.Popen[bytes], log_path: Path, timeout_s: float = 120) -> None:
     """Until Celery's main process logs that it is ready (``celery@… ready.``)."""
     deadline = time.monotonic() + timeout_s
@@ -91,6 +97,7 @@ def idle(args: argparse.Namespace, env: dict[str, str], tmp: Path) -> dict[str, 
         received = _connections_received(args.broker_url) - received - 1  # not the second reading's own
     finally:
         stop_processes([worker])
+        _purge(args.broker_url, env["SPINE_QUEUE_NAME"])
     cpu = sum(by_pid.values())
     print(f"idle worker, {args.idle:g} s, reconciler every {args.reconcile_interval:g} s: CPU {cpu:.2f} s "
           f"({cpu / args.idle:.1%} of a core); broker connections accepted: {received}")  # fmt: skip
@@ -157,9 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             worker_cpu, pg_cpu = cpu_seconds_of(pids) - worker_cpu, server.reading() - pg_cpu
         finally:
             stop_processes([worker])
-            with app.connection_for_write() as conn:
-                client = conn.default_channel.client
-                client.delete(queue, *client.keys(f"{queue}*"), *client.keys(f"_kombu.binding*.{queue}*"))
+            _purge(args.broker_url, queue)
         worker_ms, pg_ms = worker_cpu * 1000 / args.n, pg_cpu * 1000 / args.n
         print(f"{args.n} jobs through Celery ({args.concurrency} pool processes, {args.payload} payload): "
               f"worker CPU {worker_ms:.2f} ms/job, PostgreSQL backends {pg_ms:.2f} ms/job, "
