@@ -60,7 +60,7 @@ def _wait_final(settings: Settings, left: int, timeout_s: float) -> None:
         time.sleep(0.2)
 
 
-def _connections_received(broker_url: str) -> int:
+def connections_received(broker_url: str) -> int:
     """Connections the Redis server accepted since it started (``INFO stats``), this one included."""
     with redis.Redis.from_url(broker_url) as client:
         return int(client.info("stats")["total_connections_received"])
@@ -91,10 +91,10 @@ def idle(args: argparse.Namespace, env: dict[str, str], tmp: Path) -> dict[str, 
     try:
         _wait_ready(worker, log_path)
         pids = [worker.pid, *worker_pids(worker.pid)]
-        by_pid, received = {pid: cpu_seconds_of([pid]) for pid in pids}, _connections_received(args.broker_url)
+        by_pid, received = {pid: cpu_seconds_of([pid]) for pid in pids}, connections_received(args.broker_url)
         time.sleep(args.idle)
         by_pid = {pid: cpu_seconds_of([pid]) - cpu for pid, cpu in by_pid.items()}
-        received = _connections_received(args.broker_url) - received - 1  # not the second reading's own
+        received = connections_received(args.broker_url) - received - 1  # not the second reading's own
     finally:
         stop_processes([worker])
         _purge(args.broker_url, env["SPINE_QUEUE_NAME"])

@@ -9,7 +9,6 @@ counts every connection made to it, and a PostgreSQL database of the test's own.
 from __future__ import annotations
 
 import pytest
-import redis
 
 from services.core.config import Settings
 from services.core.jobqueue import make_celery, queue_depth
@@ -17,6 +16,7 @@ from services.db import runs
 from services.db.engine import session_scope
 from services.worker.tasks import reconcile_once, register_tasks
 from tests.conftest import queued_job
+from tools.celerycost import connections_received
 from tools.loadbench import OwnRedis
 
 PASSES = 5
@@ -27,21 +27,15 @@ def settings(own_broker_settings: Settings) -> Settings:
     return own_broker_settings
 
 
-def _connections_received(url: str) -> int:
-    """Connections the server accepted since it started, this one included."""
-    with redis.Redis.from_url(url) as admin:
-        return int(admin.info("stats")["total_connections_received"])
-
-
 def test_reconciler_passes_open_no_new_broker_connection(settings: Settings, own_redis: OwnRedis) -> None:
     app = make_celery(settings)
     register_tasks(app, settings)
     reconcile_once(settings, app)  # the first pass opens the pool's connection
-    before = _connections_received(own_redis.url)
+    before = connections_received(own_redis.url)
     for _ in range(PASSES):
         reconcile_once(settings, app)
     # the only new one is this test's second look (before: 3 a pass, 15 here)
-    assert _connections_received(own_redis.url) - before == 1
+    assert connections_received(own_redis.url) - before == 1
 
 
 def test_a_pooled_connection_reads_the_broker_again_after_a_restart(settings: Settings, own_redis: OwnRedis) -> None:
