@@ -90,7 +90,7 @@ def worker_argv(concurrency: int, beat: bool, loglevel: str, queue: str) -> list
     if concurrency > 0:
         argv += ["--concurrency", str(concurrency)]
     if beat:
-        argv += ["-B", "--schedule", os.devnull]
+        argv += ["-B"]
     return argv
 
 

@@ -50,7 +50,7 @@ class Serve:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "services.cli", "serve", "--port", str(self.port),
                  *([] if worker else ["--no-worker"])],
-                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True, cwd=data_dir,
             )  # fmt: skip
         self.client = httpx.Client(base_url=self.base, timeout=10)
         deadline = time.monotonic() + 60
@@ -113,6 +113,8 @@ def test_serve_runs_api_and_worker_and_ctrl_c_stops_both(tmp_path: Path) -> None
         time.sleep(0.1)
     assert not _alive(worker), "the worker child outlived spine serve"
     assert (tmp_path / "spine.db").exists() and (tmp_path / "broker.db").exists()
+    # The worker's beat (services.worker.beat) keeps its schedule in memory: no file in the folder it ran in.
+    assert not list(tmp_path.glob("celerybeat-schedule*")), sorted(p.name for p in tmp_path.iterdir())
 
     again = Serve(tmp_path, api_key=serve.api_key, worker=False)  # jobs survive a restart; no key printed again
     assert not KEY.search(again.text())
