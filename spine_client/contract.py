@@ -56,6 +56,7 @@ class Assumption(OpenModel):
         "population_sagittal_shape",
         "full_spine_geometry",
         "population_axial_rotation",
+        "projection_unstated",
     ]
     view: Literal["pa", "lateral"] | None = None
     reason: str

@@ -957,7 +957,7 @@ class ViewProjection(BaseModel):
 
 AssumptionName = Literal[
     "central_ray_at_image_centre", "central_ray_near_landmarks", "magnification_prior", "standing_orientation",
-    "population_sagittal_shape", "full_spine_geometry", "population_axial_rotation",
+    "population_sagittal_shape", "full_spine_geometry", "population_axial_rotation", "projection_unstated",
 ]
 
 
@@ -975,7 +975,10 @@ class Assumption(BaseModel):
         "predict them); full_spine_geometry (projection_model "
         "perspective without SID or SOD: those of full-spine radiography, the spine's distance from the source "
         "under a prior); population_axial_rotation (no pedicles: each vertebra's axial rotation is the "
-        "population's mean given the frontal curves, toward each curve's convexity, with the population's SD)."
+        "population's mean given the frontal curves, toward each curve's convexity, with the population's SD); "
+        "projection_unstated (two films, this one without SID and SOD or projection_model: read in weak "
+        "perspective, with how far it comes from a point source, 1/SOD, read from the two films under a prior "
+        "about the parallel beam, SD that of full-spine radiography's 1/1600 mm⁻¹)."
     )
     view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
     reason: str = Field(description="In plain words: what was missing and what was taken instead.")

@@ -72,11 +72,14 @@ from .fit.uncertainty import (
     calibration,
     reported_uncertainty,
 )
+from .fit.unstated_projection import with_point_source
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
 from .measures import compute_measures, frontal_tilts, lenke_probabilities, lenke_with_kyphoses
 from .models import (
+    FULL_SPINE_SID_MM,
     LANDMARK_SD_MM_DEFAULT,
+    SPINE_TO_DETECTOR_MM,
     Assumption,
     EngineInfo,
     FitReport,
@@ -126,6 +129,9 @@ class ViewSetup:
     pixel_spacing_calibration: str | None
     assumed: tuple[Assumption, ...] = ()
     """What the set-up took because the view did not give it (``FitReport.assumed``)."""
+    projection_unstated: bool = False
+    """A weak perspective the payload did not state (neither SID and SOD nor ``projection_model``): the
+    film may come from a point source (``fit.unstated_projection``)."""
 
 
 @dataclass(frozen=True)
@@ -268,17 +274,19 @@ def make_camera(
         )
         # an assumed SOD sets the scale; an ERMF without SID leaves only the SID assumed
         return camera, ViewSetup("perspective", "prior" if sod_assumed else "acquisition", spc, assumed)
+    unstated = acq is None or acq.projection_model is None
     known = acq.magnification if acq is not None and acq.magnification is not None else calibrated_magnification(view)
     if known is not None:
         values = np.array([known, T0[0], T0[1], 0.0])
         return Camera("weak", values, np.array([False, True, True, rotate])), ViewSetup(
-            "weak_perspective", "acquisition", spc
+            "weak_perspective", "acquisition", spc, projection_unstated=unstated
         )
     prior = PA_MAGNIFICATION_PRIOR if (scale_prior and name == "pa") else None
     camera = Camera("weak", np.array([s0, T0[0], T0[1], 0.0]), np.array([True, True, True, rotate]), scale_prior=prior)
     if prior is None:
-        return camera, ViewSetup("weak_perspective", "estimated", spc)
-    return camera, ViewSetup("weak_perspective", "prior", spc, (_assumption("magnification_prior", name),))
+        return camera, ViewSetup("weak_perspective", "estimated", spc, projection_unstated=unstated)
+    assumed = (_assumption("magnification_prior", name),)
+    return camera, ViewSetup("weak_perspective", "prior", spc, assumed, projection_unstated=unstated)
 
 
 _ASSUMPTION_REASONS = {
@@ -292,6 +300,11 @@ _ASSUMPTION_REASONS = {
     "their SDs are at least the population's, a measure one PA film does not predict is the population's "
     "mean, and the kyphosis is read mostly from how much shorter the PA film shows each segment than the "
     "population's sagittal shapes predict",
+    "projection_unstated": "the film states neither SID and SOD nor projection_model: it is read in weak "
+    "perspective, and how far it comes from a point source (1/SOD) is read from the two films under a prior "
+    "about the parallel beam whose SD is full-spine radiography's 1/1600 mm⁻¹; the spine moves toward the point "
+    "source the films show when it lies 2 SD or more from the parallel beam, and the SDs keep what they cannot "
+    "rule out (send projection_model, or SID and SOD, when known)",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, at the apex about a third of its Cobb angle for a "
     "thoracic apex and a quarter below T11, 0 at its end vertebrae), with the population's SD; T1 and L5 "
@@ -483,6 +496,8 @@ def prepare_inputs(
             scale_source=setup.scale_source,  # type: ignore[arg-type]
             pixel_spacing_calibration=setup.pixel_spacing_calibration,  # type: ignore[arg-type]
         )
+    if len(views) == 2:  # one film leaves its perspective to the prior (fit.unstated_projection)
+        setups = {name: _with_unstated_projection(name, setup) for name, setup in setups.items()}
     pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
     observed_sagittal = np.zeros(len(LEVELS), dtype=bool)
@@ -512,6 +527,13 @@ def prepare_inputs(
         pose_priors=_pose_priors(model, top, bottom, boundary, profile),
         setups=setups,
     )
+
+
+def _with_unstated_projection(name: str, setup: ViewSetup) -> ViewSetup:
+    """``setup`` with the ``projection_unstated`` assumption recorded when its projection is unstated."""
+    if not setup.projection_unstated:
+        return setup
+    return dataclasses.replace(setup, assumed=(*setup.assumed, _assumption("projection_unstated", name)))
 
 
 def frontal_observed_levels(pa_indices: np.ndarray, boundary: str) -> np.ndarray:
@@ -599,7 +621,9 @@ def patient_rest_model(profile: Profile, inputs: RegistrationInputs) -> RestMode
 
 def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solution, RestModel]:
     """Register the patient-scaled generic rod to the landmarks of ``inputs``: the solver's
-    ``Solution`` (optimum, residuals, Jacobian and parameter layout for the Laplace approximation)."""
+    ``Solution`` (optimum, residuals, Jacobian and parameter layout for the Laplace approximation).
+    With two films, a view whose projection the payload did not state gets its perspective η = 1/SOD
+    under a prior (``fit.unstated_projection.with_point_source``)."""
     rest = patient_rest_model(profile, inputs)
     init_r, init_R = initial_configuration(rest.positions, rest.rotations, inputs.views, inputs.top, inputs.bottom)
     exact = inputs.boundary == "given"
@@ -622,10 +646,20 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
 
     pinned = _pa_scale_pinned(inputs.views)
     if pinned is None:
-        return solve(problem(inputs.views), init_r, init_R), rest
-    held = problem(pinned)
-    return linearise(held.with_views(inputs.views), minimise(held, init_r, init_R)), rest
+        solution = solve(problem(inputs.views), init_r, init_R)
+    else:
+        held = problem(pinned)
+        solution = linearise(held.with_views(inputs.views), minimise(held, init_r, init_R))
+    unstated = [name for name, setup in inputs.setups.items() if setup.projection_unstated]
+    if len(inputs.views) == 2 and unstated and solution.output.converged:
+        solution = with_point_source(solution, inputs.views, unstated, params.ds, POINT_SOURCE_ETA_SD).solution
+    return solution, rest
 
+
+POINT_SOURCE_ETA_SD = 1.0 / (FULL_SPINE_SID_MM - SPINE_TO_DETECTOR_MM)
+"""σ_η, 1/mm: the SD of the prior on η = 1/SOD of a film whose projection the payload did not state
+(``fit.unstated_projection``): full-spine radiography's η (SOD 1600 mm, ``models.FULL_SPINE_SID_MM`` less
+``models.SPINE_TO_DETECTOR_MM``) about the parallel beam's 0."""
 
 PINNED_DEPTH_SD_MM = 0.1
 """SD of the depth prior that holds a point-source PA film's spine at its assumed distance from the

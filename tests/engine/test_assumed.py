@@ -71,7 +71,9 @@ def test_a_given_central_ray_wins_and_weak_perspective_ignores_the_size() -> Non
     a, b = register(given), register(sized)
     np.testing.assert_array_equal(_positions(b), _positions(a))
     assert b["fit"]["assumed"] == a["fit"]["assumed"]
-    assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [("magnification_prior", "pa"), NO_PEDICLES]
+    assert [(x["name"], x["view"]) for x in b["fit"]["assumed"]] == [
+        ("magnification_prior", "pa"), ("projection_unstated", "pa"), ("projection_unstated", "lateral"), NO_PEDICLES,
+    ]
 
 
 def test_priors_that_decide_are_named() -> None:
