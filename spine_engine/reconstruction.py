@@ -303,7 +303,7 @@ _ASSUMPTION_REASONS = {
     "projection_unstated": "the film states neither SID and SOD nor projection_model: it is read in weak "
     "perspective, and how far it comes from a point source (1/SOD) is read from the two films under a prior "
     "about the parallel beam whose SD is full-spine radiography's 1/1600 mm⁻¹; the spine moves toward the point "
-    "source the films show when it lies 2 SD or more from the parallel beam, and the SDs keep what they cannot "
+    "source the films show when it lies 2.75 SD or more from the parallel beam, and the SDs keep what they cannot "
     "rule out (send projection_model, or SID and SOD, when known)",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, at the apex about a third of its Cobb angle for a "
