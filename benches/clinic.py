@@ -139,6 +139,8 @@ class Outcome:
     """Mean |truth's axial rotation|: the error of answering 0 (the trivial answer)."""
     runtime_ms: float = float("nan")
     uncertainty_scale: float | None = None
+    landmark_misfit_ratio: float | None = None
+    """``fit.landmark_misfit_ratio``: the Birge ratio B of the image points about the fit."""
     position_z: FloatArray | None = None
     """(17, 3) |error| / SD of each centroid-relative coordinate, or None without SDs."""
     position_sd: FloatArray | None = None
@@ -239,6 +241,7 @@ def compare(result: dict[str, Any], truth: Truth, case: str, runtime_ms: float) 
         safe = np.where(sd > 0, sd, 1.0)
         out.position_z = np.where(sd > 0, np.abs(diff) / safe, np.where(diff == 0, 0.0, np.inf))
     out.uncertainty_scale = result.get("fit", {}).get("uncertainty_scale")
+    out.landmark_misfit_ratio = result.get("fit", {}).get("landmark_misfit_ratio")
     return out
 
 
@@ -430,6 +433,10 @@ def summarise(
     }
     scales = {o.uncertainty_scale for o in ok if o.uncertainty_scale is not None}
     row["uncertainty_scale"] = scales.pop() if len(scales) == 1 else None
+    ratios = [o.landmark_misfit_ratio for o in ok if o.landmark_misfit_ratio is not None]
+    row["landmark_misfit_ratio_median_p90"] = (
+        [round(float(np.median(ratios)), 3), round(float(np.percentile(ratios, 90)), 3)] if ratios else None
+    )
     row["floor_rotation_rms_deg_xyz"] = (
         np.sqrt(np.mean([o.floor_rotation_deg**2 for o in ok], axis=0)).round(3).tolist() if ok else None
     )

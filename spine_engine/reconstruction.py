@@ -884,14 +884,14 @@ LANDMARK_SD_CONTRADICTED = 4.0
 from each landmark to the fitted spine's projection, detector mm), to its landmark SD (stated, else
 ``LANDMARK_SD_MM_DEFAULT``) that a fit takes as consistent with it. Measured with the noise stated as
 drawn (``spine bench clinic --split dev --seeds 3 --noise-mm N``, column "max residual / SD"; 1320 fits
-per N): at most 0.90 in every case at 0.5, 1, 2 and 3 mm, but (h), perspective films read in weak
-perspective, whose misfit of about 1 mm per coordinate reads 2.10 at 0.5 mm and 1.17 at 1 mm; all of
-AASCE training's radiographs at the default SD read at most 0.54 (midpoints) and 0.90 (corners)
-(``spine bench aasce --split training``, column "max_residual_to_sd").
+per N): at most 0.90 in every case at 0.5, 1, 2 and 3 mm ((h), point-source films sent without their
+projection, at most 0.79: ``fit.unstated_projection`` reads their perspective); all of AASCE
+training's radiographs at the default SD read at most 0.54 (midpoints) and 0.90 (corners) (``spine
+bench aasce --split training``, column "max_residual_to_sd").
 Beyond 4 the landmarks contradict the SD: a noise stated ten or a hundred times too small (1 mm stated
 as 0.01 mm reads about 36), clicks no spine passes through, or a geometry the films do not have (a
-lateral ERMF 10–30 % off the PA's scale; films from a point source, not said so, with less than about
-0.25 mm of stated noise)."""
+lateral ERMF 10–30 % off the PA's scale; films from a point source stated as parallel rays,
+``projection_model`` "weak_perspective", with less than about 0.25 mm of stated noise)."""
 
 
 def residual_per_coordinate_mm(distances: Sequence[float] | np.ndarray) -> float:

@@ -7,15 +7,17 @@ perspective is a nuisance parameter η = 1/SOD (1/mm) of the weak camera (``came
     p = T + s Rot(ψ) (q̄ + (q − q̄) / (1 + η z)),   q = E r,  z = b·(r − r̄),
 
 with E = [e_c; e_r] the film's axes, b = e_c × e_r along the beam, r̄ the vertebrae's centre and q̄
-its projection, where the central ray is taken to pass (its offset enters at order η², not here).
-At η = 0 this is the weak camera, and
+its projection, where the central ray is taken to pass (a ray Δ off it adds s Rot(ψ) Δ z η, a
+product of two small unknowns that this linear reading leaves out: about 0.75 mm for Δ = 40 mm,
+z = 30 mm at 1.6 m). At η = 0 this is the weak camera, and
 
     ∂p/∂η |η=0 = −s Rot(ψ) (q − q̄) z,
 
 so a landmark row ρ = c (p − p̂) (c = √w/s₀, ``problem``) gets the column c ∂p/∂η, and an offset
 point's row the column component of it at r_j + R_j o. The prior is η ~ N(0, σ_η²), one prior row
 √(κ/2) η/σ_η per view, with σ_η the η of full-spine radiography's geometry
-(``reconstruction.POINT_SOURCE_ETA_SD``): a parallel beam lies at the prior's mean, a film taken at 1.8 m one SD off.
+(``reconstruction.POINT_SOURCE_ETA_SD``): a parallel beam lies at the prior's mean, a film taken
+at 1.8 m one SD off.
 
 With two films the fit's own unknowns are at their optimum, so one Gauss–Newton step of the problem
 with η added, x ← x − H⁻¹g (g zero but in η, H the Gauss–Newton Hessian of the augmented rows), is
@@ -35,6 +37,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 
 from ..rod import strains
 from ..rotations import exp_so3
@@ -127,16 +130,22 @@ def with_point_source(
     R_j exp(hat δθ_j), every estimated camera parameter plus its share, and in the output the linearised
     problem's residuals ρ + J δx (energies, landmark and offset residuals, tilts) and the strains u, v
     of the stepped configuration over the rod's rest lengths ``ds`` (mm)."""
-    aug = augmented(solution, [view for view in views if view.name in unstated], sd)
+    chosen = [view for view in views if view.name in unstated]
+    if not chosen:
+        return PointSourceStep(solution, np.zeros(0), np.zeros(0), False)
+    aug = augmented(solution, chosen, sd)
     J = aug.jacobian
-    k = len(aug.row_kinds) - len(solution.row_kinds)
-    H = J.T @ J
-    g = np.zeros(J.shape[1])
-    g[-k:] = J[:, -k:].T @ aug.residuals
-    cov = np.linalg.inv(H)
-    dx = -cov @ g
-    eta = dx[-k:]
-    z = eta / np.sqrt(np.diag(cov)[-k:] * 0.5 * float(solution.energy_unit))
+    k = len(chosen)
+    n = J.shape[1]
+    unit = np.zeros((n, k))
+    unit[n - k :, :] = np.eye(k)
+    try:  # only H⁻¹'s last k columns: g is zero but in η
+        cov_eta = cho_solve(cho_factor(J.T @ J, lower=True, check_finite=False), unit, check_finite=False)
+    except np.linalg.LinAlgError:  # a curvature the weak fit's own Laplace step would refuse too
+        return PointSourceStep(solution, np.zeros(k), np.zeros(k), False)
+    dx = -cov_eta @ (J[:, n - k :].T @ aug.residuals)
+    eta = dx[n - k :]
+    z = eta / np.sqrt(np.diag(cov_eta[n - k :]) * 0.5 * float(solution.energy_unit))
     if not np.max(np.abs(z)) >= gate:
         return PointSourceStep(aug, eta, z, False)
     layout = solution.layout
