@@ -496,8 +496,8 @@ def prepare_inputs(
             scale_source=setup.scale_source,  # type: ignore[arg-type]
             pixel_spacing_calibration=setup.pixel_spacing_calibration,  # type: ignore[arg-type]
         )
-    if len(views) == 2:  # one film leaves its perspective to the prior (fit.unstated_projection)
-        setups = {name: _with_unstated_projection(name, setup) for name, setup in setups.items()}
+    read = point_source_views(views, setups)
+    setups = {name: _with_unstated_projection(name, setup) if name in read else setup for name, setup in setups.items()}
     pa = views[0]
     observed, endplates = observed_frontal_tilts(pa_arrays, pa.e_c, pa.e_r)
     observed_sagittal = np.zeros(len(LEVELS), dtype=bool)
@@ -529,10 +529,17 @@ def prepare_inputs(
     )
 
 
+def point_source_views(views: Sequence[ViewData], setups: dict[str, ViewSetup]) -> list[str]:
+    """The views whose point source the fit reads (``fit.unstated_projection``): those whose projection
+    the payload did not state (``ViewSetup.projection_unstated``), when there are two films; one film
+    leaves its perspective to the prior."""
+    if len(views) != 2:
+        return []
+    return [view.name for view in views if setups[view.name].projection_unstated]
+
+
 def _with_unstated_projection(name: str, setup: ViewSetup) -> ViewSetup:
-    """``setup`` with the ``projection_unstated`` assumption recorded when its projection is unstated."""
-    if not setup.projection_unstated:
-        return setup
+    """``setup`` with the ``projection_unstated`` assumption recorded."""
     return dataclasses.replace(setup, assumed=(*setup.assumed, _assumption("projection_unstated", name)))
 
 
@@ -650,8 +657,8 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
     else:
         held = problem(pinned)
         solution = linearise(held.with_views(inputs.views), minimise(held, init_r, init_R))
-    unstated = [name for name, setup in inputs.setups.items() if setup.projection_unstated]
-    if len(inputs.views) == 2 and unstated and solution.output.converged:
+    unstated = point_source_views(inputs.views, inputs.setups)
+    if unstated and solution.output.converged:
         solution = with_point_source(solution, inputs.views, unstated, params.ds, POINT_SOURCE_ETA_SD).solution
     return solution, rest
 

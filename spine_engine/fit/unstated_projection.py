@@ -42,6 +42,7 @@ from scipy.linalg import cho_factor, cho_solve
 from ..rod import strains
 from ..rotations import exp_so3
 from .types import FitOutput, FloatArray, Solution, ViewData
+from .uncertainty import weighted_gram
 
 POINT_SOURCE_GATE = 2.75
 """Smallest |η̂|/SD(η̂), over the views, at which the fit takes the step toward the point source the
@@ -140,7 +141,8 @@ def with_point_source(
     unit = np.zeros((n, k))
     unit[n - k :, :] = np.eye(k)
     try:  # only H⁻¹'s last k columns: g is zero but in η
-        cov_eta = cho_solve(cho_factor(J.T @ J, lower=True, check_finite=False), unit, check_finite=False)
+        H = weighted_gram(J, np.ones(len(J)))
+        cov_eta = cho_solve(cho_factor(H, lower=True, check_finite=False), unit, check_finite=False)
     except np.linalg.LinAlgError:  # a curvature the weak fit's own Laplace step would refuse too
         return PointSourceStep(solution, np.zeros(k), np.zeros(k), False)
     dx = -cov_eta @ (J[:, n - k :].T @ aug.residuals)

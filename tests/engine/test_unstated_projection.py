@@ -19,7 +19,13 @@ from spine_engine.fit.types import Camera, ViewData
 from spine_engine.fit.uncertainty import reported_uncertainty
 from spine_engine.fit.unstated_projection import image_derivative, with_point_source
 from spine_engine.projection import image_axes
-from spine_engine.reconstruction import POINT_SOURCE_ETA_SD, fit_patient_rod, prepare_inputs, rod_parameters
+from spine_engine.reconstruction import (
+    POINT_SOURCE_ETA_SD,
+    fit_patient_rod,
+    point_source_views,
+    prepare_inputs,
+    rod_parameters,
+)
 from spine_engine.validation import validate_payload
 
 
@@ -94,7 +100,7 @@ def test_below_the_gate_the_fit_stays_and_its_sds_keep_the_perspective() -> None
     at least those without it; with the gate at 0 the spine moves and the linearised energy falls."""
     profile = load_profile()
     inputs = prepare_inputs(validate_payload(_case_h(2)["payload"]), profile)
-    unstated = [name for name, setup in inputs.setups.items() if setup.projection_unstated]
+    unstated = point_source_views(inputs.views, inputs.setups)
     assert unstated == ["pa", "lateral"]
     stated = {name: dataclasses.replace(setup, projection_unstated=False) for name, setup in inputs.setups.items()}
     weak, rest = fit_patient_rod(dataclasses.replace(inputs, setups=stated), profile)  # the weak fit alone
