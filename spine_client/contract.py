@@ -48,16 +48,7 @@ class Acquisition(OpenModel):
 class Assumption(OpenModel):
     """A prior or default that decided a number of the result because the input did not give it."""
 
-    name: Literal[
-        "central_ray_at_image_centre",
-        "central_ray_near_landmarks",
-        "magnification_prior",
-        "standing_orientation",
-        "population_sagittal_shape",
-        "full_spine_geometry",
-        "population_axial_rotation",
-        "projection_unstated",
-    ]
+    name: str
     view: Literal["pa", "lateral"] | None = None
     reason: str
 
@@ -201,9 +192,7 @@ class FitReport(OpenModel):
     pa: ViewProjection
     lateral: ViewProjection | None = None
     boundary: Literal["given", "soft", "estimated"] = "given"
-    unreliable: list[
-        Literal["scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"]
-    ] = Field(default_factory=list)
+    unreliable: list[str] = Field(default_factory=list)
     tilt_prior: bool = False
     tilt_residuals: list[TiltResidual] = Field(default_factory=list)
     pedicle_residuals: list[PedicleResidual] = Field(default_factory=list)

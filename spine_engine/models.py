@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 from datetime import date
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -20,6 +20,7 @@ from pydantic import (
     Strict,
     TypeAdapter,
     ValidationError,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -902,6 +903,15 @@ class PedicleResidual(BaseModel):
     residual_mm: float = Field(description="Signed column residual of the pedicle centre, patient mm.")
 
 
+def extensible(values: object) -> WithJsonSchema:
+    """The published schema of an output value whose list grows with the engine (the ``Literal``
+    ``values``): a string with today's values as ``examples``, an "extensible enum" (Zalando RESTful API
+    guidelines, rule 112; its rule 108 asks clients to keep a value they do not know). A JSON ``enum``
+    would have a client generated from today's contract refuse a whole result naming a value a newer
+    engine adds, as ``projection_unstated`` was refused (CHANGELOG). This engine sends only ``values``."""
+    return WithJsonSchema({"type": "string", "examples": list(get_args(values))})
+
+
 Unreliable = Literal[
     "scale", "depth", "kyphosis", "lordosis", "plane_of_max_curvature", "axial_rotation", "twist", "cobb"
 ]
@@ -964,8 +974,9 @@ AssumptionName = Literal[
 class Assumption(BaseModel):
     """A prior or default that decided a number of the result because the input did not give it."""
 
-    name: AssumptionName = Field(
-        description="What was assumed: central_ray_at_image_centre (SID and SOD given without a central ray: "
+    name: Annotated[AssumptionName, extensible(AssumptionName)] = Field(
+        description="What was assumed (an extensible list: a newer service may name others): "
+        "central_ray_at_image_centre (SID and SOD given without a central ray: "
         "the ray is taken at the centre of acquisition.image_size); central_ray_near_landmarks (neither a "
         "central ray nor an image size: a prior holds the ray within 50 mm of the landmarks' centre); "
         "magnification_prior (the PA's magnification from the full-spine prior 1.125 ± 0.035); "
@@ -999,9 +1010,10 @@ class FitReport(BaseModel):
         description="T1 and L5: 'given' (exact, the paper's constraint), 'soft' (given with standard deviations) "
         "or 'estimated' (no boundary: all 17 vertebrae free, gauge fixed as docs/engine.md says).",
     )
-    unreliable: list[Unreliable] = Field(
+    unreliable: list[Annotated[Unreliable, extensible(Unreliable)]] = Field(
         default_factory=list,
-        description="Quantities that come from the model's priors more than from the input (docs/measures.md): "
+        description="An extensible list (a newer service may name others). Quantities that come from the model's "
+        "priors more than from the input (docs/measures.md): "
         "what no view determines, kyphosis or lordosis whenever its SD exceeds half the population's, and 'cobb' "
         "(the frontal Cobb angles: `measures.cobb`, `largest_cobb`, the Lenke curves) when one depends on "
         "levels the PA film's landmarks do not show (two or more in a row without one, or beyond its first or "

@@ -8,7 +8,8 @@ not know (``extra="allow"``), so that a newer service does not break an older cl
 
 Mapping: ``string`` → ``str`` (``format`` uuid → ``uuid.UUID``, date-time → ``datetime``, date →
 ``date``, binary → ``bytes``), ``integer`` → ``int``, ``number`` → ``float``, ``boolean`` → ``bool``,
-``null`` → ``None``, ``enum``/``const`` → ``Literal``, ``array`` → ``list`` (``prefixItems`` →
+``null`` → ``None``, ``enum``/``const`` → ``Literal`` (an extensible enum, a string with ``examples``, is
+``str``: ``spine_engine.models.extensible``), ``array`` → ``list`` (``prefixItems`` →
 ``tuple``), ``object`` → ``dict[str, …]``, ``anyOf`` → a union, ``$ref`` → the model. A property
 not in ``required`` gets the schema's ``default`` (None when it has none).
 """

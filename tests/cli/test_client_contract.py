@@ -16,8 +16,10 @@ import httpx
 import pytest
 import yaml
 
+from benches import clinic, clinic_films
 from spine_client import SpineClient, cli, contract, models
 from spine_client.errors import ServerError, ServiceUnreachable, UnexpectedResponse
+from spine_engine import register
 from tools.client_models import generate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -185,3 +187,26 @@ def test_a_payload_file_that_is_not_utf8_is_a_usage_error(tmp_path: Path, capsys
     bad.write_bytes(b"\xff\xfe{}")
     assert cli.main(["submit", str(bad), "--url", "http://127.0.0.1:9", "--retries", "0"]) == cli.EXIT_USAGE
     assert "is not UTF-8 text" in capsys.readouterr().err
+
+
+def test_a_result_naming_what_a_newer_engine_adds_is_kept_not_refused() -> None:
+    """``fit.assumed[].name`` and ``fit.unreliable`` grow with the engine; published as extensible enums
+    (``spine_engine.models.extensible``), a client generated from today's contract keeps a value it does not
+    know. As JSON enums they had the client refuse the whole job (UnexpectedResponse): a result of two films
+    without their projection, whose ``projection_unstated`` the previous contract did not list, was."""
+    series = clinic_films.simulate_series(clinic.synthetic_truths(1, seed=3)[0], noise_mm=1.0, seed=0)
+    payload = clinic_films.build_payload(series, clinic_films.CASES["h"]).model_dump(mode="json", exclude_none=True)
+    result = register(payload)
+    assert "projection_unstated" in [a["name"] for a in result["fit"]["assumed"]]
+    result["fit"]["assumed"].append({"name": "a_prior_of_a_later_engine", "view": None, "reason": "later"})
+    result["fit"]["unreliable"].append("a_quantity_of_a_later_engine")
+    job = {**_job(), "status": "succeeded", "result": result}
+    transport = httpx.MockTransport(lambda request: httpx.Response(200, json=job))
+    with SpineClient("http://spine.test", transport=transport, retries=0) as client:
+        got = client.get(JOB_ID)
+    assert got.result is not None
+    assert got.result.fit.assumed[-1].name == "a_prior_of_a_later_engine"
+    assert got.result.fit.unreliable[-1] == "a_quantity_of_a_later_engine"
+    growing = SCHEMAS["Assumption"]["properties"]["name"], SCHEMAS["FitReport"]["properties"]["unreliable"]["items"]
+    for schema in growing:
+        assert "enum" not in schema and schema["type"] == "string" and schema["examples"]
