@@ -20,6 +20,7 @@ import copy
 import csv
 import io
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +77,9 @@ def _serve(page: Any, fakes: list[dict[str, Any]]) -> None:
 
 
 def _row(page: Any, text: str) -> Any:
-    return page.locator("#measures tbody tr", has_text=text)
+    """The measures table's row whose head begins with ``text`` (a note, e.g. an assumption's reason, may
+    hold the same words)."""
+    return page.locator("#measures tbody tr", has=page.locator("th", has_text=re.compile("^" + re.escape(text))))
 
 
 def test_cobb_marked_as_model_estimate_and_apical_disc_named(

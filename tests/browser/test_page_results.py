@@ -191,3 +191,41 @@ def test_the_printed_report_waits_for_its_own_jobs_figure(browser: Any, live_url
     assert printed["job"] == second and printed["loaded"] == "true" and printed["src"] != first_src, printed
     assert not watch.errors, watch.errors
     context.close()
+
+
+def test_the_result_says_what_was_assumed_and_a_newer_services_name_as_written(
+    browser: Any, live_url: str, api_key: str
+) -> None:
+    """A real PA-only job, its answer given one more ``fit.assumed`` entry whose name this page does not know,
+    as a newer service may add (an extensible enum; rewritten in Playwright's routing): each entry is a row
+    "Assumed" of the measures table (", PA film" when it concerns the PA) with the service's reason as its
+    note, in the measures CSV too, the unknown name shown as written."""
+    job = run_job(live_url, api_key, {**pa_points_payload(), "study": _study(patient_id="RES-ASSUMED")})
+    later = {"name": "a_prior_of_a_later_engine", "view": None, "reason": "what a later engine assumed"}
+    assumed = [*job["result"]["fit"]["assumed"], later]
+    assert {"standing_orientation", "population_sagittal_shape"} <= {a["name"] for a in assumed}, assumed
+
+    def newer(route: Any) -> None:
+        answer = route.fetch()
+        body = answer.json()
+        body["result"]["fit"]["assumed"].append(later)
+        route.fulfill(response=answer, json=body)
+
+    context, page, watch = open_page(browser, f"{live_url}/", api_key)
+    page.route(re.compile(rf"/v1/jobs/{job['id']}(\?.*)?$"), newer)
+    page.goto(f"{live_url}/#/jobs/{job['id']}")
+    page.wait_for_selector("#job-status[data-status=succeeded]", timeout=90_000)
+    rows = page.locator("#measures tbody tr", has=page.locator("th", has_text=re.compile("^Assumed")))
+    heads = [rows.nth(i).locator("th").text_content() or "" for i in range(rows.count())]
+    assert len(heads) == len(assumed), heads
+    for head, a in zip(heads, assumed, strict=True):
+        film = {"pa": "Assumed, PA film", "lateral": "Assumed, lateral film", None: "Assumed"}[a.get("view")]
+        assert head.startswith(film) and a["reason"] in head, (head, a)
+    assert (rows.nth(len(assumed) - 1).locator("td").text_content() or "").strip() == "a prior of a later engine"
+    with page.expect_download() as info:
+        page.click("#download-measures")
+    csv_rows = list(csv.reader(io.StringIO(Path(info.value.path()).read_bytes().decode("utf-8-sig"))))
+    notes = [r[5] for r in csv_rows if r[0].startswith("Assumed")]
+    assert notes == [a["reason"] for a in assumed], notes
+    assert not watch.errors, watch.errors
+    context.close()

@@ -67,6 +67,19 @@ export interface MeasureRow {
   more?: MeasureRow[];
 }
 
+/** What each of fit.assumed's names says in a few words (spine_engine/models.py `AssumptionName`); its
+ * `reason` says the rest. A name a newer service adds (the list is an extensible enum) is shown as written. */
+const ASSUMED: Record<string, string> = {
+  central_ray_at_image_centre: "central ray at the image's centre",
+  central_ray_near_landmarks: "central ray near the landmarks",
+  magnification_prior: "magnification of full-spine radiography",
+  standing_orientation: "a standing patient facing the detector",
+  population_sagittal_shape: "the population's sagittal shape",
+  full_spine_geometry: "the geometry of full-spine radiography",
+  population_axial_rotation: "the population's axial rotation",
+  projection_unstated: "projection not stated: perspective read from the films",
+};
+
 /** The measures as rows of words (the page's table, the printed report and the CSV share them). */
 export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] {
   const m = result.measures;
@@ -147,6 +160,10 @@ export function measureRows(job: Job, result: RegistrationResult): MeasureRow[] 
   rows.push({ name: "Fit", value: `${f.converged ? "converged" : "did not converge"} in ${f.iterations} iterations, ${num(f.runtime_ms, 0)} ms`, model: false });
   const boundary = { given: "given (fixed)", soft: "given with an uncertainty", estimated: "not given: estimated from the landmarks and the model" }[f.boundary ?? "given"];
   rows.push({ name: "T1 and L5 poses", value: boundary, model: false });
+  for (const a of f.assumed ?? []) {
+    const film = a.view ? `, ${a.view === "pa" ? "PA" : "lateral"} film` : "";
+    rows.push({ name: `Assumed${film}`, value: ASSUMED[a.name] ?? a.name.replaceAll("_", " "), model: false, note: a.reason });
+  }
   const misfit = f.landmark_misfit_ratio;
   if (misfit != null) {
     rows.push({

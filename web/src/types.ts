@@ -152,6 +152,9 @@ export interface RegistrationResult {
     pa: ViewProjection;
     lateral?: ViewProjection | null;
     boundary?: "given" | "soft" | "estimated";
+    /** Each prior or default that decided a number because the input did not give it: its name (an extensible
+     * list: a newer service may name others), the view it concerns and the reason in plain words. */
+    assumed?: { name: string; view?: "pa" | "lateral" | null; reason: string }[];
     /** Quantities from the model's prior: scale, depth, kyphosis, lordosis, plane_of_max_curvature, axial_rotation,
      * twist, cobb (every frontal Cobb angle: measures.cobb, largest_cobb, the Lenke curves). */
     unreliable?: string[];
