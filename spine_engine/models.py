@@ -908,7 +908,10 @@ def extensible(values: object) -> WithJsonSchema:
     ``values``): a string with today's values as ``examples``, an "extensible enum" (Zalando RESTful API
     guidelines, rule 112; its rule 108 asks clients to keep a value they do not know). A JSON ``enum``
     would have a client generated from today's contract refuse a whole result naming a value a newer
-    engine adds, as ``projection_unstated`` was refused (CHANGELOG). This engine sends only ``values``."""
+    engine adds, as ``projection_unstated`` was refused (CHANGELOG). The field is a ``str`` for the same
+    reason on this side: a result a newer engine stored (a rollback, a worker upgraded before the API)
+    is read back with its names kept, where a ``Literal`` made its job and the jobs list answer 500.
+    This engine writes only ``values`` (``reconstruction._assumption``, ``Unreliable``-typed lists)."""
     return WithJsonSchema({"type": "string", "examples": list(get_args(values))})
 
 
@@ -974,7 +977,7 @@ AssumptionName = Literal[
 class Assumption(BaseModel):
     """A prior or default that decided a number of the result because the input did not give it."""
 
-    name: Annotated[AssumptionName, extensible(AssumptionName)] = Field(
+    name: Annotated[str, extensible(AssumptionName)] = Field(
         description="What was assumed (an extensible list: a newer service may name others): "
         "central_ray_at_image_centre (SID and SOD given without a central ray: "
         "the ray is taken at the centre of acquisition.image_size); central_ray_near_landmarks (neither a "
@@ -1010,7 +1013,7 @@ class FitReport(BaseModel):
         description="T1 and L5: 'given' (exact, the paper's constraint), 'soft' (given with standard deviations) "
         "or 'estimated' (no boundary: all 17 vertebrae free, gauge fixed as docs/engine.md says).",
     )
-    unreliable: list[Annotated[Unreliable, extensible(Unreliable)]] = Field(
+    unreliable: list[Annotated[str, extensible(Unreliable)]] = Field(
         default_factory=list,
         description="An extensible list (a newer service may name others). Quantities that come from the model's "
         "priors more than from the input (docs/measures.md): "

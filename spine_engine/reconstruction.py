@@ -81,6 +81,7 @@ from .models import (
     LANDMARK_SD_MM_DEFAULT,
     SPINE_TO_DETECTOR_MM,
     Assumption,
+    AssumptionName,
     EngineInfo,
     FitReport,
     JobPayload,
@@ -289,7 +290,7 @@ def make_camera(
     return camera, ViewSetup("weak_perspective", "prior", spc, assumed, projection_unstated=unstated)
 
 
-_ASSUMPTION_REASONS = {
+_ASSUMPTION_REASONS: dict[AssumptionName, str] = {
     "central_ray_near_landmarks": "SID and SOD were given without a central ray or an image size: the ray was "
     "estimated under a prior within 50 mm (SD) of the landmarks' centre",
     "magnification_prior": "no magnification, geometry or projection was given: the film's magnification "
@@ -312,7 +313,7 @@ _ASSUMPTION_REASONS = {
 }
 
 
-def _assumption(name: str, view: str | None) -> Assumption:
+def _assumption(name: AssumptionName, view: str | None) -> Assumption:
     """The record of a prior that decided a number (``FitReport.assumed``), with its reason in words."""
     return Assumption(name=name, view=view, reason=_ASSUMPTION_REASONS[name])  # type: ignore[arg-type]
 

@@ -189,3 +189,24 @@ def test_the_webhook_data_is_the_jobs_summary(
         for job_id in (done, failed):
             row = get_job(session, uuid.UUID(job_id))
             assert json.loads(Job.summary(row).model_dump_json(exclude_unset=True)) == job_json(row)
+
+
+def test_a_result_a_newer_engine_stored_is_still_served(
+    app_settings: tuple[TestClient, Settings], payload: dict[str, Any], result: dict[str, Any]
+) -> None:
+    """After a rollback (or with a worker upgraded before the API), a stored result may name an assumption or
+    an unreliable quantity this engine does not know: the two lists are extensible enums
+    (``spine_engine.models.extensible``), so the job and the jobs list answer with the names kept, where the
+    stored name used to make both answer 500 (no job lost to a version's list)."""
+    api, settings = app_settings
+    job_id = api.post("/v1/jobs", json=payload).json()["id"]
+    stored = json.loads(json.dumps(result))
+    stored["fit"]["assumed"].append({"name": "a_prior_of_a_later_engine", "view": "pa", "reason": "later"})
+    stored["fit"]["unreliable"].append("a_quantity_of_a_later_engine")
+    _succeed(settings, job_id, stored)
+    read = api.get(f"/v1/jobs/{job_id}")
+    listed = api.get("/v1/jobs")
+    assert read.status_code == 200 and listed.status_code == 200, (read.text, listed.text)
+    for job in (read.json(), listed.json()["jobs"][0]):
+        assert job["result"]["fit"]["assumed"][-1]["name"] == "a_prior_of_a_later_engine"
+        assert job["result"]["fit"]["unreliable"][-1] == "a_quantity_of_a_later_engine"
