@@ -95,7 +95,7 @@ class Boundary(OpenModel):
 class Change(OpenModel):
     """Change"""
 
-    measure: Literal["major_cobb", "minor_cobb", "kyphosis_t4_t12", "lordosis_l1_l5", "apex_axial_rotation"]
+    measure: str
     from_job: uuid.UUID
     to_job: uuid.UUID
     from_date: date

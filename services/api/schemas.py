@@ -5,7 +5,7 @@ from __future__ import annotations
 import uuid
 from collections.abc import Sequence
 from datetime import date, datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -18,7 +18,7 @@ from services.db.models import UtcTimestamp, WebhookDelivery
 from services.dicom.dicomweb import StudyImage
 from services.webhooks.schemas import WebhookDeliveryAttempt
 from spine_client.dicom.merge import DicomProvenance
-from spine_engine.models import RegistrationResult, Study
+from spine_engine.models import RegistrationResult, Study, extensible
 
 JobStatusName = JobStatus
 """The job status of the contract (one enum: ``services.core.status.JobStatus``)."""
@@ -213,7 +213,10 @@ class Visit(BaseModel):
 
 
 class Change(BaseModel):
-    measure: MeasureName
+    measure: Annotated[str, extensible(MeasureName)] = Field(
+        description="The measure compared, a Visit member's name (an extensible list: a newer service may follow "
+        "others)."
+    )
     from_job: uuid.UUID
     to_job: uuid.UUID
     from_date: date
