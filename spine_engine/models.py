@@ -992,7 +992,8 @@ class Assumption(BaseModel):
         "population's mean given the frontal curves, toward each curve's convexity, with the population's SD); "
         "projection_unstated (two films, this one without SID and SOD or projection_model: read in weak "
         "perspective, with how far it comes from a point source, 1/SOD, read from the two films under a prior "
-        "about the parallel beam, SD that of full-spine radiography's 1/1600 mm⁻¹)."
+        "about the parallel beam, SD that of full-spine radiography's 1/1600 mm⁻¹; the reason then says whether "
+        "the films showed a point source that moved the spine, and its 1/SOD as read, with its SD)."
     )
     view: Literal["pa", "lateral"] | None = Field(None, description="The view it concerns, if one.")
     reason: str = Field(description="In plain words: what was missing and what was taken instead.")

@@ -72,7 +72,7 @@ from .fit.uncertainty import (
     calibration,
     reported_uncertainty,
 )
-from .fit.unstated_projection import with_point_source
+from .fit.unstated_projection import POINT_SOURCE_GATE, with_point_source
 from .frames import axial_rotation_deg
 from .levels import LEVEL_INDEX, LEVELS
 from .measures import compute_measures, frontal_tilts, lenke_probabilities, lenke_with_kyphoses
@@ -852,10 +852,28 @@ def _fit_report(
         ),
         uncertainty_scale=None if uncertainty is None else uncertainty.scale,
         landmark_misfit_ratio=None if uncertainty is None else uncertainty.landmark_misfit_ratio,
-        assumed=[a for setup in inputs.setups.values() for a in setup.assumed]
+        assumed=[_with_point_source_found(a, out) for setup in inputs.setups.values() for a in setup.assumed]
         + _sagittal_assumptions(inputs)
         + ([_assumption("population_axial_rotation", None)] if population_axial_rotation else []),
     )
+
+
+def _with_point_source_found(assumption: Assumption, out: FitOutput) -> Assumption:
+    """``projection_unstated``'s record with what the two films showed of its view's point source
+    (``FitOutput.point_source``): |η̂| ± SD as 1/SOD in m⁻¹ (full-spine radiography's SOD of 1600 mm
+    reads 0.62), and whether the spine moved toward it; any other record as it is."""
+    found = out.point_source.get(assumption.view or "") if assumption.name == "projection_unstated" else None
+    if found is None:
+        return assumption
+    read = f"1/SOD read {abs(found.eta_per_mm) * 1e3:.2f} ± {found.sd_per_mm * 1e3:.2f} m⁻¹"
+    typical = f"full-spine radiography's {POINT_SOURCE_ETA_SD * 1e3:.2f} m⁻¹ is SOD {1.0 / POINT_SOURCE_ETA_SD:.0f} mm"
+    words = (
+        f"here the films showed a point source and the spine was moved toward it: {read} ({typical})"
+        if found.stepped
+        else f"here the films showed none that moved the spine: {read}, within {POINT_SOURCE_GATE:g} SD of the "
+        f"parallel beam on both films ({typical})"
+    )
+    return assumption.model_copy(update={"reason": f"{assumption.reason}; {words}"})
 
 
 @functools.cache

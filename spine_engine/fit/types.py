@@ -299,6 +299,21 @@ class FitOutput:
     """Per view name with tilts, (m,) signed angle α from the observed to the model's axis, degrees."""
     cameras: dict[str, np.ndarray] = field(default_factory=dict)
     """Per view name, its camera parameters at the optimum (``Camera``)."""
+    point_source: dict[str, PointSourceReading] = field(default_factory=dict)
+    """Per view whose projection the payload did not state, with two films: the point source the films
+    show (``fit.unstated_projection``)."""
+
+
+class PointSourceReading(NamedTuple):
+    """How far one weak-perspective film comes from a point source, as the two films read it
+    (``fit.unstated_projection``)."""
+
+    eta_per_mm: float
+    """η̂ = 1/SOD (1/mm), its sign the side of the source along e_c × e_r; 0: a parallel beam."""
+    sd_per_mm: float
+    """η̂'s posterior SD (1/mm)."""
+    stepped: bool
+    """Whether the fit moved the spine toward the point source the films show."""
 
 
 class PointRows(NamedTuple):

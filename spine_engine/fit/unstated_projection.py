@@ -41,7 +41,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from ..rod import strains
 from ..rotations import exp_so3
-from .types import FitOutput, FloatArray, Solution, ViewData
+from .types import FitOutput, FloatArray, PointSourceReading, Solution, ViewData
 from .uncertainty import weighted_gram
 
 POINT_SOURCE_GATE = 2.75
@@ -130,7 +130,8 @@ def with_point_source(
     positions r_j + δr_j, rotations
     R_j exp(hat δθ_j), every estimated camera parameter plus its share, and in the output the linearised
     problem's residuals ρ + J δx (energies, landmark and offset residuals, tilts) and the strains u, v
-    of the stepped configuration over the rod's rest lengths ``ds`` (mm)."""
+    of the stepped configuration over the rod's rest lengths ``ds`` (mm). Stepped or not, the output's
+    ``point_source`` holds each view's η̂, its SD and whether the spine moved."""
     chosen = [view for view in views if view.name in unstated]
     if not chosen:
         return PointSourceStep(solution, np.zeros(0), np.zeros(0), False)
@@ -147,9 +148,14 @@ def with_point_source(
         return PointSourceStep(solution, np.zeros(k), np.zeros(k), False)
     dx = -cov_eta @ (J[:, n - k :].T @ aug.residuals)
     eta = dx[n - k :]
-    z = eta / np.sqrt(np.diag(cov_eta[n - k :]) * 0.5 * float(solution.energy_unit))
-    if not np.max(np.abs(z)) >= gate:
-        return PointSourceStep(aug, eta, z, False)
+    eta_sd = np.sqrt(np.diag(cov_eta[n - k :]) * 0.5 * float(solution.energy_unit))
+    z = eta / eta_sd
+    steps = bool(np.max(np.abs(z)) >= gate)
+    readings = {view.name: PointSourceReading(float(e), float(d), steps)
+                for view, e, d in zip(chosen, eta, eta_sd, strict=True)}  # fmt: skip
+    if not steps:
+        read = aug._replace(output=dataclasses.replace(aug.output, point_source=readings))
+        return PointSourceStep(read, eta, z, False)
     layout = solution.layout
     r = aug.positions.copy()
     R = aug.rotations.copy()
@@ -163,7 +169,7 @@ def with_point_source(
         for parameter, column in layout.views.get(view.name, {}).items():
             cameras[view.name][names.index(parameter)] += dx[column]
     residuals = aug.residuals + J @ dx
-    output = _stepped_output(aug, views, r, R, residuals, cameras, ds)
+    output = dataclasses.replace(_stepped_output(aug, views, r, R, residuals, cameras, ds), point_source=readings)
     stepped = aug._replace(positions=r, rotations=R, cameras=cameras, residuals=residuals, x=aug.x + dx, output=output)
     return PointSourceStep(stepped, eta, z, True)
 
