@@ -11,7 +11,7 @@ import io
 import re
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 from page_fixtures import open_page, pa_points_payload, run_job
@@ -20,6 +20,7 @@ from sqlalchemy import select
 from services.core.config import Settings
 from services.db.engine import session_factory
 from services.db.models import Job
+from spine_engine.models import AssumptionName
 
 pytestmark = pytest.mark.browser
 
@@ -229,3 +230,13 @@ def test_the_result_says_what_was_assumed_and_a_newer_services_name_as_written(
     assert notes == [a["reason"] for a in assumed], notes
     assert not watch.errors, watch.errors
     context.close()
+
+
+def test_the_page_has_words_for_every_assumption_the_engine_names() -> None:
+    """The page's few words per ``fit.assumed`` name (web/src/results.ts ``ASSUMED``) cover the engine's
+    ``AssumptionName`` exactly: a name the engine adds gets words, not only its name as written (the page's
+    way with a newer service's name); read from the source, no browser needed."""
+    source = (Path(__file__).resolve().parents[2] / "web" / "src" / "results.ts").read_text(encoding="utf-8")
+    block = re.search(r"const ASSUMED: Record<string, string> = \{(.*?)\n\};", source, re.S)
+    assert block is not None, "web/src/results.ts has no ASSUMED table"
+    assert re.findall(r"^\s*(\w+):", block.group(1), re.M) == list(get_args(AssumptionName))
