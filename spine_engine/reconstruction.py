@@ -660,7 +660,7 @@ def fit_patient_rod(inputs: RegistrationInputs, profile: Profile) -> tuple[Solut
         solution = linearise(held.with_views(inputs.views), minimise(held, init_r, init_R))
     unstated = point_source_views(inputs.views, inputs.setups)
     if unstated and solution.output.converged:
-        solution = with_point_source(solution, inputs.views, unstated, params.ds, POINT_SOURCE_ETA_SD).solution
+        solution = with_point_source(solution, inputs.views, unstated, params.ds, POINT_SOURCE_ETA_SD)
     return solution, rest
 
 

@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
@@ -51,19 +50,6 @@ bench's cases (a) and (b) keep their shape error on VerSe dev and the dev synthe
 bench clinic --split dev``, noise seeds 0–2; at 2 their mean rose by up to 0.01 mm, η's noise moving
 the spine). There, case (h)'s point-source films went from 1.34 to 1.29 mm on VerSe dev and from 1.55
 to 1.32 mm on the synthetic spines (at 2: 1.22 and 1.27 mm; docs/engine.md)."""
-
-
-class PointSourceStep(NamedTuple):
-    """``with_point_source``'s result."""
-
-    solution: Solution
-    """The solution with η's columns and prior rows added, at the stepped configuration when ``stepped``."""
-    eta_per_mm: FloatArray
-    """η̂ per view of ``views`` (1/mm), the step's; 0 means a parallel beam."""
-    eta_z: FloatArray
-    """η̂ / SD(η̂) per view."""
-    stepped: bool
-    """Whether the configuration moved (``POINT_SOURCE_GATE``)."""
 
 
 def image_derivative(points: FloatArray, centre: FloatArray, view: ViewData, camera: FloatArray) -> FloatArray:
@@ -124,17 +110,18 @@ def with_point_source(
     ds: FloatArray,
     sd: float,
     gate: float = POINT_SOURCE_GATE,
-) -> PointSourceStep:
+) -> Solution:
     """``augmented`` with η (prior SD ``sd``, 1/mm) for the views named in ``unstated`` (of the fit's
     ``views``) and, when some |η̂_v|/SD ≥ ``gate``, the Gauss–Newton step δx (module docstring):
     positions r_j + δr_j, rotations
     R_j exp(hat δθ_j), every estimated camera parameter plus its share, and in the output the linearised
     problem's residuals ρ + J δx (energies, landmark and offset residuals, tilts) and the strains u, v
     of the stepped configuration over the rod's rest lengths ``ds`` (mm). Stepped or not, the output's
-    ``point_source`` holds each view's η̂, its SD and whether the spine moved."""
+    ``point_source`` holds each view's η̂, its SD and whether the spine moved; ``solution`` itself when
+    no view is in ``unstated`` or the augmented Hessian is not positive definite."""
     chosen = [view for view in views if view.name in unstated]
     if not chosen:
-        return PointSourceStep(solution, np.zeros(0), np.zeros(0), False)
+        return solution
     aug = augmented(solution, chosen, sd)
     J = aug.jacobian
     k = len(chosen)
@@ -145,17 +132,15 @@ def with_point_source(
         H = weighted_gram(J, np.ones(len(J)))
         cov_eta = cho_solve(cho_factor(H, lower=True, check_finite=False), unit, check_finite=False)
     except np.linalg.LinAlgError:  # a curvature the weak fit's own Laplace step would refuse too
-        return PointSourceStep(solution, np.zeros(k), np.zeros(k), False)
+        return solution
     dx = -cov_eta @ (J[:, n - k :].T @ aug.residuals)
     eta = dx[n - k :]
     eta_sd = np.sqrt(np.diag(cov_eta[n - k :]) * 0.5 * float(solution.energy_unit))
-    z = eta / eta_sd
-    steps = bool(np.max(np.abs(z)) >= gate)
+    steps = bool(np.max(np.abs(eta) / eta_sd) >= gate)
     readings = {view.name: PointSourceReading(float(e), float(d), steps)
                 for view, e, d in zip(chosen, eta, eta_sd, strict=True)}  # fmt: skip
     if not steps:
-        read = aug._replace(output=dataclasses.replace(aug.output, point_source=readings))
-        return PointSourceStep(read, eta, z, False)
+        return aug._replace(output=dataclasses.replace(aug.output, point_source=readings))
     layout = solution.layout
     r = aug.positions.copy()
     R = aug.rotations.copy()
@@ -170,8 +155,7 @@ def with_point_source(
             cameras[view.name][names.index(parameter)] += dx[column]
     residuals = aug.residuals + J @ dx
     output = dataclasses.replace(_stepped_output(aug, views, r, R, residuals, cameras, ds), point_source=readings)
-    stepped = aug._replace(positions=r, rotations=R, cameras=cameras, residuals=residuals, x=aug.x + dx, output=output)
-    return PointSourceStep(stepped, eta, z, True)
+    return aug._replace(positions=r, rotations=R, cameras=cameras, residuals=residuals, x=aug.x + dx, output=output)
 
 
 def _stepped_output(
