@@ -303,9 +303,10 @@ _ASSUMPTION_REASONS: dict[AssumptionName, str] = {
     "population's sagittal shapes predict",
     "projection_unstated": "the film states neither SID and SOD nor projection_model: it is read in weak "
     "perspective, and how far it comes from a point source (1/SOD) is read from the two films under a prior "
-    "about the parallel beam whose SD is full-spine radiography's 1/1600 mm⁻¹; the spine moves toward the point "
-    "source the films show when it lies 2.75 SD or more from the parallel beam, and the SDs keep what they cannot "
-    "rule out (send projection_model, or SID and SOD, when known)",
+    f"about the parallel beam whose SD is full-spine radiography's 1/{FULL_SPINE_SID_MM - SPINE_TO_DETECTOR_MM:g} "
+    f"mm⁻¹; the spine moves toward the point source the films show when it lies {POINT_SOURCE_GATE:g} SD or more "
+    "from the parallel beam, and the SDs keep what they cannot rule out (send projection_model, or SID and SOD, "
+    "when known)",
     "population_axial_rotation": "no pedicles: each vertebra's axial rotation is the population's mean given "
     "the frontal curves (toward each curve's convexity, at the apex about a third of its Cobb angle for a "
     "thoracic apex and a quarter below T11, 0 at its end vertebrae), with the population's SD; T1 and L5 "
